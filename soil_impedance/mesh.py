@@ -1,0 +1,170 @@
+"""Interface meshes: patches of the soil surface under the raft, one node per patch.
+
+A mesh is a set of nodes (x, y) on the plane z = 0 with the area of the patch each node
+stands for. Regular meshes (circle, rectangle) are made of equal square cells of side
+``cell`` on a grid: every node offset is an integer multiple of ``cell``, which the BEM
+exploits (translation invariance: only distinct offsets are computed). A user node list
+has no grid (``cell is None``); its patches are taken as squares of the same area.
+"""
+from __future__ import annotations
+
+import csv
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+class MeshError(ValueError):
+    """An invalid interface mesh input; the message names the input and how to fix it."""
+
+
+@dataclass(frozen=True, eq=False)
+class InterfaceMesh:
+    """Interface nodes and their tributary areas.
+
+    Attributes
+    ----------
+    xy : ndarray, shape (n, 2), m     node coordinates about the raft centre
+    area : ndarray, shape (n,), m^2   tributary (patch) areas
+    cell : float or None, m           side of the square cells of a regular grid mesh
+    kind : str                        "circle", "rectangle" or "nodes"
+    size : tuple                      (radius,) or (lx, ly) for the regular shapes; () otherwise
+    """
+
+    xy: np.ndarray
+    area: np.ndarray
+    cell: float | None = None
+    kind: str = "nodes"
+    size: tuple = ()
+
+    def __post_init__(self):
+        xy = np.asarray(self.xy, dtype=float)
+        area = np.asarray(self.area, dtype=float)
+        if xy.ndim != 2 or xy.shape[1] != 2 or xy.shape[0] == 0:
+            raise MeshError(f"mesh nodes must be an (n, 2) array of x, y with n >= 1, got shape {xy.shape}")
+        if area.shape != (xy.shape[0],):
+            raise MeshError(f"mesh areas must have one value per node ({xy.shape[0]}), got shape {area.shape}")
+        if not np.all(np.isfinite(xy)):
+            raise MeshError("mesh node coordinates must be finite numbers")
+        bad = np.flatnonzero(~(area > 0) | ~np.isfinite(area))
+        if bad.size:
+            raise MeshError(f"mesh node {bad[0]} has area {area[bad[0]]!r}: every tributary area must be > 0")
+        if xy.shape[0] > 1:
+            d = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+            d[np.diag_indices_from(d)] = np.inf
+            i, j = np.unravel_index(np.argmin(d), d.shape)
+            if d[i, j] < 1e-9 * max(1.0, np.abs(xy).max()):
+                raise MeshError(f"mesh nodes {i} and {j} coincide at {tuple(xy[i])}: remove the duplicate")
+        xy.setflags(write=False)
+        area.setflags(write=False)
+        object.__setattr__(self, "xy", xy)
+        object.__setattr__(self, "area", area)
+
+    @property
+    def n(self) -> int:
+        return self.xy.shape[0]
+
+    @property
+    def total_area(self) -> float:
+        return float(self.area.sum())
+
+    @property
+    def radius(self) -> float:
+        """Characteristic half-size R used in a0 = ωR/Vs: the disk radius, the half-width
+        sqrt(lx ly)/2... for rectangles the equivalent-area radius, for node lists the
+        equivalent-area radius sqrt(A/π)."""
+        if self.kind == "circle":
+            return float(self.size[0])
+        return math.sqrt(self.total_area / math.pi)
+
+    @property
+    def patch_half_sides(self) -> np.ndarray:
+        """Half side of the square patch of each node, m: cell/2 on a grid, sqrt(area)/2 otherwise."""
+        if self.cell is not None:
+            return np.full(self.n, 0.5 * self.cell)
+        return 0.5 * np.sqrt(self.area)
+
+    def grid_index(self) -> np.ndarray:
+        """Integer grid coordinates of the nodes, shape (n, 2) (regular meshes only)."""
+        if self.cell is None:
+            raise MeshError("grid_index needs a regular (circle or rectangle) mesh")
+        return np.rint(self.xy / self.cell - 0.5 * self._grid_shift()).astype(int)
+
+    def _grid_shift(self) -> np.ndarray:
+        # offsets of the grid origin: cell centres sit at (i + s) * cell with s in {0, 1/2}
+        frac = self.xy[0] / self.cell - np.floor(self.xy[0] / self.cell)
+        return np.where(np.isclose(frac, 0.5, atol=1e-6), 1.0, 0.0)
+
+
+def _check_size(name: str, value) -> float:
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value) or value <= 0:
+        raise MeshError(f"foundation.{name} = {value!r} must be a positive length in m")
+    return float(value)
+
+
+def circle_mesh(radius: float, element_size: float) -> InterfaceMesh:
+    """Disk of radius R as the square cells (side h) of a grid whose centres fall inside it.
+
+    The grid is centred on the disk (a node at the centre) and the cell side is adjusted
+    to ``element_size`` or slightly less so that the cells' total area equals πR² as
+    closely as the grid allows; each cell keeps its full square area, the staircase
+    boundary being an O(h) error like the piecewise-constant tractions themselves.
+    """
+    radius = _check_size("radius", radius)
+    h = _check_size("element_size", element_size)
+    if h > radius:
+        raise MeshError(f"foundation.element_size = {h} m exceeds the radius {radius} m: "
+                        "use element_size <= radius / 2 (about radius / 9 for the reactor raft)")
+    m = int(math.ceil(radius / h)) + 1
+    i, j = np.meshgrid(np.arange(-m, m + 1), np.arange(-m, m + 1), indexing="ij")
+    inside = (i ** 2 + j ** 2) * h * h <= radius * radius * (1 + 1e-12)
+    xy = np.column_stack([i[inside], j[inside]]).astype(float) * h
+    area = np.full(xy.shape[0], h * h)
+    return InterfaceMesh(xy, area, cell=h, kind="circle", size=(radius,))
+
+
+def rectangle_mesh(lx: float, ly: float, element_size: float) -> InterfaceMesh:
+    """Rectangle lx × ly centred on the origin, as nx × ny equal cells (side close to element_size).
+
+    The cells are square only when lx/nx == ly/ny; otherwise ``cell`` is None and the patches
+    are treated as equal-area squares.
+    """
+    lx, ly = _check_size("lx", lx), _check_size("ly", ly)
+    h = _check_size("element_size", element_size)
+    nx, ny = max(1, round(lx / h)), max(1, round(ly / h))
+    hx, hy = lx / nx, ly / ny
+    x = (np.arange(nx) + 0.5) * hx - lx / 2
+    y = (np.arange(ny) + 0.5) * hy - ly / 2
+    X, Y = np.meshgrid(x, y, indexing="ij")
+    xy = np.column_stack([X.ravel(), Y.ravel()])
+    cell = hx if math.isclose(hx, hy, rel_tol=1e-9) else None
+    return InterfaceMesh(xy, np.full(xy.shape[0], hx * hy), cell=cell, kind="rectangle", size=(lx, ly))
+
+
+def nodes_mesh(xy, area) -> InterfaceMesh:
+    """A user node list with tributary areas (no grid)."""
+    return InterfaceMesh(np.asarray(xy, float), np.asarray(area, float), cell=None, kind="nodes")
+
+
+def read_nodes_csv(path) -> InterfaceMesh:
+    """Read a CSV with header ``x,y,area`` (m, m, m²), one interface node per row."""
+    path = Path(path)
+    if not path.is_file():
+        raise MeshError(f"foundation.file = {str(path)!r}: no such file (paths are relative to the scene file)")
+    with path.open(newline="") as fh:
+        reader = csv.DictReader(fh)
+        header = [h.strip() for h in (reader.fieldnames or [])]
+        if header[:3] != ["x", "y", "area"]:
+            raise MeshError(f"{path}: the CSV header must be 'x,y,area', got {','.join(header)!r}")
+        rows = []
+        for k, row in enumerate(reader, start=2):
+            try:
+                rows.append([float(row[h]) for h in reader.fieldnames[:3]])
+            except (TypeError, ValueError):
+                raise MeshError(f"{path}, line {k}: expected three numbers x, y, area, got {row}") from None
+    if not rows:
+        raise MeshError(f"{path}: the node list is empty; give at least one row x,y,area")
+    data = np.array(rows)
+    return nodes_mesh(data[:, :2], data[:, 2])
