@@ -1,0 +1,112 @@
+"""The ``uplift`` command line.
+
+Exit codes: 0 success; 1 a computation stopped (results written so far, reason printed);
+2 bad input (scene, file, option). Machine-readable output (``--json``) goes to stdout as
+exactly one JSON object; progress and messages go to stderr.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+EXIT_OK, EXIT_FAILED, EXIT_INPUT = 0, 1, 2
+
+
+def default_cache_dir() -> Path:
+    """Impedance/fit cache: $UPLIFT_CACHE, else ~/.cache/uplift."""
+    env = os.environ.get("UPLIFT_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "uplift"
+
+
+def _parser() -> argparse.ArgumentParser:
+    from orchestrator.scene import builtin_scenes
+
+    p = argparse.ArgumentParser(
+        prog="uplift",
+        description="Foundation uplift under earthquake: soil-structure interaction with BEM impedances.",
+        epilog=f"built-in scenes: {', '.join(builtin_scenes())}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    imp = sub.add_parser("impedance", help="soil impedance of the scene's foundation (BEM sweep)",
+                         description="Compute the rigid-raft (6x6) and rigid+gap (6+N) impedance tables of "
+                                     "the scene's foundation over the scene's frequencies.")
+    imp.add_argument("scene", help="scene TOML file or built-in scene name")
+    imp.add_argument("-o", "--output", type=Path, help="write the tables to this HDF5 file")
+    imp.add_argument("--plot", type=Path, help="plot k(a0) and c(a0) of each rigid DOF to this image")
+    imp.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    imp.add_argument("--no-cache", action="store_true", help="recompute even if the sweep is cached")
+    imp.set_defaults(func=cmd_impedance)
+
+    run = sub.add_parser("run", help="run the scene's analyses (time-domain routes)",
+                         description="Run the scene's analyses and write the results (HDF5) and a summary.")
+    run.add_argument("scene", help="scene TOML file or built-in scene name")
+    run.add_argument("-o", "--output", type=Path, default=None,
+                     help="results HDF5 file (default: <scene>_results.h5 in the current directory)")
+    run.add_argument("--route", action="append", dest="routes", metavar="R",
+                     help="route to run (repeatable); default: the scene's [analysis].routes")
+    run.add_argument("--plot-dir", type=Path, default=None, help="write figures to this directory")
+    run.add_argument("--json", action="store_true", help="print one JSON summary object on stdout")
+    run.set_defaults(func=cmd_run)
+    return p
+
+
+def main(argv=None) -> int:
+    args = _parser().parse_args(argv)
+    from orchestrator.errors import UserInputError, ComputationError
+
+    try:
+        return args.func(args)
+    except UserInputError as exc:
+        print(f"uplift: error: {exc}", file=sys.stderr)
+        return EXIT_INPUT
+    except ComputationError as exc:
+        print(f"uplift: stopped: {exc}", file=sys.stderr)
+        return EXIT_FAILED
+
+
+def cmd_impedance(args) -> int:
+    from orchestrator.progress import Progress
+    from orchestrator.scene import load_scene
+    from orchestrator.impedance import rigid_json, scene_impedance
+
+    t0 = time.perf_counter()
+    scene = load_scene(args.scene)
+    tables = scene_impedance(scene, cache_dir=None if args.no_cache else default_cache_dir(),
+                             progress=Progress(f"impedance {scene.name}"))
+    wall = time.perf_counter() - t0
+    if args.output:
+        from orchestrator.impedance import save_tables
+        save_tables(tables, args.output)
+        print(f"wrote {args.output}", file=sys.stderr)
+    if args.plot:
+        from orchestrator.plots import plot_impedance
+        plot_impedance(tables["rigid"], scene, args.plot)
+        print(f"wrote {args.plot}", file=sys.stderr)
+    if args.json:
+        print(json.dumps(rigid_json(tables["rigid"], wall)))
+    else:
+        _print_rigid_summary(tables["rigid"], wall, file=sys.stderr)
+    return EXIT_OK
+
+
+def _print_rigid_summary(table, wall, file):
+    import numpy as np
+
+    diag = np.diagonal(table.matrices, axis1=1, axis2=2)
+    print(f"rigid impedance, {len(table.frequencies_hz)} frequencies, {wall:.2f} s", file=file)
+    print("   f (Hz) " + "".join(f"{d:>24s}" for d in table.dofs), file=file)
+    for f, row in zip(table.frequencies_hz, diag):
+        print(f"{f:9.3f} " + "".join(f"{z.real:12.4e}{z.imag:+12.4e}" for z in row), file=file)
+
+
+def cmd_run(args) -> int:
+    from orchestrator.run import run_scene_cli
+    return run_scene_cli(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

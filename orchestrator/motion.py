@@ -1,0 +1,178 @@
+"""Seismic motions: synthetic spectrum-compatible accelerograms and record readers.
+
+A motion is three components of free-field ground acceleration a_g(t), m/s², sampled at a
+constant step (DESIGN.md §2: vertically incident waves, no kinematic interaction).
+
+Synthetic motions (deterministic for a given seed): a Gaussian white noise under a
+Jennings-type envelope, its Fourier amplitudes corrected iteratively until its 5 %-damped
+response spectrum matches the target design spectrum, then baseline-corrected (linear trend
+final velocity and displacement brought to zero) and scaled to the requested PGA.
+
+RG 1.60 horizontal design spectrum, 5 % damping (US NRC Regulatory Guide 1.60, Table I),
+for a PGA of 1 g: control points A (33 Hz) Sa = 1.0 g, B (9 Hz) 2.61 g, C (2.5 Hz) 3.13 g,
+D (0.25 Hz) Sd = 2.05 × 36 in; log-log linear between points, constant displacement below D.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from orchestrator.spectra import response_spectrum
+
+G = 9.81
+_IN = 0.0254
+
+
+class MotionError(ValueError):
+    """An invalid motion input; the message names the input and how to fix it."""
+
+
+@dataclass(frozen=True, eq=False)
+class Motion:
+    """Ground acceleration, shape (nt, 3), m/s², components x, y, z, step dt (s)."""
+
+    dt: float
+    acc: np.ndarray
+    label: str = "motion"
+
+    @property
+    def time(self) -> np.ndarray:
+        return np.arange(self.acc.shape[0]) * self.dt
+
+    @property
+    def duration(self) -> float:
+        return (self.acc.shape[0] - 1) * self.dt
+
+    @property
+    def pga(self) -> np.ndarray:
+        """Peak ground acceleration per component, m/s²."""
+        return np.abs(self.acc).max(axis=0)
+
+    def resampled(self, dt: float) -> "Motion":
+        """Linear interpolation onto a new step (the input is piecewise linear)."""
+        t_new = np.arange(0.0, self.duration + 1e-12, dt)
+        acc = np.column_stack([np.interp(t_new, self.time, self.acc[:, k]) for k in range(3)])
+        return Motion(dt, acc, self.label)
+
+
+def rg160_psa(freq_hz, pga: float = 1.0):
+    """RG 1.60 horizontal 5 %-damped pseudo-acceleration, same unit as pga (see module doc)."""
+    f = np.asarray(freq_hz, float)
+    sd_d = 2.05 * 36 * _IN * pga / G          # Sd at D per unit of pga expressed in g·(m/s²)/G
+    psa_d = (2 * np.pi * 0.25) ** 2 * sd_d
+    pts_f = np.array([0.25, 2.5, 9.0, 33.0])
+    pts_a = np.array([psa_d, 3.13 * pga, 2.61 * pga, 1.0 * pga])
+    out = np.exp(np.interp(np.log(f), np.log(pts_f), np.log(pts_a)))
+    out = np.where(f < 0.25, psa_d * (f / 0.25) ** 2, out)
+    return np.where(f > 33.0, pga, out)
+
+
+def _envelope(t, duration):
+    """Jennings envelope: quadratic rise (first 15 %), strong phase, exponential decay (last 40 %)."""
+    t1, t2 = 0.15 * duration, 0.6 * duration
+    env = np.ones_like(t)
+    env[t < t1] = (t[t < t1] / t1) ** 2
+    late = t > t2
+    env[late] = np.exp(-3.0 * (t[late] - t2) / (duration - t2))
+    return env
+
+
+def _baseline(acc, dt, env):
+    """Baseline correction: subtract (c0 + c1 t) env(t), with c0, c1 chosen so that the final
+    ground velocity and displacement are zero; the quiet start stays quiet."""
+    t = np.arange(acc.size) * dt
+    T = t[-1]
+
+    def final_vd(a):  # trapezoidal velocity and displacement at the end
+        v = np.concatenate([[0.0], np.cumsum(0.5 * (a[1:] + a[:-1]) * dt)])
+        return np.array([v[-1], np.trapezoid(v, dx=dt) if hasattr(np, "trapezoid") else np.trapz(v, dx=dt)])
+
+    basis = np.column_stack([final_vd(env), final_vd(t / T * env)])
+    c = np.linalg.solve(basis, final_vd(acc))
+    return acc - (c[0] + c[1] * t / T) * env
+
+
+def synthetic_motion(pga_g: float = 0.25, duration_s: float = 10.0, dt: float = 0.005, seed: int = 1,
+                     spectrum: str = "RG1.60", iterations: int = 8, direction="x") -> Motion:
+    """Spectrum-compatible synthetic accelerogram (deterministic for a seed).
+
+    Returns a Motion whose ``direction`` component ("x", "y" or "z") carries the record.
+    """
+    if spectrum != "RG1.60":
+        raise MotionError(f"motion.spectrum = {spectrum!r}: only \"RG1.60\" is available")
+    if not (pga_g > 0) or not (duration_s > 0) or not (dt > 0) or duration_s < 20 * dt:
+        raise MotionError("motion: pga_g, duration_s and dt must be > 0, duration_s >= 20 dt")
+    n = int(round(duration_s / dt)) + 1
+    t = np.arange(n) * dt
+    env = _envelope(t, duration_s)
+    rng = np.random.default_rng(seed)
+    acc = rng.standard_normal(n) * env
+    freqs = np.fft.rfftfreq(n, dt)
+    f_ctrl = np.geomspace(0.2, min(33.0, 0.4 / dt), 60)
+    target = rg160_psa(f_ctrl, pga_g * G)
+    for _ in range(iterations):
+        spec = response_spectrum(acc, dt, 1.0 / f_ctrl, 0.05)
+        ratio = target / spec.psa
+        corr = np.interp(freqs, f_ctrl, ratio, left=ratio[0], right=ratio[-1])
+        acc = np.fft.irfft(np.fft.rfft(acc) * corr, n) * env
+    acc = _baseline(acc, dt, env)
+    acc *= pga_g * G / np.abs(acc).max()
+    axis = _axis(direction)
+    out = np.zeros((n, 3))
+    out[:, axis] = acc
+    return Motion(dt, out, f"synthetic {spectrum} {pga_g:g} g seed {seed}")
+
+
+def _axis(direction) -> int:
+    if direction not in ("x", "y", "z"):
+        raise MotionError(f"motion.direction = {direction!r}: use \"x\", \"y\" or \"z\"")
+    return "xyz".index(direction)
+
+
+def read_record(path, fmt: str = "two-column", units: str = "g", scale: float = 1.0, direction="x") -> Motion:
+    """Read an accelerogram: PEER NGA ``.AT2`` or two-column text (time, acceleration).
+
+    units: "g" or "m/s2"; scale multiplies the record; the record goes on ``direction``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise MotionError(f"motion.file = {str(path)!r}: no such file (paths are relative to the scene file)")
+    if units not in ("g", "m/s2"):
+        raise MotionError(f"motion.units = {units!r}: use \"g\" or \"m/s2\"")
+    if fmt == "peer-at2":
+        dt, acc = _read_at2(path)
+    elif fmt == "two-column":
+        try:
+            data = np.loadtxt(path, ndmin=2)
+        except ValueError as exc:
+            raise MotionError(f"{path}: not a two-column numeric file (time, acceleration): {exc}") from None
+        if data.shape[1] != 2 or data.shape[0] < 2:
+            raise MotionError(f"{path}: expected two columns (time, acceleration), got shape {data.shape}")
+        steps = np.diff(data[:, 0])
+        if np.any(steps <= 0) or np.ptp(steps) > 1e-6 * steps.mean():
+            raise MotionError(f"{path}: time column must increase with a constant step")
+        dt, acc = float(steps.mean()), data[:, 1]
+    else:
+        raise MotionError(f"motion.format = {fmt!r}: use \"peer-at2\" or \"two-column\"")
+    acc = acc * scale * (G if units == "g" else 1.0)
+    out = np.zeros((acc.size, 3))
+    out[:, _axis(direction)] = acc
+    return Motion(dt, out, f"{path.name} x{scale:g}")
+
+
+def _read_at2(path):
+    lines = path.read_text().splitlines()
+    if len(lines) < 5:
+        raise MotionError(f"{path}: too short for a PEER AT2 file (4 header lines then data)")
+    header = lines[3].replace(",", " ").upper().split()
+    try:
+        npts = int(float(header[header.index("NPTS=") + 1])) if "NPTS=" in header else int(float(header[0]))
+        dt = float(header[header.index("DT=") + 1]) if "DT=" in header else float(header[1])
+        values = np.array(" ".join(lines[4:]).split(), float)
+    except (ValueError, IndexError):
+        raise MotionError(f"{path}: cannot read NPTS and DT on line 4 of the PEER AT2 header") from None
+    if values.size < npts:
+        raise MotionError(f"{path}: header says NPTS = {npts} but {values.size} values follow")
+    return dt, values[:npts]

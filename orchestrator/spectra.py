@@ -1,0 +1,97 @@
+"""Response spectra by the Nigam-Jennings recurrence (exact for piecewise-linear input).
+
+For a unit-mass oscillator ü + 2ζω u̇ + ω² u = −a_g(t), the state (u, u̇) at t_{n+1} follows
+from the state at t_n and the two input samples exactly when a_g is linear over the step
+(Nigam & Jennings 1969; coefficients as in Chopra, Dynamics of Structures, Table 5.2.1).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Spectrum:
+    """Response spectrum at one damping ratio.
+
+    periods : (P,) s; sd : (P,) m; psv : (P,) m/s = ω sd; psa : (P,) m/s² = ω² sd;
+    sa : (P,) m/s² peak absolute acceleration.
+    """
+
+    periods: np.ndarray
+    damping: float
+    sd: np.ndarray
+    psv: np.ndarray
+    psa: np.ndarray
+    sa: np.ndarray
+
+    @property
+    def frequencies(self) -> np.ndarray:
+        return 1.0 / self.periods
+
+
+def _coefficients(omega, zeta, dt):
+    """Recurrence matrices so that [u, v]_{n+1} = A [u, v]_n + B0 p_n + B1 p_{n+1}, p = −a_g."""
+    wd = omega * np.sqrt(1.0 - zeta ** 2)
+    e = np.exp(-zeta * omega * dt)
+    s, c = np.sin(wd * dt), np.cos(wd * dt)
+    r = zeta / np.sqrt(1.0 - zeta ** 2)
+    k = omega ** 2
+    a11 = e * (r * s + c)
+    a12 = e * s / wd
+    a21 = -e * omega / np.sqrt(1.0 - zeta ** 2) * s
+    a22 = e * (c - r * s)
+    b0u = (2 * zeta / (omega * dt) + e * (((1 - 2 * zeta ** 2) / (wd * dt) - r) * s
+                                           - (1 + 2 * zeta / (omega * dt)) * c)) / k
+    b1u = (1 - 2 * zeta / (omega * dt) + e * ((2 * zeta ** 2 - 1) / (wd * dt) * s
+                                               + 2 * zeta / (omega * dt) * c)) / k
+    b0v = (-1.0 / dt + e * ((omega / np.sqrt(1 - zeta ** 2) + r / dt) * s + c / dt)) / k
+    b1v = (1.0 - e * (r * s + c)) / (k * dt)
+    return a11, a12, a21, a22, b0u, b1u, b0v, b1v
+
+
+def response_spectrum(acc, dt: float, periods, damping: float = 0.05) -> Spectrum:
+    """Response spectrum of an acceleration history.
+
+    Parameters
+    ----------
+    acc : array, shape (nt,), m/s² (any consistent unit: sd then scales with it)
+    dt : float, s          sampling step (the input is linear between samples)
+    periods : array, (P,) s, > 0
+    damping : float        ratio of critical damping, in [0, 1)
+    """
+    acc = np.asarray(acc, float)
+    periods = np.asarray(periods, float)
+    if acc.ndim != 1 or acc.size < 2:
+        raise ValueError("response_spectrum: acc must be a 1-D history with at least 2 samples")
+    if np.any(periods <= 0) or not (0.0 <= damping < 1.0) or dt <= 0:
+        raise ValueError("response_spectrum: periods and dt must be > 0 and damping in [0, 1)")
+    omega = 2 * np.pi / periods
+    a11, a12, a21, a22, b0u, b1u, b0v, b1v = _coefficients(omega, damping, dt)
+    u = np.zeros_like(omega)
+    v = np.zeros_like(omega)
+    umax = np.zeros_like(omega)
+    amax = np.zeros_like(omega)
+    p = -acc
+    for n in range(acc.size - 1):
+        u, v = (a11 * u + a12 * v + b0u * p[n] + b1u * p[n + 1],
+                a21 * u + a22 * v + b0v * p[n] + b1v * p[n + 1])
+        np.maximum(umax, np.abs(u), out=umax)
+        np.maximum(amax, np.abs(2 * damping * omega * v + omega ** 2 * u), out=amax)
+    return Spectrum(periods, damping, umax, omega * umax, omega ** 2 * umax, amax)
+
+
+def broaden(freqs, values, ratio: float = 0.15):
+    """Peak broadening of a floor spectrum by ±ratio in frequency (envelope of the shifted curves).
+
+    freqs : (P,) increasing, Hz; values : (P,) spectrum ordinates.
+    """
+    freqs = np.asarray(freqs, float)
+    values = np.asarray(values, float)
+    out = values.copy()
+    # each ordinate S(f_k) is spread over [f_k (1 - ratio), f_k (1 + ratio)]
+    for k in range(freqs.size):
+        window = (freqs >= freqs[k] * (1 - ratio)) & (freqs <= freqs[k] * (1 + ratio))
+        out[window] = np.maximum(out[window], values[k])
+    return out
