@@ -35,7 +35,9 @@ def _parser() -> argparse.ArgumentParser:
                          description="Compute the rigid-raft (6x6) and rigid+gap (6+N) impedance tables of "
                                      "the scene's foundation over the scene's frequencies.")
     imp.add_argument("scene", help="scene TOML file or built-in scene name")
-    imp.add_argument("-o", "--output", type=Path, help="write the tables to this HDF5 file")
+    imp.add_argument("-o", "--output", type=Path, help="write the rigid 6x6 table to this HDF5 file")
+    imp.add_argument("--gap", type=Path, metavar="FILE",
+                     help="also compute the rigid + N vertical gap DOFs table (6+N) and write it here")
     imp.add_argument("--plot", type=Path, help="plot k(a0) and c(a0) of each rigid DOF to this image")
     imp.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     imp.add_argument("--no-cache", action="store_true", help="recompute even if the sweep is cached")
@@ -75,22 +77,28 @@ def cmd_impedance(args) -> int:
 
     t0 = time.perf_counter()
     scene = load_scene(args.scene)
-    tables = scene_impedance(scene, cache_dir=None if args.no_cache else default_cache_dir(),
-                             progress=Progress(f"impedance {scene.name}"))
+    cache = None if args.no_cache else default_cache_dir()
+    outputs = ("rigid", "gap") if args.gap else ("rigid",)
+    tables = scene_impedance(scene, outputs, cache_dir=cache, progress=_hz(Progress(f"impedance {scene.name}")))
     wall = time.perf_counter() - t0
-    if args.output:
-        from orchestrator.impedance import save_tables
-        save_tables(tables, args.output)
-        print(f"wrote {args.output}", file=sys.stderr)
+    for name, path in (("rigid", args.output), ("gap", args.gap)):
+        if path:
+            tables[name].save(path)
+            print(f"wrote {path} ({name} table)", file=sys.stderr)
     if args.plot:
+        from orchestrator.impedance import scene_static
         from orchestrator.plots import plot_impedance
-        plot_impedance(tables["rigid"], scene, args.plot)
+        plot_impedance(tables["rigid"], scene, args.plot, static=scene_static(scene, cache_dir=cache))
         print(f"wrote {args.plot}", file=sys.stderr)
     if args.json:
         print(json.dumps(rigid_json(tables["rigid"], wall)))
     else:
         _print_rigid_summary(tables["rigid"], wall, file=sys.stderr)
     return EXIT_OK
+
+
+def _hz(bar):
+    return lambda done, total, f_hz: bar(done, total, f"{f_hz:.3g} Hz")
 
 
 def _print_rigid_summary(table, wall, file):

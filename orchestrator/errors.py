@@ -1,10 +1,17 @@
-"""Which exceptions are the user's input (exit 2) and which are a computation that stopped (exit 1)."""
-from soil_impedance.mesh import MeshError
-from soil_impedance.profile import SoilError
+"""Which exceptions are the user's input (exit 2) and which a computation that stopped (exit 1).
 
+Every domain error of the project subclasses ValueError (bad input, the message says what to
+fix) or RuntimeError (a computation that could not finish, e.g. Newton failing).
+"""
+from soil_impedance import BemError, MeshError, SoilError, TableError
+
+from structure import StructureError
+
+from orchestrator.motion import MotionError
 from orchestrator.scene import SceneError
 
 #: bad input: a scene, a file, an option; the message says what to fix
-UserInputError = (SceneError, SoilError, MeshError, FileNotFoundError)
+UserInputError = (SceneError, SoilError, MeshError, BemError, TableError, MotionError, StructureError,
+                  FileNotFoundError)
 #: a computation that stopped (results so far are written by the caller)
 ComputationError = (RuntimeError, ArithmeticError)

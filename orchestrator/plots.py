@@ -58,3 +58,60 @@ def plot_impedance(table, scene, path: Path, static=None):
     fig.savefig(path, dpi=130)
     plt.close(fig)
     return path
+
+
+def _edges(xy):
+    """Indices of the interface nodes at the raft edges along x (min x and max x on y ≈ 0)."""
+    on_axis = np.abs(xy[:, 1]) <= np.abs(xy[:, 1]).min() + 1e-9
+    idx = np.flatnonzero(on_axis)
+    return idx[np.argmin(xy[idx, 0])], idx[np.argmax(xy[idx, 0])]
+
+
+def plot_run(results: dict, motion, scene, directory) -> list:
+    """Figures of the paper's kind for each route: uplift at the raft edges (fig. 3-4), raft
+    edge displacements and rotation, floor response spectra at the output nodes (fig. 6)."""
+    from orchestrator.spectra import response_spectrum
+
+    plt = _pyplot()
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    paths = []
+    for route, res in results.items():
+        left, right = _edges(res.xy)
+        t = res.time
+        fig, axes = plt.subplots(3, 1, figsize=(10, 9), sharex=True, constrained_layout=True)
+        for i, label in ((left, "edge x-"), (right, "edge x+")):
+            axes[0].plot(t, 1e3 * res.gap[:, i], label=f"{label} ({res.xy[i, 0]:.1f} m)")
+            x, y = res.xy[i]
+            trace = res.raft[:, 2] + res.raft[:, 3] * y - res.raft[:, 4] * x
+            axes[1].plot(t, 1e3 * trace, label=label)
+        axes[0].set_ylabel("uplift (mm)")
+        axes[1].set_ylabel("raft vertical displacement (mm)")
+        axes[2].plot(t, 1e3 * res.raft[:, 4], label="ry")
+        axes[2].plot(t, 1e3 * res.raft[:, 3], label="rx")
+        axes[2].set_ylabel("raft rotation (mrad)")
+        axes[2].set_xlabel("time (s)")
+        for ax in axes:
+            ax.grid(True, alpha=0.3)
+            ax.legend(loc="upper right")
+        fig.suptitle(f"{scene.name} [{route}]: raft response, {motion.label}")
+        paths.append(directory / f"{route}_raft.png")
+        fig.savefig(paths[-1], dpi=120)
+        plt.close(fig)
+        if res.acc:
+            f = np.geomspace(0.5, 40.0, 120)
+            fig, ax = plt.subplots(figsize=(8, 5), constrained_layout=True)
+            for name, acc in res.acc.items():
+                s = response_spectrum(acc[:, 0], res.time[1] - res.time[0], 1 / f, 0.05)
+                ax.semilogx(f, s.psa / 9.81, label=name)
+            ground = response_spectrum(motion.acc[: res.nt, 0], motion.dt, 1 / f, 0.05)
+            ax.semilogx(f, ground.psa / 9.81, "k--", label="ground")
+            ax.set_xlabel("frequency (Hz)")
+            ax.set_ylabel("pseudo-acceleration, 5 % (g)")
+            ax.grid(True, which="both", alpha=0.3)
+            ax.legend()
+            ax.set_title(f"{scene.name} [{route}]: floor response spectra (x)")
+            paths.append(directory / f"{route}_floor_spectra.png")
+            fig.savefig(paths[-1], dpi=120)
+            plt.close(fig)
+    return paths

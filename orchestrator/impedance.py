@@ -1,0 +1,28 @@
+"""The scene's impedance sweep (glue between a Scene and soil_impedance)."""
+from __future__ import annotations
+
+import numpy as np
+
+from soil_impedance import impedance_sweep, static_impedance
+
+
+def scene_impedance(scene, outputs=("rigid",), cache_dir=None, progress=None):
+    """``{output: ImpedanceTable}`` over the scene's frequencies (cached when cache_dir is set)."""
+    return impedance_sweep(scene.profile, scene.mesh, scene.frequencies_hz, contact=scene.contact_kind,
+                           outputs=outputs, cache_dir=cache_dir, progress=progress)
+
+
+def scene_static(scene, output="rigid", cache_dir=None) -> np.ndarray:
+    """K(ω = 0) of the scene's foundation, complex (n, n)."""
+    return static_impedance(scene.profile, scene.mesh, contact=scene.contact_kind, output=output,
+                            cache_dir=cache_dir)
+
+
+def rigid_json(table, wall_s: float) -> dict:
+    """The ``uplift impedance --json`` object: per frequency a 6×6 list of [re, im]."""
+    return {
+        "frequencies_hz": [float(f) for f in table.frequencies_hz],
+        "dofs": list(table.dofs),
+        "rigid": [[[[float(z.real), float(z.imag)] for z in row] for row in K] for K in table.matrices],
+        "wall_s": float(wall_s),
+    }

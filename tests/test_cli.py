@@ -1,0 +1,65 @@
+"""The command line: exit codes, --json contract, files written."""
+import json
+import math
+
+import h5py
+import numpy as np
+import pytest
+
+from orchestrator.cli import main
+
+SCENE = """
+[soil]
+halfspace = {{ vs = 500.0, nu = 0.3333333333333333, rho = 2000.0, damping = 0.0 }}
+[foundation]
+shape = "circle"
+radius = 10.0
+element_size = 2.5
+[impedance]
+frequencies_hz = {freqs}
+"""
+
+
+@pytest.fixture
+def scene(tmp_path, monkeypatch):
+    monkeypatch.setenv("UPLIFT_CACHE", str(tmp_path / "cache"))
+    path = tmp_path / "disk.toml"
+    path.write_text(SCENE.format(freqs="[0.0]"))
+    return path
+
+
+def test_impedance_json_contract(scene, tmp_path, capsys):
+    out = tmp_path / "table.h5"
+    assert main(["impedance", str(scene), "--json", "-o", str(out)]) == 0
+    data = json.loads(capsys.readouterr().out)          # exactly one JSON object on stdout
+    assert set(data) == {"frequencies_hz", "dofs", "rigid", "wall_s"}
+    assert data["dofs"] == ["ux", "uy", "uz", "rx", "ry", "rz"]
+    K = np.array(data["rigid"])                          # (F, 6, 6, 2)
+    assert K.shape == (1, 6, 6, 2)
+    # a coarse static disk: Kv within 8 % of Mossakovskii's welded value (O(h) error at h = R/4)
+    G, R, nu = 2000 * 500.0 ** 2, 10.0, 1 / 3
+    kv = 4 * G * R * math.log(3 - 4 * nu) / (1 - 2 * nu)
+    assert K[0, 2, 2, 0] == pytest.approx(kv, rel=0.08)
+    with h5py.File(out) as f:                             # the file is readable with plain h5py
+        assert f["matrices_real"].shape == (1, 6, 6)
+
+
+def test_cache_reuses_sweep(scene, capsys):
+    assert main(["impedance", str(scene), "--json"]) == 0
+    first = json.loads(capsys.readouterr().out)
+    assert main(["impedance", str(scene), "--json"]) == 0
+    second = json.loads(capsys.readouterr().out)
+    assert first["rigid"] == second["rigid"]
+    assert second["wall_s"] < first["wall_s"]
+
+
+def test_bad_input_exit_code(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(SCENE.format(freqs="[0.0]").replace("nu = 0.3333333333333333", "nu = 0.5"))
+    assert main(["impedance", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "soil.halfspace" in err and "Poisson" in err
+    assert main(["impedance", str(tmp_path / "absent.toml")]) == 2
+    with pytest.raises(SystemExit) as exc:
+        main(["--help"])
+    assert exc.value.code == 0

@@ -1,0 +1,86 @@
+"""`uplift run` end to end on a small inline scene: results file, JSON contract, errors."""
+import json
+
+import h5py
+import numpy as np
+import pytest
+
+from orchestrator.cli import main
+from orchestrator.results import read_results
+
+SCENE = """
+[soil]
+halfspace = { vs = 500.0, nu = 0.3, rho = 2000.0 }
+winkler = { kv = 5.0e7, kh = 4.0e7 }
+[foundation]
+shape = "rectangle"
+lx = 10.0
+ly = 10.0
+element_size = 2.5
+[structure]
+nodes = [ { id = 1, xyz = [0, 0, 0] }, { id = 2, xyz = [0, 0, 20], name = "top" } ]
+beams = [ { nodes = [1, 2], E = 3e10, G = 1.25e10, A = 10.0, Iy = 20.0, Iz = 20.0, J = 40.0 } ]
+masses = [ { node = 2, m = 2.0e6, inertia = [0, 0, 0] } ]
+raft = { node = 1, m = 1.0e6, inertia = [1e7, 1e7, 2e7] }
+damping = { modal = 0.05 }
+[contact]
+enabled = true
+[motion]
+kind = "synthetic"
+pga_g = PGA
+duration_s = 3.0
+seed = 2
+[analysis]
+routes = ["winkler"]
+dt = 0.01
+[output]
+nodes = ["top"]
+"""
+
+
+def _scene(tmp_path, pga=0.3, extra=""):
+    path = tmp_path / "tower.toml"
+    path.write_text(SCENE.replace("PGA", str(pga)) + extra)
+    return path
+
+
+def test_run_json_and_results_file(tmp_path, capsys):
+    out = tmp_path / "res.h5"
+    assert main(["run", str(_scene(tmp_path)), "-o", str(out), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)["routes"]["winkler"]
+    assert set(summary) == {"max_uplift_m", "max_uplift_time_s", "max_raft_rotation_rad",
+                            "min_contact_fraction", "peak_acc_g", "wall_s", "converged"}
+    res = read_results(out)["winkler"]
+    # the summary is what the file holds
+    assert summary["max_uplift_m"] == pytest.approx(res.gap.max())
+    assert summary["max_raft_rotation_rad"] == pytest.approx(np.hypot(res.raft[:, 3], res.raft[:, 4]).max())
+    assert summary["peak_acc_g"]["top"] == pytest.approx(np.abs(res.acc["top"]).max() / 9.81)
+    assert summary["max_uplift_m"] > 0 and summary["min_contact_fraction"] < 1
+    assert np.all(np.isfinite(res.raft))
+    with h5py.File(out) as f:
+        assert f["motion/acc"].shape == (301, 3)
+        assert f["routes/winkler/gap"].shape == (301, 16)
+
+
+def test_unavailable_route_is_refused(tmp_path, capsys):
+    assert main(["run", str(_scene(tmp_path)), "--route", "cosim"]) == 2
+    assert "not available in this version" in capsys.readouterr().err
+
+
+def test_plots_written(tmp_path, capsys):
+    figs = tmp_path / "figs"
+    assert main(["run", str(_scene(tmp_path)), "-o", str(tmp_path / "r.h5"), "--plot-dir", str(figs)]) == 0
+    assert sorted(p.name for p in figs.iterdir()) == ["winkler_floor_spectra.png", "winkler_raft.png"]
+
+
+@pytest.mark.parametrize("old, new, msg", [
+    ('dt = 0.01', 'dt = 0.5', "analysis.dt = 0.5"),
+    ('kind = "synthetic"', 'kind = "shake"', "motion.kind = 'shake'"),
+    ('seed = 2', 'sed = 2', "unknown key motion.sed"),
+    ('routes = ["winkler"]', 'routes = ["fem"]', "unknown route 'fem'"),
+])
+def test_invalid_run_sections(tmp_path, capsys, old, new, msg):
+    path = tmp_path / "bad.toml"
+    path.write_text(SCENE.replace("PGA", "0.3").replace(old, new))
+    assert main(["run", str(path)]) == 2
+    assert msg in capsys.readouterr().err
