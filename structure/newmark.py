@@ -1,0 +1,452 @@
+"""Newmark average acceleration (HHT-alpha option) with semi-smooth Newton on the contact.
+
+Equation of motion in the frame of the free field (relative displacements u, dynamic
+perturbation of the static state under self-weight), u = [structure | q | w]:
+
+    M a + C v + K u + f_soil(x, xdot) + f_c(u) = F(t) = -M r a_g(t)
+
+f_soil = K0 x + C0 xdot + h acts on the interface block x = [q, w] (see soil_interface),
+f_c = -B^T (P - P0) is the contact (see contact). HHT: the internal and external forces are
+evaluated at t_{n+1+alpha} = (1 + alpha) (.)_{n+1} - alpha (.)_n, alpha in [-1/3, 0],
+beta = (1 - alpha)^2 / 4, gamma = 1/2 - alpha; alpha = 0 is the average acceleration rule
+(second order, no numerical damping, exact discrete energy balance).
+
+Solution: the effective matrix is condensed on the interface block once per step size
+(sparse LU of the structural block A_II, dense Schur complement S0 on x). Each Newton
+iteration solves (S0 + (1+alpha) B^T diag(kp active) B) dx = -g with a dense LU that is
+cached per active set, so a step whose active set does not change costs one
+back-substitution. A backtracking line search on |g|^2 guards against active-set cycling;
+if Newton fails, the step is halved recursively (ground motion interpolated linearly, the
+soil history held) down to dt / 2**max_subdiv, then ConvergenceError is raised.
+"""
+from __future__ import annotations
+
+import time as _time
+from collections import OrderedDict
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from ._blas import single_threaded_blas
+from .contact import ContactSettings, contact_force, gap, penalty_stiffness
+from .damping import damping_matrix
+from .errors import ConvergenceError, StructureError
+from .model import StructureModel
+from .preload import StaticState, embed, solve_static
+from .results import RouteResult
+
+
+class _NewtonFailure(Exception):
+    def __init__(self, node, residual):
+        self.node, self.residual = node, residual
+
+
+class NewmarkStepper:
+    """One implicit time step at a time; the FMU calls ``step()`` exactly as ``simulate`` does.
+
+    Parameters
+    ----------
+    model : StructureModel
+    soil : SoilInterface            provides (K0, C0) and, unless external_soil, h
+    dt : float, s                   communication / time step
+    contact : ContactSettings       unilateral contact (enabled=False: bonded, linear)
+    damping : None | float | Damping | ndarray   structural damping (see damping_matrix)
+    alpha : float                   HHT parameter in [-1/3, 0]
+    static : StaticState or None    preload (computed if None)
+    external_soil : bool            True: h is set by ``set_soil_history`` before each step
+                                    and the soil object is not advanced (co-simulation)
+    ag0 : (3,) m/s^2                ground acceleration at t = 0
+
+    State after each step: t, u, v, a (n_dof,), P (N,) total contact forces.
+    """
+
+    def __init__(self, model: StructureModel, soil, dt: float, contact: ContactSettings | None = None,
+                 damping=None, alpha: float = 0.0, static: StaticState | None = None,
+                 external_soil: bool = False, ag0=(0.0, 0.0, 0.0)):
+        with single_threaded_blas():
+            self._init(model, soil, dt, contact, damping, alpha, static, external_soil, ag0)
+
+    def _init(self, model, soil, dt, contact, damping, alpha, static, external_soil, ag0):
+        if not dt > 0:
+            raise StructureError(f"time step dt = {dt!r} must be > 0")
+        if not -1.0 / 3.0 - 1e-12 <= alpha <= 0.0:
+            raise StructureError(f"HHT alpha = {alpha!r} must lie in [-1/3, 0]")
+        if soil.n_dof != 6 + model.n_interface:
+            raise StructureError(f"soil has {soil.n_dof} interface DOFs, the raft needs 6 + N = "
+                                 f"{6 + model.n_interface}")
+        self.model, self.soil, self.dt = model, soil, float(dt)
+        self.contact = contact or ContactSettings()
+        self.alpha = float(alpha)
+        self.beta = (1 - alpha) ** 2 / 4
+        self.gamma = 0.5 - alpha
+        self.external_soil = external_soil
+        ns, N = model.n_struct, model.n_interface
+        self.ns, self.N, self.n = ns, N, model.n_dof
+        self.ni = ns - 6
+        self.nb = 6 + N
+        self.kp = penalty_stiffness(self.contact, soil.static_stiffness(), N)
+        self.static = static or solve_static(model, soil, self.kp, unilateral=self.contact.enabled)
+        self.P0 = self.static.P0.copy()
+        self.delta0 = self.static.delta0.copy()
+        self.M = np.concatenate([model.mass, np.zeros(N)])
+        self.Ks = embed(model, model.stiffness, sp.csr_matrix((self.nb, self.nb)))
+        self.Cs = embed(model, sp.csr_matrix(damping_matrix(model, damping)), sp.csr_matrix((self.nb, self.nb)))
+        r = np.zeros((self.n, 3))
+        r[:ns] = model.influence
+        self.Mr = self.M[:, None] * r
+        Bq = model.raft.vertical_trace()
+        self.Bq3 = Bq[:, 2:5]                      # (N, 3) on q[2:5] = uz, rx, ry
+        self._systems = {}
+        self._lu_cache = OrderedDict()
+        self.n_factorisations = 0
+        self._h_ext = np.zeros(self.nb)
+        # state
+        self.t = 0.0
+        self.u = np.zeros(self.n)
+        self.v = np.zeros(self.n)
+        ag0 = np.asarray(ag0, float)
+        self.ag = ag0.copy()
+        self.F = -self.Mr @ ag0
+        self.a = np.where(self.M > 0, self.F / np.where(self.M > 0, self.M, 1.0), 0.0)
+        self.P = self.P0.copy()
+        self.fs = np.zeros(self.nb)     # force on the soil at t
+        self.fc = np.zeros(self.nb)     # contact internal force (dynamic) at t
+        self.R = np.zeros(self.n)       # total internal force at t
+        self.work = dict(input=0.0, damping=0.0, soil=0.0, contact=0.0)
+        self._ag_next = ag0.copy()
+        self.last_iters = 0
+        self.last_substeps = 1          # sub-steps used by the last step (1: not subdivided)
+        self._nsub = 0
+
+    # ---- inputs ----------------------------------------------------------------------
+    def set_ground_acceleration(self, ag_next) -> None:
+        """a_g(t + dt) (3,), m/s^2, for the next step."""
+        self._ag_next = np.asarray(ag_next, float).reshape(3)
+
+    def set_soil_history(self, h) -> None:
+        """Soil history force h (6+N,), N, for the next step (external soil only)."""
+        self._h_ext = np.asarray(h, float).reshape(self.nb)
+
+    # ---- outputs ---------------------------------------------------------------------
+    @property
+    def x(self) -> np.ndarray:
+        """Interface displacements [q, w] (6+N,)."""
+        return self.u[self.ni:]
+
+    @property
+    def xdot(self) -> np.ndarray:
+        return self.v[self.ni:]
+
+    def relative_vertical(self, u=None) -> np.ndarray:
+        u = self.u if u is None else u
+        q = u[self.ni:self.ni + 6]
+        return self.Bq3 @ q[2:5] - u[self.ns:]
+
+    def gap(self) -> np.ndarray:
+        """(N,) m; zero when contact is disabled (bonded raft: see P < 0 for tension)."""
+        if not self.contact.enabled:
+            return np.zeros(self.N)
+        return gap(self.relative_vertical(), self.delta0)
+
+    # ---- per-dt system ------------------------------------------------------------------
+    def _coeffs(self, dt):
+        b, g = self.beta, self.gamma
+        return 1 / (b * dt * dt), g / (b * dt), 1 / (b * dt), 1 / (2 * b) - 1
+
+    def _system(self, dt):
+        key = round(dt / self.dt, 12)
+        if key in self._systems:
+            return self._systems[key]
+        K0, C0 = self.soil.instantaneous(dt)
+        K0e = embed(self.model, sp.csr_matrix((self.ns, self.ns)), K0)
+        C0e = embed(self.model, sp.csr_matrix((self.ns, self.ns)), C0)
+        c0, c1, _, _ = self._coeffs(dt)
+        Ktot = (self.Ks + K0e).tocsr()
+        Ctot = (self.Cs + C0e).tocsr()
+        A = (sp.diags(c0 * self.M) + (1 + self.alpha) * (Ktot + c1 * Ctot)).tocsc()
+        ni = self.ni
+        AII = A[:ni, :ni].tocsc()
+        AIB = A[:ni, ni:].tocsc()
+        ABI = A[ni:, :ni].tocsr()
+        lu = spla.splu(AII) if ni else None
+        X = lu.solve(AIB.toarray()) if ni else np.zeros((0, self.nb))
+        S0 = A[ni:, ni:].toarray() - ABI @ X
+        sysd = dict(dt=dt, K0=sp.csr_matrix(K0), C0=sp.csr_matrix(C0), Ktot=Ktot, Ctot=Ctot, lu=lu,
+                    X=X, ABI=ABI, S0=S0, key=key)
+        self._systems[key] = sysd
+        return sysd
+
+    def _jacobian_lu(self, sysd, active):
+        key = (sysd["key"], active.tobytes())
+        lu = self._lu_cache.get(key)
+        if lu is not None:
+            self._lu_cache.move_to_end(key)
+            return lu
+        J = sysd["S0"].copy()
+        s = (1 + self.alpha) * self.kp * active
+        B3 = self.Bq3
+        J[2:5, 2:5] += B3.T @ (s[:, None] * B3)
+        cross = -(s[:, None] * B3)                 # (N, 3)
+        J[6:, 2:5] += cross
+        J[2:5, 6:] += cross.T
+        J[np.arange(6, self.nb), np.arange(6, self.nb)] += s
+        lu = sla.lu_factor(J, check_finite=False)
+        self.n_factorisations += 1
+        self._lu_cache[key] = lu
+        if len(self._lu_cache) > 16:
+            self._lu_cache.popitem(last=False)
+        return lu
+
+    def _line_search(self, uB, dx, g0, S0, al):
+        """Exact line search on the (convex, piecewise-quadratic) incremental energy along dx:
+        the step t in (0, 1] where dx . g(uB + t dx) = 0. dx . g(t) is continuous, piecewise
+        linear and non-decreasing in t (kinks where a node opens or closes), so the root is
+        found exactly by scanning the kinks. Returns 1 when the full step is not past it."""
+        d0 = self.Bq3 @ uB[2:5] - uB[6:]
+        dd = self.Bq3 @ dx[2:5] - dx[6:]
+        pen = self.delta0 - d0
+        a = dx @ g0 + (1 + al) * (dd @ (self.kp * np.maximum(pen, 0.0)))  # linear part at t = 0
+        b = dx @ (S0 @ dx)
+        ka = (1 + al) * self.kp
+
+        def slope(t):
+            return a + b * t - (dd * ka) @ np.maximum(pen - t * dd, 0.0)
+
+        if slope(1.0) <= 1e-12 * abs(slope(0.0)):
+            return 1.0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            kinks = pen / dd
+        kinks = np.sort(kinks[(kinks > 0) & (kinks < 1) & np.isfinite(kinks)])
+        lo, flo = 0.0, slope(0.0)
+        if flo >= 0:
+            return 1.0                      # not a descent direction: take the Newton step
+        for tk in np.append(kinks, 1.0):
+            fk = slope(tk)
+            if fk >= 0:
+                return lo + (tk - lo) * (-flo) / (fk - flo) if fk > flo else tk
+            lo, flo = tk, fk
+        return 1.0
+
+    def _contact(self, uB):
+        """(P, active, fc (nb,)) for interface displacements uB = [q, w]."""
+        d = self.Bq3 @ uB[2:5] - uB[6:]
+        if self.contact.enabled:
+            P, act = contact_force(d, self.delta0, self.kp)
+        else:
+            P, act = self.P0 - self.kp * d, np.ones(self.N, bool)
+        dp = P - self.P0
+        fc = np.zeros(self.nb)
+        fc[2:5] = -self.Bq3.T @ dp
+        fc[6:] = dp
+        return P, act, fc
+
+    # ---- one step ------------------------------------------------------------------------
+    def _advance(self, dt, ag_new, h):
+        c0, c1, c2, c3 = self._coeffs(dt)
+        al, b, g = self.alpha, self.beta, self.gamma
+        sysd = self._system(dt)
+        u, v, a = self.u, self.v, self.a
+        F_new = -self.Mr @ ag_new
+        a_hat = -c0 * u - c2 * v - c3 * a
+        v_hat = -c1 * u + (1 - g / b) * v + dt * (1 - g / (2 * b)) * a
+        rhs = -self.M * a_hat - (1 + al) * (sysd["Ctot"] @ v_hat) + al * self.R + (1 + al) * F_new - al * self.F
+        rhs[self.ni:] -= (1 + al) * h
+        ni = self.ni
+        y = sysd["lu"].solve(rhs[:ni]) if ni else rhs[:0]
+        r_hat = rhs[ni:] - sysd["ABI"] @ y
+        S0 = sysd["S0"]
+        uB = u[ni:].copy()
+        iters = 0
+        if not self.contact.enabled:
+            # bonded: f_c = B^T kp B uB is linear, one factorisation for the whole run
+            lu = self._jacobian_lu(sysd, np.ones(self.N, bool))
+            uB = sla.lu_solve(lu, r_hat, check_finite=False)
+        else:
+            scale = max(np.linalg.norm(r_hat), (1 + al) * np.linalg.norm(self.P0), 1.0)
+            tol = self.contact.tol * scale
+
+            def resid(x):
+                P, act, fc = self._contact(x)
+                return S0 @ x + (1 + al) * fc - r_hat, act
+
+            gv, act = resid(uB)
+            conv = False
+            for _ in range(self.contact.max_iter):
+                lu = self._jacobian_lu(sysd, act)
+                dx = -sla.lu_solve(lu, gv, check_finite=False)
+                iters += 1
+                t = self._line_search(uB, dx, gv, S0, al)
+                xn = uB + t * dx
+                gn, actn = resid(xn)
+                same = np.array_equal(actn, act)
+                uB, gv, act = xn, gn, actn
+                if (t == 1.0 and same) or np.linalg.norm(gv) <= tol:
+                    conv = True
+                    break
+            if not conv or not np.all(np.isfinite(uB)):
+                rn = np.abs(gv[6:]) if self.N else np.zeros(1)
+                node = int(np.argmax(rn)) if np.all(np.isfinite(rn)) else -1
+                raise _NewtonFailure(node, float(np.linalg.norm(gv)))
+        u_new = np.empty(self.n)
+        u_new[ni:] = uB
+        u_new[:ni] = y - sysd["X"] @ uB if ni else y
+        if not np.all(np.isfinite(u_new)):
+            raise _NewtonFailure(-1, np.inf)
+        v_new = c1 * u_new + v_hat
+        a_new = c0 * u_new + a_hat
+        P, act, fc = self._contact(u_new[ni:])
+        x_new, xd_new = u_new[ni:], v_new[ni:]
+        fs = sysd["K0"] @ x_new + sysd["C0"] @ xd_new + h
+        R = sysd["Ktot"] @ u_new + sysd["Ctot"] @ v_new
+        R[ni:] += h + fc
+        du = u_new - u
+        w = self.work
+        w["input"] += du @ (0.5 * (self.F + F_new))
+        w["damping"] += du @ (self.Cs @ (0.5 * (v + v_new)))
+        w["soil"] += du[ni:] @ (0.5 * (self.fs + fs))
+        w["contact"] += du[ni:] @ (0.5 * (self.fc + fc))
+        self.u, self.v, self.a = u_new, v_new, a_new
+        self.P, self.fs, self.fc, self.R, self.F = P, fs, fc, R, F_new
+        self.t += dt
+        self.ag = np.asarray(ag_new, float)
+        if not self.external_soil:
+            self.soil.commit(x_new.copy(), xd_new.copy())
+        return iters
+
+    def _span(self, dt, ag0, ag1, h, depth):
+        saved = self.get_state()
+        try:
+            if not self.external_soil:
+                self.soil.instantaneous(dt)
+                h = self.soil.history()
+            n = self._advance(dt, ag1, h)
+            self._nsub += 1
+            return n
+        except _NewtonFailure as fail:
+            self.set_state(saved)
+            if depth >= self.contact.max_subdiv:
+                raise ConvergenceError(
+                    f"Newton contact iteration failed at t = {self.t + dt:.6g} s (step {dt:.3g} s "
+                    f"after {depth} halvings), interface node {fail.node}, residual {fail.residual:.3e} N; "
+                    "raise contact.max_subdiv, reduce dt, or check the penalty", self.t + dt,
+                    fail.node, fail.residual) from None
+            agm = 0.5 * (ag0 + ag1)
+            n1 = self._span(dt / 2, ag0, agm, h, depth + 1)
+            return n1 + self._span(dt / 2, agm, ag1, h, depth + 1)
+
+    def step(self) -> int:
+        """Advance from t to t + dt with a_g(t + dt) from ``set_ground_acceleration`` (and h from
+        ``set_soil_history`` when the soil is external). Returns the Newton solves used."""
+        h = self._h_ext if self.external_soil else None
+        saved = self.get_state()
+        self._nsub = 0
+        try:
+            with single_threaded_blas():
+                self.last_iters = self._span(self.dt, self.ag.copy(), self._ag_next.copy(), h, 0)
+        except ConvergenceError:
+            self.set_state(saved)       # leave the stepper at the last accepted step
+            raise
+        self.last_substeps = self._nsub
+        return self.last_iters
+
+    # ---- state ---------------------------------------------------------------------------
+    def get_state(self) -> dict:
+        s = {k: getattr(self, k).copy() for k in ("u", "v", "a", "P", "fs", "fc", "R", "F", "ag")}
+        s["t"] = self.t
+        s["work"] = dict(self.work)
+        if not self.external_soil:
+            s["soil"] = self.soil.get_state()
+        return s
+
+    def set_state(self, s: dict) -> None:
+        for k in ("u", "v", "a", "P", "fs", "fc", "R", "F", "ag"):
+            setattr(self, k, np.array(s[k], copy=True))
+        self.t = s["t"]
+        self.work = dict(s["work"])
+        if not self.external_soil and "soil" in s:
+            self.soil.set_state(s["soil"])
+
+    # ---- energies --------------------------------------------------------------------------
+    def energies(self) -> dict:
+        """Cumulative works and stored energies at t, J."""
+        e = dict(self.work)
+        e["kinetic"] = 0.5 * self.v @ (self.M * self.v)
+        e["strain"] = 0.5 * self.u @ (self.Ks @ self.u)
+        d = self.relative_vertical()
+        pen = np.maximum(0.0, self.delta0 - d)
+        pen0 = np.maximum(0.0, self.delta0)
+        e["contact_potential"] = float(np.sum(0.5 * self.kp * (pen**2 - pen0**2) + self.P0 * d)) \
+            if self.contact.enabled else float(np.sum(0.5 * self.kp * d * d))
+        return e
+
+
+def simulate(model: StructureModel, soil, ag, dt: float, contact: ContactSettings | None = None,
+             damping=None, alpha: float = 0.0, output_nodes=None, progress=None,
+             route: str = "td-winkler", static: StaticState | None = None) -> RouteResult:
+    """Time history of the structure on ``soil`` under ground acceleration ``ag``.
+
+    ag : (nt, 3) m/s^2 at t_k = k dt (x, y, z); output_nodes : node names (default: all
+    named nodes); progress : callable(k, nt) or None. Returns a RouteResult; on a Newton
+    failure raises ConvergenceError with ``.result`` holding the samples computed so far.
+    """
+    with single_threaded_blas():
+        return _simulate(model, soil, ag, dt, contact, damping, alpha, output_nodes, progress,
+                         route, static)
+
+
+def _simulate(model, soil, ag, dt, contact, damping, alpha, output_nodes, progress, route, static):
+    t0 = _time.perf_counter()
+    ag = np.asarray(ag, float)
+    if ag.ndim != 2 or ag.shape[1] != 3:
+        raise StructureError(f"ground acceleration must have shape (nt, 3), got {ag.shape}")
+    if not np.all(np.isfinite(ag)):
+        raise StructureError("ground acceleration contains NaN or inf")
+    st = NewmarkStepper(model, soil, dt, contact=contact, damping=damping, alpha=alpha,
+                        static=static, ag0=ag[0])
+    names = [n.name for n in model.nodes if n.name] if output_nodes is None else list(output_nodes)
+    dofs = {nm: model.dofs(model.node_by_name(nm).id)[:3] for nm in names}
+    nt, N = ag.shape[0], model.n_interface
+    res = RouteResult(route, dt * np.arange(nt), np.zeros((nt, 6)), np.zeros((nt, N)),
+                      np.zeros((nt, N)), np.zeros((nt, N)),
+                      {nm: np.zeros((nt, 3)) for nm in names}, {nm: np.zeros((nt, 3)) for nm in names},
+                      {k: np.zeros(nt) for k in ("input", "kinetic", "strain", "damping", "soil",
+                                                 "contact", "contact_potential")},
+                      np.zeros(nt, int), True, "", 0.0, np.array(model.raft.xy),
+                      dict(settlement=st.static.settlement, P0=st.P0.copy(), penalty=st.kp.copy(),
+                           delta0=st.delta0.copy(), dt=dt, alpha=alpha,
+                           contact_enabled=st.contact.enabled))
+    ni = st.ni
+
+    def record(k):
+        res.raft[k] = st.u[ni:ni + 6]
+        res.gap[k] = st.gap()
+        res.contact_force[k] = st.P
+        res.soil_w[k] = st.u[st.ns:]
+        for nm, d in dofs.items():
+            res.acc[nm][k] = st.a[d] + st.ag
+            res.disp[nm][k] = st.u[d]
+        for key, val in st.energies().items():
+            res.energy[key][k] = val
+
+    record(0)
+    n_subdivided = 0
+    for k in range(1, nt):
+        st.set_ground_acceleration(ag[k])
+        try:
+            res.newton_iters[k] = st.step()
+            n_subdivided += st.last_substeps > 1
+        except ConvergenceError as exc:
+            res = res.truncated(k)
+            res.converged, res.message = False, str(exc)
+            res.wall_s = _time.perf_counter() - t0
+            exc.result = res
+            raise
+        record(k)
+        if progress is not None:
+            progress(k, nt)
+    res.wall_s = _time.perf_counter() - t0
+    res.info["factorisations"] = st.n_factorisations
+    res.info["subdivided_steps"] = n_subdivided
+    return res
