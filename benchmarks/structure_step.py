@@ -33,7 +33,8 @@ def setup(pga_g: float, seed: int, duration=10.0, dt=0.005, dashpots=False):
     vs = np.sqrt(G / rho)
     vp = vs * np.sqrt((2 - 2 * nu) / (1 - 2 * nu))
     model = model_from_spec({"model": "reactor"}, mesh.xy, mesh.area)
-    springs = springs_from_rigid_impedance(disk_static_stiffness(G, nu, 20.0), mesh.xy, mesh.area)
+    springs = springs_from_rigid_impedance(disk_static_stiffness(G, nu, 20.0), mesh.xy, mesh.area,
+                                           match="rocking")
     if dashpots:
         cv, ch = dashpots_from_waves(mesh.area, rho, vp, vs)
         soil = WinklerSoil(mesh.xy, springs.kv, springs.kx, cv, ch)

@@ -100,13 +100,9 @@ def winkler_soil(scene, model, cache_dir=None, log=None):
     if table.frequencies_hz[0] != 0.0:
         raise SceneError("the winkler route calibrates its springs on K(0): include 0 Hz in "
                          "[impedance] (range_hz = [0.0, fmax, count])")
-    K6 = np.real(table.matrices[0]).copy()
-    xy, area = scene.mesh.xy, scene.mesh.area
-    kr = 0.5 * (K6[3, 3] + K6[4, 4])
-    kv_rocking = kr * area.sum() / (0.5 * (area * (xy ** 2).sum(axis=1)).sum())
-    vertical_factor = kv_rocking / K6[2, 2]
-    K6[2, 2] = kv_rocking
-    soil = springs_from_rigid_impedance(K6, xy, area)
+    K6 = np.real(table.matrices[0])
+    soil = springs_from_rigid_impedance(K6, scene.mesh.xy, scene.mesh.area, match="rocking")
+    vertical_factor = soil.rigid_stiffness()[2, 2] / K6[2, 2]
     ratio = model.damping.ratio if model.damping.kind == "modal" else 0.0
     C, modes = rccg_modal_damping(model, soil, structure_ratio=ratio,
                                   radiation=radiation_ratios(table.frequencies_hz, table.matrices))

@@ -69,10 +69,13 @@ def test_modal_damping_matrix_gives_ratio_and_no_rigid_damping():
 def reactor_soil():
     E, nu, R = 15e9, 0.3, 20.0
     G = E / (2 * (1 + nu))
-    return springs_from_rigid_impedance(disk_static_stiffness(G, nu, R), MESH.xy, MESH.area)
+    return springs_from_rigid_impedance(disk_static_stiffness(G, nu, R), MESH.xy, MESH.area,
+                                        match="rocking")
 
 
-def test_reactor_dominant_soil_structure_mode_near_3_9_hz():
+def test_reactor_dominant_soil_structure_mode():
+    # on homogeneous E = 15 GPa rock with the rigid-disk rocking stiffness: 4.1 Hz (on the
+    # layered rock of the built-in reactor scene, 3.94 Hz: tests/test_run.py)
     model = model_from_spec({"model": "reactor"}, MESH.xy, MESH.area)
     names = {n.name for n in model.nodes}
     assert {"top_outer", "top_inner", "internals_37m"} <= names
@@ -81,7 +84,7 @@ def test_reactor_dominant_soil_structure_mode_near_3_9_hz():
     r = model.influence[:, 0]
     part = (sm.shapes.T @ (model.mass * r)) ** 2 / model.total_mass
     k = np.argmax(part)
-    assert abs(sm.freq[k] - 3.9) < 0.1 and part[k] > 0.5, (sm.freq[k], part[k])
+    assert abs(sm.freq[k] - 4.1) < 0.1 and part[k] > 0.5, (sm.freq[k], part[k])
 
 
 def test_preload_settlement_and_contact_forces():
