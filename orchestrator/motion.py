@@ -6,7 +6,11 @@ constant step (DESIGN.md §2: vertically incident waves, no kinematic interactio
 Synthetic motions (deterministic for a given seed): a Gaussian white noise under a
 Jennings-type envelope, its Fourier amplitudes corrected iteratively until its 5 %-damped
 response spectrum matches the target design spectrum, then baseline-corrected (linear trend
-final velocity and displacement brought to zero) and scaled to the requested PGA.
+final velocity and displacement brought to zero) and scaled to the requested PGA (the
+record is "normalised to 0.25 g" as in the paper). The spectral SHAPE follows the target;
+its LEVEL is set by the PGA: for a 10 s record a Gaussian-noise motion whose spectrum matches
+RG 1.60 has a PGA ~1.4 times the spectrum's ZPA, so after normalisation its 5 % spectrum
+lies at ~0.7 (0.55-1.05) of the RG 1.60 spectrum anchored at the same PGA.
 
 RG 1.60 horizontal design spectrum, 5 % damping (US NRC Regulatory Guide 1.60, Table I),
 for a PGA of 1 g: control points A (33 Hz) Sa = 1.0 g, B (9 Hz) 2.61 g, C (2.5 Hz) 3.13 g,

@@ -50,13 +50,14 @@ class InterfaceMesh:
             raise MeshError("mesh node coordinates must be finite numbers")
         bad = np.flatnonzero(~(area > 0) | ~np.isfinite(area))
         if bad.size:
-            raise MeshError(f"mesh node {bad[0]} has area {area[bad[0]]!r}: every tributary area must be > 0")
+            raise MeshError(f"mesh node {bad[0]} has area {float(area[bad[0]]):g}: every tributary area must be > 0")
         if xy.shape[0] > 1:
             d = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
             d[np.diag_indices_from(d)] = np.inf
             i, j = np.unravel_index(np.argmin(d), d.shape)
             if d[i, j] < 1e-9 * max(1.0, np.abs(xy).max()):
-                raise MeshError(f"mesh nodes {i} and {j} coincide at {tuple(xy[i])}: remove the duplicate")
+                raise MeshError(f"mesh nodes {i} and {j} coincide at ({xy[i, 0]:g}, {xy[i, 1]:g}): "
+                                "remove the duplicate")
         xy.setflags(write=False)
         area.setflags(write=False)
         object.__setattr__(self, "xy", xy)
@@ -107,10 +108,10 @@ def _check_size(name: str, value) -> float:
 def circle_mesh(radius: float, element_size: float) -> InterfaceMesh:
     """Disk of radius R as the square cells (side h) of a grid whose centres fall inside it.
 
-    The grid is centred on the disk (a node at the centre) and the cell side is adjusted
-    to ``element_size`` or slightly less so that the cells' total area equals πR² as
-    closely as the grid allows; each cell keeps its full square area, the staircase
-    boundary being an O(h) error like the piecewise-constant tractions themselves.
+    The grid is centred on the disk (a node at the centre) with cell side ``element_size``;
+    each cell keeps its full square area, so the total area differs from πR² by the
+    staircase boundary (an O(h) error like the piecewise-constant tractions, and irregular
+    in h: compare with closed forms at the mesh's equivalent radius sqrt(A/π)).
     """
     radius = _check_size("radius", radius)
     h = _check_size("element_size", element_size)

@@ -1,0 +1,158 @@
+"""Static (Boussinesq/Cerruti) surface kernel and its closed-form integrals over rectangles.
+
+Kernel convention (the same as ``soil_impedance.greens``): ``g[a, b](d)`` is the surface
+displacement in direction ``a`` at offset ``d = (dx, dy)`` from a unit point force applied to
+the soil surface in direction ``b`` (a, b in x, y, z; z up). For a half-space of complex shear
+modulus ``G* = G (1 + 2i ξ)`` and Poisson ratio ν, with r = |d|::
+
+    g_zz = (1-ν)/(2πG r)             g_xx = (1/r - ν dy²/r³)/(2πG)   g_yy = (1/r - ν dx²/r³)/(2πG)
+    g_xy = g_yx = ν dx dy/(2πG r³)   g_xz = b0 dx/r², g_yz = b0 dy/r², g_zx = -g_xz, g_zy = -g_yz
+    b0 = (1-2ν)/(4πG)
+
+Every term is a combination of 1/r, dx²/r³, dy²/r³, dx dy/r³, dx/r², dy/r², whose double
+integrals over a rectangle have closed forms (logs / asinh / atan); they are exact at any
+distance, so the same formulas serve self, near and far patches (no quadrature switch).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def static_radial(material, r):
+    """Static half-space surface kernel in radial form (fallback copy of ``greens.static_radial``).
+
+    Parameters
+    ----------
+    material : Material      uses G* = G (1 + 2i damping) and ν
+    r : array_like, m        radii, > 0
+
+    Returns
+    -------
+    A, B, C, D : ndarrays like r, m/N   (see ``soil_impedance.greens`` for their meaning)
+    """
+    r = np.asarray(r, dtype=float)
+    G = material.complex_shear_modulus()
+    nu = material.poisson
+    A = (1 - nu) / (2 * math.pi * G * r)
+    B = (1 - 2 * nu) / (4 * math.pi * G * r)
+    C = 1 / (2 * math.pi * G * r)
+    D = (1 - nu) / (2 * math.pi * G * r)
+    return A, B, C, D
+
+
+def _xlog(x, y, r):
+    """x asinh(y/|x|) with its limit 0 at x = 0 (equals x ln(y + r) up to a function of x alone)."""
+    out = np.zeros_like(r)
+    nz = x != 0
+    out[nz] = x[nz] * np.arcsinh(y[nz] / np.abs(x[nz]))
+    return out
+
+
+def _xatan(x, y):
+    """x atan(y/x) with its limit 0 at x = 0."""
+    out = np.zeros(np.broadcast(x, y).shape)
+    nz = x != 0
+    out[nz] = x[nz] * np.arctan(y[nz] / x[nz])
+    return out
+
+
+def _ylogr(y, r):
+    """y ln r with its limit 0 at r = 0."""
+    out = np.zeros_like(r)
+    nz = r > 0
+    out[nz] = y[nz] * np.log(r[nz])
+    return out
+
+
+def _primitives(x, y):
+    """Corner primitives H(x, y) with ∂²H/∂x∂y equal to each of the six basis kernels.
+
+    Returns an array shape (6,) + x.shape for: 1/r, x²/r³, y²/r³, xy/r³, x/r², y/r².
+    Functions of x alone or y alone are dropped (they cancel in the corner sum).
+    """
+    r = np.hypot(x, y)
+    xl = _xlog(x, y, r)   # x asinh(y/|x|): primitive of y²/r³
+    yl = _xlog(y, x, r)   # y asinh(x/|y|): primitive of x²/r³
+    return np.stack([
+        xl + yl,                          # 1/r
+        yl,                               # x²/r³
+        xl,                               # y²/r³
+        -r,                               # xy/r³
+        _ylogr(y, r) + _xatan(x, y),      # x/r²
+        _ylogr(x, r) + _xatan(y, x),      # y/r²
+    ])
+
+
+def rectangle_integrals(dx, dy, ax, ay):
+    """Integrals of the six basis kernels over rectangles [dx-ax, dx+ax] × [dy-ay, dy+ay].
+
+    Parameters
+    ----------
+    dx, dy : array_like, m     rectangle centres relative to the field point
+    ax, ay : array_like, m     half sides, > 0 (broadcast with dx, dy)
+
+    Returns
+    -------
+    ndarray, shape (6,) + broadcast shape, units m (for 1/r) or m^0... per kernel times m²
+    """
+    dx, dy, ax, ay = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (dx, dy, ax, ay)))
+    x2, x1, y2, y1 = dx + ax, dx - ax, dy + ay, dy - ay
+    return (_primitives(x2, y2) - _primitives(x1, y2)
+            - _primitives(x2, y1) + _primitives(x1, y1))
+
+
+def static_patch_kernel(material, dx, dy, ax, ay):
+    """Static surface displacement at a field point from a unit *total* force spread
+    uniformly over a rectangle of half sides (ax, ay), ``(dx, dy) = x_field - x_centre``.
+
+    Returns
+    -------
+    ndarray, shape broadcast + (3, 3), complex, m/N: ``[..., a, b]`` = u_a from unit force in b.
+    """
+    G = material.complex_shear_modulus()
+    nu = material.poisson
+    # integrate g(p) over p in the rectangle, p = offset from force point to field point
+    I = rectangle_integrals(dx, dy, ax, ay) / (4.0 * np.asarray(ax) * np.asarray(ay))
+    one_r, xx, yy, xy, x_r2, y_r2 = I
+    c = 1.0 / (2 * math.pi * G)
+    b0 = (1 - 2 * nu) / (4 * math.pi * G)
+    out = np.empty(one_r.shape + (3, 3), dtype=complex)
+    out[..., 0, 0] = c * (one_r - nu * yy)
+    out[..., 1, 1] = c * (one_r - nu * xx)
+    out[..., 0, 1] = out[..., 1, 0] = c * nu * xy
+    out[..., 2, 2] = c * (1 - nu) * one_r
+    out[..., 0, 2] = b0 * x_r2
+    out[..., 1, 2] = b0 * y_r2
+    out[..., 2, 0] = -b0 * x_r2
+    out[..., 2, 1] = -b0 * y_r2
+    return out
+
+
+def radial_to_cartesian(A, B, C, D, dx, dy):
+    """Point kernel (3, 3) blocks from the radial functions at offsets (dx, dy).
+
+    At r = 0 the angular terms take their angular mean: g_xx = g_yy = (C + D)/2, no coupling.
+
+    Returns
+    -------
+    ndarray, shape dx.shape + (3, 3), complex
+    """
+    dx, dy = np.asarray(dx, float), np.asarray(dy, float)
+    r = np.hypot(dx, dy)
+    safe = np.where(r > 0, r, 1.0)
+    c = np.where(r > 0, dx / safe, 0.0)
+    s = np.where(r > 0, dy / safe, 0.0)
+    c2 = np.where(r > 0, c * c, 0.5)
+    s2 = np.where(r > 0, s * s, 0.5)
+    out = np.empty(r.shape + (3, 3), dtype=complex)
+    out[..., 0, 0] = C * c2 + D * s2
+    out[..., 1, 1] = C * s2 + D * c2
+    out[..., 0, 1] = out[..., 1, 0] = (C - D) * s * c
+    out[..., 2, 2] = A
+    out[..., 0, 2] = B * c
+    out[..., 1, 2] = B * s
+    out[..., 2, 0] = -B * c
+    out[..., 2, 1] = -B * s
+    return out
