@@ -75,7 +75,7 @@ def _bessel(x, real):
 
 
 def _tail_coefficients(material, omega, rule):
-    """c_j with F_j - F0_j ~ c_j / k³ (k -> ∞) for the half-space of ``material``; and a."""
+    """c_j with F_j - F0_j ~ c_j / k³ (k -> ∞) for the half-space of ``material``."""
     from .profile import SoilProfile
 
     _, ks2, _ = material_constants(material, omega)
@@ -84,7 +84,7 @@ def _tail_coefficients(material, omega, rule):
     F = surface_flexibility(SoilProfile((), material), omega, ka)
     F0 = static_flexibility(material, ka)
     c = [((f - f0) * ka ** 3)[0] for f, f0 in zip(F, F0)]
-    return c, rule.asym_scale * ks
+    return c
 
 
 def _tail(k, c, a):
@@ -169,7 +169,7 @@ def regular_green(profile, omega, r, rule=None):
     dF = [f - f0 for f, f0 in zip(F, F0)]
     tails = None
     if omega > 0:
-        c, a = _tail_coefficients(profile.top, omega, rule)
+        c, a = _tail_coefficients(profile.top, omega, rule), grid.tail_a
         for j in range(4):
             dF[j] = dF[j] - _tail(k, c[j], a)
         tails = [_tail_transforms(rf, c[j], a) for j in range(4)]

@@ -16,8 +16,8 @@ Numerical robustness (this is the point of the module):
 * principal square roots ν = sqrt(k² - kj²) give Re ν >= 0 on the real axis and on contours
   above it (radiating branch for e^{+iωt}).
 
-Output (per wavenumber, complex, units m/N per unit area of traction = m³/N... i.e. the
-Hankel-transform kernels of the Green's functions, see ``greens``):
+Output (per wavenumber, complex, m³/N: the Hankel-transform kernels of the surface
+point-load Green's functions, see ``greens``):
 
     Fzz : vertical displacement / vertical traction
     Fb  : i * (radial displacement along k / downward traction)   (static: (1-2ν)/(2Gk))
@@ -127,8 +127,8 @@ def surface_flexibility(profile, omega, k):
 
     Returns
     -------
-    Fzz, Fb, Fkk, Ftt : ndarrays shape (n,), m/Pa·m² (m³/N): Hankel kernels of the surface
-    point-load Green's functions (see ``greens``).
+    Fzz, Fb, Fkk, Ftt : ndarrays shape (n,), m³/N: Hankel kernels of the surface point-load
+    Green's functions (see ``greens``).
     """
     k = np.asarray(k, dtype=complex)
     hs = profile.halfspace

@@ -13,11 +13,17 @@ All panels are Gauss-Legendre with ``nodes`` points. Every number below is a nam
 ``GreenRule``; ``GreenRule.discretize`` returns the concrete nodes and weights.
 
     k_c      = kc_factor * ω / min(Vs)                      (> all poles: c_R >= 0.874 Vs)
-    b        = min(height * k_c, bessel_growth / r_max)     (|J(kr)| grows like e^{b r})
+    b        = min(height * k_c, bessel_growth / r_max)     (|J(kr)| grows like e^{b r};
+                                                             low: first-quadrant poles exist)
     t_r      = min(b, 0.5 ω / Vs_halfspace)                 (first ramp stays below all poles)
-    K_max    = max(kmax_ks * |ks_top|, kmax_depth / h_1, 2 k_c)
-    width    = min(2π / r_max, 1 / H) / refine              (real-axis panel width; H: depth
-                                                             of the deepest interface)
+    a        = max(asym_scale * |ks_top|, tail_clearance * b)   (tail 1/k - 1/sqrt(k²+a²) has
+                                                             branch points at ±ia: keep ia
+                                                             well above the contour)
+    K_max    = max(kmax_ks * a, kmax_ks * |ks_top|, kmax_depth / h_1, 2 k_c)
+    width    = 2π / r_max / refine                          (real-axis panel width)
+    first    = min(b, first_depth / H, width)               (first real-axis panel; widths
+                                                             then double up to ``width``;
+                                                             H: deepest interface depth)
     contour panel width <= contour_width * b / refine
 """
 from __future__ import annotations
@@ -42,6 +48,7 @@ class KGrid:
     height: float
     k_max: float
     panel_width: float
+    tail_a: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -49,7 +56,10 @@ class GreenRule:
     """Documented discretization of the wavenumber integrals (see module docstring).
 
     kc_factor : contour end k_c in units of ω/min(Vs); > 1/0.874 so it passes every pole
-    height : contour height b as a fraction of k_c
+    height : contour height b as a fraction of k_c. Keep it small: layered media also have
+        poles in the first quadrant on the proper sheet (thickness resonances near k = 0,
+        e.g. k ≈ 0.01 + 0.1i /m for 10 m of Vs 200 m/s on rock at 10 Hz; complex modes) and a
+        contour above them silently drops their residues
     bessel_growth : cap on b * r_max (Bessel functions of complex argument grow like e^{b r})
     contour_width : contour panel width in units of b (poles sit >= ~b/2 from the path)
     kmax_ks : K_max >= kmax_ks |ks_top| (the dynamic remainder decays like k^-5 after the
@@ -59,11 +69,14 @@ class GreenRule:
     nodes : Gauss-Legendre points per panel
     r_floor : m, smallest r_max used to size panels (r_max = max(r.max(), r_floor))
     asym_probe : the k^-3 coefficient is read at k = asym_probe |ks_top|
-    asym_scale : a = asym_scale |ks_top| in the subtracted tail 1/k - 1/sqrt(k² + a²)
+    asym_scale : a >= asym_scale |ks_top| in the subtracted tail 1/k - 1/sqrt(k² + a²)
+    tail_clearance : a >= tail_clearance * b (the tail's branch point ia stays off the path)
+    first_depth : first real-axis panel <= first_depth / H (resolves the deep layering near
+        k -> 0, where it matters for r ~ H)
     """
 
     kc_factor: float = 2.0
-    height: float = 0.25
+    height: float = 0.02
     bessel_growth: float = 2.0
     contour_width: float = 2.0
     kmax_ks: float = 20.0
@@ -73,6 +86,8 @@ class GreenRule:
     r_floor: float = 1.0
     asym_probe: float = 1.0e3
     asym_scale: float = 1.0
+    tail_clearance: float = 3.0
+    first_depth: float = 0.5
 
     def refined(self, factor: float = 2.0) -> "GreenRule":
         """A rule with panels ``factor`` times narrower and a longer, higher-K tail."""
@@ -91,8 +106,11 @@ class GreenRule:
         h1 = float(depths[0]) if layered else math.inf
         depth = float(depths[-1]) if layered else math.inf
         k_c = self.kc_factor * omega / vs_min
-        k_max = max(self.kmax_ks * ks_top, self.kmax_depth / h1, 2.0 * k_c)
-        width = min(2.0 * math.pi / r_max, 1.0 / depth if layered else math.inf) / self.refine
+        b = min(self.height * k_c, self.bessel_growth / r_max) if k_c > 0 else 0.0
+        tail_a = max(self.asym_scale * ks_top, self.tail_clearance * b)
+        k_max = max(self.kmax_ks * tail_a, self.kmax_depth / h1, 2.0 * k_c)
+        width = 2.0 * math.pi / r_max / self.refine
+        first = min(b if b > 0 else width, self.first_depth / depth if layered else math.inf, width)
         x, w = np.polynomial.legendre.leggauss(self.nodes)
         nodes, weights = [], []
 
@@ -103,9 +121,7 @@ class GreenRule:
                 nodes.append(z0 + (z1 - z0) * s)
                 weights.append((z1 - z0) * 0.5 * (c - a) * w)
 
-        b = 0.0
         if k_c > 0:
-            b = min(self.height * k_c, self.bessel_growth / r_max)
             t_r = min(b, 0.5 * omega / profile.halfspace.vs)
             pw = self.contour_width * b / self.refine
             poly = [0.0, t_r + 1j * b, k_c - b + 1j * b, k_c]
@@ -113,13 +129,13 @@ class GreenRule:
                 segment(z0, z1, max(1, math.ceil(abs(z1 - z0) / pw)))
         n_contour = sum(len(n) for n in nodes)
         # real axis: geometric grading from width ~b (or the nominal width at ω = 0)
-        k0, step = k_c, (min(b, width) if b > 0 else width)
-        if not width > 0:
-            raise ValueError(f"GreenRule: panel width {width!r} must be > 0 (check refine, r_floor)")
+        k0, step = k_c, first
+        if not (width > 0 and first > 0):
+            raise ValueError(f"GreenRule: panel widths {width!r}, {first!r} must be > 0 (check refine, r_floor)")
         while k0 < k_max:
             step = min(step, width)
             k1 = min(k0 + step, k_max)
             segment(k0, k1, 1)
             k0, step = k1, 2.0 * step
         return KGrid(np.concatenate(nodes).astype(complex), np.concatenate(weights).astype(complex),
-                     n_contour, k_c, b, k_max, width)
+                     n_contour, k_c, b, k_max, width, tail_a)

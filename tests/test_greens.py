@@ -184,6 +184,22 @@ def test_undamped_layered_vs_independent_quadrature(f):
     assert np.max(err(regular_green(p, omega, r), ref, SOFT, r)) < 1e-3
 
 
+@pytest.mark.parametrize("f", [8.5, 9.5])
+def test_thickness_resonance_pole_above_axis(f):
+    """10 m of Vs 200 on Vs 2000 rock near the P thickness resonance (9.4 Hz) has a pole at
+    k ≈ 0.01 + 0.1i /m: a contour passing above it was 10x wrong (found via BEM passivity).
+    Tol 1e-3 vs the independent quadrature (measured <2e-4); radiation: Im A(0) < 0."""
+    top = Layer(vs=200.0, rho=1800.0, nu=0.3, damping=0.0, thickness=10.0)
+    p = SoilProfile((top,), Material(vs=2000.0, rho=2400.0, nu=0.25))
+    r = np.array([0.0, 0.5, 1.0, 2.0, 5.0, 10.0])
+    omega = 2 * math.pi * f
+    g = regular_green(p, omega, r)
+    ref = reference_regular(top, lambda w, k: surface_flexibility(p, w, k), omega, r,
+                            vs_min=200.0, h1=10.0)
+    assert np.max(err(g, ref, top, r)) < 1e-3
+    assert g[0][0].imag < 0 and g[2][0].imag < 0
+
+
 def test_low_frequency_continuous_with_static_layered():
     p = SoilProfile((SOFT, MID), ROCK)
     g0 = regular_green(p, 0.0, R)
@@ -222,6 +238,18 @@ def test_rule_refinement_converged(f, damped):
     a = regular_green(p, 2 * math.pi * f, r)
     b = regular_green(p, 2 * math.pi * f, r, GreenRule().refined(2))
     assert np.max(err(a, b, SOFT, r)) < 1e-3
+
+
+@pytest.mark.parametrize("f", [1.0, 25.0])
+def test_path_independence_inverted_profile(f):
+    """Cauchy: a higher contour (b x2, Bessel growth e^4) and a farther tail branch point give
+    the same integral (the tail's branch point ia must stay above the path). Tol 1e-4."""
+    p = SoilProfile((replace(MID, thickness=10.0), replace(SOFT, nu=0.45)), ROCK)
+    r = np.linspace(0.0, 60.0, 61)
+    a = regular_green(p, 2 * math.pi * f, r)
+    b = regular_green(p, 2 * math.pi * f, r, GreenRule(height=0.5, bessel_growth=4.0,
+                                                       tail_clearance=6.0, asym_scale=2.0))
+    assert np.max(err(a, b, MID, r)) < 1e-4
 
 
 def test_shapes_and_validation():
