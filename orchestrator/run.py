@@ -3,16 +3,13 @@
 Routes available in this version:
 
 ``winkler``  the industrial spring-mattress route (paper §4): Newmark + penalty contact on
-             Winkler springs. Springs from ``[soil].winkler`` when given (with its dashpots,
-             and the structure's own damping); otherwise from the BEM rigid static impedance
-             of the scene's foundation shared by tributary area (rocking matched), with
-             RCC-G composite modal damping (7 % structural weighted by strain energy plus the
-             BEM's directional radiation damping ratios Im K(f)/(2 K(0)) at each mode).
-             Sharing by area cannot match both Kv and Kr of a rigid raft with positive springs
-             (a spring bed on a disk has Kr/Kv <= R²/2, the rigid disk 2R²/3): the vertical
-             modulus is set so that the mean rocking stiffness (Krx + Kry)/2 is exact, since
-             rocking drives uplift (paper §4.2 matches rocking frequencies); the vertical
-             stiffness is then too high, by a factor reported in the route's info.
+             Winkler springs, calibrated as ``[soil].winkler`` says (see ``winkler_soil``).
+             By default: the BEM rigid static impedance of the scene's foundation shared by
+             tributary area with the rocking stiffness exact, and RCC-G composite modal
+             damping. Sharing by area cannot match both Kv and Kr of a rigid raft with
+             positive springs (a spring bed on a disk has Kr/Kv <= R²/2, the rigid disk
+             2R²/3); rocking drives uplift (paper §4.2 matches rocking frequencies), so the
+             vertical stiffness comes out too high, by a factor reported in the route's info.
 
 The other routes of DESIGN.md (cosim, monolithic, timefreq, linear) are refused with a clear
 message until they exist.
@@ -86,31 +83,75 @@ def scene_model(scene):
     return model_from_spec(scene.section("structure"), scene.mesh.xy, scene.mesh.area)
 
 
+WINKLER_KEYS = ("springs", "match", "damping")
+
+
 def winkler_soil(scene, model, cache_dir=None, log=None):
-    """(WinklerSoil, damping for simulate) of the winkler route (see module doc)."""
+    """(WinklerSoil, structural damping for simulate, info) of the winkler route.
+
+    ``[soil].winkler`` either gives subgrade moduli ``{ kv, kh, cv, ch }`` (N/m³, N s/m³ per
+    unit area; the structure keeps its own damping), or says how to calibrate on the BEM:
+    ``{ springs = "rigid" | "nodal", match = "rocking" | "vertical", damping = "rccg" | "dashpots" }``
+    (all optional; the defaults are the first of each):
+
+    springs  "rigid": the rigid static impedance K(0) shared by tributary area (paper §4.2,
+             first way); "nodal": Diag(K_s22(ω = 0)) of the nodal static impedance (second way).
+    match    for "rigid": which of the mean rocking or the vertical stiffness is exact (a spring
+             bed cannot reproduce both, see structure.winkler).
+    damping  "rccg": composite modal damping (structural ratio on the structure's strain energy
+             plus the BEM's directional radiation ratios Im K(f)/(2 K(0)) on the soil's);
+             "dashpots": the rigid impedance's dashpots Im K(f1)/ω1 at the first soil-structure
+             frequency f1, shared like the springs, with the structure's own damping.
+    """
     from structure.spec import winkler_from_spec
-    from structure.winkler import radiation_ratios, rccg_modal_damping, springs_from_rigid_impedance
+    from structure.winkler import (modes_on_soil, radiation_ratios, rccg_modal_damping,
+                                   springs_from_nodal_diagonal, springs_from_rigid_impedance)
+    from orchestrator.impedance import scene_impedance, scene_static
 
-    if "winkler" in scene.sections:
-        return winkler_from_spec(scene.sections["winkler"], scene.mesh.xy, scene.mesh.area), None, {
+    spec = dict(scene.sections.get("winkler", {}))
+    if spec and not set(spec) & set(WINKLER_KEYS):
+        return winkler_from_spec(spec, scene.mesh.xy, scene.mesh.area), None, {
             "springs": "soil.winkler subgrade moduli", "soil_damping": "soil.winkler dashpots"}
-    from orchestrator.impedance import scene_impedance
-
+    _check_keys(spec, WINKLER_KEYS, "soil.winkler")
+    springs, match, damping = (spec.get("springs", "rigid"), spec.get("match", "rocking"),
+                               spec.get("damping", "rccg"))
+    for key, value, allowed in (("springs", springs, ("rigid", "nodal")), ("match", match, ("rocking", "vertical")),
+                                ("damping", damping, ("rccg", "dashpots"))):
+        if value not in allowed:
+            raise SceneError(f"soil.winkler.{key} = {value!r}: use " + " or ".join(f'"{a}"' for a in allowed))
     table = scene_impedance(scene, ("rigid",), cache_dir=cache_dir, progress=log)["rigid"]
     if table.frequencies_hz[0] != 0.0:
         raise SceneError("the winkler route calibrates its springs on K(0): include 0 Hz in "
                          "[impedance] (range_hz = [0.0, fmax, count])")
+    xy, area = scene.mesh.xy, scene.mesh.area
     K6 = np.real(table.matrices[0])
-    soil = springs_from_rigid_impedance(K6, scene.mesh.xy, scene.mesh.area, match="rocking")
-    vertical_factor = soil.rigid_stiffness()[2, 2] / K6[2, 2]
+    if springs == "rigid":
+        soil = springs_from_rigid_impedance(K6, xy, area, match=match)
+    else:
+        soil = springs_from_nodal_diagonal(np.diag(scene_static(scene, "nodal", cache_dir)), xy)
+    f1 = float(modes_on_soil(model, soil).freq[0])
+    info = {"springs": f"{springs} static impedance" + (f", {match} matched" if springs == "rigid" else " diagonal"),
+            "winkler_over_bem_static": (np.diag(soil.rigid_stiffness()) / np.diag(K6)).tolist(),
+            "first_soil_structure_hz": f1}
+    if damping == "dashpots":
+        C6 = np.imag(table.at(f1)) / (2 * np.pi * f1)
+        soil = springs_from_rigid_impedance(K6, xy, area, C6=C6, match=match) if springs == "rigid" else \
+            springs_from_nodal_diagonal(np.diag(scene_static(scene, "nodal", cache_dir)), xy,
+                                        cdiag=_nodal_dashpots(C6, xy, area))
+        info["soil_damping"] = f"rigid impedance dashpots at {f1:.3g} Hz"
+        return soil, None, info
     ratio = model.damping.ratio if model.damping.kind == "modal" else 0.0
     C, modes = rccg_modal_damping(model, soil, structure_ratio=ratio,
                                   radiation=radiation_ratios(table.frequencies_hz, table.matrices))
-    info = {"springs": "BEM rigid static impedance shared by area, rocking matched",
-            "winkler_kv_over_bem_kv": float(vertical_factor),
-            "soil_damping": "RCC-G composite modal damping",
-            "modes_on_soil_hz": modes.freq[:6].tolist(), "modal_damping": modes.ratio[:6].tolist()}
+    info.update({"soil_damping": "RCC-G composite modal damping",
+                 "modes_on_soil_hz": modes.freq[:6].tolist(), "modal_damping": modes.ratio[:6].tolist()})
     return soil, C, info
+
+
+def _nodal_dashpots(C6, xy, area):
+    """(3N,) nodal dashpots: the rigid translational dashpots shared by area (ux, uy, uz per node)."""
+    w = np.asarray(area) / np.sum(area)
+    return np.column_stack([C6[0, 0] * w, C6[1, 1] * w, C6[2, 2] * w]).ravel()
 
 
 def run_scene(scene, routes=None, cache_dir=None, progress=None):

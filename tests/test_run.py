@@ -102,3 +102,25 @@ def test_reactor_scene_dominant_mode_near_3_9_hz():
     part = (sm.shapes.T @ (model.mass * model.influence[:, 0])) ** 2 / model.total_mass
     k = np.argmax(part)
     assert abs(sm.freq[k] - 3.9) < 0.1 and part[k] > 0.5, (sm.freq[k], part[k])
+
+
+@pytest.mark.parametrize("winkler, exact", [
+    ('{ springs = "rigid", match = "rocking" }', "rocking"),
+    ('{ springs = "rigid", match = "vertical", damping = "dashpots" }', "vertical"),
+    ('{ springs = "nodal" }', None),
+])
+def test_winkler_calibrated_on_bem(tmp_path, capsys, winkler, exact):
+    """The mattress reproduces the BEM static stiffness it is matched on (to round-off)."""
+    text = SCENE.replace("PGA", "0.3").replace("winkler = { kv = 5.0e7, kh = 4.0e7 }", f"winkler = {winkler}")
+    path = tmp_path / "cal.toml"
+    path.write_text(text + "[impedance]\nrange_hz = [0.0, 10.0, 6]\n")
+    out = tmp_path / "r.h5"
+    assert main(["run", str(path), "-o", str(out)]) == 0
+    ratio = np.array(read_results(out)["winkler"].info["winkler_over_bem_static"])
+    assert ratio[0] == pytest.approx(1.0, rel=1e-10) or exact is None      # horizontal shared exactly
+    if exact == "rocking":
+        assert 0.5 * (ratio[3] + ratio[4]) == pytest.approx(1.0, rel=1e-10) and ratio[2] > 1.5
+    elif exact == "vertical":
+        assert ratio[2] == pytest.approx(1.0, rel=1e-10) and ratio[3] < 0.7
+    else:   # Diag(K_s22(0)) of a fine nodal impedance is much stiffer than the rigid raft's
+        assert ratio[2] > 1.5
