@@ -68,6 +68,10 @@ def main(argv=None) -> int:
     except ComputationError as exc:
         print(f"uplift: stopped: {exc}", file=sys.stderr)
         return EXIT_FAILED
+    except BrokenPipeError:
+        # stdout closed early (e.g. piped into `head`): nothing more to say
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_OK
 
 
 def cmd_impedance(args) -> int:
