@@ -1,0 +1,151 @@
+"""Build the two FMUs with pythonfmu and fix their model descriptions.
+
+``build_fmus`` writes ``structure.fmu`` and ``soil.fmu``. Each is self-contained: its data in
+``resources/`` (JSON settings, npz arrays) and a copy of the project's pure-Python packages
+(``structure``, ``soil_impedance``, ``fmus``) next to them. pythonfmu *appends* the resources
+folder to ``sys.path``, so an installed ``uplift`` takes precedence and the bundled copy serves
+hosts without it; the host must provide Python 3 with numpy and scipy (pythonfmu FMUs run in
+the host's libpython).
+
+pythonfmu writes no output dependencies and no ``InitialUnknowns``; ``fix_model_description``
+adds them (outputs depend on no input at the same communication point: no direct
+feedthrough), so ``fmpy.validation.validate_fmu`` reports nothing.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+import tempfile
+import xml.etree.ElementTree as ET
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from fmus.common import (DEFAULT_SOIL_FACTORY, MESH_FILE, MOTION_FILE, SOIL_INSTANT_FILE, SOIL_MODEL_FILE,
+                         save_rational, soil_from_model)
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parent
+PACKAGES = ("structure", "soil_impedance", "fmus")
+OPTIONS = dict(canHandleVariableCommunicationStepSize=False, canGetAndSetFMUstate=True,
+               canSerializeFMUstate=True, canInterpolateInputs=False, needsExecutionTool=True)
+
+
+@dataclass(frozen=True, eq=False)
+class FmuData:
+    """Everything the two FMUs carry.
+
+    structure : dict               the scene's [structure] table (model_from_spec)
+    contact : dict                 the scene's [contact] table (contact_from_spec)
+    xy : (N, 2) m, area : (N,) m^2 interface nodes
+    soil_model : RationalModel     the soil (6+N DOFs [q, w])
+    dt : float, s                  fixed communication step
+    output_nodes : list of str     named nodes with acc_/disp_ outputs
+    motion : (nt, 3) m/s^2 or None ground motion bundled in the structure FMU (at dt)
+    soil_factory : "module:callable" building the soil as factory(model, dt, **soil_kwargs)
+    extra_modules : paths of .py files or packages bundled too (e.g. a custom soil factory)
+    damping, alpha                 structural damping override (None or a modal ratio), HHT alpha
+    """
+    structure: dict
+    contact: dict
+    xy: np.ndarray
+    area: np.ndarray
+    soil_model: object
+    dt: float
+    output_nodes: list = field(default_factory=list)
+    motion: np.ndarray | None = None
+    soil_factory: str = DEFAULT_SOIL_FACTORY
+    soil_kwargs: dict = field(default_factory=dict)
+    extra_modules: tuple = ()
+    damping: float | None = None
+    alpha: float = 0.0
+
+
+def build_fmus(data: FmuData, outdir) -> tuple[Path, Path]:
+    """Write ``outdir/structure.fmu`` and ``outdir/soil.fmu``; returns their paths."""
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    n = data.soil_model.n
+    N = np.asarray(data.xy).shape[0]
+    if n != 6 + N:
+        raise ValueError(f"the soil model has {n} DOFs, the interface needs 6 + N = {6 + N}")
+    soil = {"factory": data.soil_factory, "kwargs": dict(data.soil_kwargs)}
+    common = {"dt": float(data.dt), "n_dof": n, "soil": soil}
+    with tempfile.TemporaryDirectory(prefix="uplift_fmu_") as tmp:
+        tmp = Path(tmp)
+        sdir, gdir = tmp / "structure", tmp / "soil"
+        sdir.mkdir()
+        gdir.mkdir()
+        for d in (sdir, gdir):
+            save_rational(d / SOIL_MODEL_FILE, data.soil_model)
+        np.savez(sdir / MESH_FILE, xy=np.asarray(data.xy, float), area=np.asarray(data.area, float))
+        _save_instantaneous(sdir / SOIL_INSTANT_FILE, data)
+        if data.motion is not None:
+            np.savez(sdir / MOTION_FILE, acc=np.asarray(data.motion, float), dt=float(data.dt))
+        (sdir / "uplift_structure.json").write_text(json.dumps({
+            **common, "n_interface": N, "structure": data.structure, "contact": data.contact,
+            "damping": data.damping, "alpha": data.alpha, "output_nodes": list(data.output_nodes),
+            "motion": data.motion is not None}, indent=1))
+        (gdir / "uplift_soil.json").write_text(json.dumps(common, indent=1))
+        extra = [Path(p).resolve() for p in data.extra_modules] + [ROOT / p for p in PACKAGES]
+        s = _build(HERE / "structure_fmu.py", outdir / "structure.fmu", sorted(sdir.iterdir()) + extra)
+        g = _build(HERE / "soil_fmu.py", outdir / "soil.fmu", sorted(gdir.iterdir()) + extra)
+    return s, g
+
+
+def _save_instantaneous(path, data: FmuData) -> None:
+    """K0, C0 (at dt) and K_static of the soil, dense: what the structure folds in. Computed by
+    the soil object itself (the soil owns its discretisation), once, at export."""
+    import scipy.sparse as sp
+    dense = lambda a: a.toarray() if sp.issparse(a) else np.asarray(a, float)
+    soil = soil_from_model(data.soil_model, data.dt, data.soil_factory, data.soil_kwargs)
+    K0, C0 = soil.instantaneous(float(data.dt))
+    np.savez(path, K0=dense(K0), C0=dense(C0), K_static=dense(soil.static_stiffness()), dt=float(data.dt))
+
+
+def _build(script: Path, dest: Path, files) -> Path:
+    from pythonfmu.builder import FmuBuilder
+
+    saved = list(sys.path)
+    try:
+        FmuBuilder.build_FMU(script, dest=dest, project_files=files, **OPTIONS)
+    finally:
+        sys.path[:] = saved            # the builder leaves fmus/ on sys.path
+    fix_model_description(dest)
+    return dest
+
+
+def fix_model_description(fmu_path) -> None:
+    """Rewrite ModelStructure: every output listed with ``dependencies=""`` (no direct
+    feedthrough: outputs at a communication point depend on the state only) under Outputs and
+    under InitialUnknowns (computed at initialisation); outputs get ``initial="calculated"``
+    without a start value (FMI 2.0 forbids start for calculated variables)."""
+    fmu_path = Path(fmu_path)
+    with zipfile.ZipFile(fmu_path) as z:
+        items = {i.filename: z.read(i.filename) for i in z.infolist()}
+    root = ET.fromstring(items["modelDescription.xml"])
+    outputs = []
+    for k, sv in enumerate(root.find("ModelVariables"), start=1):
+        if sv.get("causality") == "output":
+            outputs.append(k)
+            sv.set("initial", "calculated")
+            for child in sv:
+                child.attrib.pop("start", None)
+    ms = root.find("ModelStructure")
+    for child in list(ms):
+        ms.remove(child)
+    if outputs:
+        for tag in ("Outputs", "InitialUnknowns"):
+            node = ET.SubElement(ms, tag)
+            for k in outputs:
+                ET.SubElement(node, "Unknown", index=str(k), dependencies="")
+    ET.indent(root)
+    items["modelDescription.xml"] = ET.tostring(root, encoding="UTF-8", xml_declaration=True)
+    tmp = fmu_path.with_suffix(".tmp")
+    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
+        for name, blob in items.items():
+            z.writestr(name, blob)
+    shutil.move(tmp, fmu_path)
