@@ -43,6 +43,27 @@ def _parser() -> argparse.ArgumentParser:
     imp.add_argument("--no-cache", action="store_true", help="recompute even if the sweep is cached")
     imp.set_defaults(func=cmd_impedance)
 
+    fit = sub.add_parser("fit", help="rational soil model of the scene's impedance (vector fitting, passivity)",
+                         description="Fit the scene's impedance table with a stable, passive, common-pole "
+                                     "rational model K(s) = D + sE + sum R_k/(s - p_k).")
+    fit.add_argument("scene", help="scene TOML file or built-in scene name")
+    fit.add_argument("--tol", type=float, default=None,
+                     help="relative Frobenius error over the band (default: [analysis].fit_tol, else 0.01)")
+    fit.add_argument("--table", choices=("gap", "rigid"), default="gap",
+                     help="which impedance: gap = rigid raft + N vertical soil DOFs, used by the time "
+                          "routes (default); rigid = 6x6")
+    fit.add_argument("-o", "--output", type=Path, help="write the fitted model and its report (HDF5)")
+    fit.add_argument("--plot", type=Path, help="plot table vs model and the error per frequency")
+    fit.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    fit.set_defaults(func=cmd_fit)
+
+    exp = sub.add_parser("export", help="export the structure and soil FMUs and an SSP system",
+                         description="Write structure.fmu, soil.fmu and system.ssd (FMI 2.0 co-simulation, "
+                                     "fixed step) for the scene; libcosimpy runs the .ssd as it is.")
+    exp.add_argument("scene", help="scene TOML file or built-in scene name")
+    exp.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output directory")
+    exp.set_defaults(func=cmd_export)
+
     run = sub.add_parser("run", help="run the scene's analyses (time-domain routes)",
                          description="Run the scene's analyses and write the results (HDF5) and a summary.")
     run.add_argument("scene", help="scene TOML file or built-in scene name")
@@ -113,6 +134,50 @@ def _print_rigid_summary(table, wall, file):
     print("   f (Hz) " + "".join(f"{d:>24s}" for d in table.dofs), file=file)
     for f, row in zip(table.frequencies_hz, diag):
         print(f"{f:9.3f} " + "".join(f"{z.real:12.4e}{z.imag:+12.4e}" for z in row), file=file)
+
+
+def cmd_fit(args) -> int:
+    from orchestrator.impedance import scene_impedance
+    from orchestrator.progress import Progress
+    from orchestrator.run import scene_fit_tol
+    from orchestrator.scene import load_scene
+    from soil_impedance.fit import fit_table, save_fit
+
+    t0 = time.perf_counter()
+    scene = load_scene(args.scene)
+    tol = args.tol if args.tol is not None else scene_fit_tol(scene)
+    cache = default_cache_dir()
+    table = scene_impedance(scene, (args.table,), cache_dir=cache,
+                            progress=_hz(Progress(f"impedance {scene.name}")))[args.table]
+    result = fit_table(table, tol=tol, cache_dir=cache)
+    if args.output:
+        save_fit(result, args.output)
+        print(f"wrote {args.output}", file=sys.stderr)
+    if args.plot:
+        result.plot(table, args.plot)
+        print(f"wrote {args.plot}", file=sys.stderr)
+    out = dict(result.report.summary(), wall_s=time.perf_counter() - t0)
+    if args.json:
+        print(json.dumps(out))
+    else:
+        print(f"{args.table} table of {scene.name}: {out['order']} poles, max relative error "
+              f"{100 * out['max_rel_error']:.2f} % (tol {100 * tol:g} %), passive: {out['passive']} "
+              f"(margin {out['passivity_margin']:.3g}), {out['wall_s']:.1f} s", file=sys.stderr)
+    return EXIT_OK
+
+
+def cmd_export(args) -> int:
+    from orchestrator.cosim import scene_soil_model
+    from orchestrator.export import export_scene
+    from orchestrator.run import scene_fit_tol
+    from orchestrator.scene import load_scene
+
+    scene = load_scene(args.scene)
+    model = scene_soil_model(scene, cache_dir=default_cache_dir(), tol=scene_fit_tol(scene))
+    exported = export_scene(scene, args.output, model, cache_dir=default_cache_dir())
+    for path in (exported.structure, exported.soil, exported.ssd):
+        print(f"wrote {path}", file=sys.stderr)
+    return EXIT_OK
 
 
 def cmd_run(args) -> int:

@@ -4,6 +4,7 @@ Every domain error of the project subclasses ValueError (bad input, the message 
 fix) or RuntimeError (a computation that could not finish, e.g. Newton failing).
 """
 from soil_impedance import BemError, MeshError, SoilError, TableError
+from soil_impedance.rational import FitError
 
 from structure import StructureError
 
@@ -11,7 +12,7 @@ from orchestrator.motion import MotionError
 from orchestrator.scene import SceneError
 
 #: bad input: a scene, a file, an option; the message says what to fix
-UserInputError = (SceneError, SoilError, MeshError, BemError, TableError, MotionError, StructureError,
+UserInputError = (SceneError, SoilError, MeshError, BemError, TableError, MotionError, StructureError, FitError,
                   FileNotFoundError)
 #: a computation that stopped (results so far are written by the caller)
 ComputationError = (RuntimeError, ArithmeticError)

@@ -70,3 +70,81 @@ class RationalModel:
     def frequency_response(self, freq_hz) -> np.ndarray:
         """K(iω) at ω = 2π f, shape (F, n, n), comparable with an ImpedanceTable's matrices."""
         return self(2j * np.pi * np.asarray(freq_hz, float))
+
+
+# ---------------------------------------------------------------------------------------------
+# Real coefficient form and HDF5 I/O (added by the fit; the contract above is unchanged)
+# ---------------------------------------------------------------------------------------------
+MODEL_FORMAT = "uplift.RationalModel"
+MODEL_FORMAT_VERSION = 1
+
+
+def to_coefficients(model: RationalModel) -> np.ndarray:
+    """Real coefficient form, shape (m + 2, n, n): K(s) = Σ_b φ_b(s) C_b.
+
+    The basis φ_b is ``vectfit.real_basis(s, model.poles)``: one column per real pole, two per
+    conjugate pair (residue c1 + i c2 on p, c1 − i c2 on p̄), then 1 (C = D) and s (C = E).
+    """
+    from .vectfit import residues_to_coefficients
+    return np.concatenate([residues_to_coefficients(model.residues, model.poles),
+                           model.D[None], model.E[None]])
+
+
+def from_coefficients(poles, coefficients, dofs=(), provenance=None) -> RationalModel:
+    """Inverse of ``to_coefficients`` (poles in ``vectfit.canonical_poles`` order)."""
+    from .vectfit import coefficients_to_residues
+    C = np.asarray(coefficients, float)
+    m = np.asarray(poles).size
+    return RationalModel(poles, coefficients_to_residues(C[:m], poles), C[m], C[m + 1],
+                         list(dofs), dict(provenance or {}))
+
+
+def save_model(model: RationalModel, path) -> None:
+    """Write a model to HDF5 (overwrites).
+
+    Layout: /poles_real, /poles_imag (m,) rad/s; /residues_real, /residues_imag (m, n, n);
+    /D, /E (n, n); /dofs utf-8 (n,); attrs format = "uplift.RationalModel", format_version = 1,
+    provenance (JSON).
+    """
+    import json
+    import h5py
+    with h5py.File(path, "w") as h:
+        h.attrs["format"] = MODEL_FORMAT
+        h.attrs["format_version"] = MODEL_FORMAT_VERSION
+        h.attrs["provenance"] = json.dumps(model.provenance, sort_keys=True, default=str)
+        h.create_dataset("poles_real", data=model.poles.real).attrs["units"] = "rad/s"
+        h.create_dataset("poles_imag", data=model.poles.imag).attrs["units"] = "rad/s"
+        h.create_dataset("residues_real", data=model.residues.real)
+        h.create_dataset("residues_imag", data=model.residues.imag)
+        h.create_dataset("D", data=model.D)
+        h.create_dataset("E", data=model.E)
+        h.create_dataset("dofs", data=np.array(model.dofs, dtype=object), dtype=h5py.string_dtype("utf-8"))
+
+
+def load_model(path) -> RationalModel:
+    """Read a model written by ``save_model``; FitError on a missing or foreign file."""
+    import json
+    import h5py
+    try:
+        h = h5py.File(path, "r")
+    except OSError as exc:
+        raise FitError(f"{path}: cannot open as an HDF5 rational model ({exc})") from None
+    with h:
+        if h.attrs.get("format") != MODEL_FORMAT:
+            raise FitError(f"{path}: not an {MODEL_FORMAT} file (attribute 'format' missing or wrong)")
+        if int(h.attrs.get("format_version", -1)) != MODEL_FORMAT_VERSION:
+            raise FitError(f"{path}: format_version {h.attrs.get('format_version')}, "
+                           f"this code reads {MODEL_FORMAT_VERSION}: refit the table")
+        try:
+            p = h["poles_real"][()] + 1j * h["poles_imag"][()]
+            R = h["residues_real"][()] + 1j * h["residues_imag"][()]
+            D, E = h["D"][()], h["E"][()]
+            dofs = [d.decode() if isinstance(d, bytes) else str(d) for d in h["dofs"][()]]
+            prov = json.loads(h.attrs["provenance"])
+        except KeyError as exc:
+            raise FitError(f"{path}: missing dataset or attribute {exc}: refit the table") from None
+    return RationalModel(p, R, D, E, dofs, prov)
+
+
+RationalModel.save = save_model
+RationalModel.load = staticmethod(load_model)

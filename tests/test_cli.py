@@ -63,3 +63,16 @@ def test_bad_input_exit_code(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["--help"])
     assert exc.value.code == 0
+
+
+def test_fit_json_contract(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("UPLIFT_CACHE", str(tmp_path / "cache"))
+    path = tmp_path / "disk.toml"
+    path.write_text(SCENE.format(freqs="[0.0, 2.0, 4.0, 6.0, 8.0, 10.0, 12.0, 14.0, 16.0]"))
+    model = tmp_path / "model.h5"
+    assert main(["fit", str(path), "--table", "rigid", "--tol", "0.01", "--json", "-o", str(model)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert set(out) == {"order", "max_rel_error", "passive", "passivity_margin", "wall_s"}
+    assert out["max_rel_error"] <= 0.01 and out["passive"] and out["order"] <= 24
+    from soil_impedance.fit import load_fit
+    assert load_fit(model).report.max_rel_error == pytest.approx(out["max_rel_error"])
