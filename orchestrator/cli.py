@@ -64,6 +64,14 @@ def _parser() -> argparse.ArgumentParser:
     exp.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output directory")
     exp.set_defaults(func=cmd_export)
 
+    cmp = sub.add_parser("compare", help="differences between the routes of a results file",
+                         description="Compare the routes of a results file (max uplift, raft rotation, "
+                                     "floor-spectrum peaks, run times) against a reference route.")
+    cmp.add_argument("results", type=Path, help="results HDF5 file written by `uplift run`")
+    cmp.add_argument("--reference", default=None, help="reference route (default: timefreq, else the first)")
+    cmp.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    cmp.set_defaults(func=cmd_compare)
+
     run = sub.add_parser("run", help="run the scene's analyses (time-domain routes)",
                          description="Run the scene's analyses and write the results (HDF5) and a summary.")
     run.add_argument("scene", help="scene TOML file or built-in scene name")
@@ -177,6 +185,24 @@ def cmd_export(args) -> int:
     exported = export_scene(scene, args.output, model, cache_dir=default_cache_dir())
     for path in (exported.structure, exported.soil, exported.ssd):
         print(f"wrote {path}", file=sys.stderr)
+    return EXIT_OK
+
+
+def cmd_compare(args) -> int:
+    from orchestrator.compare import compare, format_table
+    from orchestrator.results import read_results
+
+    if not args.results.is_file():
+        raise FileNotFoundError(f"results file {str(args.results)!r} does not exist: run `uplift run SCENE -o FILE` first")
+    results = read_results(args.results)
+    if args.reference is not None and args.reference not in results:
+        raise FileNotFoundError(f"--reference {args.reference!r} is not in {args.results} "
+                                f"(routes: {', '.join(results)})")
+    table = compare(results, reference=args.reference)
+    if args.json:
+        print(json.dumps(table))
+    else:
+        print(format_table(table))
     return EXIT_OK
 
 

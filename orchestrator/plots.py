@@ -69,22 +69,30 @@ def _edges(xy):
 
 def plot_run(results: dict, motion, scene, directory) -> list:
     """Figures of the paper's kind for each route: uplift at the raft edges (fig. 3-4), raft
-    edge displacements and rotation, floor response spectra at the output nodes (fig. 6)."""
+    edge displacements and rotation, floor response spectra at the output nodes (fig. 5-6).
+    When the ``linear`` route (no uplift) is among the results, it is drawn dashed on the other
+    routes' figures: the paper's "with and without uplift" comparison."""
     from orchestrator.spectra import response_spectrum
 
     plt = _pyplot()
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     paths = []
+    linear = results.get("linear")
     for route, res in results.items():
         left, right = _edges(res.xy)
         t = res.time
+        lin = linear if linear is not None and route != "linear" else None
         fig, axes = plt.subplots(3, 1, figsize=(10, 9), sharex=True, constrained_layout=True)
         for i, label in ((left, "edge x-"), (right, "edge x+")):
             axes[0].plot(t, 1e3 * res.gap[:, i], label=f"{label} ({res.xy[i, 0]:.1f} m)")
             x, y = res.xy[i]
             trace = res.raft[:, 2] + res.raft[:, 3] * y - res.raft[:, 4] * x
-            axes[1].plot(t, 1e3 * trace, label=label)
+            line, = axes[1].plot(t, 1e3 * trace, label=label)
+            if lin is not None:
+                trace0 = lin.raft[:, 2] + lin.raft[:, 3] * y - lin.raft[:, 4] * x
+                axes[1].plot(lin.time, 1e3 * trace0, "--", color=line.get_color(), lw=0.8,
+                             label=f"{label}, no uplift")
         axes[0].set_ylabel("uplift (mm)")
         axes[1].set_ylabel("raft vertical displacement (mm)")
         axes[2].plot(t, 1e3 * res.raft[:, 4], label="ry")
@@ -103,7 +111,11 @@ def plot_run(results: dict, motion, scene, directory) -> list:
             fig, ax = plt.subplots(figsize=(8, 5), constrained_layout=True)
             for name, acc in res.acc.items():
                 s = response_spectrum(acc[:, 0], res.time[1] - res.time[0], 1 / f, 0.05)
-                ax.semilogx(f, s.psa / 9.81, label=name)
+                line, = ax.semilogx(f, s.psa / 9.81, label=name)
+                if lin is not None and name in lin.acc:
+                    s0 = response_spectrum(lin.acc[name][:, 0], lin.time[1] - lin.time[0], 1 / f, 0.05)
+                    ax.semilogx(f, s0.psa / 9.81, "--", color=line.get_color(), lw=0.8,
+                                label=f"{name}, no uplift")
             ground = response_spectrum(motion.acc[: res.nt, 0], motion.dt, 1 / f, 0.05)
             ax.semilogx(f, ground.psa / 9.81, "k--", label="ground")
             ax.set_xlabel("frequency (Hz)")

@@ -62,9 +62,9 @@ def test_run_json_and_results_file(tmp_path, capsys):
         assert f["routes/winkler/gap"].shape == (301, 16)
 
 
-def test_unavailable_route_is_refused(tmp_path, capsys):
-    assert main(["run", str(_scene(tmp_path)), "--route", "timefreq"]) == 2
-    assert "not available in this version" in capsys.readouterr().err
+def test_unknown_route_is_refused(tmp_path, capsys):
+    assert main(["run", str(_scene(tmp_path)), "--route", "fem"]) == 2
+    assert "unknown route 'fem'; available: winkler, monolithic" in capsys.readouterr().err
 
 
 def test_plots_written(tmp_path, capsys):
@@ -133,9 +133,17 @@ def test_monolithic_and_cosim_routes_agree(tmp_path, capsys):
     path = tmp_path / "bem.toml"
     path.write_text(text + "[impedance]\nrange_hz = [0.0, 20.0, 11]\n")
     out = tmp_path / "r.h5"
-    assert main(["run", str(path), "-o", str(out), "--route", "monolithic", "--route", "cosim"]) == 0
+    assert main(["run", str(path), "-o", str(out), "--route", "monolithic", "--route", "cosim",
+                 "--route", "linear"]) == 0
     res = read_results(out)
     mono, cosim = res["monolithic"], res["cosim"]
     assert mono.converged and cosim.converged and mono.gap.max() > 0
     scale = np.abs(mono.raft).max()
     assert np.abs(cosim.raft - mono.raft).max() <= 1e-10 * scale
+    capsys.readouterr()
+    assert main(["compare", str(out), "--reference", "monolithic", "--json"]) == 0
+    table = json.loads(capsys.readouterr().out)
+    assert table["reference"] == "monolithic"
+    assert abs(table["differences"]["cosim"]["max_uplift"]) <= 1e-10
+    assert table["routes"]["linear"]["max_uplift_m"] == 0.0      # the linear route never lifts
+    assert main(["compare", str(out), "--reference", "nope"]) == 2

@@ -1,0 +1,99 @@
+"""Linear frequency-domain route: full contact (no uplift), the soil's K(s) used directly.
+
+The raft is bonded to the soil through the stepper's penalty springs (contact disabled:
+P = P0 - kp d, the same linear model ``structure.simulate`` runs with ``enabled = False``), so
+per frequency (S + kp) d = f (tf_operator), solved by the Richardson iteration
+d <- (f - S d) / kp (||S|| / kp ~ 1e-4 with the auto penalty: converges to round-off in a
+few sweeps; a dense per-frequency solve is the fallback). The structure is condensed
+exactly on the raft with all its fixed-base modes; the soil is the BEM table interpolated at
+the FFT frequencies (spring-dashpot continuation above the table, see tf_soil); zero
+padding and an exponential window control wrap-around (tf_grid); FFTs through pyfftw.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from structure.contact import ContactSettings
+
+from orchestrator.tf_problem import prepare, result
+
+
+def solve_bonded(op, f_hat, kp, tol=1e-15, max_sweeps=60):
+    """d (N, F) with (S + diag kp) d = f_hat (N, F). Returns (d, sweeps, method)."""
+    kpc = kp[:, None]
+    d = f_hat / kpc
+    prev = np.inf
+    for it in range(1, max_sweeps + 1):
+        dn = (f_hat - op.apply_S(d)) / kpc
+        ch = np.linalg.norm(dn - d) / max(np.linalg.norm(dn), 1e-300)
+        d = dn
+        if ch <= tol:
+            return d, it, "richardson"
+        if it > 3 and ch > 0.5 * prev:
+            break
+        prev = ch
+    # fallback: dense solve per frequency
+    N = kp.size
+    idx = np.arange(N)
+    out = np.empty_like(d)
+    for c in range(0, f_hat.shape[1], 32):
+        sl = slice(c, min(c + 32, f_hat.shape[1]))
+        S = _S_chunk(op, idx, sl)
+        S[:, idx, idx] += kp
+        out[:, sl] = np.linalg.solve(S, f_hat[:, sl].T[:, :, None])[:, :, 0].T
+    return out, it, "dense"
+
+
+def _S_chunk(op, idx, sl):
+    F = op.s.size
+    full = op.S_sub(idx, idx) if F <= 64 else None
+    if full is not None:
+        return full[sl]
+    sub = np.empty((sl.stop - sl.start, idx.size, idx.size), complex)
+    for band in op.soil.bands:
+        sel = (band.idx >= sl.start) & (band.idx < sl.stop)
+        if sel.any():
+            fi = band.idx[sel]
+            if hasattr(band, "K"):
+                sub[fi - sl.start] = band.K[sel][:, 6:, 6:]
+            else:
+                sub[fi - sl.start] = band.sub_ww(idx, idx, op.s[fi])
+    sub -= op.Vr[sl] @ (op.Zinv[sl] @ op.Vl[sl])
+    return sub
+
+
+def linear_fd(model, soil, ag, dt, contact=None, damping=None, output_nodes=None, pad_s=None,
+              wrap_tol=1e-4, bilinear=False, nfft=None, route="linear"):
+    """Linear (bonded) frequency-domain response to ground acceleration ag (nt, 3) m/s^2.
+
+    soil: ImpedanceTable ("gap", 6+N), WinklerSoil, RationalModel or RecursiveConvolutionSoil.
+    Returns a RouteResult (gap zero, contact_force P0 - kp d, may be negative = tension).
+    """
+    t0 = time.perf_counter()
+    contact = ContactSettings(enabled=False, penalty=(contact.penalty if contact else "auto"))
+    prob = prepare(model, soil, ag, dt, contact=contact, damping=damping, pad_s=pad_s,
+                   wrap_tol=wrap_tol, bilinear=bilinear, nfft=nfft)
+    g = prob.grid
+    f_hat = g.to_freq(prob.f)
+    d_hat, sweeps, how = solve_bonded(prob.op, f_hat, prob.kp)
+    d = g.to_time(d_hat)
+    P = prob.P0[:, None] - prob.kp[:, None] * d
+    wall = time.perf_counter() - t0
+    return result(prob, route, d, P, np.zeros_like(d), output_nodes, True, "", wall,
+                  dict(method="linear-fd", bonded_solver=how, sweeps=sweeps))
+
+
+def run_linear(scene, motion, model, table_gap, contact=None, damping=None, output_nodes=None,
+               **options):
+    """The ``linear`` route of a scene: RouteResult of ``linear_fd`` with the scene's BEM gap
+    table, motion (orchestrator.motion.Motion), structure and contact penalty."""
+    from structure.spec import contact_from_spec
+
+    from orchestrator.run import output_nodes as scene_nodes
+
+    contact = contact or contact_from_spec(scene.section("contact"))
+    nodes = output_nodes if output_nodes is not None else scene_nodes(scene)
+    return linear_fd(model, table_gap, motion.acc, motion.dt, contact=contact, damping=damping,
+                     output_nodes=nodes, **options)

@@ -1,0 +1,205 @@
+"""Soil impedance K(s) on x = [q, w] (6 + N DOFs) at the grid's complex frequencies.
+
+A soil is held as frequency bands, each either dense (one (n, n) matrix per frequency) or
+affine (K = A + s B with constant A, B): a band is applied to many frequencies at once.
+
+Sources (``soil_bands``):
+
+* ImpedanceTable (the BEM "gap" table): for f <= f_max, the table's cubic spline in f
+  (the same not-a-knot spline as ``ImpedanceTable.at``) continued to the complex frequency
+  f_c = s / (2 pi i) (continuous grid: f - i eta / 2 pi; bilinear grid: the warped s_d, what
+  a trapezoidal recursion of the exact table would see) by its second-order Taylor series
+  about Re f_c (spline derivatives; error O(|Im f_c|^3 K''')); the bands split on Re f_c.
+  Above f_max: the spring-dashpot continuation K = Re K(f_max) + s Im K(f_max) / w_max
+  (continuous at f_max; the high-frequency impedance of a surface foundation tends to a
+  dashpot). Its static stiffness is Re K(0) (the table must start at 0 Hz).
+* WinklerSoil: K + s C, exact (also for the bilinear map: the stepper sees K x + C xdot).
+* RationalModel: K(s) exactly (bilinear grids: K(s_d), what a trapezoidal recursion gives).
+* RecursiveConvolutionSoil: the recursion's own z-transform
+  D + s_d E + sum_k R_k b_k (z + 1)/(z - a_k) at z = e^{s dt} (equals K(s_d) to round-off).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True, eq=False)
+class DenseBand:
+    """K (Fb, n, n) complex at the grid frequencies idx (Fb,)."""
+    idx: np.ndarray
+    K: np.ndarray
+
+    def full(self, s):
+        return self.K
+
+    def apply_ww(self, X, s):
+        """X (Fb, N, r) -> K_ww X."""
+        return np.matmul(self.K[:, 6:, 6:], X)
+
+    def sub_ww(self, rows, cols, s):
+        return self.K[:, 6 + rows[:, None], 6 + cols[None, :]]
+
+    def rows_P(self, s, Bq):
+        """(K[w, :] P (Fb, N, 6), P^T K[:, w] (Fb, 6, N), P^T K P (Fb, 6, 6)), P = [I; Bq]."""
+        K = self.K
+        Vr = K[:, 6:, :6] + K[:, 6:, 6:] @ Bq
+        Vl = K[:, :6, 6:] + np.swapaxes(Bq, 0, 1) @ K[:, 6:, 6:]
+        KPP = K[:, :6, :6] + K[:, :6, 6:] @ Bq + np.swapaxes(Bq, 0, 1) @ Vr
+        return Vr, Vl, KPP
+
+
+@dataclass(frozen=True, eq=False)
+class AffineBand:
+    """K = A + s B (A, B real (n, n), dense or sparse) at the grid frequencies idx."""
+    idx: np.ndarray
+    A: object
+    B: object
+
+    def full(self, s):
+        A, B = _dense(self.A), _dense(self.B)
+        return A[None] + s[:, None, None] * B[None]
+
+    def apply_ww(self, X, s):
+        Aw, Bw = self._ww()
+        Fb, N, r = X.shape
+        Xt = np.ascontiguousarray(np.moveaxis(X, 0, 1)).reshape(N, Fb * r)      # (N, Fb r)
+        Y = _real_apply(Aw, Xt) + _real_apply(Bw, Xt * np.repeat(s, r)[None, :])
+        return np.moveaxis(Y.reshape(N, Fb, r), 1, 0)
+
+    def _ww(self):
+        if not hasattr(self, "_cache"):
+            A, B = self.A, self.B
+            object.__setattr__(self, "_cache", (_sub(A, slice(6, None), slice(6, None)),
+                                                _sub(B, slice(6, None), slice(6, None))))
+        return self._cache
+
+    def sub_ww(self, rows, cols, s):
+        Aw, Bw = self._ww()
+        a = _dense(Aw[rows][:, cols]) if hasattr(Aw, "tocsr") else Aw[np.ix_(rows, cols)]
+        b = _dense(Bw[rows][:, cols]) if hasattr(Bw, "tocsr") else Bw[np.ix_(rows, cols)]
+        return a[None] + s[:, None, None] * b[None]
+
+    def rows_P(self, s, Bq):
+        out = []
+        for M in (_dense(self.A), _dense(self.B)):
+            Vr = M[6:, :6] + M[6:, 6:] @ Bq
+            Vl = M[:6, 6:] + Bq.T @ M[6:, 6:]
+            KPP = M[:6, :6] + M[:6, 6:] @ Bq + Bq.T @ Vr
+            out.append((Vr, Vl, KPP))
+        (a1, a2, a3), (b1, b2, b3) = out
+        ss = s[:, None, None]
+        return a1 + ss * b1, a2 + ss * b2, a3 + ss * b3
+
+
+def _dense(M):
+    return M.toarray() if hasattr(M, "toarray") else np.asarray(M, float)
+
+
+def _sub(M, r, c):
+    if hasattr(M, "tocsr"):
+        return M.tocsr()[r][:, c].tocsr()
+    return np.ascontiguousarray(np.asarray(M, float)[r, c])
+
+
+def _real_apply(M, X):
+    """M (N, N) real (dense or sparse) times complex X (N, m) without complexifying M."""
+    Xr = X.view(float).reshape(X.shape[0], 2 * X.shape[1]) if X.flags.c_contiguous else \
+        np.ascontiguousarray(X).view(float).reshape(X.shape[0], 2 * X.shape[1])
+    Y = M @ Xr
+    return np.ascontiguousarray(Y).view(complex)
+
+
+@dataclass(frozen=True, eq=False)
+class SoilBands:
+    """The soil on the whole grid: bands partition the F frequencies; K0 (n, n) real, the
+    static stiffness (for the preload and the penalty rule); label says where it came from."""
+    bands: tuple
+    K0: np.ndarray
+    n: int
+    label: str
+
+    def static_stiffness(self):
+        return self.K0
+
+
+def soil_bands(soil, grid) -> SoilBands:
+    """SoilBands of an ImpedanceTable, WinklerSoil, RationalModel or RecursiveConvolutionSoil."""
+    from soil_impedance.rational import RationalModel
+    from soil_impedance.table import ImpedanceTable
+    from structure.soil_interface import WinklerSoil
+
+    s = grid.s
+    F = s.size
+    allf = np.arange(F)
+    if isinstance(soil, ImpedanceTable):
+        return _table_bands(soil, grid)
+    if isinstance(soil, WinklerSoil):
+        K, C = soil.instantaneous(grid.dt)
+        return SoilBands((AffineBand(allf, K, C),), _dense(soil.static_stiffness()), soil.n_dof,
+                         "winkler springs and dashpots K + s C")
+    if isinstance(soil, RationalModel):
+        K0 = soil(np.zeros(1))[0].real
+        return SoilBands((DenseBand(allf, soil(s)),), 0.5 * (K0 + K0.T), soil.n,
+                         "rational model K(s)" + (" at the bilinear s_d" if grid.bilinear else ""))
+    if hasattr(soil, "model") and isinstance(getattr(soil, "model"), RationalModel):
+        return _recursion_bands(soil, grid)
+    raise TypeError(f"cannot use a {type(soil).__name__} as a frequency-domain soil: give an "
+                    "ImpedanceTable, WinklerSoil, RationalModel or RecursiveConvolutionSoil")
+
+
+def _recursion_bands(soil, grid):
+    from soil_impedance.convolution import bilinear_coefficients
+
+    model = soil.model
+    if not grid.bilinear or abs(soil.dt - grid.dt) > 1e-12 * grid.dt:
+        raise ValueError("a RecursiveConvolutionSoil is a discrete-time model: use it on a bilinear "
+                         f"grid with the same dt (soil dt = {soil.dt}, grid dt = {grid.dt}, "
+                         f"bilinear = {grid.bilinear})")
+    z = grid.z
+    a, b = bilinear_coefficients(model.poles, grid.dt)
+    sb = grid.s
+    g = b * (z[:, None] + 1) / (z[:, None] - a)
+    K = model.D + sb[:, None, None] * model.E + np.einsum("fk,kij->fij", g, model.residues)
+    return SoilBands((DenseBand(np.arange(z.size), K),), np.asarray(soil.static_stiffness(), float),
+                     model.n, "recursive convolution z-transform")
+
+
+def _table_bands(table, grid) -> SoilBands:
+    from scipy.interpolate import CubicSpline
+
+    f_tab = table.frequencies_hz
+    if f_tab[0] != 0.0:
+        raise ValueError(f"the impedance table starts at {f_tab[0]:g} Hz: the frequency-domain routes "
+                         "need K(0) (static preload, penalty): include 0 Hz in the sweep")
+    # complex frequency of each grid point: f_c = s / (2 pi i) (continuous: f - i eta / 2 pi;
+    # bilinear: the warped s_d); the spline is continued from Re f_c by its Taylor series
+    fcx = grid.s / (2j * np.pi)
+    fq = fcx.real
+    fmax = f_tab[-1]
+    lo = np.flatnonzero(fq <= fmax * (1 + 1e-12))
+    hi = np.flatnonzero(fq > fmax * (1 + 1e-12))
+    Kt = table.matrices
+    n = Kt.shape[1]
+    K = np.empty((lo.size, n, n), complex)
+    if f_tab.size >= 4:
+        sp_re = CubicSpline(f_tab, Kt.real, axis=0)
+        sp_im = CubicSpline(f_tab, Kt.imag, axis=0)
+        for c in range(0, lo.size, 64):
+            fc = fq[lo[c:c + 64]]
+            dz = (1j * fcx[lo[c:c + 64]].imag)[:, None, None]
+            val = sp_re(fc) + 1j * sp_im(fc)
+            d1 = sp_re(fc, 1) + 1j * sp_im(fc, 1)
+            d2 = sp_re(fc, 2) + 1j * sp_im(fc, 2)
+            K[c:c + 64] = val + dz * d1 + 0.5 * dz * dz * d2
+    else:
+        K[:] = table.at(fq[lo])
+    bands = [DenseBand(lo, K)]
+    if hi.size:
+        wmax = 2 * np.pi * fmax
+        bands.append(AffineBand(hi, np.ascontiguousarray(Kt[-1].real),
+                                np.ascontiguousarray(Kt[-1].imag / wmax)))
+    K0 = Kt[0].real
+    return SoilBands(tuple(bands), 0.5 * (K0 + K0.T), n,
+                     f"BEM table to {fmax:g} Hz (spline at f - i eta/2pi), spring-dashpot above")

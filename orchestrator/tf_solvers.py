@@ -1,0 +1,333 @@
+"""Solvers of the contact equation over the whole time range (paper §3).
+
+With the renormalised unknown z = z0 + y (tf_problem), the penetration e = phi(z) and the
+dynamic contact force p = k z^+ - P0, the condensed system p = S * d - lam f (d = -(phi(z) -
+phi(z0)), lam the motion scale) is the residual over [0, T], (N, nt), in N:
+
+    g(y) = S * [phi(z0 + y) - phi(z0)] + k (z0 + y)^+ - P0 + lam f = 0        (paper eq. 16)
+
+S* is applied per frequency (tf_operator) between windowed FFTs (tf_grid). Its generalized
+(semi-smooth) Jacobian is J v = S * [(I^- + eps I^+) v] + k I^+ v with I^+ = [z > 0] the
+active (closed) set, time-varying (paper eq. 18 with eps -> 0).
+
+* ``paper_scheme``: y <- y - rho G^-1 g(y), G the order-0 stochastic linearisation of J:
+  I^+- replaced by their time averages, globally or per window (restriction R_n, eq. 20).
+* ``newton_krylov``: semi-smooth Newton, J dy = -g solved by right-preconditioned FGMRES
+  with the averaged operator G as preconditioner (for full contact G = k + eps S, the
+  full-contact operator), backtracking line search on |g|, and load continuation (ramping
+  lam) when Newton stalls.
+
+G per frequency: columns of never-open nodes are k e_j (times 1 + O(eps)), so G is block
+lower-triangular: only the m x m block of the nodes that open is factorised per frequency.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+
+class ContactEquation:
+    """g(y), J v and the averaged preconditioner of one ContactProblem at motion scale lam."""
+
+    def __init__(self, prob, lam: float = 1.0):
+        self.p, self.lam = prob, float(lam)
+        self.g = prob.grid
+        self.z0 = prob.z0
+        self.phi0 = prob.phi(self.z0[:, None])
+        self.k = prob.k[:, None]
+        self.eps = prob.eps[:, None]
+        self.n_res = 0
+        self.n_jv = 0
+
+    def S(self, x):
+        """S * x for x (N, nt) causal."""
+        return self.g.to_time(self.p.op.apply_S(self.g.to_freq(x)))
+
+    def residual(self, y):
+        self.n_res += 1
+        z = self.z0[:, None] + y
+        return self.S(self.p.phi(z) - self.phi0) + self.k * np.maximum(z, 0.0) \
+            - self.p.P0[:, None] + self.lam * self.p.f
+
+    def jvp(self, y, v):
+        self.n_jv += 1
+        closed = (self.z0[:, None] + y) > 0
+        return self.S(np.where(closed, self.eps * v, v)) + np.where(closed, self.k * v, 0.0)
+
+    def averaged(self, y, windows=1):
+        """AveragedOperator (list over windows) of the active set at y."""
+        closed = (self.z0[:, None] + y) > 0
+        nt = y.shape[1]
+        edges = np.linspace(0, nt, windows + 1).round().astype(int)
+        return [AveragedOperator(self, 1.0 - closed[:, a:b].mean(axis=1), a, b)
+                for a, b in zip(edges[:-1], edges[1:])]
+
+
+class AveragedOperator:
+    """G = S (Dm + eps Dp) + k Dp, Dm/Dp the time-averaged open/closed fractions (N,) on one
+    window [a, b); ``solve(r)`` = G^-1 (R r), R the restriction to the window."""
+
+    def __init__(self, eq: ContactEquation, open_frac, a, b):
+        self.eq, self.a, self.b = eq, a, b
+        self.Dm = open_frac
+        self.Dp = 1.0 - open_frac
+        op = eq.p.op
+        self.O = np.flatnonzero(open_frac > 0)
+        self.C = np.flatnonzero(open_frac <= 0)
+        k, eps = eq.p.k, eq.p.eps
+        self.kO, self.kC = k[self.O], k[self.C]
+        self.colO = self.Dm[self.O] + eps[self.O] * self.Dp[self.O]
+        if self.O.size:
+            G = op.S_sub(self.O, self.O) * self.colO[None, None, :]
+            G[:, np.arange(self.O.size), np.arange(self.O.size)] += self.kO * self.Dp[self.O]
+            self.Ginv = np.linalg.inv(G)
+
+    @property
+    def n_open(self) -> int:
+        return int(self.O.size)
+
+    def solve(self, r):
+        eq = self.eq
+        if self.a > 0 or self.b < r.shape[1]:
+            rr = np.zeros_like(r)
+            rr[:, self.a:self.b] = r[:, self.a:self.b]
+            r = rr
+        if not self.O.size:
+            return r / eq.k
+        g = eq.g
+        R = g.to_freq(r)                                     # (N, F)
+        xO = np.einsum("fij,jf->if", self.Ginv, R[self.O])   # (m, F)
+        full = np.zeros_like(R)
+        full[self.O] = xO * self.colO[:, None]
+        SX = eq.p.op.apply_S(full)
+        X = np.empty_like(R)
+        X[self.O] = xO
+        X[self.C] = (R[self.C] - SX[self.C]) / self.kC[:, None]
+        return g.to_time(X)
+
+
+def precondition(ops, r):
+    out = ops[0].solve(r)
+    for o in ops[1:]:
+        out += o.solve(r)
+    return out
+
+
+def fgmres(matvec, b, precond, rtol, restart=40, maxiter=200):
+    """Right-preconditioned flexible GMRES from x = 0. Returns (x, iterations, relres)."""
+    shape = b.shape
+    bn = np.linalg.norm(b)
+    if bn == 0:
+        return np.zeros(shape), 0, 0.0
+    x = np.zeros(b.size)
+    r = b.ravel().copy()
+    total = 0
+    rel = 1.0
+    while total < maxiter:
+        beta = np.linalg.norm(r)
+        V = [r / beta]
+        Z = []
+        H = np.zeros((restart + 1, restart))
+        cs, sn = np.zeros(restart), np.zeros(restart)
+        e = np.zeros(restart + 1)
+        e[0] = beta
+        j = 0
+        for j in range(restart):
+            zj = precond(V[j].reshape(shape)).ravel()
+            Z.append(zj)
+            w = matvec(zj.reshape(shape)).ravel()
+            total += 1
+            for i in range(j + 1):
+                H[i, j] = V[i] @ w
+                w -= H[i, j] * V[i]
+            H[j + 1, j] = np.linalg.norm(w)
+            for i in range(j):
+                t = cs[i] * H[i, j] + sn[i] * H[i + 1, j]
+                H[i + 1, j] = -sn[i] * H[i, j] + cs[i] * H[i + 1, j]
+                H[i, j] = t
+            den = np.hypot(H[j, j], H[j + 1, j])
+            cs[j], sn[j] = (H[j, j] / den, H[j + 1, j] / den) if den > 0 else (1.0, 0.0)
+            H[j, j] = den
+            e[j + 1] = -sn[j] * e[j]
+            e[j] = cs[j] * e[j]
+            rel = abs(e[j + 1]) / bn
+            if rel <= rtol or total >= maxiter or H[j + 1, j] == 0:
+                break
+            V.append(w / H[j + 1, j])
+        m = j + 1
+        c = np.linalg.solve(np.triu(H[:m, :m]), e[:m])
+        x += np.column_stack(Z) @ c
+        if rel <= rtol or total >= maxiter:
+            break
+        r = b.ravel() - matvec(x.reshape(shape)).ravel()
+    return x.reshape(shape), total, rel
+
+
+def _scale(eq):
+    return max(np.linalg.norm(eq.lam * eq.p.f), 1e-300)
+
+
+def newton_krylov(prob, tol=1e-10, max_iter=200, y0=None, lam=1.0, windows=1, gmres_restart=40,
+                  gmres_maxiter=300, history=None, horizon_s=0.5):
+    """Semi-smooth Newton-Krylov at motion scale lam, advancing a time horizon.
+
+    Causality: g on [0, t) depends on y on [0, t) only. Each iteration finds the first time
+    t_b where the cumulative residual exceeds the tolerance (the prefix before it is solved),
+    and takes a Newton step for the prefix [0, t_b + H) only (J and the preconditioner masked
+    to it), with a backtracking line search on the prefix residual. H (initially horizon_s)
+    doubles after a full step and halves after a cut one. Returns (y, converged, history)."""
+    eq = ContactEquation(prob, lam)
+    nt = prob.f.shape[1]
+    y = np.zeros_like(prob.f) if y0 is None else y0.copy()
+    g = eq.residual(y)
+    scale = _scale(eq)
+    hist = [] if history is None else history
+    H = max(4, int(round(horizon_s / prob.grid.dt)))
+    Hmin = 4
+    for it in range(1, max_iter + 1):
+        gn = np.linalg.norm(g)
+        if gn <= tol * scale:
+            return y, True, hist
+        t0 = time.perf_counter()
+        cum = np.sqrt(np.cumsum(np.einsum("it,it->t", g, g)))
+        tb = int(np.searchsorted(cum, 0.5 * tol * scale))
+        hi = min(nt, tb + H)
+        mask = np.zeros(nt, bool)
+        mask[:hi] = True
+        prec = masked_preconditioner(eq, y, windows)
+        gp = np.where(mask, g, 0.0)
+        gpn = np.linalg.norm(gp)
+        dy, nit, rel = fgmres(lambda v: np.where(mask, eq.jvp(y, v), 0.0), -gp,
+                              lambda r: np.where(mask, prec(r), 0.0), 1e-3 if hi < nt else
+                              max(1e-6, min(1e-3, 0.25 * tol * scale / gn)), gmres_restart,
+                              gmres_maxiter)
+        t = 1.0
+        best = None
+        for _ in range(8):
+            yt = y + t * dy
+            gt = eq.residual(yt)
+            gtn = np.linalg.norm(np.where(mask, gt, 0.0))
+            if best is None or gtn < best[2]:
+                best = (yt, gt, gtn, t)
+            if gtn <= (1 - 1e-4 * t) * gpn:
+                break
+            t *= 0.5
+        yt, gt, gtn, t = best
+        if not np.all(np.isfinite(gt)):
+            return y, False, hist
+        if gtn < gpn:
+            y, g = yt, gt
+        H = min(2 * H, nt) if t == 1.0 else max(H // 2, Hmin)
+        hist.append(dict(lam=lam, iter=it, residual=float(np.linalg.norm(g) / scale),
+                         horizon_s=hi * prob.grid.dt, gmres=int(nit), gmres_relres=float(rel),
+                         step=float(t), n_open=int(prec.n_open), wall_s=time.perf_counter() - t0))
+        if gtn >= gpn and H == Hmin and len(hist) > 1 and hist[-2]["step"] < 1 and hist[-2]["horizon_s"] <= hi * prob.grid.dt:
+            return y, False, hist
+    return y, np.linalg.norm(g) <= tol * scale, hist
+
+
+def newton_continuation(prob, tol=1e-10, max_iter=200, windows=1, lam_steps=(), min_dlam=1 / 64,
+                        **kw):
+    """Newton-Krylov at lam = 1; if it fails, load continuation: lam ramped from the last
+    converged value with an adaptive step (doubled on success, halved on failure)."""
+    hist = []
+    y, ok, _ = newton_krylov(prob, tol, max_iter, lam=1.0, windows=windows, history=hist, **kw)
+    if ok:
+        return y, True, hist, [1.0]
+    lam_done, y_done, dl = 0.0, np.zeros_like(prob.f), 0.25
+    ladder = []
+    while lam_done < 1.0:
+        lam = min(1.0, lam_done + dl)
+        y, ok, _ = newton_krylov(prob, tol, max_iter, y0=y_done, lam=lam, windows=windows,
+                                 history=hist, **kw)
+        if ok:
+            lam_done, y_done = lam, y
+            ladder.append(lam)
+            dl = min(2 * dl, 0.5)
+        else:
+            dl *= 0.5
+            if dl < min_dlam:
+                return y_done, False, hist, ladder
+    return y_done, True, hist, ladder
+
+
+def paper_scheme(prob, rho=1.0, windows=1, tol=1e-6, max_iter=200, y0=None, lam=1.0,
+                 diverge=1e3):
+    """The paper's quasi-Newton (eq. 17-20): y <- y - rho G_n^-1 g(y), G_n the order-0
+    stochastic linearisation (averages over ``windows`` windows). Returns (y, converged,
+    history)."""
+    eq = ContactEquation(prob, lam)
+    y = np.zeros_like(prob.f) if y0 is None else y0.copy()
+    g = eq.residual(y)
+    scale = _scale(eq)
+    g0 = np.linalg.norm(g)
+    hist = []
+    for it in range(1, max_iter + 1):
+        gn = np.linalg.norm(g)
+        if gn <= tol * scale:
+            return y, True, hist
+        if not np.isfinite(gn) or gn > diverge * g0:
+            return y, False, hist
+        t0 = time.perf_counter()
+        ops = eq.averaged(y, windows)
+        y = y - rho * precondition(ops, g)
+        g = eq.residual(y)
+        hist.append(dict(iter=it, residual=float(np.linalg.norm(g) / scale),
+                         n_open=int(max(o.n_open for o in ops)), wall_s=time.perf_counter() - t0))
+    return y, np.linalg.norm(g) <= tol * scale, hist
+
+
+class MaskedOperator:
+    """Active-set preconditioner: J ~ [[k, S_co], [0, S_oo]] on the (closed, open) entries of
+    the (node, time) grid (eps terms dropped), with S_oo^-1 ~ I^- S_OO^-1 I^-: the frequency-
+    domain inverse of S on the nodes O that open in the window [a, b), applied to the masked
+    residual and masked again. Exact when the open set is constant on the window."""
+
+    def __init__(self, eq: ContactEquation, open_mask, a, b):
+        self.eq, self.a, self.b = eq, a, b
+        self.mask = np.zeros_like(open_mask)
+        self.mask[:, a:b] = open_mask[:, a:b]
+        self.O = np.flatnonzero(self.mask.any(axis=1))
+        if self.O.size:
+            key = self.O.tobytes()
+            cache = eq.__dict__.setdefault("_sinv_cache", {})
+            if key not in cache:                 # factorised once per open node set
+                if len(cache) > 4:
+                    cache.pop(next(iter(cache)))
+                cache[key] = np.linalg.inv(eq.p.op.S_sub(self.O, self.O))
+                eq.n_factor = getattr(eq, "n_factor", 0) + 1
+            self.Sinv = cache[key]
+
+    @property
+    def n_open(self) -> int:
+        return int(self.O.size)
+
+    def open_part(self, r):
+        if not self.O.size:
+            return np.zeros_like(r)
+        g = self.eq.g
+        R = g.to_freq(np.where(self.mask[self.O], r[self.O], 0.0))
+        xo = g.to_time(np.einsum("fij,jf->if", self.Sinv, R))
+        out = np.zeros_like(r)
+        out[self.O] = np.where(self.mask[self.O], xo, 0.0)
+        return out
+
+
+def masked_preconditioner(eq, y, windows=1):
+    """r -> x for the active-set preconditioner (MaskedOperator per window)."""
+    z = eq.z0[:, None] + y
+    open_mask = z <= 0
+    nt = y.shape[1]
+    edges = np.linspace(0, nt, windows + 1).round().astype(int)
+    ops = [MaskedOperator(eq, open_mask, a, b) for a, b in zip(edges[:-1], edges[1:])]
+
+    def apply(r):
+        xo = ops[0].open_part(r)
+        for o in ops[1:]:
+            xo += o.open_part(r)
+        if not open_mask.any():
+            return r / eq.k
+        return xo + np.where(open_mask, 0.0, (r - eq.S(xo)) / eq.k)
+    apply.n_open = max(o.n_open for o in ops)
+    return apply

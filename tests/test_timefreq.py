@@ -1,0 +1,90 @@
+"""Time-frequency route with uplift vs the Newmark route, and its two solvers."""
+import importlib.util
+
+import numpy as np
+import pytest
+
+from structure import ContactSettings, simulate
+
+from orchestrator.timefreq import timefreq
+from tests.test_timefreq_cases import MODEL, MESH, motion, rel, smooth_pulse, soil
+
+UPLIFT = ContactSettings(enabled=True)
+
+
+def test_bilinear_map_with_uplift_equals_newmark():
+    """Same discrete equations (trapezoidal map, same penalty): agreement to the solver
+    tolerance, < 1e-8 relative (measured ~1e-10)."""
+    ag = motion(0.3)
+    td = simulate(MODEL, soil(), ag, 0.005, contact=UPLIFT)
+    assert td.max_uplift() > 1e-3
+    tf = timefreq(MODEL, soil(), ag, 0.005, contact=UPLIFT, bilinear=True, wrap_tol=1e-10, pad_s=20.0)
+    assert tf.converged, tf.message
+    assert abs(tf.max_uplift() - td.max_uplift()) / td.max_uplift() < 1e-8
+    assert rel(tf.gap, td.gap) < 1e-8
+    assert rel(tf.contact_force, td.contact_force) < 1e-8
+    for name in td.acc:
+        assert rel(tf.acc[name], td.acc[name]) < 1e-8, name
+    assert tf.info["gmres_total"] > 0 and tf.info["history"]
+
+
+def test_continuous_tf_is_the_limit_of_newmark_with_uplift():
+    """K + i w C soil (exact in both routes), uplift under a smooth pulse: Newmark's max uplift
+    approaches the continuous-time TF value (bilinear=False, dt = 2.5 ms) as dt -> 0, within
+    2 % at dt = 2.5 ms."""
+    ref = timefreq(MODEL, soil(), smooth_pulse(0.0025, amp=3.0), 0.0025, contact=UPLIFT,
+                   bilinear=False)
+    assert ref.converged and ref.max_uplift() > 5e-4
+    errs = []
+    for dt in (0.01, 0.005, 0.0025):
+        td = simulate(MODEL, soil(), smooth_pulse(dt, amp=3.0), dt, contact=UPLIFT)
+        errs.append(abs(td.max_uplift() - ref.max_uplift()) / ref.max_uplift())
+    assert errs[2] < 0.02 and errs[2] < errs[0], errs
+
+
+def test_paper_scheme_agrees_with_newton_krylov_where_it_converges():
+    """The paper's scheme converges (slowly, linearly) with a stiff auxiliary k (30 x the local
+    static soil stiffness; k ~ K(0) diverges on the soil's high-frequency dashpots)."""
+    ag = smooth_pulse(0.005, amp=2.2)
+    nk = timefreq(MODEL, soil(), ag, 0.005, contact=UPLIFT)
+    pa = timefreq(MODEL, soil(), ag, 0.005, contact=UPLIFT, method="paper", rho=1.0, tol=1e-6,
+                  max_iter=400, aux_factor=30.0)
+    assert nk.converged and pa.converged, pa.message
+    assert nk.max_uplift() > 1e-4
+    assert abs(pa.max_uplift() - nk.max_uplift()) / nk.max_uplift() < 1e-4
+    assert rel(pa.raft[:, 4], nk.raft[:, 4]) < 1e-4
+    bad = timefreq(MODEL, soil(), ag, 0.005, contact=UPLIFT, method="paper", rho=1.0)
+    assert not bad.converged and "did not converge" in bad.message
+
+
+def test_padding_independent_with_uplift():
+    ag = smooth_pulse(0.005, amp=3.0)
+    a = timefreq(MODEL, soil(), ag, 0.005, contact=UPLIFT)
+    b = timefreq(MODEL, soil(), ag, 0.005, contact=UPLIFT, pad_s=2.5 * a.info["pad_rule_s"])
+    assert b.info["nfft"] > a.info["nfft"]
+    assert abs(a.max_uplift() - b.max_uplift()) / b.max_uplift() < 1e-3
+    for name in a.acc:
+        assert rel(a.acc[name], b.acc[name]) < 1e-3, name
+
+
+@pytest.mark.skipif(importlib.util.find_spec("soil_impedance.convolution") is None,
+                    reason="soil_impedance/convolution.py (RecursiveConvolutionSoil) does not exist yet")
+def test_bilinear_map_with_rational_soil_equals_monolithic_newmark():
+    """A frequency-dependent passive rational soil run by its recursive convolution: the TF
+    route with the recursion's z-transform equals structure.simulate to < 1e-8."""
+    from soil_impedance.convolution import RecursiveConvolutionSoil, oscillator_model
+
+    w = soil()
+    K = w.static_stiffness().toarray()
+    C = w.instantaneous(0.005)[1].toarray()
+    model = oscillator_model(K, C, terms=[(0.3, 0.02, 0.3 / (2 * np.pi * 6.0) ** 2, K)],
+                             maxwell=[(0.2, 0.2 / (2 * np.pi * 15.0), K)])
+    ag = motion(0.35)
+    td = simulate(MODEL, RecursiveConvolutionSoil(model, 0.005), ag, 0.005, contact=UPLIFT)
+    assert td.max_uplift() > 5e-4
+    tf = timefreq(MODEL, RecursiveConvolutionSoil(model, 0.005), ag, 0.005, contact=UPLIFT,
+                  bilinear=True, wrap_tol=1e-10, pad_s=20.0)
+    assert tf.converged, tf.message
+    assert rel(tf.gap, td.gap) < 1e-8
+    for name in td.acc:
+        assert rel(tf.acc[name], td.acc[name]) < 1e-8, name
