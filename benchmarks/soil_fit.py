@@ -40,9 +40,16 @@ def main(cache_dir=".cache"):
         rows.append((poles.size, err, low, t_fit, rep.passive, rep.margin, t_chk))
         print(f"{poles.size:6d} {err:21.3e} {low:10.3e} {t_fit:7.2f} {str(rep.passive):>8} {rep.margin:10.2e} "
               f"{t_chk:8.2f}")
+    # tol 0.01 is below the causality floor of this ξ = 3 % table (3–4 %, fit.py docstring): the fit
+    # stops on the floor and returns the best passive model within max_seconds, with the reason
+    t4 = time.perf_counter()
+    low = fit_table(table, tol=0.01, enforce=True)
+    r = low.report
+    print(f"\nfit_table(tol=0.01): {time.perf_counter() - t4:.1f} s wall; {r.summary()}; tol reached {r.tol_reached}, "
+          f"floor estimate {r.error_floor:.3g}")
+    print(f"  order search: {r.stop_reason}; enforcement attempts (poles, passive, err, s) {r.enforcement_attempts}")
+    print(f"  {r.message}")
     t3 = time.perf_counter()
-    # tol 0.04: the causality floor of this ξ = 3 % table is 3–4 % (fit.py docstring); with tol 0.01
-    # the order search reaches 30 poles whose enforcement does not converge (open issue)
     result = fit_table(table, tol=0.04, enforce=True)
     wall = time.perf_counter() - t3
     r = result.report

@@ -21,9 +21,31 @@ S is applied as K_ww (the soil's bands) minus a rank-6 term; it is never formed 
 """
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 
 from structure import damping_matrix, fixed_base_modes
+
+_POOL: ThreadPoolExecutor | None = None
+
+
+def _run(tasks):
+    """Run the callables (numpy/BLAS work that releases the GIL) on two threads."""
+    global _POOL
+    if len(tasks) == 1:
+        return [tasks[0]()]
+    if _POOL is None:
+        _POOL = ThreadPoolExecutor(2)
+    futs = [_POOL.submit(t) for t in tasks[1:]]
+    first = tasks[0]()
+    return [first] + [f.result() for f in futs]
+
+
+def _halves(idx):
+    """Two slices splitting range(idx.size) (one if it is short)."""
+    h = idx.size // 2
+    return [slice(0, h), slice(h, idx.size)] if h >= 8 else [slice(0, idx.size)]
 
 
 class ModalStructure:
@@ -107,7 +129,9 @@ class InterfaceOperator:
             Vr, Vl, KPP = band.rows_P(s[band.idx], Bq)
             self.Vr[band.idx], self.Vl[band.idx] = Vr, Vl
             Zqq[band.idx] += KPP
+        self.Zqq = Zqq
         self.Zinv = np.linalg.inv(Zqq)
+        self.ZV = self.Zinv @ self.Vl                                       # (F, 6, N)
         self.n_apply = 0
 
     # ---- the interface stiffness -----------------------------------------------------------
@@ -116,11 +140,27 @@ class InterfaceOperator:
         self.n_apply += 1
         Xf = np.ascontiguousarray(X.T)[:, :, None]                          # (F, N, 1)
         Y = np.empty_like(Xf)
+
+        def band_task(band, sel):
+            def run():
+                i = band.idx if sel is None else band.idx[sel]
+                Y[i] = band.apply_ww(Xf[i], self.s[i]) if sel is None else \
+                    band.apply_ww_sel(Xf[i], self.s[i], sel)
+                Y[i] -= self.Vr[i] @ (self.ZV[i] @ Xf[i])
+            return run
+
+        tasks = []
         for band in self.soil.bands:
-            Y[band.idx] = band.apply_ww(Xf[band.idx], self.s[band.idx])
-        t = self.Zinv @ (self.Vl @ Xf)                                     # (F, 6, 1)
-        Y -= self.Vr @ t
+            if hasattr(band, "apply_ww_sel") and len(self.soil.bands) == 1:
+                tasks += [band_task(band, h) for h in _halves(np.arange(band.idx.size))]
+            else:
+                tasks.append(band_task(band, None))
+        _run(tasks)
         return Y[:, :, 0].T
+
+    def sub_inverse(self, O):
+        """SubInverse: S[O, O]^-1 per frequency, applied to (m, F) arrays."""
+        return SubInverse(self, np.asarray(O))
 
     def S_sub(self, rows, cols):
         """S[rows, cols] (F, m_r, m_c)."""
@@ -140,3 +180,89 @@ class InterfaceOperator:
         """q (6, F) from the ground motion (3, F) and the contact displacement d (N, F)."""
         rhs = self.b @ ag_hat.T[:, :, None] + self.Vl @ np.ascontiguousarray(d_hat.T)[:, :, None]
         return (self.Zinv @ rhs)[:, :, 0].T
+
+
+class SubInverse:
+    """S[O, O](s)^-1 on every frequency. Dense bands: batched inverses (two threads). Affine
+    bands (K_ww = A + s B, A and B real symmetric, B positive definite): K_OO^-1 = V (L + s)^-1
+    V^T from one generalized eigendecomposition A V = B V L (V^T B V = I) for all the band's
+    frequencies, and the structure's rank-6 term by the Woodbury identity
+    S_OO^-1 = K^-1 + K^-1 Vr (Zqq - Vl K^-1 Vr)^-1 Vl K^-1 (Vr, Vl restricted to O)."""
+
+    def __init__(self, op, O):
+        from scipy.linalg import LinAlgError, eigh
+
+        from orchestrator.tf_soil import AffineBand, _dense
+
+        self.O, self.parts = O, []
+        m = O.size
+        for band in op.soil.bands:
+            idx = band.idx
+            s = op.s[idx]
+            if isinstance(band, AffineBand):
+                Aw, Bw = band._ww()
+                A = _dense(Aw)[np.ix_(O, O)]
+                B = _dense(Bw)[np.ix_(O, O)]
+                try:
+                    if np.abs(A - A.T).max() > 1e-12 * np.abs(A).max() or \
+                            np.abs(B - B.T).max() > 1e-12 * max(np.abs(B).max(), 1e-300):
+                        raise LinAlgError("not symmetric")
+                    lam, V = eigh(A, B)
+                except (LinAlgError, ValueError):
+                    pass
+                else:
+                    d = 1.0 / (lam[:, None] + s[None, :])                    # (m, Fb)
+                    Vr = op.Vr[idx][:, O, :]                                 # (Fb, m, 6)
+                    Y6 = self._kinv(V, d, np.ascontiguousarray(Vr.transpose(1, 0, 2)), 6)
+                    Y6 = np.ascontiguousarray(Y6.transpose(1, 0, 2))         # (Fb, m, 6)
+                    Vl = np.ascontiguousarray(op.Vl[idx][:, :, O])           # (Fb, 6, m)
+                    Minv = np.linalg.inv(op.Zqq[idx] - Vl @ Y6)
+                    self.parts.append(("eig", idx, (V, d, Y6, Minv @ Vl)))
+                    continue
+            G = np.empty((idx.size, m, m), complex)
+
+            def inv(sel, band=band, idx=idx, s=s, G=G):
+                i = idx[sel]
+                Gs = band.sub_ww(O, O, s) if band.__class__.__name__ == "AffineBand" else None
+                if Gs is None:
+                    Gs = band.K[sel][:, 6 + O[:, None], 6 + O[None, :]]
+                else:
+                    Gs = Gs[sel]
+                Gs = Gs - op.Vr[i][:, O] @ (op.ZV[i][:, :, O])
+                G[sel] = np.linalg.inv(Gs)
+            _run([lambda h=h: inv(h) for h in _halves(np.arange(idx.size))])
+            self.parts.append(("dense", idx, G))
+
+    @staticmethod
+    def _kinv(V, d, X, r):
+        """V diag(d) V^T X for X (m, Fb, r) complex -> (m, Fb, r)."""
+        m, Fb = d.shape
+        Xr = np.ascontiguousarray(X).view(float).reshape(m, -1)
+        T = (V.T @ Xr).view(complex).reshape(m, Fb, r) * d[:, :, None]
+        return (V @ np.ascontiguousarray(T).view(float).reshape(m, -1)).view(complex).reshape(m, Fb, r)
+
+    def apply(self, R):
+        """R (m, F) -> S_OO^-1 R per frequency."""
+        out = np.empty_like(R)
+
+        def task(kind, idx, data):
+            def run():
+                Ri = R[:, idx]
+                if kind == "dense":
+                    out[:, idx] = (data @ np.ascontiguousarray(Ri.T)[:, :, None])[:, :, 0].T
+                else:
+                    V, d, Y6, MVl = data
+                    u = self._kinv(V, d, Ri[:, :, None], 1)[:, :, 0]         # (m, Fb)
+                    t = MVl @ np.ascontiguousarray(u.T)[:, :, None]          # (Fb, 6, 1)
+                    out[:, idx] = u + (Y6 @ t)[:, :, 0].T
+            return run
+
+        tasks = []
+        for kind, idx, data in self.parts:
+            if kind == "dense" and len(self.parts) == 1:
+                for h in _halves(np.arange(idx.size)):
+                    tasks.append(task(kind, idx[h], data[h]))
+            else:
+                tasks.append(task(kind, idx, data))
+        _run(tasks)
+        return out

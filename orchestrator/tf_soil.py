@@ -36,7 +36,16 @@ class DenseBand:
 
     def apply_ww(self, X, s):
         """X (Fb, N, r) -> K_ww X."""
-        return np.matmul(self.K[:, 6:, 6:], X)
+        return np.matmul(self._ww(), X)
+
+    def apply_ww_sel(self, X, s, sel):
+        """X (len(sel), N, r) -> K_ww X at the band's frequencies sel."""
+        return np.matmul(self._ww()[sel], X)
+
+    def _ww(self):
+        if not hasattr(self, "_cache"):
+            object.__setattr__(self, "_cache", np.ascontiguousarray(self.K[:, 6:, 6:]))
+        return self._cache
 
     def sub_ww(self, rows, cols, s):
         return self.K[:, 6 + rows[:, None], 6 + cols[None, :]]

@@ -157,7 +157,8 @@ def fgmres(matvec, b, precond, rtol, restart=40, maxiter=200):
             V.append(w / H[j + 1, j])
         m = j + 1
         c = np.linalg.solve(np.triu(H[:m, :m]), e[:m])
-        x += np.column_stack(Z) @ c
+        for ci, zi in zip(c, Z):
+            x += ci * zi
         if rel <= rtol or total >= maxiter:
             break
         r = b.ravel() - matvec(x.reshape(shape)).ravel()
@@ -168,7 +169,7 @@ def _scale(eq):
     return max(np.linalg.norm(eq.lam * eq.p.f), 1e-300)
 
 
-def newton_krylov(prob, tol=1e-10, max_iter=200, y0=None, lam=1.0, windows=1, gmres_restart=40,
+def newton_krylov(prob, tol=1e-10, max_iter=200, y0=None, lam=1.0, windows=1, gmres_restart=80,
                   gmres_maxiter=300, history=None, horizon_s=0.5):
     """Semi-smooth Newton-Krylov at motion scale lam, advancing a time horizon.
 
@@ -295,7 +296,7 @@ class MaskedOperator:
             if key not in cache:                 # factorised once per open node set
                 if len(cache) > 4:
                     cache.pop(next(iter(cache)))
-                cache[key] = np.linalg.inv(eq.p.op.S_sub(self.O, self.O))
+                cache[key] = eq.p.op.sub_inverse(self.O)
                 eq.n_factor = getattr(eq, "n_factor", 0) + 1
             self.Sinv = cache[key]
 
@@ -308,7 +309,7 @@ class MaskedOperator:
             return np.zeros_like(r)
         g = self.eq.g
         R = g.to_freq(np.where(self.mask[self.O], r[self.O], 0.0))
-        xo = g.to_time(np.einsum("fij,jf->if", self.Sinv, R))
+        xo = g.to_time(self.Sinv.apply(R))
         out = np.zeros_like(r)
         out[self.O] = np.where(self.mask[self.O], xo, 0.0)
         return out

@@ -41,7 +41,8 @@ from __future__ import annotations
 import hashlib
 import json
 import time
-from dataclasses import dataclass, field
+import warnings
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -75,6 +76,11 @@ class FitReport:
     settings : dict                   tol, max_order, weighting, enforce, ...
     wall_s : float                    fit + enforcement time (0 load time on a cache hit)
     cached : bool
+    tol_reached : bool                max_rel_error <= tol
+    message : str                     why tol was missed and which tol is reachable ("" if reached)
+    error_floor : float               a-priori hysteretic floor estimate ≈ 1.1 ξ (0: not hysteretic)
+    stop_reason : str                 why the order search stopped
+    enforcement_attempts : list       [(order, passive, max_rel_error after, seconds)] per order tried
     """
 
     order: int
@@ -93,6 +99,11 @@ class FitReport:
     settings: dict
     wall_s: float
     cached: bool = False
+    tol_reached: bool = True
+    message: str = ""
+    error_floor: float = 0.0
+    stop_reason: str = ""
+    enforcement_attempts: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
         d = {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -299,9 +310,50 @@ def _fit_order(prob, n_pairs, n_iter):
     return poles, C, float(err[prob.band].max())
 
 
+def hysteretic_floor(prob) -> float:
+    """A-priori estimate of the band error floor of a causal fit: ≈ 1.1 ξ with the loss factor
+    2ξ = ‖H0‖_F/‖Re K(f_0)‖_F (scaled), H0 = Im K(0⁺); 0 when the table is not hysteretic."""
+    if prob.f_c <= 0:
+        return 0.0
+    H0 = hysteretic_part(prob.f, prob.Ks)
+    return float(1.1 * 0.5 * np.linalg.norm(H0) / max(np.linalg.norm(prob.Ks[0].real), 1e-300))
+
+
+def _round_up(x, digits=2) -> float:
+    if x <= 0:
+        return 0.0
+    e = np.floor(np.log10(x)) - (digits - 1)
+    return float(np.ceil(x / 10 ** e - 1e-9) * 10 ** e)
+
+
+def _candidates(fits, tol, floor):
+    """(first, up, down) indices into fits for passivity enforcement.
+
+    first: the smallest order meeting tol; if none does, the smallest order at the plateau (error
+    within 5 % of the best, or within 1.2 × the hysteretic floor estimate). up: larger orders worth
+    trying afterwards (meeting tol, resp. lowering the error: the record orders), by increasing order.
+    down: smaller orders by decreasing order (fallback when enforcement fails: fewer poles are easier)."""
+    errs = np.array([x[2] for x in fits])
+    best = errs.min()
+    ok = np.nonzero(errs <= tol)[0]
+    if ok.size:
+        first = int(ok[0])
+        up = [int(i) for i in ok[1:]]
+    else:
+        good = max(1.05 * best, 1.2 * floor)
+        first = int(np.nonzero(errs <= good)[0][0])
+        up, rec = [], errs[first]
+        for i in range(first + 1, len(fits)):
+            if errs[i] < 0.97 * rec:
+                up.append(i)
+                rec = errs[i]
+    down = list(range(first - 1, -1, -1))
+    return first, up, down
+
+
 def fit_table(table, tol=0.01, max_order=30, weighting="relative", enforce=True, f_causal_hz="auto",
               cache_dir=None, n_iter=12, margin=1e-4, passivity_method="auto", patience=4,
-              progress=None) -> FitResult:
+              max_seconds=60.0, max_enforce=3, enforce_iter=10, progress=None) -> FitResult:
     """Passive common-pole rational model of ``table`` (see the module docstring).
 
     table : ImpedanceTable
@@ -313,58 +365,145 @@ def fit_table(table, tol=0.01, max_order=30, weighting="relative", enforce=True,
     cache_dir : directory for fitted models, keyed by table.hash + these settings + code version
     patience : stop adding pole pairs when the last ``patience`` orders did not improve the best
         error by 20 % (the causality floor of a hysteretic table); None: try up to max_order
+    max_seconds : wall-time budget (None: unbounded). The order search stops at 30 % of it; the
+        passivity enforcement of further candidates is not started (resp. stopped) once it is spent.
+        The first candidate's enforcement is bounded by ``enforce_iter`` only, and if it fails smaller
+        orders are tried, so that a passive model is returned whenever one is found.
+    max_enforce : at most this many orders are tried by passivity enforcement beyond the first
+        passive one (besides the fallback to smaller orders when no passive model exists yet)
+    enforce_iter : iteration cap of each enforcement (each iteration costs one exact test)
     progress : optional callable(str) for log lines
 
-    Returns FitResult(model, report). If no order meets tol, the smallest order within 5 % of the
-    best error is returned and report.max_rel_error says by how much tol is missed (no exception).
+    Order search and enforcement: the orders are fitted cheaply (compressed columns) until tol is
+    met, the error stalls (``patience``) or the budget is spent; then passivity is enforced on the
+    smallest order meeting tol. If no order meets tol the smallest order at the error plateau is
+    enforced first, then (unless tol is below the hysteretic floor estimate and that model is
+    already within 1.2 × the floor) larger orders that lower the error are tried while time and
+    ``max_enforce`` allow (the best passive one is kept; stop at the first failure); if the first
+    enforcement fails, smaller orders are tried. Never an exception for a missed tol: the report's
+    ``tol_reached`` is False and ``message`` says why (e.g. the hysteretic error floor
+    ``error_floor``) and what tol is reachable; a RuntimeWarning carries the same message.
+    FitError only if no order can be made passive.
     """
     settings = {"tol": float(tol), "max_order": int(max_order), "weighting": weighting, "enforce": bool(enforce),
                 "f_causal_hz": f_causal_hz, "n_iter": int(n_iter), "margin": float(margin),
-                "passivity_method": passivity_method, "patience": patience}
+                "passivity_method": passivity_method, "patience": patience,
+                "max_seconds": None if max_seconds is None else float(max_seconds),
+                "max_enforce": int(max_enforce), "enforce_iter": int(enforce_iter)}
     path = None
     if cache_dir is not None:
         path = Path(cache_dir) / f"fit-{_cache_key(table, settings)[:24]}.h5"
         if path.is_file():
             return load_fit(path)
     t0 = time.perf_counter()
+    deadline = np.inf if max_seconds is None else t0 + float(max_seconds)
+    search_end = np.inf if max_seconds is None else t0 + 0.3 * float(max_seconds)
     log = progress or (lambda msg: None)
     prob = _Problem(table, weighting, f_causal_hz)
+    floor = hysteretic_floor(prob)
+    if floor > 0 and tol < floor:
+        log(f"fit: tol {tol:g} is below the hysteretic error floor estimate ≈ {floor:.2g} (loss factor "
+            f"2ξ ≈ {floor / 0.55:.2g}): expect it to be missed")
     history, fits = [], []
+    search_stop = "max_order"
     for n_pairs in range(1, max(1, max_order // 2) + 1):
         poles, C, err = _fit_order(prob, n_pairs, n_iter)
         history.append((int(poles.size), err))
         fits.append((poles, C, err))
         log(f"fit: {poles.size} poles, max rel error {err:.3e}")
         if err <= tol:
+            search_stop = "tol reached"
             break
         errs = [h[1] for h in history]
         if patience and len(errs) > patience and min(errs[-patience:]) > 0.8 * min(errs[:-patience]):
+            search_stop = f"error stalled at {min(errs):.3g} over the last {patience} orders"
             log(f"fit: error stagnates at {min(errs):.3e} (> tol {tol:g}; hysteretic damping? see the "
                 "causality note): stopping")
             break
-    best = min(e for _, _, e in fits)
-    first = next(i for i, x in enumerate(fits) if x[2] <= max(tol, 1.05 * best))
-    # candidates: the selected order, then the others by increasing error (enforcement fallback)
-    order = [first] + sorted((i for i in range(len(fits)) if i != first), key=lambda i: fits[i][2])
+        if time.perf_counter() > search_end:
+            search_stop = "time budget of the order search spent"
+            log(f"fit: {search_stop}")
+            break
+    first, up, down = _candidates(fits, tol, floor)
     prov = {"source_table_hash": table.hash, "f_max_hz": float(table.frequencies_hz[-1]),
             "f_causal_hz": prob.f_c, "fit_settings": settings, "code": _code_digest()}
-    failures = []
-    for i in order:
-        poles, C, err_fit = fits[i]
+
+    def band_error(model):
+        return float(np.max(_errors(prob.scaled_response(model), prob.Ks)[prob.band]))
+
+    failures, attempts, notes = [], [], []
+    best = None                                   # (band error, model, prep, err_fit)
+    if not enforce:
+        poles, C, err_fit = fits[first]
         model = prob.model(poles, C, prov)
-        if not enforce:
-            prep = check_passive(model, method=passivity_method)
-            break
-        try:
-            model, prep, _ = enforce_passivity(model, table.frequencies_hz, prob.w_rel, margin=margin,
-                                               method=passivity_method)
-            break
-        except FitError as exc:
-            failures.append(f"{poles.size} poles: {exc}")
-            log(f"fit: passivity enforcement failed for {poles.size} poles, trying the next order")
+        best = (band_error(model), model, check_passive(model, method=passivity_method), err_fit)
     else:
-        raise FitError("no fitted order could be made passive: " + "; ".join(failures))
-    report = _report(prob, model, prep, err_fit, history, settings, time.perf_counter() - t0)
+        def attempt(i, dl):
+            poles, C, err_fit = fits[i]
+            t1 = time.perf_counter()
+            try:
+                model, prep, _ = enforce_passivity(prob.model(poles, C, prov), table.frequencies_hz, prob.w_rel,
+                                                   margin=margin, method=passivity_method,
+                                                   max_iter=enforce_iter, deadline=dl)
+            except FitError as exc:
+                failures.append(f"{poles.size} poles: {exc}")
+                attempts.append((int(poles.size), False, float("nan"), time.perf_counter() - t1))
+                log(f"fit: passivity enforcement failed for {poles.size} poles ({time.perf_counter() - t1:.1f} s)")
+                return None
+            e = band_error(model)
+            attempts.append((int(poles.size), True, e, time.perf_counter() - t1))
+            log(f"fit: {poles.size} poles passive, max rel error {e:.3e} ({time.perf_counter() - t1:.1f} s)")
+            return (e, model, prep, err_fit)
+
+        best = attempt(first, None)
+        extra, last_t = 0, attempts[-1][3]
+        at_floor = best is not None and floor > 0 and tol < floor and best[0] <= 1.2 * floor
+        if at_floor and up:
+            notes.append("at the hysteretic floor: larger orders not tried")
+        if best is not None and best[0] > tol and not at_floor:
+            for i in up:                       # more poles: lower error or tol met, if time allows
+                if extra >= max_enforce:
+                    notes.append(f"at most {max_enforce} further orders are tried (max_enforce)")
+                    break
+                if time.perf_counter() + last_t > deadline:
+                    notes.append(f"time budget max_seconds = {max_seconds:g} s spent")
+                    break
+                extra += 1
+                got = attempt(i, deadline)
+                last_t = attempts[-1][3]
+                if got is None:
+                    notes.append(f"passivity enforcement failed at {fits[i][0].size} poles")
+                    break
+                if got[0] < best[0]:
+                    best = got
+                if best[0] <= tol:
+                    break
+        if best is None:
+            for i in down:                     # fewer poles are easier to make passive
+                best = attempt(i, None)
+                if best is not None:
+                    break
+        if best is None:
+            raise FitError("no fitted order could be made passive: " + "; ".join(failures))
+    err_after, model, prep, err_fit = best
+    wall = time.perf_counter() - t0
+    reached = err_after <= tol
+    message = ""
+    if not reached:
+        parts = [f"tol {tol:g} not reached: returning the best {'passive ' if prep.passive else ''}model found, "
+                 f"{model.order} poles, max rel error {err_after:.3g} (order search: {search_stop}"
+                 + (f"; {'; '.join(notes)}" if notes else "") + ")."]
+        if floor > 0:
+            parts.append(f"The table has hysteretic damping (loss factor 2ξ ≈ {floor / 0.55:.2g}), which no causal "
+                         f"model follows (Kramers–Kronig): the band error has a floor ≈ ξ ≈ {floor:.2g} "
+                         "(soil_impedance.fit, causality note).")
+        parts.append(f"Raise tol to ~{_round_up(1.05 * err_after):g}.")
+        message = " ".join(parts)
+        log("fit: " + message)
+        warnings.warn(message, RuntimeWarning, stacklevel=2)
+    report = _report(prob, model, prep, err_fit, history, settings, wall)
+    report = replace(report, tol_reached=bool(reached), message=message, error_floor=float(floor),
+                     stop_reason=search_stop, enforcement_attempts=[list(a) for a in attempts])
     model = RationalModel(model.poles, model.residues, model.D, model.E, model.dofs,
                           dict(model.provenance, **({"enforcement_fallback": failures} if failures else {}),
                                max_rel_error=report.max_rel_error, passive=report.passive,

@@ -38,6 +38,7 @@ accumulated over the iterations against the original model. E is then projected 
 from __future__ import annotations
 
 import hashlib
+import time
 import warnings
 from dataclasses import dataclass, field
 
@@ -419,13 +420,15 @@ def _solve_dual(sc0, cons, Qinv, margin):
 
 
 def enforce_passivity(model: RationalModel, freq_hz=None, weights=None, margin=1e-4, max_iter=30,
-                      method="auto", e_floor=1e-6):
+                      method="auto", e_floor=1e-6, deadline=None):
     """Perturb the residues (and E) of ``model`` until the exact test passes.
 
     freq_hz : (F,) Hz, weights : (F,)   the fit's frequencies and per-frequency weights (on the
         DOF-scaled matrices); they define the least-squares change that is minimised
         (default: 200 frequencies over [0, f_ref], uniform).
     margin : target passivity margin (dimensionless, see module docstring).
+    deadline : optional ``time.perf_counter()`` value; the iterations stop (FitError) once it has
+        passed (each iteration costs one exact test: seconds for a (6+N)² model).
     Returns (model, PassivityReport, iterations). Raises FitError if not passive after max_iter.
     """
     sc0 = _scaled(model)
@@ -450,6 +453,9 @@ def enforce_passivity(model: RationalModel, freq_hz=None, weights=None, margin=1
             return out, _report(sc0, a), it
         if it == max_iter:
             break
+        if deadline is not None and time.perf_counter() > deadline:
+            raise FitError(f"passivity enforcement stopped by the time budget after {it} iterations "
+                           f"({_report(sc0, a)})")
         cons += _constraints(sc, a["bands"], margin)
         C = sc0.C.copy()
         if cons:

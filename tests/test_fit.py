@@ -122,3 +122,48 @@ def test_bad_inputs_raise_fit_error(disk_table):
         fit_table(disk_table, weighting="bogus")
     with pytest.raises(FitError, match="at least 4"):
         fit_table(ImpedanceTable([0.0, 1.0], np.ones((2, 1, 1), complex), ["uz"]))
+
+
+def _hysteretic_6x6(xi, f):
+    """6×6 SPD k(1 + 2iξ) + iωc (well conditioned, coupled), the BEM's hysteretic form."""
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(6, 6))
+    k = 1e8 * (np.eye(6) + 0.1 * (a + a.T) / 2)
+    c = 2e6 * (np.eye(6) + 0.05 * (a @ a.T) / 6)
+    return k[None] * (1 + 2j * xi) + 2j * np.pi * f[:, None, None] * c[None]
+
+
+@pytest.mark.parametrize("shape", ["scalar", "6x6"])
+def test_unreachable_tol_returns_quickly_at_the_hysteretic_floor(shape):
+    """tol = 0.001 on a 3 % hysteretic table is below the causality floor ≈ ξ: the fit stops on the
+    floor within seconds and returns the best passive model with the reason and a reachable tol."""
+    import time
+    xi = 0.03
+    f = np.linspace(0, 20, 81)
+    if shape == "scalar":
+        K, dofs = (1e8 * (1 + 2j * xi) + 2j * np.pi * f * 2e6)[:, None, None], ["uz"]
+    else:
+        K, dofs = _hysteretic_6x6(xi, f), ["ux", "uy", "uz", "rx", "ry", "rz"]
+    t0 = time.perf_counter()
+    with pytest.warns(RuntimeWarning, match="not reached"):
+        fit = fit_table(ImpedanceTable(f, K, dofs, {"case": "hysteretic"}), tol=0.001)
+    assert time.perf_counter() - t0 < 5.0
+    rep = fit.report
+    assert rep.passive and not rep.tol_reached
+    assert rep.error_floor == pytest.approx(1.1 * xi, rel=0.05)
+    assert 0.8 * xi < rep.max_rel_error < 1.5 * xi            # ≈ the floor
+    assert "hysteretic" in rep.message and "Raise tol to" in rep.message
+    suggested = float(rep.message.split("Raise tol to ~")[1].rstrip("."))
+    assert rep.max_rel_error <= suggested < 1.2 * rep.max_rel_error
+
+
+def test_time_budget_returns_the_best_passive_model_so_far():
+    """max_seconds = 0: one order is fitted, made passive and returned with the reason."""
+    xi = 0.03
+    f = np.linspace(0, 20, 81)
+    K = (1e8 * (1 + 2j * xi) + 2j * np.pi * f * 2e6)[:, None, None]
+    with pytest.warns(RuntimeWarning, match="time budget"):
+        fit = fit_table(ImpedanceTable(f, K, ["uz"], {"case": "hysteretic"}), tol=0.001, max_seconds=0.0)
+    rep = fit.report
+    assert len(rep.order_history) == 1 and rep.passive and not rep.tol_reached
+    assert "time budget" in rep.stop_reason and rep.max_rel_error < 2 * xi
