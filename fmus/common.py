@@ -185,3 +185,38 @@ def check_step(dt: float, step_size: float) -> None:
     if abs(step_size - dt) > 1e-9 * dt:
         raise ValueError(f"communication step {step_size!r} s: this FMU runs a fixed step of {dt!r} s "
                          "(export it again with the step you need)")
+
+
+# ---- what both FMUs share ----------------------------------------------------------------------
+class BankedSlave:
+    """Mixin for the two pythonfmu slaves: Real variables in one numpy bank (one gather or
+    scatter per FMI call), a guarded life cycle (an exception is logged and the call fails, the
+    host never crashes) and the FMU state serialised as npz bytes. The slave names its engine
+    attribute (``engine``: the stepper or the soil object, None until built) and defines
+    ``_build`` and ``_step``."""
+
+    engine = "stepper"
+
+    def get_real(self, vrs):
+        return self.bank.values[np.asarray(vrs, int)].tolist()
+
+    def set_real(self, vrs, values):
+        self.bank.values[np.asarray(vrs, int)] = values
+
+    def enter_initialization_mode(self):
+        guarded(self, "initialisation", self._build)
+
+    def do_step(self, current_time, step_size):
+        if getattr(self, self.engine) is None:
+            self.log("do_step before a successful initialisation: " + self.last_error)
+            return False
+        return guarded(self, f"step at t = {current_time:.6g} s", self._step, current_time, step_size)
+
+    @staticmethod
+    def _fmu_state_to_bytes(state):
+        return state_to_bytes(state)
+
+    @staticmethod
+    def _fmu_state_from_bytes(data):
+        return state_from_bytes(data)
+

@@ -19,13 +19,14 @@ from __future__ import annotations
 import numpy as np
 from pythonfmu import Fmi2Causality, Fmi2Slave
 
-from fmus.common import (RealBank, check_step, copy_state, guarded, make_soil, read_settings,
-                         register_vector, state_from_bytes, state_to_bytes)
+from fmus.common import (BankedSlave, RealBank, check_step, copy_state, make_soil, read_settings,
+                         register_vector)
 
 
-class UpliftSoil(Fmi2Slave):
+class UpliftSoil(BankedSlave, Fmi2Slave):
     author = "uplift"
     description = "Frequency-dependent soil: recursive convolution of a rational impedance model"
+    engine = "soil"
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
@@ -45,12 +46,6 @@ class UpliftSoil(Fmi2Slave):
         self.soil = None
         self.last_error = ""
 
-    def get_real(self, vrs):
-        return self.bank.values[np.asarray(vrs, int)].tolist()
-
-    def set_real(self, vrs, values):
-        self.bank.values[np.asarray(vrs, int)] = values
-
     def _build(self):
         self.soil = make_soil(self.resources, self.settings)
         self.K0, self.C0 = self.soil.instantaneous(self.dt)
@@ -67,21 +62,12 @@ class UpliftSoil(Fmi2Slave):
         v[sl["dissipated_energy"]] = soil.dissipated_energy() if hasattr(soil, "dissipated_energy") else np.nan
         v[sl["h"]] = soil.history()
 
-    def enter_initialization_mode(self):
-        guarded(self, "initialisation", self._build)
-
     def _step(self, t, step_size):
         check_step(self.dt, step_size)
         v = self.bank.values
         h_used = v[self.sl["h"]].copy()
         self.soil.commit(v[self.sl["x"]].copy(), v[self.sl["xdot"]].copy())
         self._publish(h_used)
-
-    def do_step(self, current_time, step_size):
-        if self.soil is None:
-            self.log("do_step before a successful initialisation: " + self.last_error)
-            return False
-        return guarded(self, f"step at t = {current_time:.6g} s", self._step, current_time, step_size)
 
     def _get_fmu_state(self):
         state = {"bank": self.bank.values.copy()}
@@ -93,11 +79,3 @@ class UpliftSoil(Fmi2Slave):
         self.bank.values[:] = state["bank"]
         if "soil" in state and self.soil is not None:
             self.soil.set_state(copy_state(state["soil"]))
-
-    @staticmethod
-    def _fmu_state_to_bytes(state):
-        return state_to_bytes(state)
-
-    @staticmethod
-    def _fmu_state_from_bytes(data):
-        return state_from_bytes(data)

@@ -28,8 +28,8 @@ import numpy as np
 from pythonfmu import Boolean, Fmi2Causality, Fmi2Slave
 from pythonfmu.enums import Fmi2Variability
 
-from fmus.common import (MESH_FILE, MOTION_FILE, SOIL_INSTANT_FILE, RealBank, check_step, copy_state, guarded,
-                         make_soil, read_settings, register_vector, state_from_bytes, state_to_bytes)
+from fmus.common import (MESH_FILE, MOTION_FILE, SOIL_INSTANT_FILE, BankedSlave, RealBank, check_step,
+                         copy_state, guarded, make_soil, read_settings, register_vector)
 
 ENERGY_TERMS = ("input", "kinetic", "strain", "damping", "soil", "contact", "contact_potential")
 
@@ -73,7 +73,7 @@ class TotalForceView:
         return self.soil.static_stiffness()
 
 
-class UpliftStructure(Fmi2Slave):
+class UpliftStructure(BankedSlave, Fmi2Slave):
     author = "uplift"
     description = "Stick-and-raft structure with unilateral (penalty) contact, Newmark-Newton"
 
@@ -116,11 +116,6 @@ class UpliftStructure(Fmi2Slave):
         self.last_error = ""
 
     # ---- fast Real access (one gather/scatter per FMI call) ----------------------------------
-    def get_real(self, vrs):
-        return self.bank.values[np.asarray(vrs, int)].tolist()
-
-    def set_real(self, vrs, values):
-        self.bank.values[np.asarray(vrs, int)] = values
 
     # ---- life cycle ------------------------------------------------------------------------
     def _build(self):
@@ -164,9 +159,6 @@ class UpliftStructure(Fmi2Slave):
         for term, value in st.energies().items():
             v[sl[f"energy.{term}"]] = value
 
-    def enter_initialization_mode(self):
-        guarded(self, "initialisation", self._build)
-
     def exit_initialization_mode(self):
         if self.stepper is None or self._built_with != (self.internal_motion, self.impedance_split):
             guarded(self, "initialisation", self._build)
@@ -178,12 +170,6 @@ class UpliftStructure(Fmi2Slave):
         st.set_soil_history(v[self.sl["h"]])
         v[self.sl["newton_iters"]] = st.step()
         self._publish()
-
-    def do_step(self, current_time, step_size):
-        if self.stepper is None:
-            self.log("do_step before a successful initialisation: " + self.last_error)
-            return False
-        return guarded(self, f"step at t = {current_time:.6g} s", self._step, current_time, step_size)
 
     # ---- FMU state: the stepper's full numpy state, the variables and the pending inputs -----
     def _get_fmu_state(self):
@@ -200,11 +186,3 @@ class UpliftStructure(Fmi2Slave):
             st = self.stepper
             st.set_state(copy_state(state["stepper"]))
             st._ag_next, st._h_ext = np.array(state["ag_next"]), np.array(state["h_ext"])
-
-    @staticmethod
-    def _fmu_state_to_bytes(state):
-        return state_to_bytes(state)
-
-    @staticmethod
-    def _fmu_state_from_bytes(data):
-        return state_from_bytes(data)
