@@ -104,7 +104,7 @@ def main(argv=None) -> int:
 
 
 def cmd_impedance(args) -> int:
-    from orchestrator.progress import Progress
+    from orchestrator.progress import Progress, frequency_bar
     from orchestrator.scene import load_scene
     from orchestrator.impedance import rigid_json, scene_impedance
 
@@ -112,7 +112,7 @@ def cmd_impedance(args) -> int:
     scene = load_scene(args.scene)
     cache = None if args.no_cache else default_cache_dir()
     outputs = ("rigid", "gap") if args.gap else ("rigid",)
-    tables = scene_impedance(scene, outputs, cache_dir=cache, progress=_hz(Progress(f"impedance {scene.name}")))
+    tables = scene_impedance(scene, outputs, cache_dir=cache, progress=frequency_bar(Progress(f"impedance {scene.name}")))
     wall = time.perf_counter() - t0
     for name, path in (("rigid", args.output), ("gap", args.gap)):
         if path:
@@ -130,10 +130,6 @@ def cmd_impedance(args) -> int:
     return EXIT_OK
 
 
-def _hz(bar):
-    return lambda done, total, f_hz: bar(done, total, f"{f_hz:.3g} Hz")
-
-
 def _print_rigid_summary(table, wall, file):
     import numpy as np
 
@@ -146,7 +142,7 @@ def _print_rigid_summary(table, wall, file):
 
 def cmd_fit(args) -> int:
     from orchestrator.impedance import scene_impedance
-    from orchestrator.progress import Progress
+    from orchestrator.progress import Progress, frequency_bar
     from orchestrator.run import scene_fit_tol
     from orchestrator.scene import load_scene
     from soil_impedance.fit import fit_table, save_fit
@@ -156,7 +152,7 @@ def cmd_fit(args) -> int:
     tol = args.tol if args.tol is not None else scene_fit_tol(scene)
     cache = default_cache_dir()
     table = scene_impedance(scene, (args.table,), cache_dir=cache,
-                            progress=_hz(Progress(f"impedance {scene.name}")))[args.table]
+                            progress=frequency_bar(Progress(f"impedance {scene.name}")))[args.table]
     result = fit_table(table, tol=tol, cache_dir=cache)
     if args.output:
         save_fit(result, args.output)

@@ -37,3 +37,13 @@ class Progress:
             self._last_decile = decile
             self.stream.write(f"{self.title}: {100 * frac:3.0f}% ({done}/{total}) {elapsed:.1f}s {label}\n")
         self.stream.flush()
+
+
+def frequency_bar(bar):
+    """Adapt a bar to the sweeps' callback ``progress(done, total, freq_hz)``."""
+    return lambda done, total, f_hz: bar(done, total, f"{f_hz:.3g} Hz")
+
+
+def step_bar(bar):
+    """Adapt a bar to the steppers' callback ``progress(k, nt)`` (k from 1 to nt - 1)."""
+    return lambda k, nt: bar(k + 1, nt)

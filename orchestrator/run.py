@@ -29,12 +29,11 @@ from __future__ import annotations
 
 import json
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
-from orchestrator.motion import Motion, MotionError, read_record, synthetic_motion
+from orchestrator.motion import Motion, read_record, synthetic_motion
 from orchestrator.scene import SceneError, _check_keys
 
 ROUTES = ("winkler", "monolithic", "cosim", "linear", "timefreq")
@@ -173,11 +172,13 @@ def _nodal_dashpots(C6, xy, area):
     return np.column_stack([C6[0, 0] * w, C6[1, 1] * w, C6[2, 2] * w]).ravel()
 
 
-def run_scene(scene, routes=None, cache_dir=None, progress=None):
+def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=None):
     """Run the routes of a scene. Returns (``{route: RouteResult}``, Motion).
 
     A route that stops (Newton failure) keeps its results so far (``converged = False``,
-    ``message`` says why) and the other routes still run.
+    ``message`` says why) and the other routes still run. ``progress(route)`` returns a
+    callable(k, nt) for each route; ``sweep_progress(done, total, freq_hz)`` follows the BEM
+    sweep, done once for all routes (one factorisation per frequency for every output).
     """
     from structure import ConvergenceError, simulate
     from structure.spec import contact_from_spec
@@ -188,6 +189,12 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None):
     model = scene_model(scene)
     contact = contact_from_spec(scene.section("contact"))
     nodes = output_nodes(scene)
+    outputs = tuple(dict.fromkeys(
+        ["rigid" for r in routes if r == "winkler" and "kv" not in scene.sections.get("winkler", {})]
+        + ["gap" for r in routes if r != "winkler"]))
+    if outputs:
+        from orchestrator.impedance import scene_impedance
+        scene_impedance(scene, outputs, cache_dir=cache_dir, progress=sweep_progress)   # cached for the routes
     results, soil_model = {}, None
     for route in routes:
         bar = progress(route) if progress else None
@@ -220,14 +227,15 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None):
 
 def run_scene_cli(args) -> int:
     from orchestrator.cli import EXIT_FAILED, EXIT_OK, default_cache_dir
-    from orchestrator.progress import Progress
+    from orchestrator.progress import Progress, frequency_bar, step_bar
     from orchestrator.results import summary, write_results
     from orchestrator.scene import load_scene
 
     scene = load_scene(args.scene)
     out = args.output or Path(f"{scene.name}_results.h5")
     results, motion = run_scene(scene, args.routes, cache_dir=default_cache_dir(),
-                                progress=lambda route: _steps(Progress(f"run {scene.name} [{route}]")))
+                                progress=lambda route: step_bar(Progress(f"run {scene.name} [{route}]")),
+                                sweep_progress=frequency_bar(Progress(f"impedance {scene.name}")))
     write_results(out, results, motion, scene.name)
     print(f"wrote {out}", file=sys.stderr)
     summ = {"routes": {r: summary(res) for r, res in results.items()}}
@@ -245,7 +253,3 @@ def run_scene_cli(args) -> int:
                   + ("" if s["converged"] else f"  STOPPED: {results[r].message}"), file=sys.stderr)
     failed = [r for r, res in results.items() if not res.converged]
     return EXIT_FAILED if failed else EXIT_OK
-
-
-def _steps(bar):
-    return lambda k, nt: bar(k + 1, nt)

@@ -285,7 +285,7 @@ class _Problem:
     def model(self, poles, C, provenance) -> RationalModel:
         """Unscaled, full-size RationalModel."""
         m = poles.size
-        na, n = self.idx.size, self.table.n_dof
+        n = self.table.n_dof
         mats = np.stack([self._matrix(c) for c in C])
         mats[:m] *= self.w_ref
         mats[m + 1] /= self.w_ref
@@ -517,7 +517,6 @@ def fit_table(table, tol=0.01, max_order=30, weighting="relative", enforce=True,
 def _report(prob, model, prep: PassivityReport, err_fit, history, settings, wall):
     Km = prob.scaled_response(model)
     e_t = _errors(Km, prob.Ks)
-    e_tg = _errors(Km, prob.target)
     low = ~prob.band
     Kfull = model.frequency_response(prob.f)
     e_un = _errors(Kfull, prob.table.matrices)

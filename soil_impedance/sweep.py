@@ -7,7 +7,6 @@ import math
 from pathlib import Path
 
 import numpy as np
-import scipy.linalg as sla
 
 from .bem import CONTACTS, BemError, SurfaceBem, nodal_dofs
 from .reduction import RIGID_DOFS, gap_dofs, gap_transform, rigid_transform

@@ -85,7 +85,6 @@ class WinklerSoil(SoilInterface):
         self._dt = None
 
     def _assemble(self, v, hx, hy):
-        n = self.xy.shape[0]
         x, y = self.xy[:, 0], self.xy[:, 1]
         # horizontal traces: tx = ux - rz y (dofs 0, 5), ty = uy + rz x (dofs 1, 5)
         Kq = np.zeros((6, 6))
