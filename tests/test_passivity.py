@@ -100,3 +100,41 @@ def test_nonpassive_E_is_reported():
     assert not rep.passive and rep.e_min < 0 and rep.bands_hz and np.isinf(rep.bands_hz[0][1])
     fixed, rep2, _ = enforce_passivity(m)
     assert rep2.passive and np.linalg.eigvalsh(fixed.E)[0] >= 0
+
+
+def test_long_simulation_after_enforcement_is_stable(good_fit):
+    """Issue acceptance: the broken model, driven at its negative-damping resonance, draws
+    energy out of the soil; the enforced model, driven the same way for 10^5 steps, never does
+    (work >= 0 to round-off) and its force does not grow."""
+    from soil_impedance.convolution import RecursiveConvolutionSoil
+
+    table, fit = good_fit
+    f0 = 13.0123
+    bad = _with_negative_resonance(fit.model, f0, 2e-4, depth=3.0)
+    fixed, _, _ = enforce_passivity(bad, table.frequencies_hz)
+    dt, nt = 0.002, 100_000
+    t = dt * np.arange(nt)
+    i = fit.model.dofs.index("ry")
+    u = np.zeros((nt, fit.model.n))
+    wd = 2 / dt * np.arctan(np.pi * f0 * dt)                   # the resonance as the recursion sees it
+    u[:, i] = 1e-4 * np.sin(wd * t)                            # rad, rocking at the violation
+    v = np.zeros_like(u)
+    v[:, i] = 1e-4 * wd * np.cos(wd * t)
+
+    def run(model, force):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            soil = RecursiveConvolutionSoil(model, dt, force=force)
+        work, peak = np.empty(nt), np.empty(nt)
+        for k in range(nt):
+            peak[k] = np.abs(soil.step(u[k], v[k])).max()
+            work[k] = soil.dissipated_energy()
+        return work, peak
+
+    work_bad, _ = run(bad, force=True)
+    assert work_bad.min() < 0                                  # the violation is real
+    work, peak = run(fixed, force=False)
+    scale = np.abs(fixed.D).max() * 1e-8 * nt                  # round-off of the work sum
+    assert work.min() >= -1e-12 * scale and work[-1] > 0
+    tenth = nt // 10
+    assert np.all(np.isfinite(peak)) and peak[-tenth:].max() < 1.05 * peak[tenth:2 * tenth].max()
