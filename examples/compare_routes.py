@@ -6,7 +6,8 @@ A reactor stick on a coarse 20 m raft over a layered rock, a synthetic 0.3 g mot
 is the rational fit of the scene's BEM gap impedance; the monolithic route runs it in process,
 the co-simulation route through the two FMUs. They agree to round-off (the impedance split).
 """
-from orchestrator.cosim import compare, run_cosim, run_monolithic, scene_soil_model
+from orchestrator.compare import history_differences
+from orchestrator.cosim import run_cosim, run_monolithic, scene_soil_model
 from orchestrator.results import summary, write_results
 from orchestrator.scene import scene_from_dict
 
@@ -30,7 +31,7 @@ for res in (mono, cosim):
     s = summary(res)
     print(f"{res.route:10s} max uplift {1e3 * s['max_uplift_m']:.3f} mm at {s['max_uplift_time_s']:.2f} s, "
           f"top_outer {s['peak_acc_g']['top_outer']:.3f} g, wall {s['wall_s']:.1f} s")
-for key, value in compare(cosim, mono).items():
+for key, value in history_differences(cosim, mono).items():
     print(f"  cosim vs monolithic {key}: {value}")
 write_results("coarse_reactor.h5", {"monolithic": mono, "cosim": cosim}, scene_name=scene.name)
 print("wrote coarse_reactor.h5")

@@ -79,3 +79,18 @@ def format_table(cmp: dict) -> str:
         lines.append(f"{r:<16}{1e3 * m['max_uplift_m']:>14.4f}{du:>10}{m['max_rotation_rad']:>14.4e}"
                      f"{dr:>9}{ds:>11}{m['wall_s']:>9.2f}{'yes' if m['converged'] else 'NO':>6}")
     return "\n".join(lines)
+
+
+def history_differences(a, b) -> dict:
+    """How far RouteResult ``a`` is from ``b`` (the reference): max |a - b| / max |b| per
+    quantity (raft, gap, contact_force, soil_w, acc/<node>), over their common samples, plus
+    both max uplifts (``compare`` gives the summary metrics)."""
+    nt = min(a.nt, b.nt)
+    out = {}
+    pairs = [(k, getattr(a, k), getattr(b, k)) for k in ("raft", "gap", "contact_force", "soil_w")]
+    pairs += [(f"acc/{nm}", a.acc[nm], b.acc[nm]) for nm in b.acc if nm in a.acc]
+    for key, x, y in pairs:
+        scale = np.abs(y[:nt]).max()
+        out[key] = float(np.abs(x[:nt] - y[:nt]).max() / scale) if scale > 0 else float(np.abs(x[:nt]).max())
+    out["max_uplift_m"] = (a.max_uplift(), b.max_uplift())
+    return out

@@ -18,13 +18,15 @@ import time as _time
 from pathlib import Path
 
 
-def scene_soil_model(scene, cache_dir=None, progress=None, **fit_options):
+def scene_soil_model(scene, cache_dir=None, progress=None, table=None, **fit_options):
     """RationalModel of the scene's gap impedance table ((6+N)^2: raft DOFs and the soil
-    vertical displacement under each node), fitted by soil_impedance.fit.fit_table."""
+    vertical displacement under each node; swept here unless given), fitted by
+    soil_impedance.fit.fit_table."""
     from orchestrator.impedance import scene_impedance
     from soil_impedance.fit import fit_table
 
-    table = scene_impedance(scene, ("gap",), cache_dir=cache_dir, progress=progress)["gap"]
+    if table is None:
+        table = scene_impedance(scene, ("gap",), cache_dir=cache_dir, progress=progress)["gap"]
     fit_options.setdefault("cache_dir", cache_dir)
     return fit_table(table, **fit_options).model
 
@@ -94,20 +96,3 @@ def run_cosim(scene, motion=None, soil_model=None, *, schedule: str = "gauss-sei
     res.xy = scene.mesh.xy.copy()
     res.info.update(build_s=build_s, soil_model=soil_model.provenance)
     return res
-
-
-def compare(a, b) -> dict:
-    """How far RouteResult ``a`` is from ``b`` (the reference): max |a - b| / max |b| per
-    quantity (raft, gap, contact_force, soil_w, acc/<node>), over their common samples, plus
-    both max uplifts. Any two routes compare with this one function."""
-    import numpy as np
-
-    nt = min(a.nt, b.nt)
-    out = {}
-    pairs = [(k, getattr(a, k), getattr(b, k)) for k in ("raft", "gap", "contact_force", "soil_w")]
-    pairs += [(f"acc/{nm}", a.acc[nm], b.acc[nm]) for nm in b.acc if nm in a.acc]
-    for key, x, y in pairs:
-        scale = np.abs(y[:nt]).max()
-        out[key] = float(np.abs(x[:nt] - y[:nt]).max() / scale) if scale > 0 else float(np.abs(x[:nt]).max())
-    out["max_uplift_m"] = (a.max_uplift(), b.max_uplift())
-    return out

@@ -104,7 +104,7 @@ def scene_model(scene):
 WINKLER_KEYS = ("springs", "match", "damping")
 
 
-def winkler_soil(scene, model, cache_dir=None, log=None):
+def winkler_soil(scene, model, cache_dir=None, log=None, table=None):
     """(WinklerSoil, structural damping for simulate, info) of the winkler route.
 
     ``[soil].winkler`` either gives subgrade moduli ``{ kv, kh, cv, ch }`` (N/m³, N s/m³ per
@@ -127,7 +127,7 @@ def winkler_soil(scene, model, cache_dir=None, log=None):
     from orchestrator.impedance import scene_impedance, scene_static
 
     spec = dict(scene.sections.get("winkler", {}))
-    if spec and not set(spec) & set(WINKLER_KEYS):
+    if _explicit_winkler(scene):
         return winkler_from_spec(spec, scene.mesh.xy, scene.mesh.area), None, {
             "springs": "soil.winkler subgrade moduli", "soil_damping": "soil.winkler dashpots"}
     _check_keys(spec, WINKLER_KEYS, "soil.winkler")
@@ -137,16 +137,18 @@ def winkler_soil(scene, model, cache_dir=None, log=None):
                                 ("damping", damping, ("rccg", "dashpots"))):
         if value not in allowed:
             raise SceneError(f"soil.winkler.{key} = {value!r}: use " + " or ".join(f'"{a}"' for a in allowed))
-    table = scene_impedance(scene, ("rigid",), cache_dir=cache_dir, progress=log)["rigid"]
+    if table is None:   # the rigid table, swept here unless the caller has it
+        table = scene_impedance(scene, ("rigid",), cache_dir=cache_dir, progress=log)["rigid"]
     if table.frequencies_hz[0] != 0.0:
         raise SceneError("the winkler route calibrates its springs on K(0): include 0 Hz in "
                          "[impedance] (range_hz = [0.0, fmax, count])")
     xy, area = scene.mesh.xy, scene.mesh.area
     K6 = np.real(table.matrices[0])
+    kdiag = None if springs == "rigid" else np.diag(scene_static(scene, "nodal", cache_dir))
     if springs == "rigid":
         soil = springs_from_rigid_impedance(K6, xy, area, match=match)
     else:
-        soil = springs_from_nodal_diagonal(np.diag(scene_static(scene, "nodal", cache_dir)), xy)
+        soil = springs_from_nodal_diagonal(kdiag, xy)
     f1 = float(modes_on_soil(model, soil).freq[0])
     info = {"springs": f"{springs} static impedance" + (f", {match} matched" if springs == "rigid" else " diagonal"),
             "winkler_over_bem_static": (np.diag(soil.rigid_stiffness()) / np.diag(K6)).tolist(),
@@ -154,8 +156,7 @@ def winkler_soil(scene, model, cache_dir=None, log=None):
     if damping == "dashpots":
         C6 = np.imag(table.at(f1)) / (2 * np.pi * f1)
         soil = springs_from_rigid_impedance(K6, xy, area, C6=C6, match=match) if springs == "rigid" else \
-            springs_from_nodal_diagonal(np.diag(scene_static(scene, "nodal", cache_dir)), xy,
-                                        cdiag=_nodal_dashpots(C6, xy, area))
+            springs_from_nodal_diagonal(kdiag, xy, cdiag=_nodal_dashpots(C6, xy, area))
         info["soil_damping"] = f"rigid impedance dashpots at {f1:.3g} Hz"
         return soil, None, info
     ratio = model.damping.ratio if model.damping.kind == "modal" else 0.0
@@ -164,6 +165,12 @@ def winkler_soil(scene, model, cache_dir=None, log=None):
     info.update({"soil_damping": "RCC-G composite modal damping",
                  "modes_on_soil_hz": modes.freq[:6].tolist(), "modal_damping": modes.ratio[:6].tolist()})
     return soil, C, info
+
+
+def _explicit_winkler(scene) -> bool:
+    """True when [soil].winkler gives subgrade moduli (no BEM calibration needed)."""
+    spec = scene.sections.get("winkler", {})
+    return bool(spec) and not set(spec) & set(WINKLER_KEYS)
 
 
 def _nodal_dashpots(C6, xy, area):
@@ -190,16 +197,17 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
     contact = contact_from_spec(scene.section("contact"))
     nodes = output_nodes(scene)
     outputs = tuple(dict.fromkeys(
-        ["rigid" for r in routes if r == "winkler" and "kv" not in scene.sections.get("winkler", {})]
+        ["rigid" for r in routes if r == "winkler" and not _explicit_winkler(scene)]
         + ["gap" for r in routes if r != "winkler"]))
+    tables = {}
     if outputs:
         from orchestrator.impedance import scene_impedance
-        scene_impedance(scene, outputs, cache_dir=cache_dir, progress=sweep_progress)   # cached for the routes
+        tables = scene_impedance(scene, outputs, cache_dir=cache_dir, progress=sweep_progress)
     results, soil_model = {}, None
     for route in routes:
         bar = progress(route) if progress else None
         if route == "winkler":
-            soil, damping, info = winkler_soil(scene, model, cache_dir)
+            soil, damping, info = winkler_soil(scene, model, cache_dir, table=tables.get("rigid"))
             try:
                 res = simulate(model, soil, motion.acc, dt, contact=contact, damping=damping,
                                output_nodes=nodes, progress=bar, route=route)
@@ -207,18 +215,17 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
                 res = exc.result
             res.info.update(info)
         elif route in ("linear", "timefreq"):
-            from orchestrator.impedance import scene_impedance
             from orchestrator.linear_fd import run_linear
             from orchestrator.timefreq import run_timefreq
-            table = scene_impedance(scene, ("gap",), cache_dir=cache_dir)["gap"]
             if route == "linear":
-                res = run_linear(scene, motion, model, table)
+                res = run_linear(scene, motion, model, tables["gap"])
             else:  # continuous grid: the bilinear grid is exact for Newmark but far slower here
-                res = run_timefreq(scene, motion, model, table, bilinear=False)
+                res = run_timefreq(scene, motion, model, tables["gap"], bilinear=False)
         else:
             from orchestrator.cosim import run_cosim, run_monolithic, scene_soil_model
             if soil_model is None:
-                soil_model = scene_soil_model(scene, cache_dir=cache_dir, tol=scene_fit_tol(scene))
+                soil_model = scene_soil_model(scene, cache_dir=cache_dir, table=tables["gap"],
+                                              tol=scene_fit_tol(scene))
             run = run_cosim if route == "cosim" else run_monolithic
             res = run(scene, motion, soil_model, progress=bar, cache_dir=cache_dir)
         results[route] = res
