@@ -6,10 +6,23 @@ import numpy as np
 from soil_impedance import impedance_sweep, static_impedance
 
 
-def scene_impedance(scene, outputs=("rigid",), cache_dir=None, progress=None):
-    """``{output: ImpedanceTable}`` over the scene's frequencies (cached when cache_dir is set)."""
-    return impedance_sweep(scene.profile, scene.mesh, scene.frequencies_hz, contact=scene.contact_kind,
-                           outputs=outputs, cache_dir=cache_dir, progress=progress)
+def scene_impedance(scene, outputs=("rigid",), cache_dir=None, progress=None, stats=None):
+    """``{output: ImpedanceTable}`` over the scene's frequencies (cached when cache_dir is set).
+
+    stats : dict or None, filled with ``computed`` (frequencies solved by the BEM in this call:
+    0 when every output was read from the cache) and ``from_cache`` (True in that case)."""
+    solved = []
+
+    def counting(done, total, freq_hz):
+        solved.append(freq_hz)
+        if progress is not None:
+            progress(done, total, freq_hz)
+
+    tables = impedance_sweep(scene.profile, scene.mesh, scene.frequencies_hz, contact=scene.contact_kind,
+                             outputs=outputs, cache_dir=cache_dir, progress=counting)
+    if stats is not None:
+        stats.update(computed=len(solved), from_cache=cache_dir is not None and not solved)
+    return tables
 
 
 def scene_static(scene, output="rigid", cache_dir=None) -> np.ndarray:

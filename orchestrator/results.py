@@ -103,4 +103,8 @@ def summary(res) -> dict:
         "peak_acc_g": {name: float(np.abs(a).max() / G) for name, a in res.acc.items()},
         "wall_s": float(res.wall_s),
         "converged": bool(res.converged),
+        # what the run did not compute and why (cache hits, closed contact, ...), and what the
+        # linear contact pre-check found (structure.ContactSettings.precheck)
+        "skipped": [str(s) for s in res.info.get("skipped", [])],
+        "precheck": str(res.info.get("precheck", "")),
     }

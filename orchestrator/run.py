@@ -199,11 +199,11 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
     outputs = tuple(dict.fromkeys(
         ["rigid" for r in routes if r == "winkler" and not _explicit_winkler(scene)]
         + ["gap" for r in routes if r != "winkler"]))
-    tables = {}
+    tables, sweep = {}, {}
     if outputs:
         from orchestrator.impedance import scene_impedance
-        tables = scene_impedance(scene, outputs, cache_dir=cache_dir, progress=sweep_progress)
-    results, soil_model = {}, None
+        tables = scene_impedance(scene, outputs, cache_dir=cache_dir, progress=sweep_progress, stats=sweep)
+    results, soil_model, fit_cached = {}, None, False
     for route in routes:
         bar = progress(route) if progress else None
         if route == "winkler":
@@ -222,14 +222,47 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
             else:  # continuous grid: the bilinear grid is exact for Newmark but far slower here
                 res = run_timefreq(scene, motion, model, tables["gap"], bilinear=False)
         else:
-            from orchestrator.cosim import run_cosim, run_monolithic, scene_soil_model
-            if soil_model is None:
-                soil_model = scene_soil_model(scene, cache_dir=cache_dir, table=tables["gap"],
-                                              tol=scene_fit_tol(scene))
+            from orchestrator.cosim import run_cosim, run_monolithic
+            from soil_impedance.fit import fit_table
+            if soil_model is None:   # as orchestrator.cosim.scene_soil_model, keeping the report
+                fit = fit_table(tables["gap"], tol=scene_fit_tol(scene), cache_dir=cache_dir)
+                soil_model, fit_cached = fit.model, fit.report.cached
             run = run_cosim if route == "cosim" else run_monolithic
             res = run(scene, motion, soil_model, progress=bar, cache_dir=cache_dir)
+        res.info.setdefault("skipped", []).extend(
+            _route_skips(scene, route, contact, sweep, fit_cached and route in ("monolithic", "cosim")))
+        if route == "cosim":
+            res.info["precheck"] = (PRECHECK_COSIM if contact.enabled else
+                                    "not needed: contact disabled (bonded raft, linear)")
         results[route] = res
     return results, motion
+
+
+#: what the co-simulation says about the linear pre-check (see structure.ContactSettings)
+PRECHECK_COSIM = ("not available: the FMUs advance one step at a time and cannot look ahead, so "
+                  "the co-simulation runs the nonlinear contact iterations (the monolithic route "
+                  "has the pre-check)")
+
+
+def _route_skips(scene, route, contact, sweep, fit_cached) -> list:
+    """What a route did not compute, besides what ``simulate`` reports (``info["skipped"]``):
+    only what really happened (cache hits are those of this run)."""
+    out = []
+    if route == "winkler" and _explicit_winkler(scene):
+        return ["soil.winkler subgrade moduli given: no BEM impedance sweep"]
+    if sweep.get("from_cache"):
+        out.append("impedance sweep read from cache")
+    elif sweep.get("computed") and scene.profile.is_homogeneous and scene.frequencies_hz[0] == 0.0:
+        out.append("homogeneous half-space: K(0) from the closed-form static kernels "
+                   "(no wavenumber integral at 0 Hz)")
+    n = scene.mesh.n
+    if route != "winkler":
+        out.append(f"rigid raft: soil interface reduced from 3N = {3 * n} to 6 + N = {6 + n} DOFs")
+    if fit_cached:
+        out.append("rational fit read from cache")
+    if route == "cosim" and not contact.enabled:
+        out.append("contact disabled: one linear solve per step, no Newton")
+    return out
 
 
 def run_scene_cli(args) -> int:
@@ -258,5 +291,9 @@ def run_scene_cli(args) -> int:
                   f"raft rotation {s['max_raft_rotation_rad']:.3e} rad, min contact "
                   f"{100 * s['min_contact_fraction']:.1f} %, wall {s['wall_s']:.2f} s"
                   + ("" if s["converged"] else f"  STOPPED: {results[r].message}"), file=sys.stderr)
+            if s["precheck"]:
+                print(f"  linear pre-check: {s['precheck']}", file=sys.stderr)
+            for item in s["skipped"]:
+                print(f"  skipped: {item}", file=sys.stderr)
     failed = [r for r, res in results.items() if not res.converged]
     return EXIT_FAILED if failed else EXIT_OK

@@ -29,12 +29,21 @@ AUTO_FACTOR = 1.0e4
 class ContactSettings:
     """enabled: unilateral contact (False: raft bonded to the soil through the same penalty
     springs, linear). penalty: "auto" or kp per node, N/m. Newton: tol (relative residual),
-    max_iter per (sub)step, max_subdiv halvings of the step (min step dt / 2**max_subdiv)."""
+    max_iter per (sub)step, max_subdiv halvings of the step (min step dt / 2**max_subdiv).
+
+    precheck: ``simulate`` first runs the closed-contact (linear) problem, one factorisation
+    for the whole run; if no node goes into tension (the gap never opens) that IS the
+    unilateral solution, because the penalty law is linear while closed, and it is returned
+    without Newton. At the first step with tension it falls back to the full nonlinear run
+    from t = 0 (same result as precheck=False). False forces the nonlinear machinery (scene
+    key ``[contact] precheck = false``). Steppers driven one step at a time (FMUs) cannot
+    look ahead and ignore it."""
     enabled: bool = True
     penalty: object = "auto"
     tol: float = 1e-9
     max_iter: int = 25
     max_subdiv: int = 6
+    precheck: bool = True
 
 
 def penalty_stiffness(settings: ContactSettings, soil_static, n: int) -> np.ndarray:

@@ -199,18 +199,21 @@ def winkler_from_spec(spec: dict, xy, area) -> WinklerSoil:
 
 
 def contact_from_spec(spec: dict | None) -> ContactSettings:
-    """ContactSettings from [contact] { enabled = true, penalty = "auto" | N/m per node }."""
+    """ContactSettings from [contact] { enabled = true, penalty = "auto" | N/m per node,
+    precheck = true } (precheck = false forces the nonlinear contact iterations even when a
+    linear pre-check would show that the contact never opens; see ContactSettings)."""
     p = "contact"
     if spec is None:
         return ContactSettings()
-    _keys(p, spec, (), ("enabled", "penalty"))
-    en = spec.get("enabled", True)
-    if not isinstance(en, bool):
-        raise StructureError(f"{p}.enabled = {en!r} must be true or false")
+    _keys(p, spec, (), ("enabled", "penalty", "precheck"))
+    en, pre = spec.get("enabled", True), spec.get("precheck", True)
+    for key, value in (("enabled", en), ("precheck", pre)):
+        if not isinstance(value, bool):
+            raise StructureError(f"{p}.{key} = {value!r} must be true or false")
     pen = spec.get("penalty", "auto")
     if isinstance(pen, str):
         if pen != "auto":
             raise StructureError(f"{p}.penalty = {pen!r} must be \"auto\" or a stiffness in N/m per node")
     else:
         pen = _num(f"{p}.penalty", pen, 0.0)
-    return ContactSettings(enabled=en, penalty=pen)
+    return ContactSettings(enabled=en, penalty=pen, precheck=pre)

@@ -49,7 +49,8 @@ def test_run_json_and_results_file(tmp_path, capsys):
     assert main(["run", str(_scene(tmp_path)), "-o", str(out), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)["routes"]["winkler"]
     assert set(summary) == {"max_uplift_m", "max_uplift_time_s", "max_raft_rotation_rad",
-                            "min_contact_fraction", "peak_acc_g", "wall_s", "converged"}
+                            "min_contact_fraction", "peak_acc_g", "wall_s", "converged", "skipped",
+                            "precheck"}
     res = read_results(out)["winkler"]
     # the summary is what the file holds
     assert summary["max_uplift_m"] == pytest.approx(res.gap.max())
