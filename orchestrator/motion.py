@@ -56,7 +56,7 @@ class Motion:
 
     def resampled(self, dt: float) -> "Motion":
         """Linear interpolation onto a new step (the input is piecewise linear)."""
-        t_new = np.arange(0.0, self.duration + 1e-12, dt)
+        t_new = dt * np.arange(int(np.floor(self.duration / dt + 1e-9)) + 1)
         acc = np.column_stack([np.interp(t_new, self.time, self.acc[:, k]) for k in range(3)])
         return Motion(dt, acc, self.label)
 
@@ -98,16 +98,29 @@ def _baseline(acc, dt, env):
     return acc - (c[0] + c[1] * t / T) * env
 
 
+#: step at which synthetic records are generated, whatever the analysis step: the record is a
+#: property of the scene, not of dt (a time-step study compares one motion, linearly resampled)
+SYNTHETIC_DT = 0.005
+
+
 def synthetic_motion(pga_g: float = 0.25, duration_s: float = 10.0, dt: float = 0.005, seed: int = 1,
                      spectrum: str = "RG1.60", iterations: int = 8, direction="x") -> Motion:
     """Spectrum-compatible synthetic accelerogram (deterministic for a seed).
 
-    Returns a Motion whose ``direction`` component ("x", "y" or "z") carries the record.
+    The record is generated at SYNTHETIC_DT and resampled linearly to ``dt`` (it is piecewise
+    linear, so a finer dt samples the same motion exactly; a coarser dt keeps its values at the
+    common instants and may miss the peak between them). Returns a Motion whose ``direction``
+    component ("x", "y" or "z") carries the record.
     """
     if spectrum != "RG1.60":
         raise MotionError(f"motion.spectrum = {spectrum!r}: only \"RG1.60\" is available")
-    if not (pga_g > 0) or not (duration_s > 0) or not (dt > 0) or duration_s < 20 * dt:
+    if not (pga_g > 0) or not (duration_s > 0) or not (dt > 0) or duration_s < 20 * max(dt, SYNTHETIC_DT):
         raise MotionError("motion: pga_g, duration_s and dt must be > 0, duration_s >= 20 dt")
+    base = _synthetic(pga_g, duration_s, SYNTHETIC_DT, seed, spectrum, iterations, direction)
+    return base if abs(dt - SYNTHETIC_DT) < 1e-12 else base.resampled(dt)
+
+
+def _synthetic(pga_g, duration_s, dt, seed, spectrum, iterations, direction) -> Motion:
     n = int(round(duration_s / dt)) + 1
     t = np.arange(n) * dt
     env = _envelope(t, duration_s)

@@ -224,7 +224,14 @@ def _bands_from_crossings(sc, crossings, grid):
     for a, b in zip(edges[:-1], edges[1:]):
         mids.append(0.5 * (a + b) if np.isfinite(b) else (2 * a if a > 0 else 1.0))
     lm = _lmin(sc, np.array(mids))
-    bands = [(a, b) for (a, b), v in zip(zip(edges[:-1], edges[1:]), lm) if v < 0]
+    bands = []
+    for (a, b), v in zip(zip(edges[:-1], edges[1:]), lm):
+        if v >= 0:
+            continue
+        if bands and bands[-1][1] == a:     # a crossing of another eigenvalue inside a violation:
+            bands[-1] = (bands[-1][0], b)   # one band (else each piece gets its own constraints)
+        else:
+            bands.append((a, b))
     return bands, len(mids)
 
 

@@ -56,3 +56,15 @@ def test_reader_errors(tmp_path, kwargs, msg):
     path = kwargs.pop("path", rec)
     with pytest.raises(MotionError, match=msg.replace("(", r"\(").replace(")", r"\)")):
         read_record(tmp_path / path if isinstance(path, str) else path, **kwargs)
+
+
+def test_synthetic_record_does_not_depend_on_the_analysis_step():
+    """One scene, one motion: a time-step study must compare the same record (resampled)."""
+    fine = synthetic_motion(0.25, 10.0, 0.005, seed=2)
+    coarse = synthetic_motion(0.25, 10.0, 0.02, seed=2)
+    finer = synthetic_motion(0.25, 10.0, 0.0025, seed=2)
+    assert coarse.dt == 0.02 and coarse.acc.shape == (501, 3)
+    np.testing.assert_allclose(coarse.acc, fine.acc[::4], rtol=0, atol=1e-12 * fine.pga.max())
+    np.testing.assert_allclose(finer.acc[::2], fine.acc, rtol=0, atol=1e-12 * fine.pga.max())
+    np.testing.assert_allclose(finer.acc[1::2], 0.5 * (fine.acc[:-1] + fine.acc[1:]), rtol=0,
+                               atol=1e-12 * fine.pga.max())

@@ -87,6 +87,18 @@ def test_invalid_run_sections(tmp_path, capsys, old, new, msg):
     assert msg in capsys.readouterr().err
 
 
+def test_time_step_that_does_not_resolve_the_rocking_mode_is_refused(tmp_path, capsys):
+    """A stiff tower on stiff springs: first soil-structure mode 9.2 Hz, 20 ms is 5-6 steps a period."""
+    path = tmp_path / "stiff.toml"
+    path.write_text(SCENE.replace("PGA", "0.3").replace("kv = 5.0e7, kh = 4.0e7", "kv = 5.0e9, kh = 4.0e9")
+                    .replace("E = 3e10, G = 1.25e10", "E = 3e12, G = 1.25e12").replace("dt = 0.01", "dt = 0.02"))
+    assert main(["run", str(path), "-o", str(tmp_path / "r.h5")]) == 2
+    err = capsys.readouterr().err
+    assert "analysis.dt = 0.02 s gives" in err and "steps per period of the first soil-structure mode" in err
+    path.write_text(path.read_text().replace("dt = 0.02", "dt = 0.005"))
+    assert main(["run", str(path), "-o", str(tmp_path / "r.h5")]) == 0
+
+
 def test_reactor_scene_dominant_mode_near_3_9_hz():
     """The built-in reactor on its scene's BEM static impedance (rocking-matched springs, as the
     winkler route builds them): dominant soil-structure mode at 3.9 ± 0.1 Hz (paper §5.2)."""
