@@ -14,7 +14,7 @@ outcome   "stable" (ran to the end, finite, energy balanced, within ACCURACY_TOL
           if it has one; else "inaccurate: ..."), "stopped: ..." (Newton failure,
           the stepper's ConvergenceError), "refused: ..." (bad input refused before stepping),
           "unstable" (non-finite or energy created: balance error > BALANCE_TOL or soil work < 0)
-balance   energy-balance error, ``balance_error``: max_t |W_input − (kinetic + strain + damping
+balance   energy-balance error, ``RouteResult.energy_balance_error``: max_t |W_input − (kinetic + strain + damping
           work + soil work + contact work)| / max_t |W_input| (the stepper's cumulative works;
           soil and contact works include their stored energy). Average-acceleration Newmark
           balances it to round-off.
@@ -160,13 +160,6 @@ def case_scene(case: Case, quick: bool = False, motion: dict | None = None, **ex
 
 
 # ---- measures (one definition each) ------------------------------------------------------------
-def balance_error(res) -> float:
-    """max_t |W_input − (kinetic + strain + damping + soil + contact)| / max_t |W_input|."""
-    e = res.energy
-    out = e["kinetic"] + e["strain"] + e["damping"] + e["soil"] + e["contact"]
-    return float(np.abs(e["input"] - out).max() / max(np.abs(e["input"]).max(), 1e-300))
-
-
 def soil_work_min(res) -> float:
     """min_t W_soil / max_t |W_input| (< 0: the soil model gave energy)."""
     return float(res.energy["soil"].min() / max(np.abs(res.energy["input"]).max(), 1e-300))
@@ -193,7 +186,7 @@ def outcome(res) -> str:
         return "unstable"
     if not res.converged:
         return "stopped: " + res.message
-    if balance_error(res) > BALANCE_TOL or soil_work_min(res) < -BALANCE_TOL:
+    if res.energy_balance_error() > BALANCE_TOL or soil_work_min(res) < -BALANCE_TOL:
         return "unstable"
     return "stable"
 
@@ -287,7 +280,7 @@ def run_case(case: Case, quick: bool = False) -> list[dict]:
                    steps=1 / (f1 * dt), balance=None, soil_min=None, late=None, residual=None, uplift_mm=None, vs_ref=None,
                    wall_s=time.perf_counter() - t0 if isinstance(res, str) else res.wall_s, result=None)
         if not isinstance(res, str):
-            row.update(balance=balance_error(res), soil_min=soil_work_min(res), uplift_mm=1e3 * res.max_uplift(),
+            row.update(balance=res.energy_balance_error(), soil_min=soil_work_min(res), uplift_mm=1e3 * res.max_uplift(),
                        result=res)
             if np.all(np.isfinite(res.raft)) and res.nt > 1:
                 row.update(late=late(res), residual=residual(res))

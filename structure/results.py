@@ -66,6 +66,15 @@ class RouteResult:
         area = np.asarray(area, float)
         return (self.gap > 0) @ area / area.sum()
 
+    def energy_balance_error(self) -> float:
+        """max_t |W_input - (kinetic + strain + damping + soil + contact)| / max_t |W_input|: the
+        discrete energy balance (round-off for alpha = 0; NaN for routes that keep no energies)."""
+        e = self.energy
+        if not e or "input" not in e:
+            return float("nan")
+        out = e["kinetic"] + e["strain"] + e["damping"] + e["soil"] + e["contact"]
+        return float(np.abs(e["input"] - out).max() / max(np.abs(e["input"]).max(), 1e-300))
+
     def uplift_fraction(self) -> np.ndarray:
         """(nt,) fraction of the interface nodes with a gap > 0."""
         return (self.gap > 0).mean(axis=1)
