@@ -1,24 +1,36 @@
-"""Benchmark: co-simulation (two FMUs, our master) against the monolithic route on the reactor.
+"""Benchmark: co-simulation (two FMUs, our Gauss-Seidel master) against the monolithic route on
+the reactor, with the FMU layer's cost per part.
 
-Reactor scene (built-in ``reactor``: 241 interface nodes, 6 + 241 = 247 soil DOFs), its
-synthetic RG1.60 motion at 0.25 g (``--pga`` to change), 10 s at dt = 5 ms, with uplift.
-Soil: the rational fit of the scene's gap impedance table (BEM sweep and fit cached in
-$UPLIFT_CACHE or ~/.cache/uplift), run by the recursive convolution. ``--soil winkler`` uses a
-stand-in of the same size (Winkler springs and dashpots with two Maxwell terms) when the
-fit is not wanted.
+Reactor scene (built-in ``reactor``: 241 interface nodes, 6 + 241 = 247 soil DOFs), its motion
+(synthetic RG1.60, 0.25 g, seed 1; ``--pga``/``--duration`` to change), 10 s at the scene's
+dt = 5 ms, with uplift. Soil: the rational fit of the scene's gap impedance table at the scene's
+``[analysis] fit_tol`` (BEM sweep and fit cached in $UPLIFT_CACHE or ~/.cache/uplift; the
+first run sweeps), run by the recursive convolution. ``--soil winkler`` uses a stand-in of the
+same size (Winkler springs and dashpots with two Maxwell terms) when the fit is not wanted.
 
-Prints: wall time of each route (and of the FMU build), the ratio cosim / monolithic (target
-<= 1.5), real-time factor (target: faster than real time), the difference between the two
-(round-off expected), and the co-simulation's time per part (structure step, soil step,
-transfers). Run with OPENBLAS_NUM_THREADS=1.
+Three runs per repeat, interleaved (``--repeat``, medians reported; other jobs on the machine
+make single timings noisy):
 
-    python benchmarks/cosim.py [--pga 0.25] [--duration 10] [--soil fit|winkler] [--jacobi]
+  monolithic   ``run_monolithic``: the stepper with the soil object in process (the reference)
+  cosim        ``cosimulate`` over the two exported FMUs (built once, build time reported apart)
+  split        the co-simulation's schedule in process, without the FMU layer: the stepper
+               with an external soil history and the soil object stepped next to it, doing
+               what the FMUs do per step (same arithmetic: equal to cosim bit for bit). Its
+               parts against cosim's isolate what the FMU layer costs.
+
+Prints: wall and CPU time of each route, cosim / monolithic (target <= 1.5), the real-time
+factor (target > 1), the differences cosim vs monolithic (max uplift, raft, gap: round-off
+expected), and per part (setup, structure step, soil history, transfers) the in-process time,
+the cosim time and the FMU layer's share. Run with OPENBLAS_NUM_THREADS=1.
+
+    python benchmarks/cosim.py [--pga 0.25] [--duration 10] [--repeat 3] [--soil fit|winkler] [--jacobi]
 """
 from __future__ import annotations
 
 import argparse
 import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -28,9 +40,12 @@ import numpy as np
 def soil_for(scene, kind, cache_dir):
     if kind == "fit":
         from orchestrator.cosim import scene_soil_model
+        from orchestrator.run import scene_fit_tol
         t0 = time.perf_counter()
-        model = scene_soil_model(scene, cache_dir=cache_dir)
-        return model, f"rational fit of the gap table, {model.order} poles ({time.perf_counter() - t0:.1f} s incl. sweep/cache)"
+        tol = scene_fit_tol(scene)
+        model = scene_soil_model(scene, cache_dir=cache_dir, tol=tol)
+        return model, (f"rational fit of the gap table at fit_tol = {tol}, {model.order} poles "
+                       f"({time.perf_counter() - t0:.1f} s incl. sweep/cache)")
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
     from cosim_cases import winkler
     from soil_double import winkler_rational
@@ -38,58 +53,134 @@ def soil_for(scene, kind, cache_dir):
     return model, f"Winkler + 2 Maxwell terms stand-in, {model.order} poles"
 
 
+def split_in_process(scene, motion, model):
+    """The Gauss-Seidel schedule without the FMU layer. Returns (gap (nt, N), Timer with the
+    parts named as cosimulate's)."""
+    from fmus.common import soil_from_model
+    from orchestrator.master import Timer
+    from orchestrator.run import output_nodes, scene_model
+    from structure import NewmarkStepper
+    from structure.spec import contact_from_spec
+
+    dt, ag = motion.dt, motion.acc
+    soil = soil_from_model(model, dt)
+    timer = Timer()
+    st = NewmarkStepper(scene_model(scene), soil, dt, contact=contact_from_spec(scene.section("contact")),
+                        external_soil=True, ag0=ag[0])
+    dofs = [st.model.dofs(st.model.node_by_name(nm).id)[:3] for nm in output_nodes(scene)]
+    timer.add("initialisation")
+    nt = ag.shape[0]
+    rows = np.zeros((nt, 2 * st.nb + 2 * st.N + 6 * len(dofs) + 8))
+    gap = slice(2 * st.nb + st.N, 2 * st.nb + 2 * st.N)
+    rows[0, gap] = st.gap()
+    for k in range(1, nt):
+        timer.mark()
+        h = soil.history()
+        timer.add("soil step")
+        st.set_ground_acceleration(ag[k])
+        st.set_soil_history(h)
+        it = st.step()
+        out = [st.x, st.xdot, st.P, st.gap()] + [st.a[d] + st.ag for d in dofs] + [st.u[d] for d in dofs] \
+            + [np.array(list(st.energies().values()) + [it])]      # what the structure FMU publishes
+        timer.add("structure step")
+        rows[k] = np.concatenate(out)                                # what the master records
+        timer.add("transfers")
+        soil.commit(st.x.copy(), st.xdot.copy())
+        soil.total_force(), soil.dissipated_energy()                 # what the soil FMU publishes
+        timer.add("soil step")
+    return rows[:, gap], timer
+
+
+def median(values):
+    return float(np.median(np.asarray(values, float)))
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--pga", type=float, default=0.25)
-    ap.add_argument("--duration", type=float, default=10.0)
+    ap.add_argument("--pga", type=float, default=None, help="g (default: the scene's, 0.25)")
+    ap.add_argument("--duration", type=float, default=None, help="s (default: the scene's, 10)")
+    ap.add_argument("--repeat", type=int, default=3, help="interleaved repeats (medians)")
     ap.add_argument("--soil", choices=("fit", "winkler"), default="fit")
-    ap.add_argument("--jacobi", action="store_true", help="also run the Jacobi schedule")
+    ap.add_argument("--jacobi", action="store_true", help="also run the Jacobi schedule (once)")
     args = ap.parse_args(argv)
 
-    from orchestrator.cosim import run_cosim, run_monolithic
+    from fmus.build import build_fmus
+    from orchestrator.cosim import run_monolithic
+    from orchestrator.export import fmu_data
+    from orchestrator.master import cosimulate
     from orchestrator.motion import synthetic_motion
+    from orchestrator.run import scene_analysis
     from orchestrator.scene import load_scene
 
     cache = Path(os.environ.get("UPLIFT_CACHE", Path.home() / ".cache" / "uplift"))
     scene = load_scene("reactor")
-    dt = 0.005
-    motion = synthetic_motion(pga_g=args.pga, duration_s=args.duration, dt=dt, seed=1)
+    dt = scene_analysis(scene)[1]
+    m = scene.section("motion")
+    pga = float(m.get("pga_g", 0.25)) if args.pga is None else args.pga
+    duration = float(m.get("duration_s", 10.0)) if args.duration is None else args.duration
+    motion = synthetic_motion(pga_g=pga, duration_s=duration, dt=dt, seed=int(m.get("seed", 1)),
+                              spectrum=m.get("spectrum", "RG1.60"), direction=m.get("direction", "x"))
     model, label = soil_for(scene, args.soil, cache)
     nt = motion.acc.shape[0]
     print(f"reactor: {scene.mesh.xy.shape[0]} interface nodes, soil {model.n} DOFs: {label}")
-    print(f"motion: synthetic RG1.60 {args.pga} g, {args.duration} s at dt = {dt} s ({nt - 1} steps)\n")
+    print(f"motion: synthetic {m.get('spectrum', 'RG1.60')} {pga} g, {duration} s at dt = {dt} s "
+          f"({nt - 1} steps); {args.repeat} interleaved repeats, medians; "
+          f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}\n")
 
-    calls = {}
-
-    def timed(name, fn, *a, **kw):
+    runs = {"monolithic": [], "cosim": [], "split": []}      # (wall s, CPU s, Timer or None)
+    with tempfile.TemporaryDirectory(prefix="uplift_bench_") as tmp:
         t0 = time.perf_counter()
-        r = fn(*a, **kw)
-        calls[name] = time.perf_counter() - t0
-        return r
+        s_fmu, g_fmu = build_fmus(fmu_data(scene, model, dt), tmp)
+        build_s = time.perf_counter() - t0
+        run_monolithic(scene, motion, model)           # warm-up: imports, the passivity memo
+        for _ in range(args.repeat):
+            c0 = time.process_time()
+            mono = run_monolithic(scene, motion, model)
+            c1 = time.process_time()
+            cos = cosimulate(s_fmu, g_fmu, motion.acc, dt)
+            c2 = time.process_time()
+            t0 = time.perf_counter()
+            gap_split, split = split_in_process(scene, motion, model)
+            c3, split_s = time.process_time(), time.perf_counter() - t0
+            runs["monolithic"].append((mono.wall_s, c1 - c0, None))
+            runs["cosim"].append((cos.wall_s, c2 - c1, cos.info))
+            runs["split"].append((split_s, c3 - c2, {"timing": split.parts, "timing_cpu": split.cpu}))
+        jac = cosimulate(s_fmu, g_fmu, motion.acc, dt, schedule="jacobi") if args.jacobi else None
 
-    mono = timed("monolithic", run_monolithic, scene, motion, model)
-    cos = timed("cosim (gauss-seidel)", run_cosim, scene, motion, model)
-    runs = [("monolithic", mono), ("cosim (gauss-seidel)", cos)]
-    if args.jacobi:
-        runs.append(("cosim (jacobi)", timed("cosim (jacobi)", run_cosim, scene, motion, model, schedule="jacobi")))
-    print(f"{'route':24s} {'run s':>8s} {'call s':>8s} {'x real time':>11s} {'max uplift mm':>14s} {'converged':>9s}")
-    for name, r in runs:
-        print(f"{name:24s} {r.wall_s:8.2f} {calls[name]:8.2f} {args.duration / r.wall_s:11.2f} "
-              f"{1e3 * r.max_uplift():14.3f} {str(r.converged):>9s}")
-    print("(run s: the route's wall_s: stepper / FMU initialisation and time loop; call s: the whole call,\n"
-          " with the soil construction - its passivity check - and, for cosim, the FMU build)")
-    print(f"\ncosim / monolithic wall time: {cos.wall_s / mono.wall_s:.2f} (target <= 1.5); "
-          f"FMU build {cos.info['build_s']:.2f} s (in call s only)")
-    d = np.abs(cos.raft - mono.raft).max() / np.abs(mono.raft).max()
-    print(f"cosim vs monolithic, raft: {d:.2e} relative (round-off expected)")
-    if args.jacobi:
-        dj = np.abs(runs[2][1].raft - mono.raft).max() / np.abs(mono.raft).max()
-        print(f"jacobi vs monolithic, raft: {dj:.2e} relative (one-step coupling lag)")
-    parts = cos.info["timing"]
-    total = cos.wall_s
-    print(f"\n{'cosim part':24s} {'s':>8s} {'ms/step':>8s} {'share':>7s}")
-    for part, s in list(parts.items()) + [("other (init, recording)", total - sum(parts.values()))]:
-        print(f"{part:24s} {s:8.2f} {1e3 * s / (nt - 1):8.3f} {100 * s / total:6.1f}%")
+    wall = {r: median([w for w, _, _ in v]) for r, v in runs.items()}
+    cpu = {r: median([c for _, c, _ in v]) for r, v in runs.items()}
+    print(f"{'route':12s} {'wall s':>8s} {'CPU s':>8s} {'x real time':>11s} {'max uplift mm':>14s} {'converged':>9s}")
+    for name, res in (("monolithic", mono), ("cosim", cos)):
+        print(f"{name:12s} {wall[name]:8.2f} {cpu[name]:8.2f} {duration / wall[name]:11.2f} "
+              f"{1e3 * res.max_uplift():14.4f} {str(res.converged):>9s}")
+    print(f"{'split':12s} {wall['split']:8.2f} {cpu['split']:8.2f} {duration / wall['split']:11.2f} "
+          f"{1e3 * gap_split.max():14.4f}")
+    print("(wall s: the route's wall_s, stepper or FMU start-up and time loop; CPU s: process time of\n"
+          f" the whole call; x real time: simulated / wall. FMU build {build_s:.2f} s, once, not included)")
+    ratios = [c[0] / m_[0] for c, m_ in zip(runs["cosim"], runs["monolithic"])]
+    print(f"\ncosim / monolithic: wall {wall['cosim'] / wall['monolithic']:.2f} (per repeat "
+          f"{', '.join(f'{r:.2f}' for r in ratios)}), CPU {cpu['cosim'] / cpu['monolithic']:.2f}; target <= 1.5")
+    print(f"cosim vs monolithic: max uplift {1e3 * abs(cos.max_uplift() - mono.max_uplift()):.1e} mm, raft "
+          f"{np.abs(cos.raft - mono.raft).max() / np.abs(mono.raft).max():.1e} relative, gap "
+          f"{np.abs(cos.gap - mono.gap).max():.1e} m (round-off expected); split vs cosim gap "
+          f"{np.abs(gap_split - cos.gap).max():.1e} m")
+    if jac is not None:
+        print(f"jacobi vs monolithic: raft {np.abs(jac.raft - mono.raft).max() / np.abs(mono.raft).max():.2e} "
+              f"relative, max uplift {1e3 * jac.max_uplift():.4f} mm (one-step coupling lag)")
+
+    notes = {"initialisation": "stepper; cosim: + FMU extraction, instantiation, initialisation",
+             "structure step": "Newmark-Newton step and the outputs it publishes",
+             "soil step": "recursive convolution: history, commit, outputs",
+             "transfers": "split: recording; cosim: FMI get/set of inputs, outputs, recording"}
+    for clock, key in (("CPU", "timing_cpu"), ("wall", "timing")):
+        print(f"\n{clock + ' s, medians':18s} {'split':>7s} {'cosim':>7s} {'FMU layer':>9s} {'us/step':>8s}  part")
+        tot = np.zeros(3)
+        for part, note in notes.items():
+            a = median([info[key][part] for _, _, info in runs["split"]])
+            b = median([info[key][part] for _, _, info in runs["cosim"]])
+            tot += (a, b, b - a)
+            print(f"{part:18s} {a:7.3f} {b:7.3f} {b - a:+9.3f} {1e6 * (b - a) / (nt - 1):+8.1f}  {note}")
+        print(f"{'total':18s} {tot[0]:7.3f} {tot[1]:7.3f} {tot[2]:+9.3f} {1e6 * tot[2] / (nt - 1):+8.1f}")
 
 
 if __name__ == "__main__":

@@ -2,10 +2,12 @@
 
 ``build_fmus`` writes ``structure.fmu`` and ``soil.fmu``. Each is self-contained: its data in
 ``resources/`` (JSON settings, npz arrays) and a copy of the project's pure-Python packages
-(``structure``, ``soil_impedance``, ``fmus``) next to them. pythonfmu *appends* the resources
-folder to ``sys.path``, so an installed ``uplift`` takes precedence and the bundled copy serves
-hosts without it; the host must provide Python 3 with numpy and scipy (pythonfmu FMUs run in
-the host's libpython).
+(``structure``, ``soil_impedance``, ``fmus``) next to them. pythonfmu (0.7) *inserts* the
+resources folder at the front of ``sys.path``: packages the host process has already imported
+are used as they are (one interpreter, one ``sys.modules``), others come from the bundled copy,
+which also serves hosts without ``uplift``; the host must provide Python 3 with numpy and scipy
+(pythonfmu FMUs run in the host's libpython). The npz arrays are stored uncompressed (see
+``_compression``).
 
 pythonfmu writes no output dependencies and no ``InitialUnknowns``; ``fix_model_description``
 adds them (outputs depend on no input at the same communication point: no direct
@@ -147,5 +149,12 @@ def fix_model_description(fmu_path) -> None:
     tmp = fmu_path.with_suffix(".tmp")
     with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
         for name, blob in items.items():
-            z.writestr(name, blob)
+            z.writestr(name, blob, compress_type=_compression(name))
     shutil.move(tmp, fmu_path)
+
+
+def _compression(name: str) -> int:
+    """Zip method of an FMU member: the npz arrays (the soil model's residues: ~9 MB of float64
+    on the reactor) are stored, since they barely deflate (~2x) and every instantiation would
+    inflate them again (extraction is part of a co-simulation's start-up); the rest deflated."""
+    return zipfile.ZIP_STORED if name.endswith(".npz") else zipfile.ZIP_DEFLATED

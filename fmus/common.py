@@ -81,17 +81,43 @@ def soil_from_model(model, dt: float, factory: str = DEFAULT_SOIL_FACTORY, kwarg
 class RealBank:
     """All Real variables of an FMU in one float64 vector indexed by value reference.
 
-    pythonfmu calls ``get_real(vrs)`` / ``set_real(vrs, values)`` once per FMI call; with the
-    bank these are one numpy gather / scatter instead of one Python getter per scalar (a
-    247-DOF interface would otherwise cost ~1000 Python calls per step).
+    pythonfmu calls ``get_real(vrs)`` / ``set_real(vrs, values)`` once per FMI call with a
+    fresh Python list of value references; with the bank these are one numpy gather / scatter
+    instead of one Python getter per scalar (a 247-DOF interface would otherwise cost ~1000
+    Python calls per step). ``index(vrs)`` memoises the list -> index conversion, since a host
+    asks for the same lists every step.
     """
+
+    MAX_INDICES = 64                    # memoised value-reference lists (a host uses a few)
 
     def __init__(self):
         self.values = np.zeros(0)
         self.slots = {}                 # name -> slice or index into values
+        self._indices = {}              # (len, first, last) -> (the list, its index)
 
     def grow(self, n: int) -> None:
         self.values = np.concatenate([self.values, np.zeros(n)])
+
+    def index(self, vrs):
+        """Index into ``values`` of the value references ``vrs`` (a list): a slice when they are
+        consecutive, else an int array. Memoised; a hit is checked against the whole list
+        (one C-level list comparison), so it is exact."""
+        if type(vrs) is not list:       # pythonfmu passes lists; anything else is made one
+            vrs = [int(v) for v in vrs]
+        key = (len(vrs), vrs[0], vrs[-1]) if vrs else ()
+        hit = self._indices.get(key)
+        if hit is not None and hit[0] == vrs:
+            return hit[1]
+        idx = np.asarray(vrs, int)
+        if idx.size and not 0 <= idx.min() <= idx.max() < self.values.size:
+            raise IndexError(f"value references {idx.min()}..{idx.max()}: the Real variables of "
+                             f"this FMU are 0..{self.values.size - 1}")
+        if idx.size and np.array_equal(idx, np.arange(idx[0], idx[0] + idx.size)):
+            idx = slice(int(idx[0]), int(idx[0]) + idx.size)
+        if len(self._indices) >= self.MAX_INDICES:
+            self._indices.clear()
+        self._indices[key] = (list(vrs), idx)
+        return idx
 
 
 def register_vector(fmu, name: str, n: int, causality, variability=None, start=0.0,
@@ -198,10 +224,10 @@ class BankedSlave:
     engine = "stepper"
 
     def get_real(self, vrs):
-        return self.bank.values[np.asarray(vrs, int)].tolist()
+        return self.bank.values[self.bank.index(vrs)].tolist()
 
     def set_real(self, vrs, values):
-        self.bank.values[np.asarray(vrs, int)] = values
+        self.bank.values[self.bank.index(vrs)] = values
 
     def enter_initialization_mode(self):
         guarded(self, "initialisation", self._build)

@@ -79,8 +79,9 @@ def run_cosim(scene, motion=None, soil_model=None, *, schedule: str = "gauss-sei
     by default) and run them with ``orchestrator.master.cosimulate``.
 
     schedule : "gauss-seidel" (default, exact), "jacobi" or "total-force" (see master.py).
-    Other arguments as run_monolithic. Returns a RouteResult with ``info["timing"]`` (wall
-    time per part: structure step, soil step, transfers) and ``info["build_s"]`` (FMU build).
+    Other arguments as run_monolithic. Returns a RouteResult with ``info["timing"]`` and
+    ``info["timing_cpu"]`` (wall and CPU time per part: initialisation, structure step, soil
+    step, transfers) and ``info["build_s"]`` (FMU build, not in ``wall_s``).
     """
     from fmus.build import build_fmus
     from orchestrator.export import fmu_data

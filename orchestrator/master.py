@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 SCHEDULES = ("gauss-seidel", "jacobi", "total-force")
+FMI2_WARNING = 1                    # fmi2Status above which a call failed (discard, error, fatal)
 ENERGY_TERMS = ("input", "kinetic", "strain", "damping", "soil", "contact", "contact_potential")
 
 
@@ -40,8 +41,11 @@ class FmuSlave:
 
     ``FmuSlave(path, name)`` extracts and instantiates; ``get("x")`` returns the Real vector
     ``x[0..n-1]`` (or the scalar ``x``) as an ndarray, ``set("h", values)`` sets one. One
-    ctypes call per vector. The instance owns its fmpy FMU2Slave: fmpy's ``freeInstance``
-    unloads the shared library, so never re-instantiate it; open a new FmuSlave instead.
+    ctypes call per call of get/set/do_step, on the raw fmi2GetReal / fmi2SetReal /
+    fmi2DoStep with value-reference and value arrays built once per list of names (fmpy's
+    ``getReal``/``setReal`` build both per call). The instance owns its fmpy FMU2Slave: fmpy's
+    ``freeInstance`` unloads the shared library, so never re-instantiate it; open a new
+    FmuSlave instead.
     """
 
     def __init__(self, path, name: str | None = None, parameters: dict | None = None):
@@ -57,6 +61,8 @@ class FmuSlave:
         self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.dir,
                              modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=self.name)
         self.fmu.instantiate(callbacks=self._callbacks(), loggingOn=True)
+        dll = self.fmu.dll                 # the functions fmpy typed (argtypes, restype)
+        self._get_real, self._set_real, self._do_step = dll.fmi2GetReal, dll.fmi2SetReal, dll.fmi2DoStep
         self.vars = {v.name: v for v in self.md.modelVariables}
         self._vr = {}
         for v in self.md.modelVariables:
@@ -97,9 +103,11 @@ class FmuSlave:
         return self._arrays[key]
 
     def get(self, *names) -> np.ndarray:
-        """Real values of the named vectors, concatenated (a view: copy to keep it)."""
+        """Real values of the named vectors, concatenated (the FMU's buffer for this list of
+        names, overwritten by the next get of the same names: copy to keep it)."""
         vr, val, pvr, pval = self._buffers(names)
-        self.fmu.fmi2GetReal(self.fmu.component, pvr, vr.size, pval)
+        if self._get_real(self.fmu.component, pvr, vr.size, pval) > FMI2_WARNING:
+            self._failed(f"getting {', '.join(names)}", "fmi2GetReal")
         return val
 
     def set(self, *names_then_values) -> None:
@@ -107,7 +115,8 @@ class FmuSlave:
         *names, values = names_then_values
         vr, val, pvr, pval = self._buffers(tuple(names))
         val[:] = values
-        self.fmu.fmi2SetReal(self.fmu.component, pvr, vr.size, pval)
+        if self._set_real(self.fmu.component, pvr, vr.size, pval) > FMI2_WARNING:
+            self._failed(f"setting {', '.join(names)}", "fmi2SetReal")
 
     def set_parameters(self, parameters: dict) -> None:
         for key, value in parameters.items():
@@ -129,9 +138,13 @@ class FmuSlave:
         self.t = start_time
 
     def do_step(self, t: float, dt: float) -> None:
-        self._call(f"step at t = {t:.6g} s", self.fmu.doStep, currentCommunicationPoint=t,
-                   communicationStepSize=dt)
+        if self._do_step(self.fmu.component, t, dt, 1) > FMI2_WARNING:
+            self._failed(f"step at t = {t:.6g} s", "fmi2DoStep")
         self.t = t + dt
+
+    def _failed(self, what, function):
+        tail = self.log[-1].strip() if self.log else "(no log message)"
+        raise CosimError(f"FMU {self.name!r}: {what} failed ({function}): {tail}")
 
     def _call(self, what, fn, **kw):
         from fmpy.fmi1 import FMICallException
@@ -175,15 +188,22 @@ def output_nodes(structure: FmuSlave) -> list:
 
 
 class Timer:
-    """Wall time per part of a co-simulation step, s."""
+    """Wall and CPU (process) time per part of a co-simulation step, s: ``add(part)`` books
+    the time since the previous ``add`` or ``mark`` to ``part``."""
 
     def __init__(self):
         self.parts = {"structure step": 0.0, "soil step": 0.0, "transfers": 0.0}
+        self.cpu = dict(self.parts)
+        self.mark()
 
-    def add(self, part, t0):
-        t1 = _time.perf_counter()
-        self.parts[part] += t1 - t0
-        return t1
+    def mark(self):
+        self._wall, self._cpu = _time.perf_counter(), _time.process_time()
+
+    def add(self, part):
+        wall, cpu = _time.perf_counter(), _time.process_time()
+        self.parts[part] = self.parts.get(part, 0.0) + wall - self._wall
+        self.cpu[part] = self.cpu.get(part, 0.0) + cpu - self._cpu
+        self._wall, self._cpu = wall, cpu
 
 
 def cosimulate(structure_fmu, soil_fmu, ag, dt: float, schedule: str = "gauss-seidel",
@@ -193,14 +213,26 @@ def cosimulate(structure_fmu, soil_fmu, ag, dt: float, schedule: str = "gauss-se
     through the structure's ``ag`` inputs (``internal_motion = false``).
 
     structure_fmu, soil_fmu : paths of .fmu files (or open FmuSlaves, left open)
-    Returns a RouteResult (route name ``route``; ``info["schedule"]``, ``info["timing"]``
-    the wall time per part). A failed FMU step ends the run: ``converged = False`` and the
-    results so far, ``message`` with the FMU's log.
+    Returns a RouteResult (route name ``route``; ``info["schedule"]``; ``info["timing"]`` and
+    ``info["timing_cpu"]`` the wall and CPU time per part: initialisation (FMU extraction,
+    instantiation, initialisation), structure step, soil step, transfers (FMI get/set and
+    recording)). A failed FMU call ends the run: ``converged = False``, the results up to the
+    last completed step and ``message`` with the FMU's log.
+
+    Per step the master moves what the schedule needs (h to the structure, x and xdot to the
+    soil) and reads every structure output once, into one row of a (nt, m) array unpacked at
+    the end: six FMI calls a step, each on preallocated ctypes arrays.
     """
     if schedule not in SCHEDULES:
         raise ValueError(f"schedule = {schedule!r}: use one of {', '.join(SCHEDULES)}")
-    t_start = _time.perf_counter()
+    start = _time.perf_counter(), _time.process_time()
     ag = np.asarray(ag, float)
+    if ag.ndim != 2 or ag.shape[1] != 3 or ag.shape[0] < 1:
+        raise ValueError(f"ground acceleration ag must have shape (nt, 3) (x, y, z in m/s2 at t = k dt), "
+                         f"got {ag.shape}")
+    if not np.all(np.isfinite(ag)):
+        raise ValueError(f"ground acceleration ag contains NaN or inf (first at step "
+                         f"{int(np.argmin(np.isfinite(ag).all(axis=1)))}): clean or resample the record")
     own = []
     S = structure_fmu if isinstance(structure_fmu, FmuSlave) else None
     G = soil_fmu if isinstance(soil_fmu, FmuSlave) else None
@@ -216,80 +248,74 @@ def cosimulate(structure_fmu, soil_fmu, ag, dt: float, schedule: str = "gauss-se
         S.set("ag", ag[0])
         S.initialize()
         G.initialize()
-        return _run(S, G, ag, dt, schedule, route, progress, t_start)
+        return _run(S, G, ag, dt, schedule, route, progress, start)
     finally:
         for f in own:
             f.close()
 
 
-def _run(S, G, ag, dt, schedule, route, progress, t_start):
-    from structure.results import RouteResult
-
+def _run(S, G, ag, dt, schedule, route, progress, start):
     nodes = output_nodes(S)
     nt = ag.shape[0]
     n = len(S.vrs("x"))
-    N = len(S.vrs("gap"))
-    names = ["x", "xdot", "P", "gap"] + [f"{k}_{nm}" for nm in nodes for k in ("acc", "disp")] + \
-            [f"energy.{e}" for e in ENERGY_TERMS] + ["newton_iters"]
-    sizes = [len(S.vrs(nm)) for nm in names]
-    offs = np.concatenate([[0], np.cumsum(sizes)])
-    part = {nm: slice(offs[i], offs[i + 1]) for i, nm in enumerate(names)}
-    res = RouteResult(route, dt * np.arange(nt), np.zeros((nt, 6)), np.zeros((nt, N)), np.zeros((nt, N)),
-                      np.zeros((nt, N)), {nm: np.zeros((nt, 3)) for nm in nodes},
-                      {nm: np.zeros((nt, 3)) for nm in nodes}, {e: np.zeros(nt) for e in ENERGY_TERMS},
-                      np.zeros(nt, int), True, "", 0.0, None, {"dt": dt, "schedule": schedule})
-
-    def record(k):
-        y = S.get(*names)
-        x = y[part["x"]]
-        res.raft[k] = x[:6]
-        res.soil_w[k] = x[6:]
-        res.gap[k] = y[part["gap"]]
-        res.contact_force[k] = y[part["P"]]
-        for nm in nodes:
-            res.acc[nm][k] = y[part[f"acc_{nm}"]]
-            res.disp[nm][k] = y[part[f"disp_{nm}"]]
-        for e in ENERGY_TERMS:
-            res.energy[e][k] = y[part[f"energy.{e}"]][0]
-        res.newton_iters[k] = int(y[part["newton_iters"]][0])
-        return y
-
-    y = record(0)
-    res.info["P0"] = res.contact_force[0].copy()
+    names = ("x", "xdot", "P", "gap") + tuple(f"{k}_{nm}" for nm in nodes for k in ("acc", "disp")) + \
+        tuple(f"energy.{e}" for e in ENERGY_TERMS) + ("newton_iters",)
+    # every structure output at every step in one get, stored as one row: unpacked at the end
+    y = S.get(*names)
+    Y = np.empty((nt, y.size))
+    Y[0] = y
     timer = Timer()
-    timer.parts["initialisation"] = _time.perf_counter() - t_start
-    feed, feed_to = ("f" if schedule == "total-force" else "h"), "h"
-    xs = slice(0, 2 * n)                        # x and xdot are contiguous in `names`
+    timer.parts["initialisation"] = _time.perf_counter() - start[0]
+    timer.cpu["initialisation"] = _time.process_time() - start[1]
+    feed = "f" if schedule == "total-force" else "h"
+    xs = slice(0, 2 * n)                        # x and xdot lead `names`
+    done, message = 1, ""                       # rows of Y filled
     try:
         for k in range(1, nt):
             t = (k - 1) * dt
-            t0 = _time.perf_counter()
+            timer.mark()
             if schedule == "jacobi":
-                x_old = y[xs].copy()
                 S.set("h", "ag", np.concatenate([G.get("h"), ag[k]]))
-                G.set("x", "xdot", x_old)
-                t0 = timer.add("transfers", t0)
+                G.set("x", "xdot", Y[k - 1, xs])
+                timer.add("transfers")
                 S.do_step(t, dt)
-                t0 = timer.add("structure step", t0)
+                timer.add("structure step")
                 G.do_step(t, dt)
-                t0 = timer.add("soil step", t0)
-                y = record(k)
+                timer.add("soil step")
+                Y[k] = S.get(*names)
             else:
-                S.set(feed_to, "ag", np.concatenate([G.get(feed), ag[k]]))
-                t0 = timer.add("transfers", t0)
+                S.set("h", "ag", np.concatenate([G.get(feed), ag[k]]))
+                timer.add("transfers")
                 S.do_step(t, dt)
-                t0 = timer.add("structure step", t0)
-                y = record(k)
-                G.set("x", "xdot", y[xs])
-                t0 = timer.add("transfers", t0)
+                timer.add("structure step")
+                Y[k] = S.get(*names)
+                G.set("x", "xdot", Y[k, xs])
+                timer.add("transfers")
                 G.do_step(t, dt)
-                t0 = timer.add("soil step", t0)
-            timer.add("transfers", t0)
+                timer.add("soil step")
+            timer.add("transfers")
+            done = k + 1
             if progress is not None:
                 progress(k, nt)
     except CosimError as exc:
-        res = res.truncated(k)
-        res.converged, res.message = False, str(exc)
-    res.wall_s = _time.perf_counter() - t_start
-    res.info["timing"] = dict(timer.parts)
+        message = str(exc)
+    res = _unpack(route, Y[:done], names, [len(S.vrs(nm)) for nm in names], nodes, dt)
+    res.converged, res.message = not message, message
+    res.info.update(dt=dt, schedule=schedule, P0=res.contact_force[0].copy())
+    res.wall_s = _time.perf_counter() - start[0]
+    res.info["timing"], res.info["timing_cpu"] = dict(timer.parts), dict(timer.cpu)
     return res
+
+
+def _unpack(route, Y, names, sizes, nodes, dt):
+    """RouteResult from the rows Y (nt, m) of the structure's outputs ``names`` (sizes)."""
+    from structure.results import RouteResult
+
+    offs = np.concatenate([[0], np.cumsum(sizes)])
+    col = {nm: Y[:, offs[i]:offs[i + 1]] for i, nm in enumerate(names)}
+    x = col["x"]
+    return RouteResult(route, dt * np.arange(Y.shape[0]), x[:, :6].copy(), col["gap"].copy(),
+                       col["P"].copy(), x[:, 6:].copy(), {nm: col[f"acc_{nm}"].copy() for nm in nodes},
+                       {nm: col[f"disp_{nm}"].copy() for nm in nodes},
+                       {e: col[f"energy.{e}"][:, 0].copy() for e in ENERGY_TERMS},
+                       col["newton_iters"][:, 0].astype(int), True, "", 0.0, None, {})

@@ -1,0 +1,63 @@
+"""The master's bookkeeping and the FMUs' Real bank: a failure mid-run hands back exactly the
+steps done, bad ground motion is refused up front, and the memoised value-reference index
+of the bank never confuses two lists."""
+import numpy as np
+import pytest
+
+from cosim_cases import pulse_motion, small_scene, soil_model
+from fmus.common import RealBank
+from orchestrator.export import export_scene
+from orchestrator.master import CosimError, FmuSlave, cosimulate
+
+SCENE = small_scene()
+MOTION = pulse_motion(T=0.5)
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    return export_scene(SCENE, tmp_path_factory.mktemp("export"), soil_model(SCENE), motion=MOTION)
+
+
+def test_failure_mid_run_keeps_the_steps_done(exported):
+    dt, fail_at = MOTION.dt, 40                      # the soil's step 40 -> 41 fails
+    full = cosimulate(exported.structure, exported.soil, MOTION.acc, dt)
+    with FmuSlave(exported.structure, "structure") as S, FmuSlave(exported.soil, "soil") as G:
+        step = G.do_step
+
+        def failing(t, h):
+            if t >= fail_at * dt - 1e-12:
+                raise CosimError("FMU 'soil': step failed (injected)")
+            step(t, h)
+
+        G.do_step = failing
+        cut = cosimulate(S, G, MOTION.acc, dt)
+    assert full.converged and full.nt == MOTION.acc.shape[0] and full.max_uplift() > 1e-3
+    assert not cut.converged and "injected" in cut.message
+    # the structure had done step 41 when the soil failed: kept are the steps both FMUs did
+    assert cut.nt == fail_at + 1
+    assert np.array_equal(cut.raft, full.raft[:fail_at + 1])
+    assert np.array_equal(cut.gap, full.gap[:fail_at + 1])
+    assert np.array_equal(cut.energy["input"], full.energy["input"][:fail_at + 1])
+    assert np.array_equal(cut.newton_iters, full.newton_iters[:fail_at + 1])
+    for part in ("initialisation", "structure step", "soil step", "transfers"):
+        assert cut.info["timing"][part] > 0 and cut.info["timing_cpu"][part] >= 0
+
+
+@pytest.mark.parametrize("ag, what", [(np.zeros((10, 2)), "shape"), (np.full((10, 3), np.nan), "NaN")])
+def test_bad_ground_motion_is_refused(exported, ag, what):
+    with pytest.raises(ValueError, match=f"ground acceleration ag.*{what}"):
+        cosimulate(exported.structure, exported.soil, ag, MOTION.dt)
+
+
+def test_bank_index_is_exact():
+    bank = RealBank()
+    bank.grow(10)
+    bank.values[:] = np.arange(10.0)
+    assert bank.index([2, 3, 4]) == slice(2, 5)
+    # same length, first and last value reference as a memoised list, other middle
+    for vrs in ([2, 7, 4], [2, 3, 4], [2, 0, 4]):
+        assert bank.values[bank.index(list(vrs))].tolist() == [float(v) for v in vrs]
+    assert bank.values[bank.index([])].size == 0
+    assert bank.values[bank.index(np.array([2, 9, 4]))].tolist() == [2.0, 9.0, 4.0]
+    with pytest.raises(IndexError, match="Real variables of this FMU are 0..9"):
+        bank.index([8, 9, 10])
