@@ -78,12 +78,12 @@ def main():
         from fmus.common import soil_from_model
         from orchestrator.cli import default_cache_dir
         from orchestrator.cosim import scene_soil_model
-        from orchestrator.run import output_nodes, scene_fit_tol, scene_model, scene_motion
+        from orchestrator.run import output_nodes, scene_model, scene_motion
         from orchestrator.scene import load_scene
 
         scene = load_scene("reactor")
         scene.sections["motion"]["pga_g"] = args.pga
-        fit = scene_soil_model(scene, cache_dir=default_cache_dir(), tol=scene_fit_tol(scene))
+        fit = scene_soil_model(scene, cache_dir=default_cache_dir())
         motion, model = scene_motion(scene, 0.005), scene_model(scene)
         soil = soil_from_model(fit, motion.dt)
         s0 = soil.get_state()

@@ -263,8 +263,7 @@ def run_case(case: Case, quick: bool = False) -> list[dict]:
         scene = case_scene(case, quick, contact={"penalty": case.penalty_factor * extra["contact"]["penalty"]})
     if case.nonpassive:
         from orchestrator.cosim import scene_soil_model
-        from orchestrator.run import scene_fit_tol
-        good = scene_soil_model(scene, table=tables["gap"], tol=scene_fit_tol(scene))
+        good = scene_soil_model(scene, table=tables["gap"])
         soil_model = with_negative_damping(good, f1, rocking_shape(scene))
         soil_kwargs = {"force": case.nonpassive == "force"}
     t0 = time.perf_counter()

@@ -18,17 +18,24 @@ import time as _time
 from pathlib import Path
 
 
-def scene_soil_model(scene, cache_dir=None, progress=None, table=None, **fit_options):
-    """RationalModel of the scene's gap impedance table ((6+N)^2: raft DOFs and the soil
-    vertical displacement under each node; swept here unless given), fitted by
-    soil_impedance.fit.fit_table."""
+def scene_fit(scene, cache_dir=None, progress=None, table=None, **fit_options):
+    """FitResult (model and report) of the scene's gap impedance table ((6+N)^2: raft DOFs and
+    the soil vertical displacement under each node; swept here unless given), fitted by
+    soil_impedance.fit.fit_table at the scene's ``[analysis].fit_tol`` unless ``tol`` is given."""
     from orchestrator.impedance import scene_impedance
+    from orchestrator.run import scene_fit_tol
     from soil_impedance.fit import fit_table
 
     if table is None:
         table = scene_impedance(scene, ("gap",), cache_dir=cache_dir, progress=progress)["gap"]
     fit_options.setdefault("cache_dir", cache_dir)
-    return fit_table(table, **fit_options).model
+    fit_options.setdefault("tol", scene_fit_tol(scene))
+    return fit_table(table, **fit_options)
+
+
+def scene_soil_model(scene, cache_dir=None, progress=None, table=None, **fit_options):
+    """The RationalModel of ``scene_fit`` (the soil of the monolithic and cosim routes)."""
+    return scene_fit(scene, cache_dir, progress, table, **fit_options).model
 
 
 def _inputs(scene, motion, soil_model, dt, cache_dir):

@@ -251,10 +251,9 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
             else:  # continuous grid: the bilinear grid is exact for Newmark but far slower here
                 res = run_timefreq(scene, motion, model, tables["gap"], bilinear=False)
         else:
-            from orchestrator.cosim import run_cosim, run_monolithic
-            from soil_impedance.fit import fit_table
-            if soil_model is None:   # as orchestrator.cosim.scene_soil_model, keeping the report
-                fit = fit_table(tables["gap"], tol=scene_fit_tol(scene), cache_dir=cache_dir)
+            from orchestrator.cosim import run_cosim, run_monolithic, scene_fit
+            if soil_model is None:
+                fit = scene_fit(scene, cache_dir=cache_dir, table=tables["gap"])
                 soil_model, fit_cached = fit.model, fit.report.cached
             run = run_cosim if route == "cosim" else run_monolithic
             res = run(scene, motion, soil_model, progress=bar, cache_dir=cache_dir)
