@@ -6,12 +6,18 @@ Rows:
             (cached in $UPLIFT_CACHE or ~/.cache/uplift after the first ~10 s sweep).
             Routes: timefreq (Newton-Krylov, BEM table), linear (FD, BEM table), winkler
             (TD, the industrial spring route of run.py); printed with orchestrator.compare.
-  --map     convergence map over PGA 0.1 ... 1.0 g: the paper's scheme (rho = 1 and 0.5,
-            global and 8-window averages) against Newton-Krylov, on the reactor structure
-            with a coarse Winkler raft (21 nodes, frequency-independent K + i w C soil) so
-            that the map runs in about a minute; --map-reactor uses the BEM reactor instead.
+  --map     convergence map over PGA 0.1 ... 1.0 g: the paper's scheme (auxiliary stiffness
+            1 and 30 x the local static soil stiffness, rho = 1 and 0.5) against
+            Newton-Krylov: converged?, iterations, final residual, time; on the reactor
+            structure with a coarse Winkler raft (21 nodes, frequency-independent K + s C
+            soil); ~35 min on a loaded 2-core machine, mostly Newton-Krylov failing (up to
+            ~3800 iterations each) from 0.4 g; --map-reactor uses the BEM reactor instead.
 
-    python benchmarks/timefreq.py [--pga 0.25] [--map] [--map-reactor]
+  --ladder  the verification ladder on the reactor: TF with the BEM table, TF with the
+            rational fit sampled as a table, monolithic TD, linear FD vs bonded TD, and the
+            fit's error on the rigid-raft impedances (what separates TF from TD).
+
+    python benchmarks/timefreq.py [--pga 0.25] [--map] [--map-reactor] [--ladder] [--no-reactor]
 """
 from __future__ import annotations
 
@@ -98,6 +104,60 @@ def _monolithic(scene, model, motion, table):
     return res
 
 
+def ladder(pga):
+    """The verification ladder on the reactor (issue 6a): where TF (BEM table) and TD
+    (rational fit) part. Rows: TF with the table; TF with the fit sampled on the table's
+    frequencies and used as a table (same interpolation, continuation above f_max, window,
+    continuous grid: isolates the fit); the monolithic TD route (fit, recursive convolution,
+    Newmark); linear FD with the table vs bonded TD with the fit (the fit in the linear
+    regime); and the fit's error on the rigid-raft impedances P^T K P (P = [I; Bq]) over
+    2-8 Hz, the band of the SSI rocking mode (3.9 Hz)."""
+    from orchestrator.compare import compare, format_table
+    from orchestrator.linear_fd import run_linear
+    from orchestrator.run import output_nodes
+    from orchestrator.timefreq import run_timefreq
+    from soil_impedance.convolution import RecursiveConvolutionSoil
+    from soil_impedance.fit import fit_table
+    from soil_impedance.table import ImpedanceTable
+    from structure import ContactSettings, simulate
+    from structure.spec import contact_from_spec
+
+    from orchestrator.run import scene_fit_tol
+
+    scene, model, motion, table, _ = reactor(pga)
+    contact = contact_from_spec(scene.section("contact"))
+    fit = fit_table(table, tol=scene_fit_tol(scene), cache_dir=cache_dir())
+    rm = fit.model
+    f = table.frequencies_hz
+    P = np.vstack([np.eye(6), model.raft.vertical_trace()])
+    Kt = np.einsum("ai,fab,bj->fij", P, table.matrices, P)
+    Km = np.einsum("ai,fab,bj->fij", P, rm(2j * np.pi * f), P)
+    band = (f >= 2.0) & (f <= 8.0)
+    print(f"fit: {rm.order} poles, max relative error {fit.report.max_rel_error:.4f} (scene fit_tol "
+          f"{scene_fit_tol(scene)}); rigid-raft impedance, 2-8 Hz:")
+    for i, lab in ((0, "ux"), (2, "uz"), (4, "ry")):
+        e = np.abs(Km[band, i, i] - Kt[band, i, i]).max() / np.abs(Kt[band, i, i]).max()
+        ei = np.abs(Km[band, i, i].imag - Kt[band, i, i].imag).max() / np.abs(Kt[band, i, i].imag).max()
+        print(f"  {lab}: |K| error {100 * e:.1f} %, damping (Im K) error {100 * ei:.1f} %")
+    fit_as_table = ImpedanceTable(f, rm(2j * np.pi * f), table.dofs, dict(table.provenance, fitted=True))
+    res = {"tf table": run_timefreq(scene, motion, model, table, bilinear=False),
+           "tf fit-table": run_timefreq(scene, motion, model, fit_as_table, bilinear=False)}
+    t0 = time.perf_counter()
+    res["td monolithic"] = simulate(model, RecursiveConvolutionSoil(rm, motion.dt), motion.acc, motion.dt,
+                                    contact=contact, output_nodes=output_nodes(scene), route="monolithic")
+    res["td monolithic"].wall_s = time.perf_counter() - t0
+    print(format_table(compare(res, "tf table")))
+    print(format_table(compare(res, "td monolithic")))
+    lin = {"linear table": run_linear(scene, motion, model, table)}
+    bonded = ContactSettings(enabled=False, penalty=contact.penalty)
+    t0 = time.perf_counter()
+    lin["td bonded fit"] = simulate(model, RecursiveConvolutionSoil(rm, motion.dt), motion.acc, motion.dt,
+                                    contact=bonded, output_nodes=output_nodes(scene), route="bonded")
+    lin["td bonded fit"].wall_s = time.perf_counter() - t0
+    print(format_table(compare(lin, "linear table")))
+    return compare(res, "tf table")
+
+
 def small_case(pga):
     from soil_impedance.mesh import circle_mesh
     from structure import WinklerSoil
@@ -123,16 +183,20 @@ def small_case(pga):
 
 
 def convergence_map(pgas, use_reactor=False):
+    """The paper's scheme (eq. 17-20) against Newton-Krylov over PGA: converged?, iterations
+    (GMRES), final relative residual |g| / |f|, wall time, max uplift. The paper's scheme
+    with the auxiliary stiffness k = the local static soil stiffness (aux 1, the paper's
+    choice) and 30 x stiffer (aux 30, the only setting found to converge), rho = 1 and 0.5."""
     from orchestrator.timefreq import timefreq
     from structure import ContactSettings
 
-    variants = [("paper rho=1", dict(method="paper", rho=1.0)),
-                ("paper rho=0.5", dict(method="paper", rho=0.5)),
-                ("paper rho=0.5 w=8", dict(method="paper", rho=0.5, windows=8)),
+    variants = [("paper aux1 rho1", dict(method="paper", rho=1.0)),
+                ("paper aux30 rho1", dict(method="paper", rho=1.0, aux_factor=30.0, max_iter=400)),
+                ("paper aux30 rho.5", dict(method="paper", rho=0.5, aux_factor=30.0, max_iter=400)),
                 ("newton-krylov", dict(method="newton-krylov"))]
-    print(f"\nconvergence map ({'reactor, BEM table' if use_reactor else 'reactor structure, 21-node Winkler raft'}): "
-          "iterations (GMRES) or FAIL, max uplift mm")
-    print(f"{'PGA g':>6} " + "".join(f"{v[0]:>22}" for v in variants))
+    print(f"\nconvergence map ({'reactor, BEM table' if use_reactor else 'reactor structure on a 21-node Winkler raft (K + s C soil), 6 s broadband motion, 30 % vertical'})")
+    print("cell: converged (yes/NO), iterations (GMRES), final |g|/|f|, wall s; max uplift mm")
+    print(f"{'PGA g':>6}" + "".join(f"{v[0]:>36}" for v in variants))
     rows = []
     for pga in pgas:
         if use_reactor:
@@ -146,12 +210,14 @@ def convergence_map(pgas, use_reactor=False):
             r = timefreq(model, soil, ag, dt, contact=ContactSettings(), **kw)
             wall = time.perf_counter() - t0
             it = r.info["iterations"]
-            g = f" ({r.info['gmres_total']})" if "gmres_total" in r.info else ""
-            cells.append((f"{it}{g} {1e3 * r.max_uplift():.2f}mm" if r.converged else f"FAIL@{it}"))
+            res = r.info["history"][-1]["residual"] if r.info["history"] else float("nan")
+            g = f"({r.info['gmres_total']})" if "gmres_total" in r.info else ""
+            cells.append(f"{'yes' if r.converged else 'NO'} {it}{g} {res:.0e} {wall:.1f}s "
+                         f"{1e3 * r.max_uplift():.2f}")
             row[name] = dict(converged=r.converged, iterations=it, gmres=r.info.get("gmres_total"),
-                             max_uplift_m=r.max_uplift(), wall_s=wall)
+                             residual=res, max_uplift_m=r.max_uplift(), wall_s=wall)
         rows.append(row)
-        print(f"{pga:>6.2f} " + "".join(f"{c:>22}" for c in cells), flush=True)
+        print(f"{pga:>6.2f}" + "".join(f"{c:>36}" for c in cells), flush=True)
     return rows
 
 
@@ -160,12 +226,15 @@ def main():
     ap.add_argument("--pga", type=float, default=0.25)
     ap.add_argument("--map", action="store_true")
     ap.add_argument("--map-reactor", action="store_true")
+    ap.add_argument("--ladder", action="store_true", help="TF vs TD verification ladder on the reactor")
     ap.add_argument("--no-reactor", action="store_true")
     ap.add_argument("--json", type=Path)
     a = ap.parse_args()
     out = {}
     if not a.no_reactor:
         out["reactor"] = row_reactor(a.pga)
+    if a.ladder:
+        out["ladder"] = ladder(a.pga)
     if a.map or a.map_reactor:
         out["map"] = convergence_map(np.round(np.arange(0.1, 1.01, 0.1), 2), a.map_reactor)
     if a.json:

@@ -14,7 +14,11 @@ Padding rule (``Grid.build``): nfft dt >= T + pad_s with pad_s >= max(1 s, 3 tau
 and by wrap_tol from the window. A longer pad keeps the rule's eta (the window changes how
 sampled input near Nyquist is interpolated, an O(eta dt) effect on the feedthrough, so eta is
 held fixed when only the padding varies). Undoing the window amplifies round-off by at most
-e^{eta T} < 1/wrap_tol.
+e^{eta T} < 1/wrap_tol, and so it does any non-causal part of H (a hysteretic table's
+Im K ~ sign(w)): h(-tau) comes back at the end of the padded record times e^{eta (nfft dt -
+tau)}. Without the window (eta = 0, ``tf_problem.prepare(window=False)``, the linear route's
+default) the physics alone must damp the wrap-around: pad_s >= max(1 s, ln(1/wrap_tol) tau_1),
+and nothing is amplified.
 
 ``bilinear=True`` replaces s by the trapezoidal (Newmark average-acceleration) operator
 s_d = (2/dt)(z - 1)/(z + 1) at z = e^{s dt}: the frequency-domain solution then equals the
@@ -136,9 +140,10 @@ class Grid:
         return out[..., :n] * np.exp(self.eta * self.dt * np.arange(n))
 
 
-def pad_rule_s(decay_rates, minimum: float = 1.0) -> float:
-    """The padding the rule asks for, s: max(minimum, 3 tau_1), tau_1 = 1 / min(xi_j w_j) over
-    the fixed-base modes (decay_rates (m,) 1/s); undamped modes are ignored."""
+def pad_rule_s(decay_rates, minimum: float = 1.0, n_tau: float = 3.0) -> float:
+    """The padding the rule asks for, s: max(minimum, n_tau tau_1), tau_1 = 1 / min(xi_j w_j)
+    over the fixed-base modes (decay_rates (m,) 1/s); undamped modes are ignored. n_tau = 3
+    with the window (which adds the factor wrap_tol), ln(1 / wrap_tol) without it."""
     r = np.asarray(decay_rates, float)
     r = r[r > 0]
-    return float(max(minimum, 3.0 / r.min())) if r.size else float(minimum)
+    return float(max(minimum, n_tau / r.min())) if r.size else float(minimum)

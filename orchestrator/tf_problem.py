@@ -61,12 +61,15 @@ class ContactProblem:
 
 
 def prepare(model, soil, ag, dt, contact=None, damping=None, pad_s=None, wrap_tol=1e-4,
-            bilinear=False, nfft=None, static=None, aux_factor=1.0) -> ContactProblem:
+            bilinear=False, nfft=None, static=None, aux_factor=1.0, window=True) -> ContactProblem:
     """ContactProblem for ground acceleration ag (nt, 3) m/s^2 at step dt (s).
 
     soil : ImpedanceTable | WinklerSoil | RationalModel | RecursiveConvolutionSoil
-    pad_s : zero padding, s (None: the rule of tf_grid, max(1 s, 3 tau_1));
-    wrap_tol : window attenuation of what wraps around; bilinear : s -> trapezoidal s_d;
+    pad_s : zero padding, s (None: the rule of tf_grid, max(1 s, 3 tau_1) with the window,
+    max(1 s, ln(1/wrap_tol) tau_1) without); wrap_tol : attenuation of what wraps around;
+    window : exponential window (eta = ln(1/wrap_tol) / (nfft dt)) or none (eta = 0, longer
+    pad; no amplification of a non-causal soil's acausal part, see tf_grid);
+    bilinear : s -> trapezoidal s_d;
     aux_factor : the auxiliary stiffness k = aux_factor x the soil's local K(0)[w_i, w_i].
     """
     t0 = time.perf_counter()
@@ -75,10 +78,10 @@ def prepare(model, soil, ag, dt, contact=None, damping=None, pad_s=None, wrap_to
         raise ValueError(f"ground acceleration must be a finite (nt, 3) array, got shape {ag.shape}")
     contact = contact or ContactSettings()
     st = ModalStructure(model, damping)
-    rule = pad_rule_s(st.decay_rates)
+    rule = pad_rule_s(st.decay_rates, n_tau=3.0 if window else np.log(1.0 / wrap_tol))
     pad = rule if pad_s is None else float(pad_s)
-    grid = Grid.build(ag.shape[0], dt, pad_s=pad, wrap_tol=wrap_tol, bilinear=bilinear, nfft=nfft,
-                      eta_pad_s=min(pad, rule))
+    grid = Grid.build(ag.shape[0], dt, pad_s=pad, wrap_tol=wrap_tol if window else 1.0,
+                      bilinear=bilinear, nfft=nfft, eta_pad_s=min(pad, rule))
     bands = soil_bands(soil, grid)
     op = InterfaceOperator(model, bands, grid, structure=st)
     N = model.n_interface
@@ -90,7 +93,7 @@ def prepare(model, soil, ag, dt, contact=None, damping=None, pad_s=None, wrap_to
     ag_hat = grid.to_freq(ag.T)
     f = grid.to_time(op.blocked_force(ag_hat))
     info = dict(nfft=grid.nfft, eta=grid.eta, pad_s=(grid.nfft - grid.nt) * dt, pad_rule_s=rule,
-                wrap_tol=wrap_tol, bilinear=bilinear, soil=bands.label, n_freq=grid.n_freq,
+                wrap_tol=wrap_tol, window=window, bilinear=bilinear, soil=bands.label, n_freq=grid.n_freq,
                 setup_s=time.perf_counter() - t0,
                 condensation="exact: all fixed-base modes + rigid raft, per frequency")
     return ContactProblem(model, grid, op, ag, ag_hat, f, static, contact, kp, k, info)

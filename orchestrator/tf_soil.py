@@ -13,6 +13,13 @@ Sources (``soil_bands``):
   Above f_max: the spring-dashpot continuation K = Re K(f_max) + s Im K(f_max) / w_max
   (continuous at f_max; the high-frequency impedance of a surface foundation tends to a
   dashpot). Its static stiffness is Re K(0) (the table must start at 0 Hz).
+  Hysteretic tables (material damping as complex moduli, Im K(0+) = 2 xi K_0 != 0) are first
+  made causal at low frequency by the rational fit's own rule (``soil_impedance.fit.
+  causal_target``: the offset Im K(0+) faded out below f_causal, 5 % of f_max): the sign(w)
+  jump of a hysteretic Im K at w = 0 is a non-causal kernel ~ 2 xi K_0 / (pi t) for t < 0,
+  which the window's undoing e^{+eta t} amplifies by up to 1/wrap_tol at the end of the
+  record (measured on the reactor's linear route: the raft rotation drifted to 1.7e-5 rad in
+  the last second, 12x the causal value, and moved with the padding).
 * WinklerSoil: K + s C, exact (also for the bilinear map: the stepper sees K x + C xdot).
 * RationalModel: K(s) exactly (bilinear grids: K(s_d), what a trapezoidal recursion gives).
 * RecursiveConvolutionSoil: the recursion's own z-transform
@@ -20,7 +27,7 @@ Sources (``soil_bands``):
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -189,7 +196,7 @@ def _table_bands(table, grid) -> SoilBands:
     fmax = f_tab[-1]
     lo = np.flatnonzero(fq <= fmax * (1 + 1e-12))
     hi = np.flatnonzero(fq > fmax * (1 + 1e-12))
-    Kt = table.matrices
+    Kt, f_causal = causal_table(table)
     n = Kt.shape[1]
     K = np.empty((lo.size, n, n), complex)
     if f_tab.size >= 4:
@@ -203,12 +210,24 @@ def _table_bands(table, grid) -> SoilBands:
             d2 = sp_re(fc, 2) + 1j * sp_im(fc, 2)
             K[c:c + 64] = val + dz * d1 + 0.5 * dz * dz * d2
     else:
-        K[:] = table.at(fq[lo])
+        K[:] = replace(table, matrices=Kt).at(fq[lo])
     bands = [DenseBand(lo, K)]
     if hi.size:
         wmax = 2 * np.pi * fmax
         bands.append(AffineBand(hi, np.ascontiguousarray(Kt[-1].real),
                                 np.ascontiguousarray(Kt[-1].imag / wmax)))
     K0 = Kt[0].real
+    causal = f", hysteretic offset faded below {f_causal:g} Hz" if f_causal > 0 else ""
     return SoilBands(tuple(bands), 0.5 * (K0 + K0.T), n,
-                     f"BEM table to {fmax:g} Hz (spline at f - i eta/2pi), spring-dashpot above")
+                     f"BEM table to {fmax:g} Hz (spline at f - i eta/2pi{causal}), spring-dashpot above")
+
+
+def causal_table(table):
+    """(matrices (F, n, n), f_causal Hz): the table with its hysteretic offset Im K(0+) faded
+    out below f_causal (the rational fit's rule, soil_impedance.fit; f_causal = 0 and the
+    matrices unchanged for a table without hysteretic damping)."""
+    from soil_impedance.fit import causal_cutoff, causal_target
+
+    f = table.frequencies_hz
+    f_c = causal_cutoff(table, table.matrices)
+    return causal_target(f, table.matrices, f_c), f_c
