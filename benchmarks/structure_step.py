@@ -60,9 +60,10 @@ def run_opensees(model, soil, kp, ag, dt, a1):
     for n in model.nodes:
         ops.node(n.id, *map(float, n.xyz))
     ops.geomTransf("Linear", 1, -1.0, 0.0, 0.0)
+    rigid_shear = 1e6     # no shear area given: our beams have no shear deformation (Euler-Bernoulli)
     for k, b in enumerate(model.beams):
         ops.element("elasticTimoshenkoBeam", 1 + k, *b.nodes, b.E, b.G, b.A, b.J, b.Iy, b.Iz,
-                    b.Asz or b.A, b.Asy or b.A, 1)
+                    b.Asz or rigid_shear * b.A, b.Asy or rigid_shear * b.A, 1)
     m = model.mass
     for n in model.nodes:
         d = model.dofs(n.id)

@@ -72,6 +72,28 @@ def _parser() -> argparse.ArgumentParser:
     cmp.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     cmp.set_defaults(func=cmd_compare)
 
+    rep = sub.add_parser("report", help="self-contained HTML report of a results file",
+                         description="Write DIR/report.html (figures embedded) with the per-route summary, "
+                                     "the route comparison and the paper's figures 3-6; the figures "
+                                     "are also written to DIR as PNG.")
+    rep.add_argument("results", type=Path, help="results HDF5 file written by `uplift run`")
+    rep.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output directory")
+    rep.add_argument("--reference", default=None, help="reference route of the comparison "
+                                                       "(default: timefreq, else the first)")
+    rep.set_defaults(func=cmd_report)
+
+    bench = sub.add_parser("bench", help="run time against error of every route and its accuracy knobs",
+                           description="For the disk-halfspace and reactor scenes, sweep each route's "
+                                       "accuracy knobs (dt, fit tolerance, BEM element size, TF padding, "
+                                       "contact penalty) and measure wall time and error against the "
+                                       "route's own finest run and against the cross-route reference.")
+    bench.add_argument("--quick", action="store_true",
+                       help="disk-halfspace only, few knob values (about a minute or two)")
+    bench.add_argument("--json", action="store_true", help="print the list of rows as one JSON value on stdout")
+    bench.add_argument("--plot", type=Path, default=None, metavar="FILE",
+                       help="plot wall time against error (log-log) per route to this image")
+    bench.set_defaults(func=cmd_bench)
+
     run = sub.add_parser("run", help="run the scene's analyses (time-domain routes)",
                          description="Run the scene's analyses and write the results (HDF5) and a summary.")
     run.add_argument("scene", help="scene TOML file or built-in scene name")
@@ -200,6 +222,19 @@ def cmd_compare(args) -> int:
     else:
         print(format_table(table))
     return EXIT_OK
+
+
+def cmd_report(args) -> int:
+    from orchestrator.report import write_report
+
+    path = write_report(args.results, args.output, reference=args.reference)
+    print(f"wrote {path}", file=sys.stderr)
+    return EXIT_OK
+
+
+def cmd_bench(args) -> int:
+    from orchestrator.bench import run_bench_cli
+    return run_bench_cli(args)
 
 
 def cmd_run(args) -> int:

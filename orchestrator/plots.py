@@ -68,31 +68,44 @@ def _edges(xy):
 
 
 def plot_run(results: dict, motion, scene, directory) -> list:
-    """Figures of the paper's kind for each route: uplift at the raft edges (fig. 3-4), raft
-    edge displacements and rotation, floor response spectra at the output nodes (fig. 5-6).
-    When the ``linear`` route (no uplift) is among the results, it is drawn dashed on the other
-    routes' figures: the paper's "with and without uplift" comparison."""
-    from orchestrator.spectra import response_spectrum
-
+    """Write the figures of ``run_figures`` as ``<directory>/<name>.png``; returns the paths."""
     plt = _pyplot()
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     paths = []
+    for name, fig in run_figures(results, motion, scene.name):
+        paths.append(directory / f"{name}.png")
+        fig.savefig(paths[-1], dpi=120)
+        plt.close(fig)
+    return paths
+
+
+def run_figures(results: dict, motion, scene_name: str):
+    """Figures of the paper's kind for each route, yielded as (name, matplotlib Figure): uplift
+    at the raft edges (fig. 3-4), raft edge displacements and rotation (``<route>_raft``),
+    floor response spectra at the output nodes (fig. 5-6, ``<route>_floor_spectra``).
+    When the ``linear`` route (no uplift) is among the results, it is drawn dashed on the other
+    routes' figures: the paper's "with and without uplift" comparison. ``motion`` (may be None)
+    adds the ground spectrum. The caller closes each figure."""
+    from orchestrator.spectra import response_spectrum
+
+    plt = _pyplot()
+    label = motion.label if motion is not None else ""
     linear = results.get("linear")
     for route, res in results.items():
         left, right = _edges(res.xy)
         t = res.time
         lin = linear if linear is not None and route != "linear" else None
         fig, axes = plt.subplots(3, 1, figsize=(10, 9), sharex=True, constrained_layout=True)
-        for i, label in ((left, "edge x-"), (right, "edge x+")):
-            axes[0].plot(t, 1e3 * res.gap[:, i], label=f"{label} ({res.xy[i, 0]:.1f} m)")
+        for i, side in ((left, "edge x-"), (right, "edge x+")):
+            axes[0].plot(t, 1e3 * res.gap[:, i], label=f"{side} ({res.xy[i, 0]:.1f} m)")
             x, y = res.xy[i]
             trace = res.raft[:, 2] + res.raft[:, 3] * y - res.raft[:, 4] * x
-            line, = axes[1].plot(t, 1e3 * trace, label=label)
+            line, = axes[1].plot(t, 1e3 * trace, label=side)
             if lin is not None:
                 trace0 = lin.raft[:, 2] + lin.raft[:, 3] * y - lin.raft[:, 4] * x
                 axes[1].plot(lin.time, 1e3 * trace0, "--", color=line.get_color(), lw=0.8,
-                             label=f"{label}, no uplift")
+                             label=f"{side}, no uplift")
         axes[0].set_ylabel("uplift (mm)")
         axes[1].set_ylabel("raft vertical displacement (mm)")
         axes[2].plot(t, 1e3 * res.raft[:, 4], label="ry")
@@ -102,10 +115,8 @@ def plot_run(results: dict, motion, scene, directory) -> list:
         for ax in axes:
             ax.grid(True, alpha=0.3)
             ax.legend(loc="upper right")
-        fig.suptitle(f"{scene.name} [{route}]: raft response, {motion.label}")
-        paths.append(directory / f"{route}_raft.png")
-        fig.savefig(paths[-1], dpi=120)
-        plt.close(fig)
+        fig.suptitle(f"{scene_name} [{route}]: raft response, {label}")
+        yield f"{route}_raft", fig
         if res.acc:
             f = np.geomspace(0.5, 40.0, 120)
             fig, ax = plt.subplots(figsize=(8, 5), constrained_layout=True)
@@ -116,14 +127,12 @@ def plot_run(results: dict, motion, scene, directory) -> list:
                     s0 = response_spectrum(lin.acc[name][:, 0], lin.time[1] - lin.time[0], 1 / f, 0.05)
                     ax.semilogx(f, s0.psa / 9.81, "--", color=line.get_color(), lw=0.8,
                                 label=f"{name}, no uplift")
-            ground = response_spectrum(motion.acc[: res.nt, 0], motion.dt, 1 / f, 0.05)
-            ax.semilogx(f, ground.psa / 9.81, "k--", label="ground")
+            if motion is not None:
+                ground = response_spectrum(motion.acc[: res.nt, 0], motion.dt, 1 / f, 0.05)
+                ax.semilogx(f, ground.psa / 9.81, "k--", label="ground")
             ax.set_xlabel("frequency (Hz)")
             ax.set_ylabel("pseudo-acceleration, 5 % (g)")
             ax.grid(True, which="both", alpha=0.3)
             ax.legend()
-            ax.set_title(f"{scene.name} [{route}]: floor response spectra (x)")
-            paths.append(directory / f"{route}_floor_spectra.png")
-            fig.savefig(paths[-1], dpi=120)
-            plt.close(fig)
-    return paths
+            ax.set_title(f"{scene_name} [{route}]: floor response spectra (x)")
+            yield f"{route}_floor_spectra", fig
