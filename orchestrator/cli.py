@@ -175,7 +175,7 @@ def cmd_fit(args) -> int:
     cache = default_cache_dir()
     table = scene_impedance(scene, (args.table,), cache_dir=cache,
                             progress=frequency_bar(Progress(f"impedance {scene.name}")))[args.table]
-    result = fit_table(table, tol=tol, cache_dir=cache)
+    result = fit_table(table, tol=tol, cache_dir=cache, node_xy=scene.mesh.xy if args.table == "gap" else None)
     if args.output:
         save_fit(result, args.output)
         print(f"wrote {args.output}", file=sys.stderr)

@@ -30,6 +30,7 @@ def scene_fit(scene, cache_dir=None, progress=None, table=None, **fit_options):
         table = scene_impedance(scene, ("gap",), cache_dir=cache_dir, progress=progress)["gap"]
     fit_options.setdefault("cache_dir", cache_dir)
     fit_options.setdefault("tol", scene_fit_tol(scene))
+    fit_options.setdefault("node_xy", scene.mesh.xy)     # for the rigid-raft correction of the fit
     return fit_table(table, **fit_options)
 
 
