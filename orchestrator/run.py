@@ -20,7 +20,7 @@ Routes available in this version:
              (no uplift), FFT with zero padding and an exponential window (orchestrator/linear_fd.py).
 ``timefreq`` the paper's time-frequency reference with uplift: the BEM table per frequency, the
              contact solved over the whole time range by semi-smooth Newton-Krylov
-             (orchestrator/timefreq.py). Minutes on the reactor scene (see its notes).
+             (orchestrator/timefreq.py). About 40 s on the reactor scene.
 
 The rational fit of the scene's gap impedance table is shared by the routes that need it
 (tolerance ``[analysis].fit_tol``, default FIT_TOL).
