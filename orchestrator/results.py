@@ -107,4 +107,5 @@ def summary(res) -> dict:
         # linear contact pre-check found (structure.ContactSettings.precheck)
         "skipped": [str(s) for s in res.info.get("skipped", [])],
         "precheck": str(res.info.get("precheck", "")),
+        "warnings": [str(w) for w in res.info.get("warnings", [])],
     }

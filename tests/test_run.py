@@ -50,7 +50,7 @@ def test_run_json_and_results_file(tmp_path, capsys):
     summary = json.loads(capsys.readouterr().out)["routes"]["winkler"]
     assert set(summary) == {"max_uplift_m", "max_uplift_time_s", "max_raft_rotation_rad",
                             "min_contact_fraction", "peak_acc_g", "wall_s", "converged", "skipped",
-                            "precheck"}
+                            "precheck", "warnings"}
     res = read_results(out)["winkler"]
     # the summary is what the file holds
     assert summary["max_uplift_m"] == pytest.approx(res.gap.max())
@@ -160,3 +160,19 @@ def test_monolithic_and_cosim_routes_agree(tmp_path, capsys):
     assert abs(table["differences"]["cosim"]["max_uplift"]) <= 1e-10
     assert table["routes"]["linear"]["max_uplift_m"] == 0.0      # the linear route never lifts
     assert main(["compare", str(out), "--reference", "nope"]) == 2
+
+
+@pytest.mark.parametrize("pga, warned", [(0.02, False), (1.0, True)])
+def test_rccg_damping_warns_when_most_of_the_raft_lifts(tmp_path, capsys, pga, warned):
+    """RCC-G modal damping keeps acting on a lifted raft: flagged when uplift is no perturbation."""
+    text = SCENE.replace("PGA", str(pga)).replace("winkler = { kv = 5.0e7, kh = 4.0e7 }",
+                                                   'winkler = { springs = "rigid" }')
+    path = tmp_path / "rccg.toml"
+    path.write_text(text + "[impedance]\nrange_hz = [0.0, 10.0, 6]\n")
+    assert main(["run", str(path), "-o", str(tmp_path / "r.h5"), "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)["routes"]["winkler"]
+    res = read_results(tmp_path / "r.h5")["winkler"]
+    assert (res.uplift_fraction().max() > 0.6) == warned
+    assert bool(summary["warnings"]) == warned
+    if warned:
+        assert 'damping = "dashpots"' in summary["warnings"][0]
