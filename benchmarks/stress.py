@@ -36,11 +36,13 @@ Measured (2 loaded cores, full run ~3 min): every small-scene case is "stable" o
 balance 1e-14..1e-10 (7e-10 with penalty x1000), soil work never negative; 200 s: back at rest
 (late 0.000, residual rocking 4e-5 / 5e-6 of the peak); dt 10 / 20 ms vs 5 ms on the same
 record: max uplift -0.0 % / -0.5 % (winkler), +0.2 % / +2.9 % (monolithic); penalty x1000:
-+0.0 %; PGA 2 g: 156 / 577 mm uplift, completed. The non-passive model is refused by default
++0.0 %; PGA 2 g: 156 / 577 mm uplift, completed (the Winkler route's RCC-G modal damping keeps
+acting on the lifted raft: with detaching dashpots, damping = "dashpots", it gives 588 mm; the
+route warns beyond 60 % of the nodes lifted). The non-passive model is refused by default
 (FitError naming the violation band and the fix); forced through, it runs but the soil work goes
 negative (-1.2 % of the input): "unstable". Reactor: 2 g stable (65 / 421 mm); dt 20 ms
-(12.7 steps per period of the 3.9 Hz mode) within 1 %; dt 50 ms (5.1 steps), which the scene
-accepts, is stable but "inaccurate": +12 % (winkler) / +104 % (monolithic) max uplift.
+(12.7 steps per period of the 3.9 Hz mode) within 1 %; dt 50 ms (5.1 steps) gave +12 % (winkler) /
++104 % (monolithic) max uplift: it is now refused (run.check_time_step: at least 10 steps).
 """
 from __future__ import annotations
 
