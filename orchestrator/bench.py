@@ -8,7 +8,7 @@ dt             time step, s ([analysis].dt; the motion is regenerated at that st
 fit_tol        rational-fit tolerance ([analysis].fit_tol; the fit picks its order from it)
 element_size   BEM element size, m ([foundation].element_size: the interface mesh itself)
 penalty        contact penalty as a factor of "auto" (1 = 1e4 x the soil's local static
-               stiffness per node; structure.contact.AUTO_FACTOR is scaled for the run)
+               stiffness per node: [contact].auto_factor = factor x AUTO_FACTOR)
 pad_s          TF zero padding, s (linear and timefreq; None = the rule of tf_grid)
 =============  ==========================================================================
 
@@ -29,7 +29,6 @@ scene and route, the cheapest run reaching ERR_TARGET on max uplift against its 
 """
 from __future__ import annotations
 
-import contextlib
 import copy
 import importlib.util
 import json
@@ -121,26 +120,17 @@ def scene_data(name: str) -> dict:
 
 
 def knob_scene(data: dict, name: str, knobs: dict):
-    """The scene ``data`` with the knobs dt, fit_tol, element_size applied."""
+    """The scene ``data`` with the knobs dt, fit_tol, element_size and penalty applied."""
     from orchestrator.scene import scene_from_dict
+    from structure.contact import AUTO_FACTOR
 
     data = copy.deepcopy(data)
     for key, section in (("dt", "analysis"), ("fit_tol", "analysis"), ("element_size", "foundation")):
         if knobs.get(key) is not None:
             data.setdefault(section, {})[key] = knobs[key]
+    if knobs.get("penalty") is not None:
+        data.setdefault("contact", {})["auto_factor"] = float(knobs["penalty"]) * AUTO_FACTOR
     return scene_from_dict(data, base_dir=Path(str(resources.files("orchestrator.scenes"))), name=name)
-
-
-@contextlib.contextmanager
-def penalty_factor(factor):
-    """Scale the "auto" contact penalty by ``factor`` for the duration of a run."""
-    import structure.contact as contact
-    saved = contact.AUTO_FACTOR
-    contact.AUTO_FACTOR = saved * (1.0 if factor is None else float(factor))
-    try:
-        yield
-    finally:
-        contact.AUTO_FACTOR = saved
 
 
 def run_route(data: dict, name: str, route: str, knobs: dict, cache_dir=None):
@@ -149,22 +139,21 @@ def run_route(data: dict, name: str, route: str, knobs: dict, cache_dir=None):
 
     t0 = time.perf_counter()
     scene = knob_scene(data, name, knobs)
-    with penalty_factor(knobs.get("penalty")):
-        if route in ("linear", "timefreq"):
-            from orchestrator.impedance import scene_impedance
-            from orchestrator.linear_fd import run_linear
-            from orchestrator.run import scene_analysis, scene_model, scene_motion
-            from orchestrator.timefreq import run_timefreq
+    if route in ("linear", "timefreq"):
+        from orchestrator.impedance import scene_impedance
+        from orchestrator.linear_fd import run_linear
+        from orchestrator.run import scene_analysis, scene_model, scene_motion
+        from orchestrator.timefreq import run_timefreq
 
-            motion = scene_motion(scene, scene_analysis(scene)[1])
-            table = scene_impedance(scene, ("gap",), cache_dir=cache_dir)["gap"]
-            if route == "linear":
-                res = run_linear(scene, motion, scene_model(scene), table, pad_s=knobs.get("pad_s"))
-            else:
-                res = run_timefreq(scene, motion, scene_model(scene), table, bilinear=False,
-                                   pad_s=knobs.get("pad_s"))
+        motion = scene_motion(scene, scene_analysis(scene)[1])
+        table = scene_impedance(scene, ("gap",), cache_dir=cache_dir)["gap"]
+        if route == "linear":
+            res = run_linear(scene, motion, scene_model(scene), table, pad_s=knobs.get("pad_s"))
         else:
-            res = run_scene(scene, [route], cache_dir=cache_dir)[0][route]
+            res = run_timefreq(scene, motion, scene_model(scene), table, bilinear=False,
+                               pad_s=knobs.get("pad_s"))
+    else:
+        res = run_scene(scene, [route], cache_dir=cache_dir)[0][route]
     res.info["total_s"] = time.perf_counter() - t0
     return res
 

@@ -16,6 +16,7 @@ keeps the window (its s_d has a pole at z = -1, the Nyquist bin, on the unit cir
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
@@ -77,7 +78,7 @@ def linear_fd(model, soil, ag, dt, contact=None, damping=None, output_nodes=None
     Returns a RouteResult (gap zero, contact_force P0 - kp d, may be negative = tension).
     """
     t0 = time.perf_counter()
-    contact = ContactSettings(enabled=False, penalty=(contact.penalty if contact else "auto"))
+    contact = replace(contact or ContactSettings(), enabled=False)
     prob = prepare(model, soil, ag, dt, contact=contact, damping=damping, pad_s=pad_s,
                    wrap_tol=wrap_tol, bilinear=bilinear, nfft=nfft,
                    window=bilinear if window is None else window)

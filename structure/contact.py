@@ -11,8 +11,8 @@ penetration (delta0_i = P0_i / kp_i when in contact at rest):
 The contact acts on the raft with +P_i (upwards) and on the soil node with -P_i. As an
 internal-force vector on x = [q, w]: f_c = -B^T (P - P0), B (N, 6+N) = [Bq, -I].
 
-Penalty "auto": kp_i = AUTO_FACTOR * K(0)[w_i, w_i], the soil's local static vertical
-stiffness under node i. The soil spring and the penalty act in series, so the contact
+Penalty "auto": kp_i = auto_factor * K(0)[w_i, w_i] (default AUTO_FACTOR), the soil's local
+static vertical stiffness under node i. The soil spring and the penalty act in series, so the contact
 softens the soil by 1/(1 + AUTO_FACTOR) = 1e-4; multiplying kp by 10 moves the results by
 less than that (measured in tests/test_contact_penalty.py).
 """
@@ -28,7 +28,8 @@ AUTO_FACTOR = 1.0e4
 @dataclass(frozen=True)
 class ContactSettings:
     """enabled: unilateral contact (False: raft bonded to the soil through the same penalty
-    springs, linear). penalty: "auto" or kp per node, N/m. Newton: tol (relative residual),
+    springs, linear). penalty: "auto" or kp per node, N/m; auto_factor: kp / local soil static
+    stiffness for "auto". Newton: tol (relative residual),
     max_iter per (sub)step, max_subdiv halvings of the step (min step dt / 2**max_subdiv).
 
     precheck: ``simulate`` first runs the closed-contact (linear) problem, one factorisation
@@ -40,6 +41,7 @@ class ContactSettings:
     look ahead and ignore it."""
     enabled: bool = True
     penalty: object = "auto"
+    auto_factor: float = AUTO_FACTOR
     tol: float = 1e-9
     max_iter: int = 25
     max_subdiv: int = 6
@@ -52,7 +54,7 @@ def penalty_stiffness(settings: ContactSettings, soil_static, n: int) -> np.ndar
         d = np.asarray(soil_static.diagonal() if hasattr(soil_static, "diagonal")
                        else np.diag(soil_static), float)[6:6 + n]
         ref = np.where(d > 0, d, d.max() if d.max() > 0 else 1.0)
-        return AUTO_FACTOR * ref
+        return settings.auto_factor * ref
     return np.broadcast_to(np.asarray(settings.penalty, float), (n,)).copy()
 
 

@@ -13,7 +13,7 @@ from importlib import resources
 
 import numpy as np
 
-from .contact import ContactSettings
+from .contact import AUTO_FACTOR, ContactSettings
 from .errors import StructureError
 from .model import Beam, Damping, Mass, Node, Raft, Spring, StructureModel
 from .soil_interface import WinklerSoil
@@ -200,12 +200,13 @@ def winkler_from_spec(spec: dict, xy, area) -> WinklerSoil:
 
 def contact_from_spec(spec: dict | None) -> ContactSettings:
     """ContactSettings from [contact] { enabled = true, penalty = "auto" | N/m per node,
-    precheck = true } (precheck = false forces the nonlinear contact iterations even when a
+    auto_factor = 1e4, precheck = true } (auto_factor: the "auto" penalty over the soil's local
+    static stiffness) (precheck = false forces the nonlinear contact iterations even when a
     linear pre-check would show that the contact never opens; see ContactSettings)."""
     p = "contact"
     if spec is None:
         return ContactSettings()
-    _keys(p, spec, (), ("enabled", "penalty", "precheck"))
+    _keys(p, spec, (), ("enabled", "penalty", "precheck", "auto_factor"))
     en, pre = spec.get("enabled", True), spec.get("precheck", True)
     for key, value in (("enabled", en), ("precheck", pre)):
         if not isinstance(value, bool):
@@ -216,4 +217,5 @@ def contact_from_spec(spec: dict | None) -> ContactSettings:
             raise StructureError(f"{p}.penalty = {pen!r} must be \"auto\" or a stiffness in N/m per node")
     else:
         pen = _num(f"{p}.penalty", pen, 0.0)
-    return ContactSettings(enabled=en, penalty=pen, precheck=pre)
+    factor = _num(f"{p}.auto_factor", spec.get("auto_factor", AUTO_FACTOR), 0.0)
+    return ContactSettings(enabled=en, penalty=pen, auto_factor=factor, precheck=pre)

@@ -137,7 +137,7 @@ def test_precheck_scene_key():
     assert contact_from_spec({}).precheck is True
     with pytest.raises(StructureError, match=r"contact.precheck = 'no' must be true or false"):
         contact_from_spec({"precheck": "no"})
-    with pytest.raises(StructureError, match="allowed: enabled, penalty, precheck"):
+    with pytest.raises(StructureError, match="allowed: auto_factor, enabled, penalty, precheck"):
         contact_from_spec({"pre_check": False})
 
 

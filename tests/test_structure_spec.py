@@ -95,6 +95,7 @@ def test_winkler_from_spec_per_node_values():
     ({"penalty": "big"}, "contact.penalty = 'big' must be \"auto\""),
     ({"penalty": -1.0}, "contact.penalty = -1.0 must be > 0"),
     ({"friction": 0.5}, "contact.friction is not a known key"),
+    ({"auto_factor": 0.0}, "contact.auto_factor = 0.0 must be > 0"),
 ])
 def test_invalid_contact_fields(spec, message):
     with pytest.raises(StructureError) as ei:
@@ -106,3 +107,11 @@ def test_contact_from_spec_values():
     c = contact_from_spec({"enabled": False, "penalty": 1e12})
     assert not c.enabled and c.penalty == 1e12
     assert contact_from_spec(None).penalty == "auto"
+
+
+def test_auto_penalty_factor_scales_the_local_soil_stiffness():
+    from structure.contact import AUTO_FACTOR, penalty_stiffness
+    K0 = np.diag([1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 2.0e8, 3.0e8])
+    kp = penalty_stiffness(contact_from_spec({"auto_factor": 250.0}), K0, 2)
+    np.testing.assert_array_equal(kp, [5.0e10, 7.5e10])
+    assert contact_from_spec({}).auto_factor == AUTO_FACTOR
