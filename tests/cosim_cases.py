@@ -45,3 +45,7 @@ def pulse_motion(dt=0.005, T=1.5, pga=8.0, tp=0.6):
     acc[:, 0] = pga * s
     acc[:, 2] = 0.3 * pga * s
     return Motion(dt, acc, "pulse")
+
+
+#: the motion the exported pair is built with (tests/conftest.py ``exported``)
+EXPORT_MOTION = pulse_motion(T=0.6)

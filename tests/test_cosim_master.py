@@ -4,18 +4,11 @@ of the bank never confuses two lists."""
 import numpy as np
 import pytest
 
-from cosim_cases import pulse_motion, small_scene, soil_model
+from cosim_cases import EXPORT_MOTION
 from fmus.common import RealBank
-from orchestrator.export import export_scene
 from orchestrator.master import CosimError, FmuSlave, cosimulate
 
-SCENE = small_scene()
-MOTION = pulse_motion(T=0.5)
-
-
-@pytest.fixture(scope="module")
-def exported(tmp_path_factory):
-    return export_scene(SCENE, tmp_path_factory.mktemp("export"), soil_model(SCENE), motion=MOTION)
+MOTION = EXPORT_MOTION                 # the motion of the shared ``exported`` pair (conftest)
 
 
 def test_failure_mid_run_keeps_the_steps_done(exported):

@@ -6,17 +6,11 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 
-from cosim_cases import pulse_motion, small_scene, soil_model
-from orchestrator.export import export_scene
+from cosim_cases import EXPORT_MOTION, small_scene
 from orchestrator.master import CosimError, FmuSlave
 
 SCENE = small_scene()
-MOTION = pulse_motion(T=0.6)
-
-
-@pytest.fixture(scope="module")
-def exported(tmp_path_factory):
-    return export_scene(SCENE, tmp_path_factory.mktemp("export"), soil_model(SCENE), motion=MOTION)
+MOTION = EXPORT_MOTION                 # the motion of the shared ``exported`` pair (conftest)
 
 
 def test_export_writes_the_three_files(exported):

@@ -1,0 +1,13 @@
+"""Fixtures shared by test modules."""
+import pytest
+
+from cosim_cases import EXPORT_MOTION, small_scene, soil_model
+
+
+@pytest.fixture(scope="session")
+def exported(tmp_path_factory):
+    """small_scene() exported once for the session (structure.fmu, soil.fmu, system.ssd) with
+    EXPORT_MOTION."""
+    from orchestrator.export import export_scene
+    scene = small_scene()
+    return export_scene(scene, tmp_path_factory.mktemp("export"), soil_model(scene), motion=EXPORT_MOTION)
