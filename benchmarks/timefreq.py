@@ -4,14 +4,17 @@ Rows:
   reactor   built-in scene "reactor" (layered rock, R = 20 m, 241 nodes), its synthetic
             RG1.60 motion scaled to --pga (default 0.25 g), 10 s at 5 ms; the BEM "gap" table
             (cached in $UPLIFT_CACHE or ~/.cache/uplift after the first ~10 s sweep).
-            Routes: timefreq (Newton-Krylov, BEM table), linear (FD, BEM table), winkler
-            (TD, the industrial spring route of run.py); printed with orchestrator.compare.
-  --map     convergence map over PGA 0.1 ... 1.0 g: the paper's scheme (auxiliary stiffness
-            1 and 30 x the local static soil stiffness, rho = 1 and 0.5) against
-            Newton-Krylov: converged?, iterations, final residual, time; on the reactor
-            structure with a coarse Winkler raft (21 nodes, frequency-independent K + s C
-            soil); ~35 min on a loaded 2-core machine, mostly Newton-Krylov failing (up to
-            ~3800 iterations each) from 0.4 g; --map-reactor uses the BEM reactor instead.
+            Routes: timefreq (the march with the wrap-around fed back, bilinear grid, BEM
+            table), timefreq on the continuous grid (Newton-Krylov), linear (FD, BEM table),
+            winkler (TD, the industrial spring route of run.py), monolithic (TD, fit);
+            printed with orchestrator.compare.
+  --map     convergence map over PGA 0.1 ... 1.0 g on the reactor structure with a coarse
+            Winkler raft (21 nodes, frequency-independent K + s C soil, 6 s): the paper's
+            scheme (auxiliary stiffness 1 and 30 x the local static soil stiffness, rho = 1
+            and 0.5), Newton-Krylov from zero and from one causal march (60 s budget each),
+            and the march with the wrap-around fed back: converged?, iterations, final
+            residual, time, max uplift, against Newmark's max uplift; ~20 min, mostly the
+            failing Newton-Krylov runs. --map-reactor: the BEM reactor instead.
 
   --ladder  the verification ladder on the reactor: TF with the BEM table, TF with the
             rational fit sampled as a table, monolithic TD, linear FD vs bonded TD, and the
@@ -76,11 +79,16 @@ def row_reactor(pga):
     except Exception as exc:  # the fit route may not exist yet
         print(f"monolithic route skipped: {exc}")
     h = tf.info
+    sweeps = " ".join(f"{x['residual']:.0e}" for x in h["history"])
     print(f"\ntimefreq: wall {tf.wall_s:.2f} s (setup {h['setup_s']:.2f} s, solve {h['solve_s']:.2f} s), "
-          f"converged {tf.converged}, Newton iterations {h['iterations']}, GMRES {h['gmres_total']}, "
-          f"S applications {h['apply_S']}, continuation {h['continuation']}, nfft {h['nfft']} "
-          f"(pad {h['pad_s']:.2f} s, rule {h['pad_rule_s']:.2f} s), max open nodes "
-          f"{max([x['n_open'] for x in h['history']] or [0])}")
+          f"converged {tf.converged}, method {h['method']}, sweeps {h['iterations']}, residual "
+          f"{h['residual']:.1e} (per sweep: {sweeps}), "
+          f"S applications {h['apply_S']}, nfft {h['nfft']} (pad {h['pad_s']:.2f} s, rule "
+          f"{h['pad_rule_s']:.2f} s)")
+    tfc = run_timefreq(scene, motion, model, table, bilinear=False, route="timefreq-continuous")
+    results["timefreq-continuous"] = tfc
+    print(f"timefreq on the continuous grid (Newton-Krylov): wall {tfc.wall_s:.2f} s, Newton "
+          f"iterations {tfc.info['iterations']}, GMRES {tfc.info['gmres_total']}, converged {tfc.converged}")
     print(f"linear: wall {lin.wall_s:.2f} s ({lin.info['bonded_solver']}, {lin.info['sweeps']} sweeps)\n")
     cmp = compare(results, "timefreq")
     print(format_table(cmp))
@@ -182,18 +190,32 @@ def small_case(pga):
     return model, soil, ag, 0.005
 
 
+def _fit_soil(scene, table, dt):
+    """The scene's rational fit run by its recursion (the Newmark column of the reactor map)."""
+    from orchestrator.cosim import scene_fit
+    from soil_impedance.convolution import RecursiveConvolutionSoil
+    return RecursiveConvolutionSoil(scene_fit(scene, cache_dir=cache_dir(), table=table).model, dt)
+
+
 def convergence_map(pgas, use_reactor=False):
-    """The paper's scheme (eq. 17-20) against Newton-Krylov over PGA: converged?, iterations
-    (GMRES), final relative residual |g| / |f|, wall time, max uplift. The paper's scheme
+    """The paper's scheme (eq. 17-20) against Newton-Krylov (from zero and from one causal
+    march, budget 60 s each) and the march with the wrap-around fed back, over PGA:
+    converged?, iterations or sweeps (GMRES), final relative residual |g| / |f|, wall time,
+    max uplift; and Newmark's max uplift (the same discrete equations up to the wrap-around
+    for the Winkler raft; the fitted soil for the reactor). The paper's scheme
     with the auxiliary stiffness k = the local static soil stiffness (aux 1, the paper's
     choice) and 30 x stiffer (aux 30, the only setting found to converge), rho = 1 and 0.5."""
     from orchestrator.timefreq import timefreq
-    from structure import ContactSettings
+    from structure import ContactSettings, simulate
+    from structure.spec import contact_from_spec
 
+    budget = dict(max_seconds=60.0)
     variants = [("paper aux1 rho1", dict(method="paper", rho=1.0)),
                 ("paper aux30 rho1", dict(method="paper", rho=1.0, aux_factor=30.0, max_iter=400)),
                 ("paper aux30 rho.5", dict(method="paper", rho=0.5, aux_factor=30.0, max_iter=400)),
-                ("newton-krylov", dict(method="newton-krylov"))]
+                ("newton-krylov", dict(method="newton-krylov", **budget)),
+                ("NK from march", dict(method="newton-krylov", guess="march", **budget)),
+                ("march", dict(method="march"))]
     print(f"\nconvergence map ({'reactor, BEM table' if use_reactor else 'reactor structure on a 21-node Winkler raft (K + s C soil), 6 s broadband motion, 30 % vertical'})")
     print("cell: converged (yes/NO), iterations (GMRES), final |g|/|f|, wall s; max uplift mm")
     print(f"{'PGA g':>6}" + "".join(f"{v[0]:>36}" for v in variants))
@@ -204,20 +226,26 @@ def convergence_map(pgas, use_reactor=False):
             soil, ag, dt = table, motion.acc, motion.dt
         else:
             model, soil, ag, dt = small_case(pga)
-        cells, row = [], {"pga_g": pga}
+        t0 = time.perf_counter()
+        td = simulate(model, soil if not use_reactor else _fit_soil(scene, table, dt), ag, dt,
+                      contact=ContactSettings() if not use_reactor else contact_from_spec(scene.section("contact")))
+        cells, row = [], {"pga_g": pga, "newmark_uplift_m": td.max_uplift(),
+                          "newmark_s": time.perf_counter() - t0}
         for name, kw in variants:
             t0 = time.perf_counter()
-            r = timefreq(model, soil, ag, dt, contact=ContactSettings(), **kw)
+            r = timefreq(model, soil, ag, dt, contact=ContactSettings() if not use_reactor else
+                         contact_from_spec(scene.section("contact")), **kw)
             wall = time.perf_counter() - t0
             it = r.info["iterations"]
-            res = r.info["history"][-1]["residual"] if r.info["history"] else float("nan")
+            res = r.info["residual"]
             g = f"({r.info['gmres_total']})" if "gmres_total" in r.info else ""
             cells.append(f"{'yes' if r.converged else 'NO'} {it}{g} {res:.0e} {wall:.1f}s "
                          f"{1e3 * r.max_uplift():.2f}")
             row[name] = dict(converged=r.converged, iterations=it, gmres=r.info.get("gmres_total"),
                              residual=res, max_uplift_m=r.max_uplift(), wall_s=wall)
         rows.append(row)
-        print(f"{pga:>6.2f}" + "".join(f"{c:>36}" for c in cells), flush=True)
+        print(f"{pga:>6.2f}" + "".join(f"{c:>36}" for c in cells)
+              + f"   Newmark {1e3 * td.max_uplift():.2f}", flush=True)
     return rows
 
 

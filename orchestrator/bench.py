@@ -150,8 +150,7 @@ def run_route(data: dict, name: str, route: str, knobs: dict, cache_dir=None):
         if route == "linear":
             res = run_linear(scene, motion, scene_model(scene), table, pad_s=knobs.get("pad_s"))
         else:
-            res = run_timefreq(scene, motion, scene_model(scene), table, bilinear=False,
-                               pad_s=knobs.get("pad_s"))
+            res = run_timefreq(scene, motion, scene_model(scene), table, pad_s=knobs.get("pad_s"))
     else:
         res = run_scene(scene, [route], cache_dir=cache_dir)[0][route]
     res.info["total_s"] = time.perf_counter() - t0

@@ -26,8 +26,9 @@ ROUTE_NOTES = {
              "Gauss-Seidel master (equal to monolithic to round-off).",
     "linear": "linear FD: the BEM impedance table applied per frequency, raft bonded (no uplift): "
               "the exact linear reference, drawn dashed as 'no uplift' on the other figures.",
-    "timefreq": "TF reference (paper §3): the BEM table per frequency, unilateral contact solved "
-                "over the whole time range by semi-smooth Newton-Krylov.",
+    "timefreq": "TF reference (paper §3): the BEM table per frequency, unilateral contact over "
+                "the whole time range on the trapezoidal grid, solved by causal marches with the "
+                "wrap-around fed back to the whole-range residual's tolerance.",
 }
 
 

@@ -19,8 +19,9 @@ Routes available in this version:
 ``linear``   the exact linear reference: the BEM gap table applied per frequency, raft bonded
              (no uplift), FFT with zero padding and an exponential window (orchestrator/linear_fd.py).
 ``timefreq`` the paper's time-frequency reference with uplift: the BEM table per frequency, the
-             contact solved over the whole time range by semi-smooth Newton-Krylov
-             (orchestrator/timefreq.py). About 40 s on the reactor scene.
+             contact equations over the whole time range on the bilinear (trapezoidal) grid,
+             solved by causal marches with the wrap-around fed back (orchestrator/timefreq.py,
+             tf_march.py); time budget ``[analysis].timefreq_max_s`` (default TIMEFREQ_MAX_S).
 
 The rational fit of the scene's gap impedance table is shared by the routes that need it
 (tolerance ``[analysis].fit_tol``, default FIT_TOL).
@@ -41,6 +42,8 @@ ROUTES = ("winkler", "monolithic", "cosim", "linear", "timefreq")
 #: damping ξ closer than about ξ over the band (soil_impedance/fit.py): the reactor scene, on
 #: 3 % rock, sets [analysis] fit_tol = 0.04 (8 poles, passive, ~10 s)
 FIT_TOL = 0.01
+#: default time budget of the timefreq route, s
+TIMEFREQ_MAX_S = 600.0
 
 
 def scene_motion(scene, dt: float) -> Motion:
@@ -65,7 +68,7 @@ def scene_motion(scene, dt: float) -> Motion:
 
 def scene_analysis(scene) -> tuple[list, float]:
     a = scene.section("analysis")
-    _check_keys(a, ("routes", "dt", "fit_tol"), "analysis")
+    _check_keys(a, ("routes", "dt", "fit_tol", "timefreq_max_s"), "analysis")
     routes = a.get("routes", ["winkler"])
     dt = a.get("dt", 0.005)
     if not isinstance(dt, (int, float)) or not 0 < dt <= 0.05:
@@ -79,6 +82,15 @@ def scene_fit_tol(scene) -> float:
     if not isinstance(tol, (int, float)) or not 0 < tol < 1:
         raise SceneError(f"analysis.fit_tol = {tol!r} must lie in (0, 1) (relative fit error, e.g. 0.04)")
     return float(tol)
+
+
+def scene_timefreq_budget(scene) -> float:
+    """analysis.timefreq_max_s: the time-frequency route's time budget, s (default
+    TIMEFREQ_MAX_S); when it runs out the route keeps its best iterate, flagged."""
+    b = scene.section("analysis").get("timefreq_max_s", TIMEFREQ_MAX_S)
+    if isinstance(b, bool) or not isinstance(b, (int, float)) or not b > 0:
+        raise SceneError(f"analysis.timefreq_max_s = {b!r} must be a positive number of seconds, e.g. 600")
+    return float(b)
 
 
 def check_routes(routes) -> list:
@@ -260,8 +272,9 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
             from orchestrator.timefreq import run_timefreq
             if route == "linear":
                 res = run_linear(scene, motion, model, tables["gap"])
-            else:  # continuous grid: the bilinear grid is exact for Newmark but far slower here
-                res = run_timefreq(scene, motion, model, tables["gap"], bilinear=False)
+            else:
+                res = run_timefreq(scene, motion, model, tables["gap"], progress=bar,
+                                   max_seconds=scene_timefreq_budget(scene))
         else:
             from orchestrator.cosim import run_cosim, run_monolithic, scene_fit
             if soil_model is None:

@@ -191,11 +191,13 @@ def _table_bands(table, grid) -> SoilBands:
                          "need K(0) (static preload, penalty): include 0 Hz in the sweep")
     # complex frequency of each grid point: f_c = s / (2 pi i) (continuous: f - i eta / 2 pi;
     # bilinear: the warped s_d); the spline is continued from Re f_c by its Taylor series
+    # the bands split on the real frequency a grid point stands for (grid.warped_hz: near a
+    # bilinear grid's Nyquist s_d is nearly real and Re f_c is no frequency)
     fcx = grid.s / (2j * np.pi)
     fq = fcx.real
     fmax = f_tab[-1]
-    lo = np.flatnonzero(fq <= fmax * (1 + 1e-12))
-    hi = np.flatnonzero(fq > fmax * (1 + 1e-12))
+    lo = np.flatnonzero(grid.warped_hz <= fmax * (1 + 1e-12))
+    hi = np.flatnonzero(grid.warped_hz > fmax * (1 + 1e-12))
     Kt, f_causal = causal_table(table)
     n = Kt.shape[1]
     K = np.empty((lo.size, n, n), complex)

@@ -190,15 +190,17 @@ def _scale(eq):
 
 
 def newton_krylov(prob, tol=1e-10, max_iter=200, y0=None, lam=1.0, windows=1, gmres_restart=80,
-                  gmres_maxiter=300, history=None, horizon_s=0.5, exact_jacobian=False,
-                  forcing_max=0.1):
+                  gmres_maxiter=300, history=None, horizon_s=None, exact_jacobian=False,
+                  forcing_max=0.1, deadline=None, preconditioner="masked"):
     """Semi-smooth Newton-Krylov at motion scale lam, advancing a time horizon.
 
     Causality: g on [0, t) depends on y on [0, t) only. Each iteration finds the first time
     t_b where the cumulative residual exceeds the tolerance (the prefix before it is solved),
     and takes a Newton step for the prefix [0, t_b + H) only (J and the preconditioner masked
-    to it), with a backtracking line search on the prefix residual. H (initially horizon_s)
-    doubles after a full step and halves after a cut one.
+    to it), with a backtracking line search on the prefix residual. H (initially horizon_s;
+    default 0.5 s from y = 0, the whole range from a given y0, whose residual is spread over
+    it) doubles after a full step and halves after a cut one. deadline (perf_counter time):
+    stop there with the last iterate (converged False, history[-1]["stopped"]).
 
     Inner solves: FGMRES to the Eisenstat-Walker forcing term on the full range (choice 2:
     0.9 (|g_k| / |g_k-1|)^2 with its safeguard, at most forcing_max, at least what the last
@@ -209,14 +211,21 @@ def newton_krylov(prob, tol=1e-10, max_iter=200, y0=None, lam=1.0, windows=1, gm
     free: one S application per GMRES iteration instead of two. J itself
     (``ContactEquation.jvp``) while the horizon advances (where contact first opens and steps
     are often cut), for forcing terms below 1e-2 (the last iterations, where J0's error
-    would make Newton linear) and with exact_jacobian=True. Returns (y, converged, history)."""
+    would make Newton linear), with exact_jacobian=True and with preconditioner "march"
+    (``march_preconditioner``: the causal part of J inverted by one linearised march,
+    tf_march; exact up to the wrap-around and a soil's non-causal part, so a few GMRES
+    iterations whatever the contact switching, at the cost of a march each: the choice for
+    causal soils, where the masked operator stalls once contact switches often, from 0.7 g
+    on the 21-node Winkler raft). Returns (y, converged, history)."""
     eq = ContactEquation(prob, lam)
     nt = prob.f.shape[1]
     y = np.zeros_like(prob.f) if y0 is None else y0.copy()
     g = eq.residual(y)
     scale = _scale(eq)
     hist = [] if history is None else history
-    H = max(4, int(round(horizon_s / prob.grid.dt)))
+    if horizon_s is None:
+        horizon_s = 0.5 if y0 is None else np.inf
+    H = int(min(nt, max(4, round(min(horizon_s, 2 * nt * prob.grid.dt) / prob.grid.dt))))
     Hmin = 4
     forcing, gp_prev = forcing_max, None
     for it in range(1, max_iter + 1):
@@ -229,7 +238,10 @@ def newton_krylov(prob, tol=1e-10, max_iter=200, y0=None, lam=1.0, windows=1, gm
         hi = min(nt, tb + H)
         mask = np.zeros(nt, bool)
         mask[:hi] = True
-        prec = masked_preconditioner(eq, y, windows, time_mask=mask)
+        if preconditioner == "march":
+            prec = march_preconditioner(eq, y, time_mask=mask)
+        else:
+            prec = masked_preconditioner(eq, y, windows, time_mask=mask)
         gp = np.where(mask, g, 0.0)
         gpn = np.linalg.norm(gp)
         if hi < nt or (hist and hist[-1]["step"] < 1.0):
@@ -239,7 +251,7 @@ def newton_krylov(prob, tol=1e-10, max_iter=200, y0=None, lam=1.0, windows=1, gm
             safe = 0.9 * forcing ** 2
             forcing = min(forcing_max, max(ew, safe) if safe > 0.1 else ew)
         forcing = max(forcing, 0.25 * tol * scale / gn, 1e-6)
-        if exact_jacobian or hi < nt or forcing < 1e-2:
+        if exact_jacobian or hi < nt or forcing < 1e-2 or preconditioner == "march":
             dy, nit, rel = fgmres(lambda v: np.where(mask, eq.jvp(y, v), 0.0), -gp, prec, forcing,
                                   gmres_restart, gmres_maxiter)
         else:
@@ -268,25 +280,32 @@ def newton_krylov(prob, tol=1e-10, max_iter=200, y0=None, lam=1.0, windows=1, gm
                          horizon_s=hi * prob.grid.dt, gmres=int(nit), gmres_relres=float(rel),
                          forcing=float(forcing),
                          step=float(t), n_open=int(prec.n_open), wall_s=time.perf_counter() - t0))
+        if deadline is not None and time.perf_counter() > deadline:
+            hist[-1]["stopped"] = "time budget"
+            return y, bool(np.linalg.norm(g) <= tol * scale), hist
         if gtn >= gpn and H == Hmin and len(hist) > 1 and hist[-2]["step"] < 1 and hist[-2]["horizon_s"] <= hi * prob.grid.dt:
             return y, False, hist
     return y, np.linalg.norm(g) <= tol * scale, hist
 
 
-def newton_continuation(prob, tol=1e-10, max_iter=200, windows=1, lam_steps=(), min_dlam=1 / 64,
+def newton_continuation(prob, tol=1e-10, max_iter=200, windows=1, y0=None, min_dlam=1 / 64,
                         **kw):
-    """Newton-Krylov at lam = 1; if it fails, load continuation: lam ramped from the last
-    converged value with an adaptive step (doubled on success, halved on failure)."""
+    """Newton-Krylov at lam = 1 from y0 (None: zero); if it fails, load continuation: lam
+    ramped from zero with an adaptive step (doubled on success, halved on failure), each
+    solve started from the last converged one. A deadline (kw) stops it with the last iterate.
+    Returns (y, converged, history, ladder of the converged lam)."""
     hist = []
-    y, ok, _ = newton_krylov(prob, tol, max_iter, lam=1.0, windows=windows, history=hist, **kw)
-    if ok:
-        return y, True, hist, [1.0]
+    y, ok, _ = newton_krylov(prob, tol, max_iter, y0=y0, lam=1.0, windows=windows, history=hist, **kw)
+    if ok or (hist and hist[-1].get("stopped")):
+        return y, ok, hist, [1.0] if ok else []
     lam_done, y_done, dl = 0.0, np.zeros_like(prob.f), 0.25
     ladder = []
     while lam_done < 1.0:
         lam = min(1.0, lam_done + dl)
         y, ok, _ = newton_krylov(prob, tol, max_iter, y0=y_done, lam=lam, windows=windows,
-                                 history=hist, **kw)
+                                 history=hist, **{"horizon_s": 0.5, **kw})
+        if hist and hist[-1].get("stopped"):
+            return y, ok and lam == 1.0, hist, ladder + [lam] if ok else ladder
         if ok:
             lam_done, y_done = lam, y
             ladder.append(lam)
@@ -398,4 +417,25 @@ def masked_preconditioner(eq, y, windows=1, time_mask=None):
     apply.with_product = with_product
     apply.matvec = matvec
     apply.n_open = max(o.n_open for o in ops)
+    return apply
+
+
+def march_preconditioner(eq, y, time_mask=None):
+    """r -> v = J_c^-1 r: the causal part of the Jacobian at y, J v = S * [phi'(z) v] +
+    k I+ v = S * u + kp I+ u (u = phi'(z) v), inverted by one linearised march (tf_march) with
+    the active set I+ = [z > 0] of each step; time_mask (nt,) bool restricts it to a prefix."""
+    from orchestrator.tf_march import CausalSweep, linear_march
+
+    sweep = eq.__dict__.get("_sweep")
+    if sweep is None:
+        sweep = eq._sweep = CausalSweep(eq.p)
+    z = eq.z0[:, None] + y
+    closed = z > 0
+    dphi = np.where(closed, eq.eps, 1.0)
+    tm = np.ones(y.shape[1], bool) if time_mask is None else time_mask
+
+    def apply(r):
+        return np.where(tm, linear_march(sweep, closed, np.where(tm, r, 0.0)) / dphi, 0.0)
+
+    apply.n_open = int((~closed).any(axis=1).sum())
     return apply

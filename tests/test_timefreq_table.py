@@ -74,3 +74,42 @@ def test_uplift_route_with_hysteretic_table_is_padding_independent():
     d = compare({"a": a, "b": b}, "b")["differences"]["a"]
     assert abs(d["max_uplift"]) < 1e-3 and abs(d["max_rotation"]) < 1e-3, d
     assert d["max_spectrum_peak"] < 1e-3, d
+
+
+def test_uplift_march_with_hysteretic_table_is_padding_independent():
+    """The default uplift route (bilinear grid, the march with the wrap-around and the
+    table's non-causal part fed back): converged to 1e-10 and within 0.1 % between pad = the
+    rule and 2.5 x the rule."""
+    tab = hysteretic_table()
+    ag = motion(0.3)
+    a = timefreq(MODEL, tab, ag, 0.005, contact=ContactSettings(enabled=True))
+    b = timefreq(MODEL, tab, ag, 0.005, contact=ContactSettings(enabled=True),
+                 pad_s=2.5 * a.info["pad_rule_s"])
+    assert a.info["method"] == "march" and a.converged and b.converged, (a.message, b.message)
+    assert a.info["residual"] < 1e-10 and a.max_uplift() > 1e-4
+    d = compare({"a": a, "b": b}, "b")["differences"]["a"]
+    assert abs(d["max_uplift"]) < 1e-3 and abs(d["max_rotation"]) < 1e-3, d
+
+
+def test_bilinear_grid_puts_nyquist_in_the_continuation():
+    """On the bilinear grid s_d is real and huge at Nyquist (z = -e^{eta dt}): Re(s_d / 2 pi i)
+    = 0 there, but the point stands for an infinite frequency and belongs to the spring-dashpot
+    continuation. Spline-extrapolated instead (the old band split on Re f_c), its real part
+    entered the inverse FFT as a (-1)^k e^{eta t} kernel that grew 1e4-fold over the record."""
+    from orchestrator.tf_grid import Grid
+    from orchestrator.tf_soil import AffineBand, soil_bands
+
+    g = Grid.build(801, 0.005, pad_s=1.0, bilinear=True)
+    bands = soil_bands(hysteretic_table(), g)
+    nyq = g.n_freq - 1
+    assert any(isinstance(b, AffineBand) and nyq in b.idx for b in bands.bands)
+    Kt = causal_table(hysteretic_table())[0][-1]
+    wmax = 2 * np.pi * hysteretic_table().frequencies_hz[-1]
+    K_nyq = [b.full(g.s[[nyq]])[0] for b in bands.bands if nyq in b.idx][0]
+    assert np.allclose(K_nyq, Kt.real + g.s[nyq] * Kt.imag / wmax, rtol=1e-12, atol=0)
+    K00 = np.empty(g.n_freq, complex)
+    for b in bands.bands:
+        K00[b.idx] = b.full(g.s[b.idx])[:, 6, 6]
+    h = np.abs(g.to_time(K00, n=g.nfft))
+    k = g.nfft // 10                      # the trapezoidal dashpot's (-1)^k kernel does not decay
+    assert h[-k:].max() < 100 * h[:k].max(), (h[-k:].max(), h[:k].max())
