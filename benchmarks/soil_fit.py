@@ -2,15 +2,31 @@
 
 Prints error against model order (pole identification + residues of all entries), then the full
 ``fit_table`` (order selection + passivity check/enforcement) time, and writes soil_fit.png.
-Run: OPENBLAS_NUM_THREADS=1 python benchmarks/soil_fit.py [cache_dir]
+Last row (``linear_row``, alone with --linear): the scene's fit (fit_tol, as the monolithic route)
+against the table on the rigid-raft impedance P^T K P over 2-8 Hz (the SSI band: rocking/sway mode
+~3.75 Hz), and the bonded linear response's peak raft rotation split into fit error (linear FD
+with the table vs with the fit sampled as a table) and time-step error (linear FD with the fitted
+model vs bonded Newmark with its recursive convolution).
+With --causal: the same last row for the reactor with ``[soil] damping_model = "causal"`` (constant
+Q with a 0.05 Hz cut-off, vs at 1 Hz: soil_impedance.profile), at the scene's fit_tol (0.04: 2
+poles, +10 % on the peak rotation), 0.01 (4 poles, +0.3 %) and 0.002 (6 poles, −0.24 %, of which
+−0.18 % time step), after the rigid-raft table causal vs hysteretic (sliding, vertical, rocking
+Re/Im at 0, 1, 4, 10 Hz).
+Run: OPENBLAS_NUM_THREADS=1 python benchmarks/soil_fit.py [cache_dir] [--linear] [--causal]
 """
 import sys
 import time
+from importlib import resources
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python < 3.11
+    import tomli as tomllib
 
 import numpy as np
 
 from orchestrator.impedance import scene_impedance
-from orchestrator.scene import load_scene
+from orchestrator.scene import load_scene, scene_from_dict
 from soil_impedance.fit import _fit_order, _Problem, fit_table
 from soil_impedance.passivity import check_passive
 
@@ -63,5 +79,105 @@ def main(cache_dir=".cache"):
     print("wrote soil_fit.png")
 
 
+def reactor_scene(damping_model="hysteretic"):
+    """The built-in reactor scene with ``[soil] damping_model`` set."""
+    data = tomllib.loads((resources.files("orchestrator.scenes") / "reactor.toml").read_text())
+    data["soil"]["damping_model"] = damping_model
+    return scene_from_dict(data, name=f"reactor-{damping_model}")
+
+
+def rigid_table(scene, cache_dir):
+    """Frequencies and rigid-raft impedance P^T K_gap P (F, 6, 6) of a scene's gap table."""
+    from soil_impedance.fit import rigid_projection
+    table = scene_impedance(scene, ("gap",), cache_dir=cache_dir)["gap"]
+    P = rigid_projection(table)
+    return table.frequencies_hz, np.einsum("ia,fij,jb->fab", P, table.matrices, P)
+
+
+def compare_tables(cache_dir=".cache", freqs=(0.0, 1.0, 4.0, 10.0)):
+    """Rigid-raft impedances of the reactor, causal vs hysteretic damping, at a few frequencies."""
+    f, Kh = rigid_table(reactor_scene("hysteretic"), cache_dir)
+    _, Kc = rigid_table(reactor_scene("causal"), cache_dir)
+    print("\nreactor rigid-raft impedance, causal vs hysteretic table (Re in N/m or N m/rad, "
+          "Im/Re, causal/hysteretic - 1 in %)")
+    print(f"{'dof':12s} {'f Hz':>5} {'Re hyst':>11} {'Re causal':>11} {'dRe %':>7} {'Im/Re hyst':>11} "
+          f"{'Im/Re causal':>12} {'dIm %':>7}")
+    for i, lab in ((0, "ux sliding"), (2, "uz vertical"), (4, "ry rocking")):
+        for fk in freqs:
+            k = int(np.argmin(np.abs(f - fk)))
+            h, c = Kh[k, i, i], Kc[k, i, i]
+            dim = f"{100 * (c.imag / h.imag - 1):+7.2f}" if h.imag != 0 else f"{'-':>7}"
+            print(f"{lab:12s} {f[k]:5.2f} {h.real:11.4e} {c.real:11.4e} {100 * (c.real / h.real - 1):+7.2f} "
+                  f"{h.imag / h.real:11.4f} {c.imag / c.real:12.4f} {dim}")
+
+
+def linear_row(cache_dir=".cache", scene=None, fit_tol=None):
+    """Rigid-raft impedance errors over 2-8 Hz and the linear FD vs bonded TD peak raft rotation
+    (scene: default the reactor; fit_tol: default the scene's)."""
+    from orchestrator.linear_fd import linear_fd, run_linear
+    from dataclasses import replace
+
+    from orchestrator.run import output_nodes, scene_fit_tol, scene_model, scene_motion
+    from soil_impedance.convolution import RecursiveConvolutionSoil
+    from soil_impedance.fit import rigid_projection
+    from soil_impedance.table import ImpedanceTable
+    from structure import simulate
+    from structure.spec import contact_from_spec
+
+    scene = load_scene("reactor") if scene is None else scene
+    table = scene_impedance(scene, ("gap",), cache_dir=cache_dir)["gap"]
+    fit_tol = scene_fit_tol(scene) if fit_tol is None else fit_tol
+    model, motion = scene_model(scene), scene_motion(scene, 0.005)
+    contact = contact_from_spec(scene.section("contact"))
+    nodes = output_nodes(scene)
+    t0 = time.perf_counter()
+    fit = fit_table(table, tol=fit_tol, cache_dir=cache_dir)
+    t_fit = time.perf_counter() - t0
+    rm, f = fit.model, table.frequencies_hz
+    P = rigid_projection(table)
+    band = (f >= 2.0) & (f <= 8.0)
+    Kt = np.einsum("ia,fij,jb->fab", P, table.matrices[band], P)
+    Km = np.einsum("ia,fij,jb->fab", P, rm(2j * np.pi * f[band]), P)
+    print(f"\n{scene.name}, fit_tol {fit_tol}: {rm.order} poles, max rel error "
+          f"{fit.report.max_rel_error:.4f}, passive {fit.report.passive}, fit {t_fit:.1f} s "
+          f"({'cache' if fit.report.cached else 'computed'}; {fit.report.wall_s:.1f} s), "
+          f"f_causal {fit.report.f_causal_hz:g} Hz, low-frequency error {fit.report.low_freq_error:.4f}")
+    print("rigid-raft impedance P^T K P, fit vs table, max over 2-8 Hz (%):")
+    for i, lab in ((0, "ux sliding"), (2, "uz vertical"), (4, "ry rocking")):
+        t, m = Kt[:, i, i], Km[:, i, i]
+        print(f"  {lab:12s} Re {100 * np.abs(m.real / t.real - 1).max():5.2f}  Im {100 * np.abs(m.imag / t.imag - 1).max():5.2f}"
+              f"  |dK|/|K| {100 * np.abs(m / t - 1).max():5.2f}")
+
+    def peak(r):
+        return float(np.hypot(r.raft[:, 3], r.raft[:, 4]).max())
+
+    fit_as_table = ImpedanceTable(f, rm(2j * np.pi * f), table.dofs, dict(table.provenance, fitted=True))
+    t1 = time.perf_counter()
+    runs = {"linear FD, table": run_linear(scene, motion, model, table),
+            "linear FD, fit as table": run_linear(scene, motion, model, fit_as_table),
+            "linear FD, fitted model": linear_fd(model, rm, motion.acc, motion.dt, contact=contact,
+                                                 output_nodes=nodes)}
+    bonded = replace(contact, enabled=False)
+    runs["bonded TD (Newmark)"] = simulate(model, RecursiveConvolutionSoil(rm, motion.dt), motion.acc,
+                                           motion.dt, contact=bonded, output_nodes=nodes)
+    ref = peak(runs["linear FD, table"])
+    print(f"peak raft rotation, bonded, {motion.acc.shape[0] * motion.dt:g} s at dt {motion.dt:g} s "
+          f"({time.perf_counter() - t1:.1f} s):")
+    for k, r in runs.items():
+        print(f"  {k:26s} {peak(r):.5e} rad  {100 * (peak(r) / ref - 1):+.3f} % vs the table")
+    print(f"  fit error (fit as table vs table) {100 * (peak(runs['linear FD, fit as table']) / ref - 1):+.3f} %, "
+          f"time step (Newmark vs fitted model) "
+          f"{100 * (peak(runs['bonded TD (Newmark)']) / peak(runs['linear FD, fitted model']) - 1):+.3f} %")
+
+
 if __name__ == "__main__":
-    main(*sys.argv[1:])
+    args = [a for a in sys.argv[1:] if not a.startswith("--")]
+    if "--linear" not in sys.argv and "--causal" not in sys.argv:
+        main(*args)
+    if "--causal" not in sys.argv or "--linear" in sys.argv:
+        linear_row(*args)
+    if "--causal" in sys.argv:
+        compare_tables(*args)
+        causal = reactor_scene("causal")
+        for tol in (None, 0.01, 0.002):
+            linear_row(*args, scene=causal, fit_tol=tol)

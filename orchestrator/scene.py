@@ -21,7 +21,7 @@ except ModuleNotFoundError:  # Python < 3.11
 import numpy as np
 
 from soil_impedance.mesh import InterfaceMesh, MeshError, circle_mesh, read_nodes_csv, rectangle_mesh
-from soil_impedance.profile import Layer, Material, SoilError, SoilProfile
+from soil_impedance.profile import DAMPING_MODELS, Layer, Material, SoilError, SoilProfile
 
 
 class SceneError(ValueError):
@@ -80,7 +80,7 @@ def scene_from_dict(data: dict, base_dir: Path | str = ".", name: str = "scene")
     base_dir = Path(base_dir)
     try:
         soil = dict(data.get("soil") or _missing("soil", "halfspace = { vs = ..., nu = ..., rho = ... }"))
-        _check_keys(soil, ("layers", "halfspace", "winkler"), "soil")
+        _check_keys(soil, ("layers", "halfspace", "winkler", "damping_model"), "soil")
         profile = _profile(soil)
         foundation = dict(data.get("foundation") or _missing("foundation", 'shape = "circle", radius = ..., element_size = ...'))
         mesh, contact_kind = _foundation(foundation, base_dir)
@@ -121,7 +121,7 @@ def _near(a: str, b: str) -> bool:
 MATERIAL_KEYS = ("vs", "vp", "nu", "rho", "damping")
 
 
-def _material(table, where: str, cls=Material, extra=()):
+def _material(table, where: str, cls=Material, extra=(), damping_model="hysteretic"):
     _check_keys(table, MATERIAL_KEYS + tuple(extra), where)
     for key in ("vs", "rho"):
         if key not in table:
@@ -129,13 +129,19 @@ def _material(table, where: str, cls=Material, extra=()):
     for key, value in table.items():
         if not isinstance(value, (int, float)) or isinstance(value, bool):
             raise SceneError(f"{where}.{key} = {value!r} must be a number")
-    return cls(name=where, **{k: float(v) for k, v in table.items()})
+    return cls(name=where, damping_model=damping_model, **{k: float(v) for k, v in table.items()})
 
 
 def _profile(soil: dict) -> SoilProfile:
     if "halfspace" not in soil:
         raise SceneError("soil.halfspace is missing: the profile needs a half-space below its layers, "
                          "e.g. halfspace = { vs = 500.0, nu = 0.33, rho = 2000.0 }")
+    model = soil.get("damping_model", "hysteretic")
+    if model not in DAMPING_MODELS:
+        raise SceneError(f"soil.damping_model = {model!r}: use one of "
+                         + ", ".join(f'"{m}"' for m in DAMPING_MODELS)
+                         + " (hysteretic: G (1 + 2i damping) at every frequency, the default; causal: "
+                         "constant Q with a 0.05 Hz cut-off, vs given at 1 Hz)")
     layers = soil.get("layers", [])
     if not isinstance(layers, list):
         raise SceneError("soil.layers must be a list of tables { thickness, vs, nu or vp, rho, damping }")
@@ -144,8 +150,8 @@ def _profile(soil: dict) -> SoilProfile:
         where = f"soil.layers[{i}]"
         if "thickness" not in t:
             raise SceneError(f"{where}.thickness is missing (layer thickness in m)")
-        out.append(_material(t, where, cls=Layer, extra=("thickness",)))
-    return SoilProfile(tuple(out), _material(soil["halfspace"], "soil.halfspace"))
+        out.append(_material(t, where, cls=Layer, extra=("thickness",), damping_model=model))
+    return SoilProfile(tuple(out), _material(soil["halfspace"], "soil.halfspace", damping_model=model))
 
 
 def _foundation(table: dict, base_dir: Path):

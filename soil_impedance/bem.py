@@ -7,8 +7,9 @@ unit *force* on patch j, ``F[i, j]`` (3×3 block) is the displacement at node i:
 
     F_ij = (1/A_j) ∫_{patch j} g_static(x_i - y) dy   +   g_regular(x_i - x_j; ω)
 
-The static (Boussinesq/Cerruti, G* of the top material) part is integrated in closed form
-over every patch (``patch.static_patch_kernel``); the smooth regular part
+The static part (Boussinesq/Cerruti with G*(ω) of the top material: the singular part of the
+dynamic kernel at ω) is integrated in closed form over every patch (``patch.static_patch_kernel``,
+once at ω = 0, then scaled by G*(0)/G*(ω): it is proportional to 1/G*); the smooth regular part
 (``greens.regular_green``) is taken at the patch centre (midpoint rule, O(h²), below the O(h)
 error of constant tractions). On grid meshes the kernel is evaluated only at the distinct
 integer offsets, and ``regular_green`` only at the distinct radii.
@@ -88,7 +89,8 @@ class SurfaceBem:
             self._pair_index = np.arange(n * n)
             hax = hay = np.broadcast_to(mesh.patch_half_sides[None, :], (n, n)).ravel()
         self._grid = grid is not None
-        self._static = static_patch_kernel(profile.top, self._off[:, 0], self._off[:, 1], hax, hay)
+        self._static = static_patch_kernel(profile.top, self._off[:, 0], self._off[:, 1], hax, hay, 0.0)
+        self._g_static = profile.top.complex_shear_modulus(0.0)
         r = np.hypot(self._off[:, 0], self._off[:, 1])
         scale = max(float(r.max(initial=0.0)), 1.0)
         self._radii, self._radius_index = np.unique(np.round(r / scale, 12) * scale, return_inverse=True)
@@ -117,7 +119,11 @@ class SurfaceBem:
         A, B, C, D = _regular_green(self.profile, float(omega), self._radii, self.rule)
         self.regular_calls += 1
         k = self._radius_index
-        blocks = self._static + radial_to_cartesian(np.asarray(A)[k], np.asarray(B)[k],
+        static = self._static
+        scale = self._g_static / self.profile.top.complex_shear_modulus(float(omega))
+        if scale != 1.0:   # frequency-dependent (causal) modulus
+            static = static * scale
+        blocks = static + radial_to_cartesian(np.asarray(A)[k], np.asarray(B)[k],
                                                     np.asarray(C)[k], np.asarray(D)[k],
                                                     self._off[:, 0], self._off[:, 1])
         if self.contact == "relaxed":

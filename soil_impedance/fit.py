@@ -29,12 +29,17 @@ Im K_target(f) = Im K(f) − H0·(1 − f/f_causal)², real part kept: C¹ at f_
 0 (an equivalent viscous damping, the low-frequency behaviour of any causal model). The fit is
 then causal over the whole axis. ``f_causal_hz="auto"`` detects hysteretic damping (|H0| above
 1e-3 of |K(f_0)|) and uses the first table frequency ≥ 5 % of f_max, otherwise 0 (the target is
-the table). The error against the original table below f_causal is reported as
+the table); a table whose provenance says every material is causal (``damping_model = "causal"``,
+``soil_impedance.profile``) is never faded, even when its first frequency is above the material's
+cut-off (then Im K(f_0) extrapolates to a nonzero H0, which is not hysteretic damping). The error
+against the original table below f_causal is reported as
 ``low_freq_error`` (≈ 2ξ at f = 0); it is not part of tol. Above f_causal a frequency-independent
 loss factor is still not Kramers–Kronig consistent (a causal model must pair it with a
 logarithmic dispersion of Re K), so the band error has a floor ≈ ξ that no order removes
 (measured on k(1 + 2iξ) + iωc over 1..20 Hz: 1.1 %, 3.3 %, 5.4 % for ξ = 0.01, 0.03, 0.05;
 reactor gap table with ξ = 0.03: 3–4 %). ``patience`` stops the order search on that floor.
+A causal soil (``damping_model = "causal"``) has no such floor: the same reactor table computed
+with it is fitted to 0.4 % with 4 poles, 0.03 % with 6 (``benchmarks/soil_fit.py --causal``).
 """
 from __future__ import annotations
 
@@ -157,10 +162,21 @@ def causal_cutoff(table, Ks, f_causal_hz="auto", fraction=0.05) -> float:
     f = table.frequencies_hz
     if f_causal_hz != "auto":
         return float(f_causal_hz)
+    if causal_materials(table):
+        return 0.0
     im0 = np.linalg.norm(hysteretic_part(f, Ks))
     if im0 <= 1e-3 * np.linalg.norm(Ks[0]):
         return 0.0
     return float(f[np.nonzero(f >= fraction * f[-1])[0][0]])
+
+
+def causal_materials(table) -> bool:
+    """True when the table's provenance lists its soil materials, all with the causal model."""
+    profile = table.provenance.get("profile")
+    if not isinstance(profile, dict) or "halfspace" not in profile:
+        return False
+    mats = list(profile.get("layers") or []) + [profile["halfspace"]]
+    return all(isinstance(m, dict) and m.get("damping_model") == "causal" for m in mats)
 
 
 def hysteretic_part(f, Ks) -> np.ndarray:

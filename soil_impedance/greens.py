@@ -7,7 +7,8 @@ A unit point force on the soil surface at the origin, direction j; surface displ
 * horizontal load (j = x):  u_r = C(r) cos θ,  u_θ = -D(r) sin θ,  u_z = E(r) cos θ, E = -B
                             (u_x = C cos²θ + D sin²θ,  u_y = (C - D) sin θ cos θ)
 
-Conventions: SI, z up, e^{+iωt}, hysteretic damping G* = G (1 + 2iξ) (same ν).
+Conventions: SI, z up, e^{+iωt}, complex moduli G*(ω) of ``Material.complex_shear_modulus``
+(hysteretic or causal damping, same ν); every kernel at ω uses G*(ω).
 
 Method (production, ``regular_green``)
 -------------------------------------
@@ -43,20 +44,21 @@ __all__ = ["static_radial", "regular_green", "GreenRule", "KGrid", "radial_kerne
 _TWO_PI = 2.0 * np.pi
 
 
-def static_radial(material, r):
-    """Static half-space (Boussinesq/Cerruti) surface kernels with the complex G* of ``material``.
+def static_radial(material, r, omega=None):
+    """Static half-space (Boussinesq/Cerruti) surface kernels with the complex G*(ω) of ``material``.
 
     Parameters
     ----------
     material : Material
     r : array_like, m, r > 0
+    omega : float, rad/s: the frequency of G* (None: hysteretic materials only)
 
     Returns
     -------
     A, B, C, D : complex ndarrays shaped like r, m/N
     """
     r = np.asarray(r, dtype=float)
-    G = material.complex_shear_modulus()
+    G = material.complex_shear_modulus(omega)
     nu = material.poisson
     base = 1.0 / (2.0 * np.pi * G * r)
     return (1.0 - nu) * base, 0.5 * (1.0 - 2.0 * nu) * base, base + 0j * r, (1.0 - nu) * base
@@ -82,7 +84,7 @@ def _tail_coefficients(material, omega, rule):
     ks = np.sqrt(abs(ks2))
     ka = np.array([rule.asym_probe * ks], dtype=complex)
     F = surface_flexibility(SoilProfile((), material), omega, ka)
-    F0 = static_flexibility(material, ka)
+    F0 = static_flexibility(material, ka, omega)
     c = [((f - f0) * ka ** 3)[0] for f, f0 in zip(F, F0)]
     return c
 
@@ -137,7 +139,7 @@ def radial_kernels(F, grid: KGrid, r):
 def regular_green(profile, omega, r, rule=None):
     """Regular part of the layered dynamic surface Green's functions.
 
-    Full dynamic layered solution minus ``static_radial(profile.top, r)``; finite at r = 0
+    Full dynamic layered solution minus ``static_radial(profile.top, r, omega)``; finite at r = 0
     (C(0) = D(0); B(0) = 0).
 
     Parameters
@@ -165,7 +167,7 @@ def regular_green(profile, omega, r, rule=None):
     grid = rule.discretize(profile, omega, rf.max() if rf.size else 0.0)
     k = grid.nodes
     F = surface_flexibility(profile, omega, k)
-    F0 = static_flexibility(profile.top, k)
+    F0 = static_flexibility(profile.top, k, omega)
     dF = [f - f0 for f, f0 in zip(F, F0)]
     tails = None
     if omega > 0:

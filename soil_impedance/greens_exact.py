@@ -20,7 +20,7 @@ from scipy import special
 def lamb_flexibility(material, omega, k):
     """(Fzz, Fb, Fkk, Ftt) of a homogeneous half-space, k complex array (Re ν >= 0 branch)."""
     k = np.asarray(k, dtype=complex)
-    G = material.complex_shear_modulus()
+    G = material.complex_shear_modulus(omega)
     nu = material.poisson
     ks2 = omega ** 2 * material.rho / G
     kp2 = ks2 * (1 - 2 * nu) / (2 * (1 - nu))
@@ -32,7 +32,7 @@ def lamb_flexibility(material, omega, k):
 
 def _integrand(kernel, material, omega, r, k, dk):
     """Regular-part integrands, shape (4, n_r, n_k), static half-space kernel removed."""
-    G = material.complex_shear_modulus()
+    G = material.complex_shear_modulus(omega)
     nu = material.poisson
     f0 = np.array([(1 - nu) / G, (1 - 2 * nu) / (2 * G), (1 - nu) / G, 1 / G])[:, None]
     F = np.array(kernel(omega, k)) - f0 / k
@@ -83,7 +83,7 @@ def reference_regular(material, kernel, omega, r, vs_min, h1=np.inf, k_end_facto
     for chunk in np.array_split(np.arange(n), max(1, n // 4000)):
         w = _simpson(n)[chunk] * (kr[1] - kr[0])
         out = out + _integrand(kernel, material, omega, r, kr[chunk] + 0j, w).sum(axis=-1)
-    G = material.complex_shear_modulus()
+    G = material.complex_shear_modulus(omega)
     nu = material.poisson
     Fk = np.array(kernel(omega, np.array([K], dtype=complex)))[:, 0]
     c = (Fk - np.array([(1 - nu) / G, 0, (1 - nu) / G, 1 / G]) / K) * K ** 3

@@ -31,7 +31,7 @@ import numpy as np
 
 def material_constants(material, omega):
     """(G*, ks², γ²) of a Material: complex shear modulus, S wavenumber², (Vs/Vp)²."""
-    G = material.complex_shear_modulus()
+    G = material.complex_shear_modulus(omega)
     ks2 = omega ** 2 * material.rho / G
     nu = material.poisson
     g2 = (1.0 - 2.0 * nu) / (2.0 * (1.0 - nu))
@@ -146,10 +146,11 @@ def surface_flexibility(profile, omega, k):
     return F[..., 1, 1], 1j * F[..., 0, 1], F[..., 0, 0], 1.0 / Ksh
 
 
-def static_flexibility(material, k):
-    """Static homogeneous half-space kernels (Fzz, Fb, Fkk, Ftt) of ``material`` (complex G*)."""
+def static_flexibility(material, k, omega=None):
+    """Static homogeneous half-space kernels (Fzz, Fb, Fkk, Ftt) of ``material`` with its
+    complex G*(omega) (omega in rad/s; None: hysteretic materials only)."""
     k = np.asarray(k, dtype=complex)
-    G = material.complex_shear_modulus()
+    G = material.complex_shear_modulus(omega)
     nu = material.poisson
     return ((1.0 - nu) / (G * k), (1.0 - 2.0 * nu) / (2.0 * G * k),
             (1.0 - nu) / (G * k), 1.0 / (G * k))

@@ -100,7 +100,7 @@ class GreenRule:
         mats = list(profile.layers) + [profile.halfspace]
         vs_min = min(m.vs for m in mats)
         top = profile.top
-        ks_top = omega * math.sqrt(top.rho / abs(top.complex_shear_modulus()))
+        ks_top = omega * math.sqrt(top.rho / abs(top.complex_shear_modulus(omega)))
         depths = np.cumsum([l.thickness for l in profile.layers])
         layered = not profile.is_homogeneous and len(depths) > 0
         h1 = float(depths[0]) if layered else math.inf

@@ -3,7 +3,7 @@
 Kernel convention (the same as ``soil_impedance.greens``): ``g[a, b](d)`` is the surface
 displacement in direction ``a`` at offset ``d = (dx, dy)`` from a unit point force applied to
 the soil surface in direction ``b`` (a, b in x, y, z; z up). For a half-space of complex shear
-modulus ``G* = G (1 + 2i ξ)`` and Poisson ratio ν, with r = |d|::
+modulus ``G*`` (``Material.complex_shear_modulus(ω)``) and Poisson ratio ν, with r = |d|::
 
     g_zz = (1-ν)/(2πG r)             g_xx = (1/r - ν dy²/r³)/(2πG)   g_yy = (1/r - ν dx²/r³)/(2πG)
     g_xy = g_yx = ν dx dy/(2πG r³)   g_xz = b0 dx/r², g_yz = b0 dy/r², g_zx = -g_xz, g_zy = -g_yz
@@ -20,20 +20,21 @@ import math
 import numpy as np
 
 
-def static_radial(material, r):
+def static_radial(material, r, omega=None):
     """Static half-space surface kernel in radial form (fallback copy of ``greens.static_radial``).
 
     Parameters
     ----------
-    material : Material      uses G* = G (1 + 2i damping) and ν
+    material : Material      uses G*(omega) and ν
     r : array_like, m        radii, > 0
+    omega : float, rad/s     frequency of G* (None: hysteretic materials only)
 
     Returns
     -------
     A, B, C, D : ndarrays like r, m/N   (see ``soil_impedance.greens`` for their meaning)
     """
     r = np.asarray(r, dtype=float)
-    G = material.complex_shear_modulus()
+    G = material.complex_shear_modulus(omega)
     nu = material.poisson
     A = (1 - nu) / (2 * math.pi * G * r)
     B = (1 - 2 * nu) / (4 * math.pi * G * r)
@@ -103,15 +104,17 @@ def rectangle_integrals(dx, dy, ax, ay):
             - _primitives(x2, y1) + _primitives(x1, y1))
 
 
-def static_patch_kernel(material, dx, dy, ax, ay):
+def static_patch_kernel(material, dx, dy, ax, ay, omega=None):
     """Static surface displacement at a field point from a unit *total* force spread
-    uniformly over a rectangle of half sides (ax, ay), ``(dx, dy) = x_field - x_centre``.
+    uniformly over a rectangle of half sides (ax, ay), ``(dx, dy) = x_field - x_centre``,
+    with the complex G*(omega) of ``material`` (omega rad/s; None: hysteretic only).
+    The kernel is proportional to 1/G*.
 
     Returns
     -------
     ndarray, shape broadcast + (3, 3), complex, m/N: ``[..., a, b]`` = u_a from unit force in b.
     """
-    G = material.complex_shear_modulus()
+    G = material.complex_shear_modulus(omega)
     nu = material.poisson
     # integrate g(p) over p in the rectangle, p = offset from force point to field point
     I = rectangle_integrals(dx, dy, ax, ay) / (4.0 * np.asarray(ax) * np.asarray(ay))

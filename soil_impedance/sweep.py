@@ -9,12 +9,13 @@ from pathlib import Path
 import numpy as np
 
 from .bem import CONTACTS, BemError, SurfaceBem, nodal_dofs
+from .profile import CAUSAL_CUTOFF_HZ, CAUSAL_REFERENCE_HZ
 from .reduction import RIGID_DOFS, gap_dofs, gap_transform, rigid_transform
 from .table import ImpedanceTable, content_hash
 
 OUTPUTS = ("rigid", "gap", "nodal")
-_CODE_FILES = ("patch.py", "bem.py", "greens.py", "greens_layers.py", "greens_rule.py", "reduction.py",
-               "sweep.py")
+_CODE_FILES = ("profile.py", "patch.py", "bem.py", "greens.py", "greens_layers.py", "greens_rule.py",
+               "reduction.py", "sweep.py")
 
 
 def code_version() -> str:
@@ -34,8 +35,10 @@ def code_version() -> str:
 
 
 def _material_dict(m) -> dict:
-    d = {k: getattr(m, k) for k in ("vs", "rho", "damping")}
+    d = {k: getattr(m, k) for k in ("vs", "rho", "damping", "damping_model")}
     d["nu"] = m.poisson
+    if m.damping_model == "causal":
+        d["causal"] = {"cutoff_hz": CAUSAL_CUTOFF_HZ, "reference_hz": CAUSAL_REFERENCE_HZ}
     if dataclasses.is_dataclass(m) and hasattr(m, "thickness"):
         d["thickness"] = m.thickness
     return d
@@ -158,6 +161,7 @@ def _compute(bem, f, outputs, progress) -> dict[str, np.ndarray]:
 
 def static_impedance(profile, mesh, contact="welded", output="rigid", rule=None,
                      cache_dir=None) -> np.ndarray:
-    """K(0) (f = 0 exactly) for one output, shape (n, n), complex (Im from hysteretic damping)."""
+    """K(0) (f = 0 exactly) for one output, shape (n, n), complex (Im from hysteretic damping;
+    real for the causal model)."""
     return impedance_sweep(profile, mesh, [0.0], contact, (output,), cache_dir,
                            rule=rule)[output].matrices[0].copy()

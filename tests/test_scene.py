@@ -77,6 +77,22 @@ def test_invalid_fields(path, value, expected):
     assert expected in str(err.value)
 
 
+def test_damping_model_key():
+    """[soil].damping_model applies to every material; it is part of the impedance cache key."""
+    from soil_impedance.sweep import provenance
+    from soil_impedance.table import content_hash
+    hyst = scene_from_dict(BASE)
+    causal = scene_from_dict(_with(("soil", "damping_model"), "causal"))
+    assert hyst.profile.halfspace.damping_model == "hysteretic"
+    assert {m.damping_model for m in causal.profile.layers + (causal.profile.halfspace,)} == {"causal"}
+    keys = [content_hash(provenance(s.profile, s.mesh, "welded", None, "rigid"), s.frequencies_hz)
+            for s in (hyst, causal)]
+    assert keys[0] != keys[1]
+    for bad in ("Causal", 1.0):
+        with pytest.raises(SceneError, match=r"soil.damping_model = .*use one of \"hysteretic\", \"causal\""):
+            scene_from_dict(_with(("soil", "damping_model"), bad))
+
+
 def test_missing_files(tmp_path):
     with pytest.raises(SceneError, match="unknown scene 'nope'"):
         load_scene("nope")
