@@ -202,15 +202,14 @@ def _table_bands(table, grid) -> SoilBands:
     n = Kt.shape[1]
     K = np.empty((lo.size, n, n), complex)
     if f_tab.size >= 4:
-        sp_re = CubicSpline(f_tab, Kt.real, axis=0)
-        sp_im = CubicSpline(f_tab, Kt.imag, axis=0)
-        for c in range(0, lo.size, 64):
-            fc = fq[lo[c:c + 64]]
-            dz = (1j * fcx[lo[c:c + 64]].imag)[:, None, None]
-            val = sp_re(fc) + 1j * sp_im(fc)
-            d1 = sp_re(fc, 1) + 1j * sp_im(fc, 1)
-            d2 = sp_re(fc, 2) + 1j * sp_im(fc, 2)
-            K[c:c + 64] = val + dz * d1 + 0.5 * dz * dz * d2
+        # the spline is linear in the data: its weights (lo, F_tab) at Re f_c, combined with
+        # the Taylor terms, times the table in one product (the spline of all n^2 entries
+        # would build 4 x F_tab x n^2 coefficients)
+        sp = CubicSpline(f_tab, np.eye(f_tab.size), axis=0)
+        fc = fq[lo]
+        dz = (1j * fcx[lo].imag)[:, None]
+        Wt = sp(fc) + dz * sp(fc, 1) + 0.5 * dz * dz * sp(fc, 2)
+        K[:] = (Wt @ Kt.reshape(f_tab.size, -1)).reshape(K.shape)
     else:
         K[:] = replace(table, matrices=Kt).at(fq[lo])
     bands = [DenseBand(lo, K)]
