@@ -74,6 +74,7 @@ def scene_analysis(scene) -> tuple[list, float]:
     if not isinstance(dt, (int, float)) or not 0 < dt <= 0.05:
         raise SceneError(f"analysis.dt = {dt!r} s must lie in (0, 0.05]: the contact and the "
                          "structure's modes up to ~30 Hz need a few steps per period")
+    scene_timefreq_budget(scene)
     return check_routes(routes), float(dt)
 
 
@@ -192,8 +193,9 @@ def winkler_soil(scene, model, cache_dir=None, log=None, table=None):
         raise SceneError("the winkler route calibrates its springs on K(0): include 0 Hz in "
                          "[impedance] (range_hz = [0.0, fmax, count])")
     xy, area = scene.mesh.xy, scene.mesh.area
-    K6 = np.real(table.matrices[0])
-    kdiag = None if springs == "rigid" else np.diag(scene_static(scene, "nodal", cache_dir))
+    k_ref = scene.profile.static_to_reference     # causal soil: K(0) is relaxed, springs use rho vs^2
+    K6 = k_ref * np.real(table.matrices[0])
+    kdiag = None if springs == "rigid" else k_ref * np.diag(scene_static(scene, "nodal", cache_dir))
     if springs == "rigid":
         soil = springs_from_rigid_impedance(K6, xy, area, match=match)
     else:

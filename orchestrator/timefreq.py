@@ -143,13 +143,13 @@ def run_timefreq(scene, motion, model, table_gap, method=None, contact=None,
     contact = contact or contact_from_spec(scene.section("contact"))
     nodes = output_nodes if output_nodes is not None else scene_nodes(scene)
     bar = options.pop("progress", None)
-    if bar is not None:                      # sweeps -> share of the residual's decades done
+    if bar is not None:      # bar(k, n) as the steppers': the share of residual decades done
         tol, first = options["tol"], []
 
         def progress(k, r):
             first.append(r)
             frac = np.log(first[0] / r) / np.log(first[0] / tol) if first[0] > tol else 1.0
-            bar(int(100 * min(1.0, max(0.0, frac))), 100, f"sweep {k}, residual {r:.1e}")
+            bar(int(99 * min(1.0, max(0.0, frac))), 100)
         options["progress"] = progress
     return timefreq(model, table_gap, motion.acc, motion.dt, method=method, contact=contact,
                     damping=damping, output_nodes=nodes, **options)

@@ -185,6 +185,19 @@ class SoilProfile:
                                 damping_model=damping_model, name="soil.halfspace"))
 
     @property
+    def static_to_reference(self) -> float:
+        """Re G*(reference) / G*(0) of the materials: the factor that turns the relaxed static
+        stiffness K(0) of a causal profile into the static stiffness at the moduli rho vs^2
+        (what a spring calibrated on K(0) is expected to carry); 1 for hysteretic materials.
+        Exact when every material has the same damping ratio (a common factor of all moduli);
+        otherwise the half-space's factor."""
+        hs = self.halfspace
+        if hs.damping_model != "causal":
+            return 1.0
+        w1, wr = 2.0 * math.pi * CAUSAL_CUTOFF_HZ, 2.0 * math.pi * CAUSAL_REFERENCE_HZ
+        return float(causal_factor(wr, w1, hs.damping).real)
+
+    @property
     def is_homogeneous(self) -> bool:
         """True when every layer has the half-space's properties (the exact kernel applies)."""
         hs = self.halfspace

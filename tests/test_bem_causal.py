@@ -129,6 +129,10 @@ def test_disk_statics_scale_with_static_modulus():
     Kc, Kh = _rigid(c, 0.0), _rigid(h, 0.0)
     assert np.abs(Kc.imag).max() < 1e-12 * np.abs(Kc).max()
     assert np.allclose(Kc, Kh * ratio, rtol=1e-12, atol=1e-12 * np.abs(Kh).max())
+    # the Winkler springs' calibration: the relaxed K(0) brought to the moduli rho vs^2
+    k_ref = SoilProfile((), c).static_to_reference
+    assert k_ref > 1.05 and SoilProfile((), h).static_to_reference == 1.0
+    assert np.allclose(k_ref * Kc, Kh.real, rtol=1e-12, atol=1e-12 * np.abs(Kh).max())
 
 
 @pytest.mark.parametrize("f_hz", [0.2, 6.0])
