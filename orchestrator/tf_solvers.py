@@ -191,7 +191,7 @@ def _scale(eq):
 
 def newton_krylov(prob, tol=1e-10, max_iter=200, y0=None, lam=1.0, windows=1, gmres_restart=80,
                   gmres_maxiter=300, history=None, horizon_s=None, exact_jacobian=False,
-                  forcing_max=0.1, deadline=None, preconditioner="masked"):
+                  forcing_max=0.1, deadline=None):
     """Semi-smooth Newton-Krylov at motion scale lam, advancing a time horizon.
 
     Causality: g on [0, t) depends on y on [0, t) only. Each iteration finds the first time
@@ -211,12 +211,14 @@ def newton_krylov(prob, tol=1e-10, max_iter=200, y0=None, lam=1.0, windows=1, gm
     free: one S application per GMRES iteration instead of two. J itself
     (``ContactEquation.jvp``) while the horizon advances (where contact first opens and steps
     are often cut), for forcing terms below 1e-2 (the last iterations, where J0's error
-    would make Newton linear), with exact_jacobian=True and with preconditioner "march"
-    (``march_preconditioner``: the causal part of J inverted by one linearised march,
-    tf_march; exact up to the wrap-around and a soil's non-causal part, so a few GMRES
-    iterations whatever the contact switching, at the cost of a march each: the choice for
-    causal soils, where the masked operator stalls once contact switches often, from 0.7 g
-    on the 21-node Winkler raft). Returns (y, converged, history)."""
+    would make Newton linear) and with exact_jacobian=True. Returns (y, converged, history).
+
+    Known limit (benchmarks/timefreq.py --map): on the 21-node Winkler raft it fails from
+    0.4 g from zero and from 0.6 g even when started from one causal march (0.3 % from the
+    solution): GMRES stalls once contact switches often, and with the linearised march as
+    preconditioner (tried: 1-2 GMRES iterations) the full semi-smooth steps still diverge,
+    the frozen active set holding for no step over thousands of switches. tf_march's
+    defect correction is the robust solver."""
     eq = ContactEquation(prob, lam)
     nt = prob.f.shape[1]
     y = np.zeros_like(prob.f) if y0 is None else y0.copy()
@@ -238,10 +240,7 @@ def newton_krylov(prob, tol=1e-10, max_iter=200, y0=None, lam=1.0, windows=1, gm
         hi = min(nt, tb + H)
         mask = np.zeros(nt, bool)
         mask[:hi] = True
-        if preconditioner == "march":
-            prec = march_preconditioner(eq, y, time_mask=mask)
-        else:
-            prec = masked_preconditioner(eq, y, windows, time_mask=mask)
+        prec = masked_preconditioner(eq, y, windows, time_mask=mask)
         gp = np.where(mask, g, 0.0)
         gpn = np.linalg.norm(gp)
         if hi < nt or (hist and hist[-1]["step"] < 1.0):
@@ -251,7 +250,7 @@ def newton_krylov(prob, tol=1e-10, max_iter=200, y0=None, lam=1.0, windows=1, gm
             safe = 0.9 * forcing ** 2
             forcing = min(forcing_max, max(ew, safe) if safe > 0.1 else ew)
         forcing = max(forcing, 0.25 * tol * scale / gn, 1e-6)
-        if exact_jacobian or hi < nt or forcing < 1e-2 or preconditioner == "march":
+        if exact_jacobian or hi < nt or forcing < 1e-2:
             dy, nit, rel = fgmres(lambda v: np.where(mask, eq.jvp(y, v), 0.0), -gp, prec, forcing,
                                   gmres_restart, gmres_maxiter)
         else:
@@ -419,23 +418,3 @@ def masked_preconditioner(eq, y, windows=1, time_mask=None):
     apply.n_open = max(o.n_open for o in ops)
     return apply
 
-
-def march_preconditioner(eq, y, time_mask=None):
-    """r -> v = J_c^-1 r: the causal part of the Jacobian at y, J v = S * [phi'(z) v] +
-    k I+ v = S * u + kp I+ u (u = phi'(z) v), inverted by one linearised march (tf_march) with
-    the active set I+ = [z > 0] of each step; time_mask (nt,) bool restricts it to a prefix."""
-    from orchestrator.tf_march import CausalSweep, linear_march
-
-    sweep = eq.__dict__.get("_sweep")
-    if sweep is None:
-        sweep = eq._sweep = CausalSweep(eq.p)
-    z = eq.z0[:, None] + y
-    closed = z > 0
-    dphi = np.where(closed, eq.eps, 1.0)
-    tm = np.ones(y.shape[1], bool) if time_mask is None else time_mask
-
-    def apply(r):
-        return np.where(tm, linear_march(sweep, closed, np.where(tm, r, 0.0)) / dphi, 0.0)
-
-    apply.n_open = int((~closed).any(axis=1).sum())
-    return apply

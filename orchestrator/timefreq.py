@@ -53,8 +53,7 @@ def timefreq(model, soil, ag, dt, method=None, contact=None, damping=None,
     rho, windows : the paper's relaxation and number of averaging windows (windows also sets
     the Newton-Krylov preconditioner); aux_factor scales the paper's auxiliary stiffness k
     (the unknown's normalisation only). guess : Newton-Krylov's initial iterate: None (zero,
-    with a time horizon), "march" (one causal march) or a RouteResult of the same model and
-    motion (its gap and contact force). max_seconds : time budget of the solve; when it runs
+    with a time horizon) or "march" (one causal march). max_seconds : time budget of the solve; when it runs
     out the last iterate is returned with converged = False and the reason in message.
     progress : callable(sweep, residual) for the march.
     bilinear : True (default) solves the trapezoidal (Newmark average-acceleration) discrete
@@ -67,7 +66,7 @@ def timefreq(model, soil, ag, dt, method=None, contact=None, damping=None,
     iterations of Newton-Krylov. A solver that does not converge returns its last iterate
     with converged = False and the reason in message.
     """
-    from orchestrator.tf_march import defect_correction, march, y_from_d, y_from_result
+    from orchestrator.tf_march import defect_correction, march, y_from_d
     from orchestrator.tf_solvers import ContactEquation, _scale
 
     method = method or ("march" if bilinear else "newton-krylov")
@@ -76,8 +75,8 @@ def timefreq(model, soil, ag, dt, method=None, contact=None, damping=None,
     if method == "march" and not bilinear:
         raise ValueError("method 'march' needs the bilinear grid (bilinear=True): on the continuous "
                          "grid the instantaneous kernel is indefinite; use 'newton-krylov' there")
-    if not (guess is None or guess == "march" or hasattr(guess, "contact_force")):
-        raise ValueError(f"guess = {guess!r}: use None, 'march' or a RouteResult")
+    if guess not in (None, "march"):
+        raise ValueError(f"guess = {guess!r}: use None (zero) or 'march'")
     t0 = time.perf_counter()
     deadline = None if max_seconds is None else t0 + float(max_seconds)
     prob = prepare(model, soil, ag, dt, contact=contact, damping=damping, pad_s=pad_s,
@@ -96,9 +95,7 @@ def timefreq(model, soil, ag, dt, method=None, contact=None, damping=None,
         if guess == "march":
             d, info["march"] = march(prob, deadline=deadline)
             y0 = y_from_d(prob, d)
-        elif guess is not None:
-            y0 = y_from_result(prob, guess)
-        info["guess"] = guess if guess is None or isinstance(guess, str) else guess.route
+        info["guess"] = guess
         y, ok, hist, ladder = newton_continuation(prob, tol=tol or 1e-10, max_iter=max_iter or 200,
                                                   windows=windows, y0=y0, deadline=deadline)
         info.update(iterations=len(hist), continuation=ladder,

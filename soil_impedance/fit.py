@@ -59,6 +59,7 @@ from .vectfit import canonical_poles, compress, fit_coefficients, initial_poles,
 WEIGHTINGS = ("relative", "uniform", "entry")
 RIGID = ("ux", "uy", "uz", "rx", "ry", "rz")
 POLE_CAP = 30.0           # normalised |p| above which a pole only mimics a constant: dropped
+RIGID_IM_FLOOR = 1e-3     # rigid_errors: Im K_dd errors relative to max(|Im K_dd|, this · |K_dd|)
 
 
 @dataclass(frozen=True)
@@ -280,20 +281,32 @@ def _provenance_nodes(prov):
     return mesh.xy if _mesh_dict(mesh) == m else None
 
 
+def rigid_model(model, P) -> RationalModel:
+    """The rigid-raft impedance Pᵀ K(s) P of ``model`` as a 6×6 RationalModel (same poles): cheap to
+    evaluate, unlike the (6+N)² model."""
+    return RationalModel(model.poles, P.T @ model.residues @ P, P.T @ model.D @ P, P.T @ model.E @ P, list(RIGID))
+
+
 def rigid_errors(model, target, freq_hz, P, band):
     """Per rigid DOF d, max over ``band`` (bool mask of freq_hz) of the relative errors of the
     rigid-raft impedance Pᵀ K P, model against target (F, n, n): {d: {"re", "im", "abs"}} with
-    re = |ΔRe K_dd|/|Re K_dd|, im = |ΔIm K_dd|/|Im K_dd|, abs = |ΔK_dd|/|K_dd|."""
-    Kt = np.einsum("ia,fij,jb->fab", P, target[band], P)
-    Km = np.einsum("ia,fij,jb->fab", P, model.frequency_response(np.asarray(freq_hz)[band]), P)
+    re = |ΔRe K_dd|/|Re K_dd|, im = |ΔIm K_dd|/max(|Im K_dd|, RIGID_IM_FLOOR·|K_dd|) (the floor keeps
+    the measure finite where the target is (nearly) undamped, e.g. Im K(0) = 0), abs = |ΔK_dd|/|K_dd|."""
+    Kt = P.T @ target[band] @ P
+    Km = rigid_model(model, P).frequency_response(np.asarray(freq_hz)[band])
     dt, dm = np.einsum("faa->fa", Kt), np.einsum("faa->fa", Km)
     out = {}
     for k, name in enumerate(RIGID):
         t, m = dt[:, k], dm[:, k]
         out[name] = {"re": float(np.max(np.abs(m.real - t.real) / np.abs(t.real))),
-                     "im": float(np.max(np.abs(m.imag - t.imag) / np.maximum(np.abs(t.imag), 1e-300))),
+                     "im": float(np.max(np.abs(m.imag - t.imag) / np.maximum(np.abs(t.imag), RIGID_IM_FLOOR * np.abs(t)))),
                      "abs": float(np.max(np.abs(m - t) / np.abs(t)))}
     return out
+
+
+def rigid_error(errors) -> float:
+    """The order-selection measure of ``rigid_errors``' output: max over rigid DOFs of the Re and Im errors."""
+    return max((max(e["re"], e["im"]) for e in errors.values()), default=0.0)
 
 
 def rigid_correct(model, target, freq_hz, P, floor=0.02, f_c=0.0) -> RationalModel:
@@ -312,8 +325,8 @@ def rigid_correct(model, target, freq_hz, P, floor=0.02, f_c=0.0) -> RationalMod
     """
     f = np.asarray(freq_hz, float)
     w_ref = 2 * np.pi * float(model.provenance.get("f_max_hz") or f[-1])
-    Kt = np.einsum("ia,fij,jb->fab", P, target, P)
-    Delta = Kt - np.einsum("ia,fij,jb->fab", P, model.frequency_response(f), P)
+    Kt = P.T @ target @ P
+    Delta = Kt - rigid_model(model, P).frequency_response(f)
     A = real_basis(2j * np.pi * f / w_ref, model.poles / w_ref, const=True, linear=False)
     diag = np.abs(np.einsum("faa->fa", Kt))
     m = model.order
@@ -462,14 +475,15 @@ def _round_up(x, digits=2) -> float:
     return float(np.ceil(x / 10 ** e - 1e-9) * 10 ** e)
 
 
-def _candidates(fits, tol, floor):
-    """(first, up, down) indices into fits for passivity enforcement.
+def _candidates(errs, tol, floor):
+    """(first, up, down) indices into the fitted orders (selection criterion ``errs``, by increasing
+    order) for passivity enforcement.
 
     first: the smallest order meeting tol; if none does, the smallest order at the plateau (error
     within 5 % of the best, or within 1.2 × the hysteretic floor estimate). up: larger orders worth
     trying afterwards (meeting tol, resp. lowering the error: the record orders), by increasing order.
     down: smaller orders by decreasing order (fallback when enforcement fails: fewer poles are easier)."""
-    errs = np.array([x[2] for x in fits])
+    errs = np.asarray(errs, float)
     best = errs.min()
     ok = np.nonzero(errs <= tol)[0]
     if ok.size:
@@ -479,7 +493,7 @@ def _candidates(fits, tol, floor):
         good = max(1.05 * best, 1.2 * floor)
         first = int(np.nonzero(errs <= good)[0][0])
         up, rec = [], errs[first]
-        for i in range(first + 1, len(fits)):
+        for i in range(first + 1, errs.size):
             if errs[i] < 0.97 * rec:
                 up.append(i)
                 rec = errs[i]
@@ -564,17 +578,36 @@ def fit_table(table, tol=0.01, max_order=30, weighting="relative", enforce=True,
     if floor > 0 and tol < floor:
         log(f"fit: tol {tol:g} is below the hysteretic error floor estimate ≈ {floor:.2g} (loss factor "
             f"2ξ ≈ {floor / 0.55:.2g}): expect it to be missed")
-    history, fits = [], []
+    prov = {"source_table_hash": table.hash, "f_max_hz": float(table.frequencies_hz[-1]),
+            "f_causal_hz": prob.f_c, "fit_settings": settings, "code": _code_digest()}
+
+    def build(poles, C, corrected=True):
+        model = prob.model(poles, C, prov)
+        if P is None or not corrected:
+            return model
+        return rigid_correct(model, prob.unscaled_target(), table.frequencies_hz, P, f_c=prob.f_c)
+
+    def band_rigid_error(model):
+        return rigid_error(rigid_errors(model, table.matrices, prob.f, P, prob.band)) if P is not None else 0.0
+
+    history, fits = [], []                        # fits: (poles, C, max_rel_error, criterion)
     search_stop = "max_order"
     for n_pairs in range(1, max(1, max_order // 2) + 1):
         poles, C, err = _fit_order(prob, n_pairs, n_iter)
-        history.append((int(poles.size), err))
-        fits.append((poles, C, err))
-        log(f"fit: {poles.size} poles, max rel error {err:.3e}")
-        if err <= tol:
+        if P is None:
+            crit = err
+            history.append((int(poles.size), err))
+            log(f"fit: {poles.size} poles, max rel error {err:.3e}")
+        else:                                     # the rigid-corrected model, before enforcement
+            rig = band_rigid_error(build(poles, C))
+            crit = max(err, rig)
+            history.append((int(poles.size), err, rig))
+            log(f"fit: {poles.size} poles, max rel error {err:.3e}, rigid-raft Re/Im error {rig:.3e}")
+        fits.append((poles, C, err, crit))
+        if crit <= tol:
             search_stop = "tol reached"
             break
-        errs = [h[1] for h in history]
+        errs = [fit[3] for fit in fits]
         if patience and len(errs) > patience and min(errs[-patience:]) > 0.8 * min(errs[:-patience]):
             search_stop = f"error stalled at {min(errs):.3g} over the last {patience} orders"
             log(f"fit: error stagnates at {min(errs):.3e} (> tol {tol:g}; hysteretic damping? see the "
@@ -584,28 +617,22 @@ def fit_table(table, tol=0.01, max_order=30, weighting="relative", enforce=True,
             search_stop = "time budget of the order search spent"
             log(f"fit: {search_stop}")
             break
-    first, up, down = _candidates(fits, tol, floor)
-    prov = {"source_table_hash": table.hash, "f_max_hz": float(table.frequencies_hz[-1]),
-            "f_causal_hz": prob.f_c, "fit_settings": settings, "code": _code_digest()}
+    first, up, down = _candidates([fit[3] for fit in fits], tol, floor)
+    what_error = "max rel error" if P is None else "max(rel error, rigid-raft Re/Im error)"
 
-    def band_error(model):
-        return float(np.max(_errors(prob.scaled_response(model), prob.Ks)[prob.band]))
-
-    def build(poles, C, corrected=True):
-        model = prob.model(poles, C, prov)
-        if P is None or not corrected:
-            return model
-        return rigid_correct(model, prob.unscaled_target(), table.frequencies_hz, P, f_c=prob.f_c)
+    def criterion(model):
+        """The selection criterion: max of the band error and the rigid-raft Re/Im error."""
+        return max(float(np.max(_errors(prob.scaled_response(model), prob.Ks)[prob.band])), band_rigid_error(model))
 
     failures, attempts, notes = [], [], []
-    best = None                                   # (band error, model, prep, err_fit)
+    best = None                                   # (criterion, model, prep, err_fit)
     if not enforce:
-        poles, C, err_fit = fits[first]
+        poles, C, err_fit, _ = fits[first]
         model = build(poles, C)
-        best = (band_error(model), model, check_passive(model, method=passivity_method), err_fit)
+        best = (criterion(model), model, check_passive(model, method=passivity_method), err_fit)
     else:
         def attempt(i, dl):
-            poles, C, err_fit = fits[i]
+            poles, C, err_fit, _ = fits[i]
             t1 = time.perf_counter()
             # the rigid correction first; if that model cannot be made passive, the plain fit
             for corrected in ((True, False) if P is not None else (False,)):
@@ -622,9 +649,9 @@ def fit_table(table, tol=0.01, max_order=30, weighting="relative", enforce=True,
                         f"({time.perf_counter() - t1:.1f} s)")
             else:
                 return None
-            e = band_error(model)
+            e = criterion(model)
             attempts.append((int(poles.size), True, e, time.perf_counter() - t1))
-            log(f"fit: {poles.size} poles passive, max rel error {e:.3e} ({time.perf_counter() - t1:.1f} s)")
+            log(f"fit: {poles.size} poles passive, {what_error} {e:.3e} ({time.perf_counter() - t1:.1f} s)")
             return (e, model, prep, err_fit)
 
         best = attempt(first, None)
@@ -663,7 +690,7 @@ def fit_table(table, tol=0.01, max_order=30, weighting="relative", enforce=True,
     message = ""
     if not reached:
         parts = [f"tol {tol:g} not reached: returning the best {'passive ' if prep.passive else ''}model found, "
-                 f"{model.order} poles, max rel error {err_after:.3g} (order search: {search_stop}"
+                 f"{model.order} poles, {what_error} {err_after:.3g} (order search: {search_stop}"
                  + (f"; {'; '.join(notes)}" if notes else "") + ")."]
         if floor > 0:
             parts.append(f"The table has hysteretic damping (loss factor 2ξ ≈ {floor / 0.55:.2g}), which no causal "
