@@ -4,8 +4,9 @@ the soil applied per frequency.
 Pieces: tf_grid (padding, exponential window, pyfftw), tf_soil (K(s) from a BEM table,
 Winkler springs, a rational model or its recursion), tf_operator (structure condensed on the
 raft with all fixed-base modes; interface stiffness S and blocked force f), tf_problem
-(renormalised contact unknown, static preload, RouteResult), tf_solvers (the paper's
-quasi-Newton and the semi-smooth Newton-Krylov).
+(renormalised contact unknown, static preload, RouteResult), tf_march (the causal march and
+its defect correction), tf_solvers (the paper's quasi-Newton and the semi-smooth
+Newton-Krylov).
 
 Methods:
 
@@ -18,10 +19,11 @@ Methods:
   switches at once.
 * "newton-krylov": semi-smooth Newton on the whole-range residual, FGMRES preconditioned by
   the active-set operator, line search, time horizon and load continuation; optionally
-  started from the march (``guess``). It fails from 0.7 g on the 21-node Winkler raft even
-  from the march's iterate (the frozen-active-set linearisation does not hold a step long).
+  started from the march (``guess``). On the 21-node Winkler raft (benchmarks/timefreq.py
+  --map) it fails from 0.4 g from zero and from 0.6 g from the march's iterate (the
+  frozen-active-set linearisation does not hold over thousands of contact switches).
 * "paper" (eq. 17-20: relaxation rho, global or per-window order-0 stochastic
-  linearisation): fails from 0.2 g there.
+  linearisation): fails from 0.2 g there (0.3 g with the auxiliary stiffness at 30 K(0)).
 
 With ``bilinear=True`` and a RecursiveConvolutionSoil (or WinklerSoil / RationalModel) the
 route solves the same discrete equations as ``structure.simulate`` (average acceleration, same
