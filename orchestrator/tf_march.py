@@ -56,7 +56,7 @@ class _StepSolver:
     E(d) = d.h_0 d / 2 + (c + P0).d + kp |max(0, delta0 - d)|^2 / 2 when h_0 is symmetric
     positive definite. Semi-smooth Newton (Jacobian -(h_0 + kp I^+), LU cached per active set)
     with full steps, as the stepper's active-set iteration; if an active set comes back (a
-    cycle), backtracking on E (on |r| for a non-symmetric h_0)."""
+    cycle), backtracking on E (on |r|^2 for a non-symmetric h_0)."""
 
     def __init__(self, h0, kp, delta0, P0, max_iter=50, cache=256):
         self.h0, self.kp, self.delta0, self.P0 = h0, kp, delta0, P0
@@ -89,31 +89,47 @@ class _StepSolver:
         return lu
 
     def solve(self, d, c, tol=1e-13):
-        """d (N,) from the initial iterate d; returns (d, Newton iterations)."""
+        """d (N,) from the initial iterate d; returns (d, linear solves).
+
+        Full semi-smooth Newton steps are the active-set iteration: solve
+        (h_0 + kp I_A) d = kp I_A delta0 - P0 - c for the active set A of the last iterate
+        until A repeats, exact then (no residual to evaluate). A set seen before is a cycle:
+        the damped Newton below takes over."""
+        active = self.delta0 - d > 0
+        seen = set()
+        for it in range(1, self.max_iter + 1):
+            seen.add(active.tobytes())
+            d = sla.lu_solve(self._factor(active), self.kp * active * self.delta0 - self.P0 - c,
+                             check_finite=False)
+            new = self.delta0 - d > 0
+            if np.array_equal(new, active):
+                return d, it
+            if new.tobytes() in seen:
+                n, it0 = self._damped(d, c, tol)
+                return n, it + it0
+            active = new
+        return self._damped(d, c, tol)
+
+    def _damped(self, d, c, tol):
+        """Semi-smooth Newton with Armijo backtracking on the energy (|r|^2 if h_0 is not
+        symmetric) once an active set comes back."""
         r = self.residual(d, c)
         rn = np.linalg.norm(r)
         stop = tol * (self.scale * np.sqrt(d.size) + np.linalg.norm(c))
-        seen, damped = set(), False
         for it in range(1, self.max_iter + 1):
             if rn <= stop:
                 return d, it - 1
-            active = self.delta0 - d > 0
-            key = active.tobytes()
-            damped = damped or key in seen
-            seen.add(key)
-            dd = sla.lu_solve(self._factor(active), r, check_finite=False)
-            t, dn, rt = 1.0, d + dd, None
-            if damped:                    # Armijo on the merit (descent: dd = -J^-1 grad)
-                m0 = self._merit(d, c, r)
-                slope = -(r @ dd) if self.symmetric else -2.0 * (r @ r)
-                while t > 1e-8:
-                    dn = d + t * dd
-                    rt = self.residual(dn, c)
-                    if self._merit(dn, c, rt) <= m0 + 1e-4 * t * slope:
-                        break
-                    t *= 0.5
-            d = dn
-            r = self.residual(d, c) if rt is None else rt
+            dd = sla.lu_solve(self._factor(self.delta0 - d > 0), r, check_finite=False)
+            m0 = self._merit(d, c, r)             # descent: dd = -J^-1 grad
+            slope = -(r @ dd) if self.symmetric else -2.0 * (r @ r)
+            t = 1.0
+            while True:
+                dn = d + t * dd
+                rt = self.residual(dn, c)
+                if self._merit(dn, c, rt) <= m0 + 1e-4 * t * slope or t < 1e-8:
+                    break
+                t *= 0.5
+            d, r = dn, rt
             rn = np.linalg.norm(r)
         if rn <= 1e3 * stop:
             return d, self.max_iter

@@ -120,3 +120,26 @@ def test_bilinear_map_with_rational_soil_equals_monolithic_newmark():
     assert rel(tf.gap, td.gap) < 1e-8
     for name in td.acc:
         assert rel(tf.acc[name], td.acc[name]) < 1e-8, name
+
+
+def test_march_step_solver_active_set_and_damped_newton_agree():
+    """One step of the march: the active-set iteration and the damped Newton (its fallback on a
+    cycle) find the same solution of kp max(0, delta0 - d) - P0 - h0 d - c = 0 (unique: h0
+    symmetric positive definite), to round-off, for contact states from all open to all shut."""
+    from orchestrator.tf_march import _StepSolver
+
+    rng = np.random.default_rng(4)
+    n = 12
+    A = rng.standard_normal((n, n))
+    h0 = A @ A.T + n * np.eye(n)
+    kp = 1e4 * np.diag(h0)
+    delta0 = rng.uniform(-1e-3, 1e-3, n)
+    P0 = kp * np.maximum(delta0, 0.0)
+    st = _StepSolver(h0, kp, delta0, P0)
+    for scale in (1e-3, 1e2, 1e3, 1e4):
+        c = scale * rng.standard_normal(n)
+        d, _ = st.solve(np.zeros(n), c)
+        d2, _ = st._damped(np.zeros(n), c, 1e-13)
+        r = st.residual(d, c)
+        assert np.linalg.norm(r) < 1e-9 * (np.linalg.norm(c) + np.abs(P0).max()), scale
+        assert np.allclose(d, d2, rtol=1e-9, atol=1e-12 * np.abs(d).max())
