@@ -137,10 +137,8 @@ class _StepSolver:
 
 
 class CausalSweep:
-    """The causal convolution with S's kernel, swept step by step: x_n is found at step n from
-    c_n = sum_{k>=1} h_k x_{n-k} + c0_n by a per-step solve, the near field (same block of B
-    steps) with the kernel head, the far field (earlier blocks) by one S application per
-    block on the grid. The head and the LUs of h_0 + kp I^+ are kept for the next sweeps."""
+    """The march's kernel head and step solver, kept from one sweep to the next (the LUs of
+    h_0 + kp I^+ too)."""
 
     def __init__(self, prob, block: int = BLOCK):
         t0 = time.perf_counter()
@@ -152,14 +150,18 @@ class CausalSweep:
         self.step = _StepSolver(head[0], prob.kp, prob.static.delta0, prob.P0)
         self.head_s = time.perf_counter() - t0
 
-    def run(self, c0, solve, progress=None, deadline=None):
-        """x (N, nt) with x_n = solve(n, c_n, x_{n-1}); returns (x, steps done)."""
+    def run(self, c0, progress=None, deadline=None):
+        """The contact history x (N, nt): step n solves its contact conditions with
+        c_n = c0_n + sum_{k>=1} h_k x_{n-k}, the near field (same block of B steps) from the
+        kernel head, the far field (earlier blocks) by one S application per block on the
+        grid. Returns (x, steps done, linear solves)."""
         g, op = self.prob.grid, self.prob.op
         N, nt = c0.shape
         B, hflat = self.B, self.hflat
         x = np.zeros((N, nt))
         H = np.array(c0, float)
         xn = np.zeros(N)
+        solves = 0
         for a in range(0, nt, B):
             b = min(a + B, nt)
             for n in range(a, b):
@@ -167,8 +169,9 @@ class CausalSweep:
                 c = H[:, n]
                 if m:                                    # near field: h_1..h_m on x_{n-1}..x_a
                     c = c + hflat[:, :m * N] @ x[:, n - 1:a - 1 if a else None:-1].T.ravel()
-                xn = solve(n, c, xn)
+                xn, it = self.step.solve(xn, c)
                 x[:, n] = xn
+                solves += it
             if b < nt:                                   # far field of this block, on the grid
                 X = np.zeros((N, nt))
                 X[:, a:b] = x[:, a:b]
@@ -176,8 +179,8 @@ class CausalSweep:
             if progress is not None:
                 progress(b, nt)
             if deadline is not None and time.perf_counter() > deadline and b < nt:
-                return x, b
-        return x, nt
+                return x, b, solves
+        return x, nt, solves
 
 
 def march(prob, lam: float = 1.0, block: int = BLOCK, progress=None, deadline: float | None = None,
@@ -185,21 +188,15 @@ def march(prob, lam: float = 1.0, block: int = BLOCK, progress=None, deadline: f
     """Marched contact history of a ContactProblem at motion scale lam.
 
     Returns (d (N, nt) m, info dict); d is the dynamic relative displacement (raft trace minus
-    soil, the unknown of tf_problem.result). info: newton (total step iterations), factors
+    soil, the unknown of tf_problem.result); source (N, nt) N: a known force added to the
+    equations (defect_correction). info: newton (linear solves of the steps), factors
     (LUs), block, head_s, wall_s, steps (completed; < nt when the deadline (perf_counter
     time) stopped it: d is then zero beyond)."""
     t0 = time.perf_counter()
     sw = sweep or CausalSweep(prob, block)
-    iters = [0]
-
-    def solve(n, c, prev):
-        d, it = sw.step.solve(prev, c)
-        iters[0] += it
-        return d
-
     c0 = -lam * prob.f if source is None else -lam * prob.f - source
-    d, done = sw.run(c0, solve, progress, deadline)
-    info = dict(newton=int(iters[0]), factors=int(sw.step.n_factor), block=sw.B, head_s=sw.head_s,
+    d, done, solves = sw.run(c0, progress, deadline)
+    info = dict(newton=int(solves), factors=int(sw.step.n_factor), block=sw.B, head_s=sw.head_s,
                 wall_s=time.perf_counter() - t0, steps=int(done))
     return d, info
 
