@@ -132,9 +132,11 @@ def run_timefreq(scene, motion, model, table_gap, method=None, contact=None,
                  damping=None, output_nodes=None, **options):
     """The ``timefreq`` route of a scene: ``timefreq`` with the scene's BEM gap table, motion
     (orchestrator.motion.Motion), structure, contact settings and output nodes. Default
-    tolerance 1e-8 (relative residual: far below the 0.1 % the routes are compared at; the
-    1e-10 of ``timefreq`` is for the round-off checks against Newmark)."""
-    options.setdefault("tol", 1e-8)
+    tolerance 1e-6 on the relative whole-range residual: the reactor's max uplift and raft
+    rotation move by < 1e-6 relative from there to 1e-8 (one more sweep), far below the 0.1 %
+    the routes are compared at; the 1e-10 of ``timefreq`` is for the round-off checks against
+    Newmark."""
+    options.setdefault("tol", 1e-6)
     from structure.spec import contact_from_spec
 
     from orchestrator.run import output_nodes as scene_nodes

@@ -34,7 +34,7 @@ def reactor_runs(tmp_path_factory):
 def test_timefreq_converges_with_its_history(reactor_runs):
     tf = reactor_runs["timefreq"]
     assert tf.converged, tf.message
-    assert tf.info["method"] == "march" and tf.info["residual"] < 1e-8
+    assert tf.info["method"] == "march" and tf.info["residual"] < 1e-6
     res = [h["residual"] for h in tf.info["history"]]
     assert res[-1] < 1e-3 * res[0]
 
