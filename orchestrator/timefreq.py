@@ -114,7 +114,14 @@ def timefreq(model, soil, ag, dt, method=None, contact=None, damping=None,
     d = -(prob.phi(z) - prob.phi(prob.z0[:, None]))
     P = prob.k[:, None] * np.maximum(z, 0.0)
     gap = np.maximum(0.0, -z)
-    if hist and hist[-1].get("stopped"):
+    if hist and hist[-1].get("diverged"):
+        ok = False
+        msg = (f"{method}: {hist[-1]['diverged']} in sweep {len(hist)}: the soil's causal part on "
+               "this grid is not passive (a table continued by springs and dashpots above its "
+               "last frequency is not causal); the histories are the best iterate (relative "
+               f"residual {info['residual']:.3e}). Newton-Krylov (method='newton-krylov') or the "
+               "monolithic route with the table's passive rational fit are the alternatives")
+    elif hist and hist[-1].get("stopped"):
         ok = False
         msg = (f"{method} stopped at its time budget ({max_seconds:g} s) after {len(hist)} "
                f"iterations: relative residual {info['residual']:.3e}; the histories are its "
