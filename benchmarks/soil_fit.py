@@ -7,11 +7,16 @@ against the table on the rigid-raft impedance P^T K P over 2-8 Hz (the SSI band:
 ~3.75 Hz), and the bonded linear response's peak raft rotation split into fit error (linear FD
 with the table vs with the fit sampled as a table) and time-step error (linear FD with the fitted
 model vs bonded Newmark with its recursive convolution).
-With --causal: the same last row for the reactor with ``[soil] damping_model = "causal"`` (constant
-Q with a 0.05 Hz cut-off, vs at 1 Hz: soil_impedance.profile), at the scene's fit_tol (0.04: 2
-poles, +10 % on the peak rotation), 0.01 (4 poles, +0.3 %) and 0.002 (6 poles, −0.24 %, of which
-−0.18 % time step), after the rigid-raft table causal vs hysteretic (sliding, vertical, rocking
-Re/Im at 0, 1, 4, 10 Hz).
+The order selection requires the rigid-raft Re and Im errors to meet fit_tol too (soil_impedance.fit,
+"Order selection of a gap table"): on the (causal) reactor at fit_tol 0.01 that is 8 poles (rigid
+rocking Im 0.26 % over 2-8 Hz, peak rotation fit error +0.006 %) instead of 4 (4.8 %, +0.50 %).
+With --causal: the rigid-raft table causal vs hysteretic (sliding, vertical, rocking Re/Im at 0, 1,
+4, 10 Hz), then the same last row for the reactor with ``[soil] damping_model = "causal"`` (the
+scene's; constant Q with a 0.05 Hz cut-off, vs at 1 Hz: soil_impedance.profile) at fit_tol 0.04 (6
+poles, rigid rocking Im 1.3 %, peak rotation −0.24 %, of which −0.18 % time step), the scene's 0.01
+(8 poles, −0.18 %: the time step) and 0.002 (10 poles; fit_table reports it passive from an
+uncertified sweep, but the stepper's re-check, require_passive, refuses it: a round-off violation
+of the tail, margin −1e-15 at 1e10 Hz with λmin(E) ~ 1e-16; an open passivity.py issue).
 Run: OPENBLAS_NUM_THREADS=1 python benchmarks/soil_fit.py [cache_dir] [--linear] [--causal]
 """
 import sys
@@ -70,7 +75,7 @@ def main(cache_dir=".cache"):
     wall = time.perf_counter() - t3
     r = result.report
     print(f"\nfit_table(tol=0.04, enforce=True): {wall:.1f} s wall (target < 30 s); {r.summary()}")
-    print(f"  order history {[(o, round(e, 4)) for o, e in r.order_history]}")
+    print(f"  order history {[tuple(round(x, 4) for x in h) for h in r.order_history]}")
     print(f"  before enforcement {r.max_rel_error_fit:.3e}, after {r.max_rel_error:.3e}, "
           f"unscaled {r.max_rel_error_unscaled:.3e}, low-frequency (f < {r.f_causal_hz} Hz) {r.low_freq_error:.3e}")
     print(f"  blocks {r.block_errors}")
@@ -138,10 +143,15 @@ def linear_row(cache_dir=".cache", scene=None, fit_tol=None):
     band = (f >= 2.0) & (f <= 8.0)
     Kt = np.einsum("ia,fij,jb->fab", P, table.matrices[band], P)
     Km = np.einsum("ia,fij,jb->fab", P, rm(2j * np.pi * f[band]), P)
+    rep = fit.report
     print(f"\n{scene.name}, fit_tol {fit_tol}: {rm.order} poles, max rel error "
-          f"{fit.report.max_rel_error:.4f}, passive {fit.report.passive}, fit {t_fit:.1f} s "
-          f"({'cache' if fit.report.cached else 'computed'}; {fit.report.wall_s:.1f} s), "
-          f"f_causal {fit.report.f_causal_hz:g} Hz, low-frequency error {fit.report.low_freq_error:.4f}")
+          f"{rep.max_rel_error:.4f}, passive {rep.passive}, fit {t_fit:.1f} s "
+          f"({'cache' if rep.cached else 'computed'}; {rep.wall_s:.1f} s), "
+          f"f_causal {rep.f_causal_hz:g} Hz, low-frequency error {rep.low_freq_error:.4f}")
+    print(f"order search (poles, max rel error[, rigid-raft Re/Im error]): "
+          f"{[tuple(round(x, 4) for x in h) for h in rep.order_history]}; tol reached {rep.tol_reached}")
+    print("rigid-raft impedance, fit vs table, max over f >= f_causal (report.rigid_errors, Re/Im %): "
+          + ", ".join(f"{d} {100 * e['re']:.2f}/{100 * e['im']:.2f}" for d, e in rep.rigid_errors.items()))
     print("rigid-raft impedance P^T K P, fit vs table, max over 2-8 Hz (%):")
     for i, lab in ((0, "ux sliding"), (2, "uz vertical"), (4, "ry rocking")):
         t, m = Kt[:, i, i], Km[:, i, i]
@@ -179,5 +189,5 @@ if __name__ == "__main__":
     if "--causal" in sys.argv:
         compare_tables(*args)
         causal = reactor_scene("causal")
-        for tol in (None, 0.01, 0.002):
+        for tol in (0.04, None, 0.002):
             linear_row(*args, scene=causal, fit_tol=tol)

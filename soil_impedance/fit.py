@@ -2,8 +2,9 @@
 
 Pipeline (DESIGN.md §4): DOF scaling → causal target → pole identification on compressed
 columns (relaxed vector fitting, ``vectfit``) → residues of every independent entry by one linear
-least squares → order chosen as the smallest number of pole pairs meeting ``tol`` → E projected on
-the PSD cone → passivity enforced (``passivity``) → report.
+least squares → (gap tables) rigid-raft correction (``rigid_correct``) → order chosen as the
+smallest number of pole pairs meeting ``tol`` → E projected on the PSD cone → passivity enforced
+(``passivity``) → report.
 
 Conventions. The fit works on the DOF-scaled matrices S K S, S = diag(|Re K_ii(f_0)|)^{-1/2}
 (f_0: lowest table frequency; DOFs whose rows are identically zero, e.g. uz, rx, ry of the
@@ -16,6 +17,18 @@ and ``max_rel_error`` is its maximum over the fitted band f ≥ f_causal (all f 
 the unscaled error (SI units, dominated by the rotational terms) is reported too. Only the upper
 triangle is fitted (D and every residue symmetric by construction); off-diagonal entries carry
 weight √2 so that the least squares measures the full Frobenius norm.
+
+Order selection of a gap table (DOFs ux..rz + w_1..w_N, with the rigid-raft correction on). Its
+Frobenius norm is dominated by the N soil DOFs: on the reactor (N = 241, causal soil) 4 poles meet
+1 % overall while the rigid-raft rocking impedance Pᵀ K P (``rigid_projection``), the quantity the
+soil-structure response sees in full contact, is 5 % off in Im (its damping). So the order must also
+meet ``tol`` on ``rigid_error``: the max over the six rigid DOFs of the relative Re and Im errors of
+the diagonal of Pᵀ K P (``rigid_errors``), over the same band f ≥ f_causal as e(f) (every table
+frequency for a causal soil): one band for both measures, and no soil-structure band to guess (the
+reactor's is 2-8 Hz, a stiffer or softer site moves it). The selection criterion is
+max(max_rel_error, rigid_error), measured on the rigid-corrected model before enforcement in the
+order search and after it for the returned model (``tol_reached``). On the reactor at tol 0.01
+this selects 8 poles (rigid error 0.3 %, overall 1e-4) instead of 4 (``benchmarks/soil_fit.py``).
 
 Weighting: "relative" (default) w_f = 1/‖S K(f) S‖_F, the criterion itself; "uniform" w_f = 1
 (absolute error in scaled units: favours the high-frequency end where |K| is large);
@@ -59,7 +72,7 @@ from .vectfit import canonical_poles, compress, fit_coefficients, initial_poles,
 WEIGHTINGS = ("relative", "uniform", "entry")
 RIGID = ("ux", "uy", "uz", "rx", "ry", "rz")
 POLE_CAP = 30.0           # normalised |p| above which a pole only mimics a constant: dropped
-RIGID_IM_FLOOR = 1e-3     # rigid_errors: Im K_dd errors relative to max(|Im K_dd|, this · |K_dd|)
+RIGID_IM_FLOOR = 0.01     # rigid_errors: Im K_dd errors relative to max(|Im K_dd|, this · |K_dd|)
 
 
 @dataclass(frozen=True)
@@ -78,11 +91,13 @@ class FitReport:
                                       ‖Δ_block‖_F/‖K_block‖_F ("own") and /‖K‖_F ("total")
     passive, passivity_margin : bool, float      see ``passivity.PassivityReport``
     passivity : dict                  the full PassivityReport.to_dict()
-    order_history : list              [(order, max_rel_error)] tried during order selection
+    order_history : list              [(order, max_rel_error)] tried during order selection; gap tables
+                                      with the rigid criterion: [(order, max_rel_error, rigid_error)]
     settings : dict                   tol, max_order, weighting, enforce, ...
     wall_s : float                    fit + enforcement time (0 load time on a cache hit)
     cached : bool
-    tol_reached : bool                max_rel_error <= tol
+    tol_reached : bool                max_rel_error <= tol (and, for gap tables, every rigid_errors
+                                      re and im <= tol: the order-selection criterion)
     message : str                     why tol was missed and which tol is reachable ("" if reached)
     error_floor : float               a-priori hysteretic floor estimate ≈ 1.1 ξ (0: not hysteretic)
     stop_reason : str                 why the order search stopped
@@ -284,22 +299,29 @@ def _provenance_nodes(prov):
 def rigid_model(model, P) -> RationalModel:
     """The rigid-raft impedance Pᵀ K(s) P of ``model`` as a 6×6 RationalModel (same poles): cheap to
     evaluate, unlike the (6+N)² model."""
-    return RationalModel(model.poles, P.T @ model.residues @ P, P.T @ model.D @ P, P.T @ model.E @ P, list(RIGID))
+    return RationalModel(model.poles, P.T @ model.residues @ P, P.T @ model.D @ P, P.T @ model.E @ P,
+                         list(RIGID))
 
 
 def rigid_errors(model, target, freq_hz, P, band):
     """Per rigid DOF d, max over ``band`` (bool mask of freq_hz) of the relative errors of the
     rigid-raft impedance Pᵀ K P, model against target (F, n, n): {d: {"re", "im", "abs"}} with
-    re = |ΔRe K_dd|/|Re K_dd|, im = |ΔIm K_dd|/max(|Im K_dd|, RIGID_IM_FLOOR·|K_dd|) (the floor keeps
-    the measure finite where the target is (nearly) undamped, e.g. Im K(0) = 0), abs = |ΔK_dd|/|K_dd|."""
+    re = |ΔRe K_dd|/|Re K_dd|, im = |ΔIm K_dd|/max(|Im K_dd|, RIGID_IM_FLOOR·|K_dd|),
+    abs = |ΔK_dd|/|K_dd|.
+    The floor (1 % of |K_dd|) keeps the Im measure finite where the target is undamped (Im K(0) = 0)
+    and does not ask for the relative accuracy of a negligible damping: a loss factor Im K/|K| below
+    1 % (soil damping ratio < 0.5 %, e.g. the rocking radiation damping of an undamped soil at low
+    frequency, 0.1 % at a0 = 0.25) weighs nothing beside the structure's 5-7 %; a causal 3 % rock
+    has Im K/|K| ≥ 6 % at every f > 0, where the floor never acts."""
     Kt = P.T @ target[band] @ P
     Km = rigid_model(model, P).frequency_response(np.asarray(freq_hz)[band])
     dt, dm = np.einsum("faa->fa", Kt), np.einsum("faa->fa", Km)
     out = {}
     for k, name in enumerate(RIGID):
         t, m = dt[:, k], dm[:, k]
+        im_ref = np.maximum(np.abs(t.imag), RIGID_IM_FLOOR * np.abs(t))
         out[name] = {"re": float(np.max(np.abs(m.real - t.real) / np.abs(t.real))),
-                     "im": float(np.max(np.abs(m.imag - t.imag) / np.maximum(np.abs(t.imag), RIGID_IM_FLOOR * np.abs(t)))),
+                     "im": float(np.max(np.abs(m.imag - t.imag) / im_ref)),
                      "abs": float(np.max(np.abs(m - t) / np.abs(t)))}
     return out
 
@@ -508,7 +530,9 @@ def fit_table(table, tol=0.01, max_order=30, weighting="relative", enforce=True,
     """Passive common-pole rational model of ``table`` (see the module docstring).
 
     table : ImpedanceTable
-    tol : requested max relative Frobenius error over the band (scaled DOFs)
+    tol : requested max relative Frobenius error over the band (scaled DOFs); for a gap table with
+        the rigid-raft correction, also the max relative Re and Im error of the rigid-raft impedance
+        (``rigid_error``, see the module docstring "Order selection of a gap table")
     max_order : maximum number of poles tried (pairs are added one at a time)
     weighting : "relative" | "uniform" | "entry"
     enforce : enforce passivity (else only check it; the report says whether the model is passive)
@@ -527,18 +551,21 @@ def fit_table(table, tol=0.01, max_order=30, weighting="relative", enforce=True,
         rigid-raft impedance in full contact Pᵀ K P follows the table's, Re and Im separately
         (``rigid_correct``; the Frobenius criterion barely sees it, and the rocking damping Im K
         came out ~30 % low on the reactor). Applied before passivity enforcement; the report's
-        ``rigid_errors`` are measured after it. "auto": when the node coordinates are known
-        (``node_xy`` or the table's provenance), True: FitError if they are not, False: off.
+        ``rigid_errors`` are measured after it. The order selection then requires them to meet tol.
+        "auto": when the node coordinates are known (``node_xy`` or the table's provenance), True:
+        FitError if they are not, False: off (neither the correction nor the rigid criterion).
     node_xy : (N, 2) interface node coordinates of a gap table (default: rebuilt from provenance)
     progress : optional callable(str) for log lines
 
     Order search and enforcement: the orders are fitted cheaply (compressed columns) until tol is
-    met, the error stalls (``patience``) or the budget is spent; then passivity is enforced on the
-    smallest order meeting tol. If no order meets tol the smallest order at the error plateau is
-    enforced first, then (unless tol is below the hysteretic floor estimate and that model is
-    already within 1.2 × the floor) larger orders that lower the error are tried while time and
-    ``max_enforce`` allow (the best passive one is kept; stop at the first failure); if the first
-    enforcement fails, smaller orders are tried. Never an exception for a missed tol: the report's
+    met (the criterion: max_rel_error, and for gap tables rigid_error too), the criterion stalls
+    (``patience``) or the budget is spent; then passivity is enforced on the smallest order meeting
+    tol; if enforcement pushed the criterion above tol, the next orders meeting it are fitted and
+    enforced while time and ``max_enforce`` allow. If no order meets tol the smallest order at the
+    error plateau is enforced first, then (unless tol is below the hysteretic floor estimate and
+    that model is already within 1.2 × the floor) larger orders that lower the error are tried while
+    time and ``max_enforce`` allow (the best passive one is kept; stop at the first failure); if the
+    first enforcement fails, smaller orders are tried. Never an exception for a missed tol: the report's
     ``tol_reached`` is False and ``message`` says why (e.g. the hysteretic error floor
     ``error_floor``) and what tol is reachable; a RuntimeWarning carries the same message.
     FitError only if no order can be made passive.
@@ -591,20 +618,26 @@ def fit_table(table, tol=0.01, max_order=30, weighting="relative", enforce=True,
         return rigid_error(rigid_errors(model, table.matrices, prob.f, P, prob.band)) if P is not None else 0.0
 
     history, fits = [], []                        # fits: (poles, C, max_rel_error, criterion)
-    search_stop = "max_order"
-    for n_pairs in range(1, max(1, max_order // 2) + 1):
-        poles, C, err = _fit_order(prob, n_pairs, n_iter)
+    max_pairs = max(1, max_order // 2)
+
+    def fit_next():
+        """Fit the next order (one more pole pair); its criterion (before enforcement)."""
+        poles, C, err = _fit_order(prob, len(fits) + 1, n_iter)
         if P is None:
             crit = err
             history.append((int(poles.size), err))
             log(f"fit: {poles.size} poles, max rel error {err:.3e}")
-        else:                                     # the rigid-corrected model, before enforcement
+        else:                                     # the rigid-corrected model
             rig = band_rigid_error(build(poles, C))
             crit = max(err, rig)
             history.append((int(poles.size), err, rig))
             log(f"fit: {poles.size} poles, max rel error {err:.3e}, rigid-raft Re/Im error {rig:.3e}")
         fits.append((poles, C, err, crit))
-        if crit <= tol:
+        return crit
+
+    search_stop = "max_order"
+    while len(fits) < max_pairs:
+        if fit_next() <= tol:
             search_stop = "tol reached"
             break
         errs = [fit[3] for fit in fits]
@@ -618,11 +651,22 @@ def fit_table(table, tol=0.01, max_order=30, weighting="relative", enforce=True,
             log(f"fit: {search_stop}")
             break
     first, up, down = _candidates([fit[3] for fit in fits], tol, floor)
+
+    def further_orders():
+        """Orders above the first one meeting tol that meet it too, fitted on demand: enforcement
+        may push the criterion above tol (on gap tables, the rigid-raft Im K at low frequency)."""
+        while len(fits) < max_pairs:
+            if fit_next() <= tol:
+                yield len(fits) - 1
+
+    if search_stop == "tol reached":
+        up = further_orders()
     what_error = "max rel error" if P is None else "max(rel error, rigid-raft Re/Im error)"
 
     def criterion(model):
         """The selection criterion: max of the band error and the rigid-raft Re/Im error."""
-        return max(float(np.max(_errors(prob.scaled_response(model), prob.Ks)[prob.band])), band_rigid_error(model))
+        band_error = float(np.max(_errors(prob.scaled_response(model), prob.Ks)[prob.band]))
+        return max(band_error, band_rigid_error(model))
 
     failures, attempts, notes = [], [], []
     best = None                                   # (criterion, model, prep, err_fit)

@@ -244,31 +244,32 @@ def test_rigid_correction_fixes_the_rigid_impedances_and_stays_passive(hystereti
 
 @pytest.fixture(scope="module")
 def causal_gap_table():
-    """Disk R = 10 m, 49 nodes, on a causal constant-Q (ξ = 3 %) half-space, 0..25 Hz, 26 freqs."""
+    """Disk R = 10 m, 29 nodes, on a causal constant-Q (ξ = 3 %) half-space, 0..25 Hz, 26 freqs."""
     from soil_impedance import Material, SoilProfile
     prof = SoilProfile((), Material(vs=500.0, rho=2000.0, nu=0.3, damping=0.03, damping_model="causal"))
-    return impedance_sweep(prof, circle_mesh(10, 2.5), np.linspace(0, 25, 26), outputs=("gap",))["gap"]
+    return impedance_sweep(prof, circle_mesh(10, 3.3), np.linspace(0, 25, 26), outputs=("gap",))["gap"]
 
 
 def test_order_selection_requires_the_rigid_raft_impedances_to_meet_tol(causal_gap_table):
-    """The (6+49)² gap table's Frobenius error meets tol = 1 % at 4 poles (0.5 %), where the rigid-raft
-    rocking damping Im K_ry is still ~9 % off (the 49 w DOFs dominate the norm): the order search goes on
+    """The (6+29)² gap table's Frobenius error meets tol = 2 % at 4 poles (0.9 %), where the rigid-raft
+    rocking damping Im K_ry is still 10 % off (the 29 w DOFs dominate the norm): the order search goes on
     until the rigid-raft Re and Im errors (every rigid DOF, over the fitted band: all frequencies of a
-    causal table) meet tol too, and stops at the first order that meets both."""
-    gap, tol = causal_gap_table, 0.01
+    causal table) meet tol too (6 poles: 1.4 %), and stops at the first order that meets both."""
+    gap, tol = causal_gap_table, 0.02
     fit = fit_table(gap, tol=tol)
     rep = fit.report
     assert rep.tol_reached and rep.passive and rep.f_causal_hz == 0.0
-    hist = rep.order_history                                     # (poles, max_rel_error, rigid error)
-    assert max(hist[-1][1:]) <= tol and all(max(h[1:]) > tol for h in hist[:-1])
-    assert any(e <= tol < rig for _, e, rig in hist[:-1])       # the old selection would have stopped here
-    # the reported rigid errors, recomputed from the full (6+N)² model response
+    # the rigid-raft errors, from the full (6+N)² model response: within tol, and as reported
     P, f = rigid_projection(gap), gap.frequencies_hz
     Kt = np.einsum("fii->fi", np.einsum("ia,fij,jb->fab", P, gap.matrices, P))
     Km = np.einsum("fii->fi", np.einsum("ia,fij,jb->fab", P, fit.model.frequency_response(f), P))
     re = np.abs(Km.real - Kt.real) / np.abs(Kt.real)
-    im = np.abs(Km.imag - Kt.imag) / np.maximum(np.abs(Kt.imag), 1e-3 * np.abs(Kt))
+    im = np.abs(Km.imag - Kt.imag) / np.maximum(np.abs(Kt.imag), 1e-2 * np.abs(Kt))
+    assert max(re.max(), im.max()) <= tol
     for k, d in enumerate(("ux", "uy", "uz", "rx", "ry", "rz")):
         assert rep.rigid_errors[d]["re"] == pytest.approx(re[:, k].max(), rel=1e-6)
         assert rep.rigid_errors[d]["im"] == pytest.approx(im[:, k].max(), rel=1e-6)
-    assert max(re.max(), im.max()) <= tol
+    # the smallest order meeting both; a smaller one met tol on the Frobenius error alone
+    hist = rep.order_history                                     # (poles, max_rel_error, rigid error)
+    assert max(hist[-1][1:]) <= tol and all(max(h[1:]) > tol for h in hist[:-1])
+    assert any(e <= tol < rig for _, e, rig in hist[:-1])
