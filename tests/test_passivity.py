@@ -138,3 +138,19 @@ def test_long_simulation_after_enforcement_is_stable(good_fit):
     assert work.min() >= -1e-12 * scale and work[-1] > 0
     tenth = nt // 10
     assert np.all(np.isfinite(peak)) and peak[-tenth:].max() < 1.05 * peak[tenth:2 * tenth].max()
+
+
+def test_round_off_deep_band_is_not_a_violation(monkeypatch):
+    """A band found by the sweep whose depth is round-off (margin >= -1e-12 on the scaled model)
+    does not make a model non-passive (a 10-pole reactor fit had one, 9.8e-16 deep at 6e11 Hz,
+    and the steppers refused it); a real violation still does."""
+    import soil_impedance.passivity as pv
+
+    m = RationalModel(np.zeros(0), np.zeros((0, 1, 1)), [[4e9]], [[3e7]], ["uz"], {"f_max_hz": 25.0})
+    sc = pv._scaled(m)
+    assert pv._assess(sc, method="sweep")["passive"]
+    orig = pv._lmin
+    for depth, want in ((-1e-15, True), (-1e-6, False)):
+        monkeypatch.setattr(pv, "_lmin", lambda sc_, nu, d=depth: np.minimum(orig(sc_, nu), d * np.asarray(nu)))
+        a = pv._assess(sc, method="sweep")
+        assert a["bands"] and a["passive"] is want, (depth, a["margin"])
