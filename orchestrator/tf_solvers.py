@@ -18,10 +18,11 @@ active (closed) set, time-varying (paper eq. 18 with eps -> 0).
   open (node, time) entries; its product with J0 = J without the eps terms comes free),
   backtracking line search on |g| over an advancing time horizon, and load continuation
   (ramping lam) when Newton stalls. Known limit (benchmarks/timefreq.py --map): on the
-  21-node Winkler case it fails from 0.4 g: the horizon does not advance (half the steps
-  are cut, and the residual near t = 0 of the solved prefix rises above the 1e-10 tolerance
-  again after steps confined to later times: wrap-around through the periodic FFT), where
-  the Newmark stepper solves the same discrete equations in <= 3 Newton iterations a step.
+  21-node Winkler raft it fails from 0.4 g (from 0.6 g when started from a causal march):
+  the linearisation with the active set frozen holds over no full step once contact switches
+  thousands of times, whereas the Newmark stepper solves the same discrete equations in
+  <= 3 Newton iterations a step. tf_march.defect_correction (the route's default) marches
+  them step by step.
 
 G per frequency: columns of never-open nodes are k e_j (times 1 + O(eps)), so G is block
 lower-triangular: only the m x m block of the nodes that open is factorised per frequency.
@@ -417,4 +418,3 @@ def masked_preconditioner(eq, y, windows=1, time_mask=None):
     apply.matvec = matvec
     apply.n_open = max(o.n_open for o in ops)
     return apply
-
