@@ -41,15 +41,28 @@ DIVERGED_M = 100.0
 BLOCK = 64
 
 
-def kernel_head(op, grid, n_lags: int, chunk: int = 24) -> np.ndarray:
-    """h_0 .. h_{n_lags-1} (n_lags, N, N) real: S's discrete kernel at the first lags."""
-    N = op.N
+def kernel_head(op, grid, n_lags: int, fold: bool = False, chunk: int = 24):
+    """S's discrete kernel at its first lags, (n_lags, N, N) real: h_0 .. h_{n_lags-1}, or
+    with ``fold`` the folded kernel h_c[k] = h_k - h_{-k} (k >= 1), h_c[0] = h_0 + 2 sum_{k>=1}
+    h_{-k}, the negative lags -1 .. -(nfft - nt) (the padding) read at the end of the windowed
+    period: the causal kernel with the same Im S(w) (the damping, so passive when S is) and the
+    same static value. Truncating the negative lags instead changes Im S and can leave a
+    non-passive causal part: the reactor's table (continued by springs and dashpots above
+    25 Hz) made the truncated march diverge from 0.6 g, the folded one converges."""
+    N, nt, nf = op.N, grid.nt, grid.nfft
     rows = np.arange(N)
+    k = np.arange(1, nf - nt + 1)
     head = np.empty((n_lags, N, N))
     for c0 in range(0, N, chunk):
         cols = rows[c0:c0 + chunk]
         Sc = np.ascontiguousarray(op.S_sub(rows, cols).transpose(1, 2, 0))   # (N, c, F)
-        head[:, :, cols] = grid.to_time(Sc, n=n_lags).transpose(2, 0, 1)
+        hw = np.fft.irfft(Sc, n=nf, axis=-1)                                 # windowed period
+        hn = hw[..., nf - k] * np.exp(-grid.eta * grid.dt * k)               # h_{-1}, h_{-2}, ...
+        h = hw[..., :n_lags] * np.exp(grid.eta * grid.dt * np.arange(n_lags))
+        if fold:
+            h[..., 1:] -= hn[..., :n_lags - 1]
+            h[..., 0] += 2.0 * hn.sum(axis=-1)
+        head[:, :, cols] = h.transpose(2, 0, 1)
     return head
 
 
@@ -153,12 +166,12 @@ class CausalSweep:
     """The march's kernel head and step solver, kept from one sweep to the next (the LUs of
     h_0 + kp I^+ too)."""
 
-    def __init__(self, prob, block: int = BLOCK):
+    def __init__(self, prob, block: int = BLOCK, fold: bool = False):
         t0 = time.perf_counter()
-        self.prob = prob
+        self.prob, self.fold = prob, fold
         N, nt = prob.f.shape
         self.B = B = int(max(2, min(block, nt)))
-        head = kernel_head(prob.op, prob.grid, B)
+        head = kernel_head(prob.op, prob.grid, B, fold)
         self.hflat = np.ascontiguousarray(head[1:].transpose(1, 0, 2).reshape(N, (B - 1) * N))
         self.step = _StepSolver(head[0], prob.kp, prob.static.delta0, prob.P0)
         self.head_s = time.perf_counter() - t0
@@ -170,6 +183,7 @@ class CausalSweep:
         grid. Returns (x, steps done, linear solves)."""
         g, op = self.prob.grid, self.prob.op
         N, nt = c0.shape
+        nf = g.nfft
         B, hflat = self.B, self.hflat
         x = np.zeros((N, nt))
         H = np.array(c0, float)
@@ -185,10 +199,16 @@ class CausalSweep:
                 xn, it = self.step.solve(xn, c)
                 x[:, n] = xn
                 solves += it
-            if b < nt:                                   # far field of this block, on the grid
+            if b < nt and not self.fold:      # far field of this block, on the grid
                 X = np.zeros((N, nt))
                 X[:, a:b] = x[:, a:b]
                 H[:, b:] += g.to_time(op.apply_S(g.to_freq(X)))[:, b:]
+            elif b < nt:     # folded: sum_m (h_{n-m} - h_{m-n}) x_m, the second term from a
+                X = np.zeros((2, N, nf))            # time-reversed copy at the period's end
+                X[0, :, a:b] = x[:, a:b]
+                X[1][:, (nf - np.arange(a, b)) % nf] = x[:, a:b]
+                Y = g.to_time(op.apply_S(g.to_freq(X)), n=nf)
+                H[:, b:] += Y[0][:, b:nt] - Y[1][:, nf - np.arange(b, nt)]
             if progress is not None:
                 progress(b, nt)
             if not np.abs(x[:, b - 1]).max() < DIVERGED_M:          # NaN included
@@ -224,7 +244,7 @@ def y_from_d(prob, d):
 
 
 def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BLOCK, progress=None,
-                      deadline=None, history=None):
+                      deadline=None, history=None, fold=False):
     """The whole-range equation g(y) = 0 (tf_solvers.ContactEquation) by marches.
 
     g = C + W: C the causal equations the march solves exactly, W(y) what the periodic grid
@@ -233,12 +253,13 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
     W_{k-1}, so W_k = W_{k-1} + g(y_k) costs one residual. The fixed point W = W(y(W)) is
     accelerated by Anderson mixing of depth ``depth`` (a multisecant quasi-Newton method,
     GMRES on the linearised map, Walker & Ni 2011), restarted when the residual grows.
+    fold : march on the folded kernel (kernel_head), for a soil that is not causal on the
+    grid (a table): its causal part then keeps S's damping, so the march stays stable, and W
+    carries the rest. Without it the reactor's table diverged from 0.6 g (the truncated
+    kernel is not passive: with the raft lifted almost everywhere the free soil's response
+    grew as e^{10 t}; MarchDiverged is reported in the history).
     Measured (benchmarks/timefreq.py --map, --map-reactor): the 21-node Winkler raft (causal
-    soil) from 0.1 to 1.0 g in <= 6 sweeps to 1e-10 (wrap-around only); the reactor's BEM
-    table (causal rock continued by springs and dashpots above 25 Hz) in 7-10 sweeps from 0.1
-    to 0.5 g; from 0.6 g the march diverges (MarchDiverged, reported in the history): the
-    table's kernel truncated to its causal part is not passive, and with the raft lifted
-    almost everywhere the free soil's response grows (e^{10 t} measured).
+    soil, no fold) from 0.1 to 1.0 g in <= 6 sweeps to 1e-10 (the wrap-around only).
 
     Returns (y (N, nt), converged, history: one dict per sweep)."""
     from orchestrator.tf_solvers import ContactEquation, _scale
@@ -246,7 +267,7 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
     eq = ContactEquation(prob, lam)
     scale = _scale(eq)
     hist = [] if history is None else history
-    sweep = CausalSweep(prob, block)
+    sweep = CausalSweep(prob, block, fold)
     W = np.zeros_like(prob.f)
     Gs, Fs = [], []                       # Anderson: past maps G(W) = W + g and residuals g
     best = None

@@ -136,9 +136,11 @@ class InterfaceOperator:
 
     # ---- the interface stiffness -----------------------------------------------------------
     def apply_S(self, X):
-        """X (N, F) complex -> S X (N, F)."""
+        """X (N, F) or (r, N, F) complex -> S X, same shape (r vectors share one pass over the
+        bands, which are read from memory once)."""
         self.n_apply += 1
-        Xf = np.ascontiguousarray(X.T)[:, :, None]                          # (F, N, 1)
+        X3 = X if X.ndim == 3 else X[None]
+        Xf = np.ascontiguousarray(np.transpose(X3, (2, 1, 0)))             # (F, N, r)
         Y = np.empty_like(Xf)
 
         def band_task(band, sel):
@@ -156,7 +158,8 @@ class InterfaceOperator:
             else:
                 tasks.append(band_task(band, None))
         _run(tasks)
-        return Y[:, :, 0].T
+        Y = np.transpose(Y, (2, 1, 0))
+        return Y if X.ndim == 3 else Y[0]
 
     def sub_inverse(self, O):
         """SubInverse: S[O, O]^-1 per frequency, applied to (m, F) arrays."""

@@ -16,11 +16,11 @@ Methods:
   grid adds (the wrap-around; a table's non-causal part) fed back as a source, sweep after
   sweep, Anderson-accelerated, to the whole-range residual's tolerance. No global Newton step
   has to cross thousands of contact switches at once: on a causal soil (the 21-node Winkler
-  raft) it converges from 0.1 to 1.0 g in <= 6 sweeps. On a BEM table it needs the table's
-  kernel truncated to its causal part to be passive: true for the reactor up to 0.5 g
-  (7-10 sweeps); from 0.6 g, with the raft lifted almost everywhere, the march diverges
-  (detected and reported: tf_march.MarchDiverged), the spring-dashpot continuation above
-  the table's last frequency being what is not causal.
+  raft) it converges from 0.1 to 1.0 g in <= 6 sweeps. A BEM table is not causal on the
+  grid (springs and dashpots continue it above its last frequency): its march runs on the
+  folded kernel (tf_march.kernel_head), causal with the table's damping, where the truncated
+  one diverged on the reactor from 0.6 g. A march that diverges anyway stops with the reason
+  (tf_march.MarchDiverged).
 * "newton-krylov": semi-smooth Newton on the whole-range residual, FGMRES preconditioned by
   the active-set operator, line search, time horizon and load continuation; optionally
   started from the march (``guess``). On the 21-node Winkler raft (benchmarks/timefreq.py
@@ -73,6 +73,7 @@ def timefreq(model, soil, ag, dt, method=None, contact=None, damping=None,
     iterations of Newton-Krylov. A solver that does not converge returns its last iterate
     with converged = False and the reason in message.
     """
+    from soil_impedance.table import ImpedanceTable
     from orchestrator.tf_march import defect_correction, march, y_from_d
     from orchestrator.tf_solvers import ContactEquation, _scale
 
@@ -95,7 +96,8 @@ def timefreq(model, soil, ag, dt, method=None, contact=None, damping=None,
     info = dict(method=method)
     if method == "march":
         y, ok, hist = defect_correction(prob, tol=tol or 1e-10, max_sweeps=max_iter or 60,
-                                        progress=progress, deadline=deadline)
+                                        progress=progress, deadline=deadline,
+                                        fold=isinstance(soil, ImpedanceTable))
         info.update(iterations=len(hist), history=hist)
     elif method == "newton-krylov":
         y0 = None
@@ -122,10 +124,9 @@ def timefreq(model, soil, ag, dt, method=None, contact=None, damping=None,
     if hist and hist[-1].get("diverged"):
         ok = False
         msg = (f"{method}: {hist[-1]['diverged']} in sweep {len(hist)}: the soil's causal part on "
-               "this grid is not passive (a table continued by springs and dashpots above its "
-               "last frequency is not causal); the histories are the best iterate (relative "
-               f"residual {info['residual']:.3e}). Newton-Krylov (method='newton-krylov') or the "
-               "monolithic route with the table's passive rational fit are the alternatives")
+               "this grid is not passive; the histories are the best iterate (relative residual "
+               f"{info['residual']:.3e}). Newton-Krylov (method='newton-krylov') or the monolithic "
+               "route with the soil's passive rational fit are the alternatives")
     elif hist and hist[-1].get("stopped"):
         ok = False
         msg = (f"{method} stopped at its time budget ({max_seconds:g} s) after {len(hist)} "
