@@ -56,12 +56,14 @@ def kernel_head(op, grid, n_lags: int, fold: bool = False, chunk: int = 24):
     for c0 in range(0, N, chunk):
         cols = rows[c0:c0 + chunk]
         Sc = np.ascontiguousarray(op.S_sub(rows, cols).transpose(1, 2, 0))   # (N, c, F)
+        if not fold:
+            head[:, :, cols] = grid.to_time(Sc, n=n_lags).transpose(2, 0, 1)
+            continue
         hw = np.fft.irfft(Sc, n=nf, axis=-1)                                 # windowed period
         hn = hw[..., nf - k] * np.exp(-grid.eta * grid.dt * k)               # h_{-1}, h_{-2}, ...
         h = hw[..., :n_lags] * np.exp(grid.eta * grid.dt * np.arange(n_lags))
-        if fold:
-            h[..., 1:] -= hn[..., :n_lags - 1]
-            h[..., 0] += 2.0 * hn.sum(axis=-1)
+        h[..., 1:] -= hn[..., :n_lags - 1]
+        h[..., 0] += 2.0 * hn.sum(axis=-1)
         head[:, :, cols] = h.transpose(2, 0, 1)
     return head
 
