@@ -97,7 +97,7 @@ def timefreq(model, soil, ag, dt, method=None, contact=None, damping=None,
     if method == "march":
         y, ok, hist = defect_correction(prob, tol=tol or 1e-10, max_sweeps=max_iter or 60,
                                         progress=progress, deadline=deadline,
-                                        fold=isinstance(soil, ImpedanceTable))
+                                        fold="auto" if isinstance(soil, ImpedanceTable) else False)
         info.update(iterations=len(hist), history=hist)
     elif method == "newton-krylov":
         y0 = None
