@@ -115,15 +115,10 @@ class Grid:
     @property
     def warped_hz(self) -> np.ndarray:
         """(F,) the real frequency each grid point stands for: f, or on a bilinear grid its
-        trapezoidal image tan(pi f dt) / (pi dt) (infinite at Nyquist, where s_d is real:
-        Re(s_d / 2 pi i) is no frequency there)."""
+        trapezoidal image tan(pi f dt) / (pi dt) (~1e16 / (pi dt) at Nyquist, where s_d is
+        real: Re(s_d / 2 pi i) is no frequency there)."""
         f = self.freq_hz
-        if not self.bilinear:
-            return f
-        with np.errstate(over="ignore", divide="ignore"):
-            w = np.tan(np.pi * f * self.dt) / (np.pi * self.dt)
-        w[-1] = np.inf if self.nfft % 2 == 0 else w[-1]
-        return w
+        return np.tan(np.pi * f * self.dt) / (np.pi * self.dt) if self.bilinear else f
 
     @property
     def z(self) -> np.ndarray:

@@ -33,6 +33,8 @@ import time
 import numpy as np
 import scipy.linalg as sla
 
+from structure.contact import contact_force
+
 #: |d| (m) past which a march has diverged (a soil whose causal part is not passive on the grid)
 DIVERGED_M = 100.0
 
@@ -95,7 +97,7 @@ class _StepSolver:
         self.scale = float(np.abs(P0).max() + np.abs(h0).max() * np.abs(delta0).max()) or 1.0
 
     def residual(self, d, c):
-        return self.kp * np.maximum(0.0, self.delta0 - d) - self.P0 - self.h0 @ d - c
+        return contact_force(d, self.delta0, self.kp)[0] - self.P0 - self.h0 @ d - c
 
     def _merit(self, d, c, r):
         if self.symmetric:

@@ -128,9 +128,17 @@ class Material:
         if omega is None:
             raise SoilError(f"{self.name}: the causal damping model is frequency dependent: "
                             "complex_shear_modulus needs omega (rad/s)")
-        w1 = 2.0 * math.pi * CAUSAL_CUTOFF_HZ
-        ref = causal_factor(2.0 * math.pi * CAUSAL_REFERENCE_HZ, w1, self.damping)
-        return self.shear_modulus / ref.real * causal_factor(omega, w1, self.damping)
+        return self.shear_modulus / self.static_to_reference * causal_factor(
+            omega, 2.0 * math.pi * CAUSAL_CUTOFF_HZ, self.damping)
+
+    @property
+    def static_to_reference(self) -> float:
+        """Re G*(reference) / G*(0): rho vs^2 over the relaxed static modulus G0 of the causal
+        model (1 for the hysteretic one, whose Re G* is rho vs^2 at every frequency)."""
+        if self.damping_model != "causal":
+            return 1.0
+        return float(causal_factor(2.0 * math.pi * CAUSAL_REFERENCE_HZ,
+                                   2.0 * math.pi * CAUSAL_CUTOFF_HZ, self.damping).real)
 
 
 def causal_factor(omega, omega1, damping):
@@ -191,11 +199,7 @@ class SoilProfile:
         (what a spring calibrated on K(0) is expected to carry); 1 for hysteretic materials.
         Exact when every material has the same damping ratio (a common factor of all moduli);
         otherwise the half-space's factor."""
-        hs = self.halfspace
-        if hs.damping_model != "causal":
-            return 1.0
-        w1, wr = 2.0 * math.pi * CAUSAL_CUTOFF_HZ, 2.0 * math.pi * CAUSAL_REFERENCE_HZ
-        return float(causal_factor(wr, w1, hs.damping).real)
+        return self.halfspace.static_to_reference
 
     @property
     def is_homogeneous(self) -> bool:
