@@ -1,17 +1,28 @@
-"""Frequency sweep of the surface BEM into ImpedanceTables, cached in HDF5 by content hash."""
+"""Frequency sweep of the surface BEM into ImpedanceTables, cached in HDF5 by content hash.
+
+Cache entries (``impedance_<output>_<hash>.h5`` in ``cache_dir``) are keyed by every input that
+changes the result (``provenance`` + frequencies), written atomically with a whole-file checksum
+and verified on read (``cache``): concurrent runs of the same scene each write their own
+temporary file (the last one wins), and a damaged entry (truncated, altered, nonsensical) is
+discarded with a ``CacheWarning`` and recomputed, never reported as an input error.
+"""
 from __future__ import annotations
 
 import dataclasses
 import hashlib
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
+import scipy.linalg as sla
 
 from .bem import CONTACTS, BemError, SurfaceBem, nodal_dofs
+from .cache import CacheWarning, read_entry
+from .greens_rule import GreenRule
 from .profile import CAUSAL_CUTOFF_HZ, CAUSAL_REFERENCE_HZ
 from .reduction import RIGID_DOFS, gap_dofs, gap_transform, rigid_transform
-from .table import ImpedanceTable, content_hash
+from .table import ImpedanceTable, TableError, content_hash
 
 OUTPUTS = ("rigid", "gap", "nodal")
 _CODE_FILES = ("profile.py", "patch.py", "bem.py", "greens.py", "greens_layers.py", "greens_rule.py",
@@ -52,16 +63,41 @@ def _mesh_dict(mesh) -> dict:
 
 
 def provenance(profile, mesh, contact, rule, output) -> dict:
-    """The inputs of one sweep output, as a JSON-able dict (hashed with the frequencies)."""
+    """The inputs of one sweep output, as a JSON-able dict (hashed with the frequencies).
+
+    ``rule=None`` is recorded as the default ``GreenRule()`` it stands for (every field)."""
     return {"profile": {"layers": [_material_dict(l) for l in profile.layers],
                         "halfspace": _material_dict(profile.halfspace)},
-            "mesh": _mesh_dict(mesh), "contact": contact, "rule": repr(rule),
+            "mesh": _mesh_dict(mesh), "contact": contact,
+            "rule": repr(GreenRule() if rule is None else rule),
             "output": output, "code_version": code_version(),
             "dof_order": "node-interleaved [ux0,uy0,uz0,ux1,...]" if output == "nodal" else output}
 
 
 def _cache_path(cache_dir, output, key) -> Path:
     return Path(cache_dir) / f"impedance_{output}_{key[:20]}.h5"
+
+
+def _read_cached(path, key):
+    """The table cached at ``path`` for inputs hash ``key``, or None (absent, or damaged: then
+    moved aside with a CacheWarning, see ``cache.read_entry``)."""
+    def reader(h):
+        table = ImpedanceTable.from_hdf5(h, path)
+        if table.hash != key:
+            raise TableError(f"holds the table of inputs {table.hash[:20]}, not {key[:20]}")
+        return table
+    return read_entry(path, reader)
+
+
+def _write_cached(cache_dir, output, table) -> None:
+    """Store ``table`` in the cache; a failure (disk full, read-only folder) only warns."""
+    path = _cache_path(cache_dir, output, table.hash)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        table.save(path)
+    except OSError as exc:
+        warnings.warn(CacheWarning(f"could not write cache entry {path} ({exc}); continuing "
+                                   "without it"), stacklevel=3)
 
 
 def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("rigid", "gap"),
@@ -76,6 +112,7 @@ def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("r
     contact : "welded" or "relaxed"
     outputs : iterable of "rigid" (6×6), "gap" (6+N), "nodal" (3N, large)
     cache_dir : path or None             read/write ``impedance_<output>_<hash>.h5`` there
+                                         (None: no cache, always compute)
     progress : callable(done, total, freq_hz) or None, called after each frequency
     rule : passed to ``greens.regular_green``
 
@@ -102,9 +139,10 @@ def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("r
     tables = {}
     if cache_dir is not None:
         for o in outputs:
-            path = _cache_path(cache_dir, o, content_hash(provs[o], f))
-            if path.is_file():
-                tables[o] = ImpedanceTable.load(path)
+            key = content_hash(provs[o], f)
+            table = _read_cached(_cache_path(cache_dir, o, key), key)
+            if table is not None:
+                tables[o] = table
     todo = [o for o in outputs if o not in tables]
     if todo:
         computed = _compute(SurfaceBem(profile, mesh, contact, rule), f, todo, progress)
@@ -112,48 +150,44 @@ def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("r
         for o in todo:
             tables[o] = ImpedanceTable(f, computed[o], dofs[o], provs[o])
             if cache_dir is not None:
-                Path(cache_dir).mkdir(parents=True, exist_ok=True)
-                tables[o].save(_cache_path(cache_dir, o, tables[o].hash))
+                _write_cached(cache_dir, o, tables[o])
     return {o: tables[o] for o in outputs}
 
 
 def _compute(bem, f, outputs, progress) -> dict[str, np.ndarray]:
-    """Loop over frequencies: one LU of F per frequency, solve only for the needed columns.
+    """Loop over frequencies: one flexibility F and one LU factorisation per frequency.
 
-    With "gap" requested the rigid 6×6 is condensed from it (Pᵀ K_g P, exact), otherwise the
-    rigid output solves for the 6 columns of T only; Bᵀ X uses the structure of B (Z is a
-    row selection), not a dense product.
+    Each output is computed the same way whatever else is requested, so that a cached table
+    (keyed by its own inputs only) is bit-identical to a fresh one: rigid = Tᵀ F⁻¹ T (6
+    columns), gap = Bᵀ F⁻¹ G (6 + N columns; Bᵀ X uses the structure of B, Z is a row
+    selection), nodal = F⁻¹ (``SurfaceBem.impedance``), all symmetrised. (Condensing the rigid
+    6×6 from the gap one, Pᵀ K_g P, is exact in theory but differs by round-off, 3e-16.)
     """
     mesh = bem.mesh
     n = mesh.n
     T = rigid_transform(mesh)
     Th = T.copy()
     Th[2::3, :] = 0.0
-    P = np.vstack([np.eye(6), T[2::3, :]])                # w tied to the raft
+    G = gap_transform(mesh)
     sizes = {"rigid": 6, "gap": 6 + n, "nodal": 3 * n}
     out = {o: np.empty((f.size, sizes[o], sizes[o]), dtype=complex) for o in outputs}
-    need_gap = "gap" in outputs or ("rigid" in outputs and "nodal" in outputs)
-    rhs = gap_transform(mesh) if need_gap else T
     for k, fk in enumerate(f):
-        omega = 2 * math.pi * fk
-        if "nodal" in outputs:
-            K = bem.impedance(omega)
-            out["nodal"][k] = K
-            X = K @ rhs
-        else:
-            X = bem.solve(omega, rhs)
-        if need_gap:
+        F = bem.flexibility(2 * math.pi * fk)
+        if "nodal" in outputs:                # as SurfaceBem.impedance, keeping F
+            K = sla.inv(F.T, check_finite=False).T
+            out["nodal"][k] = 0.5 * (K + K.T)
+        if "rigid" in outputs or "gap" in outputs:
+            # as SurfaceBem.solve: LAPACK wants Fortran order, factor Fᵀ and solve with trans=1
+            lu = sla.lu_factor(F.T, overwrite_a=True, check_finite=False)
+        if "rigid" in outputs:
+            Kr = T.T @ sla.lu_solve(lu, T, trans=1, check_finite=False)
+            out["rigid"][k] = 0.5 * (Kr + Kr.T)
+        if "gap" in outputs:
+            X = sla.lu_solve(lu, G, trans=1, check_finite=False)
             Kg = np.empty((6 + n, 6 + n), dtype=complex)
             Kg[:6] = Th.T @ X
             Kg[6:] = X[2::3]
-            Kg = 0.5 * (Kg + Kg.T)
-            if "gap" in outputs:
-                out["gap"][k] = Kg
-            if "rigid" in outputs:
-                out["rigid"][k] = P.T @ Kg @ P
-        elif "rigid" in outputs:
-            Kr = T.T @ X
-            out["rigid"][k] = 0.5 * (Kr + Kr.T)
+            out["gap"][k] = 0.5 * (Kg + Kg.T)
         if progress is not None:
             progress(k + 1, f.size, float(fk))
     return out

@@ -6,7 +6,12 @@ HDF5 layout (open it with h5py, HDFView, MATLAB ``h5read``...):
   /matrices_imag    float64 (F, n, n)
   /dofs             utf-8 strings (n,)
   attrs: format = "uplift.ImpedanceTable", format_version = 1, hash (of the inputs: provenance
-         + frequencies), data_sha256 (of matrices + dofs, checked on load), provenance (JSON)
+         + frequencies), data_sha256 (of matrices + dofs, checked on load), provenance (JSON),
+         sha256 (of the whole file, ``cache.stamp_checksum``; checked on load when present:
+         files written before it was added have none)
+
+Files are written atomically (``cache.atomic_output``): a reader sees the old file or the
+complete new one, never a half-written one.
 """
 from __future__ import annotations
 
@@ -15,6 +20,8 @@ import json
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from .cache import CHECKSUM_ATTR, atomic_output, stamp_checksum, verify_checksum
 
 FORMAT = "uplift.ImpedanceTable"
 FORMAT_VERSION = 1
@@ -132,9 +139,10 @@ class ImpedanceTable:
         return out[0] if q0.ndim == 0 else out
 
     def save(self, path) -> None:
-        """Write the table to an HDF5 file (overwrites)."""
+        """Write the table to an HDF5 file, atomically (replaces an existing file only once the
+        new one is complete; the folder must exist: ``cache.OutputFolderError`` otherwise)."""
         import h5py
-        with h5py.File(path, "w") as h:
+        with atomic_output(path) as tmp, h5py.File(tmp, "w") as h:
             h.attrs["format"] = FORMAT
             h.attrs["format_version"] = FORMAT_VERSION
             h.attrs["hash"] = self.hash
@@ -146,36 +154,52 @@ class ImpedanceTable:
                 ds.attrs["units"] = "SI: N/m, N/rad, N·m/m, N·m/rad (by DOF pair)"
             h.create_dataset("dofs", data=np.array(self.dofs, dtype=object),
                              dtype=h5py.string_dtype("utf-8"))
+            stamp_checksum(h)
 
     @classmethod
-    def load(cls, path) -> "ImpedanceTable":
-        """Read a table written by ``save``; TableError on a missing or foreign file."""
+    def load(cls, path) -> ImpedanceTable:
+        """Read a table written by ``save``; TableError naming the file if it is missing,
+        foreign, altered or truncated."""
         import h5py
         try:
             h = h5py.File(path, "r")
-        except (OSError, FileNotFoundError) as exc:
+        except OSError as exc:
             raise TableError(f"{path}: cannot open as an HDF5 impedance table ({exc})") from None
         with h:
-            if h.attrs.get("format") != FORMAT:
-                raise TableError(f"{path}: not an {FORMAT} file (attribute 'format' missing or wrong)")
-            version = int(h.attrs.get("format_version", -1))
-            if version != FORMAT_VERSION:
-                raise TableError(f"{path}: format_version {version}, this code reads {FORMAT_VERSION}")
-            try:
-                f = h["frequencies_hz"][()]
-                re, im = h["matrices_real"], h["matrices_imag"]
-                if re.ndim != 3 or re.shape != im.shape:
-                    raise TableError(f"{path}: matrices_real/imag must have the same shape (F, n, n), "
-                                     f"got {re.shape} and {im.shape}")
-                K = np.empty(re.shape, dtype=complex)
-                K.real, K.imag = re[()], im[()]             # copies: bit-exact, signed zeros kept
-                dofs = [d.decode() if isinstance(d, bytes) else str(d) for d in h["dofs"][()]]
-                prov = json.loads(h.attrs["provenance"])
-                stored = str(h.attrs["hash"])
-                digest = str(h.attrs["data_sha256"])
-            except KeyError as exc:
-                raise TableError(f"{path}: missing dataset or attribute {exc}") from None
-        table = cls(f, K, dofs, prov)
+            return cls.from_hdf5(h, path)
+
+    @classmethod
+    def from_hdf5(cls, h, path) -> ImpedanceTable:
+        """Read the table in the open h5py file ``h`` (``path`` names it in errors); checks the
+        format, the whole-file checksum (if stored) and the hash and data digest."""
+        if h.attrs.get("format") != FORMAT:
+            raise TableError(f"{path}: not an {FORMAT} file (attribute 'format' missing or wrong)")
+        version = int(h.attrs.get("format_version", -1))
+        if version != FORMAT_VERSION:
+            raise TableError(f"{path}: format_version {version}, this code reads {FORMAT_VERSION}")
+        if CHECKSUM_ATTR in h.attrs and not verify_checksum(h):
+            raise TableError(f"{path}: stored hash '{CHECKSUM_ATTR}' does not match the content "
+                             "(file altered or truncated?): delete it and recompute")
+        try:
+            f = h["frequencies_hz"][()]
+            re, im = h["matrices_real"], h["matrices_imag"]
+            if re.ndim != 3 or re.shape != im.shape:
+                raise TableError(f"{path}: matrices_real/imag must have the same shape (F, n, n), "
+                                 f"got {re.shape} and {im.shape}")
+            K = np.empty(re.shape, dtype=complex)
+            K.real, K.imag = re[()], im[()]             # copies: bit-exact, signed zeros kept
+            dofs = [d.decode() if isinstance(d, bytes) else str(d) for d in h["dofs"][()]]
+            prov = json.loads(h.attrs["provenance"])
+            stored = str(h.attrs["hash"])
+            digest = str(h.attrs["data_sha256"])
+        except KeyError as exc:
+            raise TableError(f"{path}: missing dataset or attribute {exc}") from None
+        except (OSError, json.JSONDecodeError) as exc:
+            raise TableError(f"{path}: unreadable ({exc}): delete it and recompute") from None
+        try:
+            table = cls(f, K, dofs, prov)
+        except TableError as exc:
+            raise TableError(f"{path}: {exc}") from None
         if table.hash != stored or _data_digest(table) != digest:
             raise TableError(f"{path}: stored hash or data_sha256 does not match the content "
                              "(file altered or truncated?): delete it and recompute")
