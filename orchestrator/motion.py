@@ -1,7 +1,7 @@
 """Seismic motions: synthetic spectrum-compatible accelerograms and record readers.
 
 A motion is three components of free-field ground acceleration a_g(t), m/s², sampled at a
-constant step (DESIGN.md §2: vertically incident waves, no kinematic interaction).
+constant step (vertically incident waves, no kinematic interaction).
 
 Synthetic motions (deterministic for a given seed): a Gaussian white noise under a
 Jennings-type envelope, its Fourier amplitudes corrected iteratively until its 5 %-damped
@@ -18,6 +18,8 @@ D (0.25 Hz) Sd = 2.05 × 36 in; log-log linear between points, constant displace
 """
 from __future__ import annotations
 
+import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,6 +29,11 @@ from orchestrator.spectra import response_spectrum
 
 G = 9.81
 _IN = 0.0254
+#: the choices of the [motion] keys (and of the readers' arguments)
+SPECTRA = ("RG1.60",)
+DIRECTIONS = ("x", "y", "z")
+FORMATS = ("two-column", "peer-at2")
+UNITS = ("g", "m/s2")
 
 
 class MotionError(ValueError):
@@ -54,7 +61,7 @@ class Motion:
         """Peak ground acceleration per component, m/s²."""
         return np.abs(self.acc).max(axis=0)
 
-    def resampled(self, dt: float) -> "Motion":
+    def resampled(self, dt: float) -> Motion:
         """Linear interpolation onto a new step (the input is piecewise linear)."""
         t_new = dt * np.arange(int(np.floor(self.duration / dt + 1e-9)) + 1)
         acc = np.column_stack([np.interp(t_new, self.time, self.acc[:, k]) for k in range(3)])
@@ -112,7 +119,7 @@ def synthetic_motion(pga_g: float = 0.25, duration_s: float = 10.0, dt: float = 
     common instants and may miss the peak between them). Returns a Motion whose ``direction``
     component ("x", "y" or "z") carries the record.
     """
-    if spectrum != "RG1.60":
+    if spectrum not in SPECTRA:
         raise MotionError(f"motion.spectrum = {spectrum!r}: only \"RG1.60\" is available")
     if not (pga_g > 0) or not (duration_s > 0) or not (dt > 0) or duration_s < 20 * max(dt, SYNTHETIC_DT):
         raise MotionError("motion: pga_g, duration_s and dt must be > 0, duration_s >= 20 dt")
@@ -143,53 +150,117 @@ def _synthetic(pga_g, duration_s, dt, seed, spectrum, iterations, direction) -> 
 
 
 def _axis(direction) -> int:
-    if direction not in ("x", "y", "z"):
+    if direction not in DIRECTIONS:
         raise MotionError(f"motion.direction = {direction!r}: use \"x\", \"y\" or \"z\"")
     return "xyz".index(direction)
+
+
+def make_motion(config, dt: float) -> Motion:
+    """The motion of a scene's [motion] (an ``orchestrator.scene.MotionConfig``) at step dt (s).
+
+    Synthetic: ``synthetic_motion`` (generated at SYNTHETIC_DT, resampled linearly to dt).
+    Record: the file read (the copy read when the scene was loaded, ``config.record``, if any),
+    resampled linearly to dt when its step differs.
+    """
+    if config.kind == "synthetic":
+        return synthetic_motion(pga_g=config.pga_g, duration_s=config.duration_s, dt=dt, seed=config.seed,
+                                spectrum=config.spectrum, direction=config.direction)
+    rec = getattr(config, "record", None) or read_record(config.file, config.format, config.units,
+                                                         config.scale, config.direction)
+    return rec if abs(rec.dt - dt) < 1e-12 else rec.resampled(dt)
 
 
 def read_record(path, fmt: str = "two-column", units: str = "g", scale: float = 1.0, direction="x") -> Motion:
     """Read an accelerogram: PEER NGA ``.AT2`` or two-column text (time, acceleration).
 
     units: "g" or "m/s2"; scale multiplies the record; the record goes on ``direction``.
+    The file must be UTF-8 (or ASCII) text; a malformed file is a MotionError naming the file
+    and the line at fault.
     """
     path = Path(path)
     if not path.is_file():
         raise MotionError(f"motion.file = {str(path)!r}: no such file (paths are relative to the scene file)")
-    if units not in ("g", "m/s2"):
+    if units not in UNITS:
         raise MotionError(f"motion.units = {units!r}: use \"g\" or \"m/s2\"")
-    if fmt == "peer-at2":
-        dt, acc = _read_at2(path)
-    elif fmt == "two-column":
-        try:
-            data = np.loadtxt(path, ndmin=2)
-        except ValueError as exc:
-            raise MotionError(f"{path}: not a two-column numeric file (time, acceleration): {exc}") from None
-        if data.shape[1] != 2 or data.shape[0] < 2:
-            raise MotionError(f"{path}: expected two columns (time, acceleration), got shape {data.shape}")
-        steps = np.diff(data[:, 0])
-        if np.any(steps <= 0) or np.ptp(steps) > 1e-6 * steps.mean():
-            raise MotionError(f"{path}: time column must increase with a constant step")
-        dt, acc = float(steps.mean()), data[:, 1]
-    else:
+    if fmt not in FORMATS:
         raise MotionError(f"motion.format = {fmt!r}: use \"peer-at2\" or \"two-column\"")
+    axis = _axis(direction)
+    dt, acc = (_read_at2 if fmt == "peer-at2" else _read_two_column)(path, _lines(path))
     acc = acc * scale * (G if units == "g" else 1.0)
     out = np.zeros((acc.size, 3))
-    out[:, _axis(direction)] = acc
+    out[:, axis] = acc
     return Motion(dt, out, f"{path.name} x{scale:g}")
 
 
-def _read_at2(path):
-    lines = path.read_text().splitlines()
+def _lines(path: Path) -> list:
+    """The file's text lines (UTF-8, a byte-order mark ignored)."""
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise MotionError(f"{path}: cannot read the record: {exc.strerror}") from None
+    try:
+        return raw.decode("utf-8-sig").splitlines()
+    except UnicodeDecodeError as exc:
+        line = raw[:exc.start].count(b"\n") + 1
+        raise MotionError(f"{path}, line {line}: byte {raw[exc.start]:#04x} is not UTF-8 text; "
+                          "save the record as plain text") from None
+
+
+def _numbers(path, lineno: int, tokens) -> list:
+    """Finite floats of one line's tokens, or a MotionError naming the line."""
+    try:
+        values = [float(t) for t in tokens]
+    except ValueError:
+        raise MotionError(f"{path}, line {lineno}: {' '.join(tokens)[:60]!r} is not a list of numbers") from None
+    if not all(map(math.isfinite, values)):
+        raise MotionError(f"{path}, line {lineno}: {' '.join(tokens)[:60]!r}: values must be finite")
+    return values
+
+
+def _read_two_column(path, lines):
+    """Time (s) and acceleration per line, whitespace separated, constant step; '#' starts a comment."""
+    rows, where = [], []
+    for k, line in enumerate(lines, start=1):
+        tokens = line.split("#", 1)[0].split()
+        if not tokens:
+            continue
+        if len(tokens) != 2:
+            raise MotionError(f"{path}, line {k}: expected two columns (time, acceleration), "
+                              f"got {len(tokens)} values")
+        rows.append(_numbers(path, k, tokens))
+        where.append(k)
+    if len(rows) < 2:
+        raise MotionError(f"{path}: expected at least two lines of two columns (time, acceleration), "
+                          f"got {len(rows)}")
+    data = np.array(rows)
+    steps = np.diff(data[:, 0])
+    if np.any(steps <= 0) or np.ptp(steps) > 1e-6 * steps.mean():
+        bad = int(np.argmax(steps <= 0)) if np.any(steps <= 0) else int(np.argmax(np.abs(steps - steps[0])))
+        raise MotionError(f"{path}, line {where[bad + 1]}: time step {steps[bad]:g} s against {steps[0]:g} s "
+                          "at the start: the time column must increase with a constant step")
+    return float(steps.mean()), data[:, 1]
+
+
+def _read_at2(path, lines):
+    """PEER NGA AT2: four header lines (the fourth gives NPTS and DT), then NPTS values in g."""
     if len(lines) < 5:
         raise MotionError(f"{path}: too short for a PEER AT2 file (4 header lines then data)")
-    header = lines[3].replace(",", " ").upper().split()
+    header = lines[3].replace(",", " ").upper()
+    fields = header.split()
+    npts_s, dt_s = (re.search(rf"(?<![A-Z]){key}\s*=\s*(\S+)", header) for key in ("NPTS", "DT"))
     try:
-        npts = int(float(header[header.index("NPTS=") + 1])) if "NPTS=" in header else int(float(header[0]))
-        dt = float(header[header.index("DT=") + 1]) if "DT=" in header else float(header[1])
-        values = np.array(" ".join(lines[4:]).split(), float)
+        npts = float(npts_s.group(1) if npts_s else fields[0])
+        dt = float(dt_s.group(1) if dt_s else fields[1])
     except (ValueError, IndexError):
-        raise MotionError(f"{path}: cannot read NPTS and DT on line 4 of the PEER AT2 header") from None
-    if values.size < npts:
-        raise MotionError(f"{path}: header says NPTS = {npts} but {values.size} values follow")
-    return dt, values[:npts]
+        raise MotionError(f"{path}, line 4: cannot read NPTS and DT in the PEER AT2 header "
+                          f"{lines[3].strip()[:60]!r} (e.g. 'NPTS=  4000, DT=   .0050 SEC')") from None
+    if not (math.isfinite(npts) and npts >= 2 and npts == int(npts)):
+        raise MotionError(f"{path}, line 4: NPTS = {npts:g} must be a whole number of samples >= 2")
+    if not (math.isfinite(dt) and dt > 0):
+        raise MotionError(f"{path}, line 4: DT = {dt:g} must be a time step > 0 s")
+    npts = int(npts)
+    values = [v for k, line in enumerate(lines[4:], start=5) for v in _numbers(path, k, line.split())]
+    if len(values) < npts:
+        raise MotionError(f"{path}, line 4: header says NPTS = {npts} but {len(values)} values follow "
+                          f"(lines 5-{len(lines)})")
+    return dt, np.array(values[:npts])

@@ -1,15 +1,26 @@
 """Scenes: one TOML file describing soil, foundation, impedance sweep, structure, contact,
-motion, analysis and outputs, one section per part.
+motion, analysis and outputs, one section per part, parsed once into a frozen ``Scene``.
 
-Every section is validated when the scene is loaded: an unknown key is an error (a typo must
-not be ignored silently) and each message names the key at fault and what would fix it.
-Relative paths are relative to the scene file. Built-in scenes ship as package data
-(``orchestrator/scenes/*.toml``) and are loaded by name: ``load_scene("disk-halfspace")``.
+Every key of every section is checked when the scene is loaded, here and nowhere else: an
+unknown section or key is an error (a typo must not be ignored silently, the message suggests
+the key meant), numbers must be numbers (not strings, not booleans), finite and in range,
+integers must be integers, and the sections must agree with each other (output nodes exist in
+the structure, a record file exists and reads, the routes have the soil they need). Every error
+is a SceneError whose message starts with the scene file (or name) and names the key at fault
+and what would fix it; errors of the parts (StructureError, MotionError, SoilError, MeshError)
+are re-raised as SceneError with that prefix.
+
+The configuration dataclasses (MotionConfig, AnalysisConfig, OutputConfig, WinklerConfig and
+Scene itself, which checks the sections against each other) check their values when
+constructed: ``dataclasses.replace`` on them goes through the same checks. Relative paths are
+relative to the scene file. Built-in scenes ship as package data (``orchestrator/scenes/*.toml``)
+and are loaded by name: ``load_scene("reactor")``.
 """
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
+import csv
+from dataclasses import dataclass, field, fields, replace
+from functools import partial
 from importlib import resources
 from pathlib import Path
 
@@ -20,32 +31,265 @@ except ModuleNotFoundError:  # Python < 3.11
 
 import numpy as np
 
+from orchestrator.motion import (DIRECTIONS, FORMATS, SPECTRA, SYNTHETIC_DT, UNITS, Motion, MotionError,
+                                 read_record)
+from orchestrator.routes import get_route, route_names
 from soil_impedance.mesh import InterfaceMesh, MeshError, circle_mesh, read_nodes_csv, rectangle_mesh
 from soil_impedance.profile import DAMPING_MODELS, Layer, Material, SoilError, SoilProfile
+from structure.contact import ContactSettings
+from structure.errors import StructureError
+from structure.model import StructureModel
+from structure.spec import (WINKLER_MODULI, StructureSpec, build_model, check_choice, check_keys, check_number,
+                            contact_from_spec, parse_structure, show, winkler_moduli)
 
 
 class SceneError(ValueError):
-    """An invalid scene; the message names the key at fault and how to fix it."""
+    """An invalid scene; the message names the scene, the key at fault and how to fix it."""
 
+
+_check_keys = partial(check_keys, error=SceneError)
+_number = partial(check_number, error=SceneError)
+_choice = partial(check_choice, error=SceneError)
 
 SECTIONS = ("soil", "foundation", "impedance", "structure", "contact", "motion", "analysis", "output")
+#: most time steps a run may take (motion duration over the analysis step; a synthetic motion
+#: is generated at SYNTHETIC_DT): 1000 s at 5 ms. Results hold (steps, nodes) arrays
+MAX_STEPS = 200_000
+#: most impedance frequencies (one BEM solve each)
+MAX_FREQUENCIES = 10_000
+#: default tolerance of the rational soil fit ([analysis].fit_tol). A causal model cannot follow
+#: hysteretic damping ξ closer than about ξ over the band (soil_impedance/fit.py): scenes on
+#: damped hysteretic soil set a looser one, e.g. 0.04 on 3 % rock
+FIT_TOL = 0.01
+#: default time budget of the timefreq route, s ([analysis].timefreq_max_s)
+TIMEFREQ_MAX_S = 600.0
 
+
+# ---- section configurations -------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class MotionConfig:
+    """[motion]: a synthetic spectrum-compatible record or a recorded accelerogram, on one axis.
+
+    kind "synthetic": spectrum, pga_g (> 0, g), duration_s (> 0, s), seed (an integer >= 0)
+    (orchestrator.motion.synthetic_motion). kind "record": file (an absolute path, resolved
+    against the scene folder by the loader; it must exist and read), format "two-column" |
+    "peer-at2", units "g" | "m/s2", scale (a finite nonzero factor). ``record`` is the Motion
+    read at construction (at the record's own step)."""
+
+    kind: str = "synthetic"
+    direction: str = "x"
+    spectrum: str = "RG1.60"
+    pga_g: float = 0.25
+    duration_s: float = 10.0
+    seed: int = 1
+    file: Path | None = None
+    format: str = "two-column"
+    units: str = "g"
+    scale: float = 1.0
+    record: Motion | None = field(default=None, init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        _choice("motion.kind", self.kind, ("synthetic", "record"))
+        _choice("motion.direction", self.direction, DIRECTIONS)
+        if self.kind == "synthetic":
+            _choice("motion.spectrum", self.spectrum, SPECTRA)
+            _set(self, "pga_g", _number("motion.pga_g", self.pga_g, 0.0, expect="a peak ground acceleration > 0 g"))
+            _set(self, "duration_s", _number("motion.duration_s", self.duration_s, 0.0))
+            _number("motion.seed", self.seed, 0, lo_open=False, integer=True, expect="an integer >= 0")
+            return
+        _choice("motion.format", self.format, FORMATS)
+        _choice("motion.units", self.units, UNITS)
+        if not _number("motion.scale", self.scale, expect="a finite nonzero factor"):
+            raise SceneError(f"motion.scale = {show(self.scale)} must be a finite nonzero factor")
+        _set(self, "scale", float(self.scale))
+        if self.file is None:
+            raise SceneError('motion.file is missing for kind = "record": give the record file '
+                             "(a path relative to the scene file)")
+        if not isinstance(self.file, (str, Path)) or not Path(self.file).is_absolute():
+            raise SceneError(f"motion.file = {show(self.file)} must be an absolute path here "
+                             "(the scene loader resolves it against the scene folder)")
+        _set(self, "file", Path(self.file))
+        if not self.file.is_file():
+            raise SceneError(f"motion.file = {str(self.file)!r}: no such file (paths are relative to the scene file)")
+        try:
+            _set(self, "record", read_record(self.file, self.format, self.units, self.scale, self.direction))
+        except MotionError as exc:
+            raise SceneError(f"motion.file: {exc}") from None
+
+    @property
+    def length_s(self) -> float:
+        """Duration of the motion, s."""
+        return self.duration_s if self.kind == "synthetic" else self.record.duration
+
+
+@dataclass(frozen=True)
+class AnalysisConfig:
+    """[analysis]: routes (names from orchestrator.routes.route_names(), each once), dt (s, in
+    (0, 0.05]), fit_tol (relative error of the rational soil fit, in (0, 1), see FIT_TOL),
+    timefreq_max_s (time budget of the timefreq route, s; past it the best iterate is kept, flagged)."""
+
+    routes: tuple[str, ...] = ("winkler",)
+    dt: float = 0.005
+    fit_tol: float = FIT_TOL
+    timefreq_max_s: float = TIMEFREQ_MAX_S
+
+    def __post_init__(self):
+        _set(self, "routes", check_routes(self.routes))
+        _set(self, "dt", _number("analysis.dt", self.dt, 0.0, 0.05, expect=(
+            "a step in (0, 0.05] s: the contact and the structure's modes up to ~30 Hz need a few "
+            "steps per period")))
+        _set(self, "fit_tol", _number("analysis.fit_tol", self.fit_tol, 0.0, 1.0, hi_open=True,
+                                      expect="a relative fit error in (0, 1), e.g. 0.04"))
+        _set(self, "timefreq_max_s", _number("analysis.timefreq_max_s", self.timefreq_max_s, 0.0,
+                                             expect="a positive number of seconds, e.g. 600"))
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    """[output]: nodes, the names of the structure nodes whose responses are kept (None: every
+    named node); checked against the structure by Scene."""
+
+    nodes: tuple[str, ...] | None = None
+
+    def __post_init__(self):
+        if self.nodes is None:
+            return
+        nodes = self.nodes
+        if (not isinstance(nodes, (list, tuple)) or not nodes
+                or not all(isinstance(n, str) and n for n in nodes)):
+            raise SceneError(f"output.nodes = {show(nodes)} must be a non-empty list of structure node "
+                             "names, e.g. [\"top\"] (omit it for every named node)")
+        twice = sorted({n for n in nodes if nodes.count(n) > 1})
+        if twice:
+            raise SceneError(f"output.nodes lists {twice[0]!r} twice")
+        _set(self, "nodes", tuple(nodes))
+
+
+WINKLER_CHOICES = {"springs": ("rigid", "nodal"), "match": ("rocking", "vertical"), "damping": ("rccg", "dashpots")}
+
+
+@dataclass(frozen=True)
+class WinklerConfig:
+    """[soil] winkler: the winkler route's spring mattress. Either subgrade moduli given
+    explicitly, ``moduli`` = (kv, kh, cv, ch) (N/m^3, N s/m^3 per unit area; the structure keeps
+    its own damping; no BEM needed), or how to calibrate them on the BEM: springs "rigid" (the
+    rigid static impedance shared by area) | "nodal" (the nodal static diagonal), match
+    "rocking" | "vertical" (which rigid stiffness is exact), damping "rccg" (composite modal) |
+    "dashpots" (the rigid impedance's dashpots at the first soil-structure frequency)."""
+
+    springs: str = "rigid"
+    match: str = "rocking"
+    damping: str = "rccg"
+    moduli: tuple[float, float, float, float] | None = None
+
+    def __post_init__(self):
+        for key, choices in WINKLER_CHOICES.items():
+            _choice(f"soil.winkler.{key}", getattr(self, key), choices)
+        if self.moduli is not None:
+            if not isinstance(self.moduli, (list, tuple)) or len(self.moduli) != 4:
+                raise SceneError(f"soil.winkler moduli = {show(self.moduli)} must be (kv, kh, cv, ch)")
+            try:
+                _set(self, "moduli", winkler_moduli(dict(zip(WINKLER_MODULI, self.moduli, strict=True))))
+            except StructureError as exc:
+                raise SceneError(str(exc)) from None
+
+    @property
+    def explicit(self) -> bool:
+        """True when the moduli are given (no BEM calibration)."""
+        return self.moduli is not None
+
+
+def _set(obj, name, value):
+    object.__setattr__(obj, name, value)
+
+
+def check_routes(routes, where: str = "analysis.routes") -> tuple:
+    """Route names as a tuple: a non-empty list of known routes (orchestrator.routes), each once."""
+    names = route_names()
+    if not isinstance(routes, (list, tuple)) or not routes:
+        raise SceneError(f"{where} = {show(routes)} must be a non-empty list of routes, e.g. [\"winkler\"]; "
+                         f"available: {', '.join(names)}")
+    for r in routes:
+        if not isinstance(r, str) or r not in names:
+            raise SceneError(f"{where}: unknown route {show(r)}; available: {', '.join(names)}")
+        if routes.count(r) > 1:
+            raise SceneError(f"{where} lists {r!r} twice")
+    return tuple(routes)
+
+
+# ---- the scene --------------------------------------------------------------------------------
 
 @dataclass(frozen=True, eq=False)
 class Scene:
-    """A validated scene. Sections owned by later stages are kept as plain tables
-    (already checked for unknown keys where this module knows them)."""
+    """A validated scene (see the module docstring).
+
+    profile is None only when [soil] winkler gives explicit moduli and no half-space is given
+    (then only the winkler route runs); structure is None when the scene has no [structure]
+    (the routes refuse it). Construction checks the sections against each other."""
 
     name: str
     base_dir: Path
-    profile: SoilProfile
+    profile: SoilProfile | None
     mesh: InterfaceMesh
     contact_kind: str                       # "welded" or "relaxed" (soil-raft interface of the BEM)
     frequencies_hz: np.ndarray
-    sections: dict = field(default_factory=dict)   # raw tables: structure, contact, motion, analysis, output, soil.winkler
+    structure: StructureSpec | None = None
+    contact: ContactSettings = field(default_factory=ContactSettings)
+    motion: MotionConfig = field(default_factory=MotionConfig)
+    analysis: AnalysisConfig = field(default_factory=AnalysisConfig)
+    output: OutputConfig = field(default_factory=OutputConfig)
+    winkler: WinklerConfig = field(default_factory=WinklerConfig)
 
-    def section(self, name: str) -> dict:
-        return self.sections.get(name, {})
+    def __post_init__(self):
+        f = np.array(self.frequencies_hz, float)
+        f.setflags(write=False)
+        _set(self, "frequencies_hz", f)
+        routes = self.analysis.routes
+        if self.profile is None:
+            need = [r for r in routes if get_route(r).tables(self)]      # routes that read a BEM table
+            if need:
+                raise SceneError(
+                    "soil.halfspace is missing: routes " + ", ".join(need) + " need the BEM soil (layers over "
+                    "a half-space), e.g. halfspace = { vs = 500.0, nu = 0.33, rho = 2000.0 }"
+                    + ("" if self.winkler.explicit else
+                       "; a winkler-only run may give [soil] winkler = { kv, kh } moduli instead"))
+        if self.output.nodes is not None:
+            if self.structure is None:
+                raise SceneError("output.nodes names structure nodes but the scene has no [structure]")
+            known = self.structure.node_names
+            for n in self.output.nodes:
+                if n not in known:
+                    raise SceneError(f"output.nodes: {n!r} is not a named structure node; "
+                                     f"named nodes: {', '.join(known)}")
+        self._check_steps()
+
+    def _check_steps(self):
+        m, dt = self.motion, self.analysis.dt
+        length = m.length_s
+        if m.kind == "synthetic" and length < 20 * max(dt, SYNTHETIC_DT):
+            raise SceneError(f"motion.duration_s = {length:g} s is too short: at least 20 steps of "
+                             f"max(analysis.dt, {SYNTHETIC_DT:g} s), i.e. >= {20 * max(dt, SYNTHETIC_DT):g} s")
+        if m.kind == "record" and length < 20 * dt:
+            raise SceneError(f"motion.file: the record lasts {length:g} s, under 20 steps of analysis.dt = "
+                             f"{dt:g} s; use a longer record or a smaller dt")
+        steps = length / (min(dt, SYNTHETIC_DT) if m.kind == "synthetic" else dt)
+        if steps > MAX_STEPS:
+            what = "motion.duration_s = " if m.kind == "synthetic" else "motion.file: the record lasts "
+            raise SceneError(f"{what}{length:g} s makes {steps:.3g} time steps; at most MAX_STEPS = "
+                             f"{MAX_STEPS}: shorten the motion or raise analysis.dt")
+
+    def model(self) -> StructureModel:
+        """The StructureModel of [structure] on the scene's interface nodes (built at each call)."""
+        if self.structure is None:
+            raise SceneError(f"scene {self.name!r} has no [structure] section; add one, e.g. "
+                             '[structure] model = "reactor"')
+        return build_model(self.structure, self.mesh.xy, self.mesh.area)
+
+    def with_routes(self, routes, where: str = "--route") -> Scene:
+        """The scene with other routes (e.g. the command line's, named ``where`` in messages),
+        checked like [analysis].routes and against the soil the scene has."""
+        return replace(self, analysis=replace(self.analysis, routes=check_routes(routes, where)))
 
 
 def builtin_scenes() -> list[str]:
@@ -56,66 +300,115 @@ def builtin_scenes() -> list[str]:
 def load_scene(spec: str | Path) -> Scene:
     """Load a scene from a TOML path or a built-in name (see ``builtin_scenes()``)."""
     path = Path(spec)
-    if path.suffix == ".toml" or path.exists():
-        if not path.is_file():
-            raise SceneError(f"scene file {str(path)!r} does not exist; give a path to a .toml file "
-                             f"or a built-in scene name ({', '.join(builtin_scenes())})")
-        text, base, name = path.read_text(), path.resolve().parent, path.stem
-    else:
-        if str(spec) not in builtin_scenes():
-            raise SceneError(f"unknown scene {str(spec)!r}: not a file and not a built-in scene "
-                             f"({', '.join(builtin_scenes())})")
+    builtins = ", ".join(builtin_scenes())
+    if path.is_file():
+        try:
+            raw = path.read_bytes()
+        except OSError as exc:
+            raise SceneError(f"scene file {str(path)!r} cannot be read: {exc.strerror}") from None
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            line = raw[:exc.start].count(b"\n") + 1
+            raise SceneError(f"scene file {str(path)!r}, line {line}: byte {raw[exc.start]:#04x} is not "
+                             "UTF-8 text; save the scene as UTF-8") from None
+        base, name, origin = path.resolve().parent, path.stem, f"scene file {str(path)!r}"
+    elif str(spec) in builtin_scenes():
         res = resources.files("orchestrator.scenes") / f"{spec}.toml"
         text, base, name = res.read_text(), Path(str(res)).parent, str(spec)
+        origin = f"scene {name!r}"
+    elif path.is_dir():
+        raise SceneError(f"scene {str(path)!r} is a directory; give a .toml file or a built-in scene "
+                         f"name ({builtins})")
+    elif path.suffix == ".toml" or path.exists():
+        raise SceneError(f"scene file {str(path)!r} does not exist; give a path to a .toml file "
+                         f"or a built-in scene name ({builtins})")
+    else:
+        raise SceneError(f"unknown scene {str(spec)!r}: not a file and not a built-in scene ({builtins})")
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"scene {name!r} is not valid TOML: {exc}") from None
-    return scene_from_dict(data, base_dir=base, name=name)
+        raise SceneError(f"{origin} is not valid TOML: {exc}") from None
+    return _scene(data, base, name, origin)
 
 
 def scene_from_dict(data: dict, base_dir: Path | str = ".", name: str = "scene") -> Scene:
-    """Validate a scene given as nested dicts (the parsed TOML)."""
-    _check_keys(data, SECTIONS, "scene", what="section")
-    base_dir = Path(base_dir)
+    """Validate a scene given as nested dicts (the parsed TOML); relative paths are relative to
+    base_dir."""
+    return _scene(data, Path(base_dir), name, f"scene {name!r}")
+
+
+def _scene(data, base_dir: Path, name: str, origin: str) -> Scene:
     try:
-        soil = dict(data.get("soil") or _missing("soil", "halfspace = { vs = ..., nu = ..., rho = ... }"))
-        _check_keys(soil, ("layers", "halfspace", "winkler", "damping_model"), "soil")
-        profile = _profile(soil)
-        foundation = dict(data.get("foundation") or _missing("foundation", 'shape = "circle", radius = ..., element_size = ...'))
-        mesh, contact_kind = _foundation(foundation, base_dir)
-    except (SoilError, MeshError) as exc:
-        raise SceneError(str(exc)) from None
-    freqs = _frequencies(dict(data.get("impedance", {})))
-    sections = {k: dict(data.get(k, {})) for k in ("structure", "contact", "motion", "analysis", "output")}
-    if "winkler" in soil:
-        sections["winkler"] = soil["winkler"]
-    return Scene(name=name, base_dir=base_dir, profile=profile, mesh=mesh, contact_kind=contact_kind,
-                 frequencies_hz=freqs, sections=sections)
+        _check_keys(data, SECTIONS, "scene", what="section")
+        soil = _section(data, "soil", 'halfspace = { vs = ..., nu = ..., rho = ... }')
+        _check_keys(soil, ("layers", "halfspace", "damping_model", "winkler"), "soil")
+        winkler = _winkler(soil.get("winkler"))
+        model = _choice("soil.damping_model", soil.get("damping_model", "hysteretic"), DAMPING_MODELS,
+                        hint="hysteretic: G (1 + 2i damping) at every frequency, the default; causal: "
+                             "constant Q with a 0.05 Hz cut-off, vs given at 1 Hz")
+        needed = "halfspace" in soil or "layers" in soil or not winkler.explicit
+        profile = _profile(soil, model) if needed else None
+        mesh, contact_kind = _foundation(_section(data, "foundation",
+                                                  'shape = "circle", radius = ..., element_size = ...'), base_dir)
+        freqs = _frequencies(_table(data, "impedance"))
+        structure = parse_structure(data["structure"]) if "structure" in data else None
+        contact = contact_from_spec(_table(data, "contact"))
+        motion = _motion(_table(data, "motion"), base_dir)
+        analysis = _config(AnalysisConfig, _table(data, "analysis"), "analysis")
+        output = _config(OutputConfig, _table(data, "output"), "output")
+        return Scene(name=name, base_dir=base_dir, profile=profile, mesh=mesh, contact_kind=contact_kind,
+                     frequencies_hz=freqs, structure=structure, contact=contact, motion=motion,
+                     analysis=analysis, output=output, winkler=winkler)
+    except (SceneError, StructureError, MotionError, SoilError, MeshError) as exc:
+        raise SceneError(f"{origin}: {exc}") from None
 
 
-def _missing(section: str, hint: str):
-    raise SceneError(f"the scene has no [{section}] section; add one, e.g. [{section}] {hint}")
-
-
-def _check_keys(table: dict, allowed, where: str, what: str = "key"):
+def _table(data: dict, section: str) -> dict:
+    table = data.get(section, {})
     if not isinstance(table, dict):
-        raise SceneError(f"{where} must be a table, got {table!r}")
-    for key in table:
-        if key not in allowed:
-            close = [a for a in allowed if a.lower() == key.lower() or _near(a, key)]
-            hint = f"did you mean {close[0]!r}? " if close else ""
-            raise SceneError(f"unknown {what} {where}.{key}: {hint}allowed: {', '.join(allowed)}")
+        raise SceneError(f"[{section}] must be a table of keys (a section), got {section} = {show(table)}")
+    return table
 
 
-def _near(a: str, b: str) -> bool:
-    """One edit apart (a typo)."""
-    if abs(len(a) - len(b)) > 1:
-        return False
-    if len(a) == len(b):
-        return sum(x != y for x, y in zip(a, b)) <= 1 or sorted(a) == sorted(b)
-    s, l = sorted((a, b), key=len)
-    return any(l[:i] + l[i + 1:] == s for i in range(len(l)))
+def _section(data: dict, section: str, hint: str) -> dict:
+    if section not in data:
+        raise SceneError(f"the scene has no [{section}] section; add one, e.g. [{section}] {hint}")
+    return _table(data, section)
+
+
+def _config(cls, table: dict, section: str):
+    """cls(**table) after the key check (the dataclass fields are the section's keys)."""
+    _check_keys(table, tuple(f.name for f in fields(cls) if f.init), section)
+    return cls(**table)
+
+
+MOTION_KEYS = {"synthetic": ("kind", "direction", "spectrum", "pga_g", "duration_s", "seed"),
+               "record": ("kind", "direction", "file", "format", "units", "scale")}
+
+
+def _motion(table: dict, base_dir: Path) -> MotionConfig:
+    kind = _choice("motion.kind", table.get("kind", "synthetic"), tuple(MOTION_KEYS))
+    _check_keys(table, MOTION_KEYS[kind], "motion")
+    if "file" in table:
+        if not isinstance(table["file"], str) or not table["file"]:
+            raise SceneError(f"motion.file = {show(table['file'])} must be a path (a string, relative "
+                             "to the scene file)")
+        table = {**table, "file": (base_dir / table["file"]).resolve()}
+    return MotionConfig(**table)
+
+
+def _winkler(table) -> WinklerConfig:
+    if table is None:
+        return WinklerConfig()
+    _check_keys(table, tuple(WINKLER_CHOICES) + WINKLER_MODULI, "soil.winkler")
+    given = set(table) & set(WINKLER_MODULI)
+    if not given:
+        return WinklerConfig(**table)
+    if set(table) - given:
+        raise SceneError("soil.winkler: give either subgrade moduli { kv, kh, cv, ch } or a BEM calibration "
+                         "{ springs, match, damping }, not both")
+    return WinklerConfig(moduli=winkler_moduli(table))
 
 
 MATERIAL_KEYS = ("vs", "vp", "nu", "rho", "damping")
@@ -123,58 +416,47 @@ MATERIAL_KEYS = ("vs", "vp", "nu", "rho", "damping")
 
 def _material(table, where: str, cls=Material, extra=(), damping_model="hysteretic"):
     _check_keys(table, MATERIAL_KEYS + tuple(extra), where)
-    for key in ("vs", "rho"):
+    for key in ("vs", "rho") + tuple(extra):
         if key not in table:
-            raise SceneError(f"{where}.{key} is missing (give vs in m/s and rho in kg/m^3)")
-    for key, value in table.items():
-        if not isinstance(value, (int, float)) or isinstance(value, bool):
-            raise SceneError(f"{where}.{key} = {value!r} must be a number")
-    return cls(name=where, damping_model=damping_model, **{k: float(v) for k, v in table.items()})
+            raise SceneError(f"{where}.{key} is missing (give vs in m/s, rho in kg/m^3"
+                             + (", thickness in m)" if extra else ")"))
+    values = {k: _number(f"{where}.{k}", v) for k, v in table.items()}
+    return cls(name=where, damping_model=damping_model, **values)
 
 
-def _profile(soil: dict) -> SoilProfile:
+def _profile(soil: dict, model: str) -> SoilProfile:
     if "halfspace" not in soil:
         raise SceneError("soil.halfspace is missing: the profile needs a half-space below its layers, "
                          "e.g. halfspace = { vs = 500.0, nu = 0.33, rho = 2000.0 }")
-    model = soil.get("damping_model", "hysteretic")
-    if model not in DAMPING_MODELS:
-        raise SceneError(f"soil.damping_model = {model!r}: use one of "
-                         + ", ".join(f'"{m}"' for m in DAMPING_MODELS)
-                         + " (hysteretic: G (1 + 2i damping) at every frequency, the default; causal: "
-                         "constant Q with a 0.05 Hz cut-off, vs given at 1 Hz)")
     layers = soil.get("layers", [])
     if not isinstance(layers, list):
         raise SceneError("soil.layers must be a list of tables { thickness, vs, nu or vp, rho, damping }")
-    out = []
-    for i, t in enumerate(layers):
-        where = f"soil.layers[{i}]"
-        if "thickness" not in t:
-            raise SceneError(f"{where}.thickness is missing (layer thickness in m)")
-        out.append(_material(t, where, cls=Layer, extra=("thickness",), damping_model=model))
-    return SoilProfile(tuple(out), _material(soil["halfspace"], "soil.halfspace", damping_model=model))
+    out = tuple(_material(t, f"soil.layers[{i}]", cls=Layer, extra=("thickness",), damping_model=model)
+                for i, t in enumerate(layers))
+    return SoilProfile(out, _material(soil["halfspace"], "soil.halfspace", damping_model=model))
+
+
+FOUNDATION_KEYS = {"circle": ("radius", "element_size"), "rectangle": ("lx", "ly", "element_size"),
+                   "nodes": ("file",)}
 
 
 def _foundation(table: dict, base_dir: Path):
-    shape = table.get("shape", "circle")
-    keys = {"circle": ("radius", "element_size"), "rectangle": ("lx", "ly", "element_size"),
-            "nodes": ("file",)}
-    if shape not in keys:
-        raise SceneError(f"foundation.shape = {shape!r}: use \"circle\", \"rectangle\" or \"nodes\"")
-    _check_keys(table, ("shape", "contact") + keys[shape], "foundation")
-    contact = table.get("contact", "welded")
-    if contact not in ("welded", "relaxed"):
-        raise SceneError(f"foundation.contact = {contact!r}: use \"welded\" (default, all traction "
-                         "components) or \"relaxed\" (no shear under normal loads)")
-    for key in keys[shape]:
-        if key not in table:
-            raise SceneError(f"foundation.{key} is missing for shape = {shape!r} (needs {', '.join(keys[shape])})")
+    shape = _choice("foundation.shape", table.get("shape", "circle"), tuple(FOUNDATION_KEYS))
+    keys = FOUNDATION_KEYS[shape]
+    _check_keys(table, ("shape", "contact") + keys, "foundation", required=keys)
+    contact = _choice("foundation.contact", table.get("contact", "welded"), ("welded", "relaxed"),
+                      hint="welded: all traction components, the default; relaxed: no shear under normal loads")
     if shape == "circle":
-        mesh = circle_mesh(table["radius"], table["element_size"])
-    elif shape == "rectangle":
-        mesh = rectangle_mesh(table["lx"], table["ly"], table["element_size"])
-    else:
-        mesh = read_nodes_csv(base_dir / table["file"])
-    return mesh, contact
+        return circle_mesh(table["radius"], table["element_size"]), contact
+    if shape == "rectangle":
+        return rectangle_mesh(table["lx"], table["ly"], table["element_size"]), contact
+    file = table["file"]
+    if not isinstance(file, str) or not file:
+        raise SceneError(f"foundation.file = {show(file)} must be a path (a string, relative to the scene file)")
+    try:
+        return read_nodes_csv(base_dir / file), contact
+    except (UnicodeDecodeError, OSError, csv.Error) as exc:
+        raise SceneError(f"foundation.file = {file!r}: cannot read it as a UTF-8 CSV x,y,area: {exc}") from None
 
 
 def _frequencies(table: dict) -> np.ndarray:
@@ -183,18 +465,18 @@ def _frequencies(table: dict) -> np.ndarray:
         raise SceneError("impedance: give frequencies_hz or range_hz, not both")
     if "range_hz" in table:
         r = table["range_hz"]
-        if (not isinstance(r, list) or len(r) != 3 or not all(isinstance(v, (int, float)) for v in r)
-                or int(r[2]) != r[2]):
-            raise SceneError(f"impedance.range_hz = {r!r} must be [fmin, fmax, count] (count an integer)")
-        fmin, fmax, count = float(r[0]), float(r[1]), int(r[2])
-        if not (0 <= fmin < fmax) or count < 2:
-            raise SceneError(f"impedance.range_hz = {r!r} needs 0 <= fmin < fmax and count >= 2")
+        if not isinstance(r, list) or len(r) != 3:
+            raise SceneError(f"impedance.range_hz = {show(r)} must be [fmin, fmax, count] (count an integer)")
+        fmin = _number("impedance.range_hz[0]", r[0], 0.0, lo_open=False, expect="a frequency fmin >= 0 Hz")
+        fmax = _number("impedance.range_hz[1]", r[1], fmin, expect=f"a frequency fmax > fmin = {fmin:g} Hz")
+        count = _number("impedance.range_hz[2]", r[2], 2, MAX_FREQUENCIES, lo_open=False, integer=True,
+                        expect=f"an integer count in [2, {MAX_FREQUENCIES}]")
         return np.linspace(fmin, fmax, count)
     freqs = table.get("frequencies_hz", [0.0, 2.0, 4.0])
-    if not isinstance(freqs, list) or not freqs or not all(
-            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in freqs):
-        raise SceneError(f"impedance.frequencies_hz = {freqs!r} must be a non-empty list of numbers in Hz")
-    f = np.asarray(freqs, float)
-    if np.any(f < 0) or np.any(np.diff(f) <= 0):
-        raise SceneError(f"impedance.frequencies_hz = {freqs!r} must be >= 0 and strictly increasing")
+    if not isinstance(freqs, list) or not 1 <= len(freqs) <= MAX_FREQUENCIES:
+        raise SceneError(f"impedance.frequencies_hz = {show(freqs)} must be a non-empty list of numbers in Hz "
+                         f"(at most {MAX_FREQUENCIES})")
+    f = np.array([_number(f"impedance.frequencies_hz[{i}]", v, 0.0, lo_open=False) for i, v in enumerate(freqs)])
+    if np.any(np.diff(f) <= 0):
+        raise SceneError(f"impedance.frequencies_hz = {show(freqs)} must be >= 0 and strictly increasing")
     return f

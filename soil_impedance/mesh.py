@@ -20,6 +20,17 @@ class MeshError(ValueError):
     """An invalid interface mesh input; the message names the input and how to fix it."""
 
 
+#: most interface nodes a mesh may have: the BEM is dense, (3N)^2 complex values per frequency
+#: (3.6 GB at N = 5000), and the reactor raft needs 241
+MAX_NODES = 5000
+
+
+def _too_many(n: float, where: str, h_min: float, about: bool = False):
+    count = f"about {n:.3g}" if about else f"{n:d}"
+    raise MeshError(f"{where} gives {count} interface nodes; at most MAX_NODES = {MAX_NODES} (the BEM stores "
+                    f"(3N)^2 complex values per frequency): use element_size >= {h_min:.3g} m")
+
+
 @dataclass(frozen=True, eq=False)
 class InterfaceMesh:
     """Interface nodes and their tributary areas.
@@ -51,6 +62,9 @@ class InterfaceMesh:
         bad = np.flatnonzero(~(area > 0) | ~np.isfinite(area))
         if bad.size:
             raise MeshError(f"mesh node {bad[0]} has area {float(area[bad[0]]):g}: every tributary area must be > 0")
+        if xy.shape[0] > MAX_NODES:
+            raise MeshError(f"the interface mesh has {xy.shape[0]} nodes; at most MAX_NODES = {MAX_NODES} "
+                            "(the BEM stores (3N)^2 complex values per frequency): use fewer, larger patches")
         if xy.shape[0] > 1:
             d = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
             d[np.diag_indices_from(d)] = np.inf
@@ -118,10 +132,17 @@ def circle_mesh(radius: float, element_size: float) -> InterfaceMesh:
     if h > radius:
         raise MeshError(f"foundation.element_size = {h} m exceeds the radius {radius} m: "
                         "use element_size <= radius / 2 (about radius / 9 for the reactor raft)")
+    where = f"foundation.element_size = {h:g} m on a disk of radius {radius:g} m"
+    h_min = radius * math.sqrt(math.pi / MAX_NODES)
+    estimate = math.pi * (radius / h) * (radius / h)
+    if estimate > 2 * MAX_NODES:                         # refuse before allocating the grid
+        _too_many(estimate, where, h_min, about=True)
     m = int(math.ceil(radius / h)) + 1
     i, j = np.meshgrid(np.arange(-m, m + 1), np.arange(-m, m + 1), indexing="ij")
     inside = (i ** 2 + j ** 2) * h * h <= radius * radius * (1 + 1e-12)
     xy = np.column_stack([i[inside], j[inside]]).astype(float) * h
+    if xy.shape[0] > MAX_NODES:
+        _too_many(xy.shape[0], where, h_min)
     area = np.full(xy.shape[0], h * h)
     return InterfaceMesh(xy, area, cell=h, kind="circle", size=(radius,))
 
@@ -134,7 +155,15 @@ def rectangle_mesh(lx: float, ly: float, element_size: float) -> InterfaceMesh:
     """
     lx, ly = _check_size("lx", lx), _check_size("ly", ly)
     h = _check_size("element_size", element_size)
+    if h > max(lx, ly):
+        raise MeshError(f"foundation.element_size = {h} m exceeds the rectangle {lx} m x {ly} m: "
+                        "use element_size <= min(lx, ly) / 2")
+    where = f"foundation.element_size = {h:g} m on a {lx:g} m x {ly:g} m rectangle"
+    if (lx / h) * (ly / h) > 2 * MAX_NODES:                # refuse before allocating the grid
+        _too_many((lx / h) * (ly / h), where, math.sqrt(lx * ly / MAX_NODES), about=True)
     nx, ny = max(1, round(lx / h)), max(1, round(ly / h))
+    if nx * ny > MAX_NODES:
+        _too_many(nx * ny, where, math.sqrt(lx * ly / MAX_NODES))
     hx, hy = lx / nx, ly / ny
     x = (np.arange(nx) + 0.5) * hx - lx / 2
     y = (np.arange(ny) + 0.5) * hy - ly / 2

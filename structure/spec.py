@@ -1,15 +1,28 @@
 """Scene tables -> structure objects, with validation that names the key at fault.
 
-[structure]  -> model_from_spec(spec, xy, area)        (model = "reactor" or inline tables)
-[soil] winkler = {...} -> winkler_from_spec(spec, xy, area)
-[contact]    -> contact_from_spec(spec)
-Unknown keys are errors. Messages read like "structure.beams[0].E = -3 must be > 0".
+[structure]  -> parse_structure(table) -> StructureSpec (validated, frozen: model = "reactor" or
+                inline nodes / beams / masses / springs / raft / damping; spec.as_table() gives the
+                table back), then build_model(spec, xy, area) -> StructureModel on the interface
+                nodes; model_from_spec(table, xy, area) does both
+[soil] winkler = { kv, kh, cv, ch } -> winkler_moduli(table) -> (kv, kh, cv, ch), then
+                winkler_from_moduli(moduli, xy, area) -> WinklerSoil; winkler_from_spec does both
+[contact]    -> contact_from_spec(table) -> ContactSettings (contact_table: back to the table)
+
+check_keys, check_number and check_choice are the table checks of every scene section (the
+orchestrator's scene loader uses them with its own error class): unknown keys are errors with a
+did-you-mean hint, numbers are int or float (not bool), finite and in range. Messages read like
+"structure.beams[0].E = -3 must be > 0" and "unknown key structure.beams[0].colour: allowed: ...".
 """
 from __future__ import annotations
 
 import math
-import tomllib
+from dataclasses import dataclass, field
 from importlib import resources
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python < 3.11
+    import tomli as tomllib
 
 import numpy as np
 
@@ -19,44 +32,154 @@ from .model import Beam, Damping, Mass, Node, Raft, Spring, StructureModel
 from .soil_interface import WinklerSoil
 
 BUILTIN_MODELS = ("reactor",)
+STRUCTURE_KEYS = ("nodes", "beams", "raft", "masses", "springs", "damping")
+WINKLER_MODULI = ("kv", "kh", "cv", "ch")
+CONTACT_KEYS = ("auto_factor", "enabled", "penalty", "precheck")
 
 
-def _keys(path, table, required, optional=()):
+# ---- table checks shared by every scene section ----------------------------------------------
+
+def show(value) -> str:
+    """repr of a value, cut to a readable length for messages."""
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def check_keys(table, allowed, where: str, what: str = "key", *, required=(), error=StructureError):
+    """Refuse a non-table, a key not in ``allowed`` (with a did-you-mean hint) and a missing
+    ``required`` key; ``where`` is the table's dotted path (``structure.beams[0]``)."""
     if not isinstance(table, dict):
-        raise StructureError(f"{path} must be a table, got {type(table).__name__}")
-    unknown = sorted(set(table) - set(required) - set(optional))
-    if unknown:
-        raise StructureError(f"{path}.{unknown[0]} is not a known key; allowed: "
-                             f"{', '.join(sorted(set(required) | set(optional)))}")
-    for k in required:
-        if k not in table:
-            raise StructureError(f"{path}.{k} is missing")
+        raise error(f"{where} must be a table {{ key = value, ... }}, got {show(table)}")
+    for key in table:
+        if key not in allowed:
+            close = [a for a in allowed if a.lower() == str(key).lower() or _near(a, str(key))]
+            hint = f"did you mean {close[0]!r}? " if close else ""
+            raise error(f"unknown {what} {where}.{key}: {hint}allowed: {', '.join(allowed)}")
+    for key in required:
+        if key not in table:
+            raise error(f"{where}.{key} is missing")
 
 
-def _num(path, v, lo=None, strict=True):
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise StructureError(f"{path} = {v!r} must be a finite number")
-    if lo is not None and (v <= lo if strict else v < lo):
-        raise StructureError(f"{path} = {v!r} must be {'>' if strict else '>='} {lo}")
-    return float(v)
+def _near(a: str, b: str) -> bool:
+    """One edit apart (a typo)."""
+    if abs(len(a) - len(b)) > 1:
+        return False
+    if len(a) == len(b):
+        return sum(x != y for x, y in zip(a, b, strict=True)) <= 1 or sorted(a) == sorted(b)
+    s, l = sorted((a, b), key=len)
+    return any(l[:i] + l[i + 1:] == s for i in range(len(l)))
 
 
-def _vec(path, v, n, lo=None, strict=False):
-    if not isinstance(v, (list, tuple)) or len(v) != n:
-        raise StructureError(f"{path} = {v!r} must be a list of {n} numbers")
-    return tuple(_num(f"{path}[{i}]", x, lo, strict) for i, x in enumerate(v))
+def check_number(where: str, v, lo=None, hi=None, *, lo_open=True, hi_open=False, integer=False,
+                 expect: str | None = None, error=StructureError):
+    """v as a float (an int when ``integer``): an int or float, not a bool, finite, in the range
+    given by lo / hi (open or closed ends). ``expect`` replaces the range in the message."""
+    ok_type = isinstance(v, int) if integer else isinstance(v, (int, float)) and _finite(v)
+    if isinstance(v, bool) or not ok_type:
+        raise error(f"{where} = {show(v)} must be {expect or ('an integer' if integer else 'a finite number')}")
+    if (lo is not None and (v <= lo if lo_open else v < lo)) or (hi is not None and (v >= hi if hi_open else v > hi)):
+        if expect:
+            raise error(f"{where} = {show(v)} must be {expect}")
+        if lo is not None and hi is not None:
+            rng = f"lie in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
+        elif lo is not None:
+            rng = f"be {'>' if lo_open else '>='} {lo:g}"
+        else:
+            rng = f"be {'<' if hi_open else '<='} {hi:g}"
+        raise error(f"{where} = {show(v)} must {rng}")
+    return v if integer else float(v)
 
 
-def _int(path, v):
-    if isinstance(v, bool) or not isinstance(v, int):
-        raise StructureError(f"{path} = {v!r} must be an integer node id")
+def _finite(v) -> bool:
+    try:
+        return math.isfinite(v)
+    except OverflowError:       # an int beyond the float range
+        return False
+
+
+def check_choice(where: str, v, choices, hint: str = "", error=StructureError):
+    """v if it is one of the strings ``choices``; the message lists them (and ``hint``)."""
+    if not isinstance(v, str) or v not in choices:
+        listed = ", ".join(f'"{c}"' for c in choices)
+        raise error(f"{where} = {show(v)}: use one of {listed}" + (f" ({hint})" if hint else ""))
     return v
+
+
+def _list(where: str, v, what: str):
+    if not isinstance(v, (list, tuple)):
+        raise StructureError(f"{where} = {show(v)} must be a list of {what}")
+    return v
+
+
+def _vec(where, v, n, lo=None):
+    if not isinstance(v, (list, tuple)) or len(v) != n:
+        raise StructureError(f"{where} = {show(v)} must be a list of {n} numbers")
+    return tuple(check_number(f"{where}[{i}]", x, lo, lo_open=False) for i, x in enumerate(v))
+
+
+def _id(where, v):
+    return check_number(where, v, integer=True, expect="an integer node id")
+
+
+# ---- [structure] -----------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class RaftSpec:
+    """The raft master node (at the raft centre, z = 0), raft mass kg and rotary inertias
+    (Ixx, Iyy, Izz) kg m^2; its interface points are the scene's foundation mesh (build_model)."""
+    node: int
+    m: float = 0.0
+    inertia: tuple = (0.0, 0.0, 0.0)
+
+
+@dataclass(frozen=True)
+class StructureSpec:
+    """A validated [structure] table: nodes, beams, masses, springs (records of structure.model),
+    the raft and the damping; ``model`` names the built-in model it was loaded from (None: inline).
+    Node ids are unique, every reference is a known node, every node is connected to the raft."""
+    nodes: tuple
+    beams: tuple
+    raft: RaftSpec
+    masses: tuple = ()
+    springs: tuple = ()
+    damping: Damping = field(default_factory=Damping)
+    model: str | None = None
+
+    @property
+    def node_names(self) -> tuple:
+        """Names of the named nodes (the ones results can be asked for)."""
+        return tuple(n.name for n in self.nodes if n.name)
+
+    def as_table(self) -> dict:
+        """The [structure] table (plain lists, numbers and strings: TOML/JSON-ready) that
+        parse_structure reads back into an equal spec."""
+        damping = _damping_table(self.damping)
+        if self.model is not None:
+            return {"model": self.model, **({"damping": damping} if damping else {})}
+        drop_none = lambda d: {k: v for k, v in d.items() if v is not None}
+        return {
+            "nodes": [drop_none({"id": n.id, "xyz": list(n.xyz), "name": n.name}) for n in self.nodes],
+            "beams": [drop_none({"nodes": list(b.nodes), "E": b.E, "G": b.G, "A": b.A, "Iy": b.Iy, "Iz": b.Iz,
+                                 "J": b.J, "Asy": b.Asy, "Asz": b.Asz, "rho": b.rho}) for b in self.beams],
+            "masses": [{"node": m.node, "m": m.m, "inertia": list(m.inertia)} for m in self.masses],
+            "springs": [drop_none({"node": s.node, "k": list(s.k), "node2": s.node2}) for s in self.springs],
+            "raft": {"node": self.raft.node, "m": self.raft.m, "inertia": list(self.raft.inertia)},
+            **({"damping": damping} if damping else {}),
+        }
+
+
+def _damping_table(d: Damping) -> dict:
+    if d.kind == "modal":
+        return {"modal": d.ratio}
+    if d.kind == "rayleigh":
+        return {"rayleigh": [d.a0, d.a1]}
+    return {}
 
 
 def builtin_spec(name: str) -> dict:
     """The [structure] table of a built-in model (structure/data/<name>.toml)."""
-    if name not in BUILTIN_MODELS:
-        raise StructureError(f"structure.model = {name!r} is not a built-in model; "
+    if not isinstance(name, str) or name not in BUILTIN_MODELS:
+        raise StructureError(f"structure.model = {show(name)} is not a built-in model; "
                              f"choose one of {BUILTIN_MODELS} or give nodes/beams inline")
     text = resources.files("structure.data").joinpath(f"{name}.toml").read_text()
     return tomllib.loads(text)["structure"]
@@ -65,106 +188,98 @@ def builtin_spec(name: str) -> dict:
 def _damping(path, d):
     if d is None:
         return Damping()
-    _keys(path, d, (), ("modal", "rayleigh"))
+    check_keys(d, ("modal", "rayleigh"), path)
     if len(d) != 1:
         raise StructureError(f"{path} must have exactly one of 'modal' or 'rayleigh'")
     if "modal" in d:
-        r = _num(f"{path}.modal", d["modal"], 0.0, strict=False)
-        if r >= 1:
-            raise StructureError(f"{path}.modal = {r} must be < 1 (a ratio, 0.07 for 7 %)")
+        r = check_number(f"{path}.modal", d["modal"], 0.0, 1.0, lo_open=False, hi_open=True,
+                         expect="a ratio in [0, 1), e.g. 0.07 for 7 %")
         return Damping("modal", ratio=r)
     a0, a1 = _vec(f"{path}.rayleigh", d["rayleigh"], 2, 0.0)
     return Damping("rayleigh", a0=a0, a1=a1)
 
 
-def model_from_spec(spec: dict, xy, area) -> StructureModel:
-    """StructureModel from a scene's [structure] table; xy (N, 2) m, area (N,) m^2 of the
-    interface nodes about the raft centre. model = "reactor" loads the built-in model; it
-    may be combined with ``damping`` only (to override the built-in damping)."""
+def parse_structure(table: dict) -> StructureSpec:
+    """The validated StructureSpec of a scene's [structure] table. model = "reactor" loads the
+    built-in model; it may be combined with ``damping`` only (to override the built-in damping)."""
     p = "structure"
-    if not isinstance(spec, dict):
-        raise StructureError(f"{p} must be a table")
-    if "model" in spec:
-        extra = sorted(set(spec) - {"model", "damping"})
-        if extra:
-            raise StructureError(f"{p}.{extra[0]} cannot be combined with {p}.model (a built-in "
+    if not isinstance(table, dict):
+        raise StructureError(f"{p} must be a table, got {show(table)}")
+    model = None
+    if "model" in table:
+        inline = sorted(set(table) & set(STRUCTURE_KEYS) - {"damping"})
+        if inline:
+            raise StructureError(f"{p}.{inline[0]} cannot be combined with {p}.model (a built-in "
                                  f"model); only {p}.damping may override it")
-        if not isinstance(spec["model"], str):
-            raise StructureError(f"{p}.model = {spec['model']!r} must be a string")
-        base = dict(builtin_spec(spec["model"]))
+        check_keys(table, ("model", "damping"), p)
+        model = table["model"]
+        base = dict(builtin_spec(model))
         base.pop("model", None)
-        if "damping" in spec:
-            base["damping"] = spec["damping"]
-        spec = base
-    _keys(p, spec, ("nodes", "beams", "raft"), ("masses", "springs", "damping"))
+        if "damping" in table:
+            base["damping"] = table["damping"]
+        table = base
+    check_keys(table, STRUCTURE_KEYS, p, required=("nodes", "beams", "raft"))
     nodes, ids = [], set()
-    if not isinstance(spec["nodes"], list) or not spec["nodes"]:
+    if not isinstance(table["nodes"], list) or not table["nodes"]:
         raise StructureError(f"{p}.nodes must be a non-empty list of {{ id, xyz, name }} tables")
-    for i, n in enumerate(spec["nodes"]):
+    for i, n in enumerate(table["nodes"]):
         q = f"{p}.nodes[{i}]"
-        _keys(q, n, ("id", "xyz"), ("name",))
-        nid = _int(f"{q}.id", n["id"])
+        check_keys(n, ("id", "xyz", "name"), q, required=("id", "xyz"))
+        nid = _id(f"{q}.id", n["id"])
         if nid in ids:
             raise StructureError(f"{q}.id = {nid} is used twice: node ids must be unique")
         ids.add(nid)
         name = n.get("name")
         if name is not None and (not isinstance(name, str) or not name):
-            raise StructureError(f"{q}.name = {name!r} must be a non-empty string")
+            raise StructureError(f"{q}.name = {show(name)} must be a non-empty string")
         nodes.append(Node(nid, _vec(f"{q}.xyz", n["xyz"], 3), name))
     names = [n.name for n in nodes if n.name]
     if len(set(names)) != len(names):
         raise StructureError(f"{p}.nodes: names must be unique, got {names}")
 
     def ref(q, v):
-        v = _int(q, v)
+        v = _id(q, v)
         if v not in ids:
             raise StructureError(f"{q} = {v} is not a node id; known ids: {sorted(ids)}")
         return v
 
-    beams = []
-    if not isinstance(spec["beams"], list):
-        raise StructureError(f"{p}.beams must be a list of tables")
     xyz = {n.id: n.xyz for n in nodes}
-    for i, b in enumerate(spec["beams"]):
+    beams = []
+    for i, b in enumerate(_list(f"{p}.beams", table["beams"], "tables")):
         q = f"{p}.beams[{i}]"
-        _keys(q, b, ("nodes", "E", "G", "A", "Iy", "Iz", "J"), ("Asy", "Asz", "rho"))
+        check_keys(b, ("nodes", "E", "G", "A", "Iy", "Iz", "J", "Asy", "Asz", "rho"), q,
+                   required=("nodes", "E", "G", "A", "Iy", "Iz", "J"))
         if not isinstance(b["nodes"], list) or len(b["nodes"]) != 2:
-            raise StructureError(f"{q}.nodes = {b['nodes']!r} must be a list of 2 node ids")
+            raise StructureError(f"{q}.nodes = {show(b['nodes'])} must be a list of 2 node ids")
         n1, n2 = ref(f"{q}.nodes[0]", b["nodes"][0]), ref(f"{q}.nodes[1]", b["nodes"][1])
         if np.allclose(xyz[n1], xyz[n2]):
             raise StructureError(f"{q}.nodes = {[n1, n2]} has zero length")
-        vals = {k: _num(f"{q}.{k}", b[k], 0.0) for k in ("E", "G", "A", "Iy", "Iz", "J")}
+        vals = {k: check_number(f"{q}.{k}", b[k], 0.0) for k in ("E", "G", "A", "Iy", "Iz", "J")}
         for k in ("Asy", "Asz"):
-            vals[k] = _num(f"{q}.{k}", b[k], 0.0) if k in b else None
-        vals["rho"] = _num(f"{q}.rho", b["rho"], 0.0, strict=False) if "rho" in b else 0.0
+            vals[k] = check_number(f"{q}.{k}", b[k], 0.0) if k in b else None
+        vals["rho"] = check_number(f"{q}.rho", b["rho"], 0.0, lo_open=False) if "rho" in b else 0.0
         beams.append(Beam((n1, n2), **vals))
     masses = []
-    for i, m in enumerate(spec.get("masses", [])):
+    for i, m in enumerate(_list(f"{p}.masses", table.get("masses", []), "tables")):
         q = f"{p}.masses[{i}]"
-        _keys(q, m, ("node", "m"), ("inertia",))
-        masses.append(Mass(ref(f"{q}.node", m["node"]), _num(f"{q}.m", m["m"], 0.0, strict=False),
-                           _vec(f"{q}.inertia", m.get("inertia", [0, 0, 0]), 3, 0.0)))
+        check_keys(m, ("node", "m", "inertia"), q, required=("node", "m"))
+        masses.append(Mass(ref(f"{q}.node", m["node"]), check_number(f"{q}.m", m["m"], 0.0, lo_open=False),
+                           _vec(f"{q}.inertia", m.get("inertia", [0.0, 0.0, 0.0]), 3, 0.0)))
     springs = []
-    for i, s in enumerate(spec.get("springs", [])):
+    for i, s in enumerate(_list(f"{p}.springs", table.get("springs", []), "tables")):
         q = f"{p}.springs[{i}]"
-        _keys(q, s, ("node", "k"), ("node2",))
+        check_keys(s, ("node", "k", "node2"), q, required=("node", "k"))
         n2 = ref(f"{q}.node2", s["node2"]) if "node2" in s else None
         springs.append(Spring(ref(f"{q}.node", s["node"]), _vec(f"{q}.k", s["k"], 6, 0.0), n2))
-    r = spec["raft"]
     q = f"{p}.raft"
-    _keys(q, r, ("node",), ("m", "inertia"))
+    r = table["raft"]
+    check_keys(r, ("node", "m", "inertia"), q, required=("node",))
     rn = ref(f"{q}.node", r["node"])
     if abs(xyz[rn][2]) > 1e-9:
-        raise StructureError(f"{q}.node = {rn} is at z = {xyz[rn][2]}: the raft master node must "
+        raise StructureError(f"{q}.node = {rn} is at z = {xyz[rn][2]:g}: the raft master node must "
                              "lie on z = 0 at the raft centre")
-    xy = np.asarray(xy, float)
-    try:
-        raft = Raft(rn, xy, area, _num(f"{q}.m", r.get("m", 0.0), 0.0, strict=False),
-                    _vec(f"{q}.inertia", r.get("inertia", [0, 0, 0]), 3, 0.0))
-    except StructureError as exc:
-        raise StructureError(f"{q}: {exc}") from None
-    model = StructureModel(tuple(nodes), tuple(beams), tuple(masses), raft, tuple(springs),
-                           _damping(f"{p}.damping", spec.get("damping")))
+    raft = RaftSpec(rn, check_number(f"{q}.m", r.get("m", 0.0), 0.0, lo_open=False),
+                    _vec(f"{q}.inertia", r.get("inertia", [0.0, 0.0, 0.0]), 3, 0.0))
     connected = {rn}
     edges = [b.nodes for b in beams] + [(s.node, s.node2) for s in springs if s.node2 is not None]
     grow = True
@@ -179,43 +294,78 @@ def model_from_spec(spec: dict, xy, area) -> StructureModel:
     if loose:
         raise StructureError(f"{p}.nodes: node {loose[0]} is not connected to the raft node {rn} "
                              "by beams or springs")
-    return model
+    return StructureSpec(tuple(nodes), tuple(beams), raft, tuple(masses), tuple(springs),
+                         _damping(f"{p}.damping", table.get("damping")), model)
 
 
-def winkler_from_spec(spec: dict, xy, area) -> WinklerSoil:
-    """WinklerSoil from [soil] winkler = { kv, kh, cv, ch } (subgrade moduli N/m^3 and dashpots
-    N s/m^3, multiplied by each node's tributary area). ``spec`` is the winkler table (a
-    {"winkler": {...}} wrapper is accepted too)."""
-    p = "soil.winkler"
-    if isinstance(spec, dict) and set(spec) == {"winkler"}:
-        spec = spec["winkler"]
-    _keys(p, spec, ("kv", "kh"), ("cv", "ch"))
-    kv = _num(f"{p}.kv", spec["kv"], 0.0)
-    kh = _num(f"{p}.kh", spec["kh"], 0.0, strict=False)
-    cv = _num(f"{p}.cv", spec.get("cv", 0.0), 0.0, strict=False)
-    ch = _num(f"{p}.ch", spec.get("ch", 0.0), 0.0, strict=False)
+def build_model(spec: StructureSpec, xy, area) -> StructureModel:
+    """StructureModel of a validated spec on the interface nodes xy (N, 2) m, area (N,) m^2
+    (about the raft centre)."""
+    try:
+        raft = Raft(spec.raft.node, np.asarray(xy, float), area, spec.raft.m, spec.raft.inertia)
+    except StructureError as exc:
+        raise StructureError(f"structure.raft: {exc}") from None
+    return StructureModel(spec.nodes, spec.beams, spec.masses, raft, spec.springs, spec.damping)
+
+
+def model_from_spec(table: dict, xy, area) -> StructureModel:
+    """StructureModel from a scene's [structure] table: build_model(parse_structure(table), xy, area)."""
+    return build_model(parse_structure(table), xy, area)
+
+
+# ---- [soil] winkler, [contact] ----------------------------------------------------------------
+
+def winkler_moduli(table: dict, where: str = "soil.winkler") -> tuple:
+    """(kv, kh, cv, ch) from { kv, kh, cv = 0, ch = 0 }: subgrade moduli N/m^3 (kv > 0, kh >= 0)
+    and dashpots N s/m^3 (>= 0) per unit area."""
+    check_keys(table, WINKLER_MODULI, where, required=("kv", "kh"))
+    return tuple(check_number(f"{where}.{k}", table.get(k, 0.0), 0.0, lo_open=k == "kv")
+                 for k in WINKLER_MODULI)
+
+
+def winkler_from_moduli(moduli, xy, area) -> WinklerSoil:
+    """WinklerSoil from subgrade moduli (kv, kh, cv, ch) (N/m^3, N s/m^3; see winkler_moduli),
+    multiplied by each node's tributary area (N,) m^2 at xy (N, 2) m."""
+    if not isinstance(moduli, (list, tuple)) or len(moduli) != 4:
+        raise StructureError(f"Winkler moduli = {show(moduli)} must be the 4 numbers (kv, kh, cv, ch)")
+    kv, kh, cv, ch = winkler_moduli(dict(zip(WINKLER_MODULI, moduli, strict=True)))
     area = np.asarray(area, float)
     return WinklerSoil(xy, kv * area, kh * area, cv * area, ch * area)
 
 
-def contact_from_spec(spec: dict | None) -> ContactSettings:
+def winkler_from_spec(table: dict, xy, area) -> WinklerSoil:
+    """WinklerSoil from [soil] winkler = { kv, kh, cv, ch } (a {"winkler": {...}} wrapper is
+    accepted too): winkler_from_moduli(winkler_moduli(table), xy, area)."""
+    if isinstance(table, dict) and set(table) == {"winkler"}:
+        table = table["winkler"]
+    return winkler_from_moduli(winkler_moduli(table), xy, area)
+
+
+def contact_from_spec(table: dict | None) -> ContactSettings:
     """ContactSettings from [contact] { enabled = true, penalty = "auto" | N/m per node,
     auto_factor = 1e4, precheck = true } (auto_factor: the "auto" penalty over the soil's local
     static stiffness) (precheck = false forces the nonlinear contact iterations even when a
     linear pre-check would show that the contact never opens; see ContactSettings)."""
     p = "contact"
-    if spec is None:
+    if table is None:
         return ContactSettings()
-    _keys(p, spec, (), ("enabled", "penalty", "precheck", "auto_factor"))
-    en, pre = spec.get("enabled", True), spec.get("precheck", True)
+    check_keys(table, CONTACT_KEYS, p)
+    en, pre = table.get("enabled", True), table.get("precheck", True)
     for key, value in (("enabled", en), ("precheck", pre)):
         if not isinstance(value, bool):
-            raise StructureError(f"{p}.{key} = {value!r} must be true or false")
-    pen = spec.get("penalty", "auto")
+            raise StructureError(f"{p}.{key} = {show(value)} must be true or false")
+    pen = table.get("penalty", "auto")
     if isinstance(pen, str):
         if pen != "auto":
-            raise StructureError(f"{p}.penalty = {pen!r} must be \"auto\" or a stiffness in N/m per node")
+            raise StructureError(f"{p}.penalty = {show(pen)} must be \"auto\" or a stiffness in N/m per node")
     else:
-        pen = _num(f"{p}.penalty", pen, 0.0)
-    factor = _num(f"{p}.auto_factor", spec.get("auto_factor", AUTO_FACTOR), 0.0)
+        pen = check_number(f"{p}.penalty", pen, 0.0)
+    factor = check_number(f"{p}.auto_factor", table.get("auto_factor", AUTO_FACTOR), 0.0)
     return ContactSettings(enabled=en, penalty=pen, auto_factor=factor, precheck=pre)
+
+
+def contact_table(settings: ContactSettings) -> dict:
+    """The [contact] table of settings (contact_from_spec reads it back; the Newton tolerances,
+    which are not scene keys, keep their defaults)."""
+    return {"enabled": settings.enabled, "penalty": settings.penalty, "auto_factor": settings.auto_factor,
+            "precheck": settings.precheck}

@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from orchestrator.motion import MotionError, read_record, rg160_psa, synthetic_motion
+from orchestrator.motion import MotionError, make_motion, read_record, rg160_psa, synthetic_motion
 from orchestrator.spectra import response_spectrum
 
 
@@ -68,3 +68,57 @@ def test_synthetic_record_does_not_depend_on_the_analysis_step():
     np.testing.assert_allclose(finer.acc[::2], fine.acc, rtol=0, atol=1e-12 * fine.pga.max())
     np.testing.assert_allclose(finer.acc[1::2], 0.5 * (fine.acc[:-1] + fine.acc[1:]), rtol=0,
                                atol=1e-12 * fine.pga.max())
+
+
+def test_make_motion_is_the_generator_or_the_resampled_record(tmp_path):
+    """make_motion(config, dt): the synthetic record of the config's keys; a record as read,
+    linearly resampled when the analysis step differs from the record's."""
+    from orchestrator.scene import MotionConfig
+    cfg = MotionConfig(pga_g=0.3, duration_s=4.0, seed=5, direction="y")
+    for dt in (0.005, 0.01):
+        assert np.array_equal(make_motion(cfg, dt).acc, synthetic_motion(0.3, 4.0, dt, seed=5, direction="y").acc)
+    rec = tmp_path / "rec.txt"
+    rec.write_text("".join(f"{0.01 * k:.2f} {np.sin(0.3 * k):.6f}\n" for k in range(101)))
+    cfg = MotionConfig(kind="record", file=rec, units="m/s2", scale=2.0)
+    same = make_motion(cfg, 0.01)
+    assert same.dt == pytest.approx(0.01) and np.array_equal(same.acc, read_record(rec, units="m/s2", scale=2.0).acc)
+    half = make_motion(cfg, 0.005)
+    assert half.dt == 0.005 and half.acc.shape == (201, 3)
+    np.testing.assert_allclose(half.acc[1::2, 0], 0.5 * (same.acc[:-1, 0] + same.acc[1:, 0]), rtol=0, atol=1e-12)
+
+
+AT2_HEAD = "PEER\nEQ\nACCELERATION TIME SERIES IN UNITS OF G\n"
+
+
+@pytest.mark.parametrize("name, content, msg", [
+    ("bad.txt", b"0 0\n0.01 \xff\n", "bad.txt, line 2: byte 0xff is not UTF-8 text"),
+    ("bad.txt", b"0 0\n0.01 0.1\n0.02 abc\n", "bad.txt, line 3: '0.02 abc' is not a list of numbers"),
+    ("bad.txt", b"0 0\n0.01 0.1 7\n", "bad.txt, line 2: expected two columns"),
+    ("bad.txt", b"0 0\n0.01 nan\n", "bad.txt, line 2: '0.01 nan': values must be finite"),
+    ("bad.txt", b"0 0\n0.01 0.1\n0.03 0.1\n", "bad.txt, line 3: time step 0.02 s against 0.01 s"),
+    ("bad.txt", b"# only a comment\n0 0\n", "expected at least two lines"),
+    ("bad.AT2", (AT2_HEAD + "NPTS=   3, DT=   0.0 SEC\n .1 .2 .3\n").encode(), "bad.AT2, line 4: DT = 0 must be"),
+    ("bad.AT2", (AT2_HEAD + "NPTS=   3, DT=  -0.01 SEC\n .1 .2 .3\n").encode(), "line 4: DT = -0.01 must be"),
+    ("bad.AT2", (AT2_HEAD + "NPTS=   3, DT=   nan SEC\n .1 .2 .3\n").encode(), "line 4: DT = nan must be"),
+    ("bad.AT2", (AT2_HEAD + "NPTS=  -3, DT=   .01 SEC\n .1 .2 .3\n").encode(), "line 4: NPTS = -3 must be"),
+    ("bad.AT2", (AT2_HEAD + "NPTS=  2.5, DT=   .01 SEC\n .1 .2 .3\n").encode(), "line 4: NPTS = 2.5 must be"),
+    ("bad.AT2", (AT2_HEAD + "NPTS=  100, DT=   .01 SEC\n .1 .2 .3\n").encode(), "NPTS = 100 but 3 values follow"),
+    ("bad.AT2", (AT2_HEAD + "DT and NPTS unknown\n .1 .2 .3\n").encode(), "line 4: cannot read NPTS and DT"),
+    ("bad.AT2", (AT2_HEAD + "NPTS=   3, DT=   .01 SEC\n .1 .2\n x\n").encode(), "bad.AT2, line 6: 'x' is not"),
+    ("bad.AT2", (AT2_HEAD + "NPTS=   3, DT=   .01 SEC\n").encode(), "too short for a PEER AT2 file"),
+])
+def test_malformed_records_name_the_file_and_line(tmp_path, name, content, msg):
+    path = tmp_path / name
+    path.write_bytes(content)
+    with pytest.raises(MotionError) as ei:
+        read_record(path, "peer-at2" if name.endswith(".AT2") else "two-column")
+    assert msg in str(ei.value), str(ei.value)
+
+
+def test_at2_header_forms(tmp_path):
+    """NPTS=/DT= with or without spaces and commas, or the older positional 'NPTS DT' header."""
+    for header in ("NPTS=   4, DT=   .0100 SEC", "NPTS=4 DT=.01", "4   0.01   NPTS, DT"):
+        path = tmp_path / "r.AT2"
+        path.write_text(AT2_HEAD + header + "\n .1 .2\n .3 .4 .5\n")
+        m = read_record(path, "peer-at2")
+        assert m.dt == 0.01 and m.acc[:, 0] == pytest.approx(9.81 * np.array([.1, .2, .3, .4]))
