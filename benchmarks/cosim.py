@@ -39,11 +39,10 @@ import numpy as np
 
 def soil_for(scene, kind, cache_dir):
     if kind == "fit":
-        from orchestrator.cosim import scene_soil_model
-        from orchestrator.run import scene_fit_tol
+        from orchestrator.impedance import scene_fit
         t0 = time.perf_counter()
-        tol = scene_fit_tol(scene)
-        model = scene_soil_model(scene, cache_dir=cache_dir, tol=tol)
+        tol = scene.analysis.fit_tol
+        model = scene_fit(scene, cache_dir=cache_dir, tol=tol).model
         return model, (f"rational fit of the gap table at fit_tol = {tol}, {model.order} poles "
                        f"({time.perf_counter() - t0:.1f} s incl. sweep/cache)")
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
@@ -58,16 +57,14 @@ def split_in_process(scene, motion, model):
     parts named as cosimulate's)."""
     from fmus.common import soil_from_model
     from orchestrator.master import Timer
-    from orchestrator.run import output_nodes, scene_model
     from structure import NewmarkStepper
-    from structure.spec import contact_from_spec
 
     dt, ag = motion.dt, motion.acc
     soil = soil_from_model(model, dt)
     timer = Timer()
-    st = NewmarkStepper(scene_model(scene), soil, dt, contact=contact_from_spec(scene.section("contact")),
+    st = NewmarkStepper(scene.model(), soil, dt, contact=scene.contact,
                         external_soil=True, ag0=ag[0])
-    dofs = [st.model.dofs(st.model.node_by_name(nm).id)[:3] for nm in output_nodes(scene)]
+    dofs = [st.model.dofs(st.model.node_by_name(nm).id)[:3] for nm in scene.output.nodes]
     timer.add("initialisation")
     nt = ag.shape[0]
     rows = np.zeros((nt, 2 * st.nb + 2 * st.N + 6 * len(dofs) + 8))
@@ -105,25 +102,25 @@ def main(argv=None):
     args = ap.parse_args(argv)
 
     from fmus.build import build_fmus
-    from orchestrator.cosim import run_monolithic
     from orchestrator.export import fmu_data
     from orchestrator.master import cosimulate
     from orchestrator.motion import synthetic_motion
-    from orchestrator.run import scene_analysis
+    from orchestrator.routes.monolithic import run_monolithic
     from orchestrator.scene import load_scene
+    from orchestrator.settings import default_cache_dir
 
-    cache = Path(os.environ.get("UPLIFT_CACHE", Path.home() / ".cache" / "uplift"))
+    cache = default_cache_dir()
     scene = load_scene("reactor")
-    dt = scene_analysis(scene)[1]
-    m = scene.section("motion")
-    pga = float(m.get("pga_g", 0.25)) if args.pga is None else args.pga
-    duration = float(m.get("duration_s", 10.0)) if args.duration is None else args.duration
-    motion = synthetic_motion(pga_g=pga, duration_s=duration, dt=dt, seed=int(m.get("seed", 1)),
-                              spectrum=m.get("spectrum", "RG1.60"), direction=m.get("direction", "x"))
+    dt = scene.analysis.dt
+    m = scene.motion
+    pga = m.pga_g if args.pga is None else args.pga
+    duration = m.duration_s if args.duration is None else args.duration
+    motion = synthetic_motion(pga_g=pga, duration_s=duration, dt=dt, seed=m.seed, spectrum=m.spectrum,
+                              direction=m.direction)
     model, label = soil_for(scene, args.soil, cache)
     nt = motion.acc.shape[0]
     print(f"reactor: {scene.mesh.xy.shape[0]} interface nodes, soil {model.n} DOFs: {label}")
-    print(f"motion: synthetic {m.get('spectrum', 'RG1.60')} {pga} g, {duration} s at dt = {dt} s "
+    print(f"motion: synthetic {m.spectrum} {pga} g, {duration} s at dt = {dt} s "
           f"({nt - 1} steps); {args.repeat} interleaved repeats, medians; "
           f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}\n")
 
@@ -143,7 +140,8 @@ def main(argv=None):
             gap_split, split = split_in_process(scene, motion, model)
             c3, split_s = time.process_time(), time.perf_counter() - t0
             runs["monolithic"].append((mono.wall_s, c1 - c0, None))
-            runs["cosim"].append((cos.wall_s, c2 - c1, cos.info))
+            runs["cosim"].append((cos.wall_s, c2 - c1, {"timing": cos.notes.timings,
+                                                        "timing_cpu": cos.info["timing_cpu"]}))
             runs["split"].append((split_s, c3 - c2, {"timing": split.parts, "timing_cpu": split.cpu}))
         jac = cosimulate(s_fmu, g_fmu, motion.acc, dt, schedule="jacobi") if args.jacobi else None
 

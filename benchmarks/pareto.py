@@ -16,8 +16,8 @@ import argparse
 import json
 import sys
 
-from orchestrator.bench import FULL, QUICK, _json_safe, bench, format_rows, plot_rows
-from orchestrator.cli import default_cache_dir
+from orchestrator.bench import bench, bench_config, format_rows, json_safe, plot_rows
+from orchestrator.settings import compute_threads, default_cache_dir
 
 
 def main(argv=None):
@@ -26,13 +26,14 @@ def main(argv=None):
     p.add_argument("--plot", default="pareto.png", help="wall time against error plot (default pareto.png)")
     p.add_argument("--json", default=None, metavar="FILE", help="also write the rows as JSON to this file")
     a = p.parse_args(argv)
-    rows = bench(QUICK if a.quick else FULL, cache_dir=default_cache_dir(),
-                 log=lambda msg: print(msg, file=sys.stderr, flush=True))
+    with compute_threads():
+        rows = bench(bench_config(a.quick), cache_dir=default_cache_dir(),
+                     log=lambda msg: print(msg, file=sys.stderr, flush=True))
     print(format_rows(rows))
     print(f"wrote {plot_rows(rows, a.plot)}", file=sys.stderr)
     if a.json:
         with open(a.json, "w") as f:
-            json.dump(_json_safe(rows), f, indent=1)
+            json.dump(json_safe(rows), f, indent=1)
         print(f"wrote {a.json}", file=sys.stderr)
 
 

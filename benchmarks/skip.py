@@ -75,22 +75,24 @@ def main():
         t = timed(lambda c: simulate(model, soil, ag, dt, contact=c, damping=damping), args.repeat)
         print(row(f"reactor winkler {pga:g} g, {ag.shape[0] - 1} steps", t), flush=True)
     if args.monolithic:
+        import dataclasses
+
         from fmus.common import soil_from_model
-        from orchestrator.cli import default_cache_dir
-        from orchestrator.cosim import scene_soil_model
-        from orchestrator.run import output_nodes, scene_model, scene_motion
+        from orchestrator.impedance import scene_fit
+        from orchestrator.motion import make_motion
         from orchestrator.scene import load_scene
+        from orchestrator.settings import default_cache_dir
 
         scene = load_scene("reactor")
-        scene.sections["motion"]["pga_g"] = args.pga
-        fit = scene_soil_model(scene, cache_dir=default_cache_dir())
-        motion, model = scene_motion(scene, 0.005), scene_model(scene)
+        scene = dataclasses.replace(scene, motion=dataclasses.replace(scene.motion, pga_g=args.pga))
+        fit = scene_fit(scene, cache_dir=default_cache_dir()).model
+        motion, model = make_motion(scene.motion, 0.005), scene.model()
         soil = soil_from_model(fit, motion.dt)
         s0 = soil.get_state()
 
         def mono(c):
             soil.set_state(s0)
-            return simulate(model, soil, motion.acc, motion.dt, contact=c, output_nodes=output_nodes(scene))
+            return simulate(model, soil, motion.acc, motion.dt, contact=c, output_nodes=scene.output.nodes)
         t = timed(mono, max(1, args.repeat // 2))
         print(row(f"reactor monolithic {args.pga:g} g", t), flush=True)
 

@@ -139,7 +139,7 @@ def _cache(case: Case):
     small scene (fast, and the tests must not write into the user's cache)."""
     if case.base == "small":
         return None
-    from orchestrator.cli import default_cache_dir
+    from orchestrator.settings import default_cache_dir
     return default_cache_dir()
 
 
@@ -215,8 +215,8 @@ def rocking_shape(scene) -> np.ndarray:
 
 
 def _first_mode_hz(scene, table_rigid) -> float:
-    from orchestrator.run import scene_model, winkler_soil
-    return float(winkler_soil(scene, scene_model(scene), table=table_rigid)[2]["first_soil_structure_hz"])
+    from orchestrator.routes.winkler import winkler_soil
+    return float(winkler_soil(scene, scene.model(), table=table_rigid)[2]["first_soil_structure_hz"])
 
 
 # ---- running a case --------------------------------------------------------------------------
@@ -230,8 +230,8 @@ def _penalty(scene, tables) -> float:
 
 def _run(scene, routes, cache_dir=None, soil_model=None, soil_kwargs=None):
     """{route: RouteResult or refusal str} for a scene (the soil model given or fitted)."""
-    from orchestrator.cosim import run_monolithic
     from orchestrator.errors import UserInputError
+    from orchestrator.routes.monolithic import run_monolithic
     from orchestrator.run import run_scene
     out = {}
     for route in routes:
@@ -239,9 +239,10 @@ def _run(scene, routes, cache_dir=None, soil_model=None, soil_kwargs=None):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")        # fit tolerance notes, forced passivity
                 if soil_model is not None:
-                    out[route] = run_monolithic(scene, soil_model=soil_model, soil_kwargs=soil_kwargs)
+                    res = run_monolithic(scene, soil_model=soil_model, soil_kwargs=soil_kwargs)
                 else:
-                    out[route] = run_scene(scene, [route], cache_dir=cache_dir)[0][route]
+                    res = run_scene(scene, [route], cache_dir=cache_dir)[0][route]
+            out[route] = f"refused: {res.message}" if res.status.value == "refused" else res
         except UserInputError as exc:
             out[route] = f"refused: {type(exc).__name__}: {exc}"
     return out
@@ -251,10 +252,9 @@ def run_case(case: Case, quick: bool = False) -> list[dict]:
     """One row per route: case, route, outcome, balance, soil_min, late, residual, uplift_mm,
     vs_ref, wall_s (None where it does not apply), result (RouteResult or None)."""
     from orchestrator.impedance import scene_impedance
-    from orchestrator.run import scene_analysis
 
     scene = case_scene(case, quick)
-    routes, dt = scene_analysis(scene)   # the synthetic record does not depend on dt
+    routes, dt = scene.analysis.routes, scene.analysis.dt   # the synthetic record does not depend on dt
     cache = _cache(case)
     tables = scene_impedance(scene, ("gap", "rigid"), cache_dir=cache)
     f1 = _first_mode_hz(scene, tables["rigid"])
@@ -264,8 +264,8 @@ def run_case(case: Case, quick: bool = False) -> list[dict]:
         extra = {"contact": {"penalty": _penalty(scene, tables)}}
         scene = case_scene(case, quick, contact={"penalty": case.penalty_factor * extra["contact"]["penalty"]})
     if case.nonpassive:
-        from orchestrator.cosim import scene_soil_model
-        good = scene_soil_model(scene, table=tables["gap"])
+        from orchestrator.impedance import scene_fit
+        good = scene_fit(scene, table=tables["gap"]).model
         soil_model = with_negative_damping(good, f1, rocking_shape(scene))
         soil_kwargs = {"force": case.nonpassive == "force"}
     t0 = time.perf_counter()

@@ -7,8 +7,10 @@ is the rational fit of the scene's BEM gap impedance; the monolithic route runs 
 the co-simulation route through the two FMUs. They agree to round-off (the impedance split).
 """
 from orchestrator.compare import history_differences
-from orchestrator.cosim import run_cosim, run_monolithic, scene_soil_model
+from orchestrator.impedance import scene_fit
 from orchestrator.results import summary, write_results
+from orchestrator.routes.cosim import run_cosim
+from orchestrator.routes.monolithic import run_monolithic
 from orchestrator.scene import scene_from_dict
 
 scene = scene_from_dict({
@@ -23,7 +25,7 @@ scene = scene_from_dict({
     "output": {"nodes": ["top_outer", "internals_37m"]},
 }, name="coarse-reactor")
 
-soil = scene_soil_model(scene, tol=0.04)       # BEM sweep of the gap impedance + rational fit (3 % rock: 4 %)
+soil = scene_fit(scene, tol=0.04).model       # BEM sweep of the gap impedance + rational fit (3 % rock: 4 %)
 mono = run_monolithic(scene, soil_model=soil)
 cosim = run_cosim(scene, soil_model=soil)
 

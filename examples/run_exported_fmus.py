@@ -14,7 +14,7 @@ import matplotlib
 import numpy as np
 
 from orchestrator.master import cosimulate
-from orchestrator.run import scene_motion
+from orchestrator.motion import make_motion
 from orchestrator.scene import load_scene
 
 matplotlib.use("Agg")
@@ -27,7 +27,7 @@ if not (folder / "structure.fmu").exists():
     print(f"exporting {scene.name} to {folder} (BEM sweep and fit are cached) ...")
     export_scene(scene, folder)
 
-motion = scene_motion(scene, dt=0.005)
+motion = make_motion(scene.motion, scene.analysis.dt)
 res = cosimulate(folder / "structure.fmu", folder / "soil.fmu", motion.acc, motion.dt)
 print(f"{res.route}: {res.nt - 1} steps in {res.wall_s:.1f} s, max uplift {1e3 * res.max_uplift():.2f} mm")
 

@@ -1,5 +1,8 @@
 """Run time against error: ``uplift bench [--quick] [--json] [--plot FILE]`` and benchmarks/pareto.py.
 
+Each route declares its knobs and their values in the registry (``Route.bench``,
+``Route.quick``; orchestrator/routes/); this module runs them.
+
 For each scene (``disk-halfspace`` with a bench tower on it, and ``reactor``) and each route,
 the route's accuracy knobs are swept:
 
@@ -31,14 +34,32 @@ from __future__ import annotations
 
 import copy
 import importlib.util
-import json
 import math
-import sys
 import time
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python < 3.11
+    import tomli as tomllib
+
+from structure import Damping, simulate
+from structure.contact import AUTO_FACTOR
+from structure.damping import fixed_base_modes
+from structure.results import RouteResult
+
+from orchestrator.compare import compare
+from orchestrator.impedance import scene_impedance
+from orchestrator.motion import make_motion
+from orchestrator.plots import pyplot
+from orchestrator.routes import default_reference, get_route, route_names
+from orchestrator.routes.base import SCENE_KNOBS
+from orchestrator.routes.winkler import winkler_soil
+from orchestrator.run import run_scene
+from orchestrator.scene import scene_from_dict
 
 ERR_TARGET = 0.01
 
@@ -67,50 +88,30 @@ DISK_TOWER = {
 DISK_ELEMENT = 2.0
 DISK_DAMPING = 0.01
 
-#: knob values per scene and route, coarse to fine (the last is the route's reference)
-FULL = {
-    "disk-halfspace": {
-        "winkler": {"dt": [0.01, 0.005, 0.0025, 0.00125], "penalty": [0.1, 1.0, 10.0],
-                    "element_size": [3.0, 2.0, 1.5]},
-        "monolithic": {"dt": [0.01, 0.005, 0.0025, 0.00125], "fit_tol": [0.05, 0.03, 0.02],
-                       "element_size": [3.0, 2.0, 1.5], "penalty": [0.1, 1.0, 10.0]},
-        "cosim": {"dt": [0.01, 0.005, 0.0025]},
-        "linear": {"pad_s": [0.25, 1.0, 4.0], "element_size": [3.0, 2.0, 1.5]},
-        "timefreq": {"dt": [0.01, 0.005, 0.0025], "pad_s": [0.25, 1.0, 4.0], "element_size": [3.0, 2.0, 1.5]},
-        "opensees": {"dt": [0.01, 0.005, 0.0025]},
-    },
-    "reactor": {
-        "winkler": {"dt": [0.01, 0.005, 0.0025, 0.00125], "penalty": [0.1, 1.0, 10.0],
-                    "element_size": [4.0, 3.0, 2.28]},
-        "monolithic": {"dt": [0.01, 0.005, 0.0025, 0.00125], "fit_tol": [0.1, 0.06, 0.04],
-                       "element_size": [4.0, 3.0, 2.28], "penalty": [0.1, 1.0, 10.0]},
-        "cosim": {"dt": [0.01, 0.005, 0.0025]},
-        "linear": {"pad_s": [0.25, 1.0, 4.0], "element_size": [4.0, 3.0, 2.28]},
-        "timefreq": {"dt": [0.01, 0.005], "pad_s": [0.25, 2.0], "element_size": [4.0, 2.28]},
-        "opensees": {"dt": [0.01, 0.005, 0.0025]},
-    },
-}
-#: --quick: the disk only, the mesh fixed, few values (about a minute)
-QUICK = {
-    "disk-halfspace": {
-        "winkler": {"dt": [0.01, 0.005, 0.0025], "penalty": [0.1, 1.0]},
-        "monolithic": {"dt": [0.01, 0.005, 0.0025], "fit_tol": [0.05, 0.02]},
-        "cosim": {"dt": [0.01, 0.005]},
-        "linear": {"pad_s": [0.25, 1.0]},
-        "timefreq": {"dt": [0.01, 0.005]},
-        "opensees": {"dt": [0.01, 0.005]},
-    },
-}
+#: the OpenSeesPy peer's time steps per scene (kind = "peer" rows; --quick: the disk only)
+PEER_DTS = {"disk-halfspace": (0.01, 0.005, 0.0025), "reactor": (0.01, 0.005, 0.0025)}
+PEER_DTS_QUICK = {"disk-halfspace": (0.01, 0.005)}
+
+
+def bench_config(quick: bool = False) -> dict:
+    """{scene: {route: {knob: values}}} of every registered route's bench knobs (``Route.bench``,
+    or ``Route.quick`` with --quick), plus the OpenSeesPy peer ("opensees")."""
+    config = {}
+    for name in route_names():
+        route = get_route(name)
+        for scene, knobs in (route.quick if quick else route.bench).items():
+            config.setdefault(scene, {})[name] = {k: list(v) for k, v in knobs.items()}
+    for scene, dts in (PEER_DTS_QUICK if quick else PEER_DTS).items():
+        if scene in config:
+            config[scene]["opensees"] = {"dt": list(dts)}
+    return config
+
 
 ROW_KEYS = ("route", "knobs", "wall_s", "err_max_uplift", "err_rotation", "err_spectra")
 
 
 def scene_data(name: str) -> dict:
     """The parsed TOML of a built-in scene; the disk gets the bench tower (DISK_TOWER)."""
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # Python < 3.11
-        import tomli as tomllib
     data = tomllib.loads((resources.files("orchestrator.scenes") / f"{name}.toml").read_text())
     if name == "disk-halfspace":
         data.update(copy.deepcopy(DISK_TOWER))
@@ -120,10 +121,7 @@ def scene_data(name: str) -> dict:
 
 
 def knob_scene(data: dict, name: str, knobs: dict):
-    """The scene ``data`` with the knobs dt, fit_tol, element_size and penalty applied."""
-    from orchestrator.scene import scene_from_dict
-    from structure.contact import AUTO_FACTOR
-
+    """The scene ``data`` with the scene knobs dt, fit_tol, element_size and penalty applied."""
     data = copy.deepcopy(data)
     for key, section in (("dt", "analysis"), ("fit_tol", "analysis"), ("element_size", "foundation")):
         if knobs.get(key) is not None:
@@ -134,27 +132,13 @@ def knob_scene(data: dict, name: str, knobs: dict):
 
 
 def run_route(data: dict, name: str, route: str, knobs: dict, cache_dir=None):
-    """RouteResult of one route of the scene with the knobs applied; ``total_s`` in its info."""
-    from orchestrator.run import run_scene
-
+    """RouteResult of one route of the scene with the knobs applied (scene knobs on the scene,
+    the others as route options); ``total_s`` (with the sweep and fit set-up) in its info."""
     t0 = time.perf_counter()
     scene = knob_scene(data, name, knobs)
-    if route in ("linear", "timefreq"):
-        from orchestrator.impedance import scene_impedance
-        from orchestrator.linear_fd import run_linear
-        from orchestrator.run import scene_analysis, scene_model, scene_motion
-        from orchestrator.timefreq import run_timefreq
-
-        motion = scene_motion(scene, scene_analysis(scene)[1])
-        table = scene_impedance(scene, ("gap",), cache_dir=cache_dir)["gap"]
-        if route == "linear":
-            res = run_linear(scene, motion, scene_model(scene), table, pad_s=knobs.get("pad_s"))
-        else:
-            res = run_timefreq(scene, motion, scene_model(scene), table, pad_s=knobs.get("pad_s"))
-    else:
-        res = run_scene(scene, [route], cache_dir=cache_dir)[0][route]
-    res.info["total_s"] = time.perf_counter() - t0
-    return res
+    options = {k: v for k, v in knobs.items() if k not in SCENE_KNOBS}
+    res = run_scene(scene, [route], cache_dir=cache_dir, options={route: options})[0][route]
+    return res.with_notes(info={"total_s": time.perf_counter() - t0})
 
 
 def plan(knob_values: dict) -> list:
@@ -177,8 +161,6 @@ def plan(knob_values: dict) -> list:
 def errors(res, ref) -> dict:
     """Relative errors of RouteResult ``res`` against ``ref`` (None where undefined: no uplift
     in the reference, no floor spectra)."""
-    from orchestrator.compare import compare
-
     c = compare({"reference": ref, "run": res}, reference="reference")
     m, m0, d = c["routes"]["run"], c["routes"]["reference"], c["differences"]["run"]
     has_spectra = any(m["spectrum_peaks"].values()) and any(m0["spectrum_peaks"].values())
@@ -236,20 +218,13 @@ def opensees_rows(data, scene, dts, cache_dir=None, log=None):
     with dashpots (the damping both codes can express: C = a1 K_beams, 7 % at the first
     fixed-base mode, as benchmarks/structure_step.py). Rows: OpenSeesPy against its own finest
     dt, and against this code's run at the same dt."""
-    from structure import Damping, simulate
-    from structure.damping import fixed_base_modes
-    from structure.results import RouteResult
-    from structure.spec import contact_from_spec
-
-    from orchestrator.run import scene_model, scene_motion, winkler_soil
-
     def skipped(why):
         return [{"scene": scene, "route": "opensees", "kind": "peer", "knobs": {"dt": dt}, "reference": "-",
                  "wall_s": None, "total_s": None, "err_max_uplift": None, "err_rotation": None,
                  "err_spectra": None, "note": f"skipped: {why}"} for dt in dts]
 
     try:
-        import openseespy.opensees  # noqa: F401
+        import openseespy.opensees  # noqa: F401, PLC0415  (optional dependency: the [bench] extra)
     except ImportError:
         return skipped("openseespy not installed (pip install -e \".[bench]\"; apt-get install libblas3 liblapack3)")
     path = Path(__file__).resolve().parents[1] / "benchmarks" / "structure_step.py"
@@ -264,20 +239,19 @@ def opensees_rows(data, scene, dts, cache_dir=None, log=None):
     runs = []
     for dt in dts:
         sc = knob_scene(data, scene, {"dt": dt})
-        model = scene_model(sc)
-        soil, _, _ = winkler_soil(sc, model, cache_dir)
+        model = sc.model()
+        rigid = scene_impedance(sc, ("rigid",), cache_dir=cache_dir)["rigid"]
+        soil, _, _ = winkler_soil(sc, model, rigid, cache_dir)
         a1 = 2 * 0.07 / (2 * np.pi * fixed_base_modes(model).freq[0])
-        ag = scene_motion(sc, dt).acc
-        ours = simulate(model, soil, ag, dt, contact=contact_from_spec(sc.section("contact")),
-                        damping=Damping("rayleigh", a1=a1), route="winkler-dashpots")
+        ag = make_motion(sc.motion, dt).acc
+        ours = simulate(model, soil, ag, dt, contact=sc.contact, damping=Damping("rayleigh", a1=a1),
+                        route="winkler-dashpots")
         wall, ry, gap = peer.run_opensees(model, soil, ours.info["penalty"], ag, dt, a1)
         raft = np.zeros((ry.size, 6))
         raft[:, 4] = ry
-        ops = RouteResult("opensees", ours.time, raft, gap, np.zeros_like(gap), np.zeros_like(gap),
-                          wall_s=wall, xy=ours.xy)
-        ours_ry = copy.copy(ours)         # the peer gives ry only: compare like with like
-        ours_ry.raft = np.where(np.arange(6) == 4, ours.raft, 0.0)
-        ours_ry.acc = {}
+        ops = RouteResult(route="opensees", time=ours.time, raft=raft, gap=gap, wall_s=wall, xy=ours.xy)
+        # the peer gives ry only: compare like with like
+        ours_ry = ours.replace(raft=np.where(np.arange(6) == 4, ours.raft, 0.0), acc={})
         runs.append((dt, ops, ours_ry))
         if log:
             log(f"{scene} opensees [dt={dt:g}]: {wall:.2f} s (this code {ours.wall_s:.2f} s), "
@@ -307,12 +281,13 @@ def bench(config: dict, cache_dir=None, log=None) -> list:
                 rows += opensees_rows(data, scene, knob_values["dt"], cache_dir, log)
             else:
                 rows += route_rows(data, scene, route, knob_values, cache_dir, log, keep=refs)
-        if "timefreq" in refs:
-            tf_knobs, tf = refs["timefreq"]
-            label = f"timefreq at its finest knobs ({_fmt_knobs(tf_knobs)}): cross-route reference"
+        ref_route = default_reference(refs) if refs else None
+        if ref_route is not None and get_route(ref_route).reference_rank > 0:
+            ref_knobs, ref = refs[ref_route]
+            label = f"{ref_route} at its finest knobs ({_fmt_knobs(ref_knobs)}): cross-route reference"
             for route, (knobs, res) in refs.items():
-                if route != "timefreq":
-                    rows.append(_row(scene, route, "cross-route", knobs, res, tf, label))
+                if route != ref_route:
+                    rows.append(_row(scene, route, "cross-route", knobs, res, ref, label))
     mark_best(rows)
     return rows
 
@@ -388,9 +363,7 @@ def summary_lines(rows) -> list:
 
 def plot_rows(rows, path):
     """Wall time against error (log-log), one panel per scene and error measure, one series per route."""
-    from orchestrator.plots import _pyplot
-
-    plt = _pyplot()
+    plt = pyplot()
     scenes = list(dict.fromkeys(r["scene"] for r in rows))
     measures = (("err_max_uplift", "max uplift"), ("err_rotation", "raft rotation"), ("err_spectra", "floor-spectrum peak"))
     fig, axes = plt.subplots(len(scenes), 3, figsize=(15, 4.5 * len(scenes)), squeeze=False, constrained_layout=True)
@@ -420,27 +393,13 @@ def plot_rows(rows, path):
     return Path(path)
 
 
-def _json_safe(v):
+def json_safe(v):
     if isinstance(v, dict):
-        return {k: _json_safe(x) for k, x in v.items()}
+        return {k: json_safe(x) for k, x in v.items()}
     if isinstance(v, (list, tuple)):
-        return [_json_safe(x) for x in v]
+        return [json_safe(x) for x in v]
     if isinstance(v, (float, np.floating)):
         return float(v) if math.isfinite(v) else None
     if isinstance(v, (np.integer, np.bool_)):
         return v.item()
     return v
-
-
-def run_bench_cli(args) -> int:
-    from orchestrator.cli import EXIT_FAILED, EXIT_OK, default_cache_dir
-
-    config = QUICK if args.quick else FULL
-    rows = bench(config, cache_dir=default_cache_dir(), log=lambda msg: print(msg, file=sys.stderr, flush=True))
-    if args.plot:
-        print(f"wrote {plot_rows(rows, args.plot)}", file=sys.stderr)
-    if args.json:
-        print(json.dumps(_json_safe(rows)))
-    else:
-        print(format_rows(rows))
-    return EXIT_OK if all(r.get("converged", True) for r in rows) else EXIT_FAILED

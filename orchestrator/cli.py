@@ -1,67 +1,115 @@
-"""The ``uplift`` command line.
+"""The ``uplift`` command line: parsing, printing, exit codes.
 
-Exit codes: 0 success; 1 a computation stopped (results written so far, reason printed);
-2 bad input (scene, file, option). Machine-readable output (``--json``) goes to stdout as
-exactly one JSON object; progress and messages go to stderr.
+Exit codes (orchestrator.settings): 0 success; 1 a computation stopped (results written so
+far, reason printed); 2 bad input (scene, file, option). Machine-readable output (``--json``)
+goes to stdout as exactly one JSON object; progress and messages go to stderr. This is the
+only module that prints.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import time
 from pathlib import Path
 
-EXIT_OK, EXIT_FAILED, EXIT_INPUT = 0, 1, 2
+import numpy as np
+
+from soil_impedance.fit import save_fit
+
+from orchestrator.bench import bench, bench_config, format_rows, json_safe, plot_rows
+from orchestrator.compare import compare, format_table
+from orchestrator.errors import ComputationError, UserInputError
+from orchestrator.export import export_scene
+from orchestrator.impedance import rigid_json, scene_fit, scene_impedance, scene_static
+from orchestrator.plots import plot_impedance, plot_run
+from orchestrator.progress import Progress, frequency_bar, step_bar
+from orchestrator.report import write_report
+from orchestrator.results import ResultsFileError, check_output_path, read_results, summary, write_results
+from orchestrator.routes import route_names
+from orchestrator.run import run_scene
+from orchestrator.scene import builtin_scenes, load_scene
+from orchestrator.settings import EXIT_FAILED, EXIT_INPUT, EXIT_OK, compute_threads, default_cache_dir
+from structure.results import Status
 
 
-def default_cache_dir() -> Path:
-    """Impedance/fit cache: $UPLIFT_CACHE, else ~/.cache/uplift."""
-    env = os.environ.get("UPLIFT_CACHE")
-    return Path(env) if env else Path.home() / ".cache" / "uplift"
+def _fraction(text: str) -> float:
+    """argparse type: a number in (0, 1)."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(v) and 0 < v < 1):
+        raise argparse.ArgumentTypeError(f"{text!r} must lie in (0, 1), e.g. 0.01 for 1 %")
+    return v
 
 
 def _parser() -> argparse.ArgumentParser:
-    from orchestrator.scene import builtin_scenes
-
     p = argparse.ArgumentParser(
         prog="uplift",
         description="Foundation uplift under earthquake: soil-structure interaction with BEM impedances.",
-        epilog=f"built-in scenes: {', '.join(builtin_scenes())}")
+        epilog=f"built-in scenes: {', '.join(builtin_scenes())}; routes: {', '.join(route_names())}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    def scene_arg(cmd):
+        cmd.add_argument("scene", help="scene TOML file or built-in scene name")
+
+    def no_cache(cmd):
+        cmd.add_argument("--no-cache", action="store_true",
+                         help="neither read nor write the impedance and fit cache ($UPLIFT_CACHE, ~/.cache/uplift)")
+
+    def json_flag(cmd, what="print one JSON object on stdout"):
+        cmd.add_argument("--json", action="store_true", help=what)
+
+    run = sub.add_parser("run", help="run the scene's analyses (time-domain routes)",
+                         description="Run the scene's analyses and write the results (HDF5) and a summary.")
+    scene_arg(run)
+    run.add_argument("-o", "--output", type=Path, default=None,
+                     help="results HDF5 file (default: <scene>_results.h5 in the current directory)")
+    run.add_argument("--route", action="append", dest="routes", metavar="R", choices=route_names(),
+                     help=f"route to run (repeatable; {', '.join(route_names())}); default: the scene's "
+                          "[analysis].routes")
+    run.add_argument("--plot-dir", type=Path, default=None, help="write figures to this directory")
+    json_flag(run, "print one JSON summary object on stdout")
+    no_cache(run)
+    run.set_defaults(func=cmd_run)
 
     imp = sub.add_parser("impedance", help="soil impedance of the scene's foundation (BEM sweep)",
                          description="Compute the rigid-raft (6x6) and rigid+gap (6+N) impedance tables of "
                                      "the scene's foundation over the scene's frequencies.")
-    imp.add_argument("scene", help="scene TOML file or built-in scene name")
+    scene_arg(imp)
     imp.add_argument("-o", "--output", type=Path, help="write the rigid 6x6 table to this HDF5 file")
     imp.add_argument("--gap", type=Path, metavar="FILE",
                      help="also compute the rigid + N vertical gap DOFs table (6+N) and write it here")
     imp.add_argument("--plot", type=Path, help="plot k(a0) and c(a0) of each rigid DOF to this image")
-    imp.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    imp.add_argument("--no-cache", action="store_true", help="recompute even if the sweep is cached")
+    json_flag(imp)
+    no_cache(imp)
     imp.set_defaults(func=cmd_impedance)
 
     fit = sub.add_parser("fit", help="rational soil model of the scene's impedance (vector fitting, passivity)",
                          description="Fit the scene's impedance table with a stable, passive, common-pole "
                                      "rational model K(s) = D + sE + sum R_k/(s - p_k).")
-    fit.add_argument("scene", help="scene TOML file or built-in scene name")
-    fit.add_argument("--tol", type=float, default=None,
-                     help="relative Frobenius error over the band (default: [analysis].fit_tol, else 0.01)")
+    scene_arg(fit)
+    fit.add_argument("--tol", type=_fraction, default=None,
+                     help="relative Frobenius error over the band, in (0, 1) (default: [analysis].fit_tol, "
+                          "else 0.01)")
     fit.add_argument("--table", choices=("gap", "rigid"), default="gap",
                      help="which impedance: gap = rigid raft + N vertical soil DOFs, used by the time "
                           "routes (default); rigid = 6x6")
     fit.add_argument("-o", "--output", type=Path, help="write the fitted model and its report (HDF5)")
     fit.add_argument("--plot", type=Path, help="plot table vs model and the error per frequency")
-    fit.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    json_flag(fit)
+    no_cache(fit)
     fit.set_defaults(func=cmd_fit)
 
     exp = sub.add_parser("export", help="export the structure and soil FMUs and an SSP system",
                          description="Write structure.fmu, soil.fmu and system.ssd (FMI 2.0 co-simulation, "
                                      "fixed step) for the scene; libcosimpy runs the .ssd as it is.")
-    exp.add_argument("scene", help="scene TOML file or built-in scene name")
+    scene_arg(exp)
     exp.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output directory")
+    no_cache(exp)
     exp.set_defaults(func=cmd_export)
 
     cmp = sub.add_parser("compare", help="differences between the routes of a results file",
@@ -69,7 +117,7 @@ def _parser() -> argparse.ArgumentParser:
                                      "floor-spectrum peaks, run times) against a reference route.")
     cmp.add_argument("results", type=Path, help="results HDF5 file written by `uplift run`")
     cmp.add_argument("--reference", default=None, help="reference route (default: timefreq, else the first)")
-    cmp.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    json_flag(cmp)
     cmp.set_defaults(func=cmd_compare)
 
     rep = sub.add_parser("report", help="self-contained HTML report of a results file",
@@ -82,37 +130,29 @@ def _parser() -> argparse.ArgumentParser:
                                                        "(default: timefreq, else the first)")
     rep.set_defaults(func=cmd_report)
 
-    bench = sub.add_parser("bench", help="run time against error of every route and its accuracy knobs",
-                           description="For the disk-halfspace and reactor scenes, sweep each route's "
-                                       "accuracy knobs (dt, fit tolerance, BEM element size, TF padding, "
-                                       "contact penalty) and measure wall time and error against the "
-                                       "route's own finest run and against the cross-route reference.")
-    bench.add_argument("--quick", action="store_true",
-                       help="disk-halfspace only, few knob values (about a minute or two)")
-    bench.add_argument("--json", action="store_true", help="print the list of rows as one JSON value on stdout")
-    bench.add_argument("--plot", type=Path, default=None, metavar="FILE",
-                       help="plot wall time against error (log-log) per route to this image")
-    bench.set_defaults(func=cmd_bench)
-
-    run = sub.add_parser("run", help="run the scene's analyses (time-domain routes)",
-                         description="Run the scene's analyses and write the results (HDF5) and a summary.")
-    run.add_argument("scene", help="scene TOML file or built-in scene name")
-    run.add_argument("-o", "--output", type=Path, default=None,
-                     help="results HDF5 file (default: <scene>_results.h5 in the current directory)")
-    run.add_argument("--route", action="append", dest="routes", metavar="R",
-                     help="route to run (repeatable); default: the scene's [analysis].routes")
-    run.add_argument("--plot-dir", type=Path, default=None, help="write figures to this directory")
-    run.add_argument("--json", action="store_true", help="print one JSON summary object on stdout")
-    run.set_defaults(func=cmd_run)
+    bch = sub.add_parser("bench", help="run time against error of every route and its accuracy knobs",
+                         description="For the disk-halfspace and reactor scenes, sweep each route's "
+                                     "accuracy knobs (dt, fit tolerance, BEM element size, TF padding, "
+                                     "contact penalty) and measure wall time and error against the "
+                                     "route's own finest run and against the cross-route reference.")
+    bch.add_argument("--quick", action="store_true",
+                     help="disk-halfspace only, few knob values (about a minute or two)")
+    json_flag(bch, "print the list of rows as one JSON value on stdout")
+    bch.add_argument("--plot", type=Path, default=None, metavar="FILE",
+                     help="plot wall time against error (log-log) per route to this image")
+    no_cache(bch)
+    bch.set_defaults(func=cmd_bench)
     return p
 
 
 def main(argv=None) -> int:
-    args = _parser().parse_args(argv)
-    from orchestrator.errors import UserInputError, ComputationError
-
     try:
-        return args.func(args)
+        args = _parser().parse_args(argv)
+    except SystemExit as exc:        # argparse: --help (0) or a bad argument (2, message printed)
+        return int(exc.code or 0)
+    try:
+        with compute_threads():
+            return args.func(args)
     except UserInputError as exc:
         print(f"uplift: error: {exc}", file=sys.stderr)
         return EXIT_INPUT
@@ -125,121 +165,146 @@ def main(argv=None) -> int:
         return EXIT_OK
 
 
-def cmd_impedance(args) -> int:
-    from orchestrator.progress import Progress, frequency_bar
-    from orchestrator.scene import load_scene
-    from orchestrator.impedance import rigid_json, scene_impedance
+def _cache(args):
+    return None if args.no_cache else default_cache_dir()
 
+
+def _say(*lines):
+    for line in lines:
+        print(line, file=sys.stderr)
+
+
+def cmd_run(args) -> int:
+    scene = load_scene(args.scene)
+    out = check_output_path(args.output or Path(f"{scene.name}_results.h5"))
+    if args.plot_dir is not None and args.plot_dir.exists() and not args.plot_dir.is_dir():
+        raise ResultsFileError(f"--plot-dir {str(args.plot_dir)!r} is a file: give a folder")
+    results, motion = run_scene(scene, args.routes, cache_dir=_cache(args),
+                                progress=lambda route: step_bar(Progress(f"run {scene.name} [{route}]")),
+                                sweep_progress=frequency_bar(Progress(f"impedance {scene.name}")))
+    write_results(out, results, motion, scene.name)
+    _say(f"wrote {out}")
+    summ = {"routes": {r: summary(res) for r, res in results.items()}}
+    if args.plot_dir:
+        _say(*(f"wrote {path}" for path in plot_run(results, motion, scene, args.plot_dir)))
+    if args.json:
+        print(json.dumps(summ))
+    else:
+        for r, s in summ["routes"].items():
+            if s["status"] == Status.REFUSED.value:
+                _say(f"{r}: REFUSED: {s['message']}")
+                continue
+            _say(f"{r}: max uplift {1e3 * s['max_uplift_m']:.3f} mm at {s['max_uplift_time_s']:.3f} s, "
+                 f"raft rotation {s['max_raft_rotation_rad']:.3e} rad, min contact "
+                 f"{100 * s['min_contact_fraction']:.1f} %, wall {s['wall_s']:.2f} s"
+                 + ("" if s["converged"] else f"  STOPPED: {s['message']}"))
+            if s["precheck"]:
+                _say(f"  linear pre-check: {s['precheck']}")
+            _say(*(f"  skipped: {item}" for item in s["skipped"]))
+            _say(*(f"  WARNING: {item}" for item in s["warnings"]))
+    statuses = {res.status for res in results.values()}
+    if Status.REFUSED in statuses:
+        return EXIT_INPUT
+    return EXIT_FAILED if Status.STOPPED in statuses else EXIT_OK
+
+
+def cmd_impedance(args) -> int:
     t0 = time.perf_counter()
     scene = load_scene(args.scene)
-    cache = None if args.no_cache else default_cache_dir()
+    for path in (args.output, args.gap, args.plot):
+        if path is not None:
+            check_output_path(path)
+    cache = _cache(args)
     outputs = ("rigid", "gap") if args.gap else ("rigid",)
-    tables = scene_impedance(scene, outputs, cache_dir=cache, progress=frequency_bar(Progress(f"impedance {scene.name}")))
+    tables = scene_impedance(scene, outputs, cache_dir=cache,
+                             progress=frequency_bar(Progress(f"impedance {scene.name}")))
     wall = time.perf_counter() - t0
     for name, path in (("rigid", args.output), ("gap", args.gap)):
         if path:
             tables[name].save(path)
-            print(f"wrote {path} ({name} table)", file=sys.stderr)
+            _say(f"wrote {path} ({name} table)")
     if args.plot:
-        from orchestrator.impedance import scene_static
-        from orchestrator.plots import plot_impedance
         plot_impedance(tables["rigid"], scene, args.plot, static=scene_static(scene, cache_dir=cache))
-        print(f"wrote {args.plot}", file=sys.stderr)
+        _say(f"wrote {args.plot}")
     if args.json:
         print(json.dumps(rigid_json(tables["rigid"], wall)))
     else:
-        _print_rigid_summary(tables["rigid"], wall, file=sys.stderr)
+        table = tables["rigid"]
+        diag = np.diagonal(table.matrices, axis1=1, axis2=2)
+        _say(f"rigid impedance, {len(table.frequencies_hz)} frequencies, {wall:.2f} s",
+             "   f (Hz) " + "".join(f"{d:>24s}" for d in table.dofs),
+             *(f"{f:9.3f} " + "".join(f"{z.real:12.4e}{z.imag:+12.4e}" for z in row)
+               for f, row in zip(table.frequencies_hz, diag)))
     return EXIT_OK
 
 
-def _print_rigid_summary(table, wall, file):
-    import numpy as np
-
-    diag = np.diagonal(table.matrices, axis1=1, axis2=2)
-    print(f"rigid impedance, {len(table.frequencies_hz)} frequencies, {wall:.2f} s", file=file)
-    print("   f (Hz) " + "".join(f"{d:>24s}" for d in table.dofs), file=file)
-    for f, row in zip(table.frequencies_hz, diag):
-        print(f"{f:9.3f} " + "".join(f"{z.real:12.4e}{z.imag:+12.4e}" for z in row), file=file)
-
-
 def cmd_fit(args) -> int:
-    from orchestrator.impedance import scene_impedance
-    from orchestrator.progress import Progress, frequency_bar
-    from orchestrator.run import scene_fit_tol
-    from orchestrator.scene import load_scene
-    from soil_impedance.fit import fit_table, save_fit
-
     t0 = time.perf_counter()
     scene = load_scene(args.scene)
-    tol = args.tol if args.tol is not None else scene_fit_tol(scene)
-    cache = default_cache_dir()
+    for path in (args.output, args.plot):
+        if path is not None:
+            check_output_path(path)
+    tol = args.tol if args.tol is not None else scene.analysis.fit_tol
+    cache = _cache(args)
     table = scene_impedance(scene, (args.table,), cache_dir=cache,
                             progress=frequency_bar(Progress(f"impedance {scene.name}")))[args.table]
-    result = fit_table(table, tol=tol, cache_dir=cache, node_xy=scene.mesh.xy if args.table == "gap" else None)
+    if args.table == "gap":
+        result = scene_fit(scene, cache_dir=cache, table=table, tol=tol)
+    else:
+        result = scene_fit(scene, cache_dir=cache, table=table, tol=tol, node_xy=None)
     if args.output:
         save_fit(result, args.output)
-        print(f"wrote {args.output}", file=sys.stderr)
+        _say(f"wrote {args.output}")
     if args.plot:
         result.plot(table, args.plot)
-        print(f"wrote {args.plot}", file=sys.stderr)
+        _say(f"wrote {args.plot}")
     out = dict(result.report.summary(), wall_s=time.perf_counter() - t0)
     if args.json:
         print(json.dumps(out))
     else:
-        print(f"{args.table} table of {scene.name}: {out['order']} poles, max relative error "
-              f"{100 * out['max_rel_error']:.2f} % (tol {100 * tol:g} %), passive: {out['passive']} "
-              f"(margin {out['passivity_margin']:.3g}), {out['wall_s']:.1f} s", file=sys.stderr)
+        _say(f"{args.table} table of {scene.name}: {out['order']} poles, max relative error "
+             f"{100 * out['max_rel_error']:.2f} % (tol {100 * tol:g} %), passive: {out['passive']} "
+             f"(margin {out['passivity_margin']:.3g}), {out['wall_s']:.1f} s")
     return EXIT_OK
 
 
 def cmd_export(args) -> int:
-    from orchestrator.cosim import scene_soil_model
-    from orchestrator.export import export_scene
-    from orchestrator.run import scene_fit_tol
-    from orchestrator.scene import load_scene
-
     scene = load_scene(args.scene)
-    model = scene_soil_model(scene, cache_dir=default_cache_dir(), tol=scene_fit_tol(scene))
-    exported = export_scene(scene, args.output, model, cache_dir=default_cache_dir())
-    for path in (exported.structure, exported.soil, exported.ssd):
-        print(f"wrote {path}", file=sys.stderr)
+    if scene.structure is None:
+        raise ResultsFileError(f"scene {scene.name!r} has no [structure]: nothing to export "
+                               "(add [structure] model = \"reactor\", or inline nodes/beams/masses/raft)")
+    if args.output.exists() and not args.output.is_dir():
+        raise ResultsFileError(f"-o {str(args.output)!r} is a file: give a folder for the FMUs")
+    exported = export_scene(scene, args.output, cache_dir=_cache(args))
+    _say(*(f"wrote {path}" for path in (exported.structure, exported.soil, exported.ssd)))
     return EXIT_OK
 
 
 def cmd_compare(args) -> int:
-    from orchestrator.compare import compare, format_table
-    from orchestrator.results import read_results
-
-    if not args.results.is_file():
-        raise FileNotFoundError(f"results file {str(args.results)!r} does not exist: run `uplift run SCENE -o FILE` first")
     results = read_results(args.results)
     if args.reference is not None and args.reference not in results:
-        raise FileNotFoundError(f"--reference {args.reference!r} is not in {args.results} "
-                                f"(routes: {', '.join(results)})")
+        raise ResultsFileError(f"--reference {args.reference!r} is not in {args.results} "
+                               f"(routes: {', '.join(results)})")
     table = compare(results, reference=args.reference)
-    if args.json:
-        print(json.dumps(table))
-    else:
-        print(format_table(table))
+    print(json.dumps(table) if args.json else format_table(table))
     return EXIT_OK
 
 
 def cmd_report(args) -> int:
-    from orchestrator.report import write_report
-
-    path = write_report(args.results, args.output, reference=args.reference)
-    print(f"wrote {path}", file=sys.stderr)
+    if args.output.exists() and not args.output.is_dir():
+        raise ResultsFileError(f"-o {str(args.output)!r} is a file: give a folder for the report")
+    _say(f"wrote {write_report(args.results, args.output, reference=args.reference)}")
     return EXIT_OK
 
 
 def cmd_bench(args) -> int:
-    from orchestrator.bench import run_bench_cli
-    return run_bench_cli(args)
-
-
-def cmd_run(args) -> int:
-    from orchestrator.run import run_scene_cli
-    return run_scene_cli(args)
+    if args.plot is not None:
+        check_output_path(args.plot)
+    rows = bench(bench_config(args.quick), cache_dir=_cache(args), log=lambda msg: _say(msg))
+    if args.plot:
+        _say(f"wrote {plot_rows(rows, args.plot)}")
+    print(json.dumps(json_safe(rows)) if args.json else format_rows(rows))
+    return EXIT_OK if all(r.get("converged", True) for r in rows) else EXIT_FAILED
 
 
 if __name__ == "__main__":

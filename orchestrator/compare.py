@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from orchestrator.routes import default_reference
+from orchestrator.spectra import response_spectrum
+
 DIRECTIONS = ("x", "y", "z")
 
 
 def route_metrics(res, damping=0.05, n_periods=120) -> dict:
     """{max_uplift_m, max_rotation_rad, spectrum_peaks {node: {dir: psa m/s^2}}, wall_s, converged}."""
-    from orchestrator.spectra import response_spectrum
-
     periods = np.geomspace(0.02, 10.0, n_periods)
     dt = float(res.time[1] - res.time[0]) if res.nt > 1 else 1.0
     peaks = {}
@@ -38,12 +39,12 @@ def _rel(a, b):
 
 def compare(results: dict, reference: str | None = None, damping=0.05) -> dict:
     """Differences of every route in ``results`` ({route: RouteResult}) to ``reference``
-    (default: "timefreq" if present, else the first route). Returns a JSON-able dict:
+    (default: the registry's reference route if present, e.g. "timefreq", else the first route). Returns a JSON-able dict:
     {reference, damping, routes: {route: metrics}, differences: {route: {max_uplift,
     max_rotation, spectrum_peaks {node: {dir: rel}}, max_spectrum_peak}, wall_ratio}}."""
     if not results:
         raise ValueError("compare needs at least one route")
-    ref = reference or ("timefreq" if "timefreq" in results else next(iter(results)))
+    ref = reference or default_reference(results)
     if ref not in results:
         raise ValueError(f"reference route {ref!r} is not among the results ({', '.join(results)})")
     metrics = {r: route_metrics(res, damping) for r, res in results.items()}

@@ -9,10 +9,12 @@ from soil_impedance.rational import FitError
 from structure import StructureError
 
 from orchestrator.motion import MotionError
+from orchestrator.results import ResultsFileError
+from orchestrator.routes import RouteInputError
 from orchestrator.scene import SceneError
 
 #: bad input: a scene, a file, an option; the message says what to fix
 UserInputError = (SceneError, SoilError, MeshError, BemError, TableError, MotionError, StructureError, FitError,
-                  FileNotFoundError)
+                  RouteInputError, ResultsFileError, FileNotFoundError)
 #: a computation that stopped (results so far are written by the caller)
 ComputationError = (RuntimeError, ArithmeticError)

@@ -20,6 +20,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from fmpy import read_model_description
+
+from fmus.build import PACKAGES, FmuData, build_fmus
+from fmus.common import DEFAULT_SOIL_FACTORY
+from structure.spec import contact_table
+
+from orchestrator.impedance import scene_fit
+from orchestrator.motion import make_motion
 
 SSD = "http://ssp-standard.org/SSP1/SystemStructureDescription"
 SSC = "http://ssp-standard.org/SSP1/SystemStructureCommon"
@@ -38,7 +46,6 @@ class Export:
 
 def factory_modules(soil_factory: str) -> tuple:
     """Source files to bundle for a soil factory that lives outside the project's packages."""
-    from fmus.build import PACKAGES
     module = soil_factory.partition(":")[0]
     if module.split(".")[0] in PACKAGES:
         return ()
@@ -50,16 +57,11 @@ def factory_modules(soil_factory: str) -> tuple:
 def fmu_data(scene, soil_model, dt: float, motion=None, soil_factory: str | None = None,
              soil_kwargs: dict | None = None, extra_modules=()):
     """The FmuData of a scene (structure and contact tables, interface mesh, outputs)."""
-    from fmus.build import FmuData
-    from fmus.common import DEFAULT_SOIL_FACTORY
-    from orchestrator.run import output_nodes
-
     factory = soil_factory or DEFAULT_SOIL_FACTORY
-    nodes = output_nodes(scene)
+    nodes = scene.output.nodes
     if nodes is None:
-        from orchestrator.run import scene_model
-        nodes = [n.name for n in scene_model(scene).nodes if n.name]
-    return FmuData(structure=dict(scene.section("structure")), contact=dict(scene.section("contact")),
+        nodes = [n.name for n in scene.model().nodes if n.name]
+    return FmuData(structure=scene.structure.as_table(), contact=contact_table(scene.contact),
                    xy=np.asarray(scene.mesh.xy), area=np.asarray(scene.mesh.area), soil_model=soil_model,
                    dt=float(dt), output_nodes=list(nodes),
                    motion=None if motion is None else np.asarray(motion.acc, float),
@@ -73,20 +75,16 @@ def export_scene(scene, outdir, soil_model=None, *, dt: float | None = None, mot
     """Write structure.fmu, soil.fmu and system.ssd for ``scene`` into ``outdir``.
 
     soil_model : RationalModel of the scene's gap impedance (None: fitted from the scene,
-                 see orchestrator.cosim.scene_soil_model)
+                 see orchestrator.impedance.scene_fit)
     dt : s (default: the scene's [analysis] dt); motion : Motion (default: the scene's)
     soil_factory : "module:callable" building the soil from (model, dt, **soil_kwargs)
     """
-    from fmus.build import build_fmus
-    from orchestrator.run import scene_analysis, scene_motion
-
     if dt is None:
-        dt = scene_analysis(scene)[1]
+        dt = scene.analysis.dt
     if motion is None:
-        motion = scene_motion(scene, dt)
+        motion = make_motion(scene.motion, dt)
     if soil_model is None:
-        from orchestrator.cosim import scene_soil_model
-        soil_model = scene_soil_model(scene, cache_dir=cache_dir)
+        soil_model = scene_fit(scene, cache_dir=cache_dir).model
     data = fmu_data(scene, soil_model, dt, motion, soil_factory, soil_kwargs, extra_modules)
     outdir = Path(outdir)
     s, g = build_fmus(data, outdir)
@@ -99,8 +97,6 @@ def write_ssd(path, structure_fmu, soil_fmu, dt: float, stop_time: float, name: 
     """SSP system: components "structure" and "soil" (sources relative to the .ssd), the
     split coupling (structure.x/xdot -> soil.x/xdot, soil.h -> structure.h), DefaultExperiment
     with the OSP FixedStepAlgorithm of step dt."""
-    from fmpy import read_model_description
-
     path = Path(path)
     ET.register_namespace("ssd", SSD)
     ET.register_namespace("ssc", SSC)

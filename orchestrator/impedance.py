@@ -1,9 +1,10 @@
-"""The scene's impedance sweep (glue between a Scene and soil_impedance)."""
+"""The scene's impedance sweep and its rational fit (glue between a Scene and soil_impedance)."""
 from __future__ import annotations
 
 import numpy as np
 
 from soil_impedance import impedance_sweep, static_impedance
+from soil_impedance.fit import fit_table
 
 
 def scene_impedance(scene, outputs=("rigid",), cache_dir=None, progress=None, stats=None):
@@ -29,6 +30,18 @@ def scene_static(scene, output="rigid", cache_dir=None) -> np.ndarray:
     """K(ω = 0) of the scene's foundation, complex (n, n)."""
     return static_impedance(scene.profile, scene.mesh, contact=scene.contact_kind, output=output,
                             cache_dir=cache_dir)
+
+
+def scene_fit(scene, cache_dir=None, progress=None, table=None, **fit_options):
+    """FitResult (model and report) of the scene's gap impedance table ((6+N)^2: raft DOFs and
+    the soil vertical displacement under each node; swept here unless given), fitted by
+    soil_impedance.fit.fit_table at the scene's ``[analysis].fit_tol`` unless ``tol`` is given."""
+    if table is None:
+        table = scene_impedance(scene, ("gap",), cache_dir=cache_dir, progress=progress)["gap"]
+    fit_options.setdefault("cache_dir", cache_dir)
+    fit_options.setdefault("tol", scene.analysis.fit_tol)
+    fit_options.setdefault("node_xy", scene.mesh.xy)     # for the rigid-raft correction of the fit
+    return fit_table(table, **fit_options)
 
 
 def rigid_json(table, wall_s: float) -> dict:

@@ -26,6 +26,11 @@ import time as _time
 from pathlib import Path
 
 import numpy as np
+from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi2 import FMU2Slave, defaultCallbacks, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
+
+from structure.results import RouteResult, RunNotes, Status
 
 SCHEDULES = ("gauss-seidel", "jacobi", "total-force")
 FMI2_WARNING = 1                    # fmi2Status above which a call failed (discard, error, fatal)
@@ -49,9 +54,6 @@ class FmuSlave:
     """
 
     def __init__(self, path, name: str | None = None, parameters: dict | None = None):
-        from fmpy import extract, read_model_description
-        from fmpy.fmi2 import FMU2Slave
-
         self.path = Path(path)
         self.md = read_model_description(str(self.path))
         self.name = name or self.md.modelName
@@ -74,8 +76,6 @@ class FmuSlave:
             self.set_parameters(parameters)
 
     def _callbacks(self):
-        from fmpy.fmi2 import (defaultCallbacks, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE)
-
         def logger(env, instance, status, category, message):
             text = message.decode("utf-8", "replace") if message else ""
             self.log.append(text)
@@ -147,7 +147,6 @@ class FmuSlave:
         raise CosimError(f"FMU {self.name!r}: {what} failed ({function}): {tail}")
 
     def _call(self, what, fn, **kw):
-        from fmpy.fmi1 import FMICallException
         try:
             fn(**kw)
         except FMICallException as exc:
@@ -207,13 +206,13 @@ class Timer:
 
 
 def cosimulate(structure_fmu, soil_fmu, ag, dt: float, schedule: str = "gauss-seidel",
-               route: str = "td-cosim", progress=None, parameters: dict | None = None):
+               route: str = "cosim", progress=None, parameters: dict | None = None):
     """Co-simulate the exported pair over the ground acceleration ``ag`` (nt, 3) m/s^2 at
     step ``dt`` (the FMUs' fixed step) with ``schedule`` in SCHEDULES. The motion goes in
     through the structure's ``ag`` inputs (``internal_motion = false``).
 
     structure_fmu, soil_fmu : paths of .fmu files (or open FmuSlaves, left open)
-    Returns a RouteResult (route name ``route``; ``info["schedule"]``; ``info["timing"]`` and
+    Returns a RouteResult (route name ``route``; ``info["schedule"]``; ``notes.timings`` and
     ``info["timing_cpu"]`` the wall and CPU time per part: initialisation (FMU extraction,
     instantiation, initialisation), structure step, soil step, transfers (FMI get/set and
     recording)). A failed FMU call ends the run: ``converged = False``, the results up to the
@@ -299,23 +298,19 @@ def _run(S, G, ag, dt, schedule, route, progress, start):
                 progress(k, nt)
     except CosimError as exc:
         message = str(exc)
-    res = _unpack(route, Y[:done], names, [len(S.vrs(nm)) for nm in names], nodes, dt)
-    res.converged, res.message = not message, message
-    res.info.update(dt=dt, schedule=schedule, P0=res.contact_force[0].copy())
-    res.wall_s = _time.perf_counter() - start[0]
-    res.info["timing"], res.info["timing_cpu"] = dict(timer.parts), dict(timer.cpu)
-    return res
+    cols = _columns(Y[:done], names, [len(S.vrs(nm)) for nm in names])
+    x = cols["x"]
+    return RouteResult(
+        route=route, time=dt * np.arange(done), raft=x[:, :6], gap=cols["gap"], contact_force=cols["P"],
+        soil_w=x[:, 6:], acc={nm: cols[f"acc_{nm}"] for nm in nodes}, disp={nm: cols[f"disp_{nm}"] for nm in nodes},
+        energy={e: cols[f"energy.{e}"][:, 0] for e in ENERGY_TERMS}, newton_iters=cols["newton_iters"][:, 0],
+        status=Status.STOPPED if message else Status.CONVERGED, message=message,
+        wall_s=_time.perf_counter() - start[0],
+        notes=RunNotes(timings=timer.parts),
+        info=dict(dt=dt, schedule=schedule, P0=cols["P"][0], timing_cpu=dict(timer.cpu)))
 
 
-def _unpack(route, Y, names, sizes, nodes, dt):
-    """RouteResult from the rows Y (nt, m) of the structure's outputs ``names`` (sizes)."""
-    from structure.results import RouteResult
-
+def _columns(Y, names, sizes) -> dict:
+    """{name: (nt, size)} columns of the rows Y (nt, m) of the structure's outputs ``names``."""
     offs = np.concatenate([[0], np.cumsum(sizes)])
-    col = {nm: Y[:, offs[i]:offs[i + 1]] for i, nm in enumerate(names)}
-    x = col["x"]
-    return RouteResult(route, dt * np.arange(Y.shape[0]), x[:, :6].copy(), col["gap"].copy(),
-                       col["P"].copy(), x[:, 6:].copy(), {nm: col[f"acc_{nm}"].copy() for nm in nodes},
-                       {nm: col[f"disp_{nm}"].copy() for nm in nodes},
-                       {e: col[f"energy.{e}"][:, 0].copy() for e in ENERGY_TERMS},
-                       col["newton_iters"][:, 0].astype(int), True, "", 0.0, None, {})
+    return {nm: Y[:, offs[i]:offs[i + 1]] for i, nm in enumerate(names)}

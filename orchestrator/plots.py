@@ -5,13 +5,16 @@ from pathlib import Path
 
 import numpy as np
 
+from orchestrator.spectra import response_spectrum
+
 RIGID_GROUPS = (("ux", "horizontal"), ("uz", "vertical"), ("rx", "rocking"), ("rz", "torsion"))
 
 
-def _pyplot():
-    import matplotlib
+def pyplot():
+    """matplotlib.pyplot on the Agg backend (imported on first use: it costs ~0.5 s at start-up)."""
+    import matplotlib  # noqa: PLC0415  (start-up cost: only the commands that draw pay it)
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # noqa: PLC0415
     return plt
 
 
@@ -35,7 +38,7 @@ def impedance_coefficients(table, static, radius: float, vs: float):
 
 def plot_impedance(table, scene, path: Path, static=None):
     """k(a0) and c(a0) for each rigid DOF (horizontal, vertical, rocking, torsion)."""
-    plt = _pyplot()
+    plt = pyplot()
     if static is None:
         if table.frequencies_hz[0] != 0.0:
             raise ValueError("the impedance plot needs K(0): include 0 Hz in the scene's frequencies")
@@ -69,7 +72,7 @@ def _edges(xy):
 
 def plot_run(results: dict, motion, scene, directory) -> list:
     """Write the figures of ``run_figures`` as ``<directory>/<name>.png``; returns the paths."""
-    plt = _pyplot()
+    plt = pyplot()
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     paths = []
@@ -87,9 +90,7 @@ def run_figures(results: dict, motion, scene_name: str):
     When the ``linear`` route (no uplift) is among the results, it is drawn dashed on the other
     routes' figures: the paper's "with and without uplift" comparison. ``motion`` (may be None)
     adds the ground spectrum. The caller closes each figure."""
-    from orchestrator.spectra import response_spectrum
-
-    plt = _pyplot()
+    plt = pyplot()
     label = motion.label if motion is not None else ""
     linear = results.get("linear")
     for route, res in results.items():

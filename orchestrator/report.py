@@ -14,55 +14,23 @@ import html
 import io
 from pathlib import Path
 
-from orchestrator.motion import Motion
-
-#: one line per route: what it computes (see orchestrator/run.py and DESIGN.md §1)
-ROUTE_NOTES = {
-    "winkler": "TD-Winkler: spring-and-dashpot mattress calibrated on the BEM static impedance, "
-               "RCC-G composite modal damping (paper §4, the industrial method); Newmark + penalty contact.",
-    "monolithic": "TD-monolithic: BEM impedance as a fitted rational model run by recursive "
-                  "convolution, in process; Newmark + penalty contact with semi-smooth Newton.",
-    "cosim": "TD-cosim: the same stepper and soil model as two FMI 2.0 FMUs under our "
-             "Gauss-Seidel master (equal to monolithic to round-off).",
-    "linear": "linear FD: the BEM impedance table applied per frequency, raft bonded (no uplift): "
-              "the exact linear reference, drawn dashed as 'no uplift' on the other figures.",
-    "timefreq": "TF reference (paper §3): the BEM table per frequency, unilateral contact over "
-                "the whole time range on the trapezoidal grid, solved by causal marches with the "
-                "wrap-around fed back to the whole-range residual's tolerance.",
-}
+from orchestrator.compare import compare
+from orchestrator.plots import pyplot, run_figures
+from orchestrator.results import ResultsFileError, read_motion, read_results, summary
+from orchestrator.routes import get_route, route_names
 
 
-class ReportError(FileNotFoundError):
-    """A results file that is missing or not a results file (exit 2 in the CLI)."""
+def route_note(name: str) -> str:
+    """One line on what a route computes (the registry's summary)."""
+    return get_route(name).summary if name in route_names() else "route of this results file"
 
 
 def load(path):
-    """(scene name, created, {route: RouteResult}, Motion or None) of a results file."""
-    import h5py
-
-    from orchestrator.results import read_results
-
-    path = Path(path)
-    if not path.is_file():
-        raise ReportError(f"results file {str(path)!r} does not exist: run `uplift run SCENE -o FILE` first")
-    try:
-        with h5py.File(path, "r") as f:
-            if "routes" not in f or not len(f["routes"]):
-                raise ReportError(f"{path} holds no routes (/routes/<route>): not a results file of "
-                                  "`uplift run`; run `uplift run SCENE -o FILE` to make one")
-            scene, created = str(f.attrs.get("scene", "")), str(f.attrs.get("created", ""))
-            motion = None
-            if "motion" in f:
-                m = f["motion"]
-                motion = Motion(float(m.attrs["dt"]), m["acc"][()], str(m.attrs.get("label", "motion")))
-        results = read_results(path)
-    except OSError as exc:   # h5py: not an HDF5 file, truncated file
-        raise ReportError(f"{path} is not a readable HDF5 results file ({exc}); "
-                          "run `uplift run SCENE -o FILE` to make one") from None
-    except (KeyError, TypeError) as exc:
-        raise ReportError(f"{path} does not have the results layout of `uplift run` (missing {exc}); "
-                          "see orchestrator/results.py") from None
-    return scene or path.stem, created, results, motion
+    """(scene name, created, {route: RouteResult}, Motion or None) of a results file
+    (orchestrator.results.ResultsFileError when it is missing or not one)."""
+    results = read_results(path)
+    scene, created, motion = read_motion(path)
+    return scene or Path(path).stem, created, results, motion
 
 
 def _table(header, rows) -> str:
@@ -74,14 +42,12 @@ def _table(header, rows) -> str:
 
 def summary_rows(results) -> list:
     """Rows of the per-route summary table (strings, display units)."""
-    from orchestrator.results import summary
-
     rows = []
     for route, res in results.items():
         s = summary(res)
         rows.append([route, f"{1e3 * s['max_uplift_m']:.4f}", f"{s['max_uplift_time_s']:.3f}",
                      f"{s['max_raft_rotation_rad']:.4e}", f"{100 * s['min_contact_fraction']:.1f}",
-                     f"{s['wall_s']:.2f}", "yes" if s["converged"] else f"NO: {res.message}"])
+                     f"{s['wall_s']:.2f}", "yes" if s["converged"] else f"{s['status'].upper()}: {res.message}"])
     return rows
 
 
@@ -112,16 +78,13 @@ td:first-child,th:first-child{text-align:left}img{max-width:100%;border:1px soli
 
 def write_report(results_path, directory, reference: str | None = None) -> Path:
     """Write ``directory/report.html`` (self-contained) and the figures as PNG next to it."""
-    from orchestrator.compare import compare
-    from orchestrator.plots import _pyplot, run_figures
-
     scene, created, results, motion = load(results_path)
     if reference is not None and reference not in results:
-        raise ReportError(f"--reference {reference!r} is not in {results_path} (routes: {', '.join(results)})")
+        raise ResultsFileError(f"--reference {reference!r} is not in {results_path} (routes: {', '.join(results)})")
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     cmp = compare(results, reference=reference)
-    plt = _pyplot()
+    plt = pyplot()
     figures = []
     for name, fig in run_figures(results, motion, scene):
         buf = io.BytesIO()
@@ -137,7 +100,7 @@ def write_report(results_path, directory, reference: str | None = None) -> Path:
              + (f"; motion: {esc(motion.label)}, {motion.acc.shape[0]} samples at {1e3 * motion.dt:g} ms"
                 if motion is not None else "") + ".</p>",
              "<h2>Routes</h2><ul>"
-             + "".join(f"<li><b>{esc(r)}</b>: {esc(ROUTE_NOTES.get(r, 'route of this results file'))}</li>"
+             + "".join(f"<li><b>{esc(r)}</b>: {esc(route_note(r))}</li>"
                        for r in results) + "</ul>",
              "<h2>Summary per route</h2>", _table(SUMMARY_HEADER, summary_rows(results)),
              f"<h2>Route comparison (reference: {esc(cmp['reference'])})</h2>",

@@ -2,34 +2,61 @@
 
 Layout (open it with h5py; every array is in SI units)::
 
-    /                       attrs: scene, created, uplift_version
+    /                       attrs: scene, created, sha256 (checksum of the file's content)
     /motion/acc (nt, 3)     ground acceleration, m/s²; attrs: dt, label
-    /routes/<route>/        attrs: converged, message, wall_s, info (JSON)
+    /routes/<route>/        attrs: status (converged | stopped | refused), message, wall_s,
+                                   notes (JSON: skipped, warnings, precheck, timings), info (JSON)
         time (nt,)  raft (nt, 6)  gap (nt, N)  contact_force (nt, N)  soil_w (nt, N)
         xy (N, 2)  newton_iters (nt,)
         acc/<node> (nt, 3)  disp/<node> (nt, 3)  energy/<term> (nt,)
 
-A route that stopped early is written with what it computed and ``converged = False`` and
-its ``message`` (the reason).
+A route that stopped early is written with what it computed, status "stopped" and its
+``message`` (the reason). The file is written atomically: an existing file at the same path
+stays intact until the new one is complete.
 """
 from __future__ import annotations
 
-import dataclasses
 import json
+import os
 import time
 from pathlib import Path
 
+import h5py
 import numpy as np
 
+from soil_impedance.cache import atomic_output, stamp_checksum
+from structure.results import RouteResult, RunNotes, Status
+
+from orchestrator.motion import Motion
+
 G = 9.81
+ARRAYS = ("time", "raft", "gap", "contact_force", "soil_w", "newton_iters", "xy")
+GROUPS = ("acc", "disp", "energy")
+
+
+class ResultsFileError(ValueError):
+    """A results file that is missing, unreadable or not of this layout, or an output path that
+    cannot be written (exit 2 in the CLI)."""
+
+
+def check_output_path(path) -> Path:
+    """Refuse, before any computation, an output file the run could not write: its folder
+    missing or not writable, or the path a folder."""
+    path = Path(path)
+    folder = path.parent if str(path.parent) else Path(".")
+    if path.is_dir():
+        raise ResultsFileError(f"output {str(path)!r} is a folder: give a file name, e.g. {path / 'results.h5'}")
+    if not folder.is_dir():
+        raise ResultsFileError(f"output folder {str(folder)!r} does not exist: create it or choose another -o path")
+    if not os.access(folder, os.W_OK):
+        raise ResultsFileError(f"output folder {str(folder)!r} is not writable: choose another -o path")
+    return path
 
 
 def write_results(path, results: dict, motion=None, scene_name: str = "") -> Path:
-    """Write ``{route: RouteResult}`` (and the motion) to one HDF5 file."""
-    import h5py
-
-    path = Path(path)
-    with h5py.File(path, "w") as f:
+    """Write ``{route: RouteResult}`` (and the motion) to one HDF5 file, atomically."""
+    path = check_output_path(path)
+    with atomic_output(path) as tmp, h5py.File(tmp, "w") as f:
         f.attrs["scene"] = scene_name
         f.attrs["created"] = time.strftime("%Y-%m-%dT%H:%M:%S")
         if motion is not None:
@@ -39,18 +66,21 @@ def write_results(path, results: dict, motion=None, scene_name: str = "") -> Pat
         routes = f.create_group("routes")
         for name, res in results.items():
             g = routes.create_group(name)
-            for fld in dataclasses.fields(res):
-                value = getattr(res, fld.name)
-                if isinstance(value, dict) and fld.name != "info":
-                    sub = g.create_group(fld.name)
-                    for key, arr in value.items():
-                        sub.create_dataset(key, data=np.asarray(arr))
-                elif isinstance(value, np.ndarray):
-                    g.create_dataset(fld.name, data=value)
-                elif fld.name == "info":
-                    g.attrs["info"] = json.dumps(value, default=_jsonable)
-                elif value is not None:
-                    g.attrs[fld.name] = value
+            for key in ARRAYS:
+                value = getattr(res, key)
+                if value is not None:
+                    g.create_dataset(key, data=value)
+            for key in GROUPS:
+                sub = g.create_group(key)
+                for item, arr in getattr(res, key).items():
+                    sub.create_dataset(item, data=arr)
+            g.attrs["route"] = res.route
+            g.attrs["status"] = res.status.value
+            g.attrs["message"] = res.message
+            g.attrs["wall_s"] = res.wall_s
+            g.attrs["notes"] = json.dumps(res.notes.as_dict())
+            g.attrs["info"] = json.dumps(dict(res.info), default=_jsonable)
+        stamp_checksum(f)
     return path
 
 
@@ -59,29 +89,51 @@ def _jsonable(obj):
         return obj.tolist()
     if isinstance(obj, (np.floating, np.integer, np.bool_)):
         return obj.item()
+    if hasattr(obj, "items"):
+        return dict(obj)
     return str(obj)
 
 
 def read_results(path) -> dict:
-    """Read a results file back as ``{route: RouteResult}``."""
-    import h5py
-    from structure.results import RouteResult
+    """Read a results file back as ``{route: RouteResult}``; a missing, unreadable or foreign
+    file raises ResultsFileError naming it."""
+    path = Path(path)
+    if not path.is_file():
+        raise ResultsFileError(f"results file {str(path)!r} does not exist: run `uplift run SCENE -o FILE` first")
+    try:
+        with h5py.File(path, "r") as f:
+            if "routes" not in f or not len(f["routes"]):
+                raise ResultsFileError(f"{path} holds no routes (/routes/<route>): not a results file of "
+                                       "`uplift run`; run `uplift run SCENE -o FILE` to make one")
+            return {route: _read_route(route, g) for route, g in f["routes"].items()}
+    except OSError as exc:   # h5py: not an HDF5 file, truncated file
+        raise ResultsFileError(f"{path} is not a readable HDF5 results file ({exc}); "
+                               "run `uplift run SCENE -o FILE` to make one") from None
+    except (KeyError, TypeError, ValueError) as exc:
+        if isinstance(exc, ResultsFileError):
+            raise
+        raise ResultsFileError(f"{path} does not have the results layout of `uplift run` ({exc}); "
+                               "see orchestrator/results.py") from None
 
-    out = {}
-    names = {f.name for f in dataclasses.fields(RouteResult)}
+
+def _read_route(route, g) -> RouteResult:
+    kw = {key: g[key][()] for key in ARRAYS if key in g}
+    kw.update({key: {k: v[()] for k, v in g[key].items()} for key in GROUPS if key in g})
+    a = g.attrs
+    return RouteResult(route=str(a.get("route", route)), status=Status(str(a["status"])),
+                       message=str(a.get("message", "")), wall_s=float(a.get("wall_s", 0.0)),
+                       notes=RunNotes(**json.loads(a.get("notes", "{}"))), info=json.loads(a.get("info", "{}")),
+                       **kw)
+
+
+def read_motion(path):
+    """(scene name, created, Motion or None) of a results file."""
     with h5py.File(path, "r") as f:
-        for route, g in f["routes"].items():
-            kw = {}
-            for key, item in g.items():
-                if key in names:
-                    kw[key] = {k: v[()] for k, v in item.items()} if isinstance(item, h5py.Group) else item[()]
-            for key, value in g.attrs.items():
-                if key == "info":
-                    kw["info"] = json.loads(value)
-                elif key in names:
-                    kw[key] = value.item() if isinstance(value, np.generic) else value
-            out[route] = RouteResult(**kw)
-    return out
+        motion = None
+        if "motion" in f:
+            m = f["motion"]
+            motion = Motion(float(m.attrs["dt"]), m["acc"][()], str(m.attrs.get("label", "motion")))
+        return str(f.attrs.get("scene", "")), str(f.attrs.get("created", "")), motion
 
 
 def summary(res) -> dict:
@@ -90,22 +142,19 @@ def summary(res) -> dict:
     if gap.size:
         k = np.unravel_index(np.argmax(gap), gap.shape)
         max_uplift, t_uplift = float(gap[k]), float(res.time[k[0]])
-        contact = (gap <= 0).mean(axis=1)
-        min_contact = float(contact.min())
+        min_contact = float((gap <= 0).mean(axis=1).min())
     else:
         max_uplift, t_uplift, min_contact = 0.0, 0.0, 1.0
     rot = np.hypot(res.raft[:, 3], res.raft[:, 4])
     return {
+        "status": res.status.value,
+        "message": res.message,
         "max_uplift_m": max_uplift,
         "max_uplift_time_s": t_uplift,
         "max_raft_rotation_rad": float(rot.max()) if rot.size else 0.0,
         "min_contact_fraction": min_contact,
-        "peak_acc_g": {name: float(np.abs(a).max() / G) for name, a in res.acc.items()},
+        "peak_acc_g": {name: float(np.abs(a).max() / G) if a.size else 0.0 for name, a in res.acc.items()},
         "wall_s": float(res.wall_s),
         "converged": bool(res.converged),
-        # what the run did not compute and why (cache hits, closed contact, ...), and what the
-        # linear contact pre-check found (structure.ContactSettings.precheck)
-        "skipped": [str(s) for s in res.info.get("skipped", [])],
-        "precheck": str(res.info.get("precheck", "")),
-        "warnings": [str(w) for w in res.info.get("warnings", [])],
+        **res.notes.as_dict(),
     }

@@ -1,53 +1,24 @@
 """Run small dense LAPACK calls single-threaded.
 
-The Newton matrices are a few hundred wide: multithreaded OpenBLAS is no faster there and,
-on a loaded machine, is 10-100x slower (threads spin-wait for busy cores). This context
-manager sets every loaded OpenBLAS to one thread and restores the previous count; it is a
-no-op when no OpenBLAS is found (MKL, Accelerate...). stdlib ctypes only.
+The Newton matrices are a few hundred wide: multithreaded BLAS is no faster there and, on a
+loaded machine, is 10-100x slower (threads spin-wait for busy cores). The orchestrator runs
+every computation with one BLAS thread already (orchestrator.settings.compute_threads); this
+guard gives callers of ``structure.simulate`` and of the stepper (the FMUs) the same behaviour.
 """
 from __future__ import annotations
 
-import ctypes
-from contextlib import contextmanager
+import functools
 
-_NAMES = [("scipy_openblas_get_num_threads64_", "scipy_openblas_set_num_threads64_"),
-          ("scipy_openblas_get_num_threads", "scipy_openblas_set_num_threads"),
-          ("openblas_get_num_threads64_", "openblas_set_num_threads64_"),
-          ("openblas_get_num_threads", "openblas_set_num_threads")]
-_handles = None
+import scipy.linalg  # noqa: F401  (load scipy's BLAS before the controller lists the libraries)
+from threadpoolctl import ThreadpoolController
 
 
-def _find():
-    global _handles
-    if _handles is not None:
-        return _handles
-    _handles = []
-    try:
-        paths = {ln.split()[-1] for ln in open("/proc/self/maps") if "openblas" in ln.lower()}
-    except OSError:
-        paths = set()
-    for p in sorted(paths):
-        try:
-            lib = ctypes.CDLL(p)
-        except OSError:
-            continue
-        for g, s in _NAMES:
-            if hasattr(lib, g) and hasattr(lib, s):
-                get, put = getattr(lib, g), getattr(lib, s)
-                get.restype = ctypes.c_int
-                _handles.append((get, put))
-                break
-    return _handles
+@functools.lru_cache(maxsize=1)
+def _controller() -> ThreadpoolController:
+    # listing the loaded libraries costs ~1 ms; limiting through a listed controller ~40 us
+    return ThreadpoolController()
 
 
-@contextmanager
 def single_threaded_blas():
-    hs = _find()
-    old = [get() for get, _ in hs]
-    for _, put in hs:
-        put(1)
-    try:
-        yield
-    finally:
-        for (_, put), n in zip(hs, old):
-            put(n)
+    """Context manager: BLAS pools at one thread inside, restored on exit."""
+    return _controller().limit(limits=1, user_api="blas")

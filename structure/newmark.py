@@ -41,7 +41,9 @@ from .damping import damping_matrix
 from .errors import ConvergenceError, StructureError
 from .model import StructureModel
 from .preload import StaticState, embed, interface_operator, solve_static
-from .results import RouteResult
+from types import SimpleNamespace
+
+from .results import RouteResult, RunNotes, Status
 
 
 class _NewtonFailure(Exception):
@@ -446,7 +448,7 @@ class NewmarkStepper:
 
 def simulate(model: StructureModel, soil, ag, dt: float, contact: ContactSettings | None = None,
              damping=None, alpha: float = 0.0, output_nodes=None, progress=None,
-             route: str = "td-winkler", static: StaticState | None = None) -> RouteResult:
+             route: str = "newmark", static: StaticState | None = None) -> RouteResult:
     """Time history of the structure on ``soil`` under ground acceleration ``ag``.
 
     ag : (nt, 3) m/s^2 at t_k = k dt (x, y, z); output_nodes : node names (default: all
@@ -586,8 +588,8 @@ class _MatVec:
             y += self.S @ x if scale == 1.0 else scale * (self.S @ x)
 
 
-def _closed_result(st: NewmarkStepper, res: RouteResult, ag, Zh, H, dofs) -> None:
-    """Fill ``res`` from a closed run's histories: the stepper's step-by-step records and
+def _closed_result(st: NewmarkStepper, res: SimpleNamespace, ag, Zh, H, dofs) -> None:
+    """Fill the history buffers ``res`` from a closed run's histories: the stepper's step-by-step records and
     energy works, vectorised over time."""
     sysd = st._system(st.dt)
     ni, ns = st.ni, st.ns
@@ -643,15 +645,15 @@ def _simulate(model, soil, ag, dt, contact, damping, alpha, output_nodes, progre
     names = [n.name for n in model.nodes if n.name] if output_nodes is None else list(output_nodes)
     dofs = {nm: model.dofs(model.node_by_name(nm).id)[:3] for nm in names}
     nt, N = ag.shape[0], model.n_interface
-    res = RouteResult(route, dt * np.arange(nt), np.zeros((nt, 6)), np.zeros((nt, N)),
-                      np.zeros((nt, N)), np.zeros((nt, N)),
-                      {nm: np.zeros((nt, 3)) for nm in names}, {nm: np.zeros((nt, 3)) for nm in names},
-                      {k: np.zeros(nt) for k in ("input", "kinetic", "strain", "damping", "soil",
-                                                 "contact", "contact_potential")},
-                      np.zeros(nt, int), True, "", 0.0, np.array(model.raft.xy),
-                      dict(settlement=st.static.settlement, P0=st.P0.copy(), penalty=st.kp.copy(),
-                           delta0=st.delta0.copy(), dt=dt, alpha=alpha,
-                           contact_enabled=st.contact.enabled, skipped=[]))
+    res = SimpleNamespace(      # history buffers, filled in place, frozen into a RouteResult at the end
+        raft=np.zeros((nt, 6)), gap=np.zeros((nt, N)), contact_force=np.zeros((nt, N)), soil_w=np.zeros((nt, N)),
+        acc={nm: np.zeros((nt, 3)) for nm in names}, disp={nm: np.zeros((nt, 3)) for nm in names},
+        energy={k: np.zeros(nt) for k in ("input", "kinetic", "strain", "damping", "soil", "contact",
+                                          "contact_potential")},
+        newton_iters=np.zeros(nt, int))
+    info = dict(settlement=st.static.settlement, P0=st.P0.copy(), penalty=st.kp.copy(),
+                delta0=st.delta0.copy(), dt=dt, alpha=alpha, contact_enabled=st.contact.enabled)
+    skipped = []
     enabled = st.contact.enabled
     if not enabled:
         closed, note = True, "not needed: contact disabled (bonded raft, linear)"
@@ -677,20 +679,24 @@ def _simulate(model, soil, ag, dt, contact, damping, alpha, output_nodes, progre
         else:
             _closed_result(st, res, ag, *out, dofs)
             note = note or "no tension: the closed-contact (linear) solution is the unilateral one"
-            res.info["skipped"].append(
+            skipped.append(
                 "contact disabled: one linear solve per step, no Newton" if not enabled else
                 "no tension in the linear pre-check: nonlinear contact iterations skipped")
-    res.info["precheck"] = note
-    if not closed:
-        _nonlinear(st, res, ag, dofs, progress, t0)
-    res.wall_s = _time.perf_counter() - t0
-    res.info["factorisations"] = st.n_factorisations
-    res.info.setdefault("subdivided_steps", 0)
-    return res
+    failure, n_subdivided = (None, 0) if closed else _nonlinear(st, res, ag, dofs, progress)
+    info.update(factorisations=st.n_factorisations, subdivided_steps=n_subdivided)
+    out = RouteResult(route=route, time=dt * np.arange(nt), **vars(res), wall_s=_time.perf_counter() - t0,
+                      xy=np.array(model.raft.xy), notes=RunNotes(skipped=skipped, precheck=note), info=info)
+    if failure is not None:
+        exc, k = failure
+        exc.result = out.truncated(k, Status.STOPPED, str(exc))
+        raise exc
+    return out
 
 
-def _nonlinear(st: NewmarkStepper, res: RouteResult, ag, dofs, progress, t0) -> None:
-    """The step-by-step run (Newton on the contact), recorded into ``res``."""
+def _nonlinear(st: NewmarkStepper, res: SimpleNamespace, ag, dofs, progress):
+    """The step-by-step run (Newton on the contact), recorded into the buffers ``res``.
+    Returns (failure, subdivided steps): failure is None or (ConvergenceError, first step not
+    computed)."""
     ni, nt = st.ni, ag.shape[0]
 
     def record(k):
@@ -712,13 +718,8 @@ def _nonlinear(st: NewmarkStepper, res: RouteResult, ag, dofs, progress, t0) -> 
             res.newton_iters[k] = st.step()
             n_subdivided += st.last_substeps > 1
         except ConvergenceError as exc:
-            out = res.truncated(k)
-            out.converged, out.message = False, str(exc)
-            out.wall_s = _time.perf_counter() - t0
-            out.info["factorisations"] = st.n_factorisations
-            exc.result = out
-            raise
+            return (exc, k), n_subdivided
         record(k)
         if progress is not None:
             progress(k, nt)
-    res.info["subdivided_steps"] = n_subdivided
+    return None, n_subdivided

@@ -1,16 +1,63 @@
-"""One result type for every route (time-domain and frequency-domain routes fill it alike)."""
+"""One result type for every route (time-domain and frequency-domain routes fill it alike).
+
+A RouteResult is immutable: it is built once, by keyword, when a route has finished (or
+stopped), and its arrays are read-only. Routes that add to a result make a new one
+(``with_notes``, ``dataclasses.replace``).
+"""
 from __future__ import annotations
 
+import dataclasses
+import enum
 from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Mapping
 
 import numpy as np
 
 
-@dataclass
-class RouteResult:
-    """Time histories of one run. nt time samples, N interface nodes.
+class Status(str, enum.Enum):
+    """How a route ended."""
 
-    route : str                         e.g. "td-winkler", "td-monolithic", "tf"
+    CONVERGED = "converged"   # the whole record was computed to the route's tolerance
+    STOPPED = "stopped"       # a computation stopped (Newton failure, budget, divergence): histories so far
+    REFUSED = "refused"       # the route could not run on this input (message says why): no histories
+
+
+@dataclass(frozen=True)
+class RunNotes:
+    """What every reader of a result uses, besides the histories.
+
+    skipped : what the run did not compute and why (cache hits, closed contact, ...)
+    warnings : what the user should know before trusting the numbers
+    precheck : what the linear contact pre-check found (structure.ContactSettings.precheck)
+    timings : {part: wall s}, e.g. setup, solve, build
+    """
+    skipped: tuple[str, ...] = ()
+    warnings: tuple[str, ...] = ()
+    precheck: str = ""
+    timings: Mapping[str, float] = field(default_factory=dict)
+
+    def __post_init__(self):
+        object.__setattr__(self, "skipped", tuple(str(s) for s in self.skipped))
+        object.__setattr__(self, "warnings", tuple(str(s) for s in self.warnings))
+        object.__setattr__(self, "timings", MappingProxyType({str(k): float(v) for k, v in self.timings.items()}))
+
+    def as_dict(self) -> dict:
+        return {"skipped": list(self.skipped), "warnings": list(self.warnings), "precheck": self.precheck,
+                "timings": dict(self.timings)}
+
+
+def _frozen(a, dtype=float):
+    a = np.array(a, dtype=dtype)        # a private copy: the result never aliases a caller's buffer
+    a.flags.writeable = False
+    return a
+
+
+@dataclass(frozen=True, kw_only=True)
+class RouteResult:
+    """Time histories of one run. nt time samples, N interface nodes. Build it by keyword.
+
+    route : str                         the route's name, e.g. "winkler", "monolithic", "timefreq"
     time : (nt,) s
     raft : (nt, 6) raft DOFs q (ux, uy, uz m; rx, ry, rz rad), dynamic (relative to the
            static state and to the free field)
@@ -25,38 +72,89 @@ class RouteResult:
              penalty springs; optional "contact_potential": the physical penalty energy
              (contact_potential - contact > 0 would be energy created by contact switching)
     newton_iters : (nt,) int, linear solves per step (0 for linear routes)
-    converged : bool; message : str; wall_s : float, s
-    xy : (N, 2) m interface nodes; info : dict (static settlement, P0, penalty, ...)
+    status : Status; message : str (why it stopped or was refused; "" when converged)
+    wall_s : float, s; xy : (N, 2) m interface nodes
+    notes : RunNotes (skipped, warnings, precheck, timings)
+    info : route-specific details (static settlement, P0, penalty, solver history, ...), JSON-able
     """
     route: str
     time: np.ndarray
-    raft: np.ndarray
-    gap: np.ndarray
-    contact_force: np.ndarray
-    soil_w: np.ndarray
-    acc: dict = field(default_factory=dict)
-    disp: dict = field(default_factory=dict)
-    energy: dict = field(default_factory=dict)
+    raft: np.ndarray | None = None
+    gap: np.ndarray | None = None
+    contact_force: np.ndarray | None = None
+    soil_w: np.ndarray | None = None
+    acc: Mapping[str, np.ndarray] = field(default_factory=dict)
+    disp: Mapping[str, np.ndarray] = field(default_factory=dict)
+    energy: Mapping[str, np.ndarray] = field(default_factory=dict)
     newton_iters: np.ndarray | None = None
-    converged: bool = True
+    status: Status = Status.CONVERGED
     message: str = ""
     wall_s: float = 0.0
     xy: np.ndarray | None = None
-    info: dict = field(default_factory=dict)
+    notes: RunNotes = field(default_factory=RunNotes)
+    info: Mapping = field(default_factory=dict)
+
+    def __post_init__(self):
+        put = lambda name, value: object.__setattr__(self, name, value)
+        time = _frozen(self.time)
+        nt = time.shape[0]
+        put("time", time)
+        N = 0 if self.gap is None else np.shape(self.gap)[1]
+        for name, width in (("raft", 6), ("gap", N), ("contact_force", N), ("soil_w", N)):
+            value = getattr(self, name)
+            put(name, _frozen(np.zeros((nt, width)) if value is None else value))
+            if getattr(self, name).shape[0] != nt:
+                raise ValueError(f"RouteResult.{name} has {getattr(self, name).shape[0]} samples, time has {nt}")
+        for name in ("acc", "disp", "energy"):
+            put(name, MappingProxyType({str(k): _frozen(v) for k, v in getattr(self, name).items()}))
+        put("newton_iters", _frozen(np.zeros(nt, int) if self.newton_iters is None else self.newton_iters, int))
+        put("xy", None if self.xy is None else _frozen(self.xy))
+        put("status", Status(self.status))
+        put("message", str(self.message))
+        put("wall_s", float(self.wall_s))
+        if not isinstance(self.notes, RunNotes):
+            put("notes", RunNotes(**dict(self.notes)))
+        put("info", MappingProxyType(dict(self.info)))
+        if self.status is not Status.CONVERGED and not self.message:
+            raise ValueError(f"a {self.status.value} RouteResult needs a message saying why")
+
+    @classmethod
+    def refused(cls, route: str, message: str, notes: RunNotes | None = None) -> "RouteResult":
+        """A route that could not run on this input: no histories, the reason in ``message``."""
+        return cls(route=route, time=np.zeros(0), status=Status.REFUSED, message=message,
+                   notes=notes or RunNotes())
+
+    @property
+    def converged(self) -> bool:
+        return self.status is Status.CONVERGED
 
     @property
     def nt(self) -> int:
         return self.time.shape[0]
 
-    def truncated(self, nt: int) -> "RouteResult":
-        """The first nt samples (used to hand back results up to a failure)."""
-        cut = lambda a: None if a is None else a[:nt]
-        return RouteResult(self.route, self.time[:nt], self.raft[:nt], self.gap[:nt],
-                           self.contact_force[:nt], self.soil_w[:nt],
-                           {k: v[:nt] for k, v in self.acc.items()},
-                           {k: v[:nt] for k, v in self.disp.items()},
-                           {k: v[:nt] for k, v in self.energy.items()}, cut(self.newton_iters),
-                           self.converged, self.message, self.wall_s, self.xy, dict(self.info))
+    def replace(self, **changes) -> "RouteResult":
+        """A copy with ``changes`` (keyword fields of the dataclass)."""
+        return dataclasses.replace(self, **changes)
+
+    def with_notes(self, skipped=(), warnings=(), precheck: str | None = None, timings=None,
+                   info=None) -> "RouteResult":
+        """A copy with items added to its notes (and keys to its info)."""
+        n = self.notes
+        notes = RunNotes(skipped=n.skipped + tuple(skipped), warnings=n.warnings + tuple(warnings),
+                         precheck=n.precheck if precheck is None else precheck,
+                         timings={**n.timings, **(timings or {})})
+        return dataclasses.replace(self, notes=notes, info={**self.info, **(info or {})})
+
+    def truncated(self, nt: int, status: Status = Status.STOPPED, message: str = "", wall_s=None,
+                  info=None) -> "RouteResult":
+        """The first nt samples (results up to a failure), with the reason."""
+        cut = lambda m: {k: v[:nt] for k, v in m.items()}
+        return dataclasses.replace(
+            self, time=self.time[:nt], raft=self.raft[:nt], gap=self.gap[:nt],
+            contact_force=self.contact_force[:nt], soil_w=self.soil_w[:nt], acc=cut(self.acc),
+            disp=cut(self.disp), energy=cut(self.energy), newton_iters=self.newton_iters[:nt],
+            status=status, message=message or self.message,
+            wall_s=self.wall_s if wall_s is None else wall_s, info={**self.info, **(info or {})})
 
     def max_uplift(self) -> float:
         return float(self.gap.max()) if self.gap.size else 0.0

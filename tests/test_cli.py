@@ -60,9 +60,10 @@ def test_bad_input_exit_code(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "soil.halfspace" in err and "Poisson" in err
     assert main(["impedance", str(tmp_path / "absent.toml")]) == 2
-    with pytest.raises(SystemExit) as exc:
-        main(["--help"])
-    assert exc.value.code == 0
+    assert main(["--help"]) == 0
+    for tol in ("-1", "0", "1.5", "nan", "x"):        # a bad option is refused before any computation
+        assert main(["fit", str(bad), "--tol", tol]) == 2
+        assert "argument --tol" in capsys.readouterr().err
 
 
 def test_fit_json_contract(tmp_path, monkeypatch, capsys):

@@ -17,8 +17,8 @@ def _result(route, scale_gap=1.0, scale_rot=1.0, scale_acc=1.0, wall=1.0):
     gap = np.zeros((nt, N))
     gap[100, 2] = 1e-3 * scale_gap
     acc = {"top": np.column_stack([scale_acc * np.sin(2 * np.pi * 3 * t), 0 * t, 0.5 * scale_acc * np.sin(2 * np.pi * 7 * t)])}
-    return RouteResult(route, t, raft, gap, np.ones((nt, N)), np.zeros((nt, N)), acc, {}, {}, None,
-                       True, "", wall, np.zeros((N, 2)), {})
+    return RouteResult(route=route, time=t, raft=raft, gap=gap, contact_force=np.ones((nt, N)), acc=acc,
+                       wall_s=wall, xy=np.zeros((N, 2)))
 
 
 def test_relative_differences_exact_for_scaled_routes():

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from cosim_cases import pulse_motion, small_scene, soil_model
-from orchestrator.cosim import run_cosim, run_monolithic
+from orchestrator.routes.cosim import run_cosim
+from orchestrator.routes.monolithic import run_monolithic
 
 SCENE = small_scene(contact=False)          # bonded raft: the instability is not a contact effect
 MOTION = pulse_motion(T=0.4, pga=1.0)

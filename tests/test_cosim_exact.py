@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from cosim_cases import pulse_motion, small_scene, soil_model
-from orchestrator.cosim import run_cosim, run_monolithic
+from orchestrator.routes.cosim import run_cosim
+from orchestrator.routes.monolithic import run_monolithic
 
 SCENE = small_scene()
 MODEL = soil_model(SCENE)

@@ -33,7 +33,7 @@ def test_failure_mid_run_keeps_the_steps_done(exported):
     assert np.array_equal(cut.energy["input"], full.energy["input"][:fail_at + 1])
     assert np.array_equal(cut.newton_iters, full.newton_iters[:fail_at + 1])
     for part in ("initialisation", "structure step", "soil step", "transfers"):
-        assert cut.info["timing"][part] > 0 and cut.info["timing_cpu"][part] >= 0
+        assert cut.notes.timings[part] > 0 and cut.info["timing_cpu"][part] >= 0
 
 
 @pytest.mark.parametrize("ag, what", [(np.zeros((10, 2)), "shape"), (np.full((10, 3), np.nan), "NaN")])

@@ -50,8 +50,7 @@ def test_outputs_computed_at_initialisation(exported):
 
 
 def _total_mass():
-    from orchestrator.run import scene_model
-    return scene_model(SCENE).total_mass
+    return SCENE.model().total_mass
 
 
 def test_failed_step_is_reported_not_a_crash(exported):

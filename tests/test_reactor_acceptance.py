@@ -7,6 +7,11 @@ import numpy as np
 import pytest
 
 from orchestrator.compare import compare
+from orchestrator.impedance import scene_fit
+from orchestrator.run import run_scene
+from orchestrator.scene import load_scene
+from soil_impedance.convolution import RecursiveConvolutionSoil
+from structure import simulate
 
 
 @pytest.fixture(scope="module")
@@ -16,22 +21,13 @@ def cache(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def reactor_runs(cache):
-    from orchestrator.cosim import scene_fit
-    from orchestrator.impedance import scene_impedance
-    from orchestrator.run import output_nodes, run_scene, scene_analysis, scene_model, scene_motion
-    from orchestrator.scene import load_scene
-    from soil_impedance.convolution import RecursiveConvolutionSoil
-    from structure import simulate
-    from structure.spec import contact_from_spec
-
     scene = load_scene("reactor")
     results, motion = run_scene(scene, ["monolithic", "linear", "timefreq"], cache_dir=cache)
-    table = scene_impedance(scene, ("gap",), cache_dir=cache)["gap"]
-    fit = scene_fit(scene, cache_dir=cache, table=table)
-    bonded = dataclasses.replace(contact_from_spec(scene.section("contact")), enabled=False)
-    dt = scene_analysis(scene)[1]
-    results["bonded"] = simulate(scene_model(scene), RecursiveConvolutionSoil(fit.model, dt), motion.acc,
-                                 dt, contact=bonded, output_nodes=output_nodes(scene), route="bonded")
+    fit = scene_fit(scene, cache_dir=cache)
+    bonded = dataclasses.replace(scene.contact, enabled=False)
+    dt = scene.analysis.dt
+    results["bonded"] = simulate(scene.model(), RecursiveConvolutionSoil(fit.model, dt), motion.acc,
+                                 dt, contact=bonded, output_nodes=scene.output.nodes, route="bonded")
     return results
 
 
@@ -70,11 +66,8 @@ def test_timefreq_at_strong_motion_against_monolithic(cache, reactor_runs):
     """0.6 g, the raft lifted over most of its area: the march on the table's truncated kernel
     diverges, the route starts again on the folded kernel, converges and agrees with the
     monolithic route within 2 % on max uplift (measured +0.19 %; ~30 s)."""
-    from orchestrator.run import run_scene
-    from orchestrator.scene import load_scene
-
     scene = load_scene("reactor")
-    scene.sections["motion"]["pga_g"] = 0.6
+    scene = dataclasses.replace(scene, motion=dataclasses.replace(scene.motion, pga_g=0.6))
     res, _ = run_scene(scene, ["monolithic", "timefreq"], cache_dir=cache)
     tf, td = res["timefreq"], res["monolithic"]
     assert tf.converged, tf.message

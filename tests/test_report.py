@@ -9,7 +9,7 @@ import pytest
 from orchestrator.cli import main
 from orchestrator.motion import Motion
 from orchestrator.results import summary, write_results
-from structure.results import RouteResult
+from structure.results import RouteResult, Status
 
 
 def _result(route, gap_scale=1.0, wall=1.0, converged=True):
@@ -21,8 +21,9 @@ def _result(route, gap_scale=1.0, wall=1.0, converged=True):
     gap = np.zeros((nt, N))
     gap[:, 1] = gap_scale * np.maximum(0.0, 1e-3 * np.sin(2 * np.pi * t))
     acc = {"top": np.column_stack([np.sin(2 * np.pi * 3 * t), 0 * t, 0.2 * np.sin(2 * np.pi * 7 * t)])}
-    return RouteResult(route, t, raft, gap, np.ones((nt, N)), np.zeros((nt, N)), acc, {}, {}, None,
-                       converged, "" if converged else "Newton failed at t = 1.5 s", wall, xy, {})
+    return RouteResult(route=route, time=t, raft=raft, gap=gap, contact_force=np.ones((nt, N)), acc=acc,
+                       status=Status.CONVERGED if converged else Status.STOPPED,
+                       message="" if converged else "Newton failed at t = 1.5 s", wall_s=wall, xy=xy)
 
 
 @pytest.fixture
@@ -44,7 +45,7 @@ def test_report_is_self_contained(results_file, tmp_path, capsys):
         s = summary(r)
         assert f"<b>{route}</b>" in page
         assert f"<td>{1e3 * s['max_uplift_m']:.4f}</td>" in page
-    assert "NO: Newton failed at t = 1.5 s" in page
+    assert "STOPPED: Newton failed at t = 1.5 s" in page
     assert "Route comparison (reference: monolithic)" in page
     assert "<td>+20.00</td>" in page                       # winkler max uplift 1.2x monolithic's
     # figures embedded as valid PNGs (two per route), the page references no other file

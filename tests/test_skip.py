@@ -16,12 +16,12 @@ import numpy as np
 import pytest
 
 from cosim_cases import pulse_motion, small_scene, soil_model, winkler
-from orchestrator.run import scene_model
+
 from soil_impedance.convolution import RecursiveConvolutionSoil
 from structure import ContactSettings, NewmarkStepper, StructureError, contact_from_spec, simulate
 
 SCENE = small_scene()                 # reactor stick on a 21-node raft over rock
-MODEL = scene_model(SCENE)
+MODEL = SCENE.model()
 FORCED = ContactSettings(precheck=False)
 TERMS = ("input", "kinetic", "strain", "damping", "soil", "contact", "contact_potential")
 
@@ -37,9 +37,9 @@ def test_no_uplift_precheck_equals_forced_newton(soil_kind):
         (lambda: RecursiveConvolutionSoil(soil_model(SCENE), m.dt))
     pre = simulate(MODEL, make(), m.acc, m.dt, ContactSettings())
     new = simulate(MODEL, make(), m.acc, m.dt, FORCED)
-    assert pre.info["skipped"] == ["no tension in the linear pre-check: nonlinear contact iterations skipped"]
-    assert pre.info["precheck"].startswith("no tension")
-    assert new.info["skipped"] == [] and new.info["precheck"].startswith("off")
+    assert pre.notes.skipped == ("no tension in the linear pre-check: nonlinear contact iterations skipped",)
+    assert pre.notes.precheck.startswith("no tension")
+    assert new.notes.skipped == () and new.notes.precheck.startswith("off")
     assert pre.newton_iters.sum() == 0 and new.newton_iters[1:].min() >= 1
     assert pre.info["factorisations"] == 1
     # a real dynamic response, the contact closed throughout, the same histories
@@ -79,9 +79,9 @@ def test_uplift_falls_back_to_the_nonlinear_run_exactly():
     model, m = soil_model(SCENE), pulse_motion(pga=8.0)
     pre = simulate(MODEL, RecursiveConvolutionSoil(model, m.dt), m.acc, m.dt, ContactSettings())
     new = simulate(MODEL, RecursiveConvolutionSoil(model, m.dt), m.acc, m.dt, FORCED)
-    assert new.max_uplift() > 1e-2 and pre.info["skipped"] == []
+    assert new.max_uplift() > 1e-2 and pre.notes.skipped == ()
     first = int(np.flatnonzero(new.gap.max(axis=1) > 0)[0])
-    assert f"(step {first})" in pre.info["precheck"] and "nonlinear run from t = 0" in pre.info["precheck"]
+    assert f"(step {first})" in pre.notes.precheck and "nonlinear run from t = 0" in pre.notes.precheck
     for name in ("raft", "gap", "contact_force", "soil_w", "newton_iters"):
         assert np.array_equal(getattr(pre, name), getattr(new, name)), name
     for term in TERMS:
@@ -98,8 +98,8 @@ def test_static_gap_skips_the_precheck():
     lifted = type(static)(static.u, P0, np.where(np.arange(P0.size) == 0, 1e-6, static.d0), static.settlement,
                           static.iterations)
     r = simulate(MODEL, soil, m.acc, m.dt, ContactSettings(), static=lifted)
-    assert r.info["precheck"].startswith("not run: 1 interface nodes are not in contact")
-    assert r.newton_iters[1:].min() >= 1 and r.info["skipped"] == []
+    assert r.notes.precheck.startswith("not run: 1 interface nodes are not in contact")
+    assert r.newton_iters[1:].min() >= 1 and r.notes.skipped == ()
 
 
 @pytest.mark.parametrize("soil_kind, alpha", [("winkler", 0.0), ("winkler", -0.1), ("memory", 0.0),
@@ -112,7 +112,7 @@ def test_closed_run_is_the_stepper(soil_kind, alpha):
         (lambda: RecursiveConvolutionSoil(soil_model(SCENE), m.dt))
     bonded = ContactSettings(enabled=False)
     res = simulate(MODEL, make(), m.acc, m.dt, bonded, alpha=alpha)
-    assert res.info["skipped"] == ["contact disabled: one linear solve per step, no Newton"]
+    assert res.notes.skipped == ("contact disabled: one linear solve per step, no Newton",)
     st = NewmarkStepper(MODEL, make(), m.dt, bonded, alpha=alpha, ag0=m.acc[0])
     ni = st.ni
     raft, P, top = [st.x[:6].copy()], [st.P.copy()], [st.a[MODEL.dofs(MODEL.node_by_name("top_outer").id)[:3]] + st.ag]
@@ -196,7 +196,7 @@ def test_skipped_in_run_summary_and_true(tmp_path, capsys, monkeypatch):
     assert second["winkler"]["precheck"].startswith("no tension")
     assert second["winkler"]["max_uplift_m"] == 0.0
     from orchestrator.results import read_results
-    assert read_results(tmp_path / "r.h5")["winkler"].info["skipped"] == second["winkler"]["skipped"]
+    assert list(read_results(tmp_path / "r.h5")["winkler"].notes.skipped) == second["winkler"]["skipped"]
 
     scene.write_text(BEM_SCENE.replace("PRECHECK", "precheck = false"))
     forced = run()["winkler"]

@@ -85,11 +85,11 @@ def test_nonpassive_fit_forced_draws_energy_from_the_soil():
     case = CASES["non-passive fit forced"]
     scene = stress.case_scene(case, quick=True)
     from orchestrator.impedance import scene_impedance
-    from orchestrator.cosim import scene_soil_model
+    from orchestrator.impedance import scene_fit
     tables = scene_impedance(scene, ("gap", "rigid"))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        good = scene_soil_model(scene, table=tables["gap"], tol=0.05)
+        good = scene_fit(scene, table=tables["gap"], tol=0.05).model
     bad = stress.with_negative_damping(good, stress._first_mode_hz(scene, tables["rigid"]),
                                        stress.rocking_shape(scene))
     with pytest.warns(RuntimeWarning, match="running anyway"):

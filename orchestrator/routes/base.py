@@ -1,0 +1,143 @@
+"""The route registry's core: what a route declares and what it receives.
+
+A route is one way of computing the uplift response of a scene (winkler, monolithic, cosim,
+linear, timefreq). Each lives in its own module of ``orchestrator/routes/`` and registers one
+``Route``: its name, a one-line summary, the impedance tables and soil fit it needs, its bench
+knobs, and ``run(context, progress) -> RouteResult``. ``run_scene``, ``uplift run --route``,
+``uplift compare``, ``uplift report`` and ``uplift bench`` all read the registry: adding a
+route is adding one module (and one import line in ``orchestrator/routes/__init__.py``), or
+calling ``register`` from user code.
+
+Route modules import the leaves (soil_impedance, structure, fmus), the motion, the
+time-frequency package and this module, never the scene, run or CLI modules: the scene
+validates route names against the registry, so the registry cannot depend on it.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Callable, Mapping
+
+
+#: scene-level knobs ``uplift bench`` knows how to apply (see orchestrator.bench.knob_scene)
+SCENE_KNOBS = ("dt", "fit_tol", "element_size", "penalty")
+
+
+class RouteInputError(ValueError):
+    """A route cannot run on this scene; the message says what to change (exit 2)."""
+
+
+@dataclass(frozen=True)
+class Route:
+    """One route of the registry.
+
+    name : str, as in ``[analysis].routes`` and ``--route``
+    summary : one line: what the route computes (help, reports)
+    run : callable(ctx: RunContext, progress) -> RouteResult; progress is callable(k, nt) or None.
+          A computation that stops returns a result with status STOPPED and the reason; bad input
+          raises RouteInputError (run_scene turns it into a REFUSED result)
+    tables : callable(scene) -> tuple of impedance tables read ("rigid", "gap"); run_scene sweeps
+             the union of every route's tables once
+    needs_fit : reads the rational soil model (``ctx.fit()``, shared by every route of a run)
+    needs_structure : refuses scenes without [structure] (checked before anything is computed)
+    time_stepped : its answer depends on the analysis step (the run's step-doubling check applies)
+    options : route options ``run`` reads from ``ctx.options`` (e.g. "pad_s"), settable by the bench
+    bench, quick : {scene: {knob: values, coarse to fine}} swept by ``uplift bench`` (quick: --quick);
+                   knobs are SCENE_KNOBS or ``options``
+    reference_rank : ``uplift compare`` takes the present route of highest rank as its default
+                     reference (the time-frequency route, built on the BEM table itself)
+    """
+    name: str
+    summary: str
+    run: Callable
+    tables: Callable = lambda scene: ("gap",)
+    needs_fit: bool = False
+    needs_structure: bool = True
+    time_stepped: bool = True
+    options: tuple[str, ...] = ()
+    bench: Mapping[str, Mapping[str, tuple]] = field(default_factory=dict)
+    quick: Mapping[str, Mapping[str, tuple]] = field(default_factory=dict)
+    reference_rank: int = 0
+
+    def __post_init__(self):
+        unknown = {k for knobs in (*self.bench.values(), *self.quick.values()) for k in knobs} \
+            - set(SCENE_KNOBS) - set(self.options)
+        if unknown:
+            raise ValueError(f"route {self.name!r}: bench knobs {sorted(unknown)} are neither scene knobs "
+                             f"{SCENE_KNOBS} nor route options {self.options}")
+
+
+_REGISTRY: dict[str, Route] = {}
+
+
+def register(route: Route) -> Route:
+    """Add ``route`` to the registry (replacing a route of the same name); returns it."""
+    _REGISTRY[route.name] = route
+    return route
+
+
+def unregister(name: str) -> None:
+    _REGISTRY.pop(name, None)
+
+
+def route_names() -> tuple[str, ...]:
+    """Names of the registered routes, in registration order."""
+    return tuple(_REGISTRY)
+
+
+def get_route(name: str) -> Route:
+    try:
+        return _REGISTRY[name]
+    except KeyError:
+        raise RouteInputError(f"unknown route {name!r}; available: {', '.join(_REGISTRY)}") from None
+
+
+def default_reference(names) -> str:
+    """The reference route among ``names``: the registered one of highest reference_rank,
+    else the first."""
+    names = list(names)
+    ranked = [(_REGISTRY[n].reference_rank, -i) for i, n in enumerate(names) if n in _REGISTRY]
+    best = max(ranked, default=(0, 0))
+    return names[-best[1]] if best[0] > 0 else names[0]
+
+
+@dataclass
+class RunContext:
+    """What a route receives: the scene, its motion at the analysis step, the impedance
+    tables swept for the run, and the shared, lazily built structure model and soil fit.
+
+    scene : the validated Scene; motion : orchestrator.motion.Motion at scene.analysis.dt
+    tables : {"rigid"|"gap": ImpedanceTable} (those the run's routes declared)
+    cache_dir : impedance/fit cache folder or None
+    options : {option: value} for this route (bench knobs such as pad_s)
+    fit_builder : callable() -> FitResult of the scene's gap table, called once on demand
+    """
+    scene: object
+    motion: object
+    tables: Mapping = field(default_factory=dict)
+    cache_dir: object = None
+    options: Mapping = field(default_factory=dict)
+    fit_builder: Callable | None = None
+    shared: dict = field(default_factory=dict)     # model and fit, built once, shared by for_route copies
+
+    def model(self):
+        """The structure model (built once per run)."""
+        if "model" not in self.shared:
+            self.shared["model"] = self.scene.model()
+        return self.shared["model"]
+
+    def fit(self):
+        """The FitResult of the scene's gap table (fitted or read from the cache once per run)."""
+        if "fit" not in self.shared:
+            if self.fit_builder is None:
+                raise RouteInputError("this run has no rational soil fit: the route must declare needs_fit")
+            self.shared["fit"] = self.fit_builder()
+        return self.shared["fit"]
+
+    def for_route(self, route: Route, options: Mapping | None = None) -> "RunContext":
+        """The context a route's ``run`` receives: this run's shared parts and the route's options."""
+        unknown = set(options or {}) - set(route.options)
+        if unknown:
+            raise RouteInputError(f"route {route.name!r} has no option {sorted(unknown)[0]!r}; "
+                                  f"options: {', '.join(route.options) or 'none'}")
+        return dataclasses.replace(self, options=dict(options or {}))

@@ -1,0 +1,48 @@
+"""What the command line and the routes share: exit codes, the cache folder, thread control.
+
+Exit codes: 0 success; 1 a computation stopped (results so far are written, with the
+reason); 2 bad input (the message names the key or file and what would fix it).
+
+Threads. The project's dense matrices are small (a few hundred wide: Newton matrices, the
+TF operator's bands, the fit's least squares) and a 2-core machine is often shared:
+threaded BLAS there is no faster idle and several times slower beside a busy process
+(threads spin-wait for busy cores; measured on the reactor's timefreq route, 16 s idle, 36 s
+beside one busy process with default threading, 18 s with one thread). Every computation
+started by the orchestrator therefore runs under ``compute_threads()``: BLAS/OpenMP pools at
+``$UPLIFT_THREADS`` threads (default 1). Results do not depend on it beyond round-off.
+"""
+from __future__ import annotations
+
+import os
+from contextlib import contextmanager
+from pathlib import Path
+
+from threadpoolctl import threadpool_limits
+
+EXIT_OK, EXIT_FAILED, EXIT_INPUT = 0, 1, 2
+
+
+def default_cache_dir() -> Path:
+    """Impedance and fit cache: $UPLIFT_CACHE, else ~/.cache/uplift."""
+    env = os.environ.get("UPLIFT_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "uplift"
+
+
+def thread_count() -> int:
+    """BLAS threads for computations: $UPLIFT_THREADS (a positive integer), default 1."""
+    raw = os.environ.get("UPLIFT_THREADS", "1")
+    try:
+        n = int(raw)
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise ValueError(f"UPLIFT_THREADS = {raw!r} must be a positive integer (BLAS threads; default 1)")
+    return n
+
+
+@contextmanager
+def compute_threads(n: int | None = None):
+    """Run the block with BLAS and OpenMP thread pools limited to ``n`` (default
+    ``thread_count()``); the previous limits come back on exit."""
+    with threadpool_limits(limits=n or thread_count()):
+        yield

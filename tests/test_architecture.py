@@ -1,0 +1,176 @@
+"""The project's shape: the dependency rule, no import cycle in the orchestrator, function-local
+imports only with a reason, and a route added in one place reaching every command."""
+import ast
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from orchestrator.routes import Route, register, route_names, unregister
+from structure.results import RouteResult
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("soil_impedance", "structure", "fmus", "orchestrator")
+#: what each package may import from the project (the dependency rule)
+ALLOWED = {"soil_impedance": {"soil_impedance"}, "structure": {"structure"},
+           "fmus": {"fmus", "soil_impedance", "structure"}, "orchestrator": set(PACKAGES),
+           "orchestrator.timefreq": {"orchestrator.timefreq", "soil_impedance", "structure"}}
+
+
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _imports(path: Path):
+    """[(imported module, is function-local, line, has comment)] of a source file, absolute names."""
+    tree = ast.parse(path.read_text())
+    lines = path.read_text().splitlines()
+    here = _module_name(path)
+    package = here if path.name == "__init__.py" else here.rpartition(".")[0]
+    out = []
+
+    def visit(node, local):
+        for child in ast.iter_child_nodes(node):
+            inner = local or isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef))
+            if isinstance(child, ast.Import):
+                names = [a.name for a in child.names]
+            elif isinstance(child, ast.ImportFrom):
+                base = child.module or ""
+                if child.level:
+                    base = ".".join(package.split(".")[:len(package.split(".")) - child.level + 1] + ([base] if base else []))
+                names = [f"{base}.{a.name}" for a in child.names] + [base]
+            else:
+                visit(child, inner)
+                continue
+            comment = "#" in lines[child.lineno - 1] or "#" in lines[child.lineno - 2]
+            out.extend((n, local, child.lineno, comment) for n in names)
+
+    visit(tree, False)
+    return out
+
+
+def _sources(package):
+    return sorted((ROOT / package).rglob("*.py"))
+
+
+def _project_module(name: str, known: set) -> str | None:
+    """The project module ``name`` refers to (a module or a name inside one), or None."""
+    while name and name not in known:
+        name = name.rpartition(".")[0]
+    return name or None
+
+
+KNOWN = {_module_name(p) for pkg in PACKAGES for p in _sources(pkg)}
+
+
+@pytest.mark.parametrize("package", PACKAGES)
+def test_dependency_rule(package):
+    bad = []
+    for path in _sources(package):
+        here = _module_name(path)
+        rule = ALLOWED["orchestrator.timefreq"] if here.startswith("orchestrator.timefreq") else ALLOWED[package]
+        for name, _, line, _ in _imports(path):
+            target = _project_module(name, KNOWN)
+            if target and not any(target == a or target.startswith(a + ".") for a in rule):
+                bad.append(f"{path.relative_to(ROOT)}:{line} imports {target}")
+    assert not bad, "\n".join(bad)
+
+
+def test_orchestrator_imports_form_no_cycle():
+    graph = {}
+    for path in _sources("orchestrator"):
+        here = _module_name(path)
+        deps = {_project_module(n, KNOWN) for n, *_ in _imports(path)}
+        graph[here] = {d for d in deps if d and d.startswith("orchestrator") and d != here}
+    # a package imports its submodules' names through its __init__: an edge from a submodule to
+    # its own package is the package's __init__, a real edge
+    state, stack = {}, []
+
+    def walk(node):
+        state[node] = "open"
+        stack.append(node)
+        for dep in sorted(graph.get(node, ())):
+            if state.get(dep) == "open":
+                raise AssertionError("import cycle: " + " -> ".join(stack[stack.index(dep):] + [dep]))
+            if dep not in state:
+                walk(dep)
+        stack.pop()
+        state[node] = "done"
+
+    for node in sorted(graph):
+        if node not in state:
+            walk(node)
+
+
+def test_function_local_imports_say_why():
+    """Function-local imports only where an optional dependency or a start-up cost justifies
+    them, each with a comment on its line (or the line above)."""
+    bad = [f"{p.relative_to(ROOT)}:{line} {name}" for p in _sources("orchestrator")
+           for name, local, line, comment in _imports(p) if local and not comment]
+    assert not bad, "function-local imports without a comment:\n" + "\n".join(sorted(set(bad)))
+
+
+# --- a toy route, registered in one place, reaches run, the summary, compare and bench ---
+
+TOY_SCENE = """
+[soil]
+winkler = { kv = 5.0e7, kh = 4.0e7 }
+[foundation]
+shape = "rectangle"
+lx = 10.0
+ly = 10.0
+element_size = 5.0
+[structure]
+nodes = [ { id = 1, xyz = [0, 0, 0] }, { id = 2, xyz = [0, 0, 20], name = "top" } ]
+beams = [ { nodes = [1, 2], E = 3e10, G = 1.25e10, A = 10.0, Iy = 20.0, Iz = 20.0, J = 40.0 } ]
+masses = [ { node = 2, m = 2.0e6, inertia = [0, 0, 0] } ]
+raft = { node = 1, m = 1.0e6, inertia = [1e7, 1e7, 2e7] }
+damping = { modal = 0.05 }
+[motion]
+kind = "synthetic"
+pga_g = 0.2
+duration_s = 1.0
+[analysis]
+routes = ["winkler"]
+dt = 0.01
+[output]
+nodes = ["top"]
+"""
+
+
+def _toy_run(ctx, progress=None):
+    """A rigid structure glued to the ground: zero relative motion, the ground's acceleration."""
+    t = ctx.motion.time
+    n = ctx.scene.mesh.n
+    acc = {name: ctx.motion.acc for name in ctx.scene.output.nodes}
+    return RouteResult(route="toy", time=t, gap=np.zeros((t.size, n)), acc=acc, xy=ctx.scene.mesh.xy,
+                       wall_s=1e-3, notes={"skipped": ("everything: it is a toy",)})
+
+
+@pytest.fixture
+def toy_route():
+    register(Route(name="toy", summary="rigid structure glued to the ground (a test route)", run=_toy_run,
+                   tables=lambda scene: (), bench={"toy-scene": {"dt": (0.02, 0.01)}}))
+    yield
+    unregister("toy")
+
+
+def test_a_registered_route_reaches_every_command(toy_route, tmp_path, capsys):
+    from orchestrator.bench import bench_config
+    from orchestrator.cli import main
+
+    assert "toy" in route_names()
+    scene = tmp_path / "toy.toml"
+    scene.write_text(TOY_SCENE)
+    out = tmp_path / "r.h5"
+    assert main(["run", str(scene), "--route", "toy", "--route", "winkler", "-o", str(out), "--json"]) == 0
+    summ = json.loads(capsys.readouterr().out)["routes"]
+    assert summ["toy"]["max_uplift_m"] == 0.0 and summ["toy"]["skipped"] == ["everything: it is a toy"]
+    assert main(["compare", str(out), "--reference", "toy", "--json"]) == 0
+    cmp = json.loads(capsys.readouterr().out)
+    assert cmp["reference"] == "toy" and "winkler" in cmp["differences"]
+    assert main(["report", str(out), "-o", str(tmp_path / "rep")]) == 0
+    assert "rigid structure glued to the ground" in (tmp_path / "rep" / "report.html").read_text()
+    assert bench_config()["toy-scene"] == {"toy": {"dt": [0.02, 0.01]}}
