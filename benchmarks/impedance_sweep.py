@@ -2,7 +2,7 @@
 
 Reactor raft: circle_mesh(20, 2.28), 241 nodes (723 DOFs); 10 m of Vs = 1200 m/s over a
 Vs = 1800 m/s half-space (ν = 0.3, ξ = 0.03); 100 frequencies in (0, 25] Hz; outputs rigid 6×6
-and rigid + gap (247×247). Budgets (DESIGN.md §9): < 60 s, < 4 GB, cached sweep < 1 s.
+and rigid + gap (247×247). Budgets (docs/verification.md): < 60 s, < 4 GB, cached sweep < 1 s.
 
     python benchmarks/impedance_sweep.py [--quick]
 

@@ -2,7 +2,7 @@
 
 Schedules for one step t_k -> t_{k+1} (S: structure FMU, G: soil FMU):
 
-``gauss-seidel`` (default; the impedance split of DESIGN.md §6)
+``gauss-seidel`` (default; the impedance split of docs/formulation.md)
     S <- h_{k+1} (G's output), a_g(t_{k+1});  S.doStep -> x, xdot at t_{k+1}
     G <- x_{k+1}, xdot_{k+1};                 G.doStep -> commits them, h_{k+2}
     h depends on the past only and S folds the soil's instantaneous terms into its implicit

@@ -1,4 +1,4 @@
-"""Layered soil, surface BEM and impedance tables (DESIGN.md §4).
+"""Layered soil, surface BEM and impedance tables (docs/formulation.md).
 
 DOF conventions: nodal impedances are node-interleaved [ux0, uy0, uz0, ux1, ...]; the rigid
 raft has ["ux", "uy", "uz", "rx", "ry", "rz"] about the mesh origin; the gap model appends
@@ -11,6 +11,8 @@ from .reduction import (RIGID_DOFS, condense_gap_rigid, gap_dofs, gap_reduction,
                         rigid_reduction, rigid_transform)
 from .table import ImpedanceTable, TableError
 from .sweep import impedance_sweep, static_impedance
+from .rational import FitError, RationalModel
+from .fit import FitOptions, FitReport, FitResult, fit_table, load_fit, save_fit
 
 __all__ = [
     "SoilProfile", "Material", "Layer", "SoilError",
@@ -19,4 +21,5 @@ __all__ = [
     "rigid_transform", "gap_transform", "rigid_reduction", "gap_reduction", "condense_gap_rigid",
     "RIGID_DOFS", "gap_dofs",
     "ImpedanceTable", "TableError", "impedance_sweep", "static_impedance",
+    "RationalModel", "FitError", "FitOptions", "FitReport", "FitResult", "fit_table", "save_fit", "load_fit",
 ]

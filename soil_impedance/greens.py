@@ -1,4 +1,4 @@
-"""Surface Green's functions of a layered viscoelastic half-space (DESIGN.md §4).
+"""Surface Green's functions of a layered viscoelastic half-space (docs/formulation.md).
 
 A unit point force on the soil surface at the origin, direction j; surface displacement at
 (x, y) = r (cos θ, sin θ), in radial form (complex, functions of r only):

@@ -1,7 +1,7 @@
 """Horizontally layered soil over a homogeneous half-space.
 
 Every material is linear viscoelastic with damping ratio ``damping`` = ξ, in one of two models
-(``damping_model``; harmonic convention e^{+iωt}, DESIGN.md §2; the same complex factor
+(``damping_model``; harmonic convention e^{+iωt}, docs/conventions.md; the same complex factor
 multiplies both moduli, so ν is real and frequency independent):
 
 * ``"hysteretic"`` (default): ``G* = ρ vs² (1 + 2iξ)`` at every frequency. Not causal
