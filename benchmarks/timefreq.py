@@ -6,7 +6,7 @@ Rows:
             (cached in $UPLIFT_CACHE or ~/.cache/uplift after the first ~10 s sweep).
             Routes: timefreq (the march with the wrap-around fed back, bilinear grid, BEM
             table), timefreq on the continuous grid (Newton-Krylov), linear (FD, BEM table),
-            winkler (TD, the industrial spring route of run.py), monolithic (TD, fit);
+            winkler (TD, the industrial spring route), monolithic (TD, fit);
             printed with orchestrator.compare.
   --map     convergence map over PGA 0.1 ... 1.0 g on the reactor structure with a coarse
             Winkler raft (21 nodes, frequency-independent K + s C soil, 6 s): the paper's
@@ -20,13 +20,22 @@ Rows:
             rational fit sampled as a table, monolithic TD, linear FD vs bonded TD, and the
             fit's error on the rigid-raft impedances (what separates TF from TD).
 
-    python benchmarks/timefreq.py [--pga 0.25] [--map] [--map-reactor] [--ladder] [--no-reactor]
+  --contention  the timefreq route on the reactor (one BLAS thread) with 1 and 2 worker
+            threads (SolveOptions.threads), idle and beside one busy process (``python -c
+            "while True: pass"``, started here): best wall time of --repeat runs in each
+            state, their ratio (target <= 1.3), and the max uplift of every run against the
+            1-thread idle run (the result must not depend on the threads or the load).
+
+    python benchmarks/timefreq.py [--pga 0.25] [--map] [--map-reactor] [--ladder] [--contention] [--no-reactor]
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -41,41 +50,45 @@ def cache_dir():
 def reactor(pga):
     from orchestrator.impedance import scene_impedance
     from orchestrator.motion import synthetic_motion
-    from orchestrator.run import scene_model
     from orchestrator.scene import load_scene
+    from structure.spec import build_model
 
     scene = load_scene("reactor")
-    model = scene_model(scene)
-    m = scene.section("motion")
-    motion = synthetic_motion(pga_g=pga, duration_s=float(m.get("duration_s", 10.0)), dt=0.005,
-                              seed=int(m.get("seed", 1)), spectrum=m.get("spectrum", "RG1.60"),
-                              direction=m.get("direction", "x"))
+    model = build_model(scene.structure, scene.mesh.xy, scene.mesh.area)
+    m = scene.motion
+    motion = synthetic_motion(pga_g=pga, duration_s=m.duration_s, dt=0.005, seed=m.seed, spectrum=m.spectrum,
+                              direction=m.direction)
     t0 = time.perf_counter()
     table = scene_impedance(scene, ("gap",), cache_dir=cache_dir())["gap"]
     return scene, model, motion, table, time.perf_counter() - t0
 
 
+def scene_inputs(scene):
+    """The route glue's scene keywords: contact settings and output nodes."""
+    return dict(contact=scene.contact, output_nodes=scene.output.nodes)
+
+
 def row_reactor(pga):
     from orchestrator.compare import compare, format_table
-    from orchestrator.linear_fd import run_linear
-    from orchestrator.run import output_nodes, winkler_soil
-    from orchestrator.timefreq import run_timefreq
+    from orchestrator.impedance import scene_impedance
+    from orchestrator.routes.linear import run_linear
+    from orchestrator.routes.timefreq import run_timefreq
+    from orchestrator.routes.winkler import winkler_soil
     from structure import simulate
-    from structure.spec import contact_from_spec
 
     scene, model, motion, table, t_table = reactor(pga)
     print(f"gap table: {table.n_dof} DOFs, {table.frequencies_hz.size} frequencies, {t_table:.1f} s (cache)")
     results = {}
-    tf = run_timefreq(scene, motion, model, table)
+    tf = run_timefreq(motion, model, table, **scene_inputs(scene))
     results["timefreq"] = tf
-    lin = run_linear(scene, motion, model, table)
+    lin = run_linear(motion, model, table, **scene_inputs(scene))
     results["linear"] = lin
-    soil, damping, info = winkler_soil(scene, model, cache_dir())
-    results["winkler"] = simulate(model, soil, motion.acc, motion.dt,
-                                  contact=contact_from_spec(scene.section("contact")),
-                                  damping=damping, output_nodes=output_nodes(scene), route="winkler")
+    rigid = scene_impedance(scene, ("rigid",), cache_dir=cache_dir())["rigid"]
+    soil, damping, _ = winkler_soil(scene, model, table=rigid, cache_dir=cache_dir())
+    results["winkler"] = simulate(model, soil, motion.acc, motion.dt, contact=scene.contact, damping=damping,
+                                  output_nodes=scene.output.nodes, route="winkler")
     try:
-        results["monolithic"] = _monolithic(scene, model, motion, table)
+        results["monolithic"] = _monolithic(scene, model, motion)
     except Exception as exc:  # the fit route may not exist yet
         print(f"monolithic route skipped: {exc}")
     h = tf.info
@@ -85,7 +98,7 @@ def row_reactor(pga):
           f"{h['residual']:.1e} (per sweep: {sweeps}), "
           f"S applications {h['apply_S']}, nfft {h['nfft']} (pad {h['pad_s']:.2f} s, rule "
           f"{h['pad_rule_s']:.2f} s)")
-    tfc = run_timefreq(scene, motion, model, table, bilinear=False, route="timefreq-continuous")
+    tfc = run_timefreq(motion, model, table, **scene_inputs(scene), bilinear=False, route="timefreq-continuous")
     results["timefreq-continuous"] = tfc
     print(f"timefreq on the continuous grid (Newton-Krylov): wall {tfc.wall_s:.2f} s, Newton "
           f"iterations {tfc.info['iterations']}, GMRES {tfc.info['gmres_total']}, converged {tfc.converged}")
@@ -95,21 +108,22 @@ def row_reactor(pga):
     return cmp
 
 
-def _monolithic(scene, model, motion, table):
-    """TD route with the fitted rational soil, if the project provides a fit."""
-    from soil_impedance.fit import fit_table
-    from soil_impedance.convolution import RecursiveConvolutionSoil
-    from structure import simulate
-    from structure.spec import contact_from_spec
-    from orchestrator.run import output_nodes
+def _monolithic(scene, model, motion):
+    """TD route with the fitted rational soil (the monolithic route; its wall time includes
+    the fit or its cache read)."""
+    from orchestrator.routes.monolithic import run_monolithic
+
     t0 = time.perf_counter()
-    rm = fit_table(table, cache_dir=cache_dir()).model
-    print(f"rational fit: {rm.order} poles, {time.perf_counter() - t0:.1f} s")
-    res = simulate(model, RecursiveConvolutionSoil(rm, motion.dt), motion.acc, motion.dt,
-                   contact=contact_from_spec(scene.section("contact")), output_nodes=output_nodes(scene),
-                   route="monolithic")
-    res.wall_s = time.perf_counter() - t0
-    return res
+    res = run_monolithic(scene, motion, cache_dir=cache_dir(), model=model)
+    print(f"rational fit + monolithic route: {time.perf_counter() - t0:.1f} s")
+    return dataclasses.replace(res, wall_s=time.perf_counter() - t0)
+
+
+def _timed(fn, *args, **kw):
+    """fn(*args, **kw) as a RouteResult whose wall_s is the call's."""
+    t0 = time.perf_counter()
+    res = fn(*args, **kw)
+    return dataclasses.replace(res, wall_s=time.perf_counter() - t0)
 
 
 def ladder(pga):
@@ -121,20 +135,16 @@ def ladder(pga):
     regime); and the fit's error on the rigid-raft impedances P^T K P (P = [I; Bq]) over
     2-8 Hz, the band of the SSI rocking mode (3.9 Hz)."""
     from orchestrator.compare import compare, format_table
-    from orchestrator.linear_fd import run_linear
-    from orchestrator.run import output_nodes
-    from orchestrator.timefreq import run_timefreq
+    from orchestrator.impedance import scene_fit
+    from orchestrator.routes.linear import run_linear
+    from orchestrator.routes.timefreq import run_timefreq
     from soil_impedance.convolution import RecursiveConvolutionSoil
-    from soil_impedance.fit import fit_table
     from soil_impedance.table import ImpedanceTable
     from structure import ContactSettings, simulate
-    from structure.spec import contact_from_spec
-
-    from orchestrator.run import scene_fit_tol
 
     scene, model, motion, table, _ = reactor(pga)
-    contact = contact_from_spec(scene.section("contact"))
-    fit = fit_table(table, tol=scene_fit_tol(scene), cache_dir=cache_dir())
+    contact, nodes = scene.contact, scene.output.nodes
+    fit = scene_fit(scene, cache_dir=cache_dir(), table=table)
     rm = fit.model
     f = table.frequencies_hz
     P = np.vstack([np.eye(6), model.raft.vertical_trace()])
@@ -142,26 +152,22 @@ def ladder(pga):
     Km = np.einsum("ai,fab,bj->fij", P, rm(2j * np.pi * f), P)
     band = (f >= 2.0) & (f <= 8.0)
     print(f"fit: {rm.order} poles, max relative error {fit.report.max_rel_error:.4f} (scene fit_tol "
-          f"{scene_fit_tol(scene)}); rigid-raft impedance, 2-8 Hz:")
+          f"{scene.analysis.fit_tol}); rigid-raft impedance, 2-8 Hz:")
     for i, lab in ((0, "ux"), (2, "uz"), (4, "ry")):
         e = np.abs(Km[band, i, i] - Kt[band, i, i]).max() / np.abs(Kt[band, i, i]).max()
         ei = np.abs(Km[band, i, i].imag - Kt[band, i, i].imag).max() / np.abs(Kt[band, i, i].imag).max()
         print(f"  {lab}: |K| error {100 * e:.1f} %, damping (Im K) error {100 * ei:.1f} %")
     fit_as_table = ImpedanceTable(f, rm(2j * np.pi * f), table.dofs, dict(table.provenance, fitted=True))
-    res = {"tf table": run_timefreq(scene, motion, model, table, bilinear=False),
-           "tf fit-table": run_timefreq(scene, motion, model, fit_as_table, bilinear=False)}
-    t0 = time.perf_counter()
-    res["td monolithic"] = simulate(model, RecursiveConvolutionSoil(rm, motion.dt), motion.acc, motion.dt,
-                                    contact=contact, output_nodes=output_nodes(scene), route="monolithic")
-    res["td monolithic"].wall_s = time.perf_counter() - t0
+    res = {"tf table": run_timefreq(motion, model, table, **scene_inputs(scene), bilinear=False),
+           "tf fit-table": run_timefreq(motion, model, fit_as_table, **scene_inputs(scene), bilinear=False)}
+    res["td monolithic"] = _timed(simulate, model, RecursiveConvolutionSoil(rm, motion.dt), motion.acc, motion.dt,
+                                  contact=contact, output_nodes=nodes, route="monolithic")
     print(format_table(compare(res, "tf table")))
     print(format_table(compare(res, "td monolithic")))
-    lin = {"linear table": run_linear(scene, motion, model, table)}
+    lin = {"linear table": run_linear(motion, model, table, **scene_inputs(scene))}
     bonded = ContactSettings(enabled=False, penalty=contact.penalty)
-    t0 = time.perf_counter()
-    lin["td bonded fit"] = simulate(model, RecursiveConvolutionSoil(rm, motion.dt), motion.acc, motion.dt,
-                                    contact=bonded, output_nodes=output_nodes(scene), route="bonded")
-    lin["td bonded fit"].wall_s = time.perf_counter() - t0
+    lin["td bonded fit"] = _timed(simulate, model, RecursiveConvolutionSoil(rm, motion.dt), motion.acc, motion.dt,
+                                  contact=bonded, output_nodes=nodes, route="bonded")
     print(format_table(compare(lin, "linear table")))
     return compare(res, "tf table")
 
@@ -192,7 +198,7 @@ def small_case(pga):
 
 def _fit_soil(scene, table, dt):
     """The scene's rational fit run by its recursion (the Newmark column of the reactor map)."""
-    from orchestrator.cosim import scene_fit
+    from orchestrator.impedance import scene_fit
     from soil_impedance.convolution import RecursiveConvolutionSoil
     return RecursiveConvolutionSoil(scene_fit(scene, cache_dir=cache_dir(), table=table).model, dt)
 
@@ -205,21 +211,24 @@ def convergence_map(pgas, use_reactor=False):
     for the Winkler raft; the fitted soil for the reactor). The paper's scheme
     with the auxiliary stiffness k = the local static soil stiffness (aux 1, the paper's
     choice) and 30 x stiffer (aux 30, the only setting found to converge), rho = 1 and 0.5."""
-    from orchestrator.timefreq import timefreq
+    from orchestrator.timefreq import NewtonKrylovOptions, PaperOptions, SolveOptions, solve
     from structure import ContactSettings, simulate
-    from structure.spec import contact_from_spec
 
-    budget = dict(max_seconds=60.0)
-    variants = [("paper aux1 rho1", dict(method="paper", rho=1.0)),
-                ("paper aux30 rho1", dict(method="paper", rho=1.0, aux_factor=30.0, max_iter=400)),
-                ("paper aux30 rho.5", dict(method="paper", rho=0.5, aux_factor=30.0, max_iter=400)),
-                ("newton-krylov", dict(method="newton-krylov", **budget)),
-                ("NK from march", dict(method="newton-krylov", guess="march", **budget)),
-                ("march", dict(method="march"))]
+    variants = [("paper aux1 rho1", SolveOptions(method="paper", paper=PaperOptions(rho=1.0))),
+                ("paper aux30 rho1", SolveOptions(method="paper", max_iter=400,
+                                                  paper=PaperOptions(rho=1.0, aux_factor=30.0))),
+                ("paper aux30 rho.5", SolveOptions(method="paper", max_iter=400,
+                                                   paper=PaperOptions(rho=0.5, aux_factor=30.0))),
+                ("newton-krylov", SolveOptions(method="newton-krylov", max_seconds=60.0)),
+                ("NK from march", SolveOptions(method="newton-krylov", max_seconds=60.0,
+                                               newton_krylov=NewtonKrylovOptions(guess="march"))),
+                ("march", SolveOptions(method="march"))]
     if use_reactor:     # the paper's aux-30 runs (400 iterations, an m^3 inverse per frequency
         # each) and Newton-Krylov from zero would take hours on 241 nodes
         variants = [v for v in variants if v[0] in ("paper aux1 rho1", "NK from march", "march")]
-    print(f"\nconvergence map ({'reactor, BEM table' if use_reactor else 'reactor structure on a 21-node Winkler raft (K + s C soil), 6 s broadband motion, 30 % vertical'})")
+    case = "reactor, BEM table" if use_reactor else \
+        "reactor structure on a 21-node Winkler raft (K + s C soil), 6 s broadband motion, 30 % vertical"
+    print(f"\nconvergence map ({case})")
     print("cell: converged (yes/NO), iterations (GMRES), final |g|/|f|, wall s; max uplift mm")
     print(f"{'PGA g':>6}" + "".join(f"{v[0]:>36}" for v in variants))
     rows = []
@@ -230,14 +239,13 @@ def convergence_map(pgas, use_reactor=False):
         else:
             model, soil, ag, dt = small_case(pga)
         t0 = time.perf_counter()
-        td = simulate(model, soil if not use_reactor else _fit_soil(scene, table, dt), ag, dt,
-                      contact=ContactSettings() if not use_reactor else contact_from_spec(scene.section("contact")))
+        contact = scene.contact if use_reactor else ContactSettings()
+        td = simulate(model, soil if not use_reactor else _fit_soil(scene, table, dt), ag, dt, contact=contact)
         cells, row = [], {"pga_g": pga, "newmark_uplift_m": td.max_uplift(),
                           "newmark_s": time.perf_counter() - t0}
-        for name, kw in variants:
+        for name, options in variants:
             t0 = time.perf_counter()
-            r = timefreq(model, soil, ag, dt, contact=ContactSettings() if not use_reactor else
-                         contact_from_spec(scene.section("contact")), **kw)
+            r = solve(model, soil, ag, dt, contact=contact, options=options)
             wall = time.perf_counter() - t0
             it = r.info["iterations"]
             res = r.info["residual"]
@@ -252,17 +260,71 @@ def convergence_map(pgas, use_reactor=False):
     return rows
 
 
+def contention(pga, repeat=2, threads=(1, 2)):
+    """The timefreq route on the reactor with 1 and 2 worker threads, one BLAS thread, idle
+    and beside one busy process: each repeat runs every thread count idle, then every one
+    beside the busy process (interleaved, so that a drift of the machine's load hits all
+    states alike); best wall time per state, their ratio, and each run's max uplift against
+    the 1-thread idle run's."""
+    from threadpoolctl import threadpool_limits
+
+    from orchestrator.routes.timefreq import run_timefreq
+
+    scene, model, motion, table, _ = reactor(pga)
+    idle, busy = ({n: [] for n in threads} for _ in range(2))
+    loads = [os.getloadavg()[0]]
+
+    def run(n, into):
+        res = run_timefreq(motion, model, table, **scene_inputs(scene), threads=n)
+        into[n].append((res.wall_s, res.max_uplift(), res.info["iterations"]))
+
+    with threadpool_limits(1):
+        for _ in range(repeat):
+            for n in threads:
+                run(n, idle)
+            hog = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+            try:
+                for n in threads:
+                    run(n, busy)
+            finally:
+                hog.kill()
+                hog.wait()
+            loads.append(os.getloadavg()[0])
+    ref = idle[threads[0]][0][1]
+    print(f"\ntimefreq route, reactor {pga:g} g, one BLAS thread, best of {repeat} runs per state; "
+          f"{os.cpu_count()} CPUs, 1-min load average {', '.join(f'{x:.1f}' for x in loads)} "
+          "(start, after each repeat; the busy process adds 1)")
+    print(f"{'threads':>7} {'idle s':>8} {'busy s':>8} {'ratio':>6} {'sweeps':>6} {'max uplift mm':>14} "
+          f"{'max |d uplift| m vs 1 thread idle':>34}")
+    rows = []
+    for n in threads:
+        wi, wb = min(r[0] for r in idle[n]), min(r[0] for r in busy[n])
+        every = idle[n] + busy[n]
+        diff = max(abs(r[1] - ref) for r in every)
+        sweeps = sorted({r[2] for r in every})
+        print(f"{n:>7} {wi:8.2f} {wb:8.2f} {wb / wi:6.2f} {','.join(map(str, sweeps)):>6} "
+              f"{1e3 * every[0][1]:14.6f} {diff:34.3e}")
+        rows.append(dict(threads=n, idle_s=[r[0] for r in idle[n]], busy_s=[r[0] for r in busy[n]],
+                         ratio=wb / wi, max_uplift_m=[r[1] for r in every], max_uplift_diff_m=diff, sweeps=sweeps))
+    return dict(rows=rows, load_average=loads)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--pga", type=float, default=0.25)
     ap.add_argument("--map", action="store_true")
     ap.add_argument("--map-reactor", action="store_true")
     ap.add_argument("--ladder", action="store_true", help="TF vs TD verification ladder on the reactor")
+    ap.add_argument("--contention", action="store_true",
+                    help="wall time idle and beside one busy process, 1 and 2 worker threads")
+    ap.add_argument("--repeat", type=int, default=2, help="runs per state of --contention (best kept)")
     ap.add_argument("--no-reactor", action="store_true")
     ap.add_argument("--json", type=Path)
     a = ap.parse_args()
     out = {}
-    if not a.no_reactor:
+    if a.contention:
+        out["contention"] = contention(a.pga, a.repeat)
+    elif not a.no_reactor:
         out["reactor"] = row_reactor(a.pga)
     if a.ladder:
         out["ladder"] = ladder(a.pga)

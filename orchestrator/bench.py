@@ -12,7 +12,7 @@ fit_tol        rational-fit tolerance ([analysis].fit_tol; the fit picks its ord
 element_size   BEM element size, m ([foundation].element_size: the interface mesh itself)
 penalty        contact penalty as a factor of "auto" (1 = 1e4 x the soil's local static
                stiffness per node: [contact].auto_factor = factor x AUTO_FACTOR)
-pad_s          TF zero padding, s (linear and timefreq; None = the rule of tf_grid)
+pad_s          TF zero padding, s (linear and timefreq; None = the rule of orchestrator.timefreq.grid)
 =============  ==========================================================================
 
 Each route's runs are: its reference (every knob at its finest value, the last of its list),

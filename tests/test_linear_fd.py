@@ -3,7 +3,7 @@ import numpy as np
 
 from structure import ContactSettings, simulate
 
-from orchestrator.linear_fd import linear_fd
+from orchestrator.timefreq import GridOptions, linear_fd
 from tests.test_timefreq_cases import MODEL, motion, rel, smooth_pulse, soil
 
 BONDED = ContactSettings(enabled=False)
@@ -12,7 +12,8 @@ BONDED = ContactSettings(enabled=False)
 def test_bilinear_map_equals_newmark_to_roundoff():
     ag = motion(0.5)
     td = simulate(MODEL, soil(), ag, 0.005, contact=BONDED)
-    fd = linear_fd(MODEL, soil(), ag, 0.005, contact=BONDED, bilinear=True, wrap_tol=1e-10, pad_s=20.0)
+    fd = linear_fd(MODEL, soil(), ag, 0.005, contact=BONDED,
+                   grid=GridOptions(bilinear=True, wrap_tol=1e-10, pad_s=20.0))
     for name in td.acc:
         assert rel(fd.acc[name], td.acc[name]) < 1e-8, name
     assert rel(fd.raft[:, [0, 2, 4]], td.raft[:, [0, 2, 4]]) < 1e-8
@@ -26,7 +27,7 @@ def test_newmark_converges_to_fd_with_order_two():
     dts = (0.01, 0.005, 0.0025)
     for dt in dts:
         td = simulate(MODEL, soil(), smooth_pulse(dt), dt, contact=BONDED)
-        step = int(round(dt / 0.00125))
+        step = round(dt / 0.00125)
         errs.append(rel(td.acc["top_outer"][:, 0], ref.acc["top_outer"][::step, 0]))
     rate = np.polyfit(np.log(dts), np.log(errs), 1)[0]
     assert 1.8 < rate < 2.3, (errs, rate)
@@ -41,7 +42,7 @@ def test_padding_independent_once_rule_met():
     last samples: the sampled input's band-limited interpolation, not wrap-around."""
     for ag, floors_only in ((smooth_pulse(0.005), False), (motion(0.5), True)):
         a = linear_fd(MODEL, soil(), ag, 0.005, contact=BONDED)
-        b = linear_fd(MODEL, soil(), ag, 0.005, contact=BONDED, pad_s=2.5 * a.info["pad_rule_s"])
+        b = linear_fd(MODEL, soil(), ag, 0.005, contact=BONDED, grid=GridOptions(pad_s=2.5 * a.info["pad_rule_s"]))
         assert a.info["pad_s"] >= a.info["pad_rule_s"]
         assert b.info["nfft"] > a.info["nfft"] and b.info["eta"] == a.info["eta"]
         for name in a.acc:
@@ -56,7 +57,8 @@ def test_rational_soil_splits_time_step_error_from_fit_error():
     recursion's z-transform (bilinear grid) equals the bonded Newmark run to round-off, and
     linear FD with the model itself (continuous grid) differs from it by the time-step error
     only (O(dt^2): halving dt divides the peak raft rotation gap by ~4)."""
-    from soil_impedance.convolution import RecursiveConvolutionSoil, oscillator_model
+    from passive_models import oscillator_model
+    from soil_impedance.convolution import RecursiveConvolutionSoil
 
     w = soil()
     K = w.static_stiffness().toarray()
@@ -72,8 +74,8 @@ def test_rational_soil_splits_time_step_error_from_fit_error():
         ag = smooth_pulse(dt)
         td = simulate(MODEL, RecursiveConvolutionSoil(model, dt), ag, dt, contact=BONDED)
         if dt == 0.005:
-            bil = linear_fd(MODEL, RecursiveConvolutionSoil(model, dt), ag, dt, contact=BONDED, bilinear=True,
-                            wrap_tol=1e-10, pad_s=20.0)
+            bil = linear_fd(MODEL, RecursiveConvolutionSoil(model, dt), ag, dt, contact=BONDED,
+                            grid=GridOptions(bilinear=True, wrap_tol=1e-10, pad_s=20.0))
             assert rel(bil.raft[:, [0, 2, 4]], td.raft[:, [0, 2, 4]]) < 1e-8
         fd = linear_fd(MODEL, model, ag, dt, contact=BONDED)
         gaps.append(abs(peak_rotation(fd) / peak_rotation(td) - 1))

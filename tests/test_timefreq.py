@@ -6,8 +6,8 @@ import pytest
 
 from structure import ContactSettings, simulate
 
-from orchestrator.timefreq import timefreq
-from tests.test_timefreq_cases import MODEL, MESH, motion, rel, smooth_pulse, soil
+from orchestrator.timefreq import GridOptions, PaperOptions, SolveOptions, solve
+from tests.test_timefreq_cases import MODEL, motion, rel, smooth_pulse, soil
 
 UPLIFT = ContactSettings(enabled=True)
 
@@ -19,8 +19,8 @@ def test_bilinear_map_with_uplift_equals_newmark(method):
     ag = motion(0.3)
     td = simulate(MODEL, soil(), ag, 0.005, contact=UPLIFT)
     assert td.max_uplift() > 1e-3
-    tf = timefreq(MODEL, soil(), ag, 0.005, contact=UPLIFT, bilinear=True, wrap_tol=1e-10, pad_s=20.0,
-                  method=method)
+    tf = solve(MODEL, soil(), ag, 0.005, contact=UPLIFT, grid=GridOptions(bilinear=True, wrap_tol=1e-10, pad_s=20.0),
+               options=SolveOptions(method=method))
     assert tf.converged, tf.message
     assert tf.info["residual"] < 1e-10 and tf.info["history"]
     assert abs(tf.max_uplift() - td.max_uplift()) / td.max_uplift() < 1e-8
@@ -40,7 +40,7 @@ def test_march_converges_at_strong_motion_and_equals_newmark(pga):
     Newmark to the wrap-around (wrap_tol = 1e-4): < 1e-5 on the gap (measured ~2e-6)."""
     ag = motion(pga)
     td = simulate(MODEL, soil(), ag, 0.005, contact=UPLIFT)
-    tf = timefreq(MODEL, soil(), ag, 0.005, contact=UPLIFT)
+    tf = solve(MODEL, soil(), ag, 0.005, contact=UPLIFT)
     assert tf.converged, tf.message
     assert tf.info["residual"] < 1e-10 and len(tf.info["history"]) <= 10
     assert td.max_uplift() > 0.01
@@ -53,10 +53,10 @@ def test_time_budget_keeps_the_last_iterate():
     """A solve stopped by max_seconds returns full-length histories, converged False and the
     reason; the same solve without a budget converges."""
     ag = motion(0.7)
-    cut = timefreq(MODEL, soil(), ag, 0.005, contact=UPLIFT, max_seconds=0.0)
+    cut = solve(MODEL, soil(), ag, 0.005, contact=UPLIFT, options=SolveOptions(max_seconds=0.0))
     assert not cut.converged and "time budget" in cut.message
     assert cut.gap.shape == (ag.shape[0], MODEL.n_interface)
-    nk = timefreq(MODEL, soil(), ag, 0.005, contact=UPLIFT, method="newton-krylov", max_seconds=0.0)
+    nk = solve(MODEL, soil(), ag, 0.005, contact=UPLIFT, options=SolveOptions(method="newton-krylov", max_seconds=0.0))
     assert not nk.converged and "time budget" in nk.message
 
 
@@ -64,8 +64,8 @@ def test_continuous_tf_is_the_limit_of_newmark_with_uplift():
     """K + i w C soil (exact in both routes), uplift under a smooth pulse: Newmark's max uplift
     approaches the continuous-time TF value (bilinear=False, dt = 2.5 ms) as dt -> 0, within
     2 % at dt = 2.5 ms."""
-    ref = timefreq(MODEL, soil(), smooth_pulse(0.0025, amp=3.0), 0.0025, contact=UPLIFT,
-                   bilinear=False)
+    ref = solve(MODEL, soil(), smooth_pulse(0.0025, amp=3.0), 0.0025, contact=UPLIFT,
+                grid=GridOptions(bilinear=False))
     assert ref.converged and ref.max_uplift() > 5e-4
     errs = []
     for dt in (0.01, 0.005, 0.0025):
@@ -78,21 +78,23 @@ def test_paper_scheme_agrees_with_newton_krylov_where_it_converges():
     """The paper's scheme converges (slowly, linearly) with a stiff auxiliary k (30 x the local
     static soil stiffness; k ~ K(0) diverges on the soil's high-frequency dashpots)."""
     ag = smooth_pulse(0.005, amp=2.2)
-    nk = timefreq(MODEL, soil(), ag, 0.005, contact=UPLIFT)
-    pa = timefreq(MODEL, soil(), ag, 0.005, contact=UPLIFT, method="paper", rho=1.0, tol=1e-6,
-                  max_iter=400, aux_factor=30.0)
+    nk = solve(MODEL, soil(), ag, 0.005, contact=UPLIFT)
+    pa = solve(MODEL, soil(), ag, 0.005, contact=UPLIFT,
+               options=SolveOptions(method="paper", tol=1e-6, max_iter=400,
+                                    paper=PaperOptions(rho=1.0, aux_factor=30.0)))
     assert nk.converged and pa.converged, pa.message
     assert nk.max_uplift() > 1e-4
     assert abs(pa.max_uplift() - nk.max_uplift()) / nk.max_uplift() < 1e-4
     assert rel(pa.raft[:, 4], nk.raft[:, 4]) < 1e-4
-    bad = timefreq(MODEL, soil(), ag, 0.005, contact=UPLIFT, method="paper", rho=1.0)
+    bad = solve(MODEL, soil(), ag, 0.005, contact=UPLIFT,
+                options=SolveOptions(method="paper", paper=PaperOptions(rho=1.0)))
     assert not bad.converged and "did not converge" in bad.message
 
 
 def test_padding_independent_with_uplift():
     ag = smooth_pulse(0.005, amp=3.0)
-    a = timefreq(MODEL, soil(), ag, 0.005, contact=UPLIFT)
-    b = timefreq(MODEL, soil(), ag, 0.005, contact=UPLIFT, pad_s=2.5 * a.info["pad_rule_s"])
+    a = solve(MODEL, soil(), ag, 0.005, contact=UPLIFT)
+    b = solve(MODEL, soil(), ag, 0.005, contact=UPLIFT, grid=GridOptions(pad_s=2.5 * a.info["pad_rule_s"]))
     assert b.info["nfft"] > a.info["nfft"]
     assert abs(a.max_uplift() - b.max_uplift()) / b.max_uplift() < 1e-3
     for name in a.acc:
@@ -104,7 +106,8 @@ def test_padding_independent_with_uplift():
 def test_bilinear_map_with_rational_soil_equals_monolithic_newmark():
     """A frequency-dependent passive rational soil run by its recursive convolution: the TF
     route with the recursion's z-transform equals structure.simulate to < 1e-8."""
-    from soil_impedance.convolution import RecursiveConvolutionSoil, oscillator_model
+    from passive_models import oscillator_model
+    from soil_impedance.convolution import RecursiveConvolutionSoil
 
     w = soil()
     K = w.static_stiffness().toarray()
@@ -114,8 +117,8 @@ def test_bilinear_map_with_rational_soil_equals_monolithic_newmark():
     ag = motion(0.35)
     td = simulate(MODEL, RecursiveConvolutionSoil(model, 0.005), ag, 0.005, contact=UPLIFT)
     assert td.max_uplift() > 5e-4
-    tf = timefreq(MODEL, RecursiveConvolutionSoil(model, 0.005), ag, 0.005, contact=UPLIFT,
-                  bilinear=True, wrap_tol=1e-10, pad_s=20.0)
+    tf = solve(MODEL, RecursiveConvolutionSoil(model, 0.005), ag, 0.005, contact=UPLIFT,
+               grid=GridOptions(bilinear=True, wrap_tol=1e-10, pad_s=20.0))
     assert tf.converged, tf.message
     assert rel(tf.gap, td.gap) < 1e-8
     for name in td.acc:
@@ -126,7 +129,7 @@ def test_march_step_solver_active_set_and_damped_newton_agree():
     """One step of the march: the active-set iteration and the damped Newton (its fallback on a
     cycle) find the same solution of kp max(0, delta0 - d) - P0 - h0 d - c = 0 (unique: h0
     symmetric positive definite), to round-off, for contact states from all open to all shut."""
-    from orchestrator.tf_march import _StepSolver
+    from orchestrator.timefreq.march import StepSolver
 
     rng = np.random.default_rng(4)
     n = 12
@@ -135,7 +138,7 @@ def test_march_step_solver_active_set_and_damped_newton_agree():
     kp = 1e4 * np.diag(h0)
     delta0 = rng.uniform(-1e-3, 1e-3, n)
     P0 = kp * np.maximum(delta0, 0.0)
-    st = _StepSolver(h0, kp, delta0, P0)
+    st = StepSolver(h0, kp, delta0, P0)
     for scale in (1e-3, 1e2, 1e3, 1e4):
         c = scale * rng.standard_normal(n)
         d, _ = st.solve(np.zeros(n), c)

@@ -38,7 +38,7 @@ def motion(pga_g, duration=4.0, dt=0.005, seed=3, vertical=0.3, taper=1.0):
 
 def smooth_pulse(dt, T=3.0, amp=3.0, tp=0.6):
     """A C2 pulse (sin^3) sampled at dt: the same continuous input at every dt."""
-    t = dt * np.arange(int(round(T / dt)) + 1)
+    t = dt * np.arange(round(T / dt) + 1)
     s = np.where(t < tp, np.sin(np.pi * t / tp) ** 3, 0.0)
     ag = np.zeros((t.size, 3))
     ag[:, 0] = amp * s

@@ -7,9 +7,7 @@ from soil_impedance.table import ImpedanceTable
 from structure import ContactSettings
 
 from orchestrator.compare import compare
-from orchestrator.linear_fd import linear_fd
-from orchestrator.tf_soil import causal_table
-from orchestrator.timefreq import timefreq
+from orchestrator.timefreq import GridOptions, causal_table, linear_fd, solve
 from tests.test_timefreq_cases import MODEL, motion, rel, soil
 
 BONDED = ContactSettings(enabled=False)
@@ -48,9 +46,9 @@ def test_linear_route_with_hysteretic_table_is_padding_independent():
     ag = motion(0.5, duration=8.0, taper=0.2)
 
     def pair(window):
-        a = linear_fd(MODEL, tab, ag, 0.005, contact=BONDED, window=window)
-        b = linear_fd(MODEL, tab, ag, 0.005, contact=BONDED, window=window,
-                      pad_s=2.5 * a.info["pad_rule_s"])
+        a = linear_fd(MODEL, tab, ag, 0.005, contact=BONDED, grid=GridOptions(window=window))
+        b = linear_fd(MODEL, tab, ag, 0.005, contact=BONDED,
+                      grid=GridOptions(window=window, pad_s=2.5 * a.info["pad_rule_s"]))
         assert b.info["nfft"] > a.info["nfft"] and a.info["pad_s"] >= a.info["pad_rule_s"]
         return max([rel(a.raft[:, j], b.raft[:, j]) for j in (0, 2, 4)]
                    + [rel(a.acc[n], b.acc[n]) for n in a.acc if n != "raft"])
@@ -66,9 +64,9 @@ def test_uplift_route_with_hysteretic_table_is_padding_independent():
     and 2.5 x the rule (measured: 4e-6 on max uplift)."""
     tab = hysteretic_table()
     ag = motion(0.3)
-    a = timefreq(MODEL, tab, ag, 0.005, contact=ContactSettings(enabled=True), bilinear=False)
-    b = timefreq(MODEL, tab, ag, 0.005, contact=ContactSettings(enabled=True), bilinear=False,
-                 pad_s=2.5 * a.info["pad_rule_s"])
+    a = solve(MODEL, tab, ag, 0.005, contact=ContactSettings(enabled=True), grid=GridOptions(bilinear=False))
+    b = solve(MODEL, tab, ag, 0.005, contact=ContactSettings(enabled=True),
+              grid=GridOptions(bilinear=False, pad_s=2.5 * a.info["pad_rule_s"]))
     assert a.converged and b.converged and b.info["nfft"] > a.info["nfft"]
     assert a.max_uplift() > 1e-4
     d = compare({"a": a, "b": b}, "b")["differences"]["a"]
@@ -82,9 +80,9 @@ def test_uplift_march_with_hysteretic_table_is_padding_independent():
     rule and 2.5 x the rule."""
     tab = hysteretic_table()
     ag = motion(0.3)
-    a = timefreq(MODEL, tab, ag, 0.005, contact=ContactSettings(enabled=True))
-    b = timefreq(MODEL, tab, ag, 0.005, contact=ContactSettings(enabled=True),
-                 pad_s=2.5 * a.info["pad_rule_s"])
+    a = solve(MODEL, tab, ag, 0.005, contact=ContactSettings(enabled=True))
+    b = solve(MODEL, tab, ag, 0.005, contact=ContactSettings(enabled=True),
+              grid=GridOptions(pad_s=2.5 * a.info["pad_rule_s"]))
     assert a.info["method"] == "march" and a.converged and b.converged, (a.message, b.message)
     assert a.info["residual"] < 1e-10 and a.max_uplift() > 1e-4
     d = compare({"a": a, "b": b}, "b")["differences"]["a"]
@@ -96,8 +94,8 @@ def test_bilinear_grid_puts_nyquist_in_the_continuation():
     = 0 there, but the point stands for an infinite frequency and belongs to the spring-dashpot
     continuation. Spline-extrapolated instead (the old band split on Re f_c), its real part
     entered the inverse FFT as a (-1)^k e^{eta t} kernel that grew 1e4-fold over the record."""
-    from orchestrator.tf_grid import Grid
-    from orchestrator.tf_soil import AffineBand, soil_bands
+    from orchestrator.timefreq.grid import Grid
+    from orchestrator.timefreq.soil import AffineBand, soil_bands
 
     g = Grid.build(801, 0.005, pad_s=1.0, bilinear=True)
     bands = soil_bands(hysteretic_table(), g)
@@ -105,7 +103,7 @@ def test_bilinear_grid_puts_nyquist_in_the_continuation():
     assert any(isinstance(b, AffineBand) and nyq in b.idx for b in bands.bands)
     Kt = causal_table(hysteretic_table())[0][-1]
     wmax = 2 * np.pi * hysteretic_table().frequencies_hz[-1]
-    K_nyq = [b.full(g.s[[nyq]])[0] for b in bands.bands if nyq in b.idx][0]
+    K_nyq = next(b.full(g.s[[nyq]])[0] for b in bands.bands if nyq in b.idx)
     assert np.allclose(K_nyq, Kt.real + g.s[nyq] * Kt.imag / wmax, rtol=1e-12, atol=0)
     K00 = np.empty(g.n_freq, complex)
     for b in bands.bands:

@@ -16,7 +16,7 @@ sampled input near Nyquist is interpolated, an O(eta dt) effect on the feedthrou
 held fixed when only the padding varies). Undoing the window amplifies round-off by at most
 e^{eta T} < 1/wrap_tol, and so it does any non-causal part of H (a hysteretic table's
 Im K ~ sign(w)): h(-tau) comes back at the end of the padded record times e^{eta (nfft dt -
-tau)}. Without the window (eta = 0, ``tf_problem.prepare(window=False)``, the linear route's
+tau)}. Without the window (eta = 0, ``GridOptions(window=False)``, the linear route's
 default) the physics alone must damp the wrap-around: pad_s >= max(1 s, ln(1/wrap_tol) tau_1),
 and nothing is amplified.
 
@@ -26,11 +26,16 @@ Newmark one at the samples (for a_g(0) = 0, zero initial state).
 """
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
+import pyfftw
+import pyfftw.builders as fb
 
-_PLANS: dict = {}
+#: FFTW plans per thread (a plan owns its input buffer: two threads transforming through one
+#: plan would write each other's data)
+_PLANS = threading.local()
 
 
 def _fast_len(n: int) -> int:
@@ -50,12 +55,11 @@ def _fast_len(n: int) -> int:
 
 
 def _plan(kind: str, shape: tuple, nfft: int):
-    """Cached pyfftw builder for rfft/irfft of a C-contiguous array along the last axis."""
-    import pyfftw
-    import pyfftw.builders as fb
-
+    """Cached pyfftw builder for rfft/irfft of a C-contiguous array along the last axis (one
+    cache per thread)."""
+    plans = _PLANS.__dict__.setdefault("cache", {})
     key = (kind, shape, nfft)
-    plan = _PLANS.get(key)
+    plan = plans.get(key)
     if plan is None:
         if kind == "r":
             a = pyfftw.empty_aligned(shape[:-1] + (nfft,), dtype="float64")
@@ -65,9 +69,9 @@ def _plan(kind: str, shape: tuple, nfft: int):
             a = pyfftw.empty_aligned(shape[:-1] + (nfft // 2 + 1,), dtype="complex128")
             plan = fb.irfft(a, n=nfft, axis=-1, planner_effort="FFTW_ESTIMATE", threads=1,
                             avoid_copy=False)
-        if len(_PLANS) > 64:
-            _PLANS.pop(next(iter(_PLANS)))
-        _PLANS[key] = plan
+        if len(plans) > 64:
+            plans.pop(next(iter(plans)))
+        plans[key] = plan
     return plan
 
 
@@ -84,7 +88,7 @@ class Grid:
 
     @classmethod
     def build(cls, nt: int, dt: float, pad_s: float = 3.0, wrap_tol: float = 1e-4,
-              bilinear: bool = False, nfft: int | None = None, eta_pad_s: float | None = None) -> "Grid":
+              bilinear: bool = False, nfft: int | None = None, eta_pad_s: float | None = None) -> Grid:
         """eta_pad_s: the padding (s) that sets eta (default pad_s): a longer pad than the
         rule keeps the rule's eta, so that only the wrap-around changes with the padding."""
         if nfft is None:

@@ -2,13 +2,13 @@
 
 The raft is bonded to the soil through the stepper's penalty springs (contact disabled:
 P = P0 - kp d, the same linear model ``structure.simulate`` runs with ``enabled = False``), so
-per frequency (S + kp) d = f (tf_operator), solved by the Richardson iteration
+per frequency (S + kp) d = f (operator), solved by the Richardson iteration
 d <- (f - S d) / kp (||S|| / kp ~ 1e-4 with the auto penalty: converges to round-off in a
 few sweeps; a dense per-frequency solve is the fallback). The structure is condensed
 exactly on the raft with all its fixed-base modes; the soil is the BEM table interpolated at
-the FFT frequencies (spring-dashpot continuation above the table, see tf_soil); FFTs through
+the FFT frequencies (spring-dashpot continuation above the table, see soil); FFTs through
 pyfftw. Wrap-around: by default no exponential window (eta = 0) and the padding the physics
-needs alone, max(1 s, ln(1/wrap_tol) tau_1) (tf_grid): the window would amplify the acausal
+needs alone, max(1 s, ln(1/wrap_tol) tau_1) (grid): the window would amplify the acausal
 part of a hysteretic table by up to 1/wrap_tol at the end of the record (on the reactor the
 raft rotation drifted to 1.7e-5 rad, 11 % of its peak, in the last second). The bilinear grid
 keeps the window (its s_d has a pole at z = -1, the Nyquist bin, on the unit circle).
@@ -21,8 +21,11 @@ from dataclasses import replace
 import numpy as np
 
 from structure.contact import ContactSettings
+from structure.results import RouteResult
 
-from orchestrator.tf_problem import prepare, result
+from orchestrator.timefreq.operator import WorkerPool
+from orchestrator.timefreq.options import THREADS, GridOptions
+from orchestrator.timefreq.problem import prepare, route_result
 
 
 def solve_bonded(op, f_hat, kp, tol=1e-15, max_sweeps=60):
@@ -52,6 +55,7 @@ def solve_bonded(op, f_hat, kp, tol=1e-15, max_sweeps=60):
 
 
 def _S_chunk(op, idx, sl):
+    """S[idx, idx] (F_chunk, m, m) at the frequencies sl."""
     F = op.s.size
     full = op.S_sub(idx, idx) if F <= 64 else None
     if full is not None:
@@ -60,47 +64,32 @@ def _S_chunk(op, idx, sl):
     for band in op.soil.bands:
         sel = (band.idx >= sl.start) & (band.idx < sl.stop)
         if sel.any():
-            fi = band.idx[sel]
-            if hasattr(band, "K"):
-                sub[fi - sl.start] = band.K[sel][:, 6:, 6:]
-            else:
-                sub[fi - sl.start] = band.sub_ww(idx, idx, op.s[fi])
+            sub[band.idx[sel] - sl.start] = band.sub_ww(idx, idx, op.s[band.idx], sel)
     sub -= op.Vr[sl] @ (op.Zinv[sl] @ op.Vl[sl])
     return sub
 
 
-def linear_fd(model, soil, ag, dt, contact=None, damping=None, output_nodes=None, pad_s=None,
-              wrap_tol=1e-4, bilinear=False, nfft=None, route="linear", window=None):
-    """Linear (bonded) frequency-domain response to ground acceleration ag (nt, 3) m/s^2.
+def linear_fd(model, soil, ag, dt, *, contact=None, damping=None, output_nodes=None,
+              grid: GridOptions | None = None, threads: int = THREADS, route: str = "linear") -> RouteResult:
+    """Linear (bonded) frequency-domain response to ground acceleration ag (nt, 3) m/s^2 at
+    step dt (s).
 
-    soil: ImpedanceTable ("gap", 6+N), WinklerSoil, RationalModel or RecursiveConvolutionSoil.
-    window: exponential window (default: only on the bilinear grid; see the module notes).
+    soil : ImpedanceTable ("gap", 6+N), WinklerSoil, RationalModel or RecursiveConvolutionSoil
+    contact : ContactSettings (its penalty; contact is disabled here); damping : structural
+    damping (structure.damping_matrix); output_nodes : node names (None: every named node)
+    grid : GridOptions (default GridOptions(); None fields: the continuous grid, the window on the bilinear grid only;
+    see the module notes); threads : worker threads of the operator (WorkerPool)
     Returns a RouteResult (gap zero, contact_force P0 - kp d, may be negative = tension).
     """
     t0 = time.perf_counter()
     contact = replace(contact or ContactSettings(), enabled=False)
-    prob = prepare(model, soil, ag, dt, contact=contact, damping=damping, pad_s=pad_s,
-                   wrap_tol=wrap_tol, bilinear=bilinear, nfft=nfft,
-                   window=bilinear if window is None else window)
-    g = prob.grid
-    f_hat = g.to_freq(prob.f)
-    d_hat, sweeps, how = solve_bonded(prob.op, f_hat, prob.kp)
+    with WorkerPool(threads) as pool:
+        prob = prepare(model, soil, ag, dt, grid=(grid or GridOptions()).resolved(bilinear=False), contact=contact,
+                       damping=damping, pool=pool)
+        g = prob.grid
+        f_hat = g.to_freq(prob.f)
+        d_hat, sweeps, how = solve_bonded(prob.op, f_hat, prob.kp)
     d = g.to_time(d_hat)
     P = prob.P0[:, None] - prob.kp[:, None] * d
-    wall = time.perf_counter() - t0
-    return result(prob, route, d, P, np.zeros_like(d), output_nodes, True, "", wall,
-                  dict(method="linear-fd", bonded_solver=how, sweeps=sweeps))
-
-
-def run_linear(scene, motion, model, table_gap, contact=None, damping=None, output_nodes=None,
-               **options):
-    """The ``linear`` route of a scene: RouteResult of ``linear_fd`` with the scene's BEM gap
-    table, motion (orchestrator.motion.Motion), structure and contact penalty."""
-    from structure.spec import contact_from_spec
-
-    from orchestrator.run import output_nodes as scene_nodes
-
-    contact = contact or contact_from_spec(scene.section("contact"))
-    nodes = output_nodes if output_nodes is not None else scene_nodes(scene)
-    return linear_fd(model, table_gap, motion.acc, motion.dt, contact=contact, damping=damping,
-                     output_nodes=nodes, **options)
+    return route_result(prob, route, d, P, np.zeros_like(d), output_nodes=output_nodes, started=t0,
+                        info=dict(method="linear-fd", bonded_solver=how, sweeps=sweeps))

@@ -1,6 +1,6 @@
 """The structure-soil system condensed on the contact: d -> contact force, per frequency.
 
-Unknowns in the frequency domain (Laplace variable s, see tf_grid): raft q (6), soil w (N),
+Unknowns in the frequency domain (Laplace variable s, see grid): raft q (6), soil w (N),
 and the fixed-base modal coordinates eta of the structure. The structure is condensed on q
 exactly with *all* its fixed-base modes (massless DOFs are condensed statically in the modes,
 exact for the lumped masses; the damping must be diagonal in the modes: modal or Rayleigh):
@@ -18,34 +18,78 @@ so the contact force p (dynamic, on the raft +Bq^T p, on the soil -p) and d sati
 p = S d - f with the interface dynamic stiffness S = K_ww - Vr Z_qq^-1 Vl (N x N) and the
 blocked force f = Vr Z_qq^-1 b a_g. Z_qq is the raft bonded to the soil (regular at s -> 0);
 S is applied as K_ww (the soil's bands) minus a rank-6 term; it is never formed for all N.
+
+The per-frequency work (batched products and inverses, numpy/BLAS calls that release the GIL)
+may run on a ``WorkerPool``: each frequency is computed alone, whatever the split, so the
+result does not depend on the thread count.
 """
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
+from itertools import pairwise
 
 import numpy as np
+from scipy.linalg import LinAlgError, eigh
 
 from structure import damping_matrix, fixed_base_modes
 
-_POOL: ThreadPoolExecutor | None = None
+from orchestrator.timefreq.soil import AffineBand, DenseBand, dense
+
+#: frequencies per chunk below which a band is not split between threads
+MIN_CHUNK = 8
 
 
-def _run(tasks):
-    """Run the callables (numpy/BLAS work that releases the GIL) on two threads."""
-    global _POOL
-    if len(tasks) == 1:
-        return [tasks[0]()]
-    if _POOL is None:
-        _POOL = ThreadPoolExecutor(2)
-    futs = [_POOL.submit(t) for t in tasks[1:]]
-    first = tasks[0]()
-    return [first] + [f.result() for f in futs]
+class WorkerPool:
+    """``threads`` workers for the operator's per-frequency tasks, the calling thread being one
+    of them (threads = 1: everything inline, no thread started). Its threads live until
+    ``close()``: use it as a context manager around one solve.
+
+    The solves default to options.THREADS; a bare operator (pool None) runs inline. The answer
+    is the same to the last bit for any thread count (each frequency is computed alone)."""
+
+    def __init__(self, threads: int = 1):
+        if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
+            raise ValueError(f"threads = {threads!r} must be a positive integer (worker threads, 1: none)")
+        self.threads = int(threads)
+        self._executor = ThreadPoolExecutor(self.threads - 1) if self.threads > 1 else None
+        self._closed = False
+
+    def __enter__(self) -> WorkerPool:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Stop the worker threads (waits for running tasks)."""
+        if self._executor is not None:
+            self._executor.shutdown(wait=True)
+        self._closed = True
+
+    def chunks(self, n: int) -> list:
+        """Slices splitting range(n) into one part per thread (fewer if the parts would be
+        shorter than MIN_CHUNK)."""
+        parts = max(1, min(self.threads, n // MIN_CHUNK))
+        edges = [n * i // parts for i in range(parts + 1)]
+        return [slice(a, b) for a, b in pairwise(edges)]
+
+    def run(self, tasks) -> list:
+        """Results of the callables ``tasks``, the first on the calling thread."""
+        if self._closed:
+            raise RuntimeError("the worker pool is closed: the operator was used after its solve ended")
+        if len(tasks) == 1 or self._executor is None:
+            return [t() for t in tasks]
+        futs = [self._executor.submit(t) for t in tasks[1:]]
+        first = tasks[0]()
+        return [first] + [f.result() for f in futs]
 
 
-def _halves(idx):
-    """Two slices splitting range(idx.size) (one if it is short)."""
-    h = idx.size // 2
-    return [slice(0, h), slice(h, idx.size)] if h >= 8 else [slice(0, idx.size)]
+def _span(idx):
+    """The frequency indices idx as a slice when they are a contiguous range (a band of a
+    table or of a Winkler soil), else unchanged."""
+    if idx.size and idx[-1] - idx[0] + 1 == idx.size and (idx.size == 1 or np.all(np.diff(idx) == 1)):
+        return slice(int(idx[0]), int(idx[-1]) + 1)
+    return idx
 
 
 class ModalStructure:
@@ -104,15 +148,19 @@ class InterfaceOperator:
     Parameters
     ----------
     model : StructureModel
-    soil : SoilBands                 K(s) on [q, w] (tf_soil.soil_bands)
+    soil : SoilBands                 K(s) on [q, w] (soil.soil_bands)
     grid : Grid
     damping : None | float | Damping structural damping (see structure.damping_matrix)
+    structure : ModalStructure       the model's modal data if already built
+    pool : WorkerPool                threads for the per-frequency work (default: none)
     """
 
-    def __init__(self, model, soil, grid, damping=None, structure: ModalStructure | None = None):
+    def __init__(self, model, soil, grid, damping=None, structure: ModalStructure | None = None,
+                 pool: WorkerPool | None = None):
         if soil.n != 6 + model.n_interface:
             raise ValueError(f"the soil has {soil.n} DOFs, the raft needs 6 + N = {6 + model.n_interface}")
         self.model, self.soil, self.grid = model, soil, grid
+        self.pool = pool or WorkerPool(1)
         self.st = structure or ModalStructure(model, damping)
         self.N = model.n_interface
         s = grid.s
@@ -145,19 +193,19 @@ class InterfaceOperator:
 
         def band_task(band, sel):
             def run():
-                i = band.idx if sel is None else band.idx[sel]
+                i = _span(band.idx if sel is None else band.idx[sel])     # a slice: views, no copies
                 Y[i] = band.apply_ww(Xf[i], self.s[i]) if sel is None else \
-                    band.apply_ww_sel(Xf[i], self.s[i], sel)
+                    band.apply_ww(Xf[i], self.s[i], sel)
                 Y[i] -= self.Vr[i] @ (self.ZV[i] @ Xf[i])
             return run
 
         tasks = []
         for band in self.soil.bands:
-            if hasattr(band, "apply_ww_sel") and len(self.soil.bands) == 1:
-                tasks += [band_task(band, h) for h in _halves(np.arange(band.idx.size))]
+            if isinstance(band, DenseBand) and len(self.soil.bands) == 1:
+                tasks += [band_task(band, h) for h in self.pool.chunks(band.idx.size)]
             else:
                 tasks.append(band_task(band, None))
-        _run(tasks)
+        self.pool.run(tasks)
         Y = np.transpose(Y, (2, 1, 0))
         return Y if X.ndim == 3 else Y[0]
 
@@ -186,26 +234,22 @@ class InterfaceOperator:
 
 
 class SubInverse:
-    """S[O, O](s)^-1 on every frequency. Dense bands: batched inverses (two threads). Affine
+    """S[O, O](s)^-1 on every frequency. Dense bands: batched inverses (the operator's pool). Affine
     bands (K_ww = A + s B, A and B real symmetric, B positive definite): K_OO^-1 = V (L + s)^-1
     V^T from one generalized eigendecomposition A V = B V L (V^T B V = I) for all the band's
     frequencies, and the structure's rank-6 term by the Woodbury identity
     S_OO^-1 = K^-1 + K^-1 Vr (Zqq - Vl K^-1 Vr)^-1 Vl K^-1 (Vr, Vl restricted to O)."""
 
     def __init__(self, op, O):
-        from scipy.linalg import LinAlgError, eigh
-
-        from orchestrator.tf_soil import AffineBand, _dense
-
-        self.O, self.parts = O, []
+        self.O, self.parts, self.pool = O, [], op.pool
         m = O.size
         for band in op.soil.bands:
             idx = band.idx
             s = op.s[idx]
             if isinstance(band, AffineBand):
-                Aw, Bw = band._ww()
-                A = _dense(Aw)[np.ix_(O, O)]
-                B = _dense(Bw)[np.ix_(O, O)]
+                Aw, Bw = band.ww()
+                A = dense(Aw)[np.ix_(O, O)]
+                B = dense(Bw)[np.ix_(O, O)]
                 try:
                     if np.abs(A - A.T).max() > 1e-12 * np.abs(A).max() or \
                             np.abs(B - B.T).max() > 1e-12 * max(np.abs(B).max(), 1e-300):
@@ -226,14 +270,9 @@ class SubInverse:
 
             def inv(sel, band=band, idx=idx, s=s, G=G):
                 i = idx[sel]
-                Gs = band.sub_ww(O, O, s) if band.__class__.__name__ == "AffineBand" else None
-                if Gs is None:
-                    Gs = band.K[sel][:, 6 + O[:, None], 6 + O[None, :]]
-                else:
-                    Gs = Gs[sel]
-                Gs = Gs - op.Vr[i][:, O] @ (op.ZV[i][:, :, O])
+                Gs = band.sub_ww(O, O, s, sel) - op.Vr[i][:, O] @ (op.ZV[i][:, :, O])
                 G[sel] = np.linalg.inv(Gs)
-            _run([lambda h=h: inv(h) for h in _halves(np.arange(idx.size))])
+            self.pool.run([lambda h=h: inv(h) for h in self.pool.chunks(idx.size)])
             self.parts.append(("dense", idx, G))
 
     @staticmethod
@@ -263,9 +302,8 @@ class SubInverse:
         tasks = []
         for kind, idx, data in self.parts:
             if kind == "dense" and len(self.parts) == 1:
-                for h in _halves(np.arange(idx.size)):
-                    tasks.append(task(kind, idx[h], data[h]))
+                tasks += [task(kind, idx[h], data[h]) for h in self.pool.chunks(idx.size)]
             else:
                 tasks.append(task(kind, idx, data))
-        _run(tasks)
+        self.pool.run(tasks)
         return out

@@ -30,6 +30,13 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.interpolate import CubicSpline
+
+from soil_impedance.convolution import bilinear_coefficients
+from soil_impedance.fit import causal_cutoff, causal_target
+from soil_impedance.rational import RationalModel
+from soil_impedance.table import ImpedanceTable
+from structure.soil_interface import WinklerSoil
 
 
 @dataclass(frozen=True, eq=False)
@@ -41,21 +48,20 @@ class DenseBand:
     def full(self, s):
         return self.K
 
-    def apply_ww(self, X, s):
-        """X (Fb, N, r) -> K_ww X."""
-        return np.matmul(self._ww(), X)
+    def apply_ww(self, X, s, sel=slice(None)):
+        """X (Fb, N, r) -> K_ww X (s (Fb,) unused); sel: the band's frequencies X stands for
+        (a part of the band, for the worker pool's chunks)."""
+        return np.matmul(self.ww()[sel], X)
 
-    def apply_ww_sel(self, X, s, sel):
-        """X (len(sel), N, r) -> K_ww X at the band's frequencies sel."""
-        return np.matmul(self._ww()[sel], X)
-
-    def _ww(self):
+    def ww(self):
+        """K_ww (Fb, N, N), the soil block, contiguous (cached)."""
         if not hasattr(self, "_cache"):
             object.__setattr__(self, "_cache", np.ascontiguousarray(self.K[:, 6:, 6:]))
         return self._cache
 
-    def sub_ww(self, rows, cols, s):
-        return self.K[:, 6 + rows[:, None], 6 + cols[None, :]]
+    def sub_ww(self, rows, cols, s, sel=slice(None)):
+        """K_ww[rows, cols] (Fb, m_r, m_c) at the band's frequencies sel (s unused)."""
+        return self.K[sel][:, 6 + rows[:, None], 6 + cols[None, :]]
 
     def rows_P(self, s, Bq):
         """(K[w, :] P (Fb, N, 6), P^T K[:, w] (Fb, 6, N), P^T K P (Fb, 6, 6)), P = [I; Bq]."""
@@ -74,32 +80,35 @@ class AffineBand:
     B: object
 
     def full(self, s):
-        A, B = _dense(self.A), _dense(self.B)
+        A, B = dense(self.A), dense(self.B)
         return A[None] + s[:, None, None] * B[None]
 
     def apply_ww(self, X, s):
-        Aw, Bw = self._ww()
+        """X (Fb, N, r) -> K_ww X at the Laplace variables s (Fb,)."""
+        Aw, Bw = self.ww()
         Fb, N, r = X.shape
         Xt = np.ascontiguousarray(np.moveaxis(X, 0, 1)).reshape(N, Fb * r)      # (N, Fb r)
         Y = _real_apply(Aw, Xt) + _real_apply(Bw, Xt * np.repeat(s, r)[None, :])
         return np.moveaxis(Y.reshape(N, Fb, r), 1, 0)
 
-    def _ww(self):
+    def ww(self):
+        """(A_ww, B_ww), the soil blocks (dense or sparse as given, cached)."""
         if not hasattr(self, "_cache"):
             A, B = self.A, self.B
             object.__setattr__(self, "_cache", (_sub(A, slice(6, None), slice(6, None)),
                                                 _sub(B, slice(6, None), slice(6, None))))
         return self._cache
 
-    def sub_ww(self, rows, cols, s):
-        Aw, Bw = self._ww()
-        a = _dense(Aw[rows][:, cols]) if hasattr(Aw, "tocsr") else Aw[np.ix_(rows, cols)]
-        b = _dense(Bw[rows][:, cols]) if hasattr(Bw, "tocsr") else Bw[np.ix_(rows, cols)]
-        return a[None] + s[:, None, None] * b[None]
+    def sub_ww(self, rows, cols, s, sel=slice(None)):
+        """K_ww[rows, cols] (Fb, m_r, m_c) at the band's frequencies sel (s: the band's)."""
+        Aw, Bw = self.ww()
+        a = dense(Aw[rows][:, cols]) if hasattr(Aw, "tocsr") else Aw[np.ix_(rows, cols)]
+        b = dense(Bw[rows][:, cols]) if hasattr(Bw, "tocsr") else Bw[np.ix_(rows, cols)]
+        return a[None] + s[sel][:, None, None] * b[None]
 
     def rows_P(self, s, Bq):
         out = []
-        for M in (_dense(self.A), _dense(self.B)):
+        for M in (dense(self.A), dense(self.B)):
             Vr = M[6:, :6] + M[6:, 6:] @ Bq
             Vl = M[:6, 6:] + Bq.T @ M[6:, 6:]
             KPP = M[:6, :6] + M[:6, 6:] @ Bq + Bq.T @ Vr
@@ -109,7 +118,8 @@ class AffineBand:
         return a1 + ss * b1, a2 + ss * b2, a3 + ss * b3
 
 
-def _dense(M):
+def dense(M):
+    """M as a dense float array (from a scipy sparse matrix or an array)."""
     return M.toarray() if hasattr(M, "toarray") else np.asarray(M, float)
 
 
@@ -142,10 +152,6 @@ class SoilBands:
 
 def soil_bands(soil, grid) -> SoilBands:
     """SoilBands of an ImpedanceTable, WinklerSoil, RationalModel or RecursiveConvolutionSoil."""
-    from soil_impedance.rational import RationalModel
-    from soil_impedance.table import ImpedanceTable
-    from structure.soil_interface import WinklerSoil
-
     s = grid.s
     F = s.size
     allf = np.arange(F)
@@ -153,21 +159,19 @@ def soil_bands(soil, grid) -> SoilBands:
         return _table_bands(soil, grid)
     if isinstance(soil, WinklerSoil):
         K, C = soil.instantaneous(grid.dt)
-        return SoilBands((AffineBand(allf, K, C),), _dense(soil.static_stiffness()), soil.n_dof,
+        return SoilBands((AffineBand(allf, K, C),), dense(soil.static_stiffness()), soil.n_dof,
                          "winkler springs and dashpots K + s C")
     if isinstance(soil, RationalModel):
         K0 = soil(np.zeros(1))[0].real
         return SoilBands((DenseBand(allf, soil(s)),), 0.5 * (K0 + K0.T), soil.n,
                          "rational model K(s)" + (" at the bilinear s_d" if grid.bilinear else ""))
-    if hasattr(soil, "model") and isinstance(getattr(soil, "model"), RationalModel):
+    if hasattr(soil, "model") and isinstance(soil.model, RationalModel):
         return _recursion_bands(soil, grid)
     raise TypeError(f"cannot use a {type(soil).__name__} as a frequency-domain soil: give an "
                     "ImpedanceTable, WinklerSoil, RationalModel or RecursiveConvolutionSoil")
 
 
 def _recursion_bands(soil, grid):
-    from soil_impedance.convolution import bilinear_coefficients
-
     model = soil.model
     if not grid.bilinear or abs(soil.dt - grid.dt) > 1e-12 * grid.dt:
         raise ValueError("a RecursiveConvolutionSoil is a discrete-time model: use it on a bilinear "
@@ -183,8 +187,6 @@ def _recursion_bands(soil, grid):
 
 
 def _table_bands(table, grid) -> SoilBands:
-    from scipy.interpolate import CubicSpline
-
     f_tab = table.frequencies_hz
     if f_tab[0] != 0.0:
         raise ValueError(f"the impedance table starts at {f_tab[0]:g} Hz: the frequency-domain routes "
@@ -227,8 +229,6 @@ def causal_table(table):
     """(matrices (F, n, n), f_causal Hz): the table with its hysteretic offset Im K(0+) faded
     out below f_causal (the rational fit's rule, soil_impedance.fit; f_causal = 0 and the
     matrices unchanged for a table without hysteretic damping)."""
-    from soil_impedance.fit import causal_cutoff, causal_target
-
     f = table.frequencies_hz
     f_c = causal_cutoff(table, table.matrices)
     return causal_target(f, table.matrices, f_c), f_c

@@ -1,10 +1,10 @@
 """Causal time marching of the contact equation: the robust solver of the TF reference.
 
-The interface stiffness S (tf_operator) applied between the grid's windowed FFTs is the
+The interface stiffness S (operator) applied between the grid's windowed FFTs is the
 discrete convolution p_n = sum_k h_k d_{n-k} with the kernel h_k = to_time(S)_k: the inverse
-FFT of S at the grid's frequencies, window undone (tf_grid). For lags k < nt it is S's causal
+FFT of S at the grid's frequencies, window undone (grid). For lags k < nt it is S's causal
 kernel (up to its alias wrap_tol h_{k + nfft}); on the periodic grid, where the whole-range
-residual g (tf_solvers) lives, every n < m also sees wrap_tol h_{nfft + n - m} d_m from later
+residual g (problem.ContactEquation) lives, every n < m also sees wrap_tol h_{nfft + n - m} d_m from later
 times (the wrap-around), and a soil that is not causal on the grid adds its kernel's negative
 lags (a BEM table continued by springs and dashpots above its last frequency: 10 % of the
 rocking impedance at 4 Hz for the hysteretic reactor table, measured by truncating them).
@@ -28,12 +28,16 @@ one, where h_0 is a band-limited dashpot with negative eigenvalues.
 """
 from __future__ import annotations
 
+import math
 import time
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg as sla
 
 from structure.contact import contact_force
+
+from orchestrator.timefreq.problem import ContactEquation, Outcome, SolverStatus
 
 #: |d| (m) past which a march has diverged (a soil whose causal part is not passive on the grid)
 DIVERGED_M = 100.0
@@ -80,7 +84,7 @@ class MarchDiverged(FloatingPointError):
         super().__init__(f"the march diverged at t = {t:.3g} s ({n_open} nodes open)")
 
 
-class _StepSolver:
+class StepSolver:
     """Step n's contact conditions r(d) = kp max(0, delta0 - d) - P0 - h_0 d - c = 0
     (c = H_n - lam f_n), -r the gradient of the strictly convex energy
     E(d) = d.h_0 d / 2 + (c + P0).d + kp |max(0, delta0 - d)|^2 / 2 when h_0 is symmetric
@@ -177,7 +181,7 @@ class CausalSweep:
         self.B = B = int(max(2, min(block, nt)))
         head = kernel_head(prob.op, prob.grid, B, fold)
         self.hflat = np.ascontiguousarray(head[1:].transpose(1, 0, 2).reshape(N, (B - 1) * N))
-        self.step = _StepSolver(head[0], prob.kp, prob.static.delta0, prob.P0)
+        self.step = StepSolver(head[0], prob.kp, prob.static.delta0, prob.P0)
         self.head_s = time.perf_counter() - t0
 
     def run(self, c0, progress=None, deadline=None):
@@ -227,7 +231,7 @@ def march(prob, lam: float = 1.0, block: int = BLOCK, progress=None, deadline: f
     """Marched contact history of a ContactProblem at motion scale lam.
 
     Returns (d (N, nt) m, info dict); d is the dynamic relative displacement (raft trace minus
-    soil, the unknown of tf_problem.result); source (N, nt) N: a known force added to the
+    soil, the unknown of problem.route_result); source (N, nt) N: a known force added to the
     equations (defect_correction). info: newton (linear solves of the steps), factors
     (LUs), block, head_s, wall_s, steps (completed; < nt when the deadline (perf_counter
     time) stopped it: d is then zero beyond)."""
@@ -241,15 +245,35 @@ def march(prob, lam: float = 1.0, block: int = BLOCK, progress=None, deadline: f
 
 
 def y_from_d(prob, d):
-    """The renormalised unknown y = z - z0 (tf_problem) of a contact history d (N, nt)."""
+    """The renormalised unknown y = z - z0 (problem) of a contact history d (N, nt)."""
     e = prob.static.delta0[:, None] - d
     z = np.where(e > 0, e / prob.eps[:, None], e)
     return z - prob.z0[:, None]
 
 
+@dataclass(frozen=True)
+class MarchSweep:
+    """One sweep of ``defect_correction``.
+
+    sweep : from 1; residual : |g| / |f| after it (NaN: the march did not finish); wall_s : s
+    kernel : "truncated" | "folded" (kernel_head); diverged : the march passed DIVERGED_M (on
+    the truncated kernel with fold "auto": the solve starts again on the folded one)
+    newton, factors : the march's linear solves and LU factorisations; anderson : past
+    residuals mixed into the next source
+    """
+    sweep: int
+    residual: float
+    wall_s: float
+    kernel: str
+    diverged: bool = False
+    newton: int = 0
+    factors: int = 0
+    anderson: int = 0
+
+
 def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BLOCK, progress=None,
-                      deadline=None, history=None, fold=False):
-    """The whole-range equation g(y) = 0 (tf_solvers.ContactEquation) by marches.
+                      deadline=None, fold=False) -> Outcome:
+    """The whole-range equation g(y) = 0 (problem.ContactEquation) by marches.
 
     g = C + W: C the causal equations the march solves exactly, W(y) what the periodic grid
     adds (the wrap-around from later to earlier times, and a table's non-causal part). Sweep k
@@ -263,45 +287,49 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
     (the truncated kernel is not passive: with the raft lifted almost everywhere the free
     soil's response grew as e^{10 t}). "auto" marches on the truncated kernel (cheaper: one S
     application per block instead of a pair; reactor 0.25 g: 5 sweeps of 1.6 s against 4 of
-    2.6 s) and starts again folded if a march diverges (``refolded`` in the history).
+    2.6 s) and starts again folded if a march diverges (a ``MarchSweep`` with ``diverged`` on
+    the truncated kernel, then sweeps on the folded one).
     Measured (benchmarks/timefreq.py --map, --map-reactor): the 21-node Winkler raft (causal
     soil, no fold) from 0.1 to 1.0 g in <= 6 sweeps to 1e-10 (the wrap-around only).
+    progress : callable(sweep, residual); deadline : perf_counter time past which the best
+    iterate is returned, STOPPED.
 
-    Returns (y (N, nt), converged, history: one dict per sweep)."""
-    from orchestrator.tf_solvers import ContactEquation, _scale
-
+    Returns an Outcome (history: one MarchSweep per sweep)."""
     eq = ContactEquation(prob, lam)
-    scale = _scale(eq)
-    hist = [] if history is None else history
+    scale = eq.scale
+    hist = []
     sweep = CausalSweep(prob, block, fold is True)
     W = np.zeros_like(prob.f)
     Gs, Fs = [], []                       # Anderson: past maps G(W) = W + g and residuals g
     best = None
     y = np.zeros_like(prob.f)
+
+    def kernel():
+        return "folded" if sweep.fold else "truncated"
+
+    def ended(status, reason=""):
+        return Outcome(best[1] if best else y, status, tuple(hist), reason)
+
     for k in range(1, max_sweeps + 1):
         t0 = time.perf_counter()
         try:
             with np.errstate(over="ignore", invalid="ignore"):
                 d, info = march(prob, lam, sweep=sweep, source=W, deadline=deadline)
         except MarchDiverged as exc:
+            hist.append(MarchSweep(k, math.nan, time.perf_counter() - t0, kernel(), diverged=True))
             if fold == "auto" and not sweep.fold:      # start again on the folded kernel
-                hist.append(dict(sweep=k, residual=float("nan"), refolded=str(exc),
-                                 wall_s=time.perf_counter() - t0))
                 sweep = CausalSweep(prob, block, True)
                 W, Gs, Fs, best = np.zeros_like(prob.f), [], [], None
                 continue
-            hist.append(dict(sweep=k, residual=float("nan"), diverged=str(exc),
-                             wall_s=time.perf_counter() - t0))
-            return (best[1] if best else y), False, hist
+            return ended(SolverStatus.DIVERGED, str(exc))
         if info["steps"] < prob.grid.nt:
-            hist.append(dict(sweep=k, residual=float("nan"), stopped="time budget",
-                             wall_s=time.perf_counter() - t0))
-            return (best[1] if best else y), False, hist
+            hist.append(MarchSweep(k, math.nan, time.perf_counter() - t0, kernel()))
+            return ended(SolverStatus.STOPPED, "time budget")
         y = y_from_d(prob, d)
         g = eq.residual(y)
         r = float(np.linalg.norm(g) / scale)
-        hist.append(dict(sweep=k, residual=r, newton=info["newton"], factors=info["factors"],
-                         anderson=len(Fs), wall_s=time.perf_counter() - t0))
+        hist.append(MarchSweep(k, r, time.perf_counter() - t0, kernel(), newton=info["newton"],
+                               factors=info["factors"], anderson=len(Fs)))
         if progress is not None:
             progress(k, r)
         if best is None or r < best[0]:
@@ -309,10 +337,9 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
         elif r > 2 * best[0]:
             Gs, Fs = [], []                # the mixing went astray: restart from this iterate
         if r <= tol:
-            return y, True, hist
+            return Outcome(y, SolverStatus.CONVERGED, tuple(hist))
         if deadline is not None and time.perf_counter() > deadline:
-            hist[-1]["stopped"] = "time budget"
-            return best[1], False, hist
+            return ended(SolverStatus.STOPPED, "time budget")
         Gs.append((W + g).ravel())
         Fs.append(g.ravel())
         Gs, Fs = Gs[-(depth + 1):], Fs[-(depth + 1):]
@@ -323,5 +350,4 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
         dG = np.array([Gs[i + 1] - Gs[i] for i in range(len(Gs) - 1)]).T
         gam = np.linalg.lstsq(dF, Fs[-1], rcond=None)[0]
         W = (Gs[-1] - dG @ gam).reshape(W.shape)
-    return best[1], best[0] <= tol, hist
-
+    return ended(SolverStatus.NOT_CONVERGED)            # a sweep at tol returned above

@@ -1,0 +1,79 @@
+"""``timefreq``: the paper's time-frequency method with uplift on the BEM table itself (the
+reference route): the scene's gap table, motion, contact settings and output nodes handed to
+``orchestrator.timefreq.solve`` (the march with the wrap-around fed back, on the bilinear grid).
+
+API::
+
+    from orchestrator.routes.timefreq import run_timefreq
+    res = run_timefreq(motion, model, table_gap, contact=contact, output_nodes=nodes)
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from orchestrator.routes.base import Route, register
+
+#: default tolerance on the relative whole-range residual: the reactor's max uplift and raft
+#: rotation move by < 1e-6 relative from there to 1e-8 (one more sweep), far below the 0.1 %
+#: the routes are compared at; solve's own 1e-10 is for the round-off checks against Newmark
+TOL = 1e-6
+#: keyword overrides that are neither GridOptions nor SolveOptions fields
+SOLVE_KEYWORDS = ("damping", "static", "route")
+
+
+def run_timefreq(motion, model, table_gap, *, contact, output_nodes, max_seconds=None, progress=None,
+                 **overrides):
+    """RouteResult of ``solve`` on the BEM gap table ``table_gap`` (ImpedanceTable, 6+N) for
+    ``motion`` (orchestrator.motion.Motion: acc (nt, 3) m/s^2, dt s), the structure ``model``,
+    the ContactSettings ``contact`` and the output node names.
+
+    max_seconds : time budget, s (None: none); progress : callable(k, n) as the steppers' bars:
+    the share of residual decades done, from the first sweep's residual down to the tolerance,
+    as k out of n = 100 (at most 99 before the end). overrides : fields of GridOptions (pad_s,
+    wrap_tol, bilinear, nfft, window) and SolveOptions (method, tol, max_iter, threads, paper,
+    newton_krylov), and damping, static, route; default tol TOL.
+    """
+    # the solver's imports (pyfftw, scipy.interpolate: ~0.7 s) when the route runs, not with the registry
+    from orchestrator.timefreq import GridOptions, SolveOptions, solve, with_overrides
+
+    grid, options, rest = with_overrides(overrides, GridOptions(), SolveOptions(tol=TOL, max_seconds=max_seconds))
+    unknown = sorted(set(rest) - set(SOLVE_KEYWORDS))
+    if unknown:
+        raise ValueError(f"run_timefreq: unknown option {unknown[0]!r}; options: GridOptions and SolveOptions "
+                         f"fields or {', '.join(SOLVE_KEYWORDS)}")
+    return solve(model, table_gap, motion.acc, motion.dt, contact=contact, output_nodes=output_nodes,
+                 grid=grid, options=options, progress=decades_bar(progress, options.tol or TOL), **rest)
+
+
+def decades_bar(bar, tol):
+    """callable(sweep, residual) driving bar(k, 100) with the share of residual decades done
+    between the first sweep's residual and tol (None for bar None)."""
+    if bar is None:
+        return None
+    first = []
+
+    def progress(k, r):
+        first.append(r)
+        frac = np.log(first[0] / r) / np.log(first[0] / tol) if first[0] > tol else 1.0
+        bar(int(99 * min(1.0, max(0.0, frac))), 100)
+    return progress
+
+
+def run(ctx, progress=None):
+    return run_timefreq(ctx.motion, ctx.model(), ctx.tables["gap"], contact=ctx.scene.contact,
+                        output_nodes=ctx.scene.output.nodes, max_seconds=ctx.scene.analysis.timefreq_max_s,
+                        progress=progress, **ctx.options)
+
+
+ROUTE = register(Route(
+    name="timefreq",
+    summary="TF reference (paper §3): the BEM table per frequency, unilateral contact over the whole time "
+            "range on the trapezoidal grid, solved by causal marches with the wrap-around fed back",
+    run=run,
+    options=("pad_s",),
+    bench={"disk-halfspace": {"dt": (0.01, 0.005, 0.0025), "pad_s": (0.25, 1.0, 4.0),
+                              "element_size": (3.0, 2.0, 1.5)},
+           "reactor": {"dt": (0.01, 0.005), "pad_s": (0.25, 2.0), "element_size": (4.0, 2.28)}},
+    quick={"disk-halfspace": {"dt": (0.01, 0.005)}},
+    reference_rank=2,
+))

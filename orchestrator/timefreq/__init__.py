@@ -1,0 +1,50 @@
+"""The time-frequency (TF) reference solver: the soil applied per frequency (the BEM table
+itself, no rational fit), the structure condensed exactly on the raft, the unilateral contact
+solved over the whole time range (paper §3). Depends on numpy, scipy, pyfftw, soil_impedance
+and structure only: no scene, no command line.
+
+The pieces, in the order a solve uses them:
+
+============== ===============================================================================
+options        GridOptions, SolveOptions, PaperOptions, NewtonKrylovOptions (frozen, checked)
+grid           Grid: zero padding, exponential window, (bilinear) Laplace variable, pyfftw FFTs
+soil           soil_bands: K(s) of an ImpedanceTable, WinklerSoil, RationalModel or its recursion
+operator       ModalStructure, InterfaceOperator (interface stiffness S, blocked force f, raft
+               back-substitution), WorkerPool (the threads of the per-frequency work)
+problem        prepare -> ContactProblem (grid, operator, static preload, renormalised unknown),
+               ContactEquation (whole-range residual g), SolverStatus, Outcome, route_result
+march          the default solver: causal marches + defect correction (MarchSweep per sweep)
+newton_krylov  EXPERIMENTAL: semi-smooth Newton-Krylov (fails from 0.4 g on the Winkler raft)
+paper          EXPERIMENTAL: the paper's quasi-Newton (fails from 0.2 g on the Winkler raft)
+uplift         solve(): options -> prepare -> solver -> RouteResult (the ``timefreq`` route's core)
+linear         linear_fd(), solve_bonded(): the raft bonded, no uplift (the ``linear`` route's core)
+============== ===============================================================================
+
+Usage::
+
+    from orchestrator.timefreq import GridOptions, SolveOptions, solve
+    res = solve(model, table, ag, dt, contact=contact, options=SolveOptions(tol=1e-6))
+    res.info["history"], res.info["residual"], res.status, res.message
+
+The scene-level glue (the scene's table, motion, contact and output nodes) is in
+``orchestrator/routes/timefreq.py`` and ``orchestrator/routes/linear.py``.
+"""
+from orchestrator.timefreq.grid import Grid, pad_rule_s
+from orchestrator.timefreq.linear import linear_fd, solve_bonded
+from orchestrator.timefreq.march import DIVERGED_M, MarchDiverged, MarchSweep, defect_correction, kernel_head, march
+from orchestrator.timefreq.newton_krylov import NewtonIteration, newton_continuation, newton_krylov
+from orchestrator.timefreq.operator import InterfaceOperator, ModalStructure, WorkerPool
+from orchestrator.timefreq.options import (METHODS, THREADS, GridOptions, NewtonKrylovOptions, PaperOptions,
+                                           SolveOptions, with_overrides)
+from orchestrator.timefreq.paper import PaperIteration, paper_scheme
+from orchestrator.timefreq.problem import (ContactEquation, ContactProblem, Outcome, SolverStatus, prepare,
+                                           route_result)
+from orchestrator.timefreq.soil import SoilBands, causal_table, soil_bands
+from orchestrator.timefreq.uplift import solve
+
+__all__ = ["DIVERGED_M", "METHODS", "THREADS", "ContactEquation", "ContactProblem", "Grid", "GridOptions",
+           "InterfaceOperator", "MarchDiverged", "MarchSweep", "ModalStructure", "NewtonIteration",
+           "NewtonKrylovOptions", "Outcome", "PaperIteration", "PaperOptions", "SoilBands", "SolveOptions",
+           "SolverStatus", "WorkerPool", "causal_table", "defect_correction", "kernel_head", "linear_fd", "march",
+           "newton_continuation", "newton_krylov", "pad_rule_s", "paper_scheme", "prepare", "route_result",
+           "soil_bands", "solve", "solve_bonded", "with_overrides"]
