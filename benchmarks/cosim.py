@@ -150,7 +150,7 @@ def main(argv=None):
     print(f"{'route':12s} {'wall s':>8s} {'CPU s':>8s} {'x real time':>11s} {'max uplift mm':>14s} {'converged':>9s}")
     for name, res in (("monolithic", mono), ("cosim", cos)):
         print(f"{name:12s} {wall[name]:8.2f} {cpu[name]:8.2f} {duration / wall[name]:11.2f} "
-              f"{1e3 * res.max_uplift():14.4f} {str(res.converged):>9s}")
+              f"{1e3 * res.max_uplift():14.4f} {res.converged!s:>9s}")
     print(f"{'split':12s} {wall['split']:8.2f} {cpu['split']:8.2f} {duration / wall['split']:11.2f} "
           f"{1e3 * gap_split.max():14.4f}")
     print("(wall s: the route's wall_s, stepper or FMU start-up and time loop; CPU s: process time of\n"

@@ -103,7 +103,7 @@ def main(argv=None):
     print(f"{'peak traced memory (MB)':<34} {peak:12.1f} {'4096':>10}")
     print(f"{'max RSS of the process (MB)':<34} {rss:12.1f} {'4096':>10}")
     print(f"{'cached sweep read-back (s)':<34} {cached:12.3f} {'1':>10}")
-    print(f"{'cache identical':<34} {str(same):>12}")
+    print(f"{'cache identical':<34} {same!s:>12}")
     Kr = out["rigid"]
     for f in (freqs[0], 12.5, 25.0):
         K = Kr.at(f)

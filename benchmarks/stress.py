@@ -55,7 +55,7 @@ from dataclasses import dataclass, field
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
+import numpy as np
 
 #: a stable run balances energy to round-off (measured ~1e-12); above this it is "unstable"
 BALANCE_TOL = 1e-6

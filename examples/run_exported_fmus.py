@@ -18,7 +18,7 @@ from orchestrator.motion import make_motion
 from orchestrator.scene import load_scene
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.pyplot as plt
 
 folder = Path(sys.argv[1] if len(sys.argv) > 1 else "reactor_fmus")
 scene = load_scene(sys.argv[2] if len(sys.argv) > 2 else "reactor")

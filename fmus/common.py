@@ -201,7 +201,7 @@ def guarded(fmu, what: str, fn, *args) -> bool:
     try:
         fn(*args)
         return True
-    except Exception as exc:                                    # noqa: BLE001 - FMU boundary
+    except Exception as exc:                  # the FMU boundary: any error is logged, never raised
         fmu.last_error = f"{what}: {type(exc).__name__}: {exc}"
         fmu.log(fmu.last_error + "\n" + traceback.format_exc(), Fmi2Status.error)
         return False

@@ -224,7 +224,7 @@ def opensees_rows(data, scene, dts, cache_dir=None, log=None):
                  "err_spectra": None, "note": f"skipped: {why}"} for dt in dts]
 
     try:
-        import openseespy.opensees  # noqa: F401, PLC0415  (optional dependency: the [bench] extra)
+        import openseespy.opensees  # noqa: F401  (optional dependency: the [bench] extra)
     except ImportError:
         return skipped("openseespy not installed (pip install -e \".[bench]\"; apt-get install libblas3 liblapack3)")
     path = Path(__file__).resolve().parents[1] / "benchmarks" / "structure_step.py"

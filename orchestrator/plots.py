@@ -12,9 +12,9 @@ RIGID_GROUPS = (("ux", "horizontal"), ("uz", "vertical"), ("rx", "rocking"), ("r
 
 def pyplot():
     """matplotlib.pyplot on the Agg backend (imported on first use: it costs ~0.5 s at start-up)."""
-    import matplotlib  # noqa: PLC0415  (start-up cost: only the commands that draw pay it)
+    import matplotlib  # start-up cost (~0.5 s): only the commands that draw pay it
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
+    import matplotlib.pyplot as plt  # (same)
     return plt
 
 

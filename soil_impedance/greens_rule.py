@@ -89,7 +89,7 @@ class GreenRule:
     tail_clearance: float = 3.0
     first_depth: float = 0.5
 
-    def refined(self, factor: float = 2.0) -> "GreenRule":
+    def refined(self, factor: float = 2.0) -> GreenRule:
         """A rule with panels ``factor`` times narrower and a longer, higher-K tail."""
         return replace(self, refine=self.refine * factor, kmax_ks=self.kmax_ks * factor,
                        kmax_depth=self.kmax_depth * factor)

@@ -188,7 +188,7 @@ class SoilProfile:
 
     @classmethod
     def homogeneous(cls, vs, rho, nu=None, vp=None, damping=0.0,
-                    damping_model="hysteretic") -> "SoilProfile":
+                    damping_model="hysteretic") -> SoilProfile:
         return cls((), Material(vs=vs, rho=rho, nu=nu, vp=vp, damping=damping,
                                 damping_model=damping_model, name="soil.halfspace"))
 
@@ -219,5 +219,5 @@ class SoilProfile:
         """Total thickness of the layers, m."""
         return sum(l.thickness for l in self.layers)
 
-    def with_halfspace_only(self) -> "SoilProfile":
+    def with_halfspace_only(self) -> SoilProfile:
         return replace(self, layers=())

@@ -47,7 +47,7 @@ def interface_operator(model: StructureModel) -> sp.csr_matrix:
 def embed(model: StructureModel, K_struct, K_soil) -> sp.csr_matrix:
     """Global (n_dof, n_dof) matrix: structural block plus soil block on the trailing x = [q, w]."""
     ns, nd = model.n_struct, model.n_dof
-    A = sp.csr_matrix(K_struct) if not isinstance(K_struct, np.ndarray) else sp.csr_matrix(K_struct)
+    A = sp.csr_matrix(K_struct)
     A = sp.block_diag([A, sp.csr_matrix((model.n_interface, model.n_interface))], format="csr")
     Ks = sp.csr_matrix(K_soil)
     off = ns - 6

@@ -10,7 +10,7 @@ import dataclasses
 import enum
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Mapping
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -119,7 +119,7 @@ class RouteResult:
             raise ValueError(f"a {self.status.value} RouteResult needs a message saying why")
 
     @classmethod
-    def refused(cls, route: str, message: str, notes: RunNotes | None = None) -> "RouteResult":
+    def refused(cls, route: str, message: str, notes: RunNotes | None = None) -> RouteResult:
         """A route that could not run on this input: no histories, the reason in ``message``."""
         return cls(route=route, time=np.zeros(0), status=Status.REFUSED, message=message,
                    notes=notes or RunNotes())
@@ -132,12 +132,12 @@ class RouteResult:
     def nt(self) -> int:
         return self.time.shape[0]
 
-    def replace(self, **changes) -> "RouteResult":
+    def replace(self, **changes) -> RouteResult:
         """A copy with ``changes`` (keyword fields of the dataclass)."""
         return dataclasses.replace(self, **changes)
 
     def with_notes(self, skipped=(), warnings=(), precheck: str | None = None, timings=None,
-                   info=None) -> "RouteResult":
+                   info=None) -> RouteResult:
         """A copy with items added to its notes (and keys to its info)."""
         n = self.notes
         notes = RunNotes(skipped=n.skipped + tuple(skipped), warnings=n.warnings + tuple(warnings),
@@ -146,7 +146,7 @@ class RouteResult:
         return dataclasses.replace(self, notes=notes, info={**self.info, **(info or {})})
 
     def truncated(self, nt: int, status: Status = Status.STOPPED, message: str = "", wall_s=None,
-                  info=None) -> "RouteResult":
+                  info=None) -> RouteResult:
         """The first nt samples (results up to a failure), with the reason."""
         cut = lambda m: {k: v[:nt] for k, v in m.items()}
         return dataclasses.replace(

@@ -144,7 +144,7 @@ def _toy_run(ctx, progress=None):
     """A rigid structure glued to the ground: zero relative motion, the ground's acceleration."""
     t = ctx.motion.time
     n = ctx.scene.mesh.n
-    acc = {name: ctx.motion.acc for name in ctx.scene.output.nodes}
+    acc = dict.fromkeys(ctx.scene.output.nodes, ctx.motion.acc)
     return RouteResult(route="toy", time=t, gap=np.zeros((t.size, n)), acc=acc, xy=ctx.scene.mesh.xy,
                        wall_s=1e-3, notes={"skipped": ("everything: it is a toy",)})
 

@@ -80,7 +80,7 @@ def _equivalent_radii(mesh):
 SIZES = (8, 12, 16)   # R/h
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _disk_ratios(nu, contact):
     """K_BEM / K_closed-form on meshes h = R/n (closed forms at the mesh's equivalent radii)."""
     prof = SoilProfile.homogeneous(vs=100.0, rho=2000.0, nu=nu)

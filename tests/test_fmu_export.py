@@ -26,7 +26,7 @@ def test_model_descriptions_pass_fmpy_validation(exported):
         assert validate_fmu(str(fmu)) == []
         with zipfile.ZipFile(fmu) as z:
             md = ET.fromstring(z.read("modelDescription.xml"))
-            names = {n for n in z.namelist()}
+            names = set(z.namelist())
         cs = md.find("CoSimulation").attrib
         assert cs["canHandleVariableCommunicationStepSize"] == "false"
         assert cs["canGetAndSetFMUstate"] == cs["canSerializeFMUstate"] == "true"

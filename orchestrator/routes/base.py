@@ -15,8 +15,8 @@ validates route names against the registry, so the registry cannot depend on it.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Callable, Mapping
 
 
 #: scene-level knobs ``uplift bench`` knows how to apply (see orchestrator.bench.knob_scene)
@@ -134,7 +134,7 @@ class RunContext:
             self.shared["fit"] = self.fit_builder()
         return self.shared["fit"]
 
-    def for_route(self, route: Route, options: Mapping | None = None) -> "RunContext":
+    def for_route(self, route: Route, options: Mapping | None = None) -> RunContext:
         """The context a route's ``run`` receives: this run's shared parts and the route's options."""
         unknown = set(options or {}) - set(route.options)
         if unknown:
