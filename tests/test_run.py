@@ -201,3 +201,27 @@ def test_step_doubling_warns_when_dt_does_not_resolve_the_contact(tmp_path, caps
     assert not mid["warnings"]
     error = abs(coarse["max_uplift_m"] / fine["max_uplift_m"] - 1)
     assert 0.5 * error < check["relative_change"] < 2 * error and error > check["tolerance"]
+
+
+def test_output_path_checked_before_computing_and_old_results_kept(tmp_path, capsys, monkeypatch):
+    """A missing output folder is refused at once (exit 2, nothing computed); a run that dies
+    while writing leaves the previous results file intact (atomic replace)."""
+    import orchestrator.cli as cli
+
+    scene = _scene(tmp_path)
+    computed = []
+    monkeypatch.setattr(cli, "run_scene", lambda *a, **k: computed.append(1))
+    assert main(["run", str(scene), "-o", str(tmp_path / "absent" / "r.h5")]) == 2
+    assert "output folder" in capsys.readouterr().err and not computed
+    monkeypatch.undo()
+
+    out = tmp_path / "r.h5"
+    assert main(["run", str(scene), "-o", str(out)]) == 0
+    before = out.read_bytes()
+
+    def dying(*args, **kwargs):
+        raise MemoryError("disk full (simulated)")
+    monkeypatch.setattr(h5py.Group, "create_dataset", dying)
+    with pytest.raises(MemoryError):
+        main(["run", str(scene), "-o", str(out)])
+    assert out.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir() if ".tmp" in p.name) == []
