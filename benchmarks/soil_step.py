@@ -16,10 +16,15 @@ import time
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
+import sys
+from pathlib import Path
 
-from soil_impedance.convolution import (RecursiveConvolutionSoil, random_passive_model,  # noqa: E402
-                                        recursion_transfer)
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from passive_models import random_passive_model
+
+from soil_impedance.convolution import RecursiveConvolutionSoil, recursion_transfer
 
 
 def per_call(fn, reps):

@@ -10,7 +10,7 @@ velocity (u'_n = (2/dt)(u_n − u_{n−1}) − u'_{n−1}):
     f_n = D0 u_n + E u'_n + h_n,   D0 = D + Σ_k b_k R_k,
                                    h_n = Σ_k R_k (a_k y_{k,n−1} + b_k u_{n−1})
 
-h_n depends only on the past (the split DESIGN.md §4 and §6 rely on). Its z-transform is
+h_n depends only on the past (the split the steppers rely on). Its z-transform is
 
     K_d(z) = D + s_b(z) E + Σ_k R_k b_k (z + 1)/(z − a_k),   s_b(z) = (2/dt)(z − 1)/(z + 1)
 
@@ -30,20 +30,10 @@ and [2 Re R_k, −2 Im R_k] of the pairs, so one history update is one GEMV, m n
 """
 from __future__ import annotations
 
-import importlib
-import warnings
-
 import numpy as np
 
-from .rational import FitError, RationalModel
-
-
-class NonPassiveError(FitError):
-    """A rational model that is not passive, handed to a time stepper without force=True."""
-
-
-class PassivityWarning(UserWarning):
-    """A non-passive model is run because the caller forced it."""
+from .passivity import require_passive
+from .rational import RationalModel
 
 
 # ---- bilinear map and the recursion's z-transform ----------------------------------------
@@ -74,89 +64,6 @@ def recursion_transfer(model: RationalModel, dt: float, freq_hz) -> np.ndarray:
             + np.einsum("fk,kij->fij", g, model.residues))
 
 
-# ---- passivity gate ----------------------------------------------------------------------
-def passivity_margin(model: RationalModel, n_freq: int = 400):
-    """Dense-grid passivity check: (margin, omega) with margin = min over a log grid (and at
-    every pole's resonance) of λ_min(Herm Im K(iω)) / max|λ|, relative; also λ_min(E)/|E|
-    at ω = ∞ (reported as omega = inf). A grid can miss a narrow violation: the passivity
-    module (Hamiltonian test) supersedes this when present."""
-    p = model.poles
-    scale = np.abs(p) if p.size else np.array([1.0])
-    lo, hi = max(scale.min(), 1e-6) * 1e-3, max(scale.max(), 1e-6) * 1e3
-    w = np.geomspace(lo, hi, n_freq)
-    if p.size:
-        wr = np.abs(p.imag)[:, None] + np.abs(p.real)[:, None] * np.linspace(-2, 2, 9)
-        w = np.union1d(w, wr[wr > 0])
-    worst, w_worst = np.inf, np.nan
-    for chunk in np.array_split(w, max(1, w.size // 32)):
-        K = model(1j * chunk)
-        H = (K - np.conj(np.swapaxes(K, -1, -2))) / 2j
-        lam = np.linalg.eigvalsh(H)
-        rel = lam[:, 0] / np.maximum(np.abs(lam).max(axis=1), 1e-300)
-        i = int(np.argmin(rel))
-        if rel[i] < worst:
-            worst, w_worst = float(rel[i]), float(chunk[i])
-    if np.any(model.E):
-        lamE = np.linalg.eigvalsh(0.5 * (model.E + model.E.T))
-        relE = lamE[0] / np.abs(lamE).max()
-        if relE < worst:
-            worst, w_worst = float(relE), np.inf
-    return worst, w_worst
-
-
-def require_passive(model: RationalModel, force: bool = False, tol: float = 1e-9) -> None:
-    """Raise NonPassiveError unless the model is passive; with force=True warn instead.
-    Delegates to ``soil_impedance.passivity.require_passive`` when that module exists."""
-    try:
-        passivity = importlib.import_module(__package__ + ".passivity")
-    except ModuleNotFoundError as exc:
-        if exc.name != __package__ + ".passivity":
-            raise
-        passivity = None
-    if passivity is not None and hasattr(passivity, "require_passive"):
-        passivity.require_passive(model, force)
-    else:
-        grid_require_passive(model, force, tol)
-
-
-def grid_require_passive(model: RationalModel, force: bool = False, tol: float = 1e-9) -> None:
-    """``require_passive`` by the dense-grid check ``passivity_margin`` (the fallback)."""
-    margin, w = passivity_margin(model)
-    if margin >= -tol:
-        return
-    msg = (f"rational soil model is not passive: the Hermitian part of Im K(iω) has a negative "
-           f"eigenvalue ({margin:.3g} relative) at ω = {w:.4g} rad/s ({w / (2 * np.pi):.4g} Hz); "
-           "enforce passivity on the fit, or pass force=True to run it anyway")
-    if not force:
-        raise NonPassiveError(msg)
-    warnings.warn(msg, PassivityWarning, stacklevel=3)
-
-
-# ---- pole bookkeeping -------------------------------------------------------------------
-def split_poles(model: RationalModel, rtol: float = 1e-8):
-    """(p_real (m_r,), R_real (m_r, n, n) real, p_pair (m_c,) with Im p > 0, R_pair (m_c, n, n)).
-    Raises FitError when a complex pole lacks its conjugate or conjugate residues differ."""
-    p, R = model.poles, model.residues
-    rscale = max(np.abs(R).max(initial=0.0), 1e-300)
-    is_real = np.abs(p.imag) <= rtol * np.abs(p)
-    if np.any(np.abs(R[is_real].imag) > rtol * rscale * 1e2):
-        raise FitError("a real pole carries a complex residue: the model's impulse response "
-                       "would not be real; refit with real residues for real poles")
-    up = np.flatnonzero(~is_real & (p.imag > 0))
-    down = list(np.flatnonzero(~is_real & (p.imag < 0)))
-    if len(up) != len(down):
-        raise FitError(f"{len(up)} poles with Im p > 0 but {len(down)} with Im p < 0: complex "
-                       "poles must come in conjugate pairs")
-    for k in up:
-        j = min(down, key=lambda j: abs(p[j] - np.conj(p[k])))
-        if abs(p[j] - np.conj(p[k])) > rtol * abs(p[k]) * 1e2 or \
-                np.abs(R[j] - np.conj(R[k])).max() > 1e-6 * rscale:
-            raise FitError(f"pole {p[k]:.6g} has no conjugate partner with conjugate residue")
-        down.remove(j)
-    return (np.ascontiguousarray(p[is_real].real), np.ascontiguousarray(R[is_real].real),
-            p[up], np.ascontiguousarray(R[up]))
-
-
 # ---- the soil ------------------------------------------------------------------------------
 class RecursiveConvolutionSoil:
     """A RationalModel run as the trapezoidal recursive convolution (soil protocol, duck-typed:
@@ -168,7 +75,9 @@ class RecursiveConvolutionSoil:
     dt : float, s                  initial step size; ``instantaneous(dt')`` changes it at any
                                    time (coefficients recomputed, states carried over: the
                                    trapezoidal rule with a variable step)
-    force : bool                   run a non-passive model (with a PassivityWarning)
+    force : bool                   run a non-passive model (with a RuntimeWarning); else a
+                                   non-passive model is refused (``passivity.require_passive``:
+                                   FitError naming the violation bands and the fix)
 
     Per step: ``instantaneous(dt)`` -> (K0, C0) = (D0, E) dense (n, n); ``history()`` -> h_n
     (n,), N; ``commit(x, xdot)`` with the converged x_n, m and xdot_n, m/s. ``step(x, xdot=None)``
@@ -184,7 +93,7 @@ class RecursiveConvolutionSoil:
         self.model = model
         n = model.n
         self.n_dof = n
-        pr, Rr, pc, Rc = split_poles(model)
+        pr, Rr, pc, Rc = model.pole_split
         self._pr, self._pc = pr, pc
         self._Rr, self._Rc = Rr, Rc
         mr, mc = pr.size, pc.size
@@ -207,7 +116,6 @@ class RecursiveConvolutionSoil:
         self._f = np.zeros(n)
         self._work = 0.0
         self._h = None
-        self._K_static = None
 
     # ---- coefficients per dt --------------------------------------------------------------
     def _set_dt(self, dt):
@@ -270,10 +178,7 @@ class RecursiveConvolutionSoil:
 
     def static_stiffness(self) -> np.ndarray:
         """K(0) = D − Σ R_k / p_k, real (n, n)."""
-        if self._K_static is None:
-            K = self.model(np.zeros(1))[0].real
-            self._K_static = 0.5 * (K + K.T)
-        return self._K_static
+        return self.model.static
 
     def total_force(self) -> np.ndarray:
         """f_n (n,), N: force applied to the soil at the last committed step."""
@@ -300,56 +205,3 @@ class RecursiveConvolutionSoil:
         self._f = np.array(s["f"], float, copy=True)
         self._work = float(s["work"])
         self._set_dt(float(s["dt"]))
-
-
-# ---- passive test models ---------------------------------------------------------------------
-def oscillator_model(D, E=None, terms=(), maxwell=(), dofs=None) -> RationalModel:
-    """A passive RationalModel from mechanical building blocks (for tests and benchmarks).
-
-    D, E : (n, n) PSD springs and dashpots to ground.
-    terms : iterable of (k, c, m, W): an internal mass m, tied by a spring k to the interface
-        and by a dashpot c to ground, seen through the PSD shape W (n, n): the scalar
-        k − k^2/(m s^2 + c s + k) = k + Σ r/(s − p) times W (passive: a condensed mechanical
-        system); complex pair when c^2 < 4 m k.
-    maxwell : iterable of (k, c, W): spring k in series with dashpot c, k s/(s + k/c) W.
-    """
-    D = np.array(D, float)
-    n = D.shape[0]
-    E = np.zeros((n, n)) if E is None else np.array(E, float)
-    poles, res = [], []
-    for k, c, m, W in terms:
-        W = np.asarray(W, float)
-        p1, p2 = np.roots([m, c, k]).astype(complex)
-        D = D + k * W
-        poles += [p1, p2]
-        res += [-k * k / (m * (p1 - p2)) * W, -k * k / (m * (p2 - p1)) * W]
-    for k, c, W in maxwell:
-        W = np.asarray(W, float)
-        a = k / c
-        D = D + k * W
-        poles.append(-a + 0j)
-        res.append(-k * a * W + 0j)
-    return RationalModel(np.array(poles, complex), np.array(res, complex).reshape(len(poles), n, n),
-                         D, E, dofs=dofs or [], provenance={"source": "oscillator_model"})
-
-
-def random_passive_model(n: int, n_pairs: int, n_real: int = 0, seed: int = 0,
-                         f_range=(0.5, 20.0)) -> RationalModel:
-    """Random passive model: n DOFs, n_pairs oscillator pairs with resonances log-spread over
-    f_range (Hz) and damping ratios 5-40 %, n_real Maxwell poles, full-rank PSD shapes."""
-    rng = np.random.default_rng(seed)
-
-    def psd():
-        G = rng.standard_normal((n, n)) / np.sqrt(n)
-        return G @ G.T + 0.05 * np.eye(n)
-
-    fr = np.geomspace(*f_range, max(n_pairs, 1))[:n_pairs]
-    terms = []
-    for f in fr:
-        w0, zeta = 2 * np.pi * f, rng.uniform(0.05, 0.4)
-        k = rng.uniform(0.5, 2.0)
-        m = k / w0**2
-        terms.append((k, 2 * zeta * np.sqrt(k * m), m, psd()))
-    maxwell = [(rng.uniform(0.5, 2.0), rng.uniform(0.5, 2.0) / (2 * np.pi * f), psd())
-               for f in np.geomspace(*f_range, max(n_real, 1))[:n_real]]
-    return oscillator_model(psd(), 0.02 * psd(), terms, maxwell)

@@ -1,6 +1,6 @@
 """Fit an ImpedanceTable with a passive common-pole rational model: ``fit_table``.
 
-Pipeline (DESIGN.md §4): DOF scaling → causal target → pole identification on compressed
+Pipeline: DOF scaling → causal target → pole identification on compressed
 columns (relaxed vector fitting, ``vectfit``) → residues of every independent entry by one linear
 least squares → (gap tables) rigid-raft correction (``rigid_correct``) → order chosen as the
 smallest number of pole pairs meeting ``tol`` → E projected on the PSD cone → passivity enforced
@@ -53,6 +53,13 @@ logarithmic dispersion of Re K), so the band error has a floor ≈ ξ that no or
 reactor gap table with ξ = 0.03: 3–4 %). ``patience`` stops the order search on that floor.
 A causal soil (``damping_model = "causal"``) has no such floor: the same reactor table computed
 with it is fitted to 0.4 % with 4 poles, 0.03 % with 6 (``benchmarks/soil_fit.py --causal``).
+
+Determinism and bounds. A fit is a function of the table and its ``FitOptions`` only: every budget
+is counted in work (pole pairs tried, ``max_pairs``; orders enforced, 1 + ``max_enforce``;
+iterations per enforcement, ``enforce_iter``), never in seconds, so a loaded machine gets the same
+model, later. The options, the table hash, the node coordinates and the code digest are the cache
+key. A tol that cannot be met within the bounds is reported (``tol_reached`` False, ``message``),
+never hidden; ``progress(stage, done, total)`` follows the order search and each enforcement.
 """
 from __future__ import annotations
 
@@ -60,19 +67,113 @@ import hashlib
 import json
 import time
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 
 from .passivity import PassivityReport, check_passive, enforce_passivity
-from .rational import FitError, RationalModel, from_coefficients, load_model, save_model, to_coefficients
+from .rational import FitError, RationalModel, read_model, write_model
 from .vectfit import canonical_poles, compress, fit_coefficients, initial_poles, real_basis, vector_fit
 
 WEIGHTINGS = ("relative", "uniform", "entry")
 RIGID = ("ux", "uy", "uz", "rx", "ry", "rz")
 POLE_CAP = 30.0           # normalised |p| above which a pole only mimics a constant: dropped
 RIGID_IM_FLOOR = 0.01     # rigid_errors: Im K_dd errors relative to max(|Im K_dd|, this · |K_dd|)
+CODE_FILES = ("vectfit.py", "passivity.py", "fit.py", "rational.py")    # their digest is in the cache key
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    """Everything that changes a fit besides the table: the cache key (with the table hash and the
+    code digest, ``cache_key``) and the report's ``settings``. Work bounds only, no wall-clock limit:
+    a fit is a function of its inputs.
+
+    tol : requested max relative Frobenius error over the band (scaled DOFs); for a gap table with
+        the rigid-raft correction, also the max relative Re and Im error of the rigid-raft impedance
+        (``rigid_error``, see the module docstring "Order selection of a gap table")
+    max_order : maximum number of poles tried (pairs are added one at a time); never more than
+        F − 2 for a table of F frequencies (``max_pairs``)
+    weighting : "relative" | "uniform" | "entry"
+    enforce : enforce passivity (else only check it; the report says whether the model is passive)
+    f_causal_hz : "auto" or a frequency (Hz) below which hysteretic damping is replaced (causality)
+    n_iter : vector-fitting iterations per order
+    margin : target passivity margin of the enforcement (``passivity``)
+    passivity_method : "auto" | "hamiltonian" | "sweep"
+    patience : stop adding pole pairs when the last ``patience`` orders did not improve the best
+        error by 20 % (the causality floor of a hysteretic table); None: try up to max_order
+    max_enforce : at most 1 + max_enforce orders go through passivity enforcement (the first
+        candidate, larger orders that may meet tol, smaller ones when none could be made passive)
+    enforce_iter : iteration cap of each enforcement (each iteration costs one exact test)
+    rigid_correction : "auto" | True | False. For a "gap" table, correct the fitted model so that its
+        rigid-raft impedance in full contact Pᵀ K P follows the table's, Re and Im separately
+        (``rigid_correct``; the Frobenius criterion barely sees it, and the rocking damping Im K
+        came out ~30 % low on the reactor). Applied before passivity enforcement; the report's
+        ``rigid_errors`` are measured after it. The order selection then requires them to meet tol.
+        "auto": when the node coordinates are known (``node_xy`` or the table's provenance), True:
+        FitError if they are not, False: off (neither the correction nor the rigid criterion).
+    node_xy : ((x, y), ...) interface node coordinates (m) of a gap table, or None: rebuilt from the
+        table's provenance (``FitOptions.make`` converts an (N, 2) array)
+    """
+
+    tol: float = 0.01
+    max_order: int = 30
+    weighting: str = "relative"
+    enforce: bool = True
+    f_causal_hz: float | str = "auto"
+    n_iter: int = 12
+    margin: float = 1e-3
+    passivity_method: str = "auto"
+    patience: int | None = 4
+    max_enforce: int = 3
+    enforce_iter: int = 20
+    rigid_correction: bool | str = "auto"
+    node_xy: tuple | None = None
+
+    def __post_init__(self):
+        if self.weighting not in WEIGHTINGS:
+            raise FitError(f"weighting {self.weighting!r} unknown: use one of {WEIGHTINGS}")
+        if self.rigid_correction not in ("auto", True, False):
+            raise FitError(f"rigid_correction = {self.rigid_correction!r}: use 'auto', True or False")
+        if self.passivity_method not in ("auto", "hamiltonian", "sweep"):
+            raise FitError(f"passivity_method = {self.passivity_method!r}: use 'auto', 'hamiltonian' or 'sweep'")
+        if not (np.isfinite(self.tol) and self.tol > 0):
+            raise FitError(f"tol = {self.tol!r} must be a positive number (relative error, e.g. 0.01)")
+        for name in ("max_order", "n_iter", "max_enforce", "enforce_iter"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < (1 if name != "max_enforce" else 0):
+                raise FitError(f"{name} = {v!r} must be a positive integer")
+        if self.patience is not None and (not isinstance(self.patience, (int, np.integer)) or self.patience < 1):
+            raise FitError(f"patience = {self.patience!r} must be a positive integer or None")
+        if self.f_causal_hz != "auto" and not (isinstance(self.f_causal_hz, (int, float)) and self.f_causal_hz >= 0):
+            raise FitError(f"f_causal_hz = {self.f_causal_hz!r}: use 'auto' or a frequency >= 0 (Hz)")
+
+    @classmethod
+    def make(cls, node_xy=None, **options) -> FitOptions:
+        """FitOptions from keyword options, ``node_xy`` given as an (N, 2) array (or None)."""
+        xy = None
+        if node_xy is not None:
+            a = np.asarray(node_xy, float)
+            if a.ndim != 2 or a.shape[1] != 2 or not np.all(np.isfinite(a)):
+                raise FitError(f"node_xy must be finite (N, 2) node coordinates, got shape {a.shape}")
+            xy = tuple(map(tuple, a.tolist()))
+        return cls(node_xy=xy, **options)
+
+    def settings(self) -> dict:
+        """The options as a JSON-able dict (node_xy as a digest): the report's ``settings``."""
+        d = asdict(self)
+        xy = d.pop("node_xy")
+        d["node_xy_sha"] = None if xy is None else hashlib.sha256(
+            np.ascontiguousarray(xy, "<f8").tobytes()).hexdigest()[:16]
+        return d
+
+    def cache_key(self, table) -> str:
+        """SHA-256 of the table hash, every option (``settings``) and the fit code's digest."""
+        h = hashlib.sha256(table.hash.encode())
+        h.update(json.dumps(self.settings(), sort_keys=True, default=str).encode())
+        h.update(code_digest().encode())
+        return h.hexdigest()
 
 
 @dataclass(frozen=True)
@@ -93,15 +194,17 @@ class FitReport:
     passivity : dict                  the full PassivityReport.to_dict()
     order_history : list              [(order, max_rel_error)] tried during order selection; gap tables
                                       with the rigid criterion: [(order, max_rel_error, rigid_error)]
-    settings : dict                   tol, max_order, weighting, enforce, ...
-    wall_s : float                    fit + enforcement time (0 load time on a cache hit)
+    settings : dict                   ``FitOptions.settings()`` (node_xy as node_xy_sha) + rigid_corrected
+    wall_s : float                    fit + enforcement wall time, s (the load time on a cache hit): a
+                                      measurement only, nothing else in the result depends on it
     cached : bool
     tol_reached : bool                max_rel_error <= tol (and, for gap tables, every rigid_errors
                                       re and im <= tol: the order-selection criterion)
     message : str                     why tol was missed and which tol is reachable ("" if reached)
     error_floor : float               a-priori hysteretic floor estimate ≈ 1.1 ξ (0: not hysteretic)
     stop_reason : str                 why the order search stopped
-    enforcement_attempts : list       [(order, passive, max_rel_error after, seconds)] per order tried
+    enforcement_attempts : list       [(order, passive, criterion after, iterations)] per enforcement
+                                      (a failed one: criterion nan)
     rigid_errors : dict               gap tables: errors of the rigid-raft impedance Pᵀ K P per rigid DOF
                                       (``rigid_errors``), max over f ≥ f_causal, after enforcement
                                       ({} for other tables or without node coordinates)
@@ -143,7 +246,7 @@ class FitReport:
                 "wall_s": float(self.wall_s)}
 
     @classmethod
-    def from_dict(cls, d) -> "FitReport":
+    def from_dict(cls, d) -> FitReport:
         d = dict(d)
         d["rel_error"] = np.asarray(d["rel_error"], float)
         d["freq_hz"] = np.asarray(d["freq_hz"], float)
@@ -233,19 +336,14 @@ def _errors(Km, Kt):
     return num / np.where(den > 0, den, 1.0)
 
 
-def _code_digest() -> str:
+def code_digest() -> str:
+    """SHA-256 (12 hex digits) of the fit's source files (``CODE_FILES``): part of the cache key."""
     h = hashlib.sha256()
     here = Path(__file__).parent
-    for name in ("vectfit.py", "passivity.py", "fit.py", "rational.py"):
+    for name in CODE_FILES:
         h.update((here / name).read_bytes())
     return h.hexdigest()[:12]
 
-
-def _cache_key(table, settings) -> str:
-    h = hashlib.sha256(table.hash.encode())
-    h.update(json.dumps(settings, sort_keys=True, default=str).encode())
-    h.update(_code_digest().encode())
-    return h.hexdigest()
 
 
 # ------------------------------------------------------------------------------------------
@@ -367,13 +465,13 @@ def rigid_correct(model, target, freq_hz, P, floor=0.02, f_c=0.0) -> RationalMod
         col[col == 0] = 1.0
         Cd[:, i, j] = Cd[:, j, i] = np.linalg.lstsq(M / col, rhs, rcond=None)[0] / col
     Cd[:m] *= w_ref                                   # basis 1/(ν − p/ω_ref) = ω_ref/(s − p)
-    active = np.max(np.abs(to_coefficients(model)), axis=(0, 2)) > 0
+    C = np.array(model.coefficients)
+    active = np.max(np.abs(C), axis=(0, 2)) > 0
     Pa = P * active[:, None]
     Q = Pa @ np.linalg.inv(Pa.T @ Pa)
-    C = to_coefficients(model)
     C[:m + 1] += Q[None] @ Cd @ Q.T[None]
     C = 0.5 * (C + C.transpose(0, 2, 1))
-    return from_coefficients(model.poles, C, model.dofs, dict(model.provenance, rigid_corrected=True))
+    return RationalModel.from_coefficients(model.poles, C, model.dofs, dict(model.provenance, rigid_corrected=True))
 
 
 # ------------------------------------------------------------------------------------------
@@ -437,15 +535,6 @@ class _Problem:
         M[self.iu] = v / self.ew
         return M + np.triu(M, 1).T
 
-    def evaluate(self, poles, C):
-        """Scaled model matrices at the table frequencies, (F, na, na)."""
-        v = (real_basis(self.s, poles) @ C) / self.ew
-        na = self.idx.size
-        K = np.zeros((self.f.size, na, na), complex)
-        K[:, self.iu[0], self.iu[1]] = v
-        K[:, self.iu[1], self.iu[0]] = v
-        return K
-
     def model(self, poles, C, provenance) -> RationalModel:
         """Unscaled, full-size RationalModel."""
         m = poles.size
@@ -457,8 +546,9 @@ class _Problem:
         mats = 0.5 * (mats + mats.transpose(0, 2, 1))
         full = np.zeros((m + 2, n, n))
         full[np.ix_(range(m + 2), self.idx, self.idx)] = mats
-        return from_coefficients(poles * self.w_ref, full, self.table.dofs, provenance)
+        return RationalModel.from_coefficients(poles * self.w_ref, full, self.table.dofs, provenance)
 
+    @cached_property
     def unscaled_target(self):
         """The causal target in SI units, full size (F, n, n) (zero rows stay zero)."""
         out = np.zeros(self.table.matrices.shape, complex)
@@ -504,7 +594,8 @@ def _candidates(errs, tol, floor):
     first: the smallest order meeting tol; if none does, the smallest order at the plateau (error
     within 5 % of the best, or within 1.2 × the hysteretic floor estimate). up: larger orders worth
     trying afterwards (meeting tol, resp. lowering the error: the record orders), by increasing order.
-    down: smaller orders by decreasing order (fallback when enforcement fails: fewer poles are easier)."""
+    down: smaller orders, fallback when enforcement fails (fewer poles are easier): halving the number of
+    pole pairs first (the enforcement budget max_enforce reaches far down), then the others by decreasing order."""
     errs = np.asarray(errs, float)
     best = errs.min()
     ok = np.nonzero(errs <= tol)[0]
@@ -519,258 +610,280 @@ def _candidates(errs, tol, floor):
             if errs[i] < 0.97 * rec:
                 up.append(i)
                 rec = errs[i]
-    down = list(range(first - 1, -1, -1))
+    halving = [first >> k for k in range(1, first.bit_length() + 1)]     # first/2, first/4, ..., 0
+    down = list(dict.fromkeys(halving + list(range(first - 1, -1, -1))))
     return first, up, down
 
 
-def fit_table(table, tol=0.01, max_order=30, weighting="relative", enforce=True, f_causal_hz="auto",
-              cache_dir=None, n_iter=12, margin=1e-4, passivity_method="auto", patience=4,
-              max_seconds=60.0, max_enforce=3, enforce_iter=10, rigid_correction="auto", node_xy=None,
-              progress=None) -> FitResult:
+
+# ------------------------------------------------------------------------------------------
+# the fit in parts: order search, passivity candidates, message, report
+# ------------------------------------------------------------------------------------------
+def max_pairs(options: FitOptions, n_freq: int) -> int:
+    """Pole pairs the order search may try: max_order/2, and at most (F − 2)/2 for F table
+    frequencies, so that each entry's least squares keeps at least twice as many real equations
+    (2F) as unknowns (m poles + D + E): with fewer the fit interpolates the table, with spurious
+    resonances between its frequencies that passivity enforcement cannot remove (small raft,
+    21 frequencies, 3 % hysteretic soil: 30 poles met 0.8 % where the causal floor is 3.3 %, and
+    no enforcement converged)."""
+    return max(1, min(options.max_order, n_freq - 2) // 2)
+
+
+class _Search:
+    """The fitted orders of one fit, by increasing order (one more pole pair each), and their
+    selection criterion before enforcement: the band error, and for gap tables with the rigid-raft
+    correction max(band error, rigid-raft Re/Im error)."""
+
+    def __init__(self, prob, options: FitOptions, P, prov, progress):
+        self.prob, self.options, self.P, self.prov = prob, options, P, prov
+        self.max_pairs = max_pairs(options, prob.f.size)
+        self.fits = []            # (poles, C, max_rel_error, criterion)
+        self.history = []         # report.order_history
+        self.progress = progress
+
+    def build(self, i, corrected=True) -> RationalModel:
+        """The model of fitted order i (rigid-corrected unless ``corrected`` is False)."""
+        poles, C = self.fits[i][:2]
+        model = self.prob.model(poles, C, self.prov)
+        if self.P is None or not corrected:
+            return model
+        return rigid_correct(model, self.prob.unscaled_target, self.prob.f, self.P, f_c=self.prob.f_c)
+
+    def rigid_error(self, model) -> float:
+        if self.P is None:
+            return 0.0
+        return rigid_error(rigid_errors(model, self.prob.table.matrices, self.prob.f, self.P, self.prob.band))
+
+    def criterion(self, model) -> float:
+        """The selection criterion of a model (e.g. after enforcement)."""
+        band_error = float(np.max(_errors(self.prob.scaled_response(model), self.prob.Ks)[self.prob.band]))
+        return max(band_error, self.rigid_error(model))
+
+    def fit_next(self) -> float:
+        """Fit the next order; its criterion (before enforcement)."""
+        poles, C, err = _fit_order(self.prob, len(self.fits) + 1, self.options.n_iter)
+        self.fits.append((poles, C, err, err))
+        if self.P is None:
+            self.history.append((int(poles.size), err))
+        else:
+            rig = self.rigid_error(self.build(len(self.fits) - 1))
+            self.fits[-1] = (poles, C, err, max(err, rig))
+            self.history.append((int(poles.size), err, rig))
+        if self.progress is not None:
+            self.progress("order search", len(self.fits), self.max_pairs)
+        return self.fits[-1][3]
+
+    def run(self) -> str:
+        """Fit orders until tol is met, the criterion stalls (``patience``) or max_pairs; the reason."""
+        tol, patience = self.options.tol, self.options.patience
+        while len(self.fits) < self.max_pairs:
+            if self.fit_next() <= tol:
+                return "tol reached"
+            errs = [fit[3] for fit in self.fits]
+            if patience and len(errs) > patience and min(errs[-patience:]) > 0.8 * min(errs[:-patience]):
+                return f"error stalled at {min(errs):.3g} over the last {patience} orders"
+        return "max_order"
+
+    def further(self):
+        """Orders above the last one fitted that meet tol, fitted on demand (enforcement may push the
+        criterion above tol: on gap tables, the rigid-raft Im K at low frequency)."""
+        while len(self.fits) < self.max_pairs:
+            if self.fit_next() <= self.options.tol:
+                yield len(self.fits) - 1
+
+
+def _enforce_candidates(search: _Search, stop: str, floor: float, progress):
+    """Passivity enforcement of the candidate orders (``_candidates``), bounded by work: at most
+    1 + max_enforce orders, each with at most enforce_iter iterations per variant (the rigid-corrected
+    model, then the plain fit). Returns (best, attempts, failures, notes) with best = (criterion,
+    model, PassivityReport, max_rel_error before enforcement) or None when no order was made passive."""
+    opt, prob = search.options, search.prob
+    first, up, down = _candidates([fit[3] for fit in search.fits], opt.tol, floor)
+    if stop == "tol reached":
+        up = search.further()
+    attempts, failures, notes = [], [], []
+    budget = [1 + opt.max_enforce]
+
+    def attempt(i):
+        budget[0] -= 1
+        poles, err_fit = search.fits[i][0], search.fits[i][2]
+        stage = f"passivity {poles.size} poles"
+        for corrected in ((True, False) if search.P is not None else (False,)):
+            what = "rigid-corrected " if corrected else ""
+            tick = None if progress is None else (lambda done, total, s=stage + (" (plain fit)" if not corrected and
+                                                  search.P is not None else ""): progress(s, done, total))
+            try:
+                model, rep, it = enforce_passivity(search.build(i, corrected), prob.f, prob.w_rel, margin=opt.margin,
+                                                   method=opt.passivity_method, max_iter=opt.enforce_iter,
+                                                   progress=tick)
+                break
+            except FitError as exc:
+                failures.append(f"{poles.size} poles {what}: {exc}")
+                attempts.append((int(poles.size), False, float("nan"), exc.iterations))
+        else:
+            return None
+        e = search.criterion(model)
+        attempts.append((int(poles.size), True, e, int(it)))
+        return (e, model, rep, err_fit)
+
+    best = attempt(first)
+    at_floor = best is not None and floor > 0 and opt.tol < floor and best[0] <= 1.2 * floor
+    if at_floor and up:
+        notes.append("at the hysteretic floor: larger orders not tried")
+    if best is not None and best[0] > opt.tol and not at_floor:
+        for i in up:                       # more poles: lower error or tol met, while the budget allows
+            if budget[0] <= 0:
+                notes.append(f"at most {opt.max_enforce} further orders are tried (max_enforce)")
+                break
+            got = attempt(i)
+            if got is None:
+                notes.append(f"passivity enforcement failed at {search.fits[i][0].size} poles")
+                break
+            if got[0] < best[0]:
+                best = got
+            if best[0] <= opt.tol:
+                break
+    if best is None:
+        for i in down:                     # fewer poles are easier to make passive
+            if budget[0] <= 0:
+                notes.append(f"at most {1 + opt.max_enforce} orders are enforced (max_enforce)")
+                break
+            best = attempt(i)
+            if best is not None:
+                break
+    return best, attempts, failures, notes
+
+
+def _message(search: _Search, best, stop, notes, floor) -> str:
+    """Why tol was missed and which tol is reachable ("" when reached)."""
+    err, model, prep = best[:3]
+    tol = search.options.tol
+    if err <= tol:
+        return ""
+    what = "max rel error" if search.P is None else "max(rel error, rigid-raft Re/Im error)"
+    parts = [f"tol {tol:g} not reached: returning the best {'passive ' if prep.passive else ''}model found, "
+             f"{model.order} poles, {what} {err:.3g} (order search: {stop}"
+             + (f"; {'; '.join(notes)}" if notes else "") + ")."]
+    if floor > 0:
+        parts.append(f"The table has hysteretic damping (loss factor 2ξ ≈ {floor / 0.55:.2g}), which no causal "
+                     f"model follows (Kramers–Kronig): the band error has a floor ≈ ξ ≈ {floor:.2g} "
+                     "(soil_impedance.fit, causality note).")
+    parts.append(f"Raise tol to ~{_round_up(1.05 * err):g}.")
+    return " ".join(parts)
+
+
+def fit_table(table, tol=None, *, cache_dir=None, node_xy=None, progress=None, options: FitOptions | None = None,
+              **kwargs) -> FitResult:
     """Passive common-pole rational model of ``table`` (see the module docstring).
 
     table : ImpedanceTable
-    tol : requested max relative Frobenius error over the band (scaled DOFs); for a gap table with
-        the rigid-raft correction, also the max relative Re and Im error of the rigid-raft impedance
-        (``rigid_error``, see the module docstring "Order selection of a gap table")
-    max_order : maximum number of poles tried (pairs are added one at a time)
-    weighting : "relative" | "uniform" | "entry"
-    enforce : enforce passivity (else only check it; the report says whether the model is passive)
-    f_causal_hz : "auto" or a frequency (Hz) below which hysteretic damping is replaced (causality)
-    cache_dir : directory for fitted models, keyed by table.hash + these settings + code version
-    patience : stop adding pole pairs when the last ``patience`` orders did not improve the best
-        error by 20 % (the causality floor of a hysteretic table); None: try up to max_order
-    max_seconds : wall-time budget (None: unbounded). The order search stops at 30 % of it; the
-        passivity enforcement of further candidates is not started (resp. stopped) once it is spent.
-        The first candidate's enforcement is bounded by ``enforce_iter`` only, and if it fails smaller
-        orders are tried, so that a passive model is returned whenever one is found.
-    max_enforce : at most this many orders are tried by passivity enforcement beyond the first
-        passive one (besides the fallback to smaller orders when no passive model exists yet)
-    enforce_iter : iteration cap of each enforcement (each iteration costs one exact test)
-    rigid_correction : "auto" | True | False. For a "gap" table, correct the fitted model so that its
-        rigid-raft impedance in full contact Pᵀ K P follows the table's, Re and Im separately
-        (``rigid_correct``; the Frobenius criterion barely sees it, and the rocking damping Im K
-        came out ~30 % low on the reactor). Applied before passivity enforcement; the report's
-        ``rigid_errors`` are measured after it. The order selection then requires them to meet tol.
-        "auto": when the node coordinates are known (``node_xy`` or the table's provenance), True:
-        FitError if they are not, False: off (neither the correction nor the rigid criterion).
-    node_xy : (N, 2) interface node coordinates of a gap table (default: rebuilt from provenance)
-    progress : optional callable(str) for log lines
+    tol (default 0.01), node_xy and the keyword options : ``FitOptions`` (max_order, weighting, enforce, f_causal_hz,
+        n_iter, margin, passivity_method, patience, max_enforce, enforce_iter, rigid_correction), or
+        ``options`` given whole (then tol, node_xy and kwargs must not be)
+    cache_dir : directory for fitted models, keyed by ``FitOptions.cache_key`` (table hash, options,
+        node_xy, code digest); entries are written atomically with a content checksum, a damaged
+        one is recomputed with a ``soil_impedance.cache.CacheWarning``
+    progress : optional callable(stage: str, done: int, total: int), called after each fitted order
+        (stage "order search", total = the pole pairs it may try) and after each exact passivity
+        test of an enforcement (stage "passivity <m> poles", or "... (plain fit)" when the
+        rigid-corrected model failed; total = enforce_iter + 1; it stops early when passive)
 
     Order search and enforcement: the orders are fitted cheaply (compressed columns) until tol is
     met (the criterion: max_rel_error, and for gap tables rigid_error too), the criterion stalls
-    (``patience``) or the budget is spent; then passivity is enforced on the smallest order meeting
-    tol; if enforcement pushed the criterion above tol, the next orders meeting it are fitted and
-    enforced while time and ``max_enforce`` allow. If no order meets tol the smallest order at the
-    error plateau is enforced first, then (unless tol is below the hysteretic floor estimate and
-    that model is already within 1.2 × the floor) larger orders that lower the error are tried while
-    time and ``max_enforce`` allow (the best passive one is kept; stop at the first failure); if the
-    first enforcement fails, smaller orders are tried. Never an exception for a missed tol: the report's
-    ``tol_reached`` is False and ``message`` says why (e.g. the hysteretic error floor
+    (``patience``) or max_order; then passivity is enforced on the smallest order meeting tol; if
+    enforcement pushed the criterion above tol, the next orders meeting it are fitted and enforced.
+    If no order meets tol the smallest order at the error plateau is enforced first, then (unless tol
+    is below the hysteretic floor estimate and that model is already within 1.2 × the floor) larger
+    orders that lower the error are tried (the best passive one is kept; stop at the first failure);
+    if the first enforcement fails, smaller orders are tried. At most 1 + max_enforce orders are
+    enforced in all, each with at most enforce_iter iterations: the work is bounded, and the result
+    depends on the inputs only (no wall-clock budget). Never an exception for a missed tol: the
+    report's ``tol_reached`` is False and ``message`` says why (e.g. the hysteretic error floor
     ``error_floor``) and what tol is reachable; a RuntimeWarning carries the same message.
-    FitError only if no order can be made passive.
+    FitError only if no order can be made passive within the bounds (nothing is cached then).
     """
-    settings = {"tol": float(tol), "max_order": int(max_order), "weighting": weighting, "enforce": bool(enforce),
-                "f_causal_hz": f_causal_hz, "n_iter": int(n_iter), "margin": float(margin),
-                "passivity_method": passivity_method, "patience": patience,
-                "max_seconds": None if max_seconds is None else float(max_seconds),
-                "max_enforce": int(max_enforce), "enforce_iter": int(enforce_iter),
-                "rigid_correction": rigid_correction}
-    if rigid_correction not in ("auto", True, False):
-        raise FitError(f"rigid_correction = {rigid_correction!r}: use 'auto', True or False")
-    P = None
-    if rigid_correction:
-        try:
-            P = rigid_projection(table, node_xy)
-        except FitError:
-            if rigid_correction is True:
-                raise
-        if P is None and rigid_correction is True:
-            raise FitError(f"rigid_correction=True needs a gap table (DOFs {list(RIGID)} + w0..), got "
-                           f"{table.dofs[:8]}: use rigid_correction='auto' or False")
-        if node_xy is not None and P is not None:
-            settings["node_xy_sha"] = hashlib.sha256(np.ascontiguousarray(node_xy, "<f8").tobytes()).hexdigest()[:16]
-    settings["rigid_corrected"] = P is not None
+    if options is None:
+        options = FitOptions.make(node_xy, **({} if tol is None else {"tol": tol}), **kwargs)
+    elif kwargs or node_xy is not None or tol is not None:
+        raise FitError("fit_table: give either options=FitOptions(...) or tol/node_xy/keyword options, not both")
     path = None
     if cache_dir is not None:
-        path = Path(cache_dir) / f"fit-{_cache_key(table, settings)[:24]}.h5"
-        if path.is_file():
-            return load_fit(path)
-    t0 = time.perf_counter()
-    deadline = np.inf if max_seconds is None else t0 + float(max_seconds)
-    search_end = np.inf if max_seconds is None else t0 + 0.3 * float(max_seconds)
-    log = progress or (lambda msg: None)
-    prob = _Problem(table, weighting, f_causal_hz)
-    floor = hysteretic_floor(prob)
-    if floor > 0 and tol < floor:
-        log(f"fit: tol {tol:g} is below the hysteretic error floor estimate ≈ {floor:.2g} (loss factor "
-            f"2ξ ≈ {floor / 0.55:.2g}): expect it to be missed")
-    prov = {"source_table_hash": table.hash, "f_max_hz": float(table.frequencies_hz[-1]),
-            "f_causal_hz": prob.f_c, "fit_settings": settings, "code": _code_digest()}
-
-    def build(poles, C, corrected=True):
-        model = prob.model(poles, C, prov)
-        if P is None or not corrected:
-            return model
-        return rigid_correct(model, prob.unscaled_target(), table.frequencies_hz, P, f_c=prob.f_c)
-
-    def band_rigid_error(model):
-        return rigid_error(rigid_errors(model, table.matrices, prob.f, P, prob.band)) if P is not None else 0.0
-
-    history, fits = [], []                        # fits: (poles, C, max_rel_error, criterion)
-    max_pairs = max(1, max_order // 2)
-
-    def fit_next():
-        """Fit the next order (one more pole pair); its criterion (before enforcement)."""
-        poles, C, err = _fit_order(prob, len(fits) + 1, n_iter)
-        if P is None:
-            crit = err
-            history.append((int(poles.size), err))
-            log(f"fit: {poles.size} poles, max rel error {err:.3e}")
-        else:                                     # the rigid-corrected model
-            rig = band_rigid_error(build(poles, C))
-            crit = max(err, rig)
-            history.append((int(poles.size), err, rig))
-            log(f"fit: {poles.size} poles, max rel error {err:.3e}, rigid-raft Re/Im error {rig:.3e}")
-        fits.append((poles, C, err, crit))
-        return crit
-
-    search_stop = "max_order"
-    while len(fits) < max_pairs:
-        if fit_next() <= tol:
-            search_stop = "tol reached"
-            break
-        errs = [fit[3] for fit in fits]
-        if patience and len(errs) > patience and min(errs[-patience:]) > 0.8 * min(errs[:-patience]):
-            search_stop = f"error stalled at {min(errs):.3g} over the last {patience} orders"
-            log(f"fit: error stagnates at {min(errs):.3e} (> tol {tol:g}; hysteretic damping? see the "
-                "causality note): stopping")
-            break
-        if time.perf_counter() > search_end:
-            search_stop = "time budget of the order search spent"
-            log(f"fit: {search_stop}")
-            break
-    first, up, down = _candidates([fit[3] for fit in fits], tol, floor)
-
-    def further_orders():
-        """Orders above the first one meeting tol that meet it too, fitted on demand: enforcement
-        may push the criterion above tol (on gap tables, the rigid-raft Im K at low frequency)."""
-        while len(fits) < max_pairs:
-            if fit_next() <= tol:
-                yield len(fits) - 1
-
-    if search_stop == "tol reached":
-        up = further_orders()
-    what_error = "max rel error" if P is None else "max(rel error, rigid-raft Re/Im error)"
-
-    def criterion(model):
-        """The selection criterion: max of the band error and the rigid-raft Re/Im error."""
-        band_error = float(np.max(_errors(prob.scaled_response(model), prob.Ks)[prob.band]))
-        return max(band_error, band_rigid_error(model))
-
-    failures, attempts, notes = [], [], []
-    best = None                                   # (criterion, model, prep, err_fit)
-    if not enforce:
-        poles, C, err_fit, _ = fits[first]
-        model = build(poles, C)
-        best = (criterion(model), model, check_passive(model, method=passivity_method), err_fit)
-    else:
-        def attempt(i, dl):
-            poles, C, err_fit, _ = fits[i]
-            t1 = time.perf_counter()
-            # the rigid correction first; if that model cannot be made passive, the plain fit
-            for corrected in ((True, False) if P is not None else (False,)):
-                try:
-                    model, prep, _ = enforce_passivity(build(poles, C, corrected), table.frequencies_hz,
-                                                       prob.w_rel, margin=margin, method=passivity_method,
-                                                       max_iter=enforce_iter, deadline=dl)
-                    break
-                except FitError as exc:
-                    what = "rigid-corrected " if corrected else ""
-                    failures.append(f"{poles.size} poles {what}: {exc}")
-                    attempts.append((int(poles.size), False, float("nan"), time.perf_counter() - t1))
-                    log(f"fit: passivity enforcement failed for {poles.size} poles {what}"
-                        f"({time.perf_counter() - t1:.1f} s)")
-            else:
-                return None
-            e = criterion(model)
-            attempts.append((int(poles.size), True, e, time.perf_counter() - t1))
-            log(f"fit: {poles.size} poles passive, {what_error} {e:.3e} ({time.perf_counter() - t1:.1f} s)")
-            return (e, model, prep, err_fit)
-
-        best = attempt(first, None)
-        extra, last_t = 0, attempts[-1][3]
-        at_floor = best is not None and floor > 0 and tol < floor and best[0] <= 1.2 * floor
-        if at_floor and up:
-            notes.append("at the hysteretic floor: larger orders not tried")
-        if best is not None and best[0] > tol and not at_floor:
-            for i in up:                       # more poles: lower error or tol met, if time allows
-                if extra >= max_enforce:
-                    notes.append(f"at most {max_enforce} further orders are tried (max_enforce)")
-                    break
-                if time.perf_counter() + last_t > deadline:
-                    notes.append(f"time budget max_seconds = {max_seconds:g} s spent")
-                    break
-                extra += 1
-                got = attempt(i, deadline)
-                last_t = attempts[-1][3]
-                if got is None:
-                    notes.append(f"passivity enforcement failed at {fits[i][0].size} poles")
-                    break
-                if got[0] < best[0]:
-                    best = got
-                if best[0] <= tol:
-                    break
-        if best is None:
-            for i in down:                     # fewer poles are easier to make passive
-                best = attempt(i, None)
-                if best is not None:
-                    break
-        if best is None:
-            raise FitError("no fitted order could be made passive: " + "; ".join(failures))
-    err_after, model, prep, err_fit = best
-    wall = time.perf_counter() - t0
-    reached = err_after <= tol
-    message = ""
-    if not reached:
-        parts = [f"tol {tol:g} not reached: returning the best {'passive ' if prep.passive else ''}model found, "
-                 f"{model.order} poles, {what_error} {err_after:.3g} (order search: {search_stop}"
-                 + (f"; {'; '.join(notes)}" if notes else "") + ")."]
-        if floor > 0:
-            parts.append(f"The table has hysteretic damping (loss factor 2ξ ≈ {floor / 0.55:.2g}), which no causal "
-                         f"model follows (Kramers–Kronig): the band error has a floor ≈ ξ ≈ {floor:.2g} "
-                         "(soil_impedance.fit, causality note).")
-        parts.append(f"Raise tol to ~{_round_up(1.05 * err_after):g}.")
-        message = " ".join(parts)
-        log("fit: " + message)
-        warnings.warn(message, RuntimeWarning, stacklevel=2)
-    report = _report(prob, model, prep, err_fit, history, settings, wall)
-    report = replace(report, tol_reached=bool(reached), message=message, error_floor=float(floor),
-                     stop_reason=search_stop, enforcement_attempts=[list(a) for a in attempts],
-                     rigid_errors={} if P is None else rigid_errors(model, table.matrices, prob.f, P, prob.band))
-    model = RationalModel(model.poles, model.residues, model.D, model.E, model.dofs,
-                          dict(model.provenance, **({"enforcement_fallback": failures} if failures else {}),
-                               max_rel_error=report.max_rel_error, passive=report.passive,
-                               passivity_margin=report.passivity_margin))
-    result = FitResult(model, report)
+        path = Path(cache_dir) / f"fit-{options.cache_key(table)[:24]}.h5"
+        from .cache import read_entry
+        hit = read_entry(path, lambda h: _read_fit(h, path))
+        if hit is not None:
+            return hit
+    result = fit(table, options, progress)
     if path is not None:
         save_fit(result, path)
     return result
 
 
+def fit(table, options: FitOptions, progress=None) -> FitResult:
+    """The fit itself (no cache): ``fit_table`` with its options given whole."""
+    t0 = time.perf_counter()
+    P = _projection(table, options)
+    prob = _Problem(table, options.weighting, options.f_causal_hz)
+    floor = hysteretic_floor(prob)
+    settings = dict(options.settings(), rigid_corrected=P is not None)
+    prov = {"source_table_hash": table.hash, "f_max_hz": float(table.frequencies_hz[-1]),
+            "f_causal_hz": prob.f_c, "fit_settings": settings, "code": code_digest()}
+    search = _Search(prob, options, P, prov, progress)
+    stop = search.run()
+    if options.enforce:
+        best, attempts, failures, notes = _enforce_candidates(search, stop, floor, progress)
+        if best is None:
+            raise FitError(f"no fitted order could be made passive within the work bounds (max_enforce = "
+                           f"{options.max_enforce}, enforce_iter = {options.enforce_iter}): " + "; ".join(failures))
+    else:
+        first = _candidates([fit[3] for fit in search.fits], options.tol, floor)[0]
+        model = search.build(first)
+        best, attempts, failures, notes = ((search.criterion(model), model,
+                                            check_passive(model, method=options.passivity_method),
+                                            search.fits[first][2]), [], [], [])
+    err_after, model, prep, err_fit = best
+    message = _message(search, best, stop, notes, floor)
+    if message:
+        warnings.warn(message, RuntimeWarning, stacklevel=3)
+    report = _report(prob, model, prep, err_fit, search.history, settings, time.perf_counter() - t0)
+    report = replace(report, tol_reached=bool(err_after <= options.tol), message=message, error_floor=float(floor),
+                     stop_reason=stop, enforcement_attempts=[list(a) for a in attempts],
+                     rigid_errors={} if P is None else rigid_errors(model, table.matrices, prob.f, P, prob.band))
+    model = model.with_provenance(dict(model.provenance, **({"enforcement_fallback": failures} if failures else {}),
+                                       max_rel_error=report.max_rel_error, passive=report.passive,
+                                       passivity_margin=report.passivity_margin))
+    return FitResult(model, report)
+
+
+def _projection(table, options: FitOptions):
+    """P of the rigid-raft correction (``rigid_projection``), or None when it is off."""
+    if not options.rigid_correction:
+        return None
+    try:
+        P = rigid_projection(table, options.node_xy)
+    except FitError:
+        if options.rigid_correction is True:
+            raise
+        return None
+    if P is None and options.rigid_correction is True:
+        raise FitError(f"rigid_correction=True needs a gap table (DOFs {list(RIGID)} + w0..), got "
+                       f"{table.dofs[:8]}: use rigid_correction='auto' or False")
+    return P
+
+
 def _report(prob, model, prep: PassivityReport, err_fit, history, settings, wall):
-    Km = prob.scaled_response(model)
+    Kfull = model.frequency_response(prob.f)
+    Km = Kfull[:, prob.idx][:, :, prob.idx] * prob.S[None, :, None] * prob.S[None, None, :]
     e_t = _errors(Km, prob.Ks)
     low = ~prob.band
-    Kfull = model.frequency_response(prob.f)
     e_un = _errors(Kfull, prob.table.matrices)
     blocks = {}
     dofs = [prob.table.dofs[i] for i in prob.idx]
     tot = np.linalg.norm(prob.Ks.reshape(prob.f.size, -1), axis=1)
+    sel = prob.band
     for name, (r, c) in _blocks(dofs).items():
         d = np.linalg.norm((Km - prob.Ks)[:, r][:, :, c].reshape(prob.f.size, -1), axis=1)
         own = np.linalg.norm(prob.Ks[:, r][:, :, c].reshape(prob.f.size, -1), axis=1)
-        sel = prob.band
         blocks[name] = {"own": float(np.max(d[sel] / np.where(own[sel] > 0, own[sel], 1.0))),
                         "total": float(np.max(d[sel] / tot[sel]))}
     return FitReport(order=int(model.order), max_rel_error=float(np.max(e_t[prob.band])),
@@ -781,26 +894,44 @@ def _report(prob, model, prep: PassivityReport, err_fit, history, settings, wall
                      passivity=prep.to_dict(), order_history=history, settings=settings, wall_s=float(wall))
 
 
+# ------------------------------------------------------------------------------------------
+# files
+# ------------------------------------------------------------------------------------------
 def save_fit(result: FitResult, path) -> None:
-    """Model (``rational.save_model`` layout) + the report as JSON attribute ``fit_report``."""
+    """Model (``rational.write_model`` layout) + the report as JSON attribute ``fit_report`` + the
+    content checksum (``cache.stamp_checksum``), written atomically (``cache.atomic_output``)."""
     import h5py
+
+    from .cache import atomic_output, stamp_checksum
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.h5")
-    save_model(result.model, tmp)
-    with h5py.File(tmp, "a") as h:
+    with atomic_output(path) as tmp, h5py.File(tmp, "w") as h:
+        write_model(h, result.model)
         h.attrs["fit_report"] = json.dumps(result.report.to_dict())
-    tmp.replace(path)
+        stamp_checksum(h)
 
 
 def load_fit(path) -> FitResult:
-    """Read a FitResult written by ``save_fit`` (report.cached = True, wall_s = load time)."""
+    """Read a FitResult written by ``save_fit`` (report.cached = True, wall_s = load time); FitError
+    naming the file when it is not one, or when its checksum does not match its content."""
     import h5py
+
+    from .cache import CHECKSUM_ATTR, verify_checksum
+    try:
+        h = h5py.File(path, "r")
+    except OSError as exc:
+        raise FitError(f"{path}: cannot open as an HDF5 fit ({exc})") from None
+    with h:
+        if CHECKSUM_ATTR in h.attrs and not verify_checksum(h):
+            raise FitError(f"{path}: damaged fit file (content checksum mismatch): refit the table")
+        return _read_fit(h, path)
+
+
+def _read_fit(h, path) -> FitResult:
     t0 = time.perf_counter()
-    model = load_model(path)
-    with h5py.File(path, "r") as h:
-        if "fit_report" not in h.attrs:
-            raise FitError(f"{path}: a rational model without a fit report: refit the table")
-        d = json.loads(h.attrs["fit_report"])
+    model = read_model(h, path)
+    if "fit_report" not in h.attrs:
+        raise FitError(f"{path}: a rational model without a fit report: refit the table")
+    d = json.loads(h.attrs["fit_report"])
     d.update(cached=True, wall_s=time.perf_counter() - t0)
     return FitResult(model, FitReport.from_dict(d))

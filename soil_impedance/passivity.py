@@ -13,41 +13,49 @@ frequency ν = ω/ω_ref, ω_ref = 2π·(top of the fitted band). The **passivit
 
     margin = min_{ω>0} λ_min(S G(ω) S) · ω_ref/ω            (dimensionless, ≥ 0 when passive)
 
-(DESIGN.md §4's "eigenvalues of Im K(iω)/ω", made dimensionless).
+(the eigenvalues of Im K(iω)/ω, made dimensionless).
 
 Tests that cannot miss a narrow violation:
-* ``method="hamiltonian"``: the frequencies where G(ω) is singular are the imaginary eigenvalues
-  s = iω of the pencil of Φ(s) = K(s) − K(−s)ᵀ = 2sE + C(sI−A)⁻¹B + Bᵀ(sI+Aᵀ)⁻¹Cᵀ
-  (size 2Σ rank R_k + n; E may be singular, QZ handles the infinite eigenvalues). Between two
-  crossings the sign of λ_min is constant: one evaluation per interval gives the violation bands.
-* ``method="sweep"`` (large n, where the pencil is too big): an adaptive sweep with a certified
+* ``method="hamiltonian"``: the frequencies where G(ω) is singular. For a symmetric model
+  G(ν) = ν H(ν²) with H(x) = E − Σ_k R_k/(x + p_k²), a pole-residue form in x = ν² whose real
+  zeros are the real eigenvalues of one real eigenproblem of size Σ rank R_k ≤ m·n (``_crossings``;
+  the zeros of the Hamiltonian pencil of Φ(s) = K(s) − K(−s)ᵀ, folded s² = −x: a quarter of its
+  size, and real). Between two crossings the sign of λ_min is constant: one evaluation per
+  interval gives the violation bands.
+* ``method="sweep"`` (large n, where the eigenproblem is too big): an adaptive sweep with a certified
   lower bound. By Weyl, on [a, b] λ_min(G) ≥ (λ_a + λ_b − L(b − a))/2 with
   L = ‖E‖ + Σ_k ‖R_k‖₂ / dist(p_k, i[a, b])²; intervals are bisected until the bound is ≥ 0 or a
   violation is found, and the tail ω > ω_hi is cleared by ω λ_min(E) ≥ Σ_k ‖R_k‖/(ω − |p_k|).
-``method="auto"`` uses the pencil when its size is ≤ ``max_pencil`` (1500), else the sweep.
+``method="auto"`` uses the exact test when m·n + n ≤ ``max_pencil`` (1500; 4500 when E is well
+conditioned, a standard eigenproblem), else the sweep.
 
 Enforcement (``enforce_passivity``): residue perturbation. With the model in real coefficient form
-K(s) = Σ_b φ_b(s) C_b (``rational.to_coefficients``), find the change ΔC minimising the fit's
-weighted least-squares change Σ_f w_f² ‖Σ_b φ_b(iω_f) ΔC_b‖_F² subject to vᵀ ΔG(ω_j) v ≥ margin·ω_j/ω_ref
-− vᵀ G(ω_j) v for the eigenvectors v below the margin at the violation frequencies (band minimum,
-samples across the band, neighbours). The objective is Kronecker-structured, so the QP is solved
-through its small dual (one NNLS over the constraints); the constraints are cutting planes,
-accumulated over the iterations against the original model. E is then projected on the PSD cone
-(with a small floor so that the tail is certifiable). Repeated until the exact test passes.
+K(s) = Σ_b φ_b(s) C_b (``RationalModel.coefficients``), find the change ΔC minimising the fit's
+weighted least-squares change Σ_f w_f² ‖Σ_b φ_b(iω_f) ΔC_b‖_F² subject to
+vᵀ ΔG(ω_j) v ≥ margin·ω_j/ω_ref − vᵀ G(ω_j) v for every eigenvector v below the margin at the
+violation frequencies (samples across each band, geometric when it spans decades, and its
+neighbours; the ``MAX_CONSTRAINTS`` deepest). The objective is Kronecker-structured, so the QP is
+solved through its small dual (one NNLS over the constraints); the constraints are cutting planes,
+accumulated over the iterations against the original model (the active ones: a plane whose
+multiplier is zero is dropped, which keeps the dual small). E is then projected on the PSD cone
+(with a small floor so that the tail is certifiable). Repeated until the exact test passes, the
+worst margin stops improving (``stall``) or the work bound ``max_iter`` is spent (no wall-clock
+limit: the result depends on the inputs only).
 """
 from __future__ import annotations
 
-import hashlib
-import time
 import warnings
+from collections import OrderedDict
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from .rational import FitError, RationalModel, from_coefficients, to_coefficients
-from .vectfit import coefficients_to_residues, real_basis
+from .rational import FitError, RationalModel, ScaledModel
+from .vectfit import pole_kinds, real_basis
 
-MAX_PENCIL = 1500
+MAX_PENCIL = 1500          # "auto": the exact test up to this state size m·na + na, else the sweep
+REPORT_CACHE_SIZE = 64     # passivity reports kept (by model content)
+MAX_CONSTRAINTS = 600      # enforcement: cutting planes added per iteration at most (the deepest)
 
 
 @dataclass(frozen=True)
@@ -94,68 +102,16 @@ class PassivityReport:
 
 
 # ------------------------------------------------------------------------------------------
-# the scaled, normalised model
+# the scaled, normalised model (RationalModel.scaled)
 # ------------------------------------------------------------------------------------------
-@dataclass
-class _Scaled:
-    idx: np.ndarray          # active DOFs
-    S: np.ndarray            # scaling of the active DOFs
-    w_ref: float             # rad/s
-    poles: np.ndarray        # normalised p/w_ref
-    C: np.ndarray            # (nb, na, na) coefficients on real_basis(iν, poles)
-
-
-def reference_omega(model: RationalModel) -> float:
-    """ω_ref, rad/s: 2π × the top of the fitted band (provenance "f_max_hz"), else max |p|."""
-    f = model.provenance.get("f_max_hz")
-    if f:
-        return 2 * np.pi * float(f)
-    return float(np.max(np.abs(model.poles))) if model.order else 1.0
-
-
-def dof_scaling(model: RationalModel):
-    """(active indices, S): DOFs with a nonzero row, S_i = |K_ii(0)|^{-1/2} (fallback max|C_ii|)."""
-    C = to_coefficients(model)
-    rowmax = np.max(np.abs(C), axis=(0, 2))
-    idx = np.nonzero(rowmax > 1e-300)[0]
-    K0 = model(np.zeros(1))[0].real
-    d = np.abs(np.diag(K0))[idx]
-    fallback = np.max(np.abs(np.einsum("bii->bi", C)), axis=0)[idx]
-    d = np.where(d > 1e-12 * fallback, d, fallback)
-    return idx, 1.0 / np.sqrt(np.where(d > 0, d, 1.0))
-
-
-def _scaled(model: RationalModel) -> _Scaled:
-    idx, S = dof_scaling(model)
-    w_ref = reference_omega(model)
-    C = to_coefficients(model)[:, idx][:, :, idx] * S[None, :, None] * S[None, None, :]
-    m = model.order
-    C[:m] /= w_ref
-    C[m + 1] *= w_ref
-    return _Scaled(idx, S, w_ref, model.poles / w_ref, C)
-
-
-def _unscaled(sc: _Scaled, C_scaled, model: RationalModel, provenance=None) -> RationalModel:
-    C = C_scaled.copy()
-    m = sc.poles.size
-    C[:m] *= sc.w_ref
-    C[m + 1] /= sc.w_ref
-    full = to_coefficients(model).copy()
-    C = C / sc.S[None, :, None] / sc.S[None, None, :]
-    full[np.ix_(range(full.shape[0]), sc.idx, sc.idx)] = 0.5 * (C + C.transpose(0, 2, 1))
-    return from_coefficients(model.poles, full, model.dofs, provenance or model.provenance)
-
-
-def _G(sc: _Scaled, nu) -> np.ndarray:
+def _G(sc: ScaledModel, nu) -> np.ndarray:
     """Scaled G at normalised frequencies ν (F,): shape (F, na, na), real symmetric."""
     nu = np.atleast_1d(np.asarray(nu, float))
     Phi = real_basis(1j * nu, sc.poles).imag
-    na = sc.C.shape[1]
-    G = (Phi @ sc.C.reshape(sc.C.shape[0], -1)).reshape(nu.size, na, na)
-    return 0.5 * (G + G.transpose(0, 2, 1))
+    return (Phi @ sc.columns.T).reshape(nu.size, sc.na, sc.na)     # symmetric: C is
 
 
-def _lmin(sc: _Scaled, nu, chunk=64) -> np.ndarray:
+def _lmin(sc: ScaledModel, nu, chunk=64) -> np.ndarray:
     """λ_min(G(ν)) for each ν (not divided by ν)."""
     nu = np.atleast_1d(np.asarray(nu, float))
     out = np.empty(nu.size)
@@ -164,58 +120,92 @@ def _lmin(sc: _Scaled, nu, chunk=64) -> np.ndarray:
     return out
 
 
-def _residue_norms(sc: _Scaled) -> np.ndarray:
-    R = coefficients_to_residues(sc.C[:sc.poles.size], sc.poles)
+def _positive_definite(sc: ScaledModel, nu, chunk=64) -> np.ndarray:
+    """Whether G(ν) ≻ 0 for each ν (a Cholesky factorisation each: the sign of λ_min at a third of
+    the cost of the eigenvalues)."""
+    from scipy.linalg.lapack import dpotrf
+    out = np.empty(np.size(nu), bool)
+    for i in range(0, out.size, chunk):
+        for j, G in enumerate(_G(sc, nu[i:i + chunk])):
+            out[i + j] = dpotrf(G, lower=1, clean=0, overwrite_a=1)[1] == 0
+    return out
+
+
+def _residue_norms(sc: ScaledModel) -> np.ndarray:
+    R = sc.residues
     return np.array([np.linalg.norm(r, 2) for r in R]) if R.size else np.zeros(0)
 
 
 # ------------------------------------------------------------------------------------------
 # exact tests
 # ------------------------------------------------------------------------------------------
-def pencil_size(model: RationalModel, rank_tol=1e-12) -> int:
-    idx, _ = dof_scaling(model)
-    return 2 * model.order * idx.size + idx.size
+def state_size(sc: ScaledModel) -> int:
+    """Size bound of the exact test's eigenproblem, m·na + na (``_crossings``)."""
+    return sc.poles.size * sc.na + sc.na
 
 
-def _hamiltonian_crossings(sc: _Scaled, rank_tol=1e-12, imag_tol=1e-6) -> np.ndarray:
-    """Normalised ν > 0 where G(ν) is singular (imaginary eigenvalues of the Φ pencil)."""
+def _regular_E(sc: ScaledModel) -> bool:
+    """E well conditioned (λ_min > 1e-8 λ_max): the exact test is a standard eigenproblem, about
+    three times cheaper than the generalized one (``_crossings``)."""
+    lam = np.linalg.eigvalsh(sc.C[-1])
+    return bool(lam[0] > 1e-8 * max(abs(lam[-1]), 1e-300))
+
+
+def _crossings(sc: ScaledModel, rank_tol=1e-12, imag_tol=1e-6) -> np.ndarray:
+    """Normalised ν > 0 where G(ν) is singular, by one real eigenproblem in x = ν².
+
+    For a symmetric, conjugate-closed model G(ν) = Im K(iν) = ν H(ν²) with
+    H(x) = E − Σ_k R_k/(x + p_k²): a pole-residue form in x (poles q_k = −p_k², residues −R_k).
+    Its real state-space realisation (per real pole a rank-r block, per conjugate pair one real
+    2r block [[σ, −τ], [τ, σ]], q = σ + iτ) H(x) = E + C (xI − A)⁻¹ B has the zeros
+    eig(A − B E⁻¹ C) (E well conditioned) or the finite eigenvalues of the pencil
+    ([[A, B], [C, E]], diag(I, 0)); the real positive ones are the crossings ν = √x. Size
+    Σ_k rank R_k ≤ m·na: a quarter of the Hamiltonian pencil of Φ(s) = K(s) − K(−s)ᵀ, and real.
+    """
     import scipy.linalg as sla
     m = sc.poles.size
-    na = sc.C.shape[1]
-    R = coefficients_to_residues(sc.C[:m], sc.poles)
-    scale = max(np.max(np.abs(R)) if R.size else 0.0, 1e-300)
+    R = sc.residues
+    scale = max(np.abs(R).max() if R.size else 0.0, 1e-300)
     As, Bs, Cs = [], [], []
-    for k in range(m):
-        u, sv, vh = np.linalg.svd(R[k])
+    for k, kind in enumerate(pole_kinds(sc.poles)):
+        if kind == 2:
+            continue
+        q = -sc.poles[k] ** 2
+        if kind == 0:
+            u, sv, vh = np.linalg.svd(-R[k].real)
+        else:
+            u, sv, vh = np.linalg.svd(-R[k])
         r = int(np.sum(sv > rank_tol * scale))
         if r == 0:
             continue
-        As.append(np.full(r, sc.poles[k]))
-        Cs.append(u[:, :r] * sv[:r])
-        Bs.append(vh[:r])
-    E2 = 2.0 * sc.C[m + 1]
-    if As:
-        a = np.concatenate(As)
-        B = np.vstack(Bs)
-        Cm = np.hstack(Cs)
+        L, Rt = u[:, :r] * sv[:r], vh[:r]
+        if kind == 0:
+            As.append(np.full((1, 1), q.real) * np.eye(r))
+            Bs.append(Rt)
+            Cs.append(L)
+        else:
+            I = np.eye(r)
+            As.append(np.block([[q.real * I, -q.imag * I], [q.imag * I, q.real * I]]))
+            Bs.append(np.vstack([Rt.real, Rt.imag]))
+            Cs.append(np.hstack([2 * L.real, -2 * L.imag]))
+    E = sc.C[m + 1]
+    if not As:
+        return np.zeros(0)
+    A = sla.block_diag(*As)
+    B = np.vstack(Bs)
+    Cm = np.hstack(Cs)
+    if _regular_E(sc):
+        x = np.linalg.eigvals(A - B @ np.linalg.solve(E, Cm))
     else:
-        a, B, Cm = np.zeros(0, complex), np.zeros((0, na)), np.zeros((na, 0))
-    nx = a.size
-    N = 2 * nx + na
-    M = np.zeros((N, N), complex)
-    M[:nx, :nx] = np.diag(a)
-    M[:nx, 2 * nx:] = B
-    M[nx:2 * nx, nx:2 * nx] = -np.diag(a)
-    M[nx:2 * nx, 2 * nx:] = Cm.T
-    M[2 * nx:, :nx] = -Cm
-    M[2 * nx:, nx:2 * nx] = -B.T
-    Bm = np.zeros((N, N))
-    Bm[:2 * nx, :2 * nx] = np.eye(2 * nx)
-    Bm[2 * nx:, 2 * nx:] = E2
-    lam = sla.eigvals(M, Bm)
-    lam = lam[np.isfinite(lam)]
-    keep = (np.abs(lam.real) <= imag_tol * np.maximum(np.abs(lam), 1.0)) & (np.abs(lam.imag) > 1e-9)
-    return np.unique(np.round(np.abs(lam[keep].imag), 12))
+        nx = A.shape[0]
+        M = np.block([[A, B], [Cm, E]])
+        N = np.zeros_like(M)
+        N[:nx, :nx] = np.eye(nx)
+        x = sla.eigvals(M, N)
+        x = x[np.isfinite(x)]
+    r = np.sqrt(np.abs(x))
+    keep = (x.real > 1e-18) & (np.abs(x.imag) <= 2 * imag_tol * r * np.maximum(r, 1.0))
+    return np.unique(np.round(np.sqrt(x[keep].real), 12))
 
 
 def _bands_from_crossings(sc, crossings, grid):
@@ -224,10 +214,10 @@ def _bands_from_crossings(sc, crossings, grid):
     mids = []
     for a, b in zip(edges[:-1], edges[1:]):
         mids.append(0.5 * (a + b) if np.isfinite(b) else (2 * a if a > 0 else 1.0))
-    lm = _lmin(sc, np.array(mids))
+    definite = _positive_definite(sc, np.array(mids))
     bands = []
-    for (a, b), v in zip(zip(edges[:-1], edges[1:]), lm):
-        if v >= 0:
+    for (a, b), ok in zip(zip(edges[:-1], edges[1:]), definite):
+        if ok:
             continue
         if bands and bands[-1][1] == a:     # a crossing of another eigenvalue inside a violation:
             bands[-1] = (bands[-1][0], b)   # one band (else each piece gets its own constraints)
@@ -297,21 +287,23 @@ def _default_grid(n_grid=400):
 
 
 def _band_samples(band, n=9):
+    """n points inside a band (ν): linear, geometric when it spans more than a factor 4."""
     a, b = band
     if not np.isfinite(b):
         return np.geomspace(max(a, 1e-6) * 1.001, max(a, 1e-6) * 100, n)
+    if a > 0 and b > 4 * a:
+        return np.geomspace(a, b, n + 2)[1:-1]
     return np.linspace(a, b, n + 2)[1:-1]
 
 
-def _assess(sc: _Scaled, method="auto", n_grid=400, max_pencil=MAX_PENCIL):
+def _assess(sc: ScaledModel, method="auto", n_grid=400, max_pencil=MAX_PENCIL):
     grid = _default_grid(n_grid)
-    na = sc.C.shape[1]
-    size = 2 * sc.poles.size * na + na
+    na = sc.na
     if method == "auto":
-        method = "hamiltonian" if size <= max_pencil else "sweep"
+        method = "hamiltonian" if state_size(sc) <= max_pencil * (1 + 2 * _regular_E(sc)) else "sweep"
     crossings = np.zeros(0)
     if method == "hamiltonian":
-        crossings = _hamiltonian_crossings(sc)
+        crossings = _crossings(sc)
         bands, evals = _bands_from_crossings(sc, crossings, grid)
         nodes = grid
         vals = _lmin(sc, nodes)
@@ -351,26 +343,24 @@ def _report(sc, a) -> PassivityReport:
                            [float(c * hz) for c in a["crossings"]], a["e_min"], a["static_min"], a["evals"])
 
 
-_REPORTS: dict = {}        # content hash of (model, settings) -> report; a model is checked once
-
-
-def _content_key(model: RationalModel, *settings) -> str:
-    h = hashlib.sha256(repr(settings).encode())
-    for a in (model.poles, model.residues, model.D, model.E):
-        h.update(np.ascontiguousarray(a).tobytes())
-    return h.hexdigest()
+_REPORTS: OrderedDict = OrderedDict()   # (model digest, settings) -> report, the last REPORT_CACHE_SIZE
 
 
 def check_passive(model: RationalModel, method="auto", n_grid=400, max_pencil=MAX_PENCIL) -> PassivityReport:
     """Passivity of ``model``: dense grid + an exact test (see module docstring).
 
-    The exact test costs seconds for a (6+N)² model: reports are memoised by the model's
-    content, so the fit, the export and each soil stepper built from one model share one check.
+    The exact test costs up to seconds for a (6+N)² model: the last ``REPORT_CACHE_SIZE`` reports
+    are kept by the model's content, so the fit, the export and each soil stepper built from one
+    model share one check.
     """
-    key = _content_key(model, method, n_grid, max_pencil)
-    if key not in _REPORTS:
-        sc = _scaled(model)
+    key = (model.digest, method, n_grid, max_pencil)
+    if key in _REPORTS:
+        _REPORTS.move_to_end(key)
+    else:
+        sc = model.scaled
         _REPORTS[key] = _report(sc, _assess(sc, method, n_grid, max_pencil))
+        while len(_REPORTS) > REPORT_CACHE_SIZE:
+            _REPORTS.popitem(last=False)
     return _REPORTS[key]
 
 
@@ -391,8 +381,10 @@ def require_passive(model: RationalModel, force=False, report: PassivityReport |
 # ------------------------------------------------------------------------------------------
 # enforcement
 # ------------------------------------------------------------------------------------------
-def _constraints(sc, bands, margin, n_samples=9):
-    """(ν, v, target) cutting planes at the violation frequencies and their neighbours."""
+def _constraints(sc, bands, margin, n_samples=9, limit=MAX_CONSTRAINTS):
+    """(ν, v) cutting planes at the violation frequencies and their neighbours: every eigenvector v of
+    G(ν) below the margin, the ``limit`` deepest (λ − margin·ν) when there are more (a large model
+    violated in many directions at once: the bound keeps the dual small)."""
     out = []
     for band in bands:
         pts = list(_band_samples(band, n_samples))
@@ -405,10 +397,11 @@ def _constraints(sc, bands, margin, n_samples=9):
         pts = np.array(pts)
         lam, vec = np.linalg.eigh(_G(sc, pts))
         for i, nu in enumerate(pts):
-            low = np.nonzero(lam[i] < margin * nu)[0]
-            for j in low[:8]:
-                out.append((nu, vec[i][:, j]))
-    return out
+            for j in np.nonzero(lam[i] < margin * nu)[0]:
+                out.append((lam[i, j] - margin * nu, nu, vec[i][:, j]))
+    if len(out) > limit:
+        out = [out[k] for k in sorted(np.argsort([c[0] for c in out], kind="stable")[:limit])]
+    return [(nu, v) for _, nu, v in out]
 
 
 def _solve_dual(sc0, cons, Qinv, margin):
@@ -426,22 +419,26 @@ def _solve_dual(sc0, cons, Qinv, margin):
     mu, _ = nnls(L.T, np.linalg.solve(L, t), maxiter=50 * M.shape[0])
     coef = QG * mu[None, :]                                   # (nb, nc)
     dC = np.einsum("bc,ic,jc->bij", coef, V, V)
-    return dC
+    return dC, mu
 
 
 def enforce_passivity(model: RationalModel, freq_hz=None, weights=None, margin=1e-4, max_iter=30,
-                      method="auto", e_floor=1e-6, deadline=None):
+                      method="auto", e_floor=1e-6, progress=None, stall=4):
     """Perturb the residues (and E) of ``model`` until the exact test passes.
 
     freq_hz : (F,) Hz, weights : (F,)   the fit's frequencies and per-frequency weights (on the
         DOF-scaled matrices); they define the least-squares change that is minimised
         (default: 200 frequencies over [0, f_ref], uniform).
     margin : target passivity margin (dimensionless, see module docstring).
-    deadline : optional ``time.perf_counter()`` value; the iterations stop (FitError) once it has
-        passed (each iteration costs one exact test: seconds for a (6+N)² model).
-    Returns (model, PassivityReport, iterations). Raises FitError if not passive after max_iter.
+    max_iter : the work bound: at most this many corrections, each followed by one exact test
+        (milliseconds for a small model, seconds for a (6+N)² model with the sweep).
+    progress : optional callable(done, total) after each test (total = max_iter + 1).
+    stall : give up (FitError) after this many iterations without raising the worst margin by 5 %
+        (a violation the cutting planes do not reduce: fewer poles are the remedy).
+    Returns (model, PassivityReport, iterations). Raises FitError (attribute ``iterations``) if not
+    passive after max_iter iterations, or stalled.
     """
-    sc0 = _scaled(model)
+    sc0 = model.scaled
     if freq_hz is None:
         freq_hz = np.linspace(0, sc0.w_ref / (2 * np.pi), 200)
     nu_f = 2 * np.pi * np.asarray(freq_hz, float) / sc0.w_ref
@@ -452,33 +449,49 @@ def enforce_passivity(model: RationalModel, freq_hz=None, weights=None, margin=1
     Q += 1e-10 * np.trace(Q) / Q.shape[0] * np.eye(Q.shape[0])
     Qinv = np.linalg.inv(Q)
     m = sc0.poles.size
+    K0_basis = real_basis(np.zeros(1), sc0.poles)[0]
     cons = []
     sc = sc0
-    C = sc0.C.copy()
+    best, since = 0.0, 0
     for it in range(max_iter + 1):
         a = _assess(sc, method)
+        if progress is not None:
+            progress(it + 1, max_iter + 1)
         if a["passive"]:
             prov = dict(model.provenance, passivity_enforced=True, passivity_iterations=it)
-            out = _unscaled(sc0, sc.C, model, prov)
+            out = model.with_provenance(prov) if it == 0 else sc0.unscale(sc.C, model, prov)
             return out, _report(sc0, a), it
         if it == max_iter:
             break
-        if deadline is not None and time.perf_counter() > deadline:
-            raise FitError(f"passivity enforcement stopped by the time budget after {it} iterations "
-                           f"({_report(sc0, a)})")
+        if it == 0 or a["margin"] > best + 0.05 * abs(best):
+            best, since = a["margin"], 0
+        else:
+            since += 1
+        if since >= stall:
+            raise _failure(f"passivity enforcement stalled: no progress in {stall} iterations "
+                           f"({_report(sc0, a)}): refit with fewer poles", it)
         cons += _constraints(sc, a["bands"], margin)
-        C = sc0.C.copy()
+        C = np.array(sc0.C)
         if cons:
-            C = C + _solve_dual(sc0, cons, Qinv, margin)
+            dC, mu = _solve_dual(sc0, cons, Qinv, margin)
+            C = C + dC
+            cons = [c for c, active in zip(cons, mu > 0) if active]    # the active cutting planes
         # E ⪰ floor·max eig (PSD projection; the floor makes the high-frequency tail certifiable)
         lam, vec = np.linalg.eigh(0.5 * (C[m + 1] + C[m + 1].T))
         floor = e_floor * max(lam.max(), 1e-300)
         C[m + 1] = (vec * np.maximum(lam, floor)) @ vec.T
         # K(0) ⪰ 0 through D (D does not change G)
-        K0 = np.real(np.einsum("b,bij->ij", real_basis(np.zeros(1), sc0.poles)[0], C.astype(complex)))
+        K0 = np.real(np.einsum("b,bij->ij", K0_basis, C.astype(complex)))
         lam0, vec0 = np.linalg.eigh(0.5 * (K0 + K0.T))
         if lam0[0] < 0:
             C[m] += (vec0 * np.maximum(-lam0, 0)) @ vec0.T
-        sc = _Scaled(sc0.idx, sc0.S, sc0.w_ref, sc0.poles, C)
-    raise FitError(f"passivity enforcement did not converge in {max_iter} iterations ({_report(sc0, a)}): "
-                   "refit with more poles or a lower tolerance, or raise max_iter")
+        sc = sc0.with_coefficients(C)
+    raise _failure(f"passivity enforcement did not converge in {max_iter} iterations ({_report(sc0, a)}): "
+                   "refit with more poles or a lower tolerance, or raise max_iter", max_iter)
+
+
+def _failure(message, iterations) -> FitError:
+    """The FitError of a failed enforcement, with its ``iterations`` (the work spent)."""
+    exc = FitError(message)
+    exc.iterations = iterations
+    return exc

@@ -11,9 +11,9 @@ import warnings
 import numpy as np
 import pytest
 
-from soil_impedance.convolution import (NonPassiveError, PassivityWarning, RecursiveConvolutionSoil,
-                                        bilinear_coefficients, grid_require_passive, passivity_margin, bilinear_s, oscillator_model,
-                                        random_passive_model, recursion_transfer)
+from passive_models import oscillator_model, random_passive_model
+from soil_impedance.convolution import RecursiveConvolutionSoil, bilinear_coefficients, bilinear_s, recursion_transfer
+from soil_impedance.passivity import check_passive
 from soil_impedance.poles_free import convolve
 from soil_impedance.rational import FitError
 
@@ -140,16 +140,21 @@ def test_nonpassive_model_is_refused_or_forced_with_warning():
     assert soil.dissipated_energy() < 0
 
 
-def test_own_grid_check_refuses_and_forces():
-    """The fallback used when soil_impedance.passivity is absent."""
+def test_exact_tests_find_the_closed_form_violation_band():
+    """K = I (1 + k) + 0.001 s I − 0.5 k² I/(m s² + c s + k) (k = 1, c = 0.2, m = 1/(2π)²) has
+    G(ω) = ω (0.001 − 0.5 k² c/((k − m ω²)² + c² ω²)): negative below the root ω_c of
+    (k − m ω²)² + c² ω² = 500 k² c (ω_c = 2π·3.1925 Hz). Both exact tests find the band [0, ω_c];
+    the passive MODEL has none (the sweep brackets the edge between two of its nodes)."""
     bad = _nonpassive()
-    margin, w = passivity_margin(bad)
-    assert margin < -0.1 and w / (2 * np.pi) < 3.19      # violation band 0-3.19 Hz (Hamiltonian)
-    assert passivity_margin(MODEL)[0] > 0
-    with pytest.raises(NonPassiveError, match="not passive"):
-        grid_require_passive(bad)
-    with pytest.warns(PassivityWarning):
-        grid_require_passive(bad, force=True)
+    k, c, m = 1.0, 0.2, 1.0 / (2 * np.pi) ** 2
+    y = np.roots([m * m, c * c - 2 * k * m, k * k - 500 * k * k * c])      # y = ω²
+    f_c = np.sqrt(y[y > 0].max()) / (2 * np.pi)
+    for method in ("hamiltonian", "sweep"):
+        rep = check_passive(bad, method=method)
+        assert not rep.passive and len(rep.bands_hz) == 1 and rep.bands_hz[0][0] == 0.0
+        hi = rep.bands_hz[0][1]
+        assert hi == pytest.approx(f_c, rel=1e-9) if method == "hamiltonian" else f_c <= hi < 1.1 * f_c
+        assert check_passive(MODEL, method=method).passive
 
 
 def test_passive_model_is_accepted_silently():

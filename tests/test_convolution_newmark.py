@@ -8,7 +8,8 @@
 """
 import numpy as np
 
-from soil_impedance.convolution import RecursiveConvolutionSoil, oscillator_model
+from passive_models import oscillator_model
+from soil_impedance.convolution import RecursiveConvolutionSoil
 from soil_impedance.rational import RationalModel
 from structure import ContactSettings, simulate
 from structure._synthetic import broadband_accelerogram

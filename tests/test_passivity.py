@@ -6,7 +6,7 @@ import pytest
 
 from soil_impedance import circle_mesh, impedance_sweep
 from soil_impedance.fit import fit_table
-from soil_impedance.passivity import (_default_grid, _lmin, _scaled, check_passive, enforce_passivity,
+from soil_impedance.passivity import (_default_grid, _lmin, check_passive, enforce_passivity,
                                       require_passive)
 from soil_impedance.rational import FitError, RationalModel
 
@@ -52,7 +52,7 @@ def test_narrow_violation_missed_by_grid_found_by_exact_tests(good_fit):
     f0, zeta = 13.0123, 2e-4                     # violation band ≈ ±0.1 × ζ f0 ... ζ f0 = 2.6 mHz wide
     bad = _with_negative_resonance(fit.model, f0, zeta, depth=3.0)
     # the dense grid (spacing 2·25/400 = 0.125 Hz) sees nothing ...
-    sc = _scaled(bad)
+    sc = bad.scaled
     assert np.min(_lmin(sc, _default_grid())) > 0
     grid_step_hz = np.diff(_default_grid()[:2])[0] * 25.0
     # ... the Hamiltonian test and the certified sweep both find the band
@@ -147,10 +147,32 @@ def test_round_off_deep_band_is_not_a_violation(monkeypatch):
     import soil_impedance.passivity as pv
 
     m = RationalModel(np.zeros(0), np.zeros((0, 1, 1)), [[4e9]], [[3e7]], ["uz"], {"f_max_hz": 25.0})
-    sc = pv._scaled(m)
+    sc = m.scaled
     assert pv._assess(sc, method="sweep")["passive"]
     orig = pv._lmin
     for depth, want in ((-1e-15, True), (-1e-6, False)):
         monkeypatch.setattr(pv, "_lmin", lambda sc_, nu, d=depth: np.minimum(orig(sc_, nu), d * np.asarray(nu)))
         a = pv._assess(sc, method="sweep")
         assert a["bands"] and a["passive"] is want, (depth, a["margin"])
+
+
+def test_exact_test_with_singular_E_finds_the_closed_form_band():
+    """E = 0 (the generalized eigenproblem of ``_crossings``): K = two condensed oscillators, the second
+    one negative, G(ω)/ω = c1 k1²/((k1 − m1ω²)² + c1²ω²) − 0.05 c2 k2²/((k2 − m2ω²)² + c2²ω²) < 0 around
+    the second resonance (2 Hz). The band edges are the roots of that closed form (brentq)."""
+    from passive_models import oscillator_model
+    from scipy.optimize import brentq
+
+    o1 = (1.0, 0.2, 1 / (2 * np.pi) ** 2)
+    o2 = (1.0, 0.02, 1 / (4 * np.pi) ** 2)
+    model = oscillator_model([[1.0]], None, terms=[(*o1, [[1.0]]), (*o2, [[-0.05]])])
+    model = model.with_provenance({"f_max_hz": 10.0})
+
+    def g(f):
+        w = 2 * np.pi * f
+        return sum(a * c * k * k / ((k - m * w * w) ** 2 + (c * w) ** 2) for a, (k, c, m) in ((1, o1), (-0.05, o2)))
+
+    edges = [brentq(g, 1.5, 2.0, xtol=1e-14), brentq(g, 2.0, 2.5, xtol=1e-14)]
+    rep = check_passive(model, method="hamiltonian")
+    assert not rep.passive and len(rep.bands_hz) == 1
+    assert np.allclose(rep.bands_hz[0], edges, rtol=1e-9, atol=0)
