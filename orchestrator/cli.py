@@ -25,7 +25,7 @@ from orchestrator.errors import ComputationError, UserInputError
 from orchestrator.export import export_scene
 from orchestrator.impedance import rigid_json, scene_fit, scene_impedance, scene_static
 from orchestrator.plots import plot_impedance, plot_run
-from orchestrator.progress import Progress, frequency_bar, step_bar
+from orchestrator.progress import Progress, frequency_bar, stage_bar, step_bar
 from orchestrator.report import write_report
 from orchestrator.results import ResultsFileError, check_output_path, read_results, summary, write_results
 from orchestrator.routes import route_names
@@ -181,7 +181,8 @@ def cmd_run(args) -> int:
         raise ResultsFileError(f"--plot-dir {str(args.plot_dir)!r} is a file: give a folder")
     results, motion = run_scene(scene, args.routes, cache_dir=_cache(args),
                                 progress=lambda route: step_bar(Progress(f"run {scene.name} [{route}]")),
-                                sweep_progress=frequency_bar(Progress(f"impedance {scene.name}")))
+                                sweep_progress=frequency_bar(Progress(f"impedance {scene.name}")),
+                                fit_progress=stage_bar(f"fit {scene.name}"))
     write_results(out, results, motion, scene.name)
     _say(f"wrote {out}")
     summ = {"routes": {r: summary(res) for r, res in results.items()}}
@@ -248,10 +249,9 @@ def cmd_fit(args) -> int:
     cache = _cache(args)
     table = scene_impedance(scene, (args.table,), cache_dir=cache,
                             progress=frequency_bar(Progress(f"impedance {scene.name}")))[args.table]
-    if args.table == "gap":
-        result = scene_fit(scene, cache_dir=cache, table=table, tol=tol)
-    else:
-        result = scene_fit(scene, cache_dir=cache, table=table, tol=tol, node_xy=None)
+    xy = {"node_xy": None} if args.table == "rigid" else {}
+    result = scene_fit(scene, cache_dir=cache, table=table, tol=tol, fit_progress=stage_bar(f"fit {scene.name}"),
+                       **xy)
     if args.output:
         save_fit(result, args.output)
         _say(f"wrote {args.output}")
@@ -265,6 +265,8 @@ def cmd_fit(args) -> int:
         _say(f"{args.table} table of {scene.name}: {out['order']} poles, max relative error "
              f"{100 * out['max_rel_error']:.2f} % (tol {100 * tol:g} %), passive: {out['passive']} "
              f"(margin {out['passivity_margin']:.3g}), {out['wall_s']:.1f} s")
+    if not result.report.tol_reached:
+        _say(f"WARNING: {result.report.message}")
     return EXIT_OK
 
 
@@ -275,7 +277,8 @@ def cmd_export(args) -> int:
                                "(add [structure] model = \"reactor\", or inline nodes/beams/masses/raft)")
     if args.output.exists() and not args.output.is_dir():
         raise ResultsFileError(f"-o {str(args.output)!r} is a file: give a folder for the FMUs")
-    exported = export_scene(scene, args.output, cache_dir=_cache(args))
+    soil = scene_fit(scene, cache_dir=_cache(args), fit_progress=stage_bar(f"fit {scene.name}")).model
+    exported = export_scene(scene, args.output, soil, cache_dir=_cache(args))
     _say(*(f"wrote {path}" for path in (exported.structure, exported.soil, exported.ssd)))
     return EXIT_OK
 

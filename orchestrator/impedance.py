@@ -32,13 +32,16 @@ def scene_static(scene, output="rigid", cache_dir=None) -> np.ndarray:
                             cache_dir=cache_dir)
 
 
-def scene_fit(scene, cache_dir=None, progress=None, table=None, **fit_options):
+def scene_fit(scene, cache_dir=None, progress=None, table=None, fit_progress=None, **fit_options):
     """FitResult (model and report) of the scene's gap impedance table ((6+N)^2: raft DOFs and
     the soil vertical displacement under each node; swept here unless given), fitted by
-    soil_impedance.fit.fit_table at the scene's ``[analysis].fit_tol`` unless ``tol`` is given."""
+    soil_impedance.fit.fit_table at the scene's ``[analysis].fit_tol`` unless ``tol`` is given.
+    progress follows the sweep (callable(done, total, freq_hz)), fit_progress the fit
+    (callable(stage, done, total))."""
     if table is None:
         table = scene_impedance(scene, ("gap",), cache_dir=cache_dir, progress=progress)["gap"]
     fit_options.setdefault("cache_dir", cache_dir)
+    fit_options.setdefault("progress", fit_progress)
     fit_options.setdefault("tol", scene.analysis.fit_tol)
     fit_options.setdefault("node_xy", scene.mesh.xy)     # for the rigid-raft correction of the fit
     return fit_table(table, **fit_options)

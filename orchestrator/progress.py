@@ -47,3 +47,14 @@ def frequency_bar(bar):
 def step_bar(bar):
     """Adapt a bar to the steppers' callback ``progress(k, nt)`` (k from 1 to nt - 1)."""
     return lambda k, nt: bar(k + 1, nt)
+
+
+def stage_bar(title: str):
+    """A callback ``progress(stage, done, total)`` (the rational fit's) printing one bar per stage."""
+    bars = {}
+
+    def progress(stage, done, total):
+        if stage not in bars:
+            bars[stage] = Progress(f"{title}: {stage}")
+        bars[stage](done, total)
+    return progress

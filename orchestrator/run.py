@@ -98,7 +98,7 @@ def check_time_step(scene, model, dt: float, bem: bool, cache_dir=None) -> float
 
 
 def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=None, options=None,
-              motion=None):
+              motion=None, fit_progress=None):
     """Run routes of a scene. Returns (``{route: RouteResult}``, Motion).
 
     routes : names (default: the scene's ``[analysis].routes``); options : {route: {option:
@@ -106,7 +106,8 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
     replacing the scene's (resampled to ``[analysis].dt``).
     ``progress(route)`` returns a callable(k, nt) for each route; ``sweep_progress(done, total,
     freq_hz)`` follows the BEM sweep, done once for all routes (one factorisation per
-    frequency for every table). A route that stops keeps its results so far (status STOPPED,
+    frequency for every table); ``fit_progress(stage, done, total)`` the rational fit. A route
+    that stops keeps its results so far (status STOPPED,
     ``message`` says why) and the other routes still run; a route that cannot run on this
     scene is REFUSED with the reason. Bad input found before any route runs raises.
     """
@@ -131,7 +132,8 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
         if outputs:
             ctx.tables = scene_impedance(scene, outputs, cache_dir=cache_dir, progress=sweep_progress, stats=sweep)
         if "gap" in ctx.tables:
-            ctx.fit_builder = lambda: scene_fit(scene, cache_dir=cache_dir, table=ctx.tables["gap"])
+            ctx.fit_builder = lambda: scene_fit(scene, cache_dir=cache_dir, table=ctx.tables["gap"],
+                                                fit_progress=fit_progress)
         results = {}
         for route in chosen:
             res = _run_route(route, ctx.for_route(route, (options or {}).get(route.name)),
@@ -139,6 +141,8 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
             if dt_check is not None and route.time_stepped:
                 warning = step_doubling_warning(dt_check)
                 res = res.with_notes(warnings=[warning] if warning else [], info={"dt_check": dt_check})
+            if route.needs_fit and "fit" in ctx.shared and not ctx.fit().report.tol_reached:
+                res = res.with_notes(warnings=[f"rational soil fit: {ctx.fit().report.message}"])
             results[route.name] = res.with_notes(skipped=_shared_skips(scene, route, sweep, ctx))
     return results, motion
 
