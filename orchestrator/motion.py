@@ -62,7 +62,10 @@ class Motion:
         return np.abs(self.acc).max(axis=0)
 
     def resampled(self, dt: float) -> Motion:
-        """Linear interpolation onto a new step (the input is piecewise linear)."""
+        """Linear interpolation onto a new step (the input is piecewise linear); the motion
+        itself when its step is already dt (to 1e-12 s)."""
+        if abs(dt - self.dt) < 1e-12:
+            return self
         t_new = dt * np.arange(int(np.floor(self.duration / dt + 1e-9)) + 1)
         acc = np.column_stack([np.interp(t_new, self.time, self.acc[:, k]) for k in range(3)])
         return Motion(dt, acc, self.label)
@@ -124,7 +127,7 @@ def synthetic_motion(pga_g: float = 0.25, duration_s: float = 10.0, dt: float = 
     if not (pga_g > 0) or not (duration_s > 0) or not (dt > 0) or duration_s < 20 * max(dt, SYNTHETIC_DT):
         raise MotionError("motion: pga_g, duration_s and dt must be > 0, duration_s >= 20 dt")
     base = _synthetic(pga_g, duration_s, SYNTHETIC_DT, seed, spectrum, iterations, direction)
-    return base if abs(dt - SYNTHETIC_DT) < 1e-12 else base.resampled(dt)
+    return base.resampled(dt)
 
 
 def _synthetic(pga_g, duration_s, dt, seed, spectrum, iterations, direction) -> Motion:
@@ -167,7 +170,7 @@ def make_motion(config, dt: float) -> Motion:
                                 spectrum=config.spectrum, direction=config.direction)
     rec = getattr(config, "record", None) or read_record(config.file, config.format, config.units,
                                                          config.scale, config.direction)
-    return rec if abs(rec.dt - dt) < 1e-12 else rec.resampled(dt)
+    return rec.resampled(dt)
 
 
 def read_record(path, fmt: str = "two-column", units: str = "g", scale: float = 1.0, direction="x") -> Motion:

@@ -106,12 +106,12 @@ def read_results(path) -> dict:
                 raise ResultsFileError(f"{path} holds no routes (/routes/<route>): not a results file of "
                                        "`uplift run`; run `uplift run SCENE -o FILE` to make one")
             return {route: _read_route(route, g) for route, g in f["routes"].items()}
+    except ResultsFileError:
+        raise
     except OSError as exc:   # h5py: not an HDF5 file, truncated file
         raise ResultsFileError(f"{path} is not a readable HDF5 results file ({exc}); "
                                "run `uplift run SCENE -o FILE` to make one") from None
     except (KeyError, TypeError, ValueError) as exc:
-        if isinstance(exc, ResultsFileError):
-            raise
         raise ResultsFileError(f"{path} does not have the results layout of `uplift run` ({exc}); "
                                "see orchestrator/results.py") from None
 

@@ -86,10 +86,10 @@ def step_doubling_warning(check: dict) -> str | None:
             f"{100 * check['tolerance']:g} %): rerun with dt <= {check['dt'] / 2:g} s and compare")
 
 
-def check_time_step(scene, model, dt: float, bem: bool, cache_dir=None) -> float:
-    """Refuse a step that does not resolve the first soil-structure mode (of the structure on
-    ``proxy_springs``); returns its frequency."""
-    f1 = float(modes_on_soil(model, proxy_springs(scene, bem, cache_dir)).freq[0])
+def check_time_step(model, soil, dt: float) -> float:
+    """Refuse a step that does not resolve the first soil-structure mode (of the structure
+    ``model`` on the springs ``soil``, see ``proxy_springs``); returns its frequency."""
+    f1 = float(modes_on_soil(model, soil).freq[0])
     if dt * f1 * MIN_STEPS_PER_PERIOD > 1.0 + 1e-9:
         raise SceneError(f"analysis.dt = {dt:g} s gives {1 / (dt * f1):.1f} steps per period of the first "
                          f"soil-structure mode ({f1:.3g} Hz): not resolved (at least {MIN_STEPS_PER_PERIOD} "
@@ -119,15 +119,17 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
                          f"{', '.join(r.name for r in chosen if r.needs_structure)} need one "
                          "(add [structure] model = \"reactor\", or inline nodes/beams/masses/raft)")
     dt = scene.analysis.dt
-    motion = make_motion(scene.motion, dt) if motion is None else (
-        motion if abs(motion.dt - dt) <= 1e-12 * dt else motion.resampled(dt))
+    motion = make_motion(scene.motion, dt) if motion is None else motion.resampled(dt)
     with compute_threads():
         ctx = RunContext(scene=scene, motion=motion, cache_dir=cache_dir)
         outputs = tuple(dict.fromkeys(t for r in chosen for t in r.tables(scene)))
-        check_time_step(scene, ctx.model(), dt, bool(outputs), cache_dir)
-        dt_check = None
+        springs = proxy_springs(scene, bool(outputs), cache_dir)
+        check_time_step(ctx.model(), springs, dt)
+        dt_notes = {}
         if scene.contact.enabled and any(r.time_stepped for r in chosen):
-            dt_check = step_doubling(scene, ctx.model(), proxy_springs(scene, bool(outputs), cache_dir), motion)
+            dt_check = step_doubling(scene, ctx.model(), springs, motion)
+            warning = step_doubling_warning(dt_check)
+            dt_notes = {"warnings": [warning] if warning else [], "info": {"dt_check": dt_check}}
         sweep = {}
         if outputs:
             ctx.tables = scene_impedance(scene, outputs, cache_dir=cache_dir, progress=sweep_progress, stats=sweep)
@@ -138,9 +140,8 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
         for route in chosen:
             res = _run_route(route, ctx.for_route(route, (options or {}).get(route.name)),
                              progress(route.name) if progress else None)
-            if dt_check is not None and route.time_stepped:
-                warning = step_doubling_warning(dt_check)
-                res = res.with_notes(warnings=[warning] if warning else [], info={"dt_check": dt_check})
+            if route.time_stepped:
+                res = res.with_notes(**dt_notes)
             if route.needs_fit and "fit" in ctx.shared and not ctx.fit().report.tol_reached:
                 res = res.with_notes(warnings=[f"rational soil fit: {ctx.fit().report.message}"])
             results[route.name] = res.with_notes(skipped=_shared_skips(scene, route, sweep, ctx))

@@ -22,10 +22,7 @@ def route_inputs(scene, motion=None, soil_model=None, dt=None, cache_dir=None):
     motion's step, else ``[analysis].dt``), the fit of the scene's gap table."""
     if dt is None:
         dt = motion.dt if motion is not None else scene.analysis.dt
-    if motion is None:
-        motion = make_motion(scene.motion, dt)
-    elif abs(motion.dt - dt) > 1e-12 * dt:
-        motion = motion.resampled(dt)
+    motion = make_motion(scene.motion, dt) if motion is None else motion.resampled(dt)
     if soil_model is None:
         soil_model = scene_fit(scene, cache_dir=cache_dir).model
     return motion, soil_model, float(dt)
