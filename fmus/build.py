@@ -1,6 +1,7 @@
-"""Build the two FMUs with pythonfmu and fix their model descriptions.
+"""Build the FMUs with pythonfmu and fix their model descriptions.
 
-``build_fmus`` writes ``structure.fmu`` and ``soil.fmu``. Each is self-contained: its data in
+``build_fmus`` writes ``structure.fmu`` and ``soil.fmu`` (the pair, exact under any master:
+see fmus/common.py) and, when asked, ``coupled.fmu`` (both in one FMU). Each is self-contained: its data in
 ``resources/`` (JSON settings, npz arrays) and a copy of the project's pure-Python packages
 (``structure``, ``soil_impedance``, ``fmus``) next to them. pythonfmu (0.7) *inserts* the
 resources folder at the front of ``sys.path``: packages the host process has already imported
@@ -26,8 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from fmus.common import (DEFAULT_SOIL_FACTORY, MESH_FILE, MOTION_FILE, SOIL_INSTANT_FILE, SOIL_MODEL_FILE,
-                         save_rational, soil_from_model)
+from fmus.common import (DEFAULT_SOIL_FACTORY, MESH_FILE, MOTION_FILE, REQUIREMENTS, REQUIREMENTS_FILE,
+                         SOIL_INSTANT_FILE, SOIL_MODEL_FILE, history_gains, save_rational, soil_from_model)
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -66,46 +67,61 @@ class FmuData:
     alpha: float = 0.0
 
 
-def build_fmus(data: FmuData, outdir) -> tuple[Path, Path]:
-    """Write ``outdir/structure.fmu`` and ``outdir/soil.fmu``; returns their paths."""
+def build_fmus(data: FmuData, outdir, coupled: bool = False) -> dict:
+    """Write ``outdir/structure.fmu`` and ``outdir/soil.fmu`` (and ``coupled.fmu`` if
+    ``coupled``); returns ``{"structure": path, "soil": path[, "coupled": path]}``.
+
+    The soil object is built once here: its passivity is verified (the FMUs then skip the
+    test at instantiation: the verdict is part of the exported model) and its instantaneous
+    matrices and history gains are measured for the structure FMU."""
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     n = data.soil_model.n
     N = np.asarray(data.xy).shape[0]
     if n != 6 + N:
         raise ValueError(f"the soil model has {n} DOFs, the interface needs 6 + N = {6 + N}")
-    soil = {"factory": data.soil_factory, "kwargs": dict(data.soil_kwargs)}
-    common = {"dt": float(data.dt), "n_dof": n, "soil": soil}
+    kwargs = dict(data.soil_kwargs)
+    soil = soil_from_model(data.soil_model, data.dt, data.soil_factory, kwargs)     # verifies passivity
+    if data.soil_factory == DEFAULT_SOIL_FACTORY:
+        kwargs["checked"] = True
+    stop = None if data.motion is None else (np.asarray(data.motion).shape[0] - 1) * float(data.dt)
+    common = {"dt": float(data.dt), "n_dof": n, "stop_time": stop,
+              "soil": {"factory": data.soil_factory, "kwargs": kwargs}}
+    stepper = {**common, "n_interface": N, "structure": data.structure, "contact": data.contact,
+               "damping": data.damping, "alpha": data.alpha, "output_nodes": list(data.output_nodes),
+               "motion": data.motion is not None}
+    roles = {"structure": stepper, "soil": common}
+    if coupled:
+        roles["coupled"] = stepper
+    extra = [Path(p).resolve() for p in data.extra_modules] + [ROOT / p for p in PACKAGES]
+    out = {}
     with tempfile.TemporaryDirectory(prefix="uplift_fmu_") as tmp:
-        tmp = Path(tmp)
-        sdir, gdir = tmp / "structure", tmp / "soil"
-        sdir.mkdir()
-        gdir.mkdir()
-        for d in (sdir, gdir):
-            save_rational(d / SOIL_MODEL_FILE, data.soil_model)
-        np.savez(sdir / MESH_FILE, xy=np.asarray(data.xy, float), area=np.asarray(data.area, float))
-        _save_instantaneous(sdir / SOIL_INSTANT_FILE, data)
-        if data.motion is not None:
-            np.savez(sdir / MOTION_FILE, acc=np.asarray(data.motion, float), dt=float(data.dt))
-        (sdir / "uplift_structure.json").write_text(json.dumps({
-            **common, "n_interface": N, "structure": data.structure, "contact": data.contact,
-            "damping": data.damping, "alpha": data.alpha, "output_nodes": list(data.output_nodes),
-            "motion": data.motion is not None}, indent=1))
-        (gdir / "uplift_soil.json").write_text(json.dumps(common, indent=1))
-        extra = [Path(p).resolve() for p in data.extra_modules] + [ROOT / p for p in PACKAGES]
-        s = _build(HERE / "structure_fmu.py", outdir / "structure.fmu", sorted(sdir.iterdir()) + extra)
-        g = _build(HERE / "soil_fmu.py", outdir / "soil.fmu", sorted(gdir.iterdir()) + extra)
-    return s, g
+        for role, settings in roles.items():
+            d = Path(tmp) / role
+            d.mkdir()
+            (d / f"uplift_{role}.json").write_text(json.dumps(settings, indent=1))
+            (d / REQUIREMENTS_FILE).write_text("\n".join(REQUIREMENTS) + "\n")
+            save_rational(d / SOIL_MODEL_FILE, data.soil_model)      # the structure's sub-steps need it
+            if role != "soil":
+                np.savez(d / MESH_FILE, xy=np.asarray(data.xy, float), area=np.asarray(data.area, float))
+                if data.motion is not None:
+                    np.savez(d / MOTION_FILE, acc=np.asarray(data.motion, float), dt=float(data.dt))
+            if role == "structure":
+                _save_instantaneous(d / SOIL_INSTANT_FILE, soil, data.dt)
+            out[role] = _build(HERE / f"{role}_fmu.py", outdir / f"{role}.fmu", sorted(d.iterdir()) + extra)
+    return out
 
 
-def _save_instantaneous(path, data: FmuData) -> None:
-    """K0, C0 (at dt) and K_static of the soil, dense: what the structure folds in. Computed by
-    the soil object itself (the soil owns its discretisation), once, at export."""
+def _save_instantaneous(path, soil, dt) -> None:
+    """What the structure FMU folds in, dense, computed by the soil object itself (the soil owns
+    its discretisation), once, at export: K0, C0 at dt, K_static and the history gains Gx, Gv
+    (fmus.common.history_gains)."""
     import scipy.sparse as sp
     dense = lambda a: a.toarray() if sp.issparse(a) else np.asarray(a, float)
-    soil = soil_from_model(data.soil_model, data.dt, data.soil_factory, data.soil_kwargs)
-    K0, C0 = soil.instantaneous(float(data.dt))
-    np.savez(path, K0=dense(K0), C0=dense(C0), K_static=dense(soil.static_stiffness()), dt=float(data.dt))
+    K0, C0 = soil.instantaneous(float(dt))
+    Gx, Gv = history_gains(soil, float(dt))
+    np.savez(path, K0=dense(K0), C0=dense(C0), K_static=dense(soil.static_stiffness()), Gx=Gx, Gv=Gv,
+             dt=float(dt))
 
 
 def _build(script: Path, dest: Path, files) -> Path:

@@ -3,23 +3,28 @@ recursive convolution of the fitted rational model) built from resources/.
 
 Variables (n = 6 + N interface DOFs; SI units)
 
-  inputs   x[0..n-1]     m, rad     interface displacements at the end of the step being taken
-           xdot[0..n-1]  m/s, rad/s (Gauss-Seidel: the structure's outputs at t + dt)
-  outputs  h[0..n-1]     N   history force for the NEXT structure step (depends on the past only)
-           f[0..n-1]     N   total force on the soil at the last committed state
-                             f = K0 x + C0 xdot + h (plain total-force coupling reads this)
+  inputs   x[0..n-1]     m, rad       interface displacements: the structure's output x
+           xdot[0..n-1]  m/s, rad/s   interface velocities: the structure's output xdot
+           x_time        s            the structure's time of x (its output x_time)
+  outputs  g[0..n-1]     N    the soil's history force for the structure's next step without
+                              the part driven by the structure's latest state (the structure
+                              adds Gx x + Gv xdot itself): depends on the soil's past only
+           g_time        s    start time of the structure step g is meant for
+           f[0..n-1]     N    total force on the soil at the last committed state (at g_time − dt)
            dissipated_energy  J   energy dissipated in the soil so far (NaN if the soil
-                             object does not report it)
+                              object does not report it)
 
-A step commits (x, xdot) to the soil and publishes h for the next step; outputs at
-initialisation are those of the soil at rest.
+A step from t commits the interface state of t (taken now or held from the previous step, see
+fmus.common.StampedInput) and publishes g for the structure step from t + dt. At t = 0 the
+soil is at rest: nothing to commit, g = 0 for the step from 0. Exact under Jacobi and under
+Gauss-Seidel in either order.
 """
 from __future__ import annotations
 
 import numpy as np
 from pythonfmu import Fmi2Causality, Fmi2Slave
 
-from fmus.common import (BankedSlave, RealBank, check_step, copy_state, make_soil, read_settings,
+from fmus.common import (BankedSlave, RealBank, StampedInput, history_ahead, make_soil, read_settings,
                          register_vector)
 
 
@@ -27,55 +32,51 @@ class UpliftSoil(BankedSlave, Fmi2Slave):
     author = "uplift"
     description = "Frequency-dependent soil: recursive convolution of a rational impedance model"
     engine = "soil"
+    inputs = ("x", "xdot", "x_time")
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         self.settings = read_settings(self.resources, "soil")
-        self.dt = float(self.settings["dt"])
+        self._init_life_cycle(self.settings["dt"])
         n = int(self.settings["n_dof"])
         self.bank = RealBank()
         inp, out = Fmi2Causality.input, Fmi2Causality.output
         self.sl = {
-            "x": register_vector(self, "x", n, inp, description="interface displacements, m / rad"),
-            "xdot": register_vector(self, "xdot", n, inp, description="interface velocities"),
-            "h": register_vector(self, "h", n, out, description="history force for the next step, N"),
-            "f": register_vector(self, "f", n, out, description="total force on the soil, N"),
+            "x": register_vector(self, "x", n, inp, description="interface displacements", unit="m"),
+            "xdot": register_vector(self, "xdot", n, inp, description="interface velocities", unit="m/s"),
+            "x_time": register_vector(self, "x_time", None, inp, description="time of x", unit="s"),
+            "g": register_vector(self, "g", n, out, description="history force for the structure's next "
+                                 "step without its latest state's part", unit="N"),
+            "g_time": register_vector(self, "g_time", None, out, description="start of the structure step "
+                                      "g is meant for", unit="s"),
+            "f": register_vector(self, "f", n, out, description="total force on the soil", unit="N"),
             "dissipated_energy": register_vector(self, "dissipated_energy", None, out,
-                                                 description="energy dissipated in the soil, J"),
+                                                 description="energy dissipated in the soil", unit="J"),
         }
+        self.stamped = {"x": StampedInput("x, xdot", "x_time", np.zeros(2 * n))}
         self.soil = None
-        self.last_error = ""
 
     def _build(self):
         self.soil = make_soil(self.resources, self.settings)
-        self.K0, self.C0 = self.soil.instantaneous(self.dt)
-        self._publish(self.soil.history())
+        self.soil.instantaneous(self.dt)
+        self._publish(np.zeros(self.soil.n_dof), 0.0)
 
-    def _publish(self, h_used):
-        """Outputs after a commit: h for the next step, the total force of the state just
-        committed (h_used: the history that entered that state)."""
+    def _publish(self, g, t_next):
         v, sl, soil = self.bank.values, self.sl, self.soil
-        if hasattr(soil, "total_force"):
-            v[sl["f"]] = soil.total_force()
-        else:
-            v[sl["f"]] = self.K0 @ v[sl["x"]] + self.C0 @ v[sl["xdot"]] + h_used
+        v[sl["g"]] = g
+        v[sl["g_time"]] = t_next
+        v[sl["f"]] = soil.total_force() if hasattr(soil, "total_force") else np.nan
         v[sl["dissipated_energy"]] = soil.dissipated_energy() if hasattr(soil, "dissipated_energy") else np.nan
-        v[sl["h"]] = soil.history()
 
-    def _step(self, t, step_size):
-        check_step(self.dt, step_size)
-        v = self.bank.values
-        h_used = v[self.sl["h"]].copy()
-        self.soil.commit(v[self.sl["x"]].copy(), v[self.sl["xdot"]].copy())
-        self._publish(h_used)
+    def _step(self, t):
+        v, sl, n = self.bank.values, self.sl, self.soil.n_dof
+        state = self.stamped["x"].take(t, self.dt, v[sl["x_time"]][0], v[sl["x"].start:sl["xdot"].stop])
+        if t > 0.5 * self.dt:                   # at t = 0 the soil is at rest: nothing to commit
+            self.soil.commit(state[:n].copy(), state[n:].copy())
+        self._publish(history_ahead(self.soil), t + self.dt)
 
-    def _get_fmu_state(self):
-        state = {"bank": self.bank.values.copy()}
-        if self.soil is not None:
-            state["soil"] = copy_state(self.soil.get_state())
-        return state
+    def _engine_state(self):
+        return self.soil.get_state()
 
-    def _set_fmu_state(self, state):
-        self.bank.values[:] = state["bank"]
-        if "soil" in state and self.soil is not None:
-            self.soil.set_state(copy_state(state["soil"]))
+    def _restore_engine(self, state):
+        self.soil.set_state(state)

@@ -279,7 +279,7 @@ def cmd_export(args) -> int:
         raise ResultsFileError(f"-o {str(args.output)!r} is a file: give a folder for the FMUs")
     soil = scene_fit(scene, cache_dir=_cache(args), fit_progress=stage_bar(f"fit {scene.name}")).model
     exported = export_scene(scene, args.output, soil, cache_dir=_cache(args))
-    _say(*(f"wrote {path}" for path in (exported.structure, exported.soil, exported.ssd)))
+    _say(*(f"wrote {path}" for path in exported.files))
     return EXIT_OK
 
 

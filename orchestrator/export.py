@@ -1,21 +1,27 @@
-"""``uplift export``: a scene as two FMUs and an SSP system description.
+"""``uplift export``: a scene as FMUs and an SSP system.
 
 ``export_scene(scene, outdir)`` writes::
 
     outdir/structure.fmu   Newmark-contact stepper (the scene's structure, contact, motion)
     outdir/soil.fmu        the soil protocol object (recursive convolution of the rational model)
-    outdir/system.ssd      SSP 1.0 system: both components, every x/xdot/h connection, and the
-                           fixed-step algorithm named (OSP annotation) so that libcosim
-                           (libcosimpy) runs it as it is; the motion is bundled in the
-                           structure FMU (internal_motion = true)
+    outdir/coupled.fmu     both in one FMU (nothing to connect; for tools that run one FMU)
+    outdir/system.ssd      SSP 1.0 system of the pair: both components, the coupling connections
+                           (x, xdot, x_time from the structure to the soil; g, g_time back) and
+                           the fixed-step algorithm named (OSP annotation) so that libcosim
+                           (libcosimpy) runs it as it is; the motion is bundled in the structure
+                           FMU (internal_motion = true)
+    outdir/system.ssp      the same system packaged (SystemStructure.ssd + resources/*.fmu), for
+                           SSP tools such as fmpy's ``simulate_ssp``
 
-An engine with a parallel fixed-step algorithm (libcosim) runs the Jacobi schedule of
-``orchestrator.master``; our master runs Gauss-Seidel by default (exact, see master.py).
+The pair is exact under any master (Jacobi as in libcosim and fmpy's SSP runner, Gauss-Seidel
+in either order): see fmus/common.py and orchestrator/master.py.
 """
 from __future__ import annotations
 
 import importlib
+import tempfile
 import xml.etree.ElementTree as ET
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -24,6 +30,7 @@ from fmpy import read_model_description
 
 from fmus.build import PACKAGES, FmuData, build_fmus
 from fmus.common import DEFAULT_SOIL_FACTORY
+from soil_impedance.cache import atomic_output
 from structure.spec import contact_table
 
 from orchestrator.impedance import scene_fit
@@ -39,9 +46,15 @@ class Export:
     """Paths written by export_scene."""
     structure: Path
     soil: Path
+    coupled: Path
     ssd: Path
+    ssp: Path
     dt: float
     stop_time: float
+
+    @property
+    def files(self) -> tuple:
+        return self.structure, self.soil, self.coupled, self.ssd, self.ssp
 
 
 def factory_modules(soil_factory: str) -> tuple:
@@ -72,7 +85,8 @@ def fmu_data(scene, soil_model, dt: float, motion=None, soil_factory: str | None
 def export_scene(scene, outdir, soil_model=None, *, dt: float | None = None, motion=None,
                  soil_factory: str | None = None, soil_kwargs: dict | None = None,
                  extra_modules=(), cache_dir=None) -> Export:
-    """Write structure.fmu, soil.fmu and system.ssd for ``scene`` into ``outdir``.
+    """Write structure.fmu, soil.fmu, coupled.fmu, system.ssd and system.ssp for ``scene``
+    into ``outdir``.
 
     soil_model : RationalModel of the scene's gap impedance (None: fitted from the scene,
                  see orchestrator.impedance.scene_fit)
@@ -87,40 +101,47 @@ def export_scene(scene, outdir, soil_model=None, *, dt: float | None = None, mot
         soil_model = scene_fit(scene, cache_dir=cache_dir).model
     data = fmu_data(scene, soil_model, dt, motion, soil_factory, soil_kwargs, extra_modules)
     outdir = Path(outdir)
-    s, g = build_fmus(data, outdir)
+    fmus = build_fmus(data, outdir, coupled=True)
     stop = (motion.acc.shape[0] - 1) * dt
-    ssd = write_ssd(outdir / "system.ssd", s, g, dt, stop, name=scene.name)
-    return Export(s, g, ssd, float(dt), float(stop))
+    ssd = write_ssd(outdir / "system.ssd", fmus["structure"], fmus["soil"], dt, stop, name=scene.name)
+    ssp = write_ssp(outdir / "system.ssp", fmus["structure"], fmus["soil"], dt, stop, name=scene.name)
+    return Export(fmus["structure"], fmus["soil"], fmus["coupled"], ssd, ssp, float(dt), float(stop))
 
 
-def write_ssd(path, structure_fmu, soil_fmu, dt: float, stop_time: float, name: str = "uplift") -> Path:
-    """SSP system: components "structure" and "soil" (sources relative to the .ssd), the
-    split coupling (structure.x/xdot -> soil.x/xdot, soil.h -> structure.h), DefaultExperiment
-    with the OSP FixedStepAlgorithm of step dt."""
+#: outputs of the structure listed as SSD connectors beside the coupling (what an SSP tool records)
+HEADLINE = ("max_uplift", "max_raft_rotation")
+
+
+def write_ssd(path, structure_fmu, soil_fmu, dt: float, stop_time: float, name: str = "uplift",
+              source_dir: str | None = None) -> Path:
+    """SSP system: components "structure" and "soil" (sources relative to the .ssd, or under
+    ``source_dir`` inside an SSP), the coupling (every input of one component from the output
+    of the same name of the other; the structure's ag stays free, the motion is bundled), the
+    headline outputs, DefaultExperiment with the OSP FixedStepAlgorithm of step dt."""
     path = Path(path)
     ET.register_namespace("ssd", SSD)
     ET.register_namespace("ssc", SSC)
     ET.register_namespace("osp", OSP)
     q = lambda ns, tag: f"{{{ns}}}{tag}"
+    md = {comp: read_model_description(str(fmu)) for comp, fmu in (("structure", structure_fmu), ("soil", soil_fmu))}
+    kinds = {comp: {v.name: v.causality for v in m.modelVariables if v.type == "Real"} for comp, m in md.items()}
+    pairs = [(a, v, b, v) for a, b in (("structure", "soil"), ("soil", "structure"))
+             for v, kind in kinds[b].items() if kind == "input" and kinds[a].get(v) == "output"]
+    ports = {comp: [v for a, v, b, _ in pairs if comp in (a, b)] for comp in md}
+    ports["structure"] += [v for v in HEADLINE if v in kinds["structure"]]
     root = ET.Element(q(SSD, "SystemStructureDescription"), {"version": "1.0", "name": name})
     system = ET.SubElement(root, q(SSD, "System"), {"name": name})
     elements = ET.SubElement(system, q(SSD, "Elements"))
-    ports = {}
     for comp, fmu in (("structure", structure_fmu), ("soil", soil_fmu)):
-        md = read_model_description(str(fmu))
-        source = Path(fmu).resolve().relative_to(path.resolve().parent).as_posix()
+        source = (f"{source_dir}/{Path(fmu).name}" if source_dir else
+                  Path(fmu).resolve().relative_to(path.resolve().parent).as_posix())
         el = ET.SubElement(elements, q(SSD, "Component"), {"name": comp, "source": source,
                                                            "type": "application/x-fmu-sharedlibrary"})
         conns = ET.SubElement(el, q(SSD, "Connectors"))
-        ports[comp] = []
-        for v in md.modelVariables:
-            if v.causality in ("input", "output") and v.type == "Real":
-                c = ET.SubElement(conns, q(SSD, "Connector"), {"name": v.name, "kind": v.causality})
-                ET.SubElement(c, q(SSC, "Real"))
-                ports[comp].append(v.name)
+        for v in ports[comp]:
+            c = ET.SubElement(conns, q(SSD, "Connector"), {"name": v, "kind": kinds[comp][v]})
+            ET.SubElement(c, q(SSC, "Real"))
     connections = ET.SubElement(system, q(SSD, "Connections"))
-    pairs = [("structure", v, "soil", v) for v in ports["soil"] if v.split("[")[0] in ("x", "xdot")]
-    pairs += [("soil", v, "structure", v) for v in ports["structure"] if v.split("[")[0] == "h"]
     for a, va, b, vb in pairs:
         ET.SubElement(connections, q(SSD, "Connection"), {"startElement": a, "startConnector": va,
                                                           "endElement": b, "endConnector": vb})
@@ -130,5 +151,20 @@ def write_ssd(path, structure_fmu, soil_fmu, dt: float, stop_time: float, name: 
     alg = ET.SubElement(ann, q(OSP, "Algorithm"))
     ET.SubElement(alg, q(OSP, "FixedStepAlgorithm"), {"baseStepSize": repr(float(dt))})
     ET.indent(root)
-    path.write_bytes(ET.tostring(root, encoding="UTF-8", xml_declaration=True))
+    with atomic_output(path) as tmp:
+        tmp.write_bytes(ET.tostring(root, encoding="UTF-8", xml_declaration=True))
+    return path
+
+
+def write_ssp(path, structure_fmu, soil_fmu, dt: float, stop_time: float, name: str = "uplift") -> Path:
+    """The SSP package of the pair: SystemStructure.ssd (as write_ssd, sources under
+    resources/) and the two FMUs in resources/."""
+    path = Path(path)
+    with tempfile.TemporaryDirectory(prefix="uplift_ssp_") as tmp:
+        ssd = write_ssd(Path(tmp) / "SystemStructure.ssd", structure_fmu, soil_fmu, dt, stop_time, name,
+                        source_dir="resources")
+        with atomic_output(path) as out, zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as z:
+            z.write(ssd, "SystemStructure.ssd")
+            for fmu in (structure_fmu, soil_fmu):
+                z.write(fmu, f"resources/{Path(fmu).name}", compress_type=zipfile.ZIP_STORED)
     return path

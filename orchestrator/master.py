@@ -1,20 +1,17 @@
 """Master algorithms over the two FMUs (fmpy), fixed communication step.
 
-Schedules for one step t_k -> t_{k+1} (S: structure FMU, G: soil FMU):
+Schedules for one step t_k -> t_{k+1} (S: structure FMU, G: soil FMU). The soil publishes g,
+its history force for the structure's next step without the part driven by the structure's
+latest state, which the structure adds itself (fmus/common.py); both stamp what they send
+(x_time, g_time), so every schedule is exact (equal to the monolithic route to round-off):
 
-``gauss-seidel`` (default; the impedance split of docs/formulation.md)
-    S <- h_{k+1} (G's output), a_g(t_{k+1});  S.doStep -> x, xdot at t_{k+1}
-    G <- x_{k+1}, xdot_{k+1};                 G.doStep -> commits them, h_{k+2}
-    h depends on the past only and S folds the soil's instantaneous terms into its implicit
-    matrix, so this equals the monolithic route to round-off.
+``gauss-seidel`` (default)
+    S <- g, g_time, a_g(t_{k+1});  S.doStep;  G <- x, xdot, x_time at t_{k+1};  G.doStep
+``soil-first``
+    G <- x, xdot, x_time at t_k;  G.doStep;  S <- g, g_time (new), a_g(t_{k+1});  S.doStep
 ``jacobi``
     both FMUs step from the outputs at t_k (what a parallel engine such as libcosim's
-    fixed-step algorithm does): the soil history reaching the structure is one step late,
-    an O(dt) coupling error.
-``total-force``
-    plain explicit coupling: S folds nothing and receives the soil's total force f_k of the
-    previous step as a load. Kept only to show why it is not the default: on stiff soils it
-    diverges (tests/test_cosim_coupling.py measures the growth).
+    fixed-step algorithm or fmpy's SSP runner does)
 
 ``cosimulate(structure_fmu, soil_fmu, ag, dt)`` returns the RouteResult every route returns.
 """
@@ -32,7 +29,7 @@ from fmpy.fmi2 import FMU2Slave, defaultCallbacks, fmi2CallbackFunctions, fmi2Ca
 
 from structure.results import RouteResult, RunNotes, Status
 
-SCHEDULES = ("gauss-seidel", "jacobi", "total-force")
+SCHEDULES = ("gauss-seidel", "soil-first", "jacobi")
 FMI2_WARNING = 1                    # fmi2Status above which a call failed (discard, error, fatal)
 ENERGY_TERMS = ("input", "kinetic", "strain", "damping", "soil", "contact", "contact_potential")
 
@@ -242,7 +239,7 @@ def cosimulate(structure_fmu, soil_fmu, ag, dt: float, schedule: str = "gauss-se
         if G is None:
             G = FmuSlave(soil_fmu, "soil")
             own.append(G)
-        params = {"internal_motion": False, "impedance_split": schedule != "total-force", **(parameters or {})}
+        params = {"internal_motion": False, **(parameters or {})}
         S.set_parameters(params)
         S.set("ag", ag[0])
         S.initialize()
@@ -257,7 +254,7 @@ def _run(S, G, ag, dt, schedule, route, progress, start):
     nodes = output_nodes(S)
     nt = ag.shape[0]
     n = len(S.vrs("x"))
-    names = ("x", "xdot", "P", "gap") + tuple(f"{k}_{nm}" for nm in nodes for k in ("acc", "disp")) + \
+    names = ("x", "xdot", "x_time", "P", "gap") + tuple(f"{k}_{nm}" for nm in nodes for k in ("acc", "disp")) + \
         tuple(f"energy.{e}" for e in ENERGY_TERMS) + ("newton_iters",)
     # every structure output at every step in one get, stored as one row: unpacked at the end
     y = S.get(*names)
@@ -266,32 +263,41 @@ def _run(S, G, ag, dt, schedule, route, progress, start):
     timer = Timer()
     timer.parts["initialisation"] = _time.perf_counter() - start[0]
     timer.cpu["initialisation"] = _time.process_time() - start[1]
-    feed = "f" if schedule == "total-force" else "h"
-    xs = slice(0, 2 * n)                        # x and xdot lead `names`
+    xs = slice(0, 2 * n + 1)                    # x, xdot and x_time lead `names`
+
+    def soil_step(t, row):                       # G takes the structure's outputs of row `row`
+        G.set("x", "xdot", "x_time", Y[row, xs])
+        timer.add("transfers")
+        G.do_step(t, dt)
+        timer.add("soil step")
+
+    def structure_step(t, k):
+        S.set("g", "g_time", "ag", np.concatenate([G.get("g", "g_time"), ag[k]]))
+        timer.add("transfers")
+        S.do_step(t, dt)
+        timer.add("structure step")
+        Y[k] = S.get(*names)
+
     done, message = 1, ""                       # rows of Y filled
     try:
         for k in range(1, nt):
             t = (k - 1) * dt
             timer.mark()
             if schedule == "jacobi":
-                S.set("h", "ag", np.concatenate([G.get("h"), ag[k]]))
-                G.set("x", "xdot", Y[k - 1, xs])
+                S.set("g", "g_time", "ag", np.concatenate([G.get("g", "g_time"), ag[k]]))
+                G.set("x", "xdot", "x_time", Y[k - 1, xs])
                 timer.add("transfers")
                 S.do_step(t, dt)
                 timer.add("structure step")
                 G.do_step(t, dt)
                 timer.add("soil step")
                 Y[k] = S.get(*names)
+            elif schedule == "soil-first":
+                soil_step(t, k - 1)
+                structure_step(t, k)
             else:
-                S.set("h", "ag", np.concatenate([G.get(feed), ag[k]]))
-                timer.add("transfers")
-                S.do_step(t, dt)
-                timer.add("structure step")
-                Y[k] = S.get(*names)
-                G.set("x", "xdot", Y[k, xs])
-                timer.add("transfers")
-                G.do_step(t, dt)
-                timer.add("soil step")
+                structure_step(t, k)
+                soil_step(t, k)
             timer.add("transfers")
             done = k + 1
             if progress is not None:
@@ -300,6 +306,7 @@ def _run(S, G, ag, dt, schedule, route, progress, start):
         message = str(exc)
     cols = _columns(Y[:done], names, [len(S.vrs(nm)) for nm in names])
     x = cols["x"]
+    headline = S.get("max_uplift", "max_raft_rotation")
     return RouteResult(
         route=route, time=dt * np.arange(done), raft=x[:, :6], gap=cols["gap"], contact_force=cols["P"],
         soil_w=x[:, 6:], acc={nm: cols[f"acc_{nm}"] for nm in nodes}, disp={nm: cols[f"disp_{nm}"] for nm in nodes},
@@ -307,7 +314,8 @@ def _run(S, G, ag, dt, schedule, route, progress, start):
         status=Status.STOPPED if message else Status.CONVERGED, message=message,
         wall_s=_time.perf_counter() - start[0],
         notes=RunNotes(timings=timer.parts),
-        info=dict(dt=dt, schedule=schedule, P0=cols["P"][0], timing_cpu=dict(timer.cpu)))
+        info=dict(dt=dt, schedule=schedule, P0=cols["P"][0], timing_cpu=dict(timer.cpu),
+                  fmu_max_uplift=float(headline[0]), fmu_max_raft_rotation=float(headline[1])))
 
 
 def _columns(Y, names, sizes) -> dict:

@@ -78,6 +78,8 @@ class RecursiveConvolutionSoil:
     force : bool                   run a non-passive model (with a RuntimeWarning); else a
                                    non-passive model is refused (``passivity.require_passive``:
                                    FitError naming the violation bands and the fix)
+    checked : bool                 the caller has verified passivity already (an exported FMU:
+                                   verified once at export), the test is not run again
 
     Per step: ``instantaneous(dt)`` -> (K0, C0) = (D0, E) dense (n, n); ``history()`` -> h_n
     (n,), N; ``commit(x, xdot)`` with the converged x_n, m and xdot_n, m/s. ``step(x, xdot=None)``
@@ -86,10 +88,11 @@ class RecursiveConvolutionSoil:
     u_{n−1}, u'_{n−1}, f_{n−1}, work, dt; ``get_state``/``set_state`` copy numpy arrays.
     """
 
-    def __init__(self, model: RationalModel, dt: float, force: bool = False):
+    def __init__(self, model: RationalModel, dt: float, force: bool = False, checked: bool = False):
         if not dt > 0:
             raise ValueError(f"time step dt = {dt!r} must be > 0")
-        require_passive(model, force)
+        if not checked:
+            require_passive(model, force)
         self.model = model
         n = model.n
         self.n_dof = n

@@ -19,11 +19,6 @@ import math
 from dataclasses import dataclass, field
 from importlib import resources
 
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python < 3.11
-    import tomli as tomllib
-
 import numpy as np
 
 from .contact import AUTO_FACTOR, ContactSettings
@@ -181,6 +176,10 @@ def builtin_spec(name: str) -> dict:
     if not isinstance(name, str) or name not in BUILTIN_MODELS:
         raise StructureError(f"structure.model = {show(name)} is not a built-in model; "
                              f"choose one of {BUILTIN_MODELS} or give nodes/beams inline")
+    try:        # imported here: a host Python 3.10 running an FMU needs tomli only for this
+        import tomllib
+    except ModuleNotFoundError:  # Python < 3.11
+        import tomli as tomllib
     text = resources.files("structure.data").joinpath(f"{name}.toml").read_text()
     return tomllib.loads(text)["structure"]
 

@@ -13,16 +13,20 @@ SCENE = small_scene()
 MOTION = EXPORT_MOTION                 # the motion of the shared ``exported`` pair (conftest)
 
 
-def test_export_writes_the_three_files(exported):
-    assert exported.structure.name == "structure.fmu" and exported.soil.name == "soil.fmu"
-    assert exported.ssd.name == "system.ssd" and exported.dt == MOTION.dt
+def test_export_writes_the_five_files(exported):
+    assert [p.name for p in exported.files] == ["structure.fmu", "soil.fmu", "coupled.fmu", "system.ssd",
+                                                "system.ssp"]
+    assert exported.dt == MOTION.dt
     ssd = exported.ssd.read_text()
     assert 'FixedStepAlgorithm baseStepSize="0.005"' in ssd
+    with zipfile.ZipFile(exported.ssp) as z:
+        assert set(z.namelist()) == {"SystemStructure.ssd", "resources/structure.fmu", "resources/soil.fmu"}
+        assert 'source="resources/soil.fmu"' in z.read("SystemStructure.ssd").decode()
 
 
 def test_model_descriptions_pass_fmpy_validation(exported):
     from fmpy.validation import validate_fmu
-    for fmu in (exported.structure, exported.soil):
+    for fmu in (exported.structure, exported.soil, exported.coupled):
         assert validate_fmu(str(fmu)) == []
         with zipfile.ZipFile(fmu) as z:
             md = ET.fromstring(z.read("modelDescription.xml"))
@@ -35,8 +39,14 @@ def test_model_descriptions_pass_fmpy_validation(exported):
             unknowns = md.find("ModelStructure").find(tag)
             assert len(unknowns) == n_out and all(u.get("dependencies") == "" for u in unknowns)
         # self-contained: model data and the project's packages in resources/
-        assert "resources/uplift_soil_model.npz" in names
+        assert "resources/uplift_soil_model.npz" in names and "resources/requirements.txt" in names
         assert "resources/structure/newmark.py" in names and "resources/soil_impedance/convolution.py" in names
+        # every Real variable has a unit, defined in UnitDefinitions; the default experiment is the record
+        defined = {u.get("name") for u in md.find("UnitDefinitions")}
+        units = [v.find("Real").get("unit") for v in md.find("ModelVariables") if v.find("Real") is not None]
+        assert None not in units and set(units) <= defined
+        ex = md.find("DefaultExperiment").attrib
+        assert float(ex["stepSize"]) == MOTION.dt and float(ex["stopTime"]) == pytest.approx(0.6)
 
 
 def test_outputs_computed_at_initialisation(exported):
@@ -46,7 +56,7 @@ def test_outputs_computed_at_initialisation(exported):
         P = s.get("P").copy()
         assert np.all(P > 0) and P.sum() == pytest.approx(
             9.81 * _total_mass(), rel=1e-6)                   # static contact forces carry the weight
-        assert np.all(s.get("gap") == 0) and np.all(np.isfinite(g.get("h")))
+        assert np.all(s.get("gap") == 0) and np.all(g.get("g") == 0)          # at rest
 
 
 def _total_mass():
@@ -63,14 +73,11 @@ def test_failed_step_is_reported_not_a_crash(exported):
 
 
 def _gs_step(s, g, k, dt):
-    s.set("h", g.get("h"))
+    s.set("g", "g_time", g.get("g", "g_time"))
     s.do_step((k - 1) * dt, dt)                           # internal (bundled) motion
-    y = s.get("x", "xdot").copy()
-    n = y.size // 2
-    g.set("x", y[:n])
-    g.set("xdot", y[n:])
+    g.set("x", "xdot", "x_time", s.get("x", "xdot", "x_time"))
     g.do_step((k - 1) * dt, dt)
-    return np.concatenate([s.get("x", "xdot", "P", "gap"), g.get("h", "f", "dissipated_energy")])
+    return np.concatenate([s.get("x", "xdot", "P", "gap"), g.get("g", "f", "dissipated_energy")])
 
 
 def test_rollback_ten_steps_and_replay_bit_identical(exported):

@@ -1,6 +1,6 @@
 """``cosim``: the monolithic route's stepper and soil exported as two FMI 2.0 FMUs and run by
-the project's master (orchestrator.master): Gauss-Seidel with the impedance split equals the
-monolithic route to round-off.
+the project's master (orchestrator.master): with the split coupling every schedule (Gauss-Seidel
+in either order, Jacobi) equals the monolithic route to round-off.
 
 API::
 
@@ -32,7 +32,7 @@ def run_cosim(scene, motion=None, soil_model=None, *, schedule: str = "gauss-sei
     """Export the two FMUs (into ``workdir``, a temporary folder by default) and run them with
     ``orchestrator.master.cosimulate``.
 
-    schedule : "gauss-seidel" (default, exact), "jacobi" or "total-force" (see master.py).
+    schedule : "gauss-seidel" (default), "soil-first" or "jacobi": all exact (see master.py).
     Other arguments as ``run_monolithic``. Returns a RouteResult with ``notes.timings`` (wall
     time per part: FMU build, initialisation, structure step, soil step, transfers; the build
     is not in ``wall_s``) and ``info["timing_cpu"]`` (CPU time per part).
@@ -41,9 +41,9 @@ def run_cosim(scene, motion=None, soil_model=None, *, schedule: str = "gauss-sei
     with tempfile.TemporaryDirectory(prefix="uplift_cosim_") as tmp:
         out = Path(workdir) if workdir is not None else Path(tmp)
         t0 = time.perf_counter()
-        s, g = build_fmus(fmu_data(scene, soil_model, dt, None, soil_factory, soil_kwargs), out)
+        fmus = build_fmus(fmu_data(scene, soil_model, dt, None, soil_factory, soil_kwargs), out)
         build_s = time.perf_counter() - t0
-        res = cosimulate(s, g, motion.acc, dt, schedule=schedule, route=route, progress=progress)
+        res = cosimulate(fmus["structure"], fmus["soil"], motion.acc, dt, schedule=schedule, route=route, progress=progress)
     precheck = PRECHECK_COSIM if scene.contact.enabled else "not needed: contact disabled (bonded raft, linear)"
     skipped = [] if scene.contact.enabled else ["contact disabled: one linear solve per step, no Newton"]
     return res.replace(xy=scene.mesh.xy).with_notes(

@@ -1,0 +1,38 @@
+"""The coupled FMU: the structure and the soil in one co-simulation FMU, the monolithic
+route's stepper (``structure.NewmarkStepper`` advancing the soil object itself) one step per
+communication step. For tools that run one FMU at a time (``fmpy simulate``) or treat
+co-simulation FMUs as direct feedthrough (Simulink): nothing to connect.
+
+Variables: the outputs and the input ag of fmus/stepper.py. Driven by the motion bundled in
+resources by default (parameter internal_motion = true); false: by the input ag.
+"""
+from __future__ import annotations
+
+from pythonfmu import Fmi2Slave
+
+from fmus.common import BankedSlave, RealBank, make_soil, read_settings
+from fmus.stepper import StepperOutputs
+
+
+class UpliftCoupled(StepperOutputs, BankedSlave, Fmi2Slave):
+    author = "uplift"
+    description = "Structure on frequency-dependent soil with uplift: Newmark-Newton, recursive convolution"
+    inputs = ("ag",)
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.settings = s = read_settings(self.resources, "coupled")
+        self._init_life_cycle(s["dt"])
+        self.bank = RealBank()
+        self.sl = {}
+        self._register_stepper(s)
+        self.stamped = {}
+
+    def _build(self):
+        self._build_stepper(make_soil(self.resources, self.settings), external_soil=False)
+
+    def _step(self, t):
+        st, v = self.stepper, self.bank.values
+        st.set_ground_acceleration(self._ag_next(t))
+        v[self.sl["newton_iters"]] = st.step()
+        self._publish()

@@ -1,0 +1,86 @@
+"""The exported FMUs give the monolithic route's answer in every engine that runs them:
+
+- libcosim (Open Simulation Platform, through libcosimpy) on ``system.ssd`` as it is: its
+  fixed-step algorithm steps both FMUs in parallel (Jacobi);
+- fmpy's SSP runner (``simulate_ssp``) on ``system.ssp``: Jacobi too, with every connector
+  starting at 0 (no exchange at initialisation);
+- ``fmpy.simulate_fmu`` on ``coupled.fmu``, the whole system in one FMU.
+
+Small scene (reactor stick on a 21-node raft over rock, a pulse that lifts the raft by 34 mm),
+histories and the FMUs' headline outputs (running max uplift and raft rotation) to 1e-10.
+"""
+import numpy as np
+import pytest
+
+from cosim_cases import pulse_motion, small_scene, soil_model
+from orchestrator.export import export_scene
+from orchestrator.routes.monolithic import run_monolithic
+
+SCENE = small_scene()
+MODEL = soil_model(SCENE)
+MOTION = pulse_motion(T=1.0)
+N = SCENE.mesh.xy.shape[0]
+
+
+@pytest.fixture(scope="module")
+def case(tmp_path_factory):
+    exp = export_scene(SCENE, tmp_path_factory.mktemp("engines"), MODEL, motion=MOTION)
+    mono = run_monolithic(SCENE, MOTION, MODEL)
+    assert mono.converged and mono.max_uplift() > 1e-2
+    return exp, mono
+
+
+def rel(a, b):
+    return np.abs(np.asarray(a) - np.asarray(b)).max() / np.abs(b).max()
+
+
+def max_rotation(res):
+    return np.hypot(res.raft[:, 3], res.raft[:, 4]).max()
+
+
+def test_libcosim_on_the_ssd(case):
+    libcosimpy = pytest.importorskip("libcosimpy", reason="libcosimpy is not installed (the 'test' extra)")
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+    from libcosimpy.CosimObserver import CosimObserver
+
+    exp, mono = case
+    log_output_level(CosimLogLevel.WARNING)
+    ex = CosimExecution.from_ssp_file(str(exp.ssd))          # step size from the SSD's algorithm
+    obs = CosimObserver.create_last_value()
+    ex.add_observer(obs)
+    si = ex.slave_index_from_instance_name("structure")
+    refs = {v.name.decode(): v.reference for v in ex.slave_variables(si)}
+    vr = [refs[f"x[{i}]"] for i in range(6)] + [refs[f"gap[{i}]"] for i in range(N)] + \
+        [refs["max_uplift"], refs["max_raft_rotation"]]
+    out = []
+    for _ in range(mono.nt - 1):
+        assert ex.step(1)
+        out.append(obs.last_real_values(si, vr))
+    out = np.array(out)
+    assert libcosimpy is not None
+    assert rel(out[:, :6], mono.raft[1:]) <= 1e-10
+    assert rel(out[:, 6:6 + N], mono.gap[1:]) <= 1e-10
+    assert out[-1, -2] == pytest.approx(mono.max_uplift(), rel=1e-10)
+    assert out[-1, -1] == pytest.approx(max_rotation(mono), rel=1e-10)
+
+
+def test_fmpy_ssp_runner_on_the_ssp(case):
+    from fmpy.ssp.simulation import simulate_ssp
+    exp, mono = case
+    res = simulate_ssp(str(exp.ssp), stop_time=exp.stop_time, step_size=exp.dt)
+    assert res["structure.max_uplift"][-1] == pytest.approx(mono.max_uplift(), rel=1e-10)
+    assert res["structure.max_raft_rotation"][-1] == pytest.approx(max_rotation(mono), rel=1e-10)
+    assert rel(res["structure.x[0]"][:mono.nt - 1], mono.raft[1:, 0]) <= 1e-10
+
+
+def test_fmpy_simulate_fmu_on_the_coupled_fmu(case):
+    from fmpy import simulate_fmu
+    exp, mono = case
+    names = ["max_uplift", "max_raft_rotation"] + [f"x[{i}]" for i in range(6)]
+    res = simulate_fmu(str(exp.coupled), output=names)          # DefaultExperiment: the record at dt
+    assert res["time"][-1] == pytest.approx(exp.stop_time)
+    assert res["max_uplift"][-1] == pytest.approx(mono.max_uplift(), rel=1e-10)
+    assert res["max_raft_rotation"][-1] == pytest.approx(max_rotation(mono), rel=1e-10)
+    raft = np.column_stack([res[f"x[{i}]"] for i in range(6)])
+    assert raft.shape == mono.raft.shape and rel(raft, mono.raft) <= 1e-10
