@@ -1,13 +1,12 @@
 """Build the FMUs with pythonfmu and fix their model descriptions.
 
 ``build_fmus`` writes ``structure.fmu`` and ``soil.fmu`` (the pair, exact under any master:
-see fmus/common.py) and, when asked, ``coupled.fmu`` (both in one FMU). Each is self-contained: its data in
-``resources/`` (JSON settings, npz arrays) and a copy of the project's pure-Python packages
-(``structure``, ``soil_impedance``, ``fmus``) next to them. pythonfmu (0.7) *inserts* the
-resources folder at the front of ``sys.path``: packages the host process has already imported
-are used as they are (one interpreter, one ``sys.modules``), others come from the bundled copy,
-which also serves hosts without ``uplift``; the host must provide Python 3 with numpy and scipy
-(pythonfmu FMUs run in the host's libpython). The npz arrays are stored uncompressed (see
+see fmus/common.py) and, when asked, ``coupled.fmu`` (both in one FMU). Each is self-contained:
+its data in ``resources/`` (JSON settings, npz arrays) and a copy of the project's pure-Python
+packages (``structure``, ``soil_impedance``, ``fmus``) under a private package name
+(``resources/_uplift_<digest>/``, see ``bundle``), so that a host's own modules never shadow
+them; the host must provide Python 3.10+ with numpy and scipy (pythonfmu FMUs run in the host's
+libpython; ``resources/requirements.txt``). The npz arrays are stored uncompressed (see
 ``_compression``).
 
 pythonfmu writes no output dependencies and no ``InitialUnknowns``; ``fix_model_description``
@@ -16,7 +15,9 @@ feedthrough), so ``fmpy.validation.validate_fmu`` reports nothing.
 """
 from __future__ import annotations
 
+import hashlib
 import json
+import re
 import shutil
 import sys
 import tempfile
@@ -108,8 +109,51 @@ def build_fmus(data: FmuData, outdir, coupled: bool = False) -> dict:
                     np.savez(d / MOTION_FILE, acc=np.asarray(data.motion, float), dt=float(data.dt))
             if role == "structure":
                 _save_instantaneous(d / SOIL_INSTANT_FILE, soil, data.dt)
-            out[role] = _build(HERE / f"{role}_fmu.py", outdir / f"{role}.fmu", sorted(d.iterdir()) + extra)
+        private, script_of = bundle(Path(tmp) / "bundle", extra)
+        for role in roles:
+            d = Path(tmp) / role
+            out[role] = _build(script_of(HERE / f"{role}_fmu.py"), outdir / f"{role}.fmu",
+                               sorted(d.iterdir()) + [private])
     return out
+
+
+#: the project's packages as imported by the bundled code (rewritten to the private package)
+IMPORT = re.compile(r"^(\s*)(from|import) (structure|soil_impedance|fmus)\b", re.M)
+
+
+def bundle(folder: Path, sources) -> tuple[Path, object]:
+    """Copy the packages and modules ``sources`` into a private package ``folder/_uplift_<digest>``
+    with their imports of the project's packages rewritten to it, so that a host's own
+    ``structure`` (or another copy of the project) can never shadow the FMU's code. The digest
+    is that of the sources: two versions in one process do not share modules. Returns (the
+    package folder, a function writing an FMU script with the same rewrite)."""
+    files = []
+    for src in sources:
+        src = Path(src)
+        base = src.parent
+        for f in sorted(src.rglob("*") if src.is_dir() else [src]):
+            if f.is_file() and "__pycache__" not in f.parts and f.suffix in (".py", ".toml", ".json"):
+                files.append((f.relative_to(base), f.read_bytes()))
+    digest = hashlib.sha1(b"".join(str(r).encode() + b"\0" + data for r, data in files)).hexdigest()[:12]
+    name = f"_uplift_{digest}"
+    rewrite = lambda text: IMPORT.sub(rf"\1\2 {name}.\3", text)
+    pkg = folder / name
+    pkg.mkdir(parents=True)
+    (pkg / "__init__.py").write_text('"""The uplift code bundled in this FMU (a private package)."""\n')
+    for rel, data in files:
+        dest = pkg / rel
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        if rel.suffix == ".py":
+            dest.write_text(rewrite(data.decode("utf-8")), encoding="utf-8")
+        else:
+            dest.write_bytes(data)
+
+    def script_of(script: Path) -> Path:
+        dest = folder / script.name
+        dest.write_text(rewrite(script.read_text(encoding="utf-8")), encoding="utf-8")
+        return dest
+
+    return pkg, script_of
 
 
 def _save_instantaneous(path, soil, dt) -> None:
@@ -127,11 +171,17 @@ def _save_instantaneous(path, soil, dt) -> None:
 def _build(script: Path, dest: Path, files) -> Path:
     from pythonfmu.builder import FmuBuilder
 
-    saved = list(sys.path)
+    saved, modules = list(sys.path), set(sys.modules)
     try:
         FmuBuilder.build_FMU(script, dest=dest, project_files=files, **OPTIONS)
     finally:
-        sys.path[:] = saved            # the builder leaves fmus/ on sys.path
+        # the builder imports the script and the bundled code from the build folder and leaves
+        # them behind: an FMU loaded later in this process would reuse them (from a folder
+        # that no longer exists) instead of its own resources
+        sys.path[:] = saved
+        for name in set(sys.modules) - modules:
+            if name == script.stem or name.startswith("_uplift_"):
+                del sys.modules[name]
     fix_model_description(dest)
     return dest
 

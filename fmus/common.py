@@ -33,6 +33,7 @@ from __future__ import annotations
 import importlib
 import io
 import json
+import sys
 import traceback
 from pathlib import Path
 
@@ -67,12 +68,36 @@ def load_rational(path):
                              json.loads(str(z["provenance"])))
 
 
+#: the private package of the code inside an FMU (fmus.build.bundle), "" in the project: a
+#: factory named "soil_impedance.convolution:..." or a bundled module loads the bundled copy
+PREFIX = __name__[:-len("fmus.common")]
+
+
+def adopt_resources(resources) -> None:
+    """Point the bundled package at this instance's resources. Python modules are shared by
+    every FMU instance in a process, the resources folders are not: the first instance's
+    folder may be gone (a host deletes it when it frees that instance) when a later one imports
+    a submodule it has not needed yet."""
+    if not PREFIX:
+        return
+    root = PREFIX.rstrip(".")
+    for name, module in list(sys.modules.items()):
+        if (name == root or name.startswith(PREFIX)) and hasattr(module, "__path__"):
+            module.__path__ = [str(Path(resources, *name.split(".")))]
+
+
 def import_object(spec: str):
-    """``"package.module:attr"`` -> the object (a soil factory)."""
+    """``"package.module:attr"`` -> the object (a soil factory): the bundled module inside an
+    FMU, else the host's."""
     module, _, attr = spec.partition(":")
     if not attr:
         raise ValueError(f"soil factory {spec!r} must read 'module:callable'")
-    obj = importlib.import_module(module)
+    try:
+        obj = importlib.import_module(PREFIX + module)
+    except ModuleNotFoundError:
+        if not PREFIX:
+            raise
+        obj = importlib.import_module(module)
     for part in attr.split("."):
         obj = getattr(obj, part)
     return obj
@@ -141,7 +166,7 @@ class StampedInput:
         self.held_t, self.held = 0.0, np.array(rest, float)
 
     def take(self, t: float, dt: float, stamp: float, values) -> np.ndarray:
-        tol = 1e-6 * dt
+        stamp, tol = float(stamp), 1e-6 * dt
         if abs(stamp - t) <= tol:
             return values
         if abs(stamp - (t + dt)) <= tol and abs(self.held_t - t) <= tol:
@@ -340,6 +365,7 @@ class BankedSlave:
 
     def _init_life_cycle(self, dt: float) -> None:
         from pythonfmu.default_experiment import DefaultExperiment
+        adopt_resources(self.resources)
         self.default_experiment = DefaultExperiment(0.0, self.settings.get("stop_time"), float(dt))
         self.dt = float(dt)
         self.time = 0.0

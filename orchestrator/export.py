@@ -74,7 +74,7 @@ def fmu_data(scene, soil_model, dt: float, motion=None, soil_factory: str | None
     nodes = scene.output.nodes
     if nodes is None:
         nodes = [n.name for n in scene.model().nodes if n.name]
-    return FmuData(structure=scene.structure.as_table(), contact=contact_table(scene.contact),
+    return FmuData(structure=scene.structure.as_table(inline=True), contact=contact_table(scene.contact),
                    xy=np.asarray(scene.mesh.xy), area=np.asarray(scene.mesh.area), soil_model=soil_model,
                    dt=float(dt), output_nodes=list(nodes),
                    motion=None if motion is None else np.asarray(motion.acc, float),

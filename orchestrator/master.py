@@ -140,15 +140,19 @@ class FmuSlave:
         self.t = t + dt
 
     def _failed(self, what, function):
-        tail = self.log[-1].strip() if self.log else "(no log message)"
-        raise CosimError(f"FMU {self.name!r}: {what} failed ({function}): {tail}")
+        raise CosimError(f"FMU {self.name!r}: {what} failed ({function}): {self._reason()}")
 
     def _call(self, what, fn, **kw):
         try:
             fn(**kw)
         except FMICallException as exc:
-            tail = self.log[-1].strip() if self.log else "(no log message)"
-            raise CosimError(f"FMU {self.name!r}: {what} failed ({exc}): {tail}") from None
+            raise CosimError(f"FMU {self.name!r}: {what} failed ({exc}): {self._reason()}") from None
+
+    def _reason(self) -> str:
+        """The FMU's own last message (its first line; pythonfmu's wrapper adds a line of its
+        own after a fatal error, without the cause)."""
+        own = [m for m in self.log if m.strip() and not m.startswith("Fatal py exception")]
+        return own[-1].strip().splitlines()[0] if own else "(no log message)"
 
     # ---- FMU state ------------------------------------------------------------------------
     def get_state(self):

@@ -41,7 +41,7 @@ class BemError(ValueError):
 def _regular_green(profile, omega, r, rule):
     """``greens.regular_green`` if available; the exact zero for a homogeneous static case."""
     try:
-        greens = importlib.import_module("soil_impedance.greens")
+        greens = importlib.import_module(".greens", __package__)
     except ModuleNotFoundError:
         greens = None
     if greens is not None and hasattr(greens, "regular_green"):

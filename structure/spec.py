@@ -145,11 +145,12 @@ class StructureSpec:
         """Names of the named nodes (the ones results can be asked for)."""
         return tuple(n.name for n in self.nodes if n.name)
 
-    def as_table(self) -> dict:
+    def as_table(self, inline: bool = False) -> dict:
         """The [structure] table (plain lists, numbers and strings: TOML/JSON-ready) that
-        parse_structure reads back into an equal spec."""
+        parse_structure reads back into an equal spec; ``inline``: a built-in model written
+        out node by node (for a reader without the built-in data, an exported FMU)."""
         damping = _damping_table(self.damping)
-        if self.model is not None:
+        if self.model is not None and not inline:
             return {"model": self.model, **({"damping": damping} if damping else {})}
         drop_none = lambda d: {k: v for k, v in d.items() if v is not None}
         return {
@@ -180,7 +181,7 @@ def builtin_spec(name: str) -> dict:
         import tomllib
     except ModuleNotFoundError:  # Python < 3.11
         import tomli as tomllib
-    text = resources.files("structure.data").joinpath(f"{name}.toml").read_text()
+    text = resources.files(f"{__package__}.data").joinpath(f"{name}.toml").read_text()
     return tomllib.loads(text)["structure"]
 
 

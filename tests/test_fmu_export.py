@@ -40,7 +40,11 @@ def test_model_descriptions_pass_fmpy_validation(exported):
             assert len(unknowns) == n_out and all(u.get("dependencies") == "" for u in unknowns)
         # self-contained: model data and the project's packages in resources/
         assert "resources/uplift_soil_model.npz" in names and "resources/requirements.txt" in names
-        assert "resources/structure/newmark.py" in names and "resources/soil_impedance/convolution.py" in names
+        # the project's code under a private package name (a host's own modules cannot shadow it)
+        private = {n.split("/")[1] for n in names if n.startswith("resources/_uplift_")}
+        assert len(private) == 1
+        pkg = f"resources/{private.pop()}"
+        assert f"{pkg}/structure/newmark.py" in names and f"{pkg}/soil_impedance/convolution.py" in names
         # every Real variable has a unit, defined in UnitDefinitions; the default experiment is the record
         defined = {u.get("name") for u in md.find("UnitDefinitions")}
         units = [v.find("Real").get("unit") for v in md.find("ModelVariables") if v.find("Real") is not None]

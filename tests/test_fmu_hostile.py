@@ -24,6 +24,10 @@ HOST = textwrap.dedent("""
     path, case, dt = sys.argv[1], sys.argv[2], float(sys.argv[3])
     if case == "no-scipy":
         sys.modules["scipy"] = None                       # a host Python without scipy
+    if case == "shadowed":                                # a host with modules of the same names
+        import types
+        for name in ("structure", "fmus", "soil_impedance"):
+            sys.modules[name] = types.ModuleType(name)
     md = read_model_description(path)
     vr = {v.name: v.valueReference for v in md.modelVariables}
     log = []
@@ -71,6 +75,8 @@ HOST = textwrap.dedent("""
             out["status"] = step(0.0)
             set_real("x_time", 0.0)
             out["after"] = step(0.0)
+        elif case == "shadowed":
+            out["status"] = step(0.0)
         elif case == "bad-vr":
             value = (ctypes.c_double * 1)()
             out["status"] = dll.fmi2GetReal(c, (ctypes.c_uint * 1)(10 ** 6), 1, value)
@@ -114,3 +120,9 @@ def test_initialisation_without_scipy_fails_loudly(exported):
     out = run_host(exported.structure, "no-scipy")
     assert out["status"] in (ERROR, FATAL)
     assert "initialisation failed" in out["log"] and "pip install -r" in out["log"]
+
+
+def test_host_modules_of_the_same_name_do_not_shadow_the_fmu(exported):
+    for fmu in (exported.structure, exported.soil, exported.coupled):
+        out = run_host(fmu, "shadowed")
+        assert out["status"] == OK, out["log"]
