@@ -1,5 +1,7 @@
 """Benchmark: co-simulation (two FMUs, our Gauss-Seidel master) against the monolithic route on
-the reactor, with the FMU layer's cost per part.
+the reactor, with the FMU layer's cost per part; ``--engines``: the exported system in every
+engine (our master's three schedules, libcosim on system.ssd, fmpy's SSP runner on system.ssp,
+fmpy.simulate_fmu on coupled.fmu) with start-up, per-step cost and the difference to monolithic.
 
 Reactor scene (built-in ``reactor``: 241 interface nodes, 6 + 241 = 247 soil DOFs), its motion
 (synthetic RG1.60, 0.25 g, seed 1; ``--pga``/``--duration`` to change), 10 s at the scene's
@@ -14,16 +16,17 @@ make single timings noisy):
   monolithic   ``run_monolithic``: the stepper with the soil object in process (the reference)
   cosim        ``cosimulate`` over the two exported FMUs (built once, build time reported apart)
   split        the co-simulation's schedule in process, without the FMU layer: the stepper
-               with an external soil history and the soil object stepped next to it, doing
-               what the FMUs do per step (same arithmetic: equal to cosim bit for bit). Its
-               parts against cosim's isolate what the FMU layer costs.
+               with an external soil history (g + Gx x + Gv xdot) and the soil object stepped
+               next to it (commit, then g of the next step), doing what the FMUs do per step
+               (same arithmetic: equal to cosim bit for bit). Its parts against cosim's isolate
+               what the FMU layer costs.
 
 Prints: wall and CPU time of each route, cosim / monolithic (target <= 1.5), the real-time
 factor (target > 1), the differences cosim vs monolithic (max uplift, raft, gap: round-off
 expected), and per part (setup, structure step, soil history, transfers) the in-process time,
 the cosim time and the FMU layer's share. Run with OPENBLAS_NUM_THREADS=1.
 
-    python benchmarks/cosim.py [--pga 0.25] [--duration 10] [--repeat 3] [--soil fit|winkler] [--jacobi]
+    python benchmarks/cosim.py [--pga 0.25] [--duration 10] [--repeat 3] [--soil fit|winkler] [--engines]
 """
 from __future__ import annotations
 
@@ -55,12 +58,13 @@ def soil_for(scene, kind, cache_dir):
 def split_in_process(scene, motion, model):
     """The Gauss-Seidel schedule without the FMU layer. Returns (gap (nt, N), Timer with the
     parts named as cosimulate's)."""
-    from fmus.common import soil_from_model
+    from fmus.common import history_ahead, history_gains, soil_from_model
     from orchestrator.master import Timer
     from structure import NewmarkStepper
 
     dt, ag = motion.dt, motion.acc
     soil = soil_from_model(model, dt)
+    Gx, Gv = history_gains(soil, dt)                                 # measured at export
     timer = Timer()
     st = NewmarkStepper(scene.model(), soil, dt, contact=scene.contact,
                         external_soil=True, ag0=ag[0])
@@ -70,22 +74,77 @@ def split_in_process(scene, motion, model):
     rows = np.zeros((nt, 2 * st.nb + 2 * st.N + 6 * len(dofs) + 8))
     gap = slice(2 * st.nb + st.N, 2 * st.nb + 2 * st.N)
     rows[0, gap] = st.gap()
+    g, prev = np.zeros(st.nb), None
     for k in range(1, nt):
         timer.mark()
-        h = soil.history()
-        timer.add("soil step")
         st.set_ground_acceleration(ag[k])
-        st.set_soil_history(h)
+        st.set_soil_history(g + Gx @ st.x + Gv @ st.xdot)
         it = st.step()
         out = [st.x, st.xdot, st.P, st.gap()] + [st.a[d] + st.ag for d in dofs] + [st.u[d] for d in dofs] \
             + [np.array(list(st.energies().values()) + [it])]      # what the structure FMU publishes
         timer.add("structure step")
         rows[k] = np.concatenate(out)                                # what the master records
         timer.add("transfers")
-        soil.commit(st.x.copy(), st.xdot.copy())
+        if prev is not None:                                         # the state of t_{k-1}
+            soil.commit(*prev)
+        prev = st.x.copy(), st.xdot.copy()
+        g = history_ahead(soil)
         soil.total_force(), soil.dissipated_energy()                 # what the soil FMU publishes
         timer.add("soil step")
     return rows[:, gap], timer
+
+
+def run_engines(scene, motion, model, outdir, mono):
+    """The exported system once in each engine: {name: (start-up s, total s, max uplift m, max
+    raft rotation rad)}, the maxima read from the FMUs' headline outputs."""
+    from fmpy import simulate_fmu
+    from fmpy.ssp.simulation import simulate_ssp
+    from orchestrator.export import export_scene
+    from orchestrator.master import FmuSlave, cosimulate
+
+    dt, nt = motion.dt, motion.acc.shape[0]
+    exp = export_scene(scene, outdir, model, motion=motion)
+    out = {}
+    for schedule in ("gauss-seidel", "soil-first", "jacobi"):
+        t0 = time.perf_counter()
+        with FmuSlave(exp.structure, "structure") as S, FmuSlave(exp.soil, "soil") as G:
+            res = cosimulate(S, G, motion.acc, dt, schedule=schedule)
+        start = res.notes.timings["initialisation"] + res.wall_s / nt
+        out[f"master {schedule}"] = (start, time.perf_counter() - t0, res.info["fmu_max_uplift"],
+                                     res.info["fmu_max_raft_rotation"])
+    try:
+        from libcosimpy.CosimExecution import CosimExecution
+        from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+        from libcosimpy.CosimObserver import CosimObserver
+        log_output_level(CosimLogLevel.WARNING)
+        t0 = time.perf_counter()
+        ex = CosimExecution.from_ssp_file(str(exp.ssd))
+        obs = CosimObserver.create_last_value()
+        ex.add_observer(obs)
+        si = ex.slave_index_from_instance_name("structure")
+        refs = {v.name.decode(): v.reference for v in ex.slave_variables(si)}
+        ex.step(1)
+        start = time.perf_counter() - t0
+        ex.step(nt - 2)
+        up, rot = obs.last_real_values(si, [refs["max_uplift"], refs["max_raft_rotation"]])
+        out["libcosim system.ssd (Jacobi)"] = (start, time.perf_counter() - t0, up, rot)
+    except ImportError:
+        print("libcosimpy not installed: no libcosim row")
+    t0 = time.perf_counter()
+    r = simulate_ssp(str(exp.ssp), stop_time=exp.stop_time, step_size=dt)
+    total = time.perf_counter() - t0
+    out["fmpy simulate_ssp system.ssp"] = (float("nan"), total, r["structure.max_uplift"][-1],
+                                           r["structure.max_raft_rotation"][-1])
+    t0 = time.perf_counter()
+    with FmuSlave(exp.coupled, "coupled") as C:
+        C.initialize()
+        C.do_step(0.0, dt)
+    start = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    r = simulate_fmu(str(exp.coupled), output=["max_uplift", "max_raft_rotation"])
+    out["fmpy simulate_fmu coupled.fmu"] = (start, time.perf_counter() - t0, r["max_uplift"][-1],
+                                            r["max_raft_rotation"][-1])
+    return out
 
 
 def median(values):
@@ -98,7 +157,8 @@ def main(argv=None):
     ap.add_argument("--duration", type=float, default=None, help="s (default: the scene's, 10)")
     ap.add_argument("--repeat", type=int, default=3, help="interleaved repeats (medians)")
     ap.add_argument("--soil", choices=("fit", "winkler"), default="fit")
-    ap.add_argument("--jacobi", action="store_true", help="also run the Jacobi schedule (once)")
+    ap.add_argument("--engines", action="store_true",
+                    help="also run the exported system once in every engine (start-up, per step, error)")
     args = ap.parse_args(argv)
 
     from fmus.build import build_fmus
@@ -127,7 +187,8 @@ def main(argv=None):
     runs = {"monolithic": [], "cosim": [], "split": []}      # (wall s, CPU s, Timer or None)
     with tempfile.TemporaryDirectory(prefix="uplift_bench_") as tmp:
         t0 = time.perf_counter()
-        s_fmu, g_fmu = build_fmus(fmu_data(scene, model, dt), tmp)
+        fmus = build_fmus(fmu_data(scene, model, dt), tmp)
+        s_fmu, g_fmu = fmus["structure"], fmus["soil"]
         build_s = time.perf_counter() - t0
         run_monolithic(scene, motion, model)           # warm-up: imports, the passivity memo
         for _ in range(args.repeat):
@@ -143,7 +204,7 @@ def main(argv=None):
             runs["cosim"].append((cos.wall_s, c2 - c1, {"timing": cos.notes.timings,
                                                         "timing_cpu": cos.info["timing_cpu"]}))
             runs["split"].append((split_s, c3 - c2, {"timing": split.parts, "timing_cpu": split.cpu}))
-        jac = cosimulate(s_fmu, g_fmu, motion.acc, dt, schedule="jacobi") if args.jacobi else None
+        engines = run_engines(scene, motion, model, Path(tmp) / "export", mono) if args.engines else None
 
     wall = {r: median([w for w, _, _ in v]) for r, v in runs.items()}
     cpu = {r: median([c for _, c, _ in v]) for r, v in runs.items()}
@@ -162,9 +223,15 @@ def main(argv=None):
           f"{np.abs(cos.raft - mono.raft).max() / np.abs(mono.raft).max():.1e} relative, gap "
           f"{np.abs(cos.gap - mono.gap).max():.1e} m (round-off expected); split vs cosim gap "
           f"{np.abs(gap_split - cos.gap).max():.1e} m")
-    if jac is not None:
-        print(f"jacobi vs monolithic: raft {np.abs(jac.raft - mono.raft).max() / np.abs(mono.raft).max():.2e} "
-              f"relative, max uplift {1e3 * jac.max_uplift():.4f} mm (one-step coupling lag)")
+    if engines is not None:
+        print(f"\n{'engine (once)':34s} {'start-up s':>10s} {'us/step':>8s} {'total s':>8s} {'max uplift mm':>14s} "
+              f"{'vs monolithic':>13s} {'rotation':>9s}")
+        rot = np.hypot(mono.raft[:, 3], mono.raft[:, 4]).max()
+        for name, (start, total, up, r) in engines.items():
+            print(f"{name:34s} {start:10.2f} {1e6 * (total - start) / (nt - 1):8.0f} {total:8.2f} {1e3 * up:14.6f} "
+                  f"{abs(up - mono.max_uplift()) / mono.max_uplift():13.1e} {abs(r - rot) / rot:9.1e}")
+        print("(start-up: extraction, instantiation, initialisation and the first step; vs monolithic: relative\n"
+              " difference of the max uplift and of the max raft rotation, from the FMUs' headline outputs)")
 
     notes = {"initialisation": "stepper; cosim: + FMU extraction, instantiation, initialisation",
              "structure step": "Newmark-Newton step and the outputs it publishes",

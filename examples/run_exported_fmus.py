@@ -1,11 +1,12 @@
 """Run the two exported FMUs with the project's master algorithm and plot the uplift.
 
-    uplift export reactor -o reactor_fmus         # structure.fmu, soil.fmu, system.ssd
+    uplift export reactor -o reactor_fmus         # structure.fmu, soil.fmu, coupled.fmu, system.ssd/.ssp
     python examples/run_exported_fmus.py reactor_fmus
 
 The FMUs carry their own model data; the master feeds them the scene's ground motion and
-couples them with the impedance split (Gauss-Seidel: structure, then soil). Any FMI 2.0
-co-simulation host can run the same pair; system.ssd runs as it is in libcosim.
+couples them (Gauss-Seidel: structure, then soil). Any FMI 2.0 co-simulation host gets the same
+answer with its own schedule (Jacobi or Gauss-Seidel); system.ssd runs as it is in libcosim,
+system.ssp in fmpy's SSP runner, coupled.fmu alone in any host.
 """
 import sys
 from pathlib import Path

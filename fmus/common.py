@@ -150,6 +150,11 @@ def history_ahead(soil) -> np.ndarray:
     return g
 
 
+class StepRefused(ValueError):
+    """A call the FMU refuses (wrong time, step size or state, non-finite input, a wrong stamp):
+    the call fails with this message, the instance is left as it was."""
+
+
 class StampedInput:
     """An input vector sent with the time it belongs to (the partner FMU's own time), so that
     one FMU is exact under any master.
@@ -172,7 +177,7 @@ class StampedInput:
         if abs(stamp - (t + dt)) <= tol and abs(self.held_t - t) <= tol:
             used, self.held_t, self.held = self.held, float(stamp), np.array(values, float)
             return used
-        raise ValueError(
+        raise StepRefused(
             f"input {self.name} is stamped {self.stamp_name} = {stamp!r} s at a step from t = {t!r} s: "
             f"it must be the partner's output at t or at t + dt (connect the partner's "
             f"{self.stamp_name} output to this input, with {self.name})")
@@ -338,9 +343,10 @@ def copy_state(state: dict) -> dict:
 
 
 # ---- the life cycle ------------------------------------------------------------------------
-class StepRefused(ValueError):
-    """A call the FMU refuses (wrong time, wrong state, non-finite input): logged, the call
-    fails, the instance stays usable."""
+#: every instance not yet terminated. pythonfmu's wrapper frees the Python object after any
+#: exception (fmi2Fatal) but keeps the pointer: this reference keeps the object alive, so a
+#: host that calls again gets a refusal instead of a crash
+_LIVE: set = set()
 
 
 class BankedSlave:
@@ -350,21 +356,28 @@ class BankedSlave:
     its input slots (``inputs``: names of input vectors checked finite before a step) and
     defines ``_build`` and ``_step(t)``.
 
-    Failures, as pythonfmu lets a Python FMU report them: a model that cannot be built is logged
-    with the cause and the fix by ``enter_initialization_mode`` and ``exit_initialization_mode``
-    raises (fmi2Fatal from pythonfmu's wrapper, which drops an exception's own message: never a
-    silent OK); a step refused (wrong start time or
-    step size, non-finite input, called before a successful initialisation or after
-    ``terminate``) or failed (no Newton convergence) is logged as an error and returns fmi2Discard
-    with the instance unchanged (``do_step`` returns False). pythonfmu turns any exception of a
-    getter or setter (an unknown value reference) into fmi2Fatal and frees the Python object.
+    Failures, as pythonfmu lets a Python FMU report them (a Python method either succeeds, or
+    returns False from ``do_step``: fmi2Discard, or raises: fmi2Fatal with the exception in the
+    log): a model that cannot be built is logged with the cause and the fix by
+    ``enter_initialization_mode``, then ``exit_initialization_mode`` raises; a step that cannot
+    be right (wrong time or step size, a non-finite input, a wrong stamp, called before a
+    successful initialisation or after ``terminate``) raises ``StepRefused`` with the reason
+    (fmi2Fatal: a host such as fmpy's simulate_fmu stops on it, where it would end a run silently
+    on fmi2Discard); a step that fails (no Newton convergence) is logged and discarded. Either
+    way the instance is left as it was, and ``_LIVE`` keeps it alive after pythonfmu's wrapper
+    releases it, so it still answers (an unknown value reference in a getter or setter is
+    fmi2Fatal too, with the range in the message).
     """
 
     engine = "stepper"
     inputs: tuple = ()
+    #: a communication step may be a multiple of dt (steps of dt inside); False: exactly dt (the
+    #: pair, whose coupling is exchanged every dt)
+    multistep = False
 
     def _init_life_cycle(self, dt: float) -> None:
         from pythonfmu.default_experiment import DefaultExperiment
+        _LIVE.add(self)
         adopt_resources(self.resources)
         self.default_experiment = DefaultExperiment(0.0, self.settings.get("stop_time"), float(dt))
         self.dt = float(dt)
@@ -416,18 +429,23 @@ class BankedSlave:
 
     def terminate(self):
         self.phase = "terminated"
+        _LIVE.discard(self)
 
     def do_step(self, current_time, step_size):
+        saved = None
         try:
-            self._check_step(current_time, step_size)
+            n = self._check_step(current_time, step_size)
             saved = self._get_fmu_state()
-            try:
-                self._step(current_time)
-            except Exception:
-                self._set_fmu_state(saved)       # a failed step leaves the instance as it was
-                raise
-        except Exception as exc:                 # the FMU boundary: logged, the step discarded
-            self._fail(f"step from t = {current_time!r} s refused", exc)
+            for i in range(n):
+                self._step(current_time + i * self.dt)
+        except StepRefused as exc:               # a call that cannot be right: fmi2Fatal, with
+            if saved is not None:                # this message in pythonfmu's log line
+                self._set_fmu_state(saved)
+            self.last_error = f"step from t = {current_time!r} s refused: {exc}"
+            raise StepRefused(self.last_error) from None
+        except Exception as exc:                 # the step failed (Newton): logged, discarded
+            self._set_fmu_state(saved)
+            self._fail(f"step from t = {current_time!r} s failed", exc)
             return False
         self.time = current_time + step_size
         return True
@@ -440,25 +458,26 @@ class BankedSlave:
         if not (np.isfinite(t) and abs(t - self.time) <= 1e-6 * self.dt):
             raise StepRefused(f"this FMU is at t = {self.time!r} s: steps must follow one another "
                               "(restore an FMU state to go back)")
-        if abs(step_size - self.dt) > 1e-9 * self.dt:
-            raise StepRefused(f"communication step {step_size!r} s: this FMU runs a fixed step of "
-                              f"{self.dt!r} s (export it again with the step you need)")
+        n = round(step_size / self.dt) if self.multistep and np.isfinite(step_size) else 1
+        if n < 1 or abs(step_size - n * self.dt) > 1e-9 * step_size:
+            allowed = "a multiple" if self.multistep else "exactly"
+            raise StepRefused(f"communication step {step_size!r} s: this FMU steps {allowed} {self.dt!r} s "
+                              "per communication step (export it again with the step you need)")
         v = self.bank.values
         for name in self.inputs:
             bad = np.flatnonzero(~np.isfinite(v[self.sl[name]]))
             if bad.size:
                 raise StepRefused(f"input {name}[{bad[0]}] = {v[self.sl[name]][bad[0]]!r}: inputs must be "
                                   "finite (check what is connected to it)")
+        return n
 
     def _fail(self, what, exc):
         from pythonfmu.enums import Fmi2Status
-        self.last_error = f"{what}: {exc}" if isinstance(exc, StepRefused) else \
-            f"{what}: {type(exc).__name__}: {exc}"
+        self.last_error = f"{what}: {type(exc).__name__}: {exc}"
         if isinstance(exc, ImportError):
             self.last_error += (f" (the host Python lacks a package this FMU needs: "
                                 f"pip install -r {self.resources}/{REQUIREMENTS_FILE})")
-        detail = "" if isinstance(exc, StepRefused) else "\n" + traceback.format_exc()
-        self.log(self.last_error + detail, Fmi2Status.error)
+        self.log(self.last_error + "\n" + traceback.format_exc(), Fmi2Status.error)
 
     # ---- FMU state: time, variables, pending stamped inputs and the engine's own state ------
     def _get_fmu_state(self):

@@ -4,7 +4,9 @@ communication step. For tools that run one FMU at a time (``fmpy simulate``) or 
 co-simulation FMUs as direct feedthrough (Simulink): nothing to connect.
 
 Variables: the outputs and the input ag of fmus/stepper.py. Driven by the motion bundled in
-resources by default (parameter internal_motion = true); false: by the input ag.
+resources by default (parameter internal_motion = true); false: by the input ag (held over a
+communication step). A communication step may be any multiple of the exported dt (fmpy's
+``simulate_fmu`` picks one when a record has more than 1000 steps): the FMU steps dt inside.
 """
 from __future__ import annotations
 
@@ -18,6 +20,7 @@ class UpliftCoupled(StepperOutputs, BankedSlave, Fmi2Slave):
     author = "uplift"
     description = "Structure on frequency-dependent soil with uplift: Newmark-Newton, recursive convolution"
     inputs = ("ag",)
+    multistep = True
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)

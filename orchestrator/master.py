@@ -149,10 +149,17 @@ class FmuSlave:
             raise CosimError(f"FMU {self.name!r}: {what} failed ({exc}): {self._reason()}") from None
 
     def _reason(self) -> str:
-        """The FMU's own last message (its first line; pythonfmu's wrapper adds a line of its
-        own after a fatal error, without the cause)."""
-        own = [m for m in self.log if m.strip() and not m.startswith("Fatal py exception")]
-        return own[-1].strip().splitlines()[0] if own else "(no log message)"
+        """The FMU's own last message, first line (pythonfmu logs a fatal error as a line of its
+        own followed by the exception, or by "unknown error" when it lost it)."""
+        for message in reversed(self.log):
+            text = message.strip()
+            if text.startswith("Fatal py exception"):
+                text = text.partition("\n")[2].strip()
+                if text == "unknown error":
+                    continue
+            if text:
+                return text.splitlines()[0]
+        return "(no log message)"
 
     # ---- FMU state ------------------------------------------------------------------------
     def get_state(self):

@@ -84,3 +84,21 @@ def test_fmpy_simulate_fmu_on_the_coupled_fmu(case):
     assert res["max_raft_rotation"][-1] == pytest.approx(max_rotation(mono), rel=1e-10)
     raft = np.column_stack([res[f"x[{i}]"] for i in range(6)])
     assert raft.shape == mono.raft.shape and rel(raft, mono.raft) <= 1e-10
+
+
+def test_coupled_fmu_takes_a_multiple_of_its_step(case):
+    """fmpy.simulate_fmu doubles its communication step while a run has more than 1000 of them:
+    the coupled FMU then steps its own dt inside, with the same answer."""
+    from fmpy import simulate_fmu
+    exp, mono = case
+    res = simulate_fmu(str(exp.coupled), output=["max_uplift"], output_interval=4 * exp.dt)
+    assert res["time"][-1] == pytest.approx(exp.stop_time)
+    assert res["max_uplift"][-1] == pytest.approx(mono.max_uplift(), rel=1e-10)
+
+
+def test_pair_fmu_refuses_another_step(case):
+    """The pair exchanges its coupling every dt: a structure FMU driven with 2 dt says so."""
+    from fmpy import simulate_fmu
+    exp, _ = case
+    with pytest.raises(Exception, match="fmi2DoStep failed with status 4"):
+        simulate_fmu(str(exp.structure), output=["max_uplift"], output_interval=2 * exp.dt)
