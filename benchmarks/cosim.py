@@ -107,9 +107,8 @@ def run_engines(scene, motion, model, outdir, mono):
     out = {}
     for schedule in ("gauss-seidel", "soil-first", "jacobi"):
         t0 = time.perf_counter()
-        with FmuSlave(exp.structure, "structure") as S, FmuSlave(exp.soil, "soil") as G:
-            res = cosimulate(S, G, motion.acc, dt, schedule=schedule)
-        start = res.notes.timings["initialisation"] + res.wall_s / nt
+        res = cosimulate(exp.structure, exp.soil, motion.acc, dt, schedule=schedule)
+        start = res.notes.timings["initialisation"] + res.wall_s / nt      # extraction included
         out[f"master {schedule}"] = (start, time.perf_counter() - t0, res.info["fmu_max_uplift"],
                                      res.info["fmu_max_raft_rotation"])
     try:

@@ -111,8 +111,9 @@ def make_soil(resources, settings: dict):
 
 
 def soil_from_model(model, dt: float, factory: str = DEFAULT_SOIL_FACTORY, kwargs: dict | None = None):
-    """The soil object ``factory(model, dt, **kwargs)`` (one construction per call: the
-    recursive convolution's constructor checks passivity, ~15-30 s for 247 DOFs)."""
+    """The soil object ``factory(model, dt, **kwargs)`` (the recursive convolution's
+    constructor tests passivity unless ``checked=True``: the exported FMUs pass it, the
+    exporter having tested it once)."""
     return import_object(factory)(model, float(dt), **dict(kwargs or {}))
 
 
