@@ -149,8 +149,19 @@ def bundle(folder: Path, sources) -> tuple[Path, object]:
             dest.write_bytes(data)
 
     def script_of(script: Path) -> Path:
+        """The FMU script, its imports rewritten, and first of all the bundled package pointed
+        at this FMU's resources: an FMU of another role from the same export may have loaded
+        it from a folder its host has deleted since (fmus.common.adopt_resources does the same
+        for every later instance)."""
+        text = rewrite(script.read_text(encoding="utf-8"))
+        future = "from __future__ import annotations\n"
+        head, _, body = text.partition(future)
+        adopt = ("import os as _os, sys as _sys\n"
+                 "for _n, _m in list(_sys.modules.items()):\n"
+                 f"    if (_n == {name!r} or _n.startswith({name + '.'!r})) and hasattr(_m, '__path__'):\n"
+                 "        _m.__path__ = [_os.path.join(_os.path.dirname(_os.path.abspath(__file__)), *_n.split('.'))]\n")
         dest = folder / script.name
-        dest.write_text(rewrite(script.read_text(encoding="utf-8")), encoding="utf-8")
+        dest.write_text(head + future + adopt + body, encoding="utf-8")
         return dest
 
     return pkg, script_of

@@ -344,10 +344,15 @@ def copy_state(state: dict) -> dict:
 
 
 # ---- the life cycle ------------------------------------------------------------------------
-#: every instance not yet terminated. pythonfmu's wrapper frees the Python object after any
-#: exception (fmi2Fatal) but keeps the pointer: this reference keeps the object alive, so a
-#: host that calls again gets a refusal instead of a crash
-_LIVE: set = set()
+def survive_fatal(slave) -> None:
+    """Call before raising out of a method pythonfmu's wrapper calls. The wrapper answers an
+    exception with fmi2Fatal and releases the Python object, its class and its log queue,
+    and releases them again when the host frees the instance: one reference more to each
+    keeps the counts right, so the instance still answers a host that calls again and a later
+    fmi2FreeInstance does not corrupt the interpreter (a crash at the next garbage collection)."""
+    import ctypes
+    for obj in (slave, type(slave), slave.log_queue):
+        ctypes.pythonapi.Py_IncRef(ctypes.py_object(obj))
 
 
 class BankedSlave:
@@ -365,9 +370,8 @@ class BankedSlave:
     successful initialisation or after ``terminate``) raises ``StepRefused`` with the reason
     (fmi2Fatal: a host such as fmpy's simulate_fmu stops on it, where it would end a run silently
     on fmi2Discard); a step that fails (no Newton convergence) is logged and discarded. Either
-    way the instance is left as it was, and ``_LIVE`` keeps it alive after pythonfmu's wrapper
-    releases it, so it still answers (an unknown value reference in a getter or setter is
-    fmi2Fatal too, with the range in the message).
+    way the instance is left as it was and still answers (``survive_fatal``); an unknown value
+    reference in a getter or setter is fmi2Fatal too, with the range in the message.
     """
 
     engine = "stepper"
@@ -378,7 +382,6 @@ class BankedSlave:
 
     def _init_life_cycle(self, dt: float) -> None:
         from pythonfmu.default_experiment import DefaultExperiment
-        _LIVE.add(self)
         adopt_resources(self.resources)
         self.default_experiment = DefaultExperiment(0.0, self.settings.get("stop_time"), float(dt))
         self.dt = float(dt)
@@ -392,10 +395,17 @@ class BankedSlave:
         return root
 
     def get_real(self, vrs):
-        return self.bank.values[self.bank.index(vrs)].tolist()
+        return self.bank.values[self._index(vrs)].tolist()
 
     def set_real(self, vrs, values):
-        self.bank.values[self.bank.index(vrs)] = values
+        self.bank.values[self._index(vrs)] = values
+
+    def _index(self, vrs):
+        try:
+            return self.bank.index(vrs)
+        except IndexError:
+            survive_fatal(self)
+            raise
 
     def setup_experiment(self, start_time, stop_time, tolerance):
         self.start_time = start_time
@@ -407,6 +417,7 @@ class BankedSlave:
         if self._built_with != self._build_key():       # a parameter or input set in between
             self._try_build()
         if self._built_with is None:
+            survive_fatal(self)
             raise RuntimeError(self.last_error)
         self.time, self.phase = 0.0, "stepping"
 
@@ -430,7 +441,6 @@ class BankedSlave:
 
     def terminate(self):
         self.phase = "terminated"
-        _LIVE.discard(self)
 
     def do_step(self, current_time, step_size):
         saved = None
@@ -443,6 +453,7 @@ class BankedSlave:
             if saved is not None:                # this message in pythonfmu's log line
                 self._set_fmu_state(saved)
             self.last_error = f"step from t = {current_time!r} s refused: {exc}"
+            survive_fatal(self)
             raise StepRefused(self.last_error) from None
         except Exception as exc:                 # the step failed (Newton): logged, discarded
             self._set_fmu_state(saved)

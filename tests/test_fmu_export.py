@@ -99,3 +99,12 @@ def test_rollback_ten_steps_and_replay_bit_identical(exported):
     assert np.abs(first[-1][:6]).max() > 0 and np.any(np.concatenate(first) != 0)
     for a, b in zip(first, replay):
         assert np.array_equal(a, b)                           # bit-identical
+
+
+def test_fmus_of_one_export_open_one_after_another(exported):
+    """Each FMU carries the same bundled code, loaded once per process: an FMU opened after
+    another one was freed (its folder deleted) still loads and runs."""
+    for path in (exported.soil, exported.structure, exported.coupled, exported.soil):
+        with FmuSlave(path, path.stem) as f:
+            f.initialize()
+            f.do_step(0.0, MOTION.dt)
