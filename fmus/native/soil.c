@@ -1,0 +1,270 @@
+/* The trapezoidal recursive convolution of the rational soil model
+   K(s) = D + s E + sum_k R_k / (s - p_k), as soil_impedance/convolution.py (RecursiveConvolutionSoil):
+
+     y_{k,n} = a_k y_{k,n-1} + b_k (u_n + u_{n-1}),  a_k = (1 + p_k dt/2)/(1 - p_k dt/2),
+                                                     b_k = (dt/2)/(1 - p_k dt/2)
+     f_n = D0 u_n + E u'_n + h_n,  D0 = D + sum_k b_k R_k,  h_n = sum_k R_k (a_k y_{k,n-1} + b_k u_{n-1})
+
+   Complex poles are carried once per conjugate pair (the partner gives the complex conjugate):
+   h = H g with H (n, L) stacking R_k of the real poles and [2 Re R_k, -2 Im R_k] of the pairs,
+   g the stacked a_k y_k + b_k u (pairs as (re, im)). The coefficients and D0 depend on dt:
+   one set per step-halving level, computed when first needed. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "uplift.h"
+
+int up_soil_init(UpSoil *s, const UpRes *r, int n, int nlev, int stepped, char *err)
+{
+    memset(s, 0, sizeof *s);
+    s->n = n;
+    int64_t d1[1] = {-1}, d2[2] = {-1, 2}, dr[3] = {-1, n, n}, dc[4] = {-1, n, n, 2}, dn[2] = {n, n};
+    if (!(s->pr = up_res_f64(r, "poles_real", 1, d1, err)) || !(s->pc = up_res_f64(r, "poles_pair", 2, d2, err)))
+        return -1;
+    s->mr = (int)d1[0];
+    s->mc = (int)d2[0];
+    dr[0] = s->mr;
+    dc[0] = s->mc;
+    if (!(s->Rr = up_res_f64(r, "residues_real", 3, dr, err)) || !(s->Rc = up_res_f64(r, "residues_pair", 4, dc, err))
+        || !(s->D = up_res_f64(r, "D", 2, dn, err)))
+        return -1;
+    dn[0] = dn[1] = n;
+    if (!(s->E = up_res_f64(r, "E", 2, dn, err)))
+        return -1;
+    for (int k = 0; k < s->mr + s->mc; k++) {
+        double re = k < s->mr ? s->pr[k] : s->pc[2 * (k - s->mr)];
+        double im = k < s->mr ? 0.0 : s->pc[2 * (k - s->mr) + 1];
+        if (!(re < 0.0) || !isfinite(re) || !isfinite(im)) {
+            snprintf(err, UP_MSG, "soil pole %d = %g%+gi is not stable (Re p < 0): the rational soil model "
+                     "of resource file %s is not usable; fit it again", k, re, im, r->path);
+            return -1;
+        }
+    }
+    int mr = s->mr, mc = s->mc;
+    s->L = (size_t)(mr + 2 * mc) * (size_t)n;
+    s->fbuf = (double *)calloc(3 * (size_t)n + 1, sizeof(double));
+    int ok = s->fbuf != NULL;
+    if (stepped && ok) {
+        s->H = (double *)malloc((s->L ? s->L : 1) * (size_t)n * sizeof(double));
+        s->g = (double *)calloc(s->L + 1, sizeof(double));
+        s->g2 = (double *)calloc(s->L + 1, sizeof(double));
+        ok = s->H && s->g && s->g2;
+        for (int i = 0; ok && i < n; i++) {
+            double *row = s->H + (size_t)i * s->L;
+            for (int k = 0; k < mr; k++)
+                memcpy(row + (size_t)k * n, s->Rr + ((size_t)k * n + i) * n, (size_t)n * sizeof(double));
+            double *rc = row + (size_t)mr * n;
+            for (int k = 0; k < mc; k++) {
+                const double *R = s->Rc + (((size_t)k * n + i) * n) * 2;
+                for (int j = 0; j < n; j++) {
+                    rc[((size_t)k * n + j) * 2] = 2.0 * R[2 * j];
+                    rc[((size_t)k * n + j) * 2 + 1] = -2.0 * R[2 * j + 1];
+                }
+            }
+        }
+    }
+    for (int l = 0; ok && l < nlev; l++) {
+        UpSoilLevel *lv = &s->lev[l];
+        lv->ar = (double *)calloc((size_t)(2 * mr + 4 * mc) + 1, sizeof(double));
+        lv->D0 = (double *)malloc((size_t)n * n * sizeof(double));
+        ok = lv->ar && lv->D0;
+        if (ok) {
+            lv->br = lv->ar + mr;
+            lv->ac = lv->br + mr;
+            lv->bc = lv->ac + 2 * mc;
+        }
+    }
+    if (!ok) {
+        up_soil_free(s);
+        snprintf(err, UP_MSG, "out of memory for the soil model (%d DOFs, %d poles)", n, mr + 2 * mc);
+        return -1;
+    }
+    return 0;
+}
+
+void up_soil_free(UpSoil *s)
+{
+    free(s->H);
+    free(s->g);
+    free(s->g2);
+    free(s->fbuf);
+    for (int l = 0; l < UP_MAXLEV; l++) {
+        free(s->lev[l].ar);
+        free(s->lev[l].D0);
+    }
+    memset(s, 0, sizeof *s);
+}
+
+size_t up_soil_state_len(const UpSoil *s)
+{
+    return s->L + 3 * (size_t)s->n + 1;
+}
+
+void up_soil_bind(UpSoil *s, double *state)
+{
+    s->yr = state;
+    s->yc = s->yr + (size_t)s->mr * s->n;
+    s->u = s->yr + s->L;
+    s->ud = s->u + s->n;
+    s->f = s->ud + s->n;
+    s->work = s->f + s->n;
+}
+
+void up_soil_rest(UpSoil *s)
+{
+    memset(s->yr, 0, up_soil_state_len(s) * sizeof(double));
+}
+
+const UpSoilLevel *up_soil_level(UpSoil *s, int lev, double dt)
+{
+    UpSoilLevel *lv = &s->lev[lev];
+    if (lv->ready)
+        return lv;
+    int n = s->n, mr = s->mr, mc = s->mc;
+    for (int k = 0; k < mr; k++) {
+        double den = 1.0 - 0.5 * dt * s->pr[k];
+        lv->ar[k] = (1.0 + 0.5 * dt * s->pr[k]) / den;
+        lv->br[k] = 0.5 * dt / den;
+    }
+    for (int k = 0; k < mc; k++) {
+        double pre = s->pc[2 * k], pim = s->pc[2 * k + 1];
+        double dre = 1.0 - 0.5 * dt * pre, dim = -0.5 * dt * pim;     /* den = 1 - p dt/2 */
+        double nre = 1.0 + 0.5 * dt * pre, nim = 0.5 * dt * pim;      /* num = 1 + p dt/2 */
+        double q = dre * dre + dim * dim;
+        lv->ac[2 * k] = (nre * dre + nim * dim) / q;
+        lv->ac[2 * k + 1] = (nim * dre - nre * dim) / q;
+        lv->bc[2 * k] = 0.5 * dt * dre / q;
+        lv->bc[2 * k + 1] = -0.5 * dt * dim / q;
+    }
+    double *D0 = lv->D0;
+    memcpy(D0, s->D, (size_t)n * n * sizeof(double));
+    for (int k = 0; k < mr; k++) {
+        const double *R = s->Rr + (size_t)k * n * n;
+        for (size_t i = 0; i < (size_t)n * n; i++)
+            D0[i] += lv->br[k] * R[i];
+    }
+    for (int k = 0; k < mc; k++) {
+        const double *R = s->Rc + (size_t)k * n * n * 2;
+        double bre = lv->bc[2 * k], bim = lv->bc[2 * k + 1];
+        for (size_t i = 0; i < (size_t)n * n; i++)
+            D0[i] += 2.0 * (bre * R[2 * i] - bim * R[2 * i + 1]);
+    }
+    for (int i = 0; i < n; i++)
+        for (int j = i + 1; j < n; j++) {
+            double m = 0.5 * (D0[(size_t)i * n + j] + D0[(size_t)j * n + i]);
+            D0[(size_t)i * n + j] = D0[(size_t)j * n + i] = m;
+        }
+    lv->dt = dt;
+    lv->ready = 1;
+    return lv;
+}
+
+/* g = [a y + b u] stacked, from the pole states y and the input u given */
+static void stack(const UpSoil *s, const UpSoilLevel *lv, const double *yr, const double *yc, const double *u,
+                  double *g)
+{
+    int n = s->n;
+    for (int k = 0; k < s->mr; k++)
+        for (int j = 0; j < n; j++)
+            g[(size_t)k * n + j] = lv->ar[k] * yr[(size_t)k * n + j] + lv->br[k] * u[j];
+    double *gc = g + (size_t)s->mr * n;
+    for (int k = 0; k < s->mc; k++) {
+        double are = lv->ac[2 * k], aim = lv->ac[2 * k + 1], bre = lv->bc[2 * k], bim = lv->bc[2 * k + 1];
+        for (int j = 0; j < n; j++) {
+            size_t q = ((size_t)k * n + j) * 2;
+            double yre = yc[q], yim = yc[q + 1];
+            gc[q] = (are * yre - aim * yim) + bre * u[j];
+            gc[q + 1] = (are * yim + aim * yre) + bim * u[j];
+        }
+    }
+}
+
+void up_soil_history(UpSoil *s, int lev, double *h)
+{
+    stack(s, &s->lev[lev], s->yr, s->yc, s->u, s->g);
+    up_matvec(s->H, s->n, (int)s->L, s->g, h);
+}
+
+void up_soil_force(UpSoil *s, int lev, const double *x, const double *xd, const double *h, double *f)
+{
+    const UpSoilLevel *lv = &s->lev[lev];
+    int n = s->n;
+    for (int i = 0; i < n; i++)
+        f[i] = (up_dot(lv->D0 + (size_t)i * n, x, n) + up_dot(s->E + (size_t)i * n, xd, n)) + h[i];
+}
+
+/* y <- a y + b (x + u), the pole states after committing x on u (pair states as (re, im)) */
+static void advance_states(const UpSoil *s, const UpSoilLevel *lv, const double *x, const double *u, double *yr,
+                           double *yc)
+{
+    int n = s->n;
+    for (int k = 0; k < s->mr; k++)
+        for (int j = 0; j < n; j++) {
+            double *y = &yr[(size_t)k * n + j];
+            *y = lv->ar[k] * *y + lv->br[k] * (x[j] + u[j]);
+        }
+    for (int k = 0; k < s->mc; k++) {
+        double are = lv->ac[2 * k], aim = lv->ac[2 * k + 1], bre = lv->bc[2 * k], bim = lv->bc[2 * k + 1];
+        for (int j = 0; j < n; j++) {
+            double *y = &yc[((size_t)k * n + j) * 2];
+            double wj = x[j] + u[j], yre = y[0], yim = y[1];
+            y[0] = (are * yre - aim * yim) + bre * wj;
+            y[1] = (are * yim + aim * yre) + bim * wj;
+        }
+    }
+}
+
+void up_soil_commit(UpSoil *s, int lev, const double *x, const double *xd, const double *f)
+{
+    int n = s->n;
+    double w = 0.0;
+    for (int i = 0; i < n; i++)
+        w += (x[i] - s->u[i]) * (0.5 * (f[i] + s->f[i]));
+    *s->work += w;
+    advance_states(s, &s->lev[lev], x, s->u, s->yr, s->yc);
+    memcpy(s->u, x, (size_t)n * sizeof(double));
+    memcpy(s->ud, xd, (size_t)n * sizeof(double));
+    memcpy(s->f, f, (size_t)n * sizeof(double));
+}
+
+/* in place on the pole states y' after the next commit: a y' + b 0, the stacked history input
+   of the step after next when a zero state is committed next */
+static void stack_ahead(const UpSoil *s, const UpSoilLevel *lv, double *g)
+{
+    memset(s->fbuf, 0, (size_t)s->n * sizeof(double));
+    stack(s, lv, g, g + (size_t)s->mr * s->n, s->fbuf, g);
+}
+
+void up_soil_ahead(UpSoil *s, int lev, double *g)
+{
+    /* committing a zero state: y' = a y + b u, then the history of y' with u' = 0 */
+    const UpSoilLevel *lv = &s->lev[lev];
+    int n = s->n;
+    double *zero = s->fbuf + n;
+    memset(zero, 0, (size_t)n * sizeof(double));
+    memcpy(s->g, s->yr, s->L * sizeof(double));
+    advance_states(s, lv, zero, s->u, s->g, s->g + (size_t)s->mr * n);
+    stack_ahead(s, lv, s->g);
+    up_matvec(s->H, n, (int)s->L, s->g, g);
+}
+
+void up_soil_step(UpSoil *s, int lev, const double *x, const double *xd, double *g)
+{
+    /* h for the commit of x and g of the step after next (up_soil_ahead after the commit), in
+       one pass over H */
+    const UpSoilLevel *lv = &s->lev[lev];
+    int n = s->n;
+    double *h = s->fbuf + n, *f = s->fbuf + 2 * (size_t)n;
+    stack(s, lv, s->yr, s->yc, s->u, s->g);
+    memcpy(s->g2, s->yr, s->L * sizeof(double));
+    double *zero = s->fbuf;
+    memset(zero, 0, (size_t)n * sizeof(double));
+    advance_states(s, lv, x, s->u, s->g2, s->g2 + (size_t)s->mr * n);      /* after committing x */
+    advance_states(s, lv, zero, x, s->g2, s->g2 + (size_t)s->mr * n);      /* then a zero state */
+    stack_ahead(s, lv, s->g2);
+    up_matvec2(s->H, n, (int)s->L, s->g, s->g2, h, g);
+    up_soil_force(s, lev, x, xd, h, f);
+    up_soil_commit(s, lev, x, xd, f);
+}

@@ -1,0 +1,690 @@
+/* Newmark average acceleration (HHT-alpha option) with penalty contact and semi-smooth Newton:
+   the discrete equations of structure/newmark.py (NewmarkStepper), step for step.
+
+   u = [structure | q | w] (n = ns + N), relative to the static state under self-weight:
+     M a + C v + K u + f_soil(x, xdot) + f_c(u) = -M r a_g(t),  x = [q, w] = u[ni:], ni = ns - 6
+   f_soil = K0 x + C0 xdot + h on x, (K0, C0) = (D0(dt), E) of the soil model, h its history force
+   (from the soil stepped here, or an input: the structure FMU); f_c = -B^T (P - P0) with the
+   total contact force P_i = kp_i max(0, delta0_i - d_i), d = Bq3 q[2:5] - w.
+
+   Per step size dt (one level per halving) the effective matrix
+   A = diag(c0 M) + (1 + alpha)(K + c1 C) is condensed on x: LU of the interior block A_II,
+   X = A_II^-1 A_IB, S0 = A_BB - A_BI X. Newton solves (S0 + (1 + alpha) B^T diag(kp active) B) dx
+   = -g with the LU of that matrix kept per (level, active set); an exact line search on the
+   piecewise-quadratic incremental energy guards against cycling; a step whose Newton fails is
+   halved recursively (ground motion interpolated, soil history of an external soil held) down
+   to dt / 2**max_subdiv. No allocation after up_stepper_init. */
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "uplift.h"
+
+enum { W_INPUT, W_DAMPING, W_SOIL, W_CONTACT };
+
+static int scalar_in(const UpRes *r, const char *name, double lo, double hi, double *v, char *err)
+{
+    if (up_res_scalar(r, name, v, err))
+        return -1;
+    if (!(*v >= lo && *v <= hi)) {
+        snprintf(err, UP_MSG, "resource file %s: %s = %g must lie in [%g, %g]: export the FMU again", r->path,
+                 name, *v, lo, hi);
+        return -1;
+    }
+    return 0;
+}
+
+static int finite_all(const double *a, size_t n)
+{
+    for (size_t i = 0; i < n; i++)
+        if (!isfinite(a[i]))
+            return 0;
+    return 1;
+}
+
+int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, char *err)
+{
+    memset(s, 0, sizeof *s);
+    double ns, N, enabled, max_iter, max_subdiv;
+    if (scalar_in(r, "dt", 1e-300, 1e300, &s->sys[0].dt, err) || scalar_in(r, "ns", 6, 1e6, &ns, err) || scalar_in(r, "N", 0, 1e6, &N, err)
+        || scalar_in(r, "alpha", -1.0 / 3.0 - 1e-12, 0.0, &s->alpha, err)
+        || scalar_in(r, "contact_enabled", 0, 1, &enabled, err)
+        || scalar_in(r, "contact_tol", 1e-300, 1.0, &s->tol, err)
+        || scalar_in(r, "contact_max_iter", 1, 1e4, &max_iter, err)
+        || scalar_in(r, "contact_max_subdiv", 0, UP_MAXLEV - 1, &max_subdiv, err))
+        return -1;
+    s->ns = (int)ns;
+    s->N = (int)N;
+    s->n = s->ns + s->N;
+    s->ni = s->ns - 6;
+    s->nb = 6 + s->N;
+    s->enabled = enabled != 0.0;
+    s->max_iter = (int)max_iter;
+    s->max_subdiv = (int)max_subdiv;
+    s->nlev = s->max_subdiv + 1;
+    s->beta = (1 - s->alpha) * (1 - s->alpha) / 4;
+    s->gamma = 0.5 - s->alpha;
+    s->soil = soil;
+    s->external = external;
+    if (soil->n != s->nb) {
+        snprintf(err, UP_MSG, "resource file %s: the soil model has %d DOFs, the raft needs 6 + N = %d: "
+                 "export the FMU again", r->path, soil->n, s->nb);
+        return -1;
+    }
+    int n = s->n, ns_ = s->ns, Ni = s->N, nb = s->nb, ni = s->ni;
+    int64_t dn[1] = {n}, dss[2] = {ns_, ns_}, dc[2] = {ns_, ns_}, dm[2] = {ns_, 3}, db[2] = {Ni, 3};
+    int64_t dk[1] = {Ni}, dp[1] = {Ni}, dd[1] = {Ni};
+    if (!(s->M = up_res_f64(r, "M", 1, dn, err)) || !(s->Ks = up_res_f64(r, "Ks", 2, dss, err))
+        || !(s->Cs = up_res_f64(r, "Cs", 2, dc, err)) || !(s->Mr = up_res_f64(r, "Mr", 2, dm, err))
+        || !(s->Bq3 = up_res_f64(r, "Bq3", 2, db, err)) || !(s->kp = up_res_f64(r, "kp", 1, dk, err))
+        || !(s->P0 = up_res_f64(r, "P0", 1, dp, err)) || !(s->delta0 = up_res_f64(r, "delta0", 1, dd, err)))
+        return -1;
+    const double *arrays[] = {s->M, s->Ks, s->Cs, s->Mr, s->Bq3, s->kp, s->P0, s->delta0};
+    const size_t sizes[] = {(size_t)n, (size_t)ns_ * ns_, (size_t)ns_ * ns_, (size_t)ns_ * 3, (size_t)Ni * 3,
+                            (size_t)Ni, (size_t)Ni, (size_t)Ni};
+    for (int k = 0; k < 8; k++)
+        if (!finite_all(arrays[k], sizes[k])) {
+            snprintf(err, UP_MSG, "resource file %s: the structure's matrices hold NaN or inf: export the "
+                     "FMU again", r->path);
+            return -1;
+        }
+    for (int i = 0; i < Ni; i++)
+        if (!(s->kp[i] > 0)) {
+            snprintf(err, UP_MSG, "resource file %s: contact penalty kp[%d] = %g must be > 0", r->path, i, s->kp[i]);
+            return -1;
+        }
+    int ok = 1;
+    for (int l = 0; ok && l < s->nlev; l++) {
+        UpSystem *y = &s->sys[l];
+        y->AII = (double *)malloc(((size_t)ni * ni + 1) * sizeof(double));
+        y->piv = (int *)malloc(((size_t)ni + 1) * sizeof(int));
+        y->ABI = (double *)malloc(((size_t)nb * ni + 1) * sizeof(double));
+        y->X = (double *)malloc(((size_t)ni * nb + 1) * sizeof(double));
+        y->S0 = (double *)malloc((size_t)nb * nb * sizeof(double));
+        ok = y->AII && y->piv && y->ABI && y->X && y->S0;
+    }
+    s->cache_lu = (double *)malloc((size_t)UP_NCACHE * nb * nb * sizeof(double));
+    s->cache_piv = (int *)malloc((size_t)UP_NCACHE * nb * sizeof(int));
+    s->cache_lev = (int *)malloc(UP_NCACHE * sizeof(int));
+    s->cache_act = (unsigned char *)calloc((size_t)UP_NCACHE * Ni + 1, 1);
+    s->cache_used = (long *)calloc(UP_NCACHE, sizeof(long));
+    ok = ok && s->cache_lu && s->cache_piv && s->cache_lev && s->cache_act && s->cache_used;
+    for (int k = 0; ok && k < UP_NCACHE; k++)
+        s->cache_lev[k] = -1;
+    for (int k = 0; ok && k < 8; k++)
+        ok = (s->w_n[k] = (double *)calloc((size_t)n, sizeof(double))) != NULL;
+    for (int k = 0; ok && k < 10; k++)
+        ok = (s->w_nb[k] = (double *)calloc((size_t)nb, sizeof(double))) != NULL;
+    for (int k = 0; ok && k < 6; k++)
+        ok = (s->w_N[k] = (double *)calloc((size_t)Ni + 1, sizeof(double))) != NULL;
+    if (ok) {
+        s->hbuf = (double *)calloc((size_t)s->nlev * nb, sizeof(double));
+        s->act = (unsigned char *)calloc((size_t)Ni + 1, 1);
+        s->act_new = (unsigned char *)calloc((size_t)Ni + 1, 1);
+        ok = s->hbuf && s->act && s->act_new;
+    }
+    if (!ok) {
+        up_stepper_free(s);
+        snprintf(err, UP_MSG, "out of memory for the structure (%d DOFs, %d step levels)", n, s->nlev);
+        return -1;
+    }
+    return 0;
+}
+
+void up_stepper_free(UpStepper *s)
+{
+    for (int l = 0; l < UP_MAXLEV; l++) {
+        UpSystem *y = &s->sys[l];
+        free(y->AII);
+        free(y->piv);
+        free(y->ABI);
+        free(y->X);
+        free(y->S0);
+    }
+    free(s->cache_lu);
+    free(s->cache_piv);
+    free(s->cache_lev);
+    free(s->cache_act);
+    free(s->cache_used);
+    for (int k = 0; k < 8; k++)
+        free(s->w_n[k]);
+    for (int k = 0; k < 10; k++)
+        free(s->w_nb[k]);
+    for (int k = 0; k < 6; k++)
+        free(s->w_N[k]);
+    free(s->hbuf);
+    free(s->act);
+    free(s->act_new);
+    memset(s, 0, sizeof *s);
+}
+
+size_t up_stepper_state_len(const UpStepper *s)
+{
+    return 1 + 5 * (size_t)s->n + (size_t)s->N + 3 * (size_t)s->nb + 13;
+}
+
+void up_stepper_bind(UpStepper *s, double *state, double *block, size_t block_len, double *saves)
+{
+    s->t = state;
+    s->u = s->t + 1;
+    s->v = s->u + s->n;
+    s->a = s->v + s->n;
+    s->P = s->a + s->n;
+    s->fs = s->P + s->N;
+    s->fc = s->fs + s->nb;
+    s->R = s->fc + s->nb;
+    s->F = s->R + s->n;
+    s->ag = s->F + s->n;
+    s->work = s->ag + 3;
+    s->ag_next = s->work + 4;
+    s->h_ext = s->ag_next + 3;
+    s->block = block;
+    s->block_len = block_len;
+    s->saves = saves;
+}
+
+/* F = -Mr ag on the structure DOFs (zero on w) */
+static void load(const UpStepper *s, const double *ag, double *F)
+{
+    for (int i = 0; i < s->ns; i++) {
+        const double *m = s->Mr + 3 * (size_t)i;
+        F[i] = -(m[0] * ag[0] + m[1] * ag[1] + m[2] * ag[2]);
+    }
+    for (int i = s->ns; i < s->n; i++)
+        F[i] = 0.0;
+}
+
+void up_stepper_rest(UpStepper *s, const double *ag0)
+{
+    memset(s->t, 0, up_stepper_state_len(s) * sizeof(double));
+    memcpy(s->ag, ag0, 3 * sizeof(double));
+    memcpy(s->ag_next, ag0, 3 * sizeof(double));
+    load(s, ag0, s->F);
+    for (int i = 0; i < s->n; i++)
+        s->a[i] = s->M[i] > 0 ? s->F[i] / s->M[i] : 0.0;
+    memcpy(s->P, s->P0, (size_t)s->N * sizeof(double));
+    if (!s->external)
+        up_soil_rest(s->soil);
+}
+
+/* ---- the per-level system ------------------------------------------------------------------ */
+static const UpSystem *system_at(UpStepper *s, int lev)
+{
+    UpSystem *y = &s->sys[lev];
+    if (y->ready)
+        return y;
+    double dt = s->sys[0].dt;
+    for (int l = 0; l < lev; l++)
+        dt /= 2;                                          /* exact: a power of two */
+    const UpSoilLevel *sl = up_soil_level(s->soil, lev, dt);
+    double b = s->beta, g = s->gamma, al = s->alpha;
+    y->dt = dt;
+    y->c0 = 1 / (b * dt * dt);
+    y->c1 = g / (b * dt);
+    y->c2 = 1 / (b * dt);
+    y->c3 = 1 / (2 * b) - 1;
+    int ns = s->ns, ni = s->ni, nb = s->nb;
+    /* the blocks of A = diag(c0 M) + (1 + al)(K + c1 C), K = Ks + K0 and C = Cs + E embedded */
+    for (int i = 0; i < ni; i++)
+        for (int j = 0; j < ni; j++) {
+            double k = s->Ks[(size_t)i * ns + j], c = s->Cs[(size_t)i * ns + j];
+            y->AII[(size_t)i * ni + j] = (1 + al) * (k + y->c1 * c) + (i == j ? y->c0 * s->M[i] : 0.0);
+        }
+    for (int i = 0; i < nb; i++)
+        for (int j = 0; j < ni; j++) {
+            int gi = ni + i;
+            double k = gi < ns ? s->Ks[(size_t)gi * ns + j] : 0.0, c = gi < ns ? s->Cs[(size_t)gi * ns + j] : 0.0;
+            y->ABI[(size_t)i * ni + j] = (1 + al) * (k + y->c1 * c);
+        }
+    double *S0 = y->S0;
+    for (int i = 0; i < nb; i++)
+        for (int j = 0; j < nb; j++) {
+            int gi = ni + i, gj = ni + j;
+            double k = sl->D0[(size_t)i * nb + j], c = s->soil->E[(size_t)i * nb + j];
+            if (gi < ns && gj < ns) {
+                k += s->Ks[(size_t)gi * ns + gj];
+                c += s->Cs[(size_t)gi * ns + gj];
+            }
+            S0[(size_t)i * nb + j] = (1 + al) * (k + y->c1 * c) + (i == j ? y->c0 * s->M[gi] : 0.0);
+        }
+    if (ni > 0 && up_lu(y->AII, y->piv, ni))
+        return NULL;
+    /* X = A_II^-1 A_IB, column by column; only the columns of the raft DOFs are not zero */
+    memset(y->X, 0, (size_t)ni * nb * sizeof(double));
+    double *col = s->w_n[0];
+    for (int j = 0; j < nb && ni > 0; j++) {
+        int gj = ni + j, any = 0;
+        for (int i = 0; i < ni; i++) {
+            double k = gj < ns ? s->Ks[(size_t)i * ns + gj] : 0.0, c = gj < ns ? s->Cs[(size_t)i * ns + gj] : 0.0;
+            col[i] = (1 + al) * (k + y->c1 * c);
+            any |= col[i] != 0.0;
+        }
+        if (!any)
+            continue;
+        up_lu_solve(y->AII, y->piv, ni, col);
+        for (int i = 0; i < ni; i++)
+            y->X[(size_t)i * nb + j] = col[i];
+    }
+    for (int i = 0; i < nb; i++)
+        for (int k = 0; k < ni; k++) {
+            double a = y->ABI[(size_t)i * ni + k];
+            if (a == 0.0)
+                continue;
+            const double *xk = y->X + (size_t)k * nb;
+            double *si = S0 + (size_t)i * nb;
+            for (int j = 0; j < nb; j++)
+                si[j] -= a * xk[j];
+        }
+    y->ready = 1;
+    return y;
+}
+
+/* ---- contact ------------------------------------------------------------------------------- */
+/* d = Bq3 x[2:5] - x[6:] for x = [q, w] */
+static void relative(const UpStepper *s, const double *x, double *d)
+{
+    for (int i = 0; i < s->N; i++) {
+        const double *b = s->Bq3 + 3 * (size_t)i;
+        d[i] = (b[0] * x[2] + b[1] * x[3] + b[2] * x[4]) - x[6 + i];
+    }
+}
+
+/* P (N), active (N) and the contact internal force fc (nb) at x = [q, w] */
+static void contact(const UpStepper *s, const double *x, double *P, unsigned char *act, double *fc)
+{
+    double *d = s->w_N[5];
+    relative(s, x, d);
+    memset(fc, 0, (size_t)s->nb * sizeof(double));
+    for (int i = 0; i < s->N; i++) {
+        if (s->enabled) {
+            double pen = s->delta0[i] - d[i];
+            act[i] = pen > 0;
+            P[i] = act[i] ? s->kp[i] * pen : 0.0;
+        } else {
+            act[i] = 1;
+            P[i] = s->P0[i] - s->kp[i] * d[i];
+        }
+        double dp = P[i] - s->P0[i];
+        const double *b = s->Bq3 + 3 * (size_t)i;
+        fc[2] -= b[0] * dp;
+        fc[3] -= b[1] * dp;
+        fc[4] -= b[2] * dp;
+        fc[6 + i] = dp;
+    }
+}
+
+/* g = S0 x + (1 + al) fc(x) - r_hat, with the active set at x */
+static void residual(const UpStepper *s, const UpSystem *y, const double *x, const double *r_hat, double *g,
+                     unsigned char *act)
+{
+    double *fc = s->w_nb[9], *P = s->w_N[4];
+    contact(s, x, P, act, fc);
+    up_matvec(y->S0, s->nb, s->nb, x, g);
+    for (int i = 0; i < s->nb; i++)
+        g[i] = (g[i] + (1 + s->alpha) * fc[i]) - r_hat[i];
+}
+
+/* LU of S0 + (1 + al) B^T diag(kp active) B, from the cache or factorised into the least
+   recently used slot; NULL when singular */
+static const double *jacobian(UpStepper *s, int lev, const unsigned char *act, const int **piv)
+{
+    int N = s->N, nb = s->nb, slot = 0;
+    s->clock++;
+    for (int k = 0; k < UP_NCACHE; k++) {
+        if (s->cache_lev[k] == lev && memcmp(s->cache_act + (size_t)k * N, act, (size_t)N) == 0) {
+            s->cache_used[k] = s->clock;
+            *piv = s->cache_piv + (size_t)k * nb;
+            return s->cache_lu + (size_t)k * nb * nb;
+        }
+        if (s->cache_used[k] < s->cache_used[slot])
+            slot = k;
+    }
+    double *J = s->cache_lu + (size_t)slot * nb * nb;
+    int *p = s->cache_piv + (size_t)slot * nb;
+    memcpy(J, s->sys[lev].S0, (size_t)nb * nb * sizeof(double));
+    const double *B = s->Bq3;
+    for (int i = 0; i < N; i++) {
+        double si = (1 + s->alpha) * s->kp[i] * (act[i] ? 1.0 : 0.0);
+        if (si == 0.0)
+            continue;
+        const double *b = B + 3 * (size_t)i;
+        for (int r = 0; r < 3; r++) {
+            for (int c = 0; c < 3; c++)
+                J[(size_t)(2 + r) * nb + 2 + c] += b[r] * (si * b[c]);
+            double cross = -(si * b[r]);
+            J[(size_t)(6 + i) * nb + 2 + r] += cross;
+            J[(size_t)(2 + r) * nb + 6 + i] += cross;
+        }
+        J[(size_t)(6 + i) * nb + 6 + i] += si;
+    }
+    s->cache_lev[slot] = -1;
+    if (up_lu(J, p, nb))
+        return NULL;
+    s->cache_lev[slot] = lev;
+    s->cache_used[slot] = s->clock;
+    memcpy(s->cache_act + (size_t)slot * N, act, (size_t)N);
+    *piv = p;
+    return J;
+}
+
+/* exact line search on the incremental energy along dx: the step t in (0, 1] where
+   dx . g(uB + t dx) = 0, a continuous, piecewise linear, non-decreasing function of t */
+static double slope_at(const UpStepper *s, double a, double b, const double *dd, const double *pen, double t)
+{
+    double sum = 0.0;
+    for (int i = 0; i < s->N; i++) {
+        double m = pen[i] - t * dd[i];
+        sum += (dd[i] * ((1 + s->alpha) * s->kp[i])) * (m > 0.0 ? m : 0.0);
+    }
+    return a + b * t - sum;
+}
+
+static double line_search(UpStepper *s, const UpSystem *y, const double *uB, const double *dx, const double *g0)
+{
+    int N = s->N;
+    double *d0 = s->w_N[0], *dd = s->w_N[1], *pen = s->w_N[2], *kinks = s->w_N[3], *Sdx = s->w_nb[8];
+    relative(s, uB, d0);
+    relative(s, dx, dd);
+    double lin = 0.0;
+    for (int i = 0; i < N; i++) {
+        pen[i] = s->delta0[i] - d0[i];
+        lin += dd[i] * (s->kp[i] * (pen[i] > 0.0 ? pen[i] : 0.0));
+    }
+    double a = up_dot(dx, g0, s->nb) + (1 + s->alpha) * lin;
+    up_matvec(y->S0, s->nb, s->nb, dx, Sdx);
+    double b = up_dot(dx, Sdx, s->nb);
+    double f0 = slope_at(s, a, b, dd, pen, 0.0);
+    if (slope_at(s, a, b, dd, pen, 1.0) <= 1e-12 * fabs(f0))
+        return 1.0;
+    int m = 0;
+    for (int i = 0; i < N; i++) {
+        if (dd[i] == 0.0)
+            continue;
+        double t = pen[i] / dd[i];
+        if (t > 0 && t < 1 && isfinite(t)) {
+            int j = m++;                                  /* insertion sort: few kinks */
+            while (j > 0 && kinks[j - 1] > t) {
+                kinks[j] = kinks[j - 1];
+                j--;
+            }
+            kinks[j] = t;
+        }
+    }
+    double lo = 0.0, flo = f0;
+    if (flo >= 0)
+        return 1.0;                                       /* not a descent direction: the Newton step */
+    for (int k = 0; k <= m; k++) {
+        double tk = k < m ? kinks[k] : 1.0, fk = slope_at(s, a, b, dd, pen, tk);
+        if (fk >= 0)
+            return fk > flo ? lo + (tk - lo) * (-flo) / (fk - flo) : tk;
+        lo = tk;
+        flo = fk;
+    }
+    return 1.0;
+}
+
+/* ---- one step ------------------------------------------------------------------------------ */
+typedef struct {
+    int node;
+    double residual;
+} Failure;
+
+/* C v on u = [structure | x]: Cs on the structure block, E (the soil's C0) on x */
+static void damp(const UpStepper *s, const double *v, double *out)
+{
+    up_matvec(s->Cs, s->ns, s->ns, v, out);
+    for (int i = s->ns; i < s->n; i++)
+        out[i] = 0.0;
+    up_matvec_add(s->soil->E, s->nb, s->nb, v + s->ni, 1.0, out + s->ni);
+}
+
+static int advance(UpStepper *s, int lev, const double *ag_new, const double *h, int *iters, Failure *fail)
+{
+    const UpSystem *y = system_at(s, lev);
+    int n = s->n, ns = s->ns, ni = s->ni, nb = s->nb, N = s->N;
+    if (!y) {
+        fail->node = -1;
+        fail->residual = INFINITY;
+        return -1;
+    }
+    double dt = y->dt, c0 = y->c0, c1 = y->c1, c2 = y->c2, c3 = y->c3;
+    double al = s->alpha, b = s->beta, g = s->gamma;
+    double *F_new = s->w_n[1], *a_hat = s->w_n[2], *v_hat = s->w_n[3], *rhs = s->w_n[4], *Cv = s->w_n[5];
+    double *u_new = s->w_n[6], *v_new = s->w_n[7];
+    const double *u = s->u, *v = s->v, *a = s->a;
+    load(s, ag_new, F_new);
+    for (int i = 0; i < n; i++) {
+        a_hat[i] = (-c0 * u[i] - c2 * v[i]) - c3 * a[i];
+        v_hat[i] = (-c1 * u[i] + (1 - g / b) * v[i]) + dt * (1 - g / (2 * b)) * a[i];
+    }
+    damp(s, v_hat, Cv);
+    for (int i = 0; i < n; i++)
+        rhs[i] = (((-s->M[i] * a_hat[i] - (1 + al) * Cv[i]) + al * s->R[i]) + (1 + al) * F_new[i]) - al * s->F[i];
+    for (int i = 0; i < nb; i++)
+        rhs[ni + i] -= (1 + al) * h[i];
+    /* condensation: y = A_II^-1 rhs_I, r_hat = rhs_B - A_BI y */
+    double *yI = u_new, *r_hat = s->w_nb[0], *uB = s->w_nb[1], *gv = s->w_nb[2], *dx = s->w_nb[3];
+    double *xn = s->w_nb[4], *gn = s->w_nb[5];
+    memcpy(yI, rhs, (size_t)ni * sizeof(double));
+    if (ni > 0)
+        up_lu_solve(y->AII, y->piv, ni, yI);
+    for (int i = 0; i < nb; i++)
+        r_hat[i] = rhs[ni + i] - up_dot(y->ABI + (size_t)i * ni, yI, ni);
+    const int *piv;
+    const double *lu;
+    *iters = 0;
+    if (!s->enabled) {
+        /* bonded: the contact is linear, x = J(all closed)^-1 r_hat */
+        memset(s->act, 1, (size_t)N);
+        if (!(lu = jacobian(s, lev, s->act, &piv))) {
+            fail->node = -1;
+            fail->residual = INFINITY;
+            return -1;
+        }
+        memcpy(uB, r_hat, (size_t)nb * sizeof(double));
+        up_lu_solve(lu, piv, nb, uB);
+    } else {
+        memcpy(uB, u + ni, (size_t)nb * sizeof(double));
+        double scale = up_norm(r_hat, nb), p0 = (1 + al) * up_norm(s->P0, N);
+        scale = scale > p0 ? scale : p0;
+        scale = scale > 1.0 ? scale : 1.0;
+        double tol = s->tol * scale;
+        residual(s, y, uB, r_hat, gv, s->act);
+        int conv = 0;
+        for (int it = 0; it < s->max_iter; it++) {
+            if (!(lu = jacobian(s, lev, s->act, &piv)))
+                break;
+            for (int i = 0; i < nb; i++)
+                dx[i] = gv[i];
+            up_lu_solve(lu, piv, nb, dx);
+            for (int i = 0; i < nb; i++)
+                dx[i] = -dx[i];
+            ++*iters;
+            double t = line_search(s, y, uB, dx, gv);
+            for (int i = 0; i < nb; i++)
+                xn[i] = uB[i] + t * dx[i];
+            residual(s, y, xn, r_hat, gn, s->act_new);
+            int same = memcmp(s->act, s->act_new, (size_t)N) == 0;
+            memcpy(uB, xn, (size_t)nb * sizeof(double));
+            memcpy(gv, gn, (size_t)nb * sizeof(double));
+            memcpy(s->act, s->act_new, (size_t)N);
+            if ((t == 1.0 && same) || up_norm(gv, nb) <= tol) {
+                conv = 1;
+                break;
+            }
+        }
+        if (!conv || !finite_all(uB, (size_t)nb)) {
+            int node = -1, finite = 1;
+            double best = -1.0;
+            for (int i = 0; i < N; i++) {
+                double r = fabs(gv[6 + i]);
+                if (!isfinite(r))
+                    finite = 0;
+                else if (r > best) {
+                    best = r;
+                    node = i;
+                }
+            }
+            fail->node = finite ? (N ? node : 0) : -1;
+            fail->residual = up_norm(gv, nb);
+            return -1;
+        }
+    }
+    /* u_new = [y - X uB, uB] */
+    for (int i = 0; i < ni; i++)
+        u_new[i] = yI[i] - up_dot(y->X + (size_t)i * nb, uB, nb);
+    memcpy(u_new + ni, uB, (size_t)nb * sizeof(double));
+    if (!finite_all(u_new, (size_t)n)) {
+        fail->node = -1;
+        fail->residual = INFINITY;
+        return -1;
+    }
+    double *a_new = rhs, *R_new = Cv, *fs_new = s->w_nb[6], *fc_new = s->w_nb[7], *P_new = s->w_N[4];
+    for (int i = 0; i < n; i++) {
+        v_new[i] = c1 * u_new[i] + v_hat[i];
+        a_new[i] = c0 * u_new[i] + a_hat[i];
+    }
+    contact(s, u_new + ni, P_new, s->act_new, fc_new);
+    const double *x_new = u_new + ni, *xd_new = v_new + ni;
+    up_soil_force(s->soil, lev, x_new, xd_new, h, fs_new);          /* K0 x + C0 xdot + h */
+    if (al != 0.0) {
+        /* R = Ks u + Cs v, plus fs + fc on x: the internal force the HHT average needs */
+        up_matvec(s->Ks, ns, ns, u_new, R_new);
+        up_matvec_add(s->Cs, ns, ns, v_new, 1.0, R_new);
+        for (int i = ns; i < n; i++)
+            R_new[i] = 0.0;
+        for (int i = 0; i < nb; i++)
+            R_new[ni + i] += fs_new[i] + fc_new[i];
+    } else {
+        memset(R_new, 0, (size_t)n * sizeof(double));           /* not used by the average acceleration rule */
+    }
+    /* works: sums of du . (f_n + f_{n+1}) / 2 */
+    double w_in = 0.0, w_damp = 0.0, w_soil = 0.0, w_contact = 0.0;
+    double *vm = s->w_n[0];
+    for (int i = 0; i < ns; i++)
+        vm[i] = 0.5 * (v[i] + v_new[i]);
+    for (int i = 0; i < n; i++)
+        w_in += (u_new[i] - u[i]) * (0.5 * (s->F[i] + F_new[i]));
+    for (int i = 0; i < ns; i++)
+        w_damp += (u_new[i] - u[i]) * up_dot(s->Cs + (size_t)i * ns, vm, ns);
+    for (int i = 0; i < nb; i++) {
+        double du = u_new[ni + i] - u[ni + i];
+        w_soil += du * (0.5 * (s->fs[i] + fs_new[i]));
+        w_contact += du * (0.5 * (s->fc[i] + fc_new[i]));
+    }
+    s->work[W_INPUT] += w_in;
+    s->work[W_DAMPING] += w_damp;
+    s->work[W_SOIL] += w_soil;
+    s->work[W_CONTACT] += w_contact;
+    memcpy(s->u, u_new, (size_t)n * sizeof(double));
+    memcpy(s->v, v_new, (size_t)n * sizeof(double));
+    memcpy(s->a, a_new, (size_t)n * sizeof(double));
+    memcpy(s->P, P_new, (size_t)N * sizeof(double));
+    memcpy(s->fs, fs_new, (size_t)nb * sizeof(double));
+    memcpy(s->fc, fc_new, (size_t)nb * sizeof(double));
+    memcpy(s->R, R_new, (size_t)n * sizeof(double));
+    memcpy(s->F, F_new, (size_t)n * sizeof(double));
+    *s->t += dt;
+    memcpy(s->ag, ag_new, 3 * sizeof(double));
+    if (!s->external)
+        up_soil_commit(s->soil, lev, x_new, xd_new, fs_new);
+    return 0;
+}
+
+/* one (sub)step of size dt / 2**depth, halved on a Newton failure */
+static int span(UpStepper *s, int depth, const double *ag0, const double *ag1, const double *h_in, int *iters)
+{
+    double *saved = s->saves + (size_t)depth * s->block_len;
+    memcpy(saved, s->block, s->block_len * sizeof(double));
+    const double *h = h_in;
+    if (!s->external) {
+        double *hd = s->hbuf + (size_t)depth * s->nb;
+        system_at(s, depth);                              /* the soil's coefficients at this dt */
+        up_soil_history(s->soil, depth, hd);
+        h = hd;
+    }
+    int it = 0;
+    Failure fail = {-1, INFINITY};
+    if (advance(s, depth, ag1, h, &it, &fail) == 0) {
+        *iters += it;
+        return 0;
+    }
+    memcpy(s->block, saved, s->block_len * sizeof(double));
+    double dt = s->sys[depth].ready ? s->sys[depth].dt : s->sys[0].dt;
+    if (depth >= s->max_subdiv) {
+        snprintf(s->err, UP_MSG, "Newton contact iteration failed at t = %.6g s (step %.3g s after %d halvings), "
+                 "interface node %d, residual %.3e N; raise contact.max_subdiv, reduce dt, or check the penalty",
+                 *s->t + dt, dt, depth, fail.node, fail.residual);
+        return -1;
+    }
+    double agm[3];
+    for (int k = 0; k < 3; k++)
+        agm[k] = 0.5 * (ag0[k] + ag1[k]);
+    if (span(s, depth + 1, ag0, agm, h_in, iters))
+        return -1;
+    return span(s, depth + 1, agm, ag1, h_in, iters);
+}
+
+int up_stepper_prepare(UpStepper *s, char *err)
+{
+    if (system_at(s, 0))
+        return 0;
+    snprintf(err, UP_MSG, "the structure's interior effective matrix is singular at dt = %g s: a DOF of the "
+             "structure has neither mass nor stiffness (check the model)", s->sys[0].dt);
+    return -1;
+}
+
+int up_stepper_step(UpStepper *s)
+{
+    double ag0[3], ag1[3];
+    memcpy(ag0, s->ag, sizeof ag0);
+    memcpy(ag1, s->ag_next, sizeof ag1);
+    int iters = 0;
+    s->last_iters = 0;
+    if (span(s, 0, ag0, ag1, s->external ? s->h_ext : NULL, &iters)) {
+        memcpy(s->block, s->saves, s->block_len * sizeof(double));
+        return -1;
+    }
+    s->last_iters = iters;
+    return 0;
+}
+
+/* ---- outputs ------------------------------------------------------------------------------- */
+void up_stepper_gap(const UpStepper *s, double *gap)
+{
+    relative(s, s->u + s->ni, gap);
+    for (int i = 0; i < s->N; i++) {
+        double g = gap[i] - s->delta0[i];
+        gap[i] = s->enabled && g > 0.0 ? g : 0.0;
+    }
+}
+
+void up_stepper_energies(const UpStepper *s, double *e)
+{
+    int n = s->n, ns = s->ns, N = s->N;
+    double kin = 0.0, strain = 0.0, pot = 0.0;
+    for (int i = 0; i < n; i++)
+        kin += s->v[i] * (s->M[i] * s->v[i]);
+    for (int i = 0; i < ns; i++)
+        strain += s->u[i] * up_dot(s->Ks + (size_t)i * ns, s->u, ns);
+    double *d = s->w_N[5];
+    relative(s, s->u + s->ni, d);
+    for (int i = 0; i < N; i++) {
+        if (s->enabled) {
+            double pen = s->delta0[i] - d[i], pen0 = s->delta0[i];
+            pen = pen > 0.0 ? pen : 0.0;
+            pen0 = pen0 > 0.0 ? pen0 : 0.0;
+            pot += 0.5 * s->kp[i] * (pen * pen - pen0 * pen0) + s->P0[i] * d[i];
+        } else {
+            pot += 0.5 * s->kp[i] * d[i] * d[i];
+        }
+    }
+    e[0] = s->work[W_INPUT];
+    e[1] = 0.5 * kin;
+    e[2] = 0.5 * strain;
+    e[3] = s->work[W_DAMPING];
+    e[4] = s->work[W_SOIL];
+    e[5] = s->work[W_CONTACT];
+    e[6] = pot;
+}

@@ -1,0 +1,148 @@
+/* The native uplift FMU runtime: declarations shared by its C files.
+
+   One runtime serves the three FMUs (soil, structure, coupled); the role, the model data and
+   the layout of the variables come from resources/uplift.bin, written by fmus/native_build.py
+   (format: README.md beside this file). C standard library only (libc, libm); one instance
+   allocates all its memory in fmi2Instantiate, fmi2DoStep allocates nothing.
+
+   Numerics (the same discrete equations as the Python FMUs, so the results agree to
+   round-off):
+     soil.c     the trapezoidal recursive convolution of the rational soil model
+                (soil_impedance/convolution.py, RecursiveConvolutionSoil)
+     stepper.c  Newmark / HHT-alpha with interior DOFs condensed, penalty contact, semi-smooth
+                Newton with an exact line search and recursive step halving
+                (structure/newmark.py, NewmarkStepper)
+     linalg.c   dense LU with partial pivoting, matrix-vector products
+     resources.c the binary resource file
+     fmi2.c     the FMI 2.0 co-simulation entry points, life cycle, variables, FMU state
+
+   Units: SI throughout (m, rad, s, N, J). Matrices are dense, row-major. */
+#ifndef UPLIFT_H
+#define UPLIFT_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#define UP_MSG 1024           /* length of an error message buffer */
+#define UP_MAXLEV 31          /* step-halving levels: dt / 2**k, k = 0 .. max_subdiv <= 30 */
+#define UP_NCACHE 16          /* Newton Jacobian factorisations kept (per level and active set) */
+
+/* ---- resources.c: the binary resource file ------------------------------------------------ */
+enum { UP_F64 = 1, UP_I64 = 2, UP_TEXT = 3 };
+
+typedef struct {
+    char name[33];
+    int kind, ndim;
+    int64_t dims[4];
+    uint64_t nbytes;
+    const void *data;
+} UpRecord;
+
+typedef struct {
+    unsigned char *buf;
+    int count;
+    UpRecord *rec;
+    char path[512];
+} UpRes;
+
+int up_res_load(UpRes *r, const char *path, char *err);
+void up_res_free(UpRes *r);
+const UpRecord *up_res_find(const UpRes *r, const char *name);
+/* the float64 (int64) record ``name`` with ndim dimensions; dims[k] >= 0 are checked, -1 any
+   (the record's are written back); NULL and a message naming the record when absent or wrong */
+const double *up_res_f64(const UpRes *r, const char *name, int ndim, int64_t *dims, char *err);
+const int64_t *up_res_i64(const UpRes *r, const char *name, int ndim, int64_t *dims, char *err);
+int up_res_scalar(const UpRes *r, const char *name, double *value, char *err);
+
+/* ---- linalg.c --------------------------------------------------------------------------------- */
+int up_lu(double *A, int *piv, int n);                  /* in place; 0, or k + 1 on a zero pivot */
+void up_lu_solve(const double *LU, const int *piv, int n, double *b);   /* b <- A^-1 b */
+void up_matvec(const double *A, int rows, int cols, const double *x, double *y);        /* y = A x */
+void up_matvec2(const double *A, int rows, int cols, const double *x1, const double *x2, double *y1,
+                double *y2);                                                 /* both in one pass over A */
+void up_matvec_add(const double *A, int rows, int cols, const double *x, double s, double *y); /* y += s A x */
+double up_dot(const double *a, const double *b, int n);
+double up_norm(const double *a, int n);
+
+/* ---- soil.c: recursive convolution --------------------------------------------------------- */
+typedef struct {
+    int ready;
+    double dt;
+    double *ar, *br;          /* (mr) real-pole coefficients */
+    double *ac, *bc;          /* (mc) complex, as (re, im) pairs */
+    double *D0;               /* (n, n) D + sum b_k R_k, symmetrised */
+} UpSoilLevel;
+
+typedef struct {
+    int n, mr, mc;
+    size_t L;                 /* (mr + 2 mc) n: length of the stacked pole states */
+    const double *pr, *pc;    /* (mr), (mc, 2) poles: real, and one (re, im) per conjugate pair */
+    const double *Rr, *Rc;    /* (mr, n, n), (mc, n, n, 2) residues */
+    const double *D, *E;      /* (n, n) */
+    double *H;                /* (n, L): h = H g, NULL when the soil is not stepped */
+    double *g, *g2, *fbuf;    /* (L), (L), (3 n) work */
+    UpSoilLevel lev[UP_MAXLEV];
+    /* state, inside the instance's state block */
+    double *yr, *yc, *u, *ud, *f, *work;
+} UpSoil;
+
+int up_soil_init(UpSoil *s, const UpRes *r, int n, int nlev, int stepped, char *err);
+void up_soil_free(UpSoil *s);
+size_t up_soil_state_len(const UpSoil *s);
+void up_soil_bind(UpSoil *s, double *state);             /* state pointers into a block */
+void up_soil_rest(UpSoil *s);
+const UpSoilLevel *up_soil_level(UpSoil *s, int lev, double dt);
+void up_soil_history(UpSoil *s, int lev, double *h);     /* h_n (n) */
+void up_soil_force(UpSoil *s, int lev, const double *x, const double *xd, const double *h, double *f);
+void up_soil_commit(UpSoil *s, int lev, const double *x, const double *xd, const double *f);
+void up_soil_ahead(UpSoil *s, int lev, double *g);       /* history of the step after next, zero state next */
+void up_soil_step(UpSoil *s, int lev, const double *x, const double *xd, double *g);  /* commit x, then g */
+
+/* ---- stepper.c: Newmark-contact stepper ---------------------------------------------------- */
+typedef struct {
+    int ready;
+    double dt, c0, c1, c2, c3;
+    double *AII;              /* (ni, ni) LU of the interior block */
+    int *piv;
+    double *ABI;              /* (nb, ni) */
+    double *X;                /* (ni, nb) A_II^-1 A_IB */
+    double *S0;               /* (nb, nb) Schur complement on x = [q, w] */
+} UpSystem;
+
+typedef struct {
+    int n, ns, ni, N, nb, nlev;
+    double alpha, beta, gamma, tol;
+    int enabled, max_iter, max_subdiv;
+    const double *M, *Ks, *Cs, *Mr, *Bq3, *kp, *P0, *delta0;   /* (n), (ns, ns) x2, (ns, 3), (N, 3), (N) x3 */
+    UpSoil *soil;             /* dt-dependent soil matrices; stepped unless external */
+    int external;             /* 1: the history h is an input (h_ext), the soil is not stepped */
+    UpSystem sys[UP_MAXLEV];
+    /* Jacobian factorisations, least recently used replaced */
+    double *cache_lu;
+    int *cache_piv, *cache_lev;
+    unsigned char *cache_act;
+    long *cache_used;
+    long clock;
+    /* state, inside the instance's state block */
+    double *t, *u, *v, *a, *P, *fs, *fc, *R, *F, *ag, *work, *ag_next, *h_ext;
+    /* work */
+    double *w_n[8], *w_nb[10], *w_N[6], *hbuf;
+    unsigned char *act, *act_new;
+    double *saves;            /* (nlev + 1) copies of the instance's state block */
+    double *block;
+    size_t block_len;
+    int last_iters;
+    char *err;                /* message of a failed step */
+} UpStepper;
+
+int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, char *err);
+void up_stepper_free(UpStepper *s);
+size_t up_stepper_state_len(const UpStepper *s);
+void up_stepper_bind(UpStepper *s, double *state, double *block, size_t block_len, double *saves);
+void up_stepper_rest(UpStepper *s, const double *ag0);
+int up_stepper_prepare(UpStepper *s, char *err);        /* the system at dt, before the first step */
+int up_stepper_step(UpStepper *s);                       /* 0, or -1 with s->err */
+void up_stepper_gap(const UpStepper *s, double *gap);
+void up_stepper_energies(const UpStepper *s, double *e); /* input, kinetic, strain, damping, soil, contact, contact_potential */
+
+#endif

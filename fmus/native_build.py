@@ -1,0 +1,412 @@
+"""Native FMUs: the soil, the structure and the coupled system as compiled C code that needs no
+Python in the host (the C runtime in fmus/native/, FMI 2.0 co-simulation, C standard library
+only).
+
+``build_native_fmus(data, outdir, coupled)`` writes ``structure.fmu``, ``soil.fmu`` (and
+``coupled.fmu``) with the variables, the coupling and the answers of the Python FMUs
+(fmus/build.py): the same variable names, causalities, units and value references, the same
+split coupling with the stamps x_time / g_time (fmus/common.py), the same discrete equations
+(results equal to round-off). Each FMU holds
+
+    modelDescription.xml    with <SourceFiles> (the C files of sources/)
+    binaries/<platform>/<modelIdentifier>.<so|dll|dylib>   one runtime, compiled at export for
+                            linux64, win64 and darwin64 (FMI 2.0 platform names) by the C
+                            compiler of the ``ziglang`` package (it cross-compiles), or by the
+                            system compiler (``cc``, $CC) for the host platform only
+    sources/*.c, uplift.h   the runtime's sources, so a tool can compile for another platform
+                            (with the FMI 2.0 headers of the tool)
+    resources/uplift.bin    the model data in the binary format of fmus/native/README.md
+
+What is a function of the model only is computed here, once, by the Python objects the
+Python FMUs use: the structure's matrices, the static preload (P0, delta0) and the penalty
+(``structure.NewmarkStepper``), the soil's poles and residues split into real poles and
+conjugate pairs, and for the structure FMU the history gains Gx, Gv (fmus.common.history_gains);
+the soil's passivity is verified here. The C code builds what depends on the step size (the
+soil's recursion coefficients and D0, the condensed effective matrices) for dt and for each
+step-halving level. Native FMUs run the recursive convolution of the rational model only
+(the default soil factory).
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import os
+import shutil
+import struct
+import subprocess
+import sys
+import tempfile
+import uuid
+import xml.etree.ElementTree as ET
+import zipfile
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from fmus.build import FmuData
+from fmus.common import DEFAULT_SOIL_FACTORY, UNITS, history_gains, interface_units, soil_from_model
+from fmus.coupled_fmu import UpliftCoupled
+from fmus.soil_fmu import UpliftSoil
+from fmus.stepper import ENERGY_TERMS
+from fmus.structure_fmu import UpliftStructure
+
+NATIVE = Path(__file__).resolve().parent / "native"
+SOURCES = ("fmi2.c", "stepper.c", "soil.c", "linalg.c", "resources.c")
+HEADERS = ("uplift.h",)
+RESOURCE_FILE = "uplift.bin"
+#: FMI 2.0 platform -> (zig target, shared library suffix); glibc 2.17 for old Linux hosts
+PLATFORMS = {"linux64": ("x86_64-linux-gnu.2.17", "so"), "win64": ("x86_64-windows-gnu", "dll"),
+             "darwin64": ("x86_64-macos", "dylib")}
+CFLAGS = ("-std=c99", "-O2", "-ffp-contract=off", "-fvisibility=hidden", "-fPIC", "-shared")
+COMPILERS = ("zig", "cc")
+#: the Python FMU class of each role: its model name, identifier, description and author are reused
+ROLES = {"soil": UpliftSoil, "structure": UpliftStructure, "coupled": UpliftCoupled}
+#: the named vectors of Real variables, in the order of the C runtime's slot table (fmi2.c)
+SLOTS = ("x", "xdot", "x_time", "g", "g_time", "f", "dissipated_energy", "ag", "P", "gap", "nodes", "energy",
+         "newton_iters", "max_uplift", "max_raft_rotation")
+#: the contact settings of the Newton iteration (structure.ContactSettings) a caller may override
+NEWTON_KEYS = ("tol", "max_iter", "max_subdiv")
+MAGIC = b"UPLIFTNB"
+VERSION = 1
+KINDS = {"f8": 1, "i8": 2, "text": 3}
+
+
+class NativeBuildError(RuntimeError):
+    """The C runtime could not be compiled (the message has the compiler's output)."""
+
+
+# ---- the variables (those of the Python FMUs, in their order) --------------------------------
+@dataclasses.dataclass(frozen=True)
+class Var:
+    name: str
+    causality: str
+    description: str
+    unit: str | None = None
+    type: str = "Real"
+    start: str | None = None
+    variability: str | None = None
+    slot: str | None = None
+
+
+def _vector(slot, n, causality, description, unit, name=None):
+    """Real variables name[0..n-1] (or the scalar when n is None) of one slot."""
+    name = name or slot
+    units = [unit] * (n or 1) if isinstance(unit, str) else list(unit)
+    names = [name] if n is None else [f"{name}[{i}]" for i in range(n)]
+    start = "0" if causality == "input" else None
+    return [Var(nm, causality, description, u, start=start, slot=slot) for nm, u in zip(names, units)]
+
+
+def variables(role: str, n: int, N: int, nodes, motion: bool) -> list:
+    """The model variables of a native FMU, as the Python FMU of ``role`` registers them (value
+    references in list order, Reals first; the Boolean internal_motion last)."""
+    if role == "soil":
+        return (_vector("x", n, "input", "interface displacements", "m")
+                + _vector("xdot", n, "input", "interface velocities", "m/s")
+                + _vector("x_time", None, "input", "time of x", "s")
+                + _vector("g", n, "output", "history force for the structure's next step without its latest "
+                          "state's part", "N")
+                + _vector("g_time", None, "output", "start of the structure step g is meant for", "s")
+                + _vector("f", n, "output", "total force on the soil", "N")
+                + _vector("dissipated_energy", None, "output", "energy dissipated in the soil", "J"))
+    out = []
+    if role == "structure":
+        out += (_vector("g", n, "input", "soil history force without the part of the structure's latest state",
+                        interface_units(n, "N", "N.m"))
+                + _vector("g_time", None, "input", "start of the step g is meant for", "s")
+                + _vector("x_time", None, "output", "time of x", "s"))
+    out += (_vector("ag", 3, "input", "ground acceleration at t + dt", "m/s2")
+            + _vector("x", n, "output", "interface displacements [q, w]", interface_units(n, "m", "rad"))
+            + _vector("xdot", n, "output", "interface velocities", interface_units(n, "m/s", "rad/s"))
+            + _vector("P", N, "output", "total contact forces", "N")
+            + _vector("gap", N, "output", "uplift", "m"))
+    for nm in nodes:
+        out += (_vector("nodes", 3, "output", f"absolute acceleration of {nm}", "m/s2", name=f"acc_{nm}")
+                + _vector("nodes", 3, "output", f"displacement of {nm}", "m", name=f"disp_{nm}"))
+    for term in ENERGY_TERMS:
+        out += _vector("energy", None, "output", f"energy term {term}", "J", name=f"energy.{term}")
+    out += (_vector("newton_iters", None, "output", "linear solves of the last step", "1")
+            + _vector("max_uplift", None, "output", "running maximum of the uplift", "m")
+            + _vector("max_raft_rotation", None, "output", "running maximum of the raft rotation", "rad"))
+    out.append(Var("internal_motion", "parameter", "true: the ground motion bundled in resources; false: the "
+                   "input ag", type="Boolean", start="true" if motion else "false", variability="fixed"))
+    return out
+
+
+def layout(vars_: list) -> dict:
+    """What the C runtime needs of the variables: n_real, the first value reference of each slot
+    (-1 when absent), the causality of each Real (0 input, 1 output), the Boolean's reference."""
+    reals = [v for v in vars_ if v.type == "Real"]
+    first = {}
+    for vr, v in enumerate(reals):
+        first.setdefault(v.slot, vr)
+    booleans = [v for v in vars_ if v.type == "Boolean"]
+    return {"n_real": float(len(reals)), "slots": np.array([first.get(s, -1) for s in SLOTS], np.int64),
+            "causality": np.array([0 if v.causality == "input" else 1 for v in reals], np.int64),
+            "vr_internal_motion": float(len(reals) if booleans else -1)}
+
+
+# ---- the binary resource file -----------------------------------------------------------------
+def encode_resources(records: dict) -> bytes:
+    """The bytes of a resource file (fmus/native/README.md): ``records`` maps a name (<= 32
+    ASCII characters) to a float (a float64 scalar), a str (UTF-8 text), or an ndarray of
+    float64 or int64 (up to 4 dimensions, C order)."""
+    body = bytearray()
+    for name, value in records.items():
+        key = name.encode("ascii")
+        if len(key) > 32:
+            raise ValueError(f"resource record name {name!r} is longer than 32 characters")
+        if isinstance(value, str):
+            kind, dims, data = KINDS["text"], (len(value.encode()),), value.encode()
+        else:
+            arr = np.asarray(value)
+            if arr.dtype.kind in "iub":
+                arr = arr.astype("<i8")
+                kind = KINDS["i8"]
+            else:
+                arr = arr.astype("<f8")
+                kind = KINDS["f8"]
+            if arr.ndim > 4:
+                raise ValueError(f"resource record {name!r} has {arr.ndim} dimensions (at most 4)")
+            dims, data = arr.shape, np.ascontiguousarray(arr).tobytes()
+        body += key.ljust(32, b"\0") + struct.pack("<II", kind, len(dims))
+        body += struct.pack("<4Q", *(tuple(dims) + (0,) * (4 - len(dims)))) + struct.pack("<Q", len(data))
+        body += data + b"\0" * (-len(data) % 8)
+    body = bytes(body)
+    return MAGIC + struct.pack("<IIQII", VERSION, len(records), 32 + len(body), zlib.crc32(body), 0) + body
+
+
+def decode_resources(data: bytes) -> dict:
+    """The records of a resource file (the reverse of encode_resources; checks as the C reader)."""
+    if data[:8] != MAGIC:
+        raise ValueError("not an uplift resource file (magic)")
+    version, count, size, checksum = struct.unpack_from("<IIQI", data, 8)
+    if version != VERSION or size != len(data) or checksum != zlib.crc32(data[32:]):
+        raise ValueError("uplift resource file: wrong version, size or checksum")
+    out, off = {}, 32
+    for _ in range(count):
+        name = data[off:off + 32].rstrip(b"\0").decode("ascii")
+        kind, ndim = struct.unpack_from("<II", data, off + 32)
+        dims = struct.unpack_from("<4Q", data, off + 40)[:ndim]
+        (nbytes,) = struct.unpack_from("<Q", data, off + 72)
+        raw = data[off + 80:off + 80 + nbytes]
+        off += 80 + nbytes + (-nbytes % 8)
+        if kind == KINDS["text"]:
+            out[name] = raw.decode()
+        else:
+            arr = np.frombuffer(raw, "<f8" if kind == KINDS["f8"] else "<i8").reshape(dims)
+            out[name] = arr.item() if ndim == 0 else arr.copy()
+    return out
+
+
+# ---- compiling the runtime ----------------------------------------------------------------------
+def fmi_headers() -> Path:
+    """The folder of the FMI 2.0 headers (fmi2Functions.h ...), shipped by fmpy."""
+    import fmpy                        # a dependency of the project; only its C headers are used
+    folder = Path(fmpy.__file__).resolve().parent / "c-code"
+    if not (folder / "fmi2Functions.h").is_file():
+        raise NativeBuildError(f"the FMI 2.0 headers are not in {folder}: reinstall fmpy (pip install fmpy)")
+    return folder
+
+
+def host_platform() -> str:
+    """The FMI 2.0 platform name of this machine (the one the system compiler builds for)."""
+    name = {"linux": "linux64", "darwin": "darwin64", "win32": "win64"}.get(sys.platform)
+    if name is None:
+        raise ValueError(f"the host platform {sys.platform!r} is none of {', '.join(PLATFORMS)}")
+    return name
+
+
+def compile_runtime(platforms=tuple(PLATFORMS), compiler: str = "zig") -> dict:
+    """{platform: bytes of the shared library} of the C runtime for the FMI 2.0 ``platforms``.
+
+    compiler "zig": the C compiler of the ``ziglang`` package (cross-compiles to every platform;
+    its cache makes a repeated build ~0.3 s, the first one per platform takes seconds to a
+    minute while it builds that platform's C library stubs); "cc": the system compiler ($CC,
+    else cc) for the host platform only."""
+    if compiler not in COMPILERS:
+        raise ValueError(f"compiler = {compiler!r}: use one of {', '.join(COMPILERS)}")
+    bad = [p for p in platforms if p not in PLATFORMS]
+    if bad or not platforms:
+        raise ValueError(f"platforms {bad or '(none)'}: give some of {', '.join(PLATFORMS)}")
+    if compiler == "cc" and set(platforms) != {host_platform()}:
+        raise ValueError(f"compiler = 'cc' builds for the host platform ({host_platform()}) only: use "
+                         "compiler = 'zig' to cross-compile")
+    include = fmi_headers()
+    sources = [str(NATIVE / s) for s in SOURCES]
+    out = {}
+    with tempfile.TemporaryDirectory(prefix="uplift_native_") as tmp:
+        for platform in platforms:
+            target, suffix = PLATFORMS[platform]
+            lib = Path(tmp) / f"uplift.{suffix}"
+            if compiler == "zig":
+                cmd = [sys.executable, "-m", "ziglang", "cc", "-target", target, "-s"]
+            else:
+                cmd = [os.environ.get("CC", "cc")]
+            cmd += [*CFLAGS, f"-I{include}", f"-I{NATIVE}", "-o", str(lib), *sources, "-lm"]
+            try:
+                proc = subprocess.run(cmd, cwd=tmp, capture_output=True, text=True, timeout=900)
+            except FileNotFoundError as exc:
+                raise NativeBuildError(f"no C compiler {cmd[0]!r} ({exc}): pip install ziglang, or set $CC") from None
+            if proc.returncode != 0 or not lib.is_file():
+                hint = (" (pip install ziglang: a dependency of uplift)" if "No module named ziglang" in proc.stderr
+                        else "")
+                raise NativeBuildError(f"compiling the native FMU runtime for {platform} failed{hint}:\n"
+                                       f"{' '.join(cmd)}\n{proc.stderr[-4000:]}")
+            out[platform] = lib.read_bytes()
+    return out
+
+
+# ---- the model data of each role ----------------------------------------------------------------
+def model_records(data: FmuData, newton: dict | None = None) -> dict:
+    """{role: resource records without the layout and the GUID}: the soil model for every role,
+    the structure's matrices, static state and settings for the structure and the coupled
+    FMUs, the history gains for the structure FMU. Verifies the soil's passivity (once)."""
+    from structure import NewmarkStepper
+    from structure.spec import contact_from_spec, model_from_spec
+
+    if data.soil_factory != DEFAULT_SOIL_FACTORY:
+        raise ValueError(f"soil factory {data.soil_factory!r}: native FMUs run the recursive convolution of the "
+                         f"rational model ({DEFAULT_SOIL_FACTORY}) only; export with kind = 'python' for another soil")
+    unknown = set(newton or {}) - set(NEWTON_KEYS)
+    if unknown:
+        raise ValueError(f"newton keys {sorted(unknown)}: allowed {', '.join(NEWTON_KEYS)}")
+    dt = float(data.dt)
+    n, N = data.soil_model.n, np.asarray(data.xy).shape[0]
+    if n != 6 + N:
+        raise ValueError(f"the soil model has {n} DOFs, the interface needs 6 + N = {6 + N}")
+    soil = soil_from_model(data.soil_model, dt, DEFAULT_SOIL_FACTORY, data.soil_kwargs)     # verifies passivity
+    pr, Rr, pc, Rc = data.soil_model.pole_split
+    common = {"dt": dt, "n_dof": float(n), "poles_real": pr, "poles_pair": np.stack([pc.real, pc.imag], -1).reshape(-1, 2),
+              "residues_real": Rr, "residues_pair": np.stack([Rc.real, Rc.imag], -1).reshape(-1, n, n, 2),
+              "D": data.soil_model.D, "E": data.soil_model.E}
+    contact = dataclasses.replace(contact_from_spec(data.contact), **(newton or {}))
+    if not 0 <= contact.max_subdiv <= 30 or contact.max_iter < 1:
+        raise ValueError(f"newton: max_subdiv = {contact.max_subdiv} must lie in [0, 30] and max_iter = "
+                         f"{contact.max_iter} be >= 1")
+    model = model_from_spec(data.structure, data.xy, data.area)
+    st = NewmarkStepper(model, soil, dt, contact=contact, damping=data.damping, alpha=float(data.alpha),
+                        external_soil=True)
+    ns = st.ns
+    dense = lambda a: np.asarray(a[:ns, :ns].toarray(), float)
+    nodes = [model.dofs(model.node_by_name(nm).id)[:3] for nm in data.output_nodes]
+    stepper = {**common, "ns": float(ns), "N": float(N), "alpha": st.alpha,
+               "contact_enabled": float(contact.enabled), "contact_tol": float(contact.tol),
+               "contact_max_iter": float(contact.max_iter), "contact_max_subdiv": float(contact.max_subdiv),
+               "M": st.M, "Ks": dense(st.Ks), "Cs": dense(st.Cs), "Mr": st.Mr[:ns], "Bq3": st.Bq3, "kp": st.kp,
+               "P0": st.P0, "delta0": st.delta0,
+               "node_dofs": np.array(nodes, np.int64).reshape(-1, 3)}
+    if data.motion is not None:
+        stepper["motion"] = np.asarray(data.motion, float).reshape(-1, 3)
+    Gx, Gv = history_gains(soil, dt)
+    return {"soil": {**common, "role": 0.0}, "structure": {**stepper, "role": 1.0, "Gx": Gx, "Gv": Gv},
+            "coupled": {**stepper, "role": 2.0}}
+
+
+# ---- the model description ---------------------------------------------------------------------
+def model_description(role: str, guid: str, vars_: list, dt: float, stop_time) -> bytes:
+    """modelDescription.xml of a native FMU: the Python FMU's variables, units, model structure
+    (outputs without direct feedthrough) and default experiment, CoSimulation with SourceFiles."""
+    cls = ROLES[role]
+    root = ET.Element("fmiModelDescription", {
+        "fmiVersion": "2.0", "modelName": cls.__name__, "guid": guid, "description": cls.description,
+        "author": cls.author, "generationTool": "uplift native (fmus/native_build.py)",
+        "variableNamingConvention": "structured", "numberOfEventIndicators": "0"})
+    cs = ET.SubElement(root, "CoSimulation", {
+        "modelIdentifier": cls.__name__, "needsExecutionTool": "false",
+        "canHandleVariableCommunicationStepSize": "false", "canInterpolateInputs": "false",
+        "maxOutputDerivativeOrder": "0", "canRunAsynchronuously": "false",
+        "canBeInstantiatedOnlyOncePerProcess": "false", "canNotUseMemoryManagementFunctions": "true",
+        "canGetAndSetFMUstate": "true", "canSerializeFMUstate": "true",
+        "providesDirectionalDerivative": "false"})
+    files = ET.SubElement(cs, "SourceFiles")
+    for src in SOURCES:
+        ET.SubElement(files, "File", name=src)
+    units = list(dict.fromkeys(v.unit for v in vars_ if v.unit))
+    defs = ET.SubElement(root, "UnitDefinitions")
+    for unit in units:
+        ET.SubElement(ET.SubElement(defs, "Unit", name=unit), "BaseUnit", {k: str(e) for k, e in UNITS[unit].items()})
+    cats = ET.SubElement(root, "LogCategories")
+    ET.SubElement(cats, "Category", name="logStatusError", description="errors: refused calls and failed steps")
+    ex = {"startTime": "0.0", "stepSize": repr(float(dt))}
+    if stop_time is not None:
+        ex["stopTime"] = repr(float(stop_time))
+    ET.SubElement(root, "DefaultExperiment", ex)
+    mv = ET.SubElement(root, "ModelVariables")
+    outputs, vr_real = [], 0
+    for k, v in enumerate(vars_, start=1):
+        attrs = {"name": v.name, "valueReference": str(vr_real),
+                 "description": v.description, "causality": v.causality}
+        if v.variability:
+            attrs["variability"] = v.variability
+        if v.causality == "output":
+            attrs["initial"] = "calculated"
+            outputs.append(k)
+        sv = ET.SubElement(mv, "ScalarVariable", attrs)
+        typed = {}
+        if v.start is not None:
+            typed["start"] = v.start
+        if v.unit:
+            typed["unit"] = v.unit
+        ET.SubElement(sv, v.type, typed)
+        vr_real += v.type == "Real"
+    ms = ET.SubElement(root, "ModelStructure")
+    for tag in ("Outputs", "InitialUnknowns"):
+        node = ET.SubElement(ms, tag)
+        for k in outputs:
+            ET.SubElement(node, "Unknown", index=str(k), dependencies="")
+    ET.indent(root)
+    return ET.tostring(root, encoding="UTF-8", xml_declaration=True)
+
+
+# ---- the FMUs -------------------------------------------------------------------------------------
+def build_native_fmus(data: FmuData, outdir, coupled: bool = False, *, platforms=tuple(PLATFORMS),
+                      compiler: str = "zig", newton: dict | None = None) -> dict:
+    """Write ``outdir/structure.fmu`` and ``outdir/soil.fmu`` (and ``coupled.fmu`` if ``coupled``)
+    as native FMUs; returns ``{"structure": path, "soil": path[, "coupled": path]}`` as
+    fmus.build.build_fmus does.
+
+    platforms : FMI 2.0 platform names to compile for (default linux64, win64, darwin64)
+    compiler : "zig" (the ziglang package, cross-compiles) or "cc" (system compiler, host only)
+    newton : overrides of the contact Newton settings {tol, max_iter, max_subdiv} (the scene
+             tables leave them at structure.ContactSettings' defaults, as the Python FMUs do)
+    """
+    outdir = Path(outdir)
+    records = model_records(data, newton)
+    binaries = compile_runtime(platforms, compiler)
+    n, N = data.soil_model.n, np.asarray(data.xy).shape[0]
+    stop = None if data.motion is None else (np.asarray(data.motion).shape[0] - 1) * float(data.dt)
+    roles = ("structure", "soil") + (("coupled",) if coupled else ())
+    outdir.mkdir(parents=True, exist_ok=True)
+    out = {}
+    for role in roles:
+        vars_ = variables(role, n, N, data.output_nodes, data.motion is not None)
+        recs = {**records[role], **layout(vars_)}
+        payload = encode_resources(recs)
+        guid = str(uuid.UUID(bytes=hashlib.sha256(payload + model_description(role, "", vars_, data.dt, stop))
+                             .digest()[:16], version=4))
+        md = model_description(role, guid, vars_, data.dt, stop)
+        out[role] = _zip(outdir / f"{role}.fmu", ROLES[role].__name__, md,
+                         encode_resources({"guid": guid, **recs}), binaries)
+    return out
+
+
+def _zip(path: Path, identifier: str, md: bytes, resources: bytes, binaries: dict) -> Path:
+    """The FMU archive, written atomically, with fixed member dates (same inputs, same bytes)."""
+    def add(z, name, blob, method=zipfile.ZIP_DEFLATED):
+        info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
+        info.compress_type = method
+        info.external_attr = 0o644 << 16
+        z.writestr(info, blob)
+
+    tmp = path.with_name(path.name + ".tmp")
+    with zipfile.ZipFile(tmp, "w") as z:
+        add(z, "modelDescription.xml", md)
+        for platform, blob in binaries.items():
+            add(z, f"binaries/{platform}/{identifier}.{PLATFORMS[platform][1]}", blob)
+        for src in SOURCES + HEADERS:
+            add(z, f"sources/{src}", (NATIVE / src).read_bytes())
+        add(z, f"resources/{RESOURCE_FILE}", resources, zipfile.ZIP_STORED)   # read at every instantiation
+    shutil.move(tmp, path)
+    return path
