@@ -6,6 +6,11 @@ comparison of ``orchestrator.compare`` and the figures of the paper's kind (fig.
 at the raft edges, raft displacements with and without uplift, floor response spectra),
 embedded as base64 PNG so that the page needs no other file. The figures are also written
 next to it as PNG files.
+
+``uplift report ensemble.h5 -o DIR`` (an ensemble file, ``orchestrator.ensemble``) writes the
+ensemble's page instead: the fractiles over the records per PGA and route, the runs that did
+not converge and why, max uplift (raft rotation, contact ratio) against PGA and the fractile
+floor spectra per PGA.
 """
 from __future__ import annotations
 
@@ -14,7 +19,13 @@ import html
 import io
 from pathlib import Path
 
+import numpy as np
+
+from structure.results import Status
+
 from orchestrator.compare import compare
+from orchestrator.ensemble import read_ensemble
+from orchestrator.motion import G
 from orchestrator.plots import pyplot, run_figures
 from orchestrator.results import ResultsFileError, read_motion, read_results, summary
 from orchestrator.routes import get_route, route_names
@@ -84,14 +95,7 @@ def write_report(results_path, directory, reference: str | None = None) -> Path:
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     cmp = compare(results, reference=reference)
-    plt = pyplot()
-    figures = []
-    for name, fig in run_figures(results, motion, scene):
-        buf = io.BytesIO()
-        fig.savefig(buf, format="png", dpi=100)
-        plt.close(fig)
-        (directory / f"{name}.png").write_bytes(buf.getvalue())
-        figures.append((name, base64.b64encode(buf.getvalue()).decode("ascii")))
+    figures = _save_figures(run_figures(results, motion, scene), directory)
     esc = html.escape
     parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>uplift report: {esc(scene)}</title>",
              f"<style>{STYLE}</style></head><body>",
@@ -110,9 +114,141 @@ def write_report(results_path, directory, reference: str | None = None) -> Path:
              "<h2>Figures</h2><p>Per route: uplift at the raft edges and raft displacements (paper fig. 3-4), "
              "floor response spectra (fig. 5-6); dashed: the <code>linear</code> route (no uplift) "
              "when present.</p>"]
-    parts += [f"<h3>{esc(name)}</h3><img alt='{esc(name)}' src='data:image/png;base64,{data}'>"
-              for name, data in figures]
-    parts.append("</body></html>")
-    out = directory / "report.html"
-    out.write_text("\n".join(parts), encoding="utf-8")
+    parts += _images(figures)
+    return _write_page(directory, parts)
+
+
+def _save_figures(figures, directory: Path) -> list:
+    """Write each (name, Figure) as ``directory/<name>.png`` and close it; returns [(name, base64 PNG)]."""
+    plt = pyplot()
+    out = []
+    for name, fig in figures:
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=100)
+        plt.close(fig)
+        (directory / f"{name}.png").write_bytes(buf.getvalue())
+        out.append((name, base64.b64encode(buf.getvalue()).decode("ascii")))
     return out
+
+
+def _images(figures) -> list:
+    esc = html.escape
+    return [f"<h3>{esc(name)}</h3><img alt='{esc(name)}' src='data:image/png;base64,{data}'>"
+            for name, data in figures]
+
+
+def _write_page(directory: Path, parts) -> Path:
+    out = directory / "report.html"
+    out.write_text("\n".join(parts + ["</body></html>"]), encoding="utf-8")
+    return out
+
+
+# ---- ensembles ----------------------------------------------------------------------------------
+
+#: the fractile lines of the ensemble figures: quantile -> (label, line style)
+FRACTILE_LINES = {0.5: ("median", "-"), 0.84: ("84th percentile", "--")}
+#: per-cell numbers drawn against PGA: variable -> (axis label, display factor)
+AGAINST_PGA = {"max_uplift": ("max uplift (mm)", 1e3), "max_raft_rotation": ("max raft rotation (mrad)", 1e3),
+               "min_contact_ratio": ("min contact ratio (%)", 100.0)}
+
+
+def ensemble_figures(ds):
+    """Figures of an ensemble, yielded as (name, Figure): max uplift, raft rotation and contact
+    ratio against PGA (each record a dot, the median a line, the 16-84 % band shaded, one colour
+    per route), then per PGA the fractile floor spectra (median, 84th percentile, 16-84 % band)
+    at each output node in the motion's direction and vertically. The caller closes each figure."""
+    plt = pyplot()
+    pga = ds["pga"].values
+    routes = [str(r) for r in ds["route"].values]
+    converged = ds["status"].values == Status.CONVERGED.value
+    fig, axes = plt.subplots(1, len(AGAINST_PGA), figsize=(5 * len(AGAINST_PGA), 4.5), constrained_layout=True)
+    for ax, (name, (label, factor)) in zip(axes, AGAINST_PGA.items()):
+        for k, route in enumerate(routes):
+            cells = np.where(converged[:, :, k], ds[name].values[:, :, k], np.nan) * factor
+            ax.plot(np.broadcast_to(pga, cells.shape).ravel(), cells.ravel(), ".", color=f"C{k}", alpha=0.5)
+            q = ds[f"{name}_fractile"].sel(route=route) * factor
+            ax.fill_between(pga, q.sel(quantile=0.16), q.sel(quantile=0.84), color=f"C{k}", alpha=0.2)
+            ax.plot(pga, q.sel(quantile=0.5), "o-", color=f"C{k}", label=f"{route}: median, 16-84 %")
+        ax.set_xlabel("PGA (g)")
+        ax.set_ylabel(label)
+        ax.grid(True, alpha=0.3)
+    axes[0].legend()
+    fig.suptitle(f"{ds.attrs.get('scene', '')}: {ds.sizes['record']} records per PGA (dots: each record)")
+    yield "ensemble_against_pga", fig
+    directions = list(dict.fromkeys([str(ds.attrs.get("motion_direction", "x")), "z"]))
+    nodes = [str(n) for n in ds["node"].values]
+    f = ds["frequency"].values
+    for p in pga:
+        fig, axes = plt.subplots(len(directions), max(1, len(nodes)), figsize=(4.5 * max(1, len(nodes)),
+                                 3.5 * len(directions)), squeeze=False, sharex=True, constrained_layout=True)
+        for row, d in enumerate(directions):
+            for col, node in enumerate(nodes):
+                ax = axes[row, col]
+                for k, route in enumerate(routes):
+                    q = ds["floor_spectrum_fractile"].sel(pga=p, route=route, node=node, direction=d) / G
+                    ax.fill_between(f, q.sel(quantile=0.16), q.sel(quantile=0.84), color=f"C{k}", alpha=0.2)
+                    for quantile, (what, style) in FRACTILE_LINES.items():
+                        ax.semilogx(f, q.sel(quantile=quantile), style, color=f"C{k}", label=f"{route}: {what}")
+                ax.set_title(f"{node}, {d}")
+                ax.grid(True, which="both", alpha=0.3)
+            axes[row, 0].set_ylabel(f"pseudo-acceleration, {100 * ds.attrs.get('damping', 0.05):g} % (g)")
+        for ax in axes[-1]:
+            ax.set_xlabel("frequency (Hz)")
+        axes[0, 0].legend(fontsize="small")
+        fig.suptitle(f"{ds.attrs.get('scene', '')}: floor response spectra at {p:g} g over "
+                     f"{ds.sizes['record']} records (band: 16-84 %)")
+        yield f"ensemble_floor_spectra_{p:g}g", fig
+
+
+def ensemble_rows(ds) -> list:
+    """Rows of the per-PGA table of an ensemble (strings, display units)."""
+    rows = []
+    for p in ds["pga"].values:
+        for route in ds["route"].values:
+            q = lambda name, quantile: float(ds[f"{name}_fractile"].sel(pga=p, route=route, quantile=quantile))
+            cells = ds["wall_time"].sel(pga=p, route=route).values
+            rows.append([f"{p:g}", str(route), f"{int(ds['converged_records'].sel(pga=p, route=route))}/"
+                         f"{ds.sizes['record']}", f"{1e3 * q('max_uplift', 0.5):.3f}",
+                         f"{1e3 * q('max_uplift', 0.84):.3f}", f"{1e3 * q('max_raft_rotation', 0.5):.4f}",
+                         f"{1e3 * q('max_raft_rotation', 0.84):.4f}", f"{100 * q('min_contact_ratio', 0.5):.1f}",
+                         f"{100 * q('min_contact_ratio', 0.16):.1f}", f"{np.nanmedian(cells):.2f}"
+                         if np.isfinite(cells).any() else "-"])
+    return rows
+
+
+ENSEMBLE_HEADER = ["PGA (g)", "route", "converged", "max uplift median (mm)", "max uplift 84 % (mm)",
+                   "raft rotation median (mrad)", "raft rotation 84 % (mrad)", "min contact median (%)",
+                   "min contact 16 % (%)", "median wall (s)"]
+
+
+def write_ensemble_report(path, directory) -> Path:
+    """Write ``directory/report.html`` (self-contained) for an ensemble file of ``uplift
+    ensemble``: the fractiles per PGA and route, the runs that did not converge and why, the
+    figures of ``ensemble_figures`` (also as PNG next to it)."""
+    ds = read_ensemble(path)
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    figures = _save_figures(ensemble_figures(ds), directory)
+    esc = html.escape
+    a = ds.attrs
+    status = ds["status"].values
+    others = [[str(ds["record"].values[i]), f"{ds['pga'].values[j]:g}", str(ds["route"].values[k]),
+               str(status[i, j, k]), str(ds["message"].values[i, j, k])]
+              for i, j, k in zip(*np.nonzero(status != Status.CONVERGED.value))]
+    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>uplift ensemble: {esc(a['scene'])}</title>",
+             f"<style>{STYLE}</style></head><body>",
+             f"<h1>Foundation uplift: ensemble of scene <code>{esc(a['scene'])}</code></h1>",
+             f"<p>Ensemble file <code>{esc(str(path))}</code>, written {esc(str(a.get('created', '')))}: "
+             f"{ds.sizes['record']} records x {ds.sizes['pga']} PGAs x {ds.sizes['route']} routes = {status.size} "
+             f"runs ({a['computed']} computed, {a['reused']} kept from an earlier run) on {a['workers']} workers in "
+             f"{a['wall_s']:.1f} s (set-up: sweep and fit {a['setup_s']:.1f} s, time-step check "
+             f"{a['dt_check_s']:.1f} s).</p>",
+             "<h2>Routes</h2><ul>" + "".join(f"<li><b>{esc(str(r))}</b>: {esc(route_note(str(r)))}</li>"
+                                             for r in ds["route"].values) + "</ul>",
+             "<h2>Fractiles over the records, per PGA</h2><p>Over the converged runs only; linear "
+             "interpolation between the sorted values (numpy).</p>", _table(ENSEMBLE_HEADER, ensemble_rows(ds)),
+             "<h2>Runs that did not converge</h2>"
+             + (_table(["record", "PGA (g)", "route", "status", "why"], others) if others else "<p>None.</p>"),
+             "<h2>Figures</h2>"]
+    parts += _images(figures)
+    return _write_page(directory, parts)

@@ -4,8 +4,16 @@ then each route of the registry (orchestrator.routes), into one result per route
 ``run_scene(scene)`` returns ``({route: RouteResult}, Motion)``. Every route returns a
 result: converged, stopped (the histories so far and the reason) or refused (the reason).
 What the run reuses or skips (cache hits, interface reductions) is in each result's notes.
+
+Many runs of one scene under different motions (an ensemble of records,
+``orchestrator.ensemble``) share what does not depend on the motion: ``prepare_run(scene)``
+computes it once (the sweep, the fit, the time-step checks' proxy springs) as a ``SharedRun``
+that ``run_scene(..., shared=...)`` takes instead of recomputing it.
 """
 from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -97,20 +105,26 @@ def check_time_step(model, soil, dt: float) -> float:
     return f1
 
 
-def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=None, options=None,
-              motion=None, fit_progress=None):
-    """Run routes of a scene. Returns (``{route: RouteResult}``, Motion).
+@dataclass(frozen=True)
+class SharedRun:
+    """What the runs of one scene share whatever their motion, computed once by ``prepare_run``.
 
-    routes : names (default: the scene's ``[analysis].routes``); options : {route: {option:
-    value}} (route options such as the TF padding, see ``Route.options``); motion : a Motion
-    replacing the scene's (resampled to ``[analysis].dt``).
-    ``progress(route)`` returns a callable(k, nt) for each route; ``sweep_progress(done, total,
-    freq_hz)`` follows the BEM sweep, done once for all routes (one factorisation per
-    frequency for every table); ``fit_progress(stage, done, total)`` the rational fit. A route
-    that stops keeps its results so far (status STOPPED,
-    ``message`` says why) and the other routes still run; a route that cannot run on this
-    scene is REFUSED with the reason. Bad input found before any route runs raises.
+    routes : the route names it was prepared for; tables : {"rigid"|"gap": ImpedanceTable};
+    sweep : the sweep's stats (``computed``, ``from_cache``); springs : the proxy springs of the
+    time-step checks (``proxy_springs``); fit : the FitResult of the gap table, or None when no
+    route needs it; dt_check : a step-doubling check (``step_doubling``) standing for every run,
+    or None: each run checks its own motion (as a single run does).
     """
+    routes: tuple
+    tables: Mapping
+    sweep: Mapping
+    springs: object
+    fit: object = None
+    dt_check: Mapping | None = None
+
+
+def _chosen_routes(scene, routes):
+    """(scene with ``routes``, [Route]); a scene without [structure] for routes that need one raises."""
     if routes:
         scene = scene.with_routes(routes)
     chosen = [get_route(n) for n in scene.analysis.routes]
@@ -118,22 +132,73 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
         raise SceneError(f"scene {scene.name!r} has no [structure]: the routes "
                          f"{', '.join(r.name for r in chosen if r.needs_structure)} need one "
                          "(add [structure] model = \"reactor\", or inline nodes/beams/masses/raft)")
+    return scene, chosen
+
+
+def _tables_read(scene, chosen) -> tuple:
+    """The impedance tables the routes read (their union, in route order)."""
+    return tuple(dict.fromkeys(t for r in chosen for t in r.tables(scene)))
+
+
+def prepare_run(scene, routes=None, cache_dir=None, sweep_progress=None, fit_progress=None) -> SharedRun:
+    """The parts of ``run_scene`` that do not depend on the motion, for many runs of ``scene``
+    with ``routes`` (default: the scene's): the time-step check (raises as ``run_scene`` does),
+    one impedance sweep and, when a route needs it, one rational fit (built here, not on
+    demand: a fit that fails raises instead of refusing the route). Progress callbacks as in
+    ``run_scene``."""
+    scene, chosen = _chosen_routes(scene, routes)
+    outputs = _tables_read(scene, chosen)
+    with compute_threads():
+        springs = proxy_springs(scene, bool(outputs), cache_dir)
+        check_time_step(scene.model(), springs, scene.analysis.dt)
+        sweep, tables, fit = {}, {}, None
+        if outputs:
+            tables = scene_impedance(scene, outputs, cache_dir=cache_dir, progress=sweep_progress, stats=sweep)
+        if "gap" in tables and any(r.needs_fit for r in chosen):
+            fit = scene_fit(scene, cache_dir=cache_dir, table=tables["gap"], fit_progress=fit_progress)
+    return SharedRun(routes=tuple(scene.analysis.routes), tables=tables, sweep=sweep, springs=springs, fit=fit)
+
+
+def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=None, options=None,
+              motion=None, fit_progress=None, shared: SharedRun | None = None):
+    """Run routes of a scene. Returns (``{route: RouteResult}``, Motion).
+
+    routes : names (default: the scene's ``[analysis].routes``); options : {route: {option:
+    value}} (route options such as the TF padding, see ``Route.options``); motion : a Motion
+    replacing the scene's (resampled to ``[analysis].dt``); shared : a ``prepare_run`` of this
+    scene for these routes (or more): its sweep, fit and proxy springs are used, not recomputed.
+    ``progress(route)`` returns a callable(k, nt) for each route; ``sweep_progress(done, total,
+    freq_hz)`` follows the BEM sweep, done once for all routes (one factorisation per
+    frequency for every table); ``fit_progress(stage, done, total)`` the rational fit. A route
+    that stops keeps its results so far (status STOPPED,
+    ``message`` says why) and the other routes still run; a route that cannot run on this
+    scene is REFUSED with the reason. Bad input found before any route runs raises.
+    """
+    scene, chosen = _chosen_routes(scene, routes)
+    if shared is not None and not set(scene.analysis.routes) <= set(shared.routes):
+        raise ValueError(f"run_scene: shared was prepared for the routes {', '.join(shared.routes)}, "
+                         f"not {', '.join(scene.analysis.routes)}: call prepare_run with every route")
     dt = scene.analysis.dt
     motion = make_motion(scene.motion, dt) if motion is None else motion.resampled(dt)
     with compute_threads():
         ctx = RunContext(scene=scene, motion=motion, cache_dir=cache_dir)
-        outputs = tuple(dict.fromkeys(t for r in chosen for t in r.tables(scene)))
-        springs = proxy_springs(scene, bool(outputs), cache_dir)
+        outputs = _tables_read(scene, chosen)
+        springs = shared.springs if shared is not None else proxy_springs(scene, bool(outputs), cache_dir)
         check_time_step(ctx.model(), springs, dt)
         dt_notes = {}
         if scene.contact.enabled and any(r.time_stepped for r in chosen):
-            dt_check = step_doubling(scene, ctx.model(), springs, motion)
+            dt_check = shared.dt_check if shared is not None and shared.dt_check is not None else \
+                step_doubling(scene, ctx.model(), springs, motion)
             warning = step_doubling_warning(dt_check)
             dt_notes = {"warnings": [warning] if warning else [], "info": {"dt_check": dt_check}}
         sweep = {}
-        if outputs:
+        if shared is not None:
+            ctx.tables, sweep = shared.tables, shared.sweep
+            if shared.fit is not None:
+                ctx.shared["fit"] = shared.fit
+        elif outputs:
             ctx.tables = scene_impedance(scene, outputs, cache_dir=cache_dir, progress=sweep_progress, stats=sweep)
-        if "gap" in ctx.tables:
+        if "gap" in ctx.tables and "fit" not in ctx.shared:
             ctx.fit_builder = lambda: scene_fit(scene, cache_dir=cache_dir, table=ctx.tables["gap"],
                                                 fit_progress=fit_progress)
         results = {}
