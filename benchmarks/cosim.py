@@ -21,6 +21,11 @@ make single timings noisy):
                (same arithmetic: equal to cosim bit for bit). Its parts against cosim's isolate
                what the FMU layer costs.
 
+Native FMUs (fmus/native_build.py, compiled for this platform) in each repeat too: the native
+pair under the same master, the native coupled FMU stepped through its ag input; their wall and
+CPU time, start-up (extraction, instantiation, initialisation) and time per step beside the
+monolithic route's (target: the native coupled FMU faster than the monolithic route).
+
 Prints: wall and CPU time of each route, cosim / monolithic (target <= 1.5), the real-time
 factor (target > 1), the differences cosim vs monolithic (max uplift, raft, gap: round-off
 expected), and per part (setup, structure step, soil history, transfers) the in-process time,
@@ -94,6 +99,28 @@ def split_in_process(scene, motion, model):
     return rows[:, gap], timer
 
 
+def native_coupled(path, motion):
+    """The native coupled FMU driven by the motion's ag input, one step of dt per call (as the
+    pair): (wall s, CPU s, start-up s, max uplift m, raft (nt, 6)); start-up: extraction,
+    instantiation, initialisation."""
+    from orchestrator.master import FmuSlave
+
+    dt, nt = motion.dt, motion.acc.shape[0]
+    t0, c0 = time.perf_counter(), time.process_time()
+    with FmuSlave(path, "coupled", parameters={"internal_motion": False}) as C:
+        C.set("ag", motion.acc[0])
+        C.initialize()
+        start = time.perf_counter() - t0
+        raft = np.empty((nt, 6))
+        raft[0] = C.get("x")[:6]
+        for k in range(1, nt):
+            C.set("ag", motion.acc[k])
+            C.do_step((k - 1) * dt, dt)
+            raft[k] = C.get("x")[:6]
+        up = float(C.get("max_uplift")[0])
+    return time.perf_counter() - t0, time.process_time() - c0, start, up, raft
+
+
 def run_engines(scene, motion, model, outdir, mono):
     """The exported system once in each engine: {name: (start-up s, total s, max uplift m, max
     raft rotation rad)}, the maxima read from the FMUs' headline outputs."""
@@ -103,7 +130,7 @@ def run_engines(scene, motion, model, outdir, mono):
     from orchestrator.master import FmuSlave, cosimulate
 
     dt, nt = motion.dt, motion.acc.shape[0]
-    exp = export_scene(scene, outdir, model, motion=motion)
+    exp = export_scene(scene, outdir, model, motion=motion, kind="python")
     out = {}
     for schedule in ("gauss-seidel", "soil-first", "jacobi"):
         t0 = time.perf_counter()
@@ -161,6 +188,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
 
     from fmus.build import build_fmus
+    from fmus.native_build import build_native_fmus, host_platform
     from orchestrator.export import fmu_data
     from orchestrator.master import cosimulate
     from orchestrator.motion import synthetic_motion
@@ -184,11 +212,16 @@ def main(argv=None):
           f"OPENBLAS_NUM_THREADS={os.environ.get('OPENBLAS_NUM_THREADS', 'unset')}\n")
 
     runs = {"monolithic": [], "cosim": [], "split": []}      # (wall s, CPU s, Timer or None)
+    native = {"native pair": [], "native coupled": []}      # (wall s, CPU s, start-up s, max uplift m)
     with tempfile.TemporaryDirectory(prefix="uplift_bench_") as tmp:
         t0 = time.perf_counter()
         fmus = build_fmus(fmu_data(scene, model, dt), tmp)
         s_fmu, g_fmu = fmus["structure"], fmus["soil"]
         build_s = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        nat = build_native_fmus(fmu_data(scene, model, dt), Path(tmp) / "native", coupled=True,
+                                platforms=(host_platform(),))
+        native_build_s = time.perf_counter() - t0
         run_monolithic(scene, motion, model)           # warm-up: imports, the passivity memo
         for _ in range(args.repeat):
             c0 = time.process_time()
@@ -203,6 +236,12 @@ def main(argv=None):
             runs["cosim"].append((cos.wall_s, c2 - c1, {"timing": cos.notes.timings,
                                                         "timing_cpu": cos.info["timing_cpu"]}))
             runs["split"].append((split_s, c3 - c2, {"timing": split.parts, "timing_cpu": split.cpu}))
+            c0 = time.process_time()
+            npair = cosimulate(nat["structure"], nat["soil"], motion.acc, dt)
+            native["native pair"].append((npair.wall_s, time.process_time() - c0,
+                                          npair.notes.timings["initialisation"], npair.max_uplift()))
+            wall_c, cpu_c, start_c, up_c, raft_c = native_coupled(nat["coupled"], motion)
+            native["native coupled"].append((wall_c, cpu_c, start_c, up_c))
         engines = run_engines(scene, motion, model, Path(tmp) / "export", mono) if args.engines else None
 
     wall = {r: median([w for w, _, _ in v]) for r, v in runs.items()}
@@ -222,6 +261,24 @@ def main(argv=None):
           f"{np.abs(cos.raft - mono.raft).max() / np.abs(mono.raft).max():.1e} relative, gap "
           f"{np.abs(cos.gap - mono.gap).max():.1e} m (round-off expected); split vs cosim gap "
           f"{np.abs(gap_split - cos.gap).max():.1e} m")
+    print(f"\n{'native FMUs (C)':16s} {'wall s':>8s} {'CPU s':>8s} {'start-up s':>10s} {'us/step':>8s} "
+          f"{'max uplift mm':>14s} {'vs monolithic':>13s}")
+    rows = {"monolithic": (wall["monolithic"], cpu["monolithic"], float("nan"), mono.max_uplift()),
+            "cosim (Python)": (wall["cosim"], cpu["cosim"],
+                               median([i["timing"]["initialisation"] for _, _, i in runs["cosim"]]), cos.max_uplift())}
+    rows.update({name: tuple(median([r[j] for r in v]) for j in range(4)) for name, v in native.items()})
+    for name, (w, c, start, up) in rows.items():
+        per_step = 1e6 * (w - (0.0 if np.isnan(start) else start)) / (nt - 1)
+        print(f"{name:16s} {w:8.2f} {c:8.2f} {start:10.3f} {per_step:8.0f} {1e3 * up:14.6f} "
+              f"{abs(up - mono.max_uplift()) / mono.max_uplift():13.1e}")
+    print(f"(the {host_platform()} binary, built in {native_build_s:.1f} s; start-up: extraction, instantiation,"
+          " initialisation;\n monolithic: its wall_s, stepper construction included; native coupled driven through"
+          f" its ag input; raft\n native coupled vs monolithic "
+          f"{np.abs(raft_c - mono.raft).max() / np.abs(mono.raft).max():.1e}, native pair vs cosim "
+          f"{np.abs(npair.raft - cos.raft).max() / np.abs(cos.raft).max():.1e} relative)")
+    nc = rows["native coupled"]
+    print(f"native coupled / monolithic: wall {nc[0] / wall['monolithic']:.2f}, CPU {nc[1] / cpu['monolithic']:.2f}"
+          f"; target < 1")
     if engines is not None:
         print(f"\n{'engine (once)':34s} {'start-up s':>10s} {'us/step':>8s} {'total s':>8s} {'max uplift mm':>14s} "
               f"{'vs monolithic':>13s} {'rotation':>9s}")

@@ -21,12 +21,14 @@ from soil_impedance.fit import save_fit
 
 from orchestrator.bench import bench, bench_config, format_rows, json_safe, plot_rows
 from orchestrator.compare import compare, format_table
+from orchestrator.crosscheck import write_cross_check
+from orchestrator.ensemble import DT_CHECKS, EnsembleError, ensemble_summary, is_ensemble_file, run_ensemble
 from orchestrator.errors import ComputationError, UserInputError
-from orchestrator.export import export_scene
+from orchestrator.export import KINDS, export_scene
 from orchestrator.impedance import rigid_json, scene_fit, scene_impedance, scene_static
 from orchestrator.plots import plot_impedance, plot_run
 from orchestrator.progress import Progress, frequency_bar, stage_bar, step_bar
-from orchestrator.report import write_report
+from orchestrator.report import write_ensemble_report, write_report
 from orchestrator.results import ResultsFileError, check_output_path, read_results, summary, write_results
 from orchestrator.routes import route_names
 from orchestrator.run import run_scene
@@ -105,10 +107,20 @@ def _parser() -> argparse.ArgumentParser:
     fit.set_defaults(func=cmd_fit)
 
     exp = sub.add_parser("export", help="export the structure and soil FMUs and an SSP system",
-                         description="Write structure.fmu, soil.fmu and system.ssd (FMI 2.0 co-simulation, "
-                                     "fixed step) for the scene; libcosimpy runs the .ssd as it is.")
+                         description="Write structure.fmu, soil.fmu, coupled.fmu, system.ssd and system.ssp "
+                                     "(FMI 2.0 co-simulation, fixed step) for the scene; libcosimpy runs the "
+                                     ".ssd as it is. With --cross-check, also the FMI cross-check folders "
+                                     "of the three FMUs with their reference results.")
     scene_arg(exp)
     exp.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output directory")
+    exp.add_argument("--kind", choices=KINDS[::-1], default="native",
+                     help="native (default): compiled C for linux64, win64 and darwin64, no Python needed by the "
+                          "host; python: pythonfmu (the host needs Python with numpy and scipy). The same "
+                          "variables and the same answers (docs/native.md)")
+    exp.add_argument("--cross-check", type=Path, default=None, metavar="XDIR",
+                     help="write XDIR/fmus/2.0/cs/<platform>/uplift/<version>/<Model>/ for each FMU (the FMU, "
+                          "<Model>_in.csv, <Model>_ref.csv, <Model>_ref.opt, README.md; see docs/fmus.md), "
+                          "checked with fmpy's cross-check validator")
     no_cache(exp)
     exp.set_defaults(func=cmd_export)
 
@@ -120,15 +132,49 @@ def _parser() -> argparse.ArgumentParser:
     json_flag(cmp)
     cmp.set_defaults(func=cmd_compare)
 
-    rep = sub.add_parser("report", help="self-contained HTML report of a results file",
+    rep = sub.add_parser("report", help="self-contained HTML report of a results or ensemble file",
                          description="Write DIR/report.html (figures embedded) with the per-route summary, "
                                      "the route comparison and the paper's figures 3-6; the figures "
-                                     "are also written to DIR as PNG.")
-    rep.add_argument("results", type=Path, help="results HDF5 file written by `uplift run`")
+                                     "are also written to DIR as PNG. For an ensemble file (`uplift "
+                                     "ensemble`): the fractiles per PGA, max uplift against PGA and the "
+                                     "fractile floor spectra per PGA.")
+    rep.add_argument("results", type=Path, help="results HDF5 file written by `uplift run` (or `uplift ensemble`)")
     rep.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output directory")
     rep.add_argument("--reference", default=None, help="reference route of the comparison "
                                                        "(default: timefreq, else the first)")
     rep.set_defaults(func=cmd_report)
+
+    ens = sub.add_parser("ensemble", help="the scene under many records and PGAs (dask), fractiles over records",
+                         description="Run the scene under each record (or seed of its synthetic motion) "
+                                     "scaled to each PGA, on a dask.distributed cluster (one BEM sweep and "
+                                     "one fit for all), and write every cell and the fractiles over the "
+                                     "records (netCDF4/HDF5, xarray). A rerun with the same -o computes only "
+                                     "the cells not done yet.")
+    scene_arg(ens)
+    ens.add_argument("--records", nargs="+", type=Path, metavar="PATH",
+                     help="record files or folders of them (*.AT2: PEER; *.txt, *.dat: two-column, or the "
+                          "scene's [motion] format); default: the scene's motion")
+    ens.add_argument("--seeds", nargs="+", type=int, metavar="N",
+                     help="without --records: seeds of the scene's synthetic motion (default: its seed)")
+    ens.add_argument("--pga", nargs="+", type=float, required=True, metavar="G",
+                     help="peak ground accelerations (g) each record is scaled to")
+    ens.add_argument("--route", action="append", dest="routes", metavar="R", choices=route_names(),
+                     help=f"route to run (repeatable; {', '.join(route_names())}); default: the scene's "
+                          "[analysis].routes")
+    where = ens.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None, metavar="N",
+                       help="worker processes of a local dask cluster (default: the usable cores)")
+    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="address of a running dask scheduler (e.g. tcp://10.0.0.5:8786) instead")
+    ens.add_argument("--dt-check", choices=DT_CHECKS, default="strongest",
+                     help="step-doubling check of the time step: once on the strongest motion (default) or "
+                          "on each cell's motion, as `uplift run` does (about one run more per cell)")
+    ens.add_argument("-o", "--output", type=Path, default=None,
+                     help="ensemble file (default: <scene>_ensemble.h5); completed cells are kept in "
+                          "<output>.cells/")
+    json_flag(ens, "print one JSON summary object on stdout")
+    no_cache(ens)
+    ens.set_defaults(func=cmd_ensemble)
 
     bch = sub.add_parser("bench", help="run time against error of every route and its accuracy knobs",
                          description="For the disk-halfspace and reactor scenes, sweep each route's "
@@ -275,11 +321,21 @@ def cmd_export(args) -> int:
     if scene.structure is None:
         raise ResultsFileError(f"scene {scene.name!r} has no [structure]: nothing to export "
                                "(add [structure] model = \"reactor\", or inline nodes/beams/masses/raft)")
+    if scene.profile is None:
+        raise ResultsFileError(f"scene {scene.name!r} has no layered soil: the soil FMU carries the BEM impedance "
+                               "of [soil] (add halfspace = { vs = ..., nu = ..., rho = ... } and any layers)")
     if args.output.exists() and not args.output.is_dir():
         raise ResultsFileError(f"-o {str(args.output)!r} is a file: give a folder for the FMUs")
+    if args.cross_check is not None and args.cross_check.exists() and not args.cross_check.is_dir():
+        raise ResultsFileError(f"--cross-check {str(args.cross_check)!r} is a file: give a folder (the root "
+                               "of a cross-check repository)")
     soil = scene_fit(scene, cache_dir=_cache(args), fit_progress=stage_bar(f"fit {scene.name}")).model
-    exported = export_scene(scene, args.output, soil, cache_dir=_cache(args))
+    exported = export_scene(scene, args.output, soil, cache_dir=_cache(args), kind=args.kind)
     _say(*(f"wrote {path}" for path in exported.files))
+    if args.cross_check is not None:
+        xc = write_cross_check(exported, args.cross_check, scene.name)
+        _say(*(f"wrote {folder}/" for folder in xc.models.values()))
+        _say(*(f"WARNING: {problem}" for problem in xc.problems))
     return EXIT_OK
 
 
@@ -296,8 +352,49 @@ def cmd_compare(args) -> int:
 def cmd_report(args) -> int:
     if args.output.exists() and not args.output.is_dir():
         raise ResultsFileError(f"-o {str(args.output)!r} is a file: give a folder for the report")
+    if is_ensemble_file(args.results):
+        if args.reference is not None:
+            raise ResultsFileError(f"--reference compares the routes of one run; {args.results} is an ensemble file")
+        _say(f"wrote {write_ensemble_report(args.results, args.output)}")
+        return EXIT_OK
     _say(f"wrote {write_report(args.results, args.output, reference=args.reference)}")
     return EXIT_OK
+
+
+def cmd_ensemble(args) -> int:
+    scene = load_scene(args.scene)
+    out = args.output or Path(f"{scene.name}_ensemble.h5")
+    try:
+        ds = run_ensemble(scene, args.pga, records=args.records, seeds=args.seeds, routes=args.routes, output=out,
+                          workers=args.workers, scheduler=args.scheduler, cache_dir=_cache(args),
+                          dt_check=args.dt_check, progress=Progress(f"ensemble {scene.name}"),
+                          sweep_progress=frequency_bar(Progress(f"impedance {scene.name}")),
+                          fit_progress=stage_bar(f"fit {scene.name}"), log=_say)
+    except EnsembleError as exc:    # bad input, but not in errors.UserInputError (errors imports no command)
+        _say(f"uplift: error: {exc}")
+        return EXIT_INPUT
+    _say(f"wrote {out}")
+    summ = ensemble_summary(ds)
+    mm = lambda v: "-" if v is None else f"{1e3 * v:.3f} mm"
+    if args.json:
+        print(json.dumps(summ))
+    else:
+        _say(f"{summ['runs']} runs ({summ['computed']} computed, {summ['reused']} kept from {out}.cells) on "
+             f"{summ['workers']} workers in {summ['wall_s']:.1f} s (cluster {summ['cluster_s']:.1f} s, "
+             f"sweep and fit {summ['setup_s']:.1f} s, time-step check {summ['dt_check_s']:.1f} s)")
+        for pga, routes in summ["pga"].items():
+            for route, v in routes.items():
+                _say(f"{pga} g [{route}]: max uplift median {mm(v['median_max_uplift_m'])}, 84th percentile "
+                     f"{mm(v['p84_max_uplift_m'])} ({v['converged_records']}/{ds.sizes['record']} records converged)")
+        _say(*(f"{c['status'].upper()}: {c['record']} at {c['pga_g']:g} g [{c['route']}]: {c['message']}"
+               for c in summ["not_converged"]))
+        notes = [line for text in ds["warnings"].values.ravel() for line in text.split("\n") if line]
+        _say(*(f"WARNING ({notes.count(w)} runs): {w}" for w in dict.fromkeys(notes)))
+    if summ["failed"]:
+        _say(f"{summ['failed']} runs failed: rerun the same command to compute them (completed runs are kept)")
+    if summ["refused"]:
+        return EXIT_INPUT
+    return EXIT_FAILED if summ["stopped"] or summ["failed"] else EXIT_OK
 
 
 def cmd_bench(args) -> int:

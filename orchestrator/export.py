@@ -14,7 +14,9 @@
                            SSP tools such as fmpy's ``simulate_ssp``
 
 The pair is exact under any master (Jacobi as in libcosim and fmpy's SSP runner, Gauss-Seidel
-in either order): see fmus/common.py and orchestrator/master.py.
+in either order): see fmus/common.py and orchestrator/master.py. ``kind="native"`` writes the
+same three FMUs as compiled C code (fmus/native_build.py, docs/native.md): the same variables,
+the same coupling, the same answers, and no Python needed in the host.
 """
 from __future__ import annotations
 
@@ -30,12 +32,15 @@ from fmpy import read_model_description
 
 from fmus.build import PACKAGES, FmuData, build_fmus
 from fmus.common import DEFAULT_SOIL_FACTORY
+from fmus.native_build import build_native_fmus
 from soil_impedance.cache import atomic_output
 from structure.spec import contact_table
 
 from orchestrator.impedance import scene_fit
 from orchestrator.motion import make_motion
 
+#: the kinds of FMU export_scene writes: pythonfmu, or the native C runtime (fmus/native_build.py)
+KINDS = ("python", "native")
 SSD = "http://ssp-standard.org/SSP1/SystemStructureDescription"
 SSC = "http://ssp-standard.org/SSP1/SystemStructureCommon"
 OSP = "http://opensimulationplatform.com/SSP/OSPAnnotations"
@@ -84,7 +89,7 @@ def fmu_data(scene, soil_model, dt: float, motion=None, soil_factory: str | None
 
 def export_scene(scene, outdir, soil_model=None, *, dt: float | None = None, motion=None,
                  soil_factory: str | None = None, soil_kwargs: dict | None = None,
-                 extra_modules=(), cache_dir=None) -> Export:
+                 extra_modules=(), cache_dir=None, kind: str = "native") -> Export:
     """Write structure.fmu, soil.fmu, coupled.fmu, system.ssd and system.ssp for ``scene``
     into ``outdir``.
 
@@ -92,7 +97,13 @@ def export_scene(scene, outdir, soil_model=None, *, dt: float | None = None, mot
                  see orchestrator.impedance.scene_fit)
     dt : s (default: the scene's [analysis] dt); motion : Motion (default: the scene's)
     soil_factory : "module:callable" building the soil from (model, dt, **soil_kwargs)
+    kind : "native" (default: the C runtime of fmus/native compiled for linux64, win64 and
+           darwin64, no Python in the host; the default soil factory only) or "python"
+           (pythonfmu: the host needs Python with numpy and scipy); the same variables and
+           the same answers
     """
+    if kind not in KINDS:
+        raise ValueError(f"kind = {kind!r}: use one of {', '.join(KINDS)}")
     if dt is None:
         dt = scene.analysis.dt
     if motion is None:
@@ -101,7 +112,7 @@ def export_scene(scene, outdir, soil_model=None, *, dt: float | None = None, mot
         soil_model = scene_fit(scene, cache_dir=cache_dir).model
     data = fmu_data(scene, soil_model, dt, motion, soil_factory, soil_kwargs, extra_modules)
     outdir = Path(outdir)
-    fmus = build_fmus(data, outdir, coupled=True)
+    fmus = (build_native_fmus if kind == "native" else build_fmus)(data, outdir, coupled=True)
     stop = (motion.acc.shape[0] - 1) * dt
     ssd = write_ssd(outdir / "system.ssd", fmus["structure"], fmus["soil"], dt, stop, name=scene.name)
     ssp = write_ssp(outdir / "system.ssp", fmus["structure"], fmus["soil"], dt, stop, name=scene.name)

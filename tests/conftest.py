@@ -6,8 +6,9 @@ from cosim_cases import EXPORT_MOTION, small_scene, soil_model
 
 @pytest.fixture(scope="session")
 def exported(tmp_path_factory):
-    """small_scene() exported once for the session (structure.fmu, soil.fmu, system.ssd) with
-    EXPORT_MOTION."""
+    """small_scene() exported once for the session as pythonfmu FMUs (structure.fmu, soil.fmu,
+    coupled.fmu, system.ssd, system.ssp) with EXPORT_MOTION (the native kind: test_native_fmu.py)."""
     from orchestrator.export import export_scene
     scene = small_scene()
-    return export_scene(scene, tmp_path_factory.mktemp("export"), soil_model(scene), motion=EXPORT_MOTION)
+    return export_scene(scene, tmp_path_factory.mktemp("export"), soil_model(scene), motion=EXPORT_MOTION,
+                        kind="python")

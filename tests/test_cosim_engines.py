@@ -24,7 +24,7 @@ N = SCENE.mesh.xy.shape[0]
 
 @pytest.fixture(scope="module")
 def case(tmp_path_factory):
-    exp = export_scene(SCENE, tmp_path_factory.mktemp("engines"), MODEL, motion=MOTION)
+    exp = export_scene(SCENE, tmp_path_factory.mktemp("engines"), MODEL, motion=MOTION, kind="python")
     mono = run_monolithic(SCENE, MOTION, MODEL)
     assert mono.converged and mono.max_uplift() > 1e-2
     return exp, mono

@@ -1,0 +1,487 @@
+"""The native FMUs (C runtime, fmus/native): the variables of the Python FMUs, the answers of
+the monolithic route and of the Python FMUs to round-off, no Python needed in the host.
+
+Small scene (reactor stick on a 21-node raft over rock, a pulse lifting the raft by 34 mm, a
+rational soil with a history force), exported once per module in both kinds. Checked:
+
+- the model descriptions against the Python FMUs' (names, causalities, units, value
+  references, start values) and fmpy's validator; SourceFiles and the sources in the FMU;
+- the binaries of linux64 (dynamic section: libc and libm only), win64 (no Python DLL
+  imported) and darwin64 (a Mach-O library), cross-compiled by zig;
+- the pair under the project's master (Gauss-Seidel in either order, Jacobi), libcosim and
+  fmpy's SSP runner, the coupled FMU under fmpy.simulate_fmu: the monolithic route to 1e-10;
+  a native FMU beside a Python one, the soil alone on random inputs: the Python FMUs to 1e-10;
+- step halving (Newton limited to 2 iterations): the coupled FMU against the in-process
+  stepper, the pair against the in-process split coupling, to 1e-10; a step that cannot
+  converge is refused with the stepper's message;
+- a plain C program (fmus/native/host.c: dlopen, no Python in the process) runs coupled.fmu
+  (max uplift equal to monolithic to 1e-10, no allocation inside fmi2DoStep) and makes hostile
+  calls (each refused with a status and a log message, the host survives), rolls back through
+  a serialised state bit-identically; a damaged resource file is refused at instantiation.
+"""
+import dataclasses
+import re
+import shutil
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fmpy import read_model_description
+
+from cosim_cases import pulse_motion, small_scene, soil_model
+from fmus.native_build import (NATIVE, PLATFORMS, SOURCES, build_native_fmus, decode_resources,
+                               encode_resources, fmi_headers)
+from orchestrator.export import export_scene, fmu_data
+from orchestrator.master import FmuSlave, cosimulate
+from orchestrator.routes.monolithic import run_monolithic
+
+SCENE = small_scene()
+MODEL = soil_model(SCENE)
+MOTION = pulse_motion(T=1.0)
+DT = MOTION.dt
+N = SCENE.mesh.xy.shape[0]
+ROLES = ("structure", "soil", "coupled")
+
+
+def rel(a, b):
+    return np.abs(np.asarray(a) - np.asarray(b)).max() / np.abs(b).max()
+
+
+def max_rotation(res):
+    return np.hypot(res.raft[:, 3], res.raft[:, 4]).max()
+
+
+@pytest.fixture(scope="module")
+def case(tmp_path_factory):
+    """(native Export, python Export, monolithic RouteResult)."""
+    tmp = tmp_path_factory.mktemp("native")
+    nat = export_scene(SCENE, tmp / "native", MODEL, motion=MOTION, kind="native")
+    py = export_scene(SCENE, tmp / "python", MODEL, motion=MOTION, kind="python")
+    mono = run_monolithic(SCENE, MOTION, MODEL)
+    assert mono.converged and mono.max_uplift() > 1e-2
+    return nat, py, mono
+
+
+#: the Python FMUs' runs, in a fresh interpreter: a Python structure or coupled FMU instantiated
+#: after another Python FMU of the same export was freed fails to import its bundled modules
+#: (pythonfmu bundles them under one namespace per export), so every Python FMU is opened first
+PY_RUNS = """
+import sys
+import numpy as np
+from orchestrator.master import FmuSlave, cosimulate
+args = dict(a.split("=", 1) for a in sys.argv[1:])
+z = np.load(args["input"])
+acc, dt, drive, names = z["acc"], float(z["dt"]), z["drive"], list(z["names"])
+S, G, C, G2 = (FmuSlave(args[k], k) for k in ("py_structure", "py_soil", "py_coupled", "py_soil"))
+out = {}
+for key, pair in (("py_structure", (S, FmuSlave(args["nat_soil"], "ns"))),
+                  ("py_soil", (FmuSlave(args["nat_structure"], "nS"), G))):
+    res = cosimulate(*pair, acc, dt, schedule="jacobi")
+    out[key] = np.hstack([res.raft, res.gap, res.contact_force, res.soil_w])
+C.initialize()
+rows = [C.get(*names).copy()]
+for k in range(1, acc.shape[0]):
+    C.do_step((k - 1) * dt, dt)
+    rows.append(C.get(*names).copy())
+out["py_coupled"] = np.array(rows)
+G2.initialize()
+soil = []
+for k, u in enumerate(drive):
+    G2.set("x", "xdot", "x_time", u)
+    G2.do_step(k * dt, dt)
+    soil.append(G2.get("g", "f", "dissipated_energy").copy())
+out["soil"] = np.array(soil)
+np.savez(args["output"], **out)
+"""
+COUPLED_OUT = ["max_uplift", "max_raft_rotation", "x", "xdot", "gap", "P", "energy.soil", "energy.kinetic"]
+
+
+def soil_drive(n, steps=12):
+    """Random interface states x, xdot with the stamp x_time = t of each step from t."""
+    rng = np.random.default_rng(0)
+    return np.array([np.concatenate([rng.normal(size=n) * 1e-3, rng.normal(size=n) * 1e-2, [k * DT]])
+                     for k in range(steps)])
+
+
+@pytest.fixture(scope="module")
+def python_runs(case, tmp_path_factory):
+    """What the Python FMUs give: the pair with one Python FMU, the coupled FMU, the soil on
+    soil_drive(); run once, in a subprocess (see PY_RUNS)."""
+    nat, py, _ = case
+    tmp = tmp_path_factory.mktemp("pyruns")
+    np.savez(tmp / "in.npz", acc=MOTION.acc, dt=DT, drive=soil_drive(MODEL.n), names=np.array(COUPLED_OUT))
+    args = [f"input={tmp / 'in.npz'}", f"output={tmp / 'out.npz'}", f"py_structure={py.structure}",
+            f"py_soil={py.soil}", f"py_coupled={py.coupled}", f"nat_soil={nat.soil}", f"nat_structure={nat.structure}"]
+    proc = subprocess.run([sys.executable, "-c", PY_RUNS, *args], capture_output=True, text=True, timeout=600,
+                          cwd=str(Path(__file__).parent))
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    with np.load(tmp / "out.npz") as z:
+        return {k: z[k] for k in z.files}
+
+
+@pytest.fixture(scope="module")
+def host(tmp_path_factory):
+    """The plain C host, compiled by the system compiler."""
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if sys.platform != "linux" or cc is None:
+        pytest.skip("the C host test needs Linux and a C compiler")
+    exe = tmp_path_factory.mktemp("host") / "host"
+    subprocess.run([cc, "-O1", "-rdynamic", f"-I{fmi_headers()}", str(NATIVE / "host.c"), "-o", str(exe), "-ldl",
+                    "-lm"], check=True, capture_output=True, text=True)
+    return exe
+
+
+def unpack(fmu, dest):
+    """Unzip an FMU; returns (folder, linux64 library, GUID, {variable name: value reference})."""
+    with zipfile.ZipFile(fmu) as z:
+        z.extractall(dest)
+    md = read_model_description(str(fmu))
+    lib = dest / "binaries" / "linux64" / f"{md.coSimulation.modelIdentifier}.so"
+    return dest, lib, md.guid, {v.name: v.valueReference for v in md.modelVariables}
+
+
+# ---- what the FMUs are ----------------------------------------------------------------------
+def test_variables_are_those_of_the_python_fmus(case):
+    from fmpy.validation import validate_fmu
+    nat, py, _ = case
+    for role in ROLES:
+        a, b = (read_model_description(str(getattr(e, role))) for e in (nat, py))
+        row = lambda v: (v.name, v.valueReference, v.type, v.causality, v.variability, v.initial, v.unit,
+                         v.start, v.description)
+        assert [row(v) for v in a.modelVariables] == [row(v) for v in b.modelVariables]
+        assert (a.modelName, a.defaultExperiment.stopTime, a.defaultExperiment.stepSize) == \
+               (b.modelName, b.defaultExperiment.stopTime, b.defaultExperiment.stepSize)
+        assert not a.coSimulation.needsExecutionTool and a.coSimulation.canGetAndSetFMUstate
+        assert validate_fmu(str(getattr(nat, role))) == []
+        with zipfile.ZipFile(getattr(nat, role)) as z:
+            names = set(z.namelist())
+        listed = a.buildConfigurations[0].sourceFileSets[0].sourceFiles
+        assert {f"sources/{s}" for s in listed} == {f"sources/{s}" for s in SOURCES} <= names
+        assert {f"binaries/{p}/{a.coSimulation.modelIdentifier}.{PLATFORMS[p][1]}" for p in PLATFORMS} <= names
+        assert not any(n.endswith((".py", ".npz")) for n in names)           # no Python in the FMU
+
+
+def test_binaries_need_no_python(case, tmp_path):
+    nat = case[0]
+    with zipfile.ZipFile(nat.coupled) as z:
+        z.extractall(tmp_path)
+    bins = tmp_path / "binaries"
+    needed = subprocess.run(["readelf", "-d", str(bins / "linux64" / "UpliftCoupled.so")], check=True,
+                            capture_output=True, text=True).stdout
+    assert set(re.findall(r"Shared library: \[(.+?)\]", needed)) == {"libc.so.6", "libm.so.6"}
+    imports = subprocess.run(["objdump", "-p", str(bins / "win64" / "UpliftCoupled.dll")], check=True,
+                             capture_output=True, text=True).stdout
+    dlls = {d.lower() for d in re.findall(r"DLL Name: (\S+)", imports)}
+    assert "kernel32.dll" in dlls and not any("python" in d for d in dlls)
+    assert all(d == "kernel32.dll" or d.startswith("api-ms-win-crt-") for d in dlls)   # the C runtime only
+    assert (bins / "darwin64" / "UpliftCoupled.dylib").read_bytes()[:4] == bytes.fromhex("cffaedfe")  # Mach-O 64
+
+
+def test_resource_format_round_trip():
+    records = {"guid": "g-1", "dt": 0.005, "a": np.arange(6.0).reshape(2, 3), "i": np.array([3, -1], np.int64)}
+    back = decode_resources(encode_resources(records))
+    assert back["guid"] == "g-1" and back["dt"] == 0.005 and back["i"].tolist() == [3, -1]
+    assert np.array_equal(back["a"], records["a"])
+    with pytest.raises(ValueError, match="longer than 32"):
+        encode_resources({"x" * 33: 1.0})
+
+
+def test_other_soil_factories_are_refused():
+    data = dataclasses.replace(fmu_data(SCENE, MODEL, DT), soil_factory="soil_double:TrapezoidRationalSoil")
+    with pytest.raises(ValueError, match="kind = 'python'"):
+        build_native_fmus(data, "unused")
+    with pytest.raises(ValueError, match="kind = 'fortran'"):
+        export_scene(SCENE, "unused", MODEL, kind="fortran")
+
+
+# ---- the answers -----------------------------------------------------------------------------
+def assert_equal_runs(res, ref, tol=1e-10):
+    assert res.converged and res.nt == ref.nt
+    for key in ("raft", "gap", "contact_force", "soil_w"):
+        assert rel(getattr(res, key), getattr(ref, key)) <= tol, key
+    for node in ref.acc:
+        assert rel(res.acc[node], ref.acc[node]) <= tol
+    for term in ("input", "kinetic", "soil", "contact"):
+        assert rel(res.energy[term], ref.energy[term]) <= tol, term
+
+
+@pytest.mark.parametrize("schedule", ["gauss-seidel", "soil-first", "jacobi"])
+def test_native_pair_equals_monolithic_under_every_schedule(case, schedule):
+    nat, _, mono = case
+    res = cosimulate(nat.structure, nat.soil, MOTION.acc, DT, schedule=schedule)
+    assert_equal_runs(res, mono)
+    assert np.array_equal(res.newton_iters, mono.newton_iters)
+    assert res.info["fmu_max_uplift"] == pytest.approx(mono.max_uplift(), rel=1e-10)
+    assert res.info["fmu_max_raft_rotation"] == pytest.approx(max_rotation(mono), rel=1e-10)
+
+
+@pytest.mark.parametrize("python_fmu", ["py_structure", "py_soil"])
+def test_native_beside_a_python_fmu(case, python_runs, python_fmu):
+    mono = case[2]
+    got = python_runs[python_fmu]
+    ref = np.hstack([mono.raft, mono.gap, mono.contact_force, mono.soil_w])
+    assert got.shape == ref.shape
+    for cols in (slice(0, 6), slice(6, 6 + N), slice(6 + N, 6 + 2 * N), slice(6 + 2 * N, None)):
+        assert rel(got[:, cols], ref[:, cols]) <= 1e-10
+
+
+def test_native_soil_equals_python_soil_on_random_inputs(case, python_runs):
+    nat = case[0]
+    got = []
+    with FmuSlave(nat.soil, "native") as a:
+        a.initialize()
+        for k, u in enumerate(soil_drive(MODEL.n)):
+            a.set("x", "xdot", "x_time", u)
+            a.do_step(k * DT, DT)
+            got.append(a.get("g", "f", "dissipated_energy").copy())
+    ref = python_runs["soil"]
+    assert np.abs(ref[1:, :MODEL.n]).max(axis=1).min() > 0             # the history force is there
+    for a, b in zip(got[1:], ref[1:]):
+        assert rel(a, b) <= 1e-10
+
+
+def test_coupled_fmu_equals_monolithic_and_the_python_fmu(case, python_runs):
+    nat, _, mono = case
+    rows = []
+    with FmuSlave(nat.coupled, "coupled") as c:
+        c.initialize()
+        rows.append(c.get(*COUPLED_OUT).copy())
+        for k in range(1, mono.nt):
+            c.do_step((k - 1) * DT, DT)
+            rows.append(c.get(*COUPLED_OUT).copy())
+        sizes = [len(c.vrs(name)) for name in COUPLED_OUT]
+    got, ref = np.array(rows), python_runs["py_coupled"]
+    assert got.shape == ref.shape
+    for name, cols in zip(COUPLED_OUT, np.split(np.arange(got.shape[1]), np.cumsum(sizes)[:-1])):
+        assert rel(got[:, cols], ref[:, cols]) <= 1e-10, name       # every output vector
+    assert rel(got[:, 2:8], mono.raft) <= 1e-10
+    assert got[-1, 0] == pytest.approx(mono.max_uplift(), rel=1e-10)
+    assert got[-1, 1] == pytest.approx(max_rotation(mono), rel=1e-10)
+
+
+def test_fmpy_simulate_fmu_on_the_coupled_fmu(case):
+    from fmpy import simulate_fmu
+    nat, _, mono = case
+    res = simulate_fmu(str(nat.coupled), output=["max_uplift"] + [f"x[{i}]" for i in range(6)])
+    assert rel(np.column_stack([res[f"x[{i}]"] for i in range(6)]), mono.raft) <= 1e-10
+    assert res["max_uplift"][-1] == pytest.approx(mono.max_uplift(), rel=1e-10)
+
+
+def test_coupled_fmu_takes_a_multiple_of_its_step_the_pair_does_not(case):
+    """fmpy.simulate_fmu doubles its communication step past 1000 steps: the coupled FMU steps its
+    own dt inside, with the same answer; the pair, coupled every dt, refuses (as the Python FMUs)."""
+    from fmpy import simulate_fmu
+    nat, _, mono = case
+    res = simulate_fmu(str(nat.coupled), output=["max_uplift"], output_interval=4 * DT)
+    assert res["time"][-1] == pytest.approx(nat.stop_time)
+    assert res["max_uplift"][-1] == pytest.approx(mono.max_uplift(), rel=1e-10)
+    with pytest.raises(Exception, match="fmi2DoStep failed with status 3"):
+        simulate_fmu(str(nat.structure), output=["max_uplift"], output_interval=2 * DT)
+
+
+def test_libcosim_and_the_ssp_runner(case):
+    pytest.importorskip("libcosimpy", reason="libcosimpy is not installed (the 'test' extra)")
+    from fmpy.ssp.simulation import simulate_ssp
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+    from libcosimpy.CosimObserver import CosimObserver
+
+    nat, _, mono = case
+    log_output_level(CosimLogLevel.WARNING)
+    ex = CosimExecution.from_ssp_file(str(nat.ssd))
+    obs = CosimObserver.create_last_value()
+    ex.add_observer(obs)
+    si = ex.slave_index_from_instance_name("structure")
+    refs = {v.name.decode(): v.reference for v in ex.slave_variables(si)}
+    vr = [refs[f"x[{i}]"] for i in range(6)] + [refs["max_uplift"]]
+    out = []
+    for _ in range(mono.nt - 1):
+        assert ex.step(1)
+        out.append(obs.last_real_values(si, vr))
+    out = np.array(out)
+    assert rel(out[:, :6], mono.raft[1:]) <= 1e-10
+    assert out[-1, -1] == pytest.approx(mono.max_uplift(), rel=1e-10)
+    res = simulate_ssp(str(nat.ssp), stop_time=nat.stop_time, step_size=nat.dt)
+    assert res["structure.max_uplift"][-1] == pytest.approx(mono.max_uplift(), rel=1e-10)
+
+
+def _gs_step(s, g, k):
+    s.set("g", "g_time", g.get("g", "g_time"))
+    s.do_step((k - 1) * DT, DT)                                      # the bundled motion
+    g.set("x", "xdot", "x_time", s.get("x", "xdot", "x_time"))
+    g.do_step((k - 1) * DT, DT)
+    return np.concatenate([s.get("x", "xdot", "P", "gap", "energy.soil"), g.get("g", "f", "dissipated_energy")])
+
+
+def test_pair_rolls_back_through_serialised_states(case):
+    nat = case[0]
+    with FmuSlave(nat.structure, "s") as s, FmuSlave(nat.soil, "g") as g:
+        s.initialize()
+        g.initialize()
+        for k in range(1, 81):                                      # into the uplift phase
+            _gs_step(s, g, k)
+        saved = [f.serialize(f.get_state()) for f in (s, g)]
+        first = [_gs_step(s, g, k) for k in range(81, 91)]
+        for f, blob in zip((s, g), saved):
+            f.set_state(f.deserialize(blob))
+        replay = [_gs_step(s, g, k) for k in range(81, 91)]
+    assert np.abs(first[-1][:6]).max() > 0
+    for a, b in zip(first, replay):
+        assert np.array_equal(a, b)
+
+
+# ---- step halving ----------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def halving(tmp_path_factory):
+    """Native FMUs whose Newton stops after 2 iterations (the step is halved where the active
+    set changes twice), the linux64 binary only."""
+    data = fmu_data(SCENE, MODEL, DT, MOTION)
+    out = {}
+    for max_iter in (1, 2):
+        out[max_iter] = build_native_fmus(data, tmp_path_factory.mktemp(f"halving{max_iter}"), coupled=True,
+                                          platforms=("linux64",), newton={"max_iter": max_iter})
+    return data, out
+
+
+def _contact(data, max_iter):
+    from structure.spec import contact_from_spec
+    return dataclasses.replace(contact_from_spec(data.contact), max_iter=max_iter, precheck=False)
+
+
+def test_step_halving_coupled_equals_the_stepper(halving):
+    from fmpy import simulate_fmu
+    from fmus.common import soil_from_model
+    from structure import simulate
+    data, fmus = halving
+    ref = simulate(SCENE.model(), soil_from_model(MODEL, DT), MOTION.acc, DT, contact=_contact(data, 2),
+                   damping=data.damping, output_nodes=data.output_nodes)
+    assert ref.info["subdivided_steps"] > 0
+    res = simulate_fmu(str(fmus[2]["coupled"]), output=[f"x[{i}]" for i in range(6)] + ["max_uplift"])
+    assert rel(np.column_stack([res[f"x[{i}]"] for i in range(6)]), ref.raft) <= 1e-10
+    assert res["max_uplift"][-1] == pytest.approx(ref.max_uplift(), rel=1e-10)
+
+
+def test_step_halving_pair_equals_the_split_in_process(halving):
+    from fmus.common import history_ahead, history_gains, soil_from_model
+    from structure import NewmarkStepper
+    data, fmus = halving
+    soil = soil_from_model(MODEL, DT)                                # the soil FMU's
+    Gx, Gv = history_gains(soil, DT)
+    st = NewmarkStepper(SCENE.model(), soil_from_model(MODEL, DT), DT, contact=_contact(data, 2),
+                        damping=data.damping, external_soil=True, ag0=MOTION.acc[0])    # its own: dt / 2 inside
+    raft, g, prev, halved = [st.x[:6].copy()], np.zeros(st.nb), None, 0
+    for k in range(1, MOTION.acc.shape[0]):                         # Gauss-Seidel, as the master runs it
+        st.set_ground_acceleration(MOTION.acc[k])
+        st.set_soil_history(g + Gx @ st.x + Gv @ st.xdot)
+        st.step()
+        halved += st.last_substeps > 1
+        raft.append(st.x[:6].copy())
+        if prev is not None:
+            soil.commit(*prev)
+        prev = st.x.copy(), st.xdot.copy()
+        g = history_ahead(soil)
+    assert halved > 0
+    res = cosimulate(fmus[2]["structure"], fmus[2]["soil"], MOTION.acc, DT)
+    assert res.converged and rel(res.raft, np.array(raft)) <= 1e-10
+
+
+def test_a_step_that_cannot_converge_is_refused_with_the_steppers_message(halving):
+    from fmus.common import soil_from_model
+    from orchestrator.master import CosimError
+    from structure import ConvergenceError, simulate
+    data, fmus = halving
+    with pytest.raises(ConvergenceError) as err:
+        simulate(SCENE.model(), soil_from_model(MODEL, DT), MOTION.acc, DT, contact=_contact(data, 1),
+                 damping=data.damping)
+    with FmuSlave(fmus[1]["coupled"], "coupled") as c:
+        c.initialize()
+        k = 1
+        with pytest.raises(CosimError) as refused:
+            for k in range(1, MOTION.acc.shape[0]):
+                c.do_step((k - 1) * DT, DT)
+        assert k == err.value.result.nt and str(err.value) in str(refused.value)     # the same step, message
+        assert rel(c.get("x")[:6], err.value.result.raft[-1]) <= 1e-10                 # the instance as it was
+
+
+# ---- a plain C host ----------------------------------------------------------------------------
+@pytest.mark.parametrize("binary", ["shipped", "from sources"])
+def test_plain_c_host_runs_the_coupled_fmu(case, host, tmp_path, binary):
+    """The shipped linux64 binary, and one a tool compiles from the FMU's sources/ alone."""
+    nat, _, mono = case
+    folder, lib, guid, vr = unpack(nat.coupled, tmp_path)
+    if binary == "from sources":
+        lib = tmp_path / "rebuilt.so"
+        listed = read_model_description(str(nat.coupled)).buildConfigurations[0].sourceFileSets[0].sourceFiles
+        subprocess.run([shutil.which("cc") or "gcc", "-std=c99", "-O2", "-shared", "-fPIC", f"-I{fmi_headers()}",
+                        *[str(folder / "sources" / s) for s in listed], "-o", str(lib), "-lm"], check=True)
+    out = subprocess.run([str(host), "run", str(folder), str(lib), guid, repr(DT), str(mono.nt - 1),
+                          str(vr["max_uplift"]), str(vr["max_raft_rotation"])], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stdout + out.stderr
+    values = dict(line.split() for line in out.stdout.splitlines() if line[:1].isdigit())
+    assert float(values[str(vr["max_uplift"])]) == pytest.approx(mono.max_uplift(), rel=1e-10)
+    assert float(values[str(vr["max_raft_rotation"])]) == pytest.approx(max_rotation(mono), rel=1e-10)
+    assert "allocations in doStep 0" in out.stdout and "python symbols 0" in out.stdout
+    ldd = subprocess.run(["readelf", "-d", str(host)], capture_output=True, text=True).stdout
+    assert "python" not in ldd.lower()
+
+
+#: fmi2Status of each hostile call (0 OK, 3 fmi2Error: refused, the instance as it was), or 1/0
+#: for a yes/no case (an instantiation that returned an instance, a replay that differs)
+EXPECTED = {"wrong-guid": 0, "wrong-folder": 0, "model-exchange": 0, "null-guid": 0, "null-instance-step": 3,
+            "null-instance-get": 3, "before-init": 3, "bad-vr": 3, "null-values": 3, "set-output": 3, "init": 0,
+            "set-parameter-after-init": 3, "nan": 3, "nan-after": 0, "skipped-time": 3, "negative-time": 3,
+            "nan-time": 3, "wrong-step": 3, "stamp": 3, "stamp-after": 0, "get-state": 0, "serialize": 0,
+            "deserialize": 0, "replay-differs": 0, "deserialize-damaged": 3, "deserialize-short": 3,
+            "set-null-state": 3, "free-states": 0, "terminate": 0, "after-terminate": 3, "reset": 0, "survived": 1}
+MESSAGES = ("GUID", "cannot be opened", "co-simulation only", "before initialisation", "value references 1000000",
+            "is an output", "fixed parameter", "inputs must be finite", "steps must follow one another",
+            "per communication step", "after fmi2Terminate", "not a serialised state of this FMU",
+            "not an FMU state of this FMU")
+
+
+@pytest.mark.parametrize("role, vr_in, vr_out", [("soil", "x_time", "g[0]"), ("structure", "g_time", "x[2]"),
+                                                 ("coupled", "ag[0]", "x[2]")])
+def test_hostile_calls_are_refused_and_the_host_survives(case, host, tmp_path, role, vr_in, vr_out):
+    folder, lib, guid, vr = unpack(getattr(case[0], role), tmp_path)
+    stamped = role != "coupled"
+    out = subprocess.run([str(host), "hostile", str(folder), str(lib), guid, repr(DT), str(vr[vr_in]),
+                          str(vr[vr_out]), str(vr.get("internal_motion", -1)), str(int(stamped))],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stdout + out.stderr
+    got = dict(line.rsplit(" ", 1) for line in out.stdout.splitlines() if not line.startswith("log:"))
+    expected = {k: v for k, v in EXPECTED.items() if (stamped or not k.startswith("stamp"))
+                and (role != "soil" or k != "set-parameter-after-init")}
+    assert {k: int(v) for k, v in got.items()} == expected
+    for message in MESSAGES if role != "soil" else [m for m in MESSAGES if m != "fixed parameter"]:
+        assert re.search(message, out.stdout), message
+    if stamped:
+        assert f"is stamped {vr_in}" in out.stdout
+
+
+def test_a_damaged_resource_file_is_refused(case, host, tmp_path):
+    folder, lib, guid, vr = unpack(case[0].soil, tmp_path)
+    path = folder / "resources" / "uplift.bin"
+    blob = bytearray(path.read_bytes())
+    blob[len(blob) // 2] ^= 0xFF
+    path.write_bytes(bytes(blob))
+    out = subprocess.run([str(host), "run", str(folder), str(lib), guid, repr(DT), "1"], capture_output=True,
+                         text=True, timeout=60)
+    assert out.returncode == 4 and "damaged (checksum)" in out.stdout
+
+
+@pytest.mark.parametrize("case_name, message", [
+    ("nan", "inputs must be finite"), ("negative-time", "steps must follow one another"),
+    ("skipped-time", "steps must follow one another"), ("after-terminate", "after fmi2Terminate"),
+    ("before-init", "before initialisation"), ("bad-stamp", "stamped x_time"),
+    ("bad-vr", "value references 1000000")])
+def test_the_python_fmus_hostile_cases(case, case_name, message):
+    """tests/test_fmu_hostile.py's host (fmpy, in a subprocess) on the native soil FMU."""
+    from test_fmu_hostile import ERROR, OK, run_host
+    out = run_host(case[0].soil, case_name)
+    assert out["status"] == ERROR and message in out["log"]
+    if "after" in out:
+        assert out["after"] == OK
