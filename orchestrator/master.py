@@ -294,15 +294,9 @@ def _run(S, G, ag, dt, schedule, route, progress, start):
         for k in range(1, nt):
             t = (k - 1) * dt
             timer.mark()
-            if schedule == "jacobi":
-                S.set("g", "g_time", "ag", np.concatenate([G.get("g", "g_time"), ag[k]]))
-                G.set("x", "xdot", "x_time", Y[k - 1, xs])
-                timer.add("transfers")
-                S.do_step(t, dt)
-                timer.add("structure step")
-                G.do_step(t, dt)
-                timer.add("soil step")
-                Y[k] = S.get(*names)
+            if schedule == "jacobi":                # each from the other's outputs at t
+                structure_step(t, k)
+                soil_step(t, k - 1)
             elif schedule == "soil-first":
                 soil_step(t, k - 1)
                 structure_step(t, k)
