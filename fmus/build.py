@@ -117,6 +117,23 @@ def build_fmus(data: FmuData, outdir, coupled: bool = False) -> dict:
     return out
 
 
+#: __init__.py of the private package: ``adopt`` is called by each FMU script before its
+#: imports and by each instance (fmus.common.adopt_resources)
+PACKAGE_INIT = '''"""The uplift code bundled in this FMU (a private package)."""
+import os
+import sys
+
+
+def adopt(resources):
+    """Point this package and its loaded subpackages at ``resources``. Python modules are shared
+    by every FMU instance in a process, the resources folders are not: the folder the package
+    was first loaded from may be gone (a host deletes it when it frees that instance) when a
+    later instance imports a submodule not needed yet."""
+    for name, module in list(sys.modules.items()):
+        if (name == __name__ or name.startswith(__name__ + ".")) and hasattr(module, "__path__"):
+            module.__path__ = [os.path.join(resources, *name.split("."))]
+'''
+
 #: the project's packages as imported by the bundled code (rewritten to the private package)
 IMPORT = re.compile(r"^(\s*)(from|import) (structure|soil_impedance|fmus)\b", re.M)
 
@@ -139,7 +156,7 @@ def bundle(folder: Path, sources) -> tuple[Path, object]:
     rewrite = lambda text: IMPORT.sub(rf"\1\2 {name}.\3", text)
     pkg = folder / name
     pkg.mkdir(parents=True)
-    (pkg / "__init__.py").write_text('"""The uplift code bundled in this FMU (a private package)."""\n')
+    (pkg / "__init__.py").write_text(PACKAGE_INIT)
     for rel, data in files:
         dest = pkg / rel
         dest.parent.mkdir(parents=True, exist_ok=True)
@@ -150,17 +167,15 @@ def bundle(folder: Path, sources) -> tuple[Path, object]:
 
     def script_of(script: Path) -> Path:
         """The FMU script, its imports rewritten, and first of all the bundled package pointed
-        at this FMU's resources: an FMU of another role from the same export may have loaded
-        it from a folder its host has deleted since (fmus.common.adopt_resources does the same
-        for every later instance)."""
+        at this FMU's resources (``adopt`` of PACKAGE_INIT): an FMU of another role from the
+        same export may have loaded it from a folder its host has deleted since. The script's
+        name carries the digest: pythonfmu imports it by name, and an FMU of another export
+        loaded in the same process must not reuse it."""
         text = rewrite(script.read_text(encoding="utf-8"))
         future = "from __future__ import annotations\n"
         head, _, body = text.partition(future)
-        adopt = ("import os as _os, sys as _sys\n"
-                 "for _n, _m in list(_sys.modules.items()):\n"
-                 f"    if (_n == {name!r} or _n.startswith({name + '.'!r})) and hasattr(_m, '__path__'):\n"
-                 "        _m.__path__ = [_os.path.join(_os.path.dirname(_os.path.abspath(__file__)), *_n.split('.'))]\n")
-        dest = folder / script.name
+        adopt = f"import os as _os\nimport {name}\n{name}.adopt(_os.path.dirname(_os.path.abspath(__file__)))\n"
+        dest = folder / f"{script.stem}_{digest}.py"        # its module name: one per bundle
         dest.write_text(head + future + adopt + body, encoding="utf-8")
         return dest
 

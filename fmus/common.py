@@ -74,16 +74,10 @@ PREFIX = __name__[:-len("fmus.common")]
 
 
 def adopt_resources(resources) -> None:
-    """Point the bundled package at this instance's resources. Python modules are shared by
-    every FMU instance in a process, the resources folders are not: the first instance's
-    folder may be gone (a host deletes it when it frees that instance) when a later one imports
-    a submodule it has not needed yet."""
-    if not PREFIX:
-        return
-    root = PREFIX.rstrip(".")
-    for name, module in list(sys.modules.items()):
-        if (name == root or name.startswith(PREFIX)) and hasattr(module, "__path__"):
-            module.__path__ = [str(Path(resources, *name.split(".")))]
+    """Inside an FMU, point the bundled package at this instance's resources (its ``adopt``,
+    see fmus.build.PACKAGE_INIT); nothing in the project itself."""
+    if PREFIX:
+        sys.modules[PREFIX.rstrip(".")].adopt(str(resources))
 
 
 def import_object(spec: str):
