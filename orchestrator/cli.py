@@ -1,13 +1,16 @@
 """The ``uplift`` command line: parsing, printing, exit codes.
 
 Exit codes (orchestrator.settings): 0 success; 1 a computation stopped (results written so
-far, reason printed); 2 bad input (scene, file, option). Machine-readable output (``--json``)
+far, reason printed); 2 bad input (scene, file, option, a tool the machine lacks:
+orchestrator.errors); 130 interrupted (Ctrl-C: one line on stderr, no output half-written, a
+previous file at -o left as it was). Every output path is checked before any computation. Machine-readable output (``--json``)
 goes to stdout as exactly one JSON object; progress and messages go to stderr. This is the
 only module that prints.
 """
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import math
 import os
@@ -18,23 +21,30 @@ from pathlib import Path
 import numpy as np
 
 from soil_impedance.fit import save_fit
+from structure.results import Status
 
 from orchestrator.bench import bench, bench_config, format_rows, json_safe, plot_rows
 from orchestrator.compare import compare, format_table
-from orchestrator.crosscheck import write_cross_check
-from orchestrator.ensemble import DT_CHECKS, EnsembleError, ensemble_summary, is_ensemble_file, run_ensemble
-from orchestrator.errors import ComputationError, UserInputError
+from orchestrator.crosscheck import model_folder, write_cross_check
+from orchestrator.ensemble import CONNECT_TIMEOUT_S, DT_CHECKS, ensemble_summary, is_ensemble_file, run_ensemble
+from orchestrator.errors import ComputationError, SetupError, UserInputError
 from orchestrator.export import KINDS, export_scene
 from orchestrator.impedance import rigid_json, scene_fit, scene_impedance, scene_static
 from orchestrator.plots import plot_impedance, plot_run
 from orchestrator.progress import Progress, frequency_bar, stage_bar, step_bar
 from orchestrator.report import write_ensemble_report, write_report
-from orchestrator.results import ResultsFileError, check_output_path, read_results, summary, write_results
+from orchestrator.results import (ResultsFileError, check_output_folder, check_output_path, read_results, summary,
+                                  write_results)
 from orchestrator.routes import route_names
 from orchestrator.run import run_scene
-from orchestrator.scene import builtin_scenes, load_scene
-from orchestrator.settings import EXIT_FAILED, EXIT_INPUT, EXIT_OK, compute_threads, default_cache_dir
-from structure.results import Status
+from orchestrator.scene import MAX_PGA_G, SceneError, builtin_scenes, load_scene
+from orchestrator.settings import (EXIT_FAILED, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, compute_threads,
+                                   default_cache_dir)
+
+#: the files ``uplift export`` writes into its folder
+EXPORT_FILES = ("structure.fmu", "soil.fmu", "coupled.fmu", "system.ssd", "system.ssp")
+#: the files of a cross-check folder of model M
+CROSS_CHECK_FILES = ("{}.fmu", "{}_in.csv", "{}_ref.csv", "{}_ref.opt", "README.md")
 
 
 def _fraction(text: str) -> float:
@@ -45,6 +55,17 @@ def _fraction(text: str) -> float:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
     if not (math.isfinite(v) and 0 < v < 1):
         raise argparse.ArgumentTypeError(f"{text!r} must lie in (0, 1), e.g. 0.01 for 1 %")
+    return v
+
+
+def _positive(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"{text!r} must be a finite number > 0")
     return v
 
 
@@ -65,6 +86,11 @@ def _parser() -> argparse.ArgumentParser:
     def json_flag(cmd, what="print one JSON object on stdout"):
         cmd.add_argument("--json", action="store_true", help=what)
 
+    def max_pga(cmd):
+        cmd.add_argument("--max-pga", type=_positive, default=None, metavar="G",
+                         help=f"refuse motions peaking above G g (default: the scene's [analysis].max_pga_g, else "
+                              f"{MAX_PGA_G:g} g)")
+
     run = sub.add_parser("run", help="run the scene's analyses (time-domain routes)",
                          description="Run the scene's analyses and write the results (HDF5) and a summary.")
     scene_arg(run)
@@ -75,6 +101,7 @@ def _parser() -> argparse.ArgumentParser:
                           "[analysis].routes")
     run.add_argument("--plot-dir", type=Path, default=None, help="write figures to this directory")
     json_flag(run, "print one JSON summary object on stdout")
+    max_pga(run)
     no_cache(run)
     run.set_defaults(func=cmd_run)
 
@@ -166,6 +193,8 @@ def _parser() -> argparse.ArgumentParser:
                        help="worker processes of a local dask cluster (default: the usable cores)")
     where.add_argument("--scheduler", default=None, metavar="ADDRESS",
                        help="address of a running dask scheduler (e.g. tcp://10.0.0.5:8786) instead")
+    ens.add_argument("--connect-timeout", type=_positive, default=CONNECT_TIMEOUT_S, metavar="S",
+                     help=f"seconds the scheduler has to answer (default {CONNECT_TIMEOUT_S:g})")
     ens.add_argument("--dt-check", choices=DT_CHECKS, default="strongest",
                      help="step-doubling check of the time step: once on the strongest motion (default) or "
                           "on each cell's motion, as `uplift run` does (about one run more per cell)")
@@ -173,6 +202,7 @@ def _parser() -> argparse.ArgumentParser:
                      help="ensemble file (default: <scene>_ensemble.h5); completed cells are kept in "
                           "<output>.cells/")
     json_flag(ens, "print one JSON summary object on stdout")
+    max_pga(ens)
     no_cache(ens)
     ens.set_defaults(func=cmd_ensemble)
 
@@ -199,6 +229,10 @@ def main(argv=None) -> int:
     try:
         with compute_threads():
             return args.func(args)
+    except KeyboardInterrupt:
+        print("uplift: interrupted (no output was half-written; an ensemble keeps its finished runs)",
+              file=sys.stderr)
+        return EXIT_INTERRUPTED
     except UserInputError as exc:
         print(f"uplift: error: {exc}", file=sys.stderr)
         return EXIT_INPUT
@@ -221,10 +255,10 @@ def _say(*lines):
 
 
 def cmd_run(args) -> int:
-    scene = load_scene(args.scene)
+    scene = load_scene(args.scene, max_pga_g=args.max_pga)
     out = check_output_path(args.output or Path(f"{scene.name}_results.h5"))
-    if args.plot_dir is not None and args.plot_dir.exists() and not args.plot_dir.is_dir():
-        raise ResultsFileError(f"--plot-dir {str(args.plot_dir)!r} is a file: give a folder")
+    if args.plot_dir is not None:
+        check_output_folder(args.plot_dir, _pngs(args.plot_dir), "--plot-dir")
     results, motion = run_scene(scene, args.routes, cache_dir=_cache(args),
                                 progress=lambda route: step_bar(Progress(f"run {scene.name} [{route}]")),
                                 sweep_progress=frequency_bar(Progress(f"impedance {scene.name}")),
@@ -253,6 +287,11 @@ def cmd_run(args) -> int:
     if Status.REFUSED in statuses:
         return EXIT_INPUT
     return EXIT_FAILED if Status.STOPPED in statuses else EXIT_OK
+
+
+def _pngs(folder: Path) -> list:
+    """The PNG names already in ``folder`` (figures a command may replace)."""
+    return sorted(p.name for p in folder.glob("*.png")) if folder.is_dir() else []
 
 
 def cmd_impedance(args) -> int:
@@ -319,16 +358,20 @@ def cmd_fit(args) -> int:
 def cmd_export(args) -> int:
     scene = load_scene(args.scene)
     if scene.structure is None:
-        raise ResultsFileError(f"scene {scene.name!r} has no [structure]: nothing to export "
-                               "(add [structure] model = \"reactor\", or inline nodes/beams/masses/raft)")
+        raise SceneError(f"scene {scene.name!r} has no [structure]: nothing to export "
+                         "(add [structure] model = \"reactor\", or inline nodes/beams/masses/raft)")
     if scene.profile is None:
-        raise ResultsFileError(f"scene {scene.name!r} has no layered soil: the soil FMU carries the BEM impedance "
-                               "of [soil] (add halfspace = { vs = ..., nu = ..., rho = ... } and any layers)")
-    if args.output.exists() and not args.output.is_dir():
-        raise ResultsFileError(f"-o {str(args.output)!r} is a file: give a folder for the FMUs")
-    if args.cross_check is not None and args.cross_check.exists() and not args.cross_check.is_dir():
-        raise ResultsFileError(f"--cross-check {str(args.cross_check)!r} is a file: give a folder (the root "
-                               "of a cross-check repository)")
+        raise SceneError(f"scene {scene.name!r} has no layered soil: the soil FMU carries the BEM impedance "
+                         "of [soil] (add halfspace = { vs = ..., nu = ..., rho = ... } and any layers)")
+    check_output_folder(args.output, EXPORT_FILES)
+    if args.cross_check is not None:
+        check_output_folder(args.cross_check, (), "--cross-check")
+        for model in ("structure", "soil", "coupled"):
+            check_output_folder(model_folder(args.cross_check, model),
+                                [name.format(model) for name in CROSS_CHECK_FILES], "--cross-check")
+    if args.kind == "native" and importlib.util.find_spec("ziglang") is None:
+        raise SetupError("--kind native compiles the FMUs with the C compiler of the ziglang package, which is not "
+                         "installed: pip install ziglang (a dependency of uplift), or export --kind python")
     soil = scene_fit(scene, cache_dir=_cache(args), fit_progress=stage_bar(f"fit {scene.name}")).model
     exported = export_scene(scene, args.output, soil, cache_dir=_cache(args), kind=args.kind)
     _say(*(f"wrote {path}" for path in exported.files))
@@ -350,8 +393,7 @@ def cmd_compare(args) -> int:
 
 
 def cmd_report(args) -> int:
-    if args.output.exists() and not args.output.is_dir():
-        raise ResultsFileError(f"-o {str(args.output)!r} is a file: give a folder for the report")
+    check_output_folder(args.output, ["report.html", *_pngs(args.output)])
     if is_ensemble_file(args.results):
         if args.reference is not None:
             raise ResultsFileError(f"--reference compares the routes of one run; {args.results} is an ensemble file")
@@ -362,17 +404,13 @@ def cmd_report(args) -> int:
 
 
 def cmd_ensemble(args) -> int:
-    scene = load_scene(args.scene)
+    scene = load_scene(args.scene, max_pga_g=args.max_pga)
     out = args.output or Path(f"{scene.name}_ensemble.h5")
-    try:
-        ds = run_ensemble(scene, args.pga, records=args.records, seeds=args.seeds, routes=args.routes, output=out,
-                          workers=args.workers, scheduler=args.scheduler, cache_dir=_cache(args),
-                          dt_check=args.dt_check, progress=Progress(f"ensemble {scene.name}"),
-                          sweep_progress=frequency_bar(Progress(f"impedance {scene.name}")),
-                          fit_progress=stage_bar(f"fit {scene.name}"), log=_say)
-    except EnsembleError as exc:    # bad input, but not in errors.UserInputError (errors imports no command)
-        _say(f"uplift: error: {exc}")
-        return EXIT_INPUT
+    ds = run_ensemble(scene, args.pga, records=args.records, seeds=args.seeds, routes=args.routes, output=out,
+                      workers=args.workers, scheduler=args.scheduler, cache_dir=_cache(args),
+                      dt_check=args.dt_check, progress=Progress(f"ensemble {scene.name}"),
+                      sweep_progress=frequency_bar(Progress(f"impedance {scene.name}")),
+                      fit_progress=stage_bar(f"fit {scene.name}"), log=_say, connect_timeout=args.connect_timeout)
     _say(f"wrote {out}")
     summ = ensemble_summary(ds)
     mm = lambda v: "-" if v is None else f"{1e3 * v:.3f} mm"
@@ -381,7 +419,8 @@ def cmd_ensemble(args) -> int:
     else:
         _say(f"{summ['runs']} runs ({summ['computed']} computed, {summ['reused']} kept from {out}.cells) on "
              f"{summ['workers']} workers in {summ['wall_s']:.1f} s (cluster {summ['cluster_s']:.1f} s, "
-             f"sweep and fit {summ['setup_s']:.1f} s, time-step check {summ['dt_check_s']:.1f} s)")
+             f"sweep and fit {summ['setup_s']:.1f} s, time-step check {summ['dt_check_s']:.1f} s)"
+             + (f"; {summ['workers_note']}" if summ["workers_note"] else ""))
         for pga, routes in summ["pga"].items():
             for route, v in routes.items():
                 _say(f"{pga} g [{route}]: max uplift median {mm(v['median_max_uplift_m'])}, 84th percentile "
