@@ -6,6 +6,8 @@ import asyncio
 import logging
 import math
 import os
+import signal
+import threading
 from contextlib import contextmanager
 
 from orchestrator.settings import thread_count
@@ -61,7 +63,7 @@ def check_timeout(timeout) -> float:
 def _probe(address: str, timeout: float) -> None:
     """Ask the scheduler at ``address`` for its identity within ``timeout`` s (dask's own
     client waits forever on a server that accepts the connection and never answers)."""
-    from distributed.comm import connect
+    from distributed.comm import connect  # heavy import, see _client
 
     async def identity():
         comm = await connect(address, timeout=timeout)
@@ -110,11 +112,26 @@ def _client(workers, scheduler, n_cells: int, log, timeout: float = CONNECT_TIME
         return
     n = str(thread_count())
     env = {"UPLIFT_THREADS": n, "OMP_NUM_THREADS": n, "OPENBLAS_NUM_THREADS": n, "MKL_NUM_THREADS": n}
-    with dask.config.set(LOCAL_WORKER_CONFIG), \
-            LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                         dashboard_address=None, silence_logs=logging.CRITICAL, env=env) as cluster, \
-            Client(cluster) as client:
+    with dask.config.set(LOCAL_WORKER_CONFIG), _workers_ignore_sigint():
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.CRITICAL, env=env)
+    with cluster, Client(cluster) as client:
         yield client
+
+
+@contextmanager
+def _workers_ignore_sigint():
+    """Start worker processes with SIGINT ignored: a Ctrl-C at a terminal reaches the whole
+    process group, and the workers would each print a traceback; this process stops them
+    when it handles the interrupt itself (a Ctrl-C while they start is ignored)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _run_cells(client, cells, shared, nodes, cache_dir, store, progress):
