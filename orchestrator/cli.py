@@ -367,8 +367,11 @@ def cmd_export(args) -> int:
     if args.cross_check is not None:
         check_output_folder(args.cross_check, (), "--cross-check")
         for model in ("structure", "soil", "coupled"):
-            check_output_folder(model_folder(args.cross_check, model),
-                                [name.format(model) for name in CROSS_CHECK_FILES], "--cross-check")
+            try:
+                folder = model_folder(args.cross_check, model)
+            except ValueError as exc:           # the package's version (the folder's name) is unknown
+                raise SetupError(f"--cross-check: {exc}") from None
+            check_output_folder(folder, [name.format(model) for name in CROSS_CHECK_FILES], "--cross-check")
     if args.kind == "native" and importlib.util.find_spec("ziglang") is None:
         raise SetupError("--kind native compiles the FMUs with the C compiler of the ziglang package, which is not "
                          "installed: pip install ziglang (a dependency of uplift), or export --kind python")
@@ -394,6 +397,10 @@ def cmd_compare(args) -> int:
 
 def cmd_report(args) -> int:
     check_output_folder(args.output, ["report.html", *_pngs(args.output)])
+    if args.results.suffix.lower() == ".toml":
+        raise ResultsFileError(f"{args.results} is a scene: `uplift report` reads the file that `uplift run` or "
+                               f"`uplift ensemble` wrote (uplift run {args.results} -o FILE, then uplift report "
+                               "FILE -o DIR)")
     if is_ensemble_file(args.results):
         if args.reference is not None:
             raise ResultsFileError(f"--reference compares the routes of one run; {args.results} is an ensemble file")

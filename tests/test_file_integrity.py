@@ -161,9 +161,8 @@ def test_append_then_restamp_keeps_the_file_readable(ensemble_file, tmp_path):
         f["extra/p"][0] = 0.2
     with pytest.raises(ChangedFileError):
         read_ensemble(copy)
-    with pytest.raises(ChangedFileError):             # and cannot be re-stamped over
-        with atomic_update(copy):
-            pass
+    with pytest.raises(ChangedFileError), atomic_update(copy):      # and cannot be re-stamped over
+        pass
 
 
 # ---- output paths ------------------------------------------------------------------------------
