@@ -276,7 +276,7 @@ class Scene:
         """Refuse a motion whose peak ground acceleration exceeds [analysis].max_pga_g."""
         m, limit = self.motion, self.analysis.max_pga_g
         peak = m.pga_g if m.kind == "synthetic" else float(np.max(m.record.pga)) / G
-        if peak > limit:
+        if peak > limit * (1 + 1e-9):          # a record scaled to the limit exactly passes
             what = (f"motion.pga_g = {peak:g}" if m.kind == "synthetic" else
                     f"motion.scale = {m.scale:g} makes the record peak at {peak:.4g} g, which")
             raise SceneError(f"{what} exceeds the intensity limit analysis.max_pga_g = {limit:g} g: check the "

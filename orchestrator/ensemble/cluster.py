@@ -3,6 +3,7 @@ existing scheduler, and the cells run on it (the shared parts scattered once).""
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import logging
 import math
 import os
@@ -76,13 +77,14 @@ def _probe(address: str, timeout: float) -> None:
     async def bounded():
         return await asyncio.wait_for(identity(), timeout)
 
-    reply = asyncio.run(bounded())
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:     # its own event loop, even under a running one
+        reply = pool.submit(asyncio.run, bounded()).result()
     if not isinstance(reply, dict) or reply.get("type") != "Scheduler":
         raise ValueError(f"it answered, but not as a dask scheduler ({str(reply)[:80]})")
 
 
 @contextmanager
-def _client(workers, scheduler, n_cells: int, log, timeout: float = CONNECT_TIMEOUT_S):
+def _client(workers, scheduler, log, timeout: float = CONNECT_TIMEOUT_S):
     """A dask Client: on an existing scheduler (which must answer within ``timeout`` s), or on a
     LocalCluster of ``workers`` worker processes (``local_workers``) with one thread each and the
     BLAS thread count of this process; the cluster is shut down on exit, whatever the exit."""

@@ -27,7 +27,7 @@ FRACTILE_VARIABLES = ("max_uplift", "max_raft_rotation", "min_contact_ratio", "f
 
 
 def assemble(plan: Plan, values: dict, failures: dict, attrs: dict):
-    """The ensemble's xarray.Dataset (module docstring) from the cells' values ({key: values};
+    """The ensemble's xarray.Dataset (the package docstring) from the cells' values ({key: values};
     a cell without values is "failed", with its reason from ``failures``)."""
     import xarray as xr  # start-up cost (~0.5 s, pandas): only ensembles pay it
     shape = (len(plan.records), len(plan.pgas), len(plan.routes))

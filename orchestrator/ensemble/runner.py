@@ -26,14 +26,14 @@ def run_ensemble(scene, pgas, records=None, seeds=None, routes=None, output=None
                  sweep_progress=None, fit_progress=None, log=None, connect_timeout: float = CONNECT_TIMEOUT_S):
     """Run ``scene`` (a Scene, a TOML path or a built-in name) on ``routes`` (default: the
     scene's) under ``records`` (record files or folders) or ``seeds`` of its synthetic motion,
-    each at every PGA of ``pgas`` (g); returns the ``xarray.Dataset`` of the module docstring
+    each at every PGA of ``pgas`` (g); returns the ``xarray.Dataset`` of the package docstring
     and, with ``output``, writes it there (resuming from ``<output>.cells/``).
 
     workers : worker processes of a LocalCluster (default: the usable cores), at most one per
     cell to compute and ``cluster.WORKERS_PER_CORE`` per usable core (a cap is noted in the
     dataset's ``workers_note`` and logged); scheduler : the address of an existing dask
     scheduler instead (e.g. "tcp://10.0.0.5:8786"), which must answer within
-    ``connect_timeout`` s (EnsembleError otherwise); dt_check : "strongest" or "each" (module docstring);
+    ``connect_timeout`` s (EnsembleError otherwise); dt_check : "strongest" or "each" (package docstring);
     progress(done, total, label) follows the cells, sweep_progress and fit_progress the set-up
     (as in ``run_scene``); log(message) receives notes for the user. Bad input raises before
     any computation (EnsembleError, SceneError, ResultsFileError: all ValueErrors).
@@ -64,7 +64,7 @@ def run_ensemble(scene, pgas, records=None, seeds=None, routes=None, output=None
             if note and log is not None:
                 log(note)
         t = time.perf_counter()
-        with _client(workers, scheduler, len(todo), log, connect_timeout) as client:
+        with _client(workers, scheduler, log, connect_timeout) as client:
             n_workers = len(client.scheduler_info()["workers"])
             t1 = time.perf_counter()
             shared = prepare_run(plan.scene, cache_dir=cache_dir, sweep_progress=sweep_progress,
