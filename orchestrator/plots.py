@@ -159,11 +159,15 @@ def run_figures(results: dict, motion, scene_name: str):
     z (fig. 5-6, ``<route>_floor_spectra``). When the ``linear`` route (no uplift) is among the
     results, it is drawn dashed on the other routes' figures: the paper's "with and without
     uplift" comparison. ``motion`` (may be None) names the components and adds the ground
-    spectra. The caller closes each figure."""
+    spectra. Routes without histories (refused) have no figures. The caller closes each figure."""
     plt = pyplot()
     label = motion.label if motion is not None else ""
     linear = results.get("linear")
+    if linear is not None and linear.nt < 2:
+        linear = None
     for route, res in results.items():
+        if res.nt < 2 or res.xy is None:          # refused, or stopped before its second sample: nothing to draw
+            continue
         lin = linear if linear is not None and route != "linear" else None
         fig = _raft_figure(plt, res, lin)
         fig.suptitle(f"{scene_name} [{route}]: raft response, {label}")

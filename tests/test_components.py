@@ -267,3 +267,28 @@ def test_timefreq_load_takes_three_components_exactly():
     assert rel(tf.gap, td.gap) < 1e-8 and rel(tf.raft[:, :5], td.raft[:, :5]) < 1e-8
     for name in td.acc:
         assert rel(tf.acc[name], td.acc[name]) < 1e-8, name
+
+
+def test_report_names_the_components_and_rocking_axes(tmp_path, capsys):
+    """The report says which components ran and gives both rocking peaks; a refused route is
+    listed without figures (it has no histories)."""
+    from orchestrator.results import write_results
+    from structure.results import RouteResult
+    from tests.test_report import _result
+
+    nt = 300
+    t = 0.01 * np.arange(nt)
+    run = _result("monolithic")
+    raft = np.array(run.raft)
+    raft[:, 3] = 2e-4 * np.cos(2 * np.pi * t)
+    results = {"monolithic": run.replace(raft=raft).with_notes(info={"components": ["x", "y", "z"]}),
+               "cosim": RouteResult.refused("cosim", "refused for the test")}
+    motion = Motion(0.01, np.column_stack([np.sin(t), np.cos(t), 0.5 * np.sin(3 * t)]), "triplet")
+    path = write_results(tmp_path / "r.h5", results, motion, "tiny")
+    assert main(["report", str(path), "-o", str(tmp_path / "rep")]) == 0
+    page = (tmp_path / "rep" / "report.html").read_text()
+    assert "components x, y, z" in page and "<td>x, y, z</td>" in page
+    assert f"<td>{2e-4:.4e}</td>" in page and f"<td>{1e-4:.4e}</td>" in page      # max |rx|, max |ry|
+    assert f"<td>{np.hypot(raft[:, 3], raft[:, 4]).max():.4e}</td>" in page
+    assert sorted(p.name for p in (tmp_path / "rep").glob("*.png")) == ["monolithic_floor_spectra.png",
+                                                                       "monolithic_raft.png"]
