@@ -33,7 +33,7 @@ from orchestrator.report import write_ensemble_report, write_report
 from orchestrator.results import ResultsFileError, check_output_path, read_results, summary, write_results
 from orchestrator.routes import route_names
 from orchestrator.run import run_scene
-from orchestrator.scene import builtin_scenes, load_scene
+from orchestrator.scene import SceneError, builtin_scenes, load_scene
 from orchestrator.settings import EXIT_FAILED, EXIT_INPUT, EXIT_OK, compute_threads, default_cache_dir
 from structure.results import Status
 
@@ -369,6 +369,9 @@ def cmd_report(args) -> int:
 
 def cmd_ensemble(args) -> int:
     scene = load_scene(args.scene)
+    if scene.motion.direction is None:
+        raise SceneError(f"{args.scene}: motion.components: `uplift ensemble` takes one component of motion for "
+                         "now ([motion] direction = \"x\"); run several components at once with `uplift run`")
     out = args.output or Path(f"{scene.name}_ensemble.h5")
     try:
         ds = run_ensemble(scene, args.pga, records=args.records, seeds=args.seeds, routes=args.routes, output=out,
