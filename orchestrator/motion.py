@@ -172,7 +172,7 @@ def synthetic_components(pga_g: float = 0.25, duration_s: float = 10.0, dt: floa
         out = np.zeros((acc.size, 3)) if out is None else out
         out[:, k] = acc
     ratio = f", z at {vertical_ratio:.3g} of it" if "z" in axes else ""
-    label = f"synthetic {spectrum} {pga_g:g} g{ratio} seed {seed}, components {', '.join(axes)}"
+    label = f"synthetic {spectrum} {pga_g:g} g{ratio}, seed {seed}"
     return Motion(SYNTHETIC_DT, out, label, axes).resampled(dt)
 
 
