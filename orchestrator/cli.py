@@ -26,13 +26,14 @@ from orchestrator.ensemble import DT_CHECKS, EnsembleError, ensemble_summary, is
 from orchestrator.errors import ComputationError, UserInputError
 from orchestrator.export import KINDS, export_scene
 from orchestrator.impedance import rigid_json, scene_fit, scene_impedance, scene_static
+from orchestrator.motion import G
 from orchestrator.plots import plot_impedance, plot_run
 from orchestrator.progress import Progress, frequency_bar, stage_bar, step_bar
 from orchestrator.report import write_ensemble_report, write_report
 from orchestrator.results import ResultsFileError, check_output_path, read_results, summary, write_results
 from orchestrator.routes import route_names
 from orchestrator.run import run_scene
-from orchestrator.scene import builtin_scenes, load_scene
+from orchestrator.scene import SceneError, builtin_scenes, load_scene
 from orchestrator.settings import EXIT_FAILED, EXIT_INPUT, EXIT_OK, compute_threads, default_cache_dir
 from structure.results import Status
 
@@ -231,18 +232,23 @@ def cmd_run(args) -> int:
                                 fit_progress=stage_bar(f"fit {scene.name}"))
     write_results(out, results, motion, scene.name)
     _say(f"wrote {out}")
-    summ = {"routes": {r: summary(res) for r, res in results.items()}}
+    summ = {"motion": {"label": motion.label, "components": list(motion.components),
+                       "pga_g": {a: float(p) / G for a, p in zip("xyz", motion.pga) if a in motion.components}},
+            "routes": {r: summary(res) for r, res in results.items()}}
     if args.plot_dir:
         _say(*(f"wrote {path}" for path in plot_run(results, motion, scene, args.plot_dir)))
     if args.json:
         print(json.dumps(summ))
     else:
+        _say(f"motion: {motion.label} (components {', '.join(motion.components)})")
         for r, s in summ["routes"].items():
             if s["status"] == Status.REFUSED.value:
                 _say(f"{r}: REFUSED: {s['message']}")
                 continue
-            _say(f"{r}: max uplift {1e3 * s['max_uplift_m']:.3f} mm at {s['max_uplift_time_s']:.3f} s, "
-                 f"raft rotation {s['max_raft_rotation_rad']:.3e} rad, min contact "
+            axes = s["max_raft_rotation_axes_rad"]
+            _say(f"{r} [{', '.join(s['components'])}]: max uplift {1e3 * s['max_uplift_m']:.3f} mm at "
+                 f"{s['max_uplift_time_s']:.3f} s, raft rotation {s['max_raft_rotation_rad']:.3e} rad "
+                 f"(rx {axes['x']:.3e}, ry {axes['y']:.3e}), min contact "
                  f"{100 * s['min_contact_fraction']:.1f} %, wall {s['wall_s']:.2f} s"
                  + ("" if s["converged"] else f"  STOPPED: {s['message']}"))
             if s["precheck"]:
@@ -363,6 +369,9 @@ def cmd_report(args) -> int:
 
 def cmd_ensemble(args) -> int:
     scene = load_scene(args.scene)
+    if scene.motion.direction is None:
+        raise SceneError(f"{args.scene}: motion.components: `uplift ensemble` takes one component of motion for "
+                         "now ([motion] direction = \"x\"); run several components at once with `uplift run`")
     out = args.output or Path(f"{scene.name}_ensemble.h5")
     try:
         ds = run_ensemble(scene, args.pga, records=args.records, seeds=args.seeds, routes=args.routes, output=out,

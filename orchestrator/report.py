@@ -1,9 +1,10 @@
 """A self-contained report of a results file: ``uplift report results.h5 -o DIR``.
 
-Writes ``DIR/report.html``: the scene, what each route is, the per-route summary (max uplift
-and its time, raft rotation, min contact fraction, wall time, converged or why not), the route
-comparison of ``orchestrator.compare`` and the figures of the paper's kind (fig. 3-6: uplift
-at the raft edges, raft displacements with and without uplift, floor response spectra),
+Writes ``DIR/report.html``: the scene, what each route is, the per-route summary (the motion's
+components, max uplift and its time, raft rotation sqrt(rx² + ry²) and per axis, min contact
+fraction, wall time, converged or why not), the route comparison of ``orchestrator.compare``
+and the figures of the paper's kind (fig. 3-6: uplift at the raft edges, raft displacements
+with and without uplift, rocking about both axes, floor response spectra in x, y and z),
 embedded as base64 PNG so that the page needs no other file. The figures are also written
 next to it as PNG files.
 
@@ -56,14 +57,16 @@ def summary_rows(results) -> list:
     rows = []
     for route, res in results.items():
         s = summary(res)
-        rows.append([route, f"{1e3 * s['max_uplift_m']:.4f}", f"{s['max_uplift_time_s']:.3f}",
-                     f"{s['max_raft_rotation_rad']:.4e}", f"{100 * s['min_contact_fraction']:.1f}",
+        axes = s["max_raft_rotation_axes_rad"]
+        rows.append([route, ", ".join(s["components"]) or "-", f"{1e3 * s['max_uplift_m']:.4f}",
+                     f"{s['max_uplift_time_s']:.3f}", f"{s['max_raft_rotation_rad']:.4e}",
+                     f"{axes['x']:.4e}", f"{axes['y']:.4e}", f"{100 * s['min_contact_fraction']:.1f}",
                      f"{s['wall_s']:.2f}", "yes" if s["converged"] else f"{s['status'].upper()}: {res.message}"])
     return rows
 
 
-SUMMARY_HEADER = ["route", "max uplift (mm)", "at t (s)", "max raft rotation (rad)",
-                  "min contact (%)", "wall (s)", "converged"]
+SUMMARY_HEADER = ["route", "components", "max uplift (mm)", "at t (s)", "max raft rotation sqrt(rx²+ry²) (rad)",
+                  "max |rx| (rad)", "max |ry| (rad)", "min contact (%)", "wall (s)", "converged"]
 
 
 def comparison_rows(cmp: dict) -> list:
@@ -101,8 +104,8 @@ def write_report(results_path, directory, reference: str | None = None) -> Path:
              f"<style>{STYLE}</style></head><body>",
              f"<h1>Foundation uplift: scene <code>{esc(scene)}</code></h1>",
              f"<p>Results file <code>{esc(str(results_path))}</code>, written {esc(created)}"
-             + (f"; motion: {esc(motion.label)}, {motion.acc.shape[0]} samples at {1e3 * motion.dt:g} ms"
-                if motion is not None else "") + ".</p>",
+             + (f"; motion: {esc(motion.label)}, components {esc(', '.join(motion.components))}, "
+                f"{motion.acc.shape[0]} samples at {1e3 * motion.dt:g} ms" if motion is not None else "") + ".</p>",
              "<h2>Routes</h2><ul>"
              + "".join(f"<li><b>{esc(r)}</b>: {esc(route_note(r))}</li>"
                        for r in results) + "</ul>",
@@ -111,9 +114,10 @@ def write_report(results_path, directory, reference: str | None = None) -> Path:
              "<p>Relative differences (route − reference) / reference; floor-spectrum peaks: "
              f"{100 * cmp['damping']:.0f} % damped pseudo-acceleration, largest difference over output "
              "nodes and directions.</p>", _table(COMPARISON_HEADER, comparison_rows(cmp)),
-             "<h2>Figures</h2><p>Per route: uplift at the raft edges and raft displacements (paper fig. 3-4), "
-             "floor response spectra (fig. 5-6); dashed: the <code>linear</code> route (no uplift) "
-             "when present.</p>"]
+             "<h2>Figures</h2><p>Per route: uplift at the raft edges along x and y, the raft's vertical "
+             "displacements (edges and centre) and its rocking about x and y with the magnitude "
+             "sqrt(rx² + ry²) (paper fig. 3-4), floor response spectra in x, y and z (fig. 5-6); dashed: "
+             "the <code>linear</code> route (no uplift) when present.</p>"]
     parts += _images(figures)
     return _write_page(directory, parts)
 
