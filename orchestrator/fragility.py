@@ -443,7 +443,7 @@ def fragility_figure(frag, title: str = ""):
         ax.set_ylabel("P(exceed)")
         ax.set_title(lim)
         ax.grid(True, alpha=0.3)
-        ax.legend(loc="lower right", fontsize="small")
+        ax.legend(loc="best", fontsize="small")
     if title:
         fig.suptitle(title)
     return fig
