@@ -51,6 +51,8 @@ BETA_BOUNDS = (0.01, 2.0)
 ON_BOUND = 1e-6
 #: the start of the optimiser: best of a GRID x GRID grid over (ln median, ln beta)
 GRID = 41
+#: a stationary point: |d ln L / d(ln median, beta)| below this times the number of cells
+GRADIENT_TOL = 1e-7
 OPERATORS = {">": operator.gt, ">=": operator.ge, "<": operator.lt, "<=": operator.le}
 #: units a threshold may be given in, per units of the file's variable: unit -> factor to the file's
 UNITS = {"m": {"m": 1.0, "cm": 1e-2, "mm": 1e-3},
@@ -243,9 +245,10 @@ def fit_fragility(pga, cells, exceedances) -> Fit:
     ll = log_likelihood(np.exp(mu_grid)[:, None], beta_grid[None, :], np.exp(lnx), n, z)
     i, j = np.unravel_index(np.argmax(ll), ll.shape)
     res = minimize(_objective, np.array([mu_grid[i], beta_grid[j]]), args=(lnx, n, z), jac=True,
-                   method="L-BFGS-B", bounds=bounds, options={"ftol": 1e-15, "gtol": 1e-10, "maxiter": 1000})
+                   method="L-BFGS-B", bounds=bounds, options={"ftol": 1e-14, "gtol": 1e-10, "maxiter": 1000})
     mu, beta = res.x
-    if not res.success:
+    # a line search that stops on round-off next to the optimum is converged: judge by the gradient
+    if not res.success and np.abs(_objective(res.x, lnx, n, z)[1]).max() > GRADIENT_TOL * n.sum():
         return Fit(None, None, None, f"the optimiser did not converge ({res.message})")
     on = lambda v, lo, hi: min(v - lo, hi - v) <= ON_BOUND * (hi - lo)
     if on(mu, *bounds[0]):
