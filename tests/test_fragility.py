@@ -109,22 +109,25 @@ def _capacities(n_records, median, beta, pga, seed):
 
 def test_bootstrap_over_records_matches_the_spread_of_the_estimate():
     """Records with lognormal capacities (median 0.3 g, beta 0.4; 80 records x 7 PGAs): the 90 %
-    bootstrap band of the median (400 resamples) has the width of the 5-95 % spread of the
-    median over 200 independent ensembles, within 30 %, and holds the estimate; seeded."""
+    bootstrap band of the median (150 resamples), averaged over 4 ensembles, has the width of
+    the 5-95 % spread of the median over 200 independent ensembles within 20 % (one ensemble's
+    band scatters by about 10 %), and holds the estimate; seeded."""
     pga = np.geomspace(0.1, 0.9, 7)
     estimates = []
     for seed in range(200):
         hits = _capacities(80, 0.3, 0.4, pga, seed)
         estimates.append(frag.fit_fragility(pga, np.full(pga.size, 80), hits.sum(axis=0)).median_g)
     spread = np.diff(np.quantile(np.log(estimates), [0.05, 0.95]))[0]
-    hits = _capacities(80, 0.3, 0.4, pga, 1000)
-    usable = np.ones_like(hits)
-    bs = frag.bootstrap(pga, hits, usable, 400, seed=7, confidence=0.9)
-    assert bs["identified"] == 400
-    width = np.log(bs["median_g"][1] / bs["median_g"][0])
-    assert 0.7 < width / spread < 1.3, (width, spread)
-    point = frag.fit_fragility(pga, usable.sum(axis=0), hits.sum(axis=0)).median_g
-    assert bs["median_g"][0] < point < bs["median_g"][1]
+    widths = []
+    for seed in range(1000, 1004):
+        hits = _capacities(80, 0.3, 0.4, pga, seed)
+        usable = np.ones_like(hits)
+        bs = frag.bootstrap(pga, hits, usable, 150, seed=7, confidence=0.9)
+        assert bs["identified"] == 150
+        widths.append(np.log(bs["median_g"][1] / bs["median_g"][0]))
+        point = frag.fit_fragility(pga, usable.sum(axis=0), hits.sum(axis=0)).median_g
+        assert bs["median_g"][0] < point < bs["median_g"][1]
+    assert 0.8 < np.mean(widths) / spread < 1.2, (widths, spread)
     assert frag.bootstrap(pga, hits, usable, 50, seed=7, confidence=0.9) == \
         frag.bootstrap(pga, hits, usable, 50, seed=7, confidence=0.9)
     assert frag.bootstrap(pga, hits, usable, 50, seed=8, confidence=0.9) != \
