@@ -220,10 +220,11 @@ def not_identifiable(pga, cells, exceedances) -> str:
                 "levels around it")
     holds, exceeds = pga[used & (n > z)].max(), pga[used & (z > 0)].min()
     if holds <= exceeds:
-        between = f"at {holds:g} g" if holds == exceeds else f"between {holds:g} and {exceeds:g} g"
+        where, near = (f"at {holds:g} g", f"around {holds:g} g") if holds == exceeds else \
+            (f"between {holds:g} and {exceeds:g} g",) * 2
         return (f"exceedances separated by PGA: no cell exceeds below and every cell exceeds above the median, "
-                f"which lies {between}; the likelihood grows without bound as beta -> 0: add records or PGA "
-                f"levels {between.replace('at', 'around')}")
+                f"which lies {where}; the likelihood grows without bound as beta -> 0: add records or PGA "
+                f"levels {near}")
     return ""
 
 
@@ -302,6 +303,8 @@ def fragility(ds, limits, routes=None, samples: int = 0, seed: int = 0, confiden
             raise FragilityError(f"--route {r!r} is not in the ensemble file (its routes: {', '.join(in_file)})")
     if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 0:
         raise FragilityError(f"--bootstrap {samples!r}: a number of resamples >= 0 (e.g. 200; 0: none)")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise FragilityError(f"--seed {seed!r}: the bootstrap's seed is an integer >= 0")
     if not 0 < confidence < 1:
         raise FragilityError(f"--confidence {confidence!r}: a share in (0, 1), e.g. 0.9")
     pga = ds["pga"].values.astype(float)

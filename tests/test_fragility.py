@@ -89,7 +89,8 @@ def test_hand_computed_likelihood_and_grid_search():
     ([8, 8, 8], [8, 8, 8], "all exceed: every cell exceeds the limit at every PGA from 0.1 g"),
     ([0, 8, 0], [0, 3, 0], "one PGA level only (0.2 g)"),
     ([8, 8, 8], [0, 3, 8], "exceedances separated by PGA: no cell exceeds below and every cell exceeds above "
-                           "the median, which lies at 0.2 g"),
+                           "the median, which lies at 0.2 g; the likelihood grows without bound as beta -> 0: "
+                           "add records or PGA levels around 0.2 g"),
     ([8, 8, 8], [0, 0, 8], "which lies between 0.2 and 0.4 g"),
     ([0, 0, 0], [0, 0, 0], "no usable cell"),
     ([8, 8, 8], [6, 4, 2], "beta runs to its bound 2 (the fractions barely rise with PGA)"),
@@ -253,7 +254,7 @@ def test_cli_agrees_with_a_fit_of_the_files_cells(ensemble, tmp_path):
     assert list(stored["limit"].values) == list(LIMITS)
     np.testing.assert_array_equal(stored["median_g"].values[:, 0], [e["median_g"] for e in entries])
     np.testing.assert_array_equal(stored["exceedances"].values[:, 0], [e["exceedances"] for e in entries])
-    xr.testing.assert_identical(read_ensemble(path).drop_attrs(), root.drop_attrs())
+    xr.testing.assert_identical(read_ensemble(path), root)
     # the report draws it: the table and one panel per limit
     assert main(["report", str(path), "-o", str(tmp_path / "rep")]) == 0
     page = (tmp_path / "rep" / "report.html").read_text()
@@ -306,6 +307,8 @@ def test_bootstrap_from_the_command_is_seeded(ensemble, tmp_path):
     (["--limit", "floor_spectrum[node=roof, direction=x, frequency=5] > 1 g"], "node 'roof' is not in the file"),
     (["--limit", "max_uplift > 2 mm", "--limit", "max_uplift>2mm"], "the same limit state is given twice"),
     (["--limit", "max_uplift > 2 mm", "--bootstrap", "-1"], "--bootstrap -1: a number of resamples >= 0"),
+    (["--limit", "max_uplift > 2 mm", "--bootstrap", "5", "--seed", "-2"], "--seed -2: the bootstrap's seed"),
+    (["--limit", "max_uplift > 2 mm", "--confidence", "1.5"], "argument --confidence: '1.5' must lie in (0, 1)"),
 ])
 def test_bad_input_exits_2_and_leaves_the_file(ensemble, tmp_path, capsys, args, message):
     path = tmp_path / "ens.h5"
