@@ -222,7 +222,8 @@ ENSEMBLE_HEADER = ["PGA (g)", "route", "converged", "max uplift median (mm)", "m
                    "min contact 16 % (%)", "median wall (s)"]
 
 
-FRAGILITY_HEADER = ["limit state", "route", "median (g)", "beta", "ln L", "exceedances per PGA", "left out"]
+FRAGILITY_HEADER = ["limit state", "route", "median (g)", "beta", "ln L", "median band, bootstrap (g)",
+                    "exceedances per PGA", "left out"]
 
 
 def fragility_parts(path, directory: Path) -> list:
@@ -239,7 +240,10 @@ def fragility_parts(path, directory: Path) -> list:
         left = ", ".join(f"{v} {k}" for k, v in e["left_out"].items() if v) or "none"
         fit = ([f"{e['median_g']:.4g}", f"{e['beta']:.3f}", f"{e['log_likelihood']:.4g}"] if e["identifiable"]
                else [f"not identifiable: {e['reason']}", "-", "-"])
-        rows.append([e["limit"], e["route"], *fit, counts, left])
+        bs = e["bootstrap"]
+        band = (f"{bs['median_g'][0]:.3g}-{bs['median_g'][1]:.3g} ({100 * bs['confidence']:g} %, "
+                f"{bs['identified']}/{bs['samples']})" if bs and bs["median_g"] else "-")
+        rows.append([e["limit"], e["route"], *fit, band, counts, left])
     figure = _save_figures([("fragility", frag.fragility_figure(fits))], directory)
     return ["<h2>Fragility</h2><p>Maximum-likelihood lognormal fits P(exceed | PGA) = &Phi;(ln(PGA / median) "
             "/ beta) on the exceedances of the converged cells per PGA (dots: the observed fractions z/n).</p>",

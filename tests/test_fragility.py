@@ -259,6 +259,8 @@ def test_cli_agrees_with_a_fit_of_the_files_cells(ensemble, tmp_path):
     assert main(["report", str(path), "-o", str(tmp_path / "rep")]) == 0
     page = (tmp_path / "rep" / "report.html").read_text()
     assert f"<td>{entries[0]['median_g']:.4g}</td>" in page and (tmp_path / "rep" / "fragility.png").is_file()
+    fig = frag.fragility_figure(frag.read_fragility(path))
+    assert [ax.get_title() for ax in fig.axes] == list(LIMITS)
     # a second fit replaces the first
     code, out = _fragility(path, "--limit", "max_uplift > -1", "--json")
     e = out["fragility"][0]
