@@ -361,6 +361,7 @@ def fragility(ds, limits, routes=None, samples: int = 0, seed: int = 0, confiden
 def fragility_json(frag) -> dict:
     """``{"fragility": [...]}`` of ``uplift fragility --json``: one entry per limit and route."""
     opt = lambda v: float(v) if np.isfinite(v) else None
+    band = lambda v: [float(x) for x in v] if np.isfinite(v).all() else None      # no resample fitted: None
     entries = []
     for a, lim in enumerate(frag["limit"].values):
         for b, route in enumerate(frag["route"].values):
@@ -379,8 +380,8 @@ def fragility_json(frag) -> dict:
                                   "seed": int(frag.attrs["bootstrap_seed"]),
                                   "confidence": float(frag.attrs["confidence"]),
                                   "identified": int(frag["bootstrap_identified"].values[a, b]),
-                                  "median_g": [opt(v) for v in frag["median_g_band"].values[a, b]],
-                                  "beta": [opt(v) for v in frag["beta_band"].values[a, b]]}
+                                  "median_g": band(frag["median_g_band"].values[a, b]),
+                                  "beta": band(frag["beta_band"].values[a, b])}
             entries.append(e)
     return {"fragility": entries}
 

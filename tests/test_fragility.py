@@ -16,6 +16,7 @@ from scipy import optimize, stats
 from orchestrator import fragility as frag
 from orchestrator.cli import main
 from orchestrator.ensemble import read_ensemble, write_ensemble
+from orchestrator.report import fragility_parts
 
 # ---- the fit on arrays --------------------------------------------------------------------------
 
@@ -294,6 +295,14 @@ def test_bootstrap_from_the_command_is_seeded(ensemble, tmp_path):
     bs, median = a["fragility"][0]["bootstrap"], a["fragility"][0]["median_g"]
     assert (bs["samples"], bs["seed"], bs["confidence"]) == (40, 3, 0.9) and 0 < bs["identified"] <= 40
     assert bs["median_g"][0] < median < bs["median_g"][1]
+    # no resample fitted: no band (JSON null, the report's "-"), the fit itself stays
+    fits = frag.fragility(read_ensemble(path), [LIMITS[0]], samples=5)
+    fits["median_g_band"][:], fits["beta_band"][:], fits["bootstrap_identified"][:] = np.nan, np.nan, 0
+    e = frag.fragility_json(fits)["fragility"][0]
+    assert e["median_g"] == median and e["bootstrap"]["identified"] == 0
+    assert e["bootstrap"]["median_g"] is None and e["bootstrap"]["beta"] is None
+    frag.store_fragility(path, fits)
+    assert "<td>-</td>" in "".join(fragility_parts(path, tmp_path))
 
 
 @pytest.mark.parametrize("args, message", [
