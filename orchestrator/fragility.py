@@ -22,8 +22,8 @@ separated by PGA (no cell holds at a PGA above one that exceeds: beta -> 0), or 
 on a bound. The seeded bootstrap over records (``bootstrap``) resamples whole records (each
 with its cells at every PGA) and refits, for a percentile band on the median and beta.
 
-``fragility(ds, limits)`` gives an ``xarray.Dataset`` (module ``fragility_dataset``) that
-``store_fragility`` writes as the group ``fragility`` of the ensemble file
+``fragility(ds, limits)`` gives an ``xarray.Dataset`` (its docstring) that ``store_fragility``
+writes as the group ``fragility`` of the ensemble file
 (``xarray.open_dataset(path, group="fragility", engine="h5netcdf")``).
 """
 from __future__ import annotations
@@ -281,6 +281,28 @@ def bootstrap(pga, exceeds, usable, samples: int, seed: int, confidence: float) 
 
 # ---- an ensemble's fragility: the dataset, JSON, the file -------------------------------------------
 
+def exceedances(values, status, op: str, threshold: float):
+    """The cells of one route that count and those that exceed: values, status : shape
+    (record, pga) (file units; status strings); op in OPERATORS. Returns (usable, hit) bool
+    arrays (record, pga) and the left-out counts, shape (len(LEFT_OUT),)."""
+    converged = status == "converged"
+    usable = converged & np.isfinite(values)
+    with np.errstate(invalid="ignore"):
+        hit = OPERATORS[op](values, threshold) & usable
+    left = [(status == why).sum() for why in LEFT_OUT[:-1]] + [(converged & ~usable).sum()]
+    return usable, hit, np.array(left)
+
+
+def _check_bootstrap(samples, seed, confidence) -> None:
+    whole = lambda v: not isinstance(v, bool) and isinstance(v, (int, np.integer)) and v >= 0
+    if not whole(samples):
+        raise FragilityError(f"--bootstrap {samples!r}: a number of resamples >= 0 (e.g. 200; 0: none)")
+    if not whole(seed):
+        raise FragilityError(f"--seed {seed!r}: the bootstrap's seed is an integer >= 0")
+    if not 0 < confidence < 1:
+        raise FragilityError(f"--confidence {confidence!r}: a share in (0, 1), e.g. 0.9")
+
+
 def fragility(ds, limits, routes=None, samples: int = 0, seed: int = 0, confidence: float = 0.9):
     """The fits of ``limits`` (texts or Limits) on ``routes`` (default: all) of an ensemble
     dataset (``orchestrator.ensemble.read_ensemble``) as an xarray.Dataset:
@@ -301,12 +323,7 @@ def fragility(ds, limits, routes=None, samples: int = 0, seed: int = 0, confiden
     for r in routes:
         if r not in in_file:
             raise FragilityError(f"--route {r!r} is not in the ensemble file (its routes: {', '.join(in_file)})")
-    if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 0:
-        raise FragilityError(f"--bootstrap {samples!r}: a number of resamples >= 0 (e.g. 200; 0: none)")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise FragilityError(f"--seed {seed!r}: the bootstrap's seed is an integer >= 0")
-    if not 0 < confidence < 1:
-        raise FragilityError(f"--confidence {confidence!r}: a share in (0, 1), e.g. 0.9")
+    _check_bootstrap(samples, seed, confidence)
     pga = ds["pga"].values.astype(float)
     status = ds["status"].transpose(*CELL_DIMS).values.astype(str)
     L, R, P = len(limits), len(routes), pga.size
@@ -322,23 +339,20 @@ def fragility(ds, limits, routes=None, samples: int = 0, seed: int = 0, confiden
         units.append(ds[lim.variable].attrs.get("units", ""))
         for b, route in enumerate(routes):
             k = in_file.index(route)
-            v, s = values[:, :, k], status[:, :, k]
-            usable = (s == "converged") & np.isfinite(v)
-            with np.errstate(invalid="ignore"):
-                hit = OPERATORS[lim.op](v, threshold) & usable
-            out["left_out_cells"][a, b] = [(s == why).sum() for why in LEFT_OUT[:-1]] + \
-                [((s == "converged") & ~np.isfinite(v)).sum()]
+            usable, hit, out["left_out_cells"][a, b] = exceedances(values[:, :, k], status[:, :, k], lim.op,
+                                                                   threshold)
             out["cells"][a, b], out["exceedances"][a, b] = usable.sum(axis=0), hit.sum(axis=0)
             fit = fit_fragility(pga, out["cells"][a, b], out["exceedances"][a, b])
             out["reason"][a, b] = fit.reason
-            if fit.identified:
-                out["median_g"][a, b], out["beta"][a, b], out["log_likelihood"][a, b] = \
-                    fit.median_g, fit.beta, fit.log_likelihood
-                if samples:
-                    bs = bootstrap(pga, hit, usable, samples, seed, confidence)
-                    out["bootstrap_identified"][a, b] = bs["identified"]
-                    if bs["identified"]:
-                        out["median_g_band"][a, b], out["beta_band"][a, b] = bs["median_g"], bs["beta"]
+            if not fit.identified:
+                continue
+            out["median_g"][a, b], out["beta"][a, b], out["log_likelihood"][a, b] = \
+                fit.median_g, fit.beta, fit.log_likelihood
+            if samples:
+                bs = bootstrap(pga, hit, usable, samples, seed, confidence)
+                out["bootstrap_identified"][a, b] = bs["identified"]
+                if bs["identified"]:
+                    out["median_g_band"][a, b], out["beta_band"][a, b] = bs["median_g"], bs["beta"]
     dims = {"median_g": ("limit", "route"), "beta": ("limit", "route"), "log_likelihood": ("limit", "route"),
             "reason": ("limit", "route"), "cells": ("limit", "route", "pga"),
             "exceedances": ("limit", "route", "pga"), "left_out_cells": ("limit", "route", "left_out"),

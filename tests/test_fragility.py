@@ -136,6 +136,18 @@ def test_bootstrap_over_records_matches_the_spread_of_the_estimate():
         frag.bootstrap(pga, hits, usable, 50, seed=7, confidence=0.9)
 
 
+def test_which_cells_count():
+    """Converged cells with a number count; failed, stopped, refused and NaN ones are left out
+    and counted by reason; <= and < differ at the threshold."""
+    values = np.array([[0.75, 0.5, np.nan], [1.0, 0.75, 0.25]])
+    status = np.array([["converged", "stopped", "converged"], ["converged", "failed", "refused"]])
+    usable, hit, left = frag.exceedances(values, status, "<=", 0.75)
+    np.testing.assert_array_equal(usable, [[True, False, False], [True, False, False]])
+    np.testing.assert_array_equal(hit, [[True, False, False], [False, False, False]])
+    assert dict(zip(frag.LEFT_OUT, left)) == {"failed": 1, "stopped": 1, "refused": 1, "undefined": 1}
+    assert not frag.exceedances(values, status, "<", 0.75)[1].any()
+
+
 @pytest.mark.parametrize("text, norm", [
     ("max_uplift>5mm", "max_uplift > 5 mm"),
     ("  min_contact_ratio <= 0.75 ", "min_contact_ratio <= 0.75"),
