@@ -281,6 +281,19 @@ def test_cli_agrees_with_a_fit_of_the_files_cells(ensemble, tmp_path):
     assert list(frag.read_fragility(path)["limit"].values) == ["max_uplift > -1"]
 
 
+def test_spectral_ordinate_on_and_between_grid_frequencies(ensemble):
+    """On a grid frequency the file's value; between two, linear in ln f; thresholds in g."""
+    ds = read_ensemble(ensemble)
+    f = ds["frequency"].values
+    s = ds["floor_spectrum"].sel(node="top", direction="x").transpose("record", "pga", "route", "frequency").values
+    on, g = frag.limit_values(ds, frag.parse_limit(f"floor_spectrum[node=top, direction=x, frequency={float(f[40])!r}] > 1 g"))
+    np.testing.assert_array_equal(on, s[..., 40])
+    assert g == 9.81
+    mid = np.sqrt(f[40] * f[41])                                   # halfway in ln f
+    between, _ = frag.limit_values(ds, frag.parse_limit(f"floor_spectrum[node=top, direction=x, frequency={float(mid)!r}] > 1"))
+    np.testing.assert_allclose(between, 0.5 * (s[..., 40] + s[..., 41]), rtol=1e-12)
+
+
 def test_failed_cells_left_out_and_counted(ensemble, tmp_path):
     ds = read_ensemble(ensemble)
     status, uplift = ds["status"].values.copy(), ds["max_uplift"].values.copy()
