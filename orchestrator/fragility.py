@@ -443,7 +443,8 @@ def fragility_figure(frag, title: str = ""):
             used = n > 0
             ax.plot(pga[used], z[used] / n[used], "o", color=f"C{b}", label=f"{route}: observed z/n")
             for p, zz, nn in zip(pga[used], z[used], n[used]):
-                ax.annotate(f"{zz}/{nn}", (p, zz / nn), textcoords="offset points", xytext=(4, -10),
+                ax.annotate(f"{zz}/{nn}", (p, zz / nn), textcoords="offset points",
+                            xytext=(4, 5 if zz / nn < 0.5 else -10),
                             fontsize="x-small", color=f"C{b}")
             reason = str(frag["reason"].values[a, b])
             if reason:
