@@ -22,12 +22,13 @@ from soil_impedance.fit import save_fit
 from orchestrator.bench import bench, bench_config, format_rows, json_safe, plot_rows
 from orchestrator.compare import compare, format_table
 from orchestrator.crosscheck import write_cross_check
-from orchestrator.ensemble import DT_CHECKS, EnsembleError, ensemble_summary, is_ensemble_file, run_ensemble
+from orchestrator.ensemble import (DT_CHECKS, EnsembleError, ensemble_summary, is_ensemble_file, read_ensemble,
+                                   run_ensemble)
 from orchestrator.errors import ComputationError, UserInputError
 from orchestrator.export import KINDS, export_scene
 from orchestrator.impedance import rigid_json, scene_fit, scene_impedance, scene_static
 from orchestrator.motion import G
-from orchestrator.plots import plot_impedance, plot_run
+from orchestrator.plots import plot_impedance, plot_run, pyplot
 from orchestrator.progress import Progress, frequency_bar, stage_bar, step_bar
 from orchestrator.report import write_ensemble_report, write_report
 from orchestrator.results import ResultsFileError, check_output_path, read_results, summary, write_results
@@ -176,6 +177,7 @@ def _parser() -> argparse.ArgumentParser:
     json_flag(ens, "print one JSON summary object on stdout")
     no_cache(ens)
     ens.set_defaults(func=cmd_ensemble)
+    _fragility_parser(sub, json_flag)
 
     bch = sub.add_parser("bench", help="run time against error of every route and its accuracy knobs",
                          description="For the disk-halfspace and reactor scenes, sweep each route's "
@@ -404,6 +406,67 @@ def cmd_ensemble(args) -> int:
     if summ["refused"]:
         return EXIT_INPUT
     return EXIT_FAILED if summ["stopped"] or summ["failed"] else EXIT_OK
+
+
+def _fragility_parser(sub, json_flag):
+    frg = sub.add_parser("fragility", help="lognormal fragility curves of limit states from an ensemble file",
+                         description="Per limit state and route: the maximum-likelihood lognormal fragility "
+                                     "P(exceed | PGA) = Phi(ln(PGA / median) / beta) from the exceedances of the "
+                                     "converged cells per PGA, stored as the group 'fragility' of the ensemble "
+                                     "file (drawn by `uplift report`). See docs/fragility.md.")
+    frg.add_argument("ensemble", type=Path, help="ensemble file written by `uplift ensemble`")
+    frg.add_argument("--limit", action="append", dest="limits", required=True, metavar="'VAR OP VALUE [UNIT]'",
+                     help="limit state (repeatable): VAR a per-cell variable (max_uplift, max_raft_rotation, "
+                          "min_contact_ratio, or floor_spectrum[node=N, direction=D, frequency=F]), OP one of "
+                          "> >= < <=, UNIT optional (mm, mrad, %%, g, ...; default: the file's), e.g. "
+                          "'max_uplift > 5 mm', 'min_contact_ratio < 75 %%'")
+    frg.add_argument("--route", action="append", dest="routes", metavar="R",
+                     help="route of the file (repeatable; default: all of its routes)")
+    frg.add_argument("--bootstrap", type=int, default=0, metavar="N",
+                     help="resample the records N times for a band on the median and beta (default 0: none)")
+    frg.add_argument("--seed", type=int, default=0, help="seed of the bootstrap (default 0)")
+    frg.add_argument("--confidence", type=_fraction, default=0.9, help="share of the bootstrap band (default 0.9)")
+    frg.add_argument("--plot", type=Path, default=None, metavar="FILE", help="draw the curves to this image")
+    frg.add_argument("--no-store", action="store_true", help="do not write the fit into the ensemble file")
+    json_flag(frg, "print {\"fragility\": [...]} on stdout")
+    frg.set_defaults(func=cmd_fragility)
+
+
+def cmd_fragility(args) -> int:
+    from orchestrator import fragility as frag  # scipy.optimize and xarray: only this command pays them
+    if args.plot is not None:
+        check_output_path(args.plot)
+    try:
+        fits = frag.fragility(read_ensemble(args.ensemble), args.limits, routes=args.routes, samples=args.bootstrap,
+                              seed=args.seed, confidence=args.confidence)
+    except frag.FragilityError as exc:     # bad input, as in cmd_ensemble
+        _say(f"uplift: error: {args.ensemble}: {exc}")
+        return EXIT_INPUT
+    if not args.no_store:
+        _say(f"wrote the group {frag.GROUP!r} of {frag.store_fragility(args.ensemble, fits)}")
+    if args.plot is not None:
+        plt = pyplot()
+        fig = frag.fragility_figure(fits, title=f"{args.ensemble.name}: fragility")
+        fig.savefig(args.plot, dpi=120)
+        plt.close(fig)
+        _say(f"wrote {args.plot}")
+    out = frag.fragility_json(fits)
+    if args.json:
+        print(json.dumps(out))
+        return EXIT_OK
+    for e in out["fragility"]:
+        counts = ", ".join(f"{p:g} g {z}/{n}" for p, z, n in zip(e["pga_g"], e["exceedances"], e["cells"]))
+        left = ", ".join(f"{v} {k}" for k, v in e["left_out"].items() if v)
+        fit = (f"median {e['median_g']:.4g} g, beta {e['beta']:.3f}, ln L {e['log_likelihood']:.4g}"
+               if e["identifiable"] else f"NOT IDENTIFIABLE: {e['reason']}")
+        if e["bootstrap"] and e["bootstrap"]["median_g"]:
+            bs = e["bootstrap"]
+            fit += (f"; {100 * bs['confidence']:g} % band (bootstrap, {bs['identified']}/{bs['samples']} "
+                    f"resamples fitted): median {bs['median_g'][0]:.4g}-{bs['median_g'][1]:.4g} g, "
+                    f"beta {bs['beta'][0]:.3f}-{bs['beta'][1]:.3f}")
+        _say(f"{e['limit']} [{e['route']}]: {fit}", f"  exceedances per PGA: {counts}"
+             + (f"; left out: {left}" if left else ""))
+    return EXIT_OK
 
 
 def cmd_bench(args) -> int:

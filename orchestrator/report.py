@@ -11,7 +11,8 @@ next to it as PNG files.
 ``uplift report ensemble.h5 -o DIR`` (an ensemble file, ``orchestrator.ensemble``) writes the
 ensemble's page instead: the fractiles over the records per PGA and route, the runs that did
 not converge and why, max uplift (raft rotation, contact ratio) against PGA and the fractile
-floor spectra per PGA.
+floor spectra per PGA, and the fragility curves stored by ``uplift fragility`` (one panel per
+limit state).
 """
 from __future__ import annotations
 
@@ -225,6 +226,34 @@ ENSEMBLE_HEADER = ["PGA (g)", "route", "converged", "max uplift median (mm)", "m
                    "min contact 16 % (%)", "median wall (s)"]
 
 
+FRAGILITY_HEADER = ["limit state", "route", "median (g)", "beta", "ln L", "median band, bootstrap (g)",
+                    "exceedances per PGA", "left out"]
+
+
+def fragility_parts(path, directory: Path) -> list:
+    """The page's fragility section: the fits stored in the ensemble file by ``uplift
+    fragility`` (a table and one panel per limit state, also ``directory/fragility.png``)."""
+    from orchestrator import fragility as frag  # scipy.optimize: only ensemble reports pay it
+    fits = frag.read_fragility(path)
+    if fits is None:
+        return ["<h2>Fragility</h2><p>None stored: <code>uplift fragility FILE --limit 'max_uplift &gt; 5 mm'</code> "
+                "fits one.</p>"]
+    rows = []
+    for e in frag.fragility_json(fits)["fragility"]:
+        counts = ", ".join(f"{p:g} g: {z}/{n}" for p, z, n in zip(e["pga_g"], e["exceedances"], e["cells"]))
+        left = ", ".join(f"{v} {k}" for k, v in e["left_out"].items() if v) or "none"
+        fit = ([f"{e['median_g']:.4g}", f"{e['beta']:.3f}", f"{e['log_likelihood']:.4g}"] if e["identifiable"]
+               else [f"not identifiable: {e['reason']}", "-", "-"])
+        bs = e["bootstrap"]
+        band = (f"{bs['median_g'][0]:.3g}-{bs['median_g'][1]:.3g} ({100 * bs['confidence']:g} %, "
+                f"{bs['identified']}/{bs['samples']})" if bs and bs["median_g"] else "-")
+        rows.append([e["limit"], e["route"], *fit, band, counts, left])
+    figure = _save_figures([("fragility", frag.fragility_figure(fits))], directory)
+    return ["<h2>Fragility</h2><p>Maximum-likelihood lognormal fits P(exceed | PGA) = &Phi;(ln(PGA / median) "
+            "/ beta) on the exceedances of the converged cells per PGA (dots: the observed fractions z/n).</p>",
+            _table(FRAGILITY_HEADER, rows)] + _images(figure)
+
+
 def write_ensemble_report(path, directory) -> Path:
     """Write ``directory/report.html`` (self-contained) for an ensemble file of ``uplift
     ensemble``: the fractiles per PGA and route, the runs that did not converge and why, the
@@ -255,4 +284,4 @@ def write_ensemble_report(path, directory) -> Path:
              + (_table(["record", "PGA (g)", "route", "status", "why"], others) if others else "<p>None.</p>"),
              "<h2>Figures</h2>"]
     parts += _images(figures)
-    return _write_page(directory, parts)
+    return _write_page(directory, parts + fragility_parts(path, directory))
