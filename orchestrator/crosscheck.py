@@ -22,7 +22,7 @@ motion bundled in them (internal_motion = true) and do not read their input ``ag
 columns hold a_g(t + dt) of that motion (zero after its end), the FMUs' convention for ``ag``.
 A replay of ``_in.csv`` (inputs held at the rows' values, read at the communication points)
 through one FMU alone reproduces its ``_ref.csv`` (bit for bit on the exporting host): the pair
-is exact under Jacobi (fmus/common.py), and the coupled FMU is the monolithic step.
+is exact under Jacobi (fmus/coupling.py), and the coupled FMU is the monolithic step.
 
 ``check_cross_check(xdir)`` returns what fmpy's checker (``fmpy.cross_check.validate_vendor_repo``)
 finds in the folder, plus a run longer than fmpy's cross-check runner can step (see
@@ -44,7 +44,7 @@ from fmpy import platform as FMPY_PLATFORM, read_model_description
 from fmpy.cross_check.validate_vendor_repo import validate_repo
 from fmpy.util import read_ref_opt_file
 
-from fmus.common import MOTION_FILE
+from fmus.resources import MOTION_FILE
 from fmus.native_build import RESOURCE_FILE, decode_resources
 from soil_impedance.cache import atomic_output
 

@@ -14,7 +14,7 @@
                            SSP tools such as fmpy's ``simulate_ssp``
 
 The pair is exact under any master (Jacobi as in libcosim and fmpy's SSP runner, Gauss-Seidel
-in either order): see fmus/common.py and orchestrator/master.py. ``kind="native"`` writes the
+in either order): see fmus/coupling.py and orchestrator/master.py. ``kind="native"`` writes the
 same three FMUs as compiled C code (fmus/native_build.py, docs/native.md): the same variables,
 the same coupling, the same answers, and no Python needed in the host.
 """
@@ -30,8 +30,9 @@ from pathlib import Path
 import numpy as np
 from fmpy import read_model_description
 
-from fmus.build import PACKAGES, FmuData, build_fmus
-from fmus.common import DEFAULT_SOIL_FACTORY
+from fmus.build import FmuData, build_fmus
+from fmus.bundle import PACKAGES
+from fmus.resources import DEFAULT_SOIL_FACTORY
 from fmus.native_build import build_native_fmus
 from soil_impedance.cache import atomic_output
 from structure.spec import contact_table
