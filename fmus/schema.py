@@ -199,6 +199,9 @@ MESSAGES = {
     "not_finite": "input {name}[{i}] = {value}: inputs must be finite (check what is connected to it)",
     "stamp": "input {name} is stamped {stamp_name} = {stamp} s at a step from t = {t} s: it must be the partner's "
              "output at t or at t + dt (connect the partner's {stamp_name} output to this input, with {name})",
+    "start_time": "start time {start} s: this FMU starts at t = 0 s, at rest, with the first sample of its record",
+    "no_motion": "internal_motion = true but this FMU was exported without a motion: set internal_motion = false "
+                 "and drive the input ag",
     "bad_state": "the {size} bytes are not a serialised state of this FMU: {why}",
     "state_magic": "not an uplift FMU state",
     "state_version": "format version {version}, this FMU reads version {expected}",

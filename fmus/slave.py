@@ -110,8 +110,7 @@ class BankedSlave:
         start = getattr(self, "start_time", 0.0) or 0.0
         try:
             if start != 0.0:
-                raise ValueError(f"start time {start!r} s: this FMU starts at t = 0 s, at rest, "
-                                 "with the first sample of its record")
+                raise ValueError(message("start_time", start=repr(start)))
             self._build()
         except Exception as exc:                        # the FMU boundary: logged with the fix
             self._fail("initialisation failed", exc)

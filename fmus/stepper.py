@@ -26,7 +26,7 @@ from pythonfmu import Boolean, Fmi2Causality
 from pythonfmu.enums import Fmi2Variability
 
 from fmus.resources import MESH_FILE, MOTION_FILE
-from fmus.schema import INTERNAL_MOTION_DESCRIPTION
+from fmus.schema import INTERNAL_MOTION_DESCRIPTION, message
 
 
 class StepperOutputs:
@@ -54,8 +54,7 @@ class StepperOutputs:
         self.motion = None
         if self.internal_motion:
             if not s.get("motion"):
-                raise ValueError("internal_motion = true but this FMU was exported without a motion: "
-                                 "set internal_motion = false and drive the input ag")
+                raise ValueError(message("no_motion"))
             with np.load(f"{res}/{MOTION_FILE}", allow_pickle=False) as z:
                 self.motion = np.array(z["acc"], float)
         model = model_from_spec(s["structure"], xy, area)

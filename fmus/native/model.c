@@ -52,8 +52,7 @@ int up_initial_state(UpInstance *I)
 {
     if (I->start_time != 0.0) {
         char b[32];
-        snprintf(I->err, UP_MSG, "start time %s s: this FMU starts at t = 0 s, at rest, with the first sample "
-                 "of its record", up_num(I->start_time, b));
+        snprintf(I->err, UP_MSG, UP_MSG_START_TIME, up_num(I->start_time, b));
         return -1;
     }
     *I->time = 0.0;
@@ -68,8 +67,7 @@ int up_initial_state(UpInstance *I)
     double ag0[3];
     if (*I->internal_motion != 0.0) {
         if (!I->has_motion) {
-            snprintf(I->err, UP_MSG, "internal_motion = true but this FMU was exported without a motion: set "
-                     "internal_motion = false and drive the input ag");
+            snprintf(I->err, UP_MSG, UP_MSG_NO_MOTION);
             return -1;
         }
         memcpy(ag0, I->motion, sizeof ag0);
@@ -106,9 +104,7 @@ static const double *take(UpInstance *I, double t, double stamp, const double *v
         return used;
     }
     char b1[32], b2[32];
-    snprintf(I->err, UP_MSG, "input %s is stamped %s = %s s at a step from t = %s s: it must be the partner's "
-             "output at t or at t + dt (connect the partner's %s output to this input, with %s)", name, stamp_name,
-             up_num(stamp, b1), up_num(t, b2), stamp_name, name);
+    snprintf(I->err, UP_MSG, UP_MSG_STAMP, name, stamp_name, up_num(stamp, b1), up_num(t, b2), stamp_name, name);
     return NULL;
 }
 

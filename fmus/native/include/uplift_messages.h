@@ -15,6 +15,8 @@
 #define UP_MSG_PAST_STOP "communication step %s s ends at %s s, past the stop time %s s given to fmi2SetupExperiment"
 #define UP_MSG_NOT_FINITE "input %s[%s] = %s: inputs must be finite (check what is connected to it)"
 #define UP_MSG_STAMP "input %s is stamped %s = %s s at a step from t = %s s: it must be the partner's output at t or at t + dt (connect the partner's %s output to this input, with %s)"
+#define UP_MSG_START_TIME "start time %s s: this FMU starts at t = 0 s, at rest, with the first sample of its record"
+#define UP_MSG_NO_MOTION "internal_motion = true but this FMU was exported without a motion: set internal_motion = false and drive the input ag"
 #define UP_MSG_BAD_STATE "the %s bytes are not a serialised state of this FMU: %s"
 #define UP_MSG_STATE_MAGIC "not an uplift FMU state"
 #define UP_MSG_STATE_VERSION "format version %s, this FMU reads version %s"
