@@ -128,8 +128,9 @@ class FmuSlave:
     def get_integer(self, name: str) -> int:
         return int(self.fmu.getInteger([self.vars[name].valueReference])[0])
 
-    def initialize(self, start_time: float = 0.0) -> None:
-        self._call("initialisation", self.fmu.setupExperiment, startTime=start_time)
+    def initialize(self, start_time: float = 0.0, stop_time: float | None = None) -> None:
+        """Set up (with the stop time, when given), enter and exit initialisation mode."""
+        self._call("initialisation", self.fmu.setupExperiment, startTime=start_time, stopTime=stop_time)
         self._call("initialisation", self.fmu.enterInitializationMode)
         self._call("initialisation", self.fmu.exitInitializationMode)
         self.t = start_time
