@@ -40,7 +40,7 @@ HOST = textwrap.dedent("""
     cb.allocateMemory, cb.freeMemory = defaultCallbacks.allocateMemory, defaultCallbacks.freeMemory
     f = FMU2Slave(guid=md.guid, unzipDirectory=extract(path), modelIdentifier=md.coSimulation.modelIdentifier,
                   instanceName="x")
-    f.instantiate(callbacks=cb, loggingOn=True)
+    f.instantiate(callbacks=cb, loggingOn=case != "quiet")
     dll, c = f.dll, f.component
     stop = 40 * dt
     if case == "long":
@@ -81,6 +81,8 @@ HOST = textwrap.dedent("""
         out["rest"] = max(statuses)
         out["end"] = t
         out["final-sliver"] = step(t, 2.9e-14)             # the host's last sliver at the stop time
+    elif case == "quiet":
+        out["refused"] = step(t, math.inf)
     elif case == "long":
         import time
         start = time.perf_counter()
@@ -147,6 +149,13 @@ def test_a_step_too_long_is_refused_up_front(fmus):
     out = run(fmus.coupled, "long")
     assert out["huge"] != OK and "more than 100000 steps" in out["log"] and out["huge-seconds"] < 5
     assert out["huge-after"] == OK
+
+
+def test_the_logging_flag_is_honoured(exported_native):
+    """Events (instantiation, steps) are logged when logging is on; errors always."""
+    loud, quiet = (run(exported_native.coupled, case) for case in ("long", "quiet"))
+    assert "step(s) of dt" in loud["log"] and "instantiated from" in loud["log"]
+    assert quiet["refused"] != OK and "finite and positive" in quiet["log"] and "step(s) of dt" not in quiet["log"]
 
 
 @pytest.mark.parametrize("role", ["coupled", "soil"])

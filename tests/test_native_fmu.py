@@ -162,6 +162,7 @@ def test_variables_are_those_of_the_python_fmus(case):
         assert {f"sources/{s}" for s in listed} == {f"sources/{s}" for s in SOURCES} <= names
         assert {f"binaries/{p}/{a.coSimulation.modelIdentifier}.{PLATFORMS[p][1]}" for p in PLATFORMS} <= names
         assert not any(n.endswith((".py", ".npz")) for n in names)           # no Python in the FMU
+        assert not any(n.endswith("host.c") for n in names)                 # the test host is not shipped
 
 
 def test_binaries_need_no_python(case, tmp_path):
