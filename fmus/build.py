@@ -2,11 +2,10 @@
 
 ``build_fmus`` writes ``structure.fmu`` and ``soil.fmu`` (the pair, exact under any master:
 see fmus/coupling.py) and, when asked, ``coupled.fmu`` (both in one FMU). Each is self-contained:
-its data in ``resources/`` (JSON settings, npz arrays) and a copy of the project's pure-Python
-packages (``structure``, ``soil_impedance``, ``fmus``) under a private package name
-(``resources/_uplift_<digest>/``, see ``bundle``), so that a host's own modules never shadow
-them; the host must provide Python 3.10+ with numpy and scipy (pythonfmu FMUs run in the host's
-libpython; ``resources/requirements.txt``). The npz arrays are stored uncompressed (see
+its data in ``resources/`` (JSON settings, npz arrays) and a copy of the project's modules it
+runs under a private package name (``resources/_uplift_<digest>/``, see ``fmus.bundle``), so
+that a host's own modules never shadow them; the host must provide Python 3.10+ with the
+packages of ``resources/requirements.txt`` (pythonfmu FMUs run in the host's libpython). The npz arrays are stored uncompressed (see
 ``_compression``).
 
 pythonfmu writes no output dependencies and no ``InitialUnknowns``; ``fix_model_description``

@@ -7,7 +7,7 @@
     uplift_soil_instantaneous.npz  K0, C0 at the FMU's dt, K_static of the soil and the history
                           gains Gx, Gv (structure only: it folds them in without the soil)
     uplift_motion.npz     acc (nt, 3) m/s^2, dt s: the bundled ground motion (structure, coupled)
-    requirements.txt      what the host Python needs (pythonfmu FMUs run in the host's Python)
+    requirements.txt      what the host Python needs (fmus.bundle.requirements_of)
 
 A soil is "any object following the soil protocol" (structure.soil_interface) that a factory
 ``"module:callable"`` builds as ``factory(model, dt, **kwargs)`` from the RationalModel in the
@@ -28,8 +28,6 @@ SOIL_INSTANT_FILE = "uplift_soil_instantaneous.npz"
 MESH_FILE = "uplift_mesh.npz"
 MOTION_FILE = "uplift_motion.npz"
 REQUIREMENTS_FILE = "requirements.txt"
-#: what the host Python needs, written to resources/requirements.txt (pip format)
-REQUIREMENTS = ("numpy>=1.24", "scipy>=1.10", 'tomli>=2.0; python_version < "3.11"')
 
 
 # ---- resources --------------------------------------------------------------------------------

@@ -68,7 +68,7 @@ README = """\
 
 FMI 2.0 co-simulation FMU exported by `uplift export` (uplift {version}){scene}. A pythonfmu FMU:
 it runs in the host's Python (3.10 or later, with the packages of the FMU's
-`resources/requirements.txt`: numpy, scipy).
+`resources/requirements.txt`: numpy, scipy, h5py, threadpoolctl).
 
 ## Experiment (`{model}_ref.opt`)
 
