@@ -52,6 +52,8 @@ from orchestrator.export import HEADLINE, Export
 from orchestrator.master import FmuSlave
 
 TOOL = "uplift"
+#: the distribution whose version names the cross-check folder
+DISTRIBUTION = "uplift-ssi"
 #: the soil's _ref.csv: its history force g on the SOIL_REFERENCE_DOFS DOFs of largest peak (what
 #: it sends the structure; a component at round-off level would make a meaningless reference)
 #: and its dissipated energy; the structure's and the coupled FMU's: the headline outputs
@@ -126,7 +128,7 @@ class CrossCheck:
 def tool_version() -> str:
     """The installed uplift's version (it names the cross-check folder)."""
     try:
-        return importlib.metadata.version(TOOL)
+        return importlib.metadata.version(DISTRIBUTION)
     except importlib.metadata.PackageNotFoundError:
         raise ValueError("uplift is not installed, and the cross-check folder is named by its version: "
                          "pip install -e . in the project's folder") from None
