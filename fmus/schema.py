@@ -186,7 +186,7 @@ MAX_STEPS_PER_CALL = 100000
 MESSAGES = {
     "refused": "step from t = {t} s refused: {why}",
     "before_init": "{call} before initialisation (call fmi2ExitInitializationMode first)",
-    "after_init": "{call} after initialisation (call fmi2Reset first)",
+    "wrong_state": "{call} is not allowed {state} (FMI 2.0 co-simulation state machine)",
     "after_terminate": "{call} after fmi2Terminate (instantiate the FMU again)",
     "wrong_time": "this FMU is at t = {time} s: steps must follow one another (restore an FMU state to go back)",
     "bad_step": "communication step {h} s: a step must be finite and positive",

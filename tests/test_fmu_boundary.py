@@ -81,6 +81,11 @@ HOST = textwrap.dedent("""
         out["rest"] = max(statuses)
         out["end"] = t
         out["final-sliver"] = step(t, 2.9e-14)             # the host's last sliver at the stop time
+    elif case == "machine":
+        out["setup"] = dll.fmi2SetupExperiment(c, 0, 0.0, 0.0, 0, 0.0)
+        out["enter"] = dll.fmi2EnterInitializationMode(c)
+        out["exit"] = dll.fmi2ExitInitializationMode(c)
+        out["step"] = step(t, dt)
     elif case == "quiet":
         out["refused"] = step(t, math.inf)
     elif case == "long":
@@ -149,6 +154,15 @@ def test_a_step_too_long_is_refused_up_front(fmus):
     out = run(fmus.coupled, "long")
     assert out["huge"] != OK and "more than 100000 steps" in out["log"] and out["huge-seconds"] < 5
     assert out["huge-after"] == OK
+
+
+def test_calls_out_of_their_state_are_refused_by_the_guard(exported_native):
+    """The native runtime's allowed-state masks: set-up and initialisation calls after
+    initialisation are refused, naming the state; the instance goes on stepping."""
+    out = run(exported_native.soil, "machine")
+    assert out["setup"] != OK and out["enter"] != OK and out["exit"] != OK and out["step"] == OK
+    for fn in ("fmi2SetupExperiment", "fmi2EnterInitializationMode", "fmi2ExitInitializationMode"):
+        assert f"{fn} is not allowed after initialisation" in out["log"], fn
 
 
 def test_the_logging_flag_is_honoured(exported_native):

@@ -28,9 +28,14 @@ UpInstance *up_guard(fmi2Component c, int mask, const char *fn)
     UpInstance *I = up_instance(c);
     if (!I || (I->state & mask))
         return I;
-    const char *key = I->state == UP_TERMINATED ? UP_MSG_AFTER_TERMINATE
-                      : I->state == UP_STEPPING ? UP_MSG_AFTER_INIT : UP_MSG_BEFORE_INIT;
-    up_log_error(I, key, fn);
+    if (mask & UP_STEPPING)                   /* a call of the stepping phase, too early or too late */
+        up_log_error(I, I->state == UP_TERMINATED ? UP_MSG_AFTER_TERMINATE : UP_MSG_BEFORE_INIT, fn);
+    else
+        up_log_error(I, UP_MSG_WRONG_STATE, fn,
+                     I->state == UP_INSTANTIATED     ? "before fmi2EnterInitializationMode"
+                     : I->state == UP_INITIALISATION ? "in initialisation mode"
+                     : I->state == UP_STEPPING       ? "after initialisation (fmi2Reset first)"
+                                                     : "after fmi2Terminate (fmi2Reset first)");
     return NULL;
 }
 

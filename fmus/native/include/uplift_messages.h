@@ -6,7 +6,7 @@
 
 #define UP_MSG_REFUSED "step from t = %s s refused: %s"
 #define UP_MSG_BEFORE_INIT "%s before initialisation (call fmi2ExitInitializationMode first)"
-#define UP_MSG_AFTER_INIT "%s after initialisation (call fmi2Reset first)"
+#define UP_MSG_WRONG_STATE "%s is not allowed %s (FMI 2.0 co-simulation state machine)"
 #define UP_MSG_AFTER_TERMINATE "%s after fmi2Terminate (instantiate the FMU again)"
 #define UP_MSG_WRONG_TIME "this FMU is at t = %s s: steps must follow one another (restore an FMU state to go back)"
 #define UP_MSG_BAD_STEP "communication step %s s: a step must be finite and positive"
