@@ -33,9 +33,10 @@ def run_cosim(scene, motion=None, soil_model=None, *, schedule: str = "gauss-sei
     time per part: FMU build, initialisation, structure step, soil step, transfers; the build
     is not in ``wall_s``) and ``info["timing_cpu"]`` (CPU time per part).
     """
-    from fmus.build import build_fmus              # the FMU stack (pythonfmu, fmpy) loads only when run
-    from orchestrator.export import fmu_data
-    from orchestrator.master import cosimulate
+    # the FMU stack loads only when the route runs (`uplift --help` and scenes stay light):
+    from fmus.build import build_fmus               # pythonfmu
+    from orchestrator.export import fmu_data        # fmpy, the native builder
+    from orchestrator.master import cosimulate      # fmpy
     motion, soil_model, dt = route_inputs(scene, motion, soil_model, dt, cache_dir)
     with tempfile.TemporaryDirectory(prefix="uplift_cosim_") as tmp:
         out = Path(workdir) if workdir is not None else Path(tmp)
