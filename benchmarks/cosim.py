@@ -63,7 +63,8 @@ def soil_for(scene, kind, cache_dir):
 def split_in_process(scene, motion, model):
     """The Gauss-Seidel schedule without the FMU layer. Returns (gap (nt, N), Timer with the
     parts named as cosimulate's)."""
-    from fmus.common import history_ahead, history_gains, soil_from_model
+    from fmus.coupling import history_ahead, history_gains
+    from fmus.resources import soil_from_model
     from orchestrator.master import Timer
     from structure import NewmarkStepper
 

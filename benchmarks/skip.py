@@ -77,7 +77,7 @@ def main():
     if args.monolithic:
         import dataclasses
 
-        from fmus.common import soil_from_model
+        from fmus.resources import soil_from_model
         from orchestrator.impedance import scene_fit
         from orchestrator.motion import make_motion
         from orchestrator.scene import load_scene

@@ -31,7 +31,7 @@ cosim = run_cosim(scene, soil_model=soil)
 
 for res in (mono, cosim):
     s = summary(res)
-    print(f"{res.route:10s} max uplift {1e3 * s['max_uplift_m']:.3f} mm at {s['max_uplift_time_s']:.2f} s, "
+    print(f"{res.route:10s} max uplift {1e3 * s['max_uplift_m']:.6f} mm at {s['max_uplift_time_s']:.3f} s, "
           f"top_outer {s['peak_acc_g']['top_outer']:.3f} g, wall {s['wall_s']:.1f} s")
 for key, value in history_differences(cosim, mono).items():
     print(f"  cosim vs monolithic {key}: {value}")

@@ -42,7 +42,7 @@ if __name__ == "__main__":      # the local cluster starts worker processes that
     fractiles = ds["max_uplift_fractile"].sel(route="monolithic")
     for pga in ds["pga"].values:
         median, p84 = (1e3 * float(fractiles.sel(pga=pga, quantile=q)) for q in (0.5, 0.84))
-        print(f"{pga:g} g: max uplift median {median:.3f} mm, 84th percentile {p84:.3f} mm "
+        print(f"{pga:g} g: max uplift median {median:.6f} mm, 84th percentile {p84:.6f} mm "
               f"({int(ds['converged_records'].sel(pga=pga, route='monolithic'))}/{ds.sizes['record']} converged)")
     print(f"{ds.attrs['computed']} runs computed, {ds.attrs['reused']} kept, {ds.attrs['wall_s']:.1f} s; "
           "wrote coarse_reactor_ensemble.h5")

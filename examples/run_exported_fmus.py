@@ -1,7 +1,7 @@
 """Run the two exported FMUs with the project's master algorithm and plot the uplift.
 
     uplift export reactor -o reactor_fmus         # structure.fmu, soil.fmu, coupled.fmu, system.ssd/.ssp
-    python examples/run_exported_fmus.py reactor_fmus
+    python examples/run_exported_fmus.py reactor_fmus [SCENE]
 
 The FMUs carry their own model data; the master feeds them the scene's ground motion and
 couples them (Gauss-Seidel: structure, then soil). Any FMI 2.0 co-simulation host gets the same
@@ -30,7 +30,7 @@ if not (folder / "structure.fmu").exists():
 
 motion = make_motion(scene.motion, scene.analysis.dt)
 res = cosimulate(folder / "structure.fmu", folder / "soil.fmu", motion.acc, motion.dt)
-print(f"{res.route}: {res.nt - 1} steps in {res.wall_s:.1f} s, max uplift {1e3 * res.max_uplift():.2f} mm")
+print(f"{res.route}: {res.nt - 1} steps in {res.wall_s:.1f} s, max uplift {1e3 * res.max_uplift():.6f} mm")
 
 # uplift at the two raft edges along the shaking direction, and the raft rocking
 x = res.xy[:, 0] if res.xy is not None else scene.mesh.xy[:, 0]

@@ -1,12 +1,11 @@
 """Build the FMUs with pythonfmu and fix their model descriptions.
 
 ``build_fmus`` writes ``structure.fmu`` and ``soil.fmu`` (the pair, exact under any master:
-see fmus/common.py) and, when asked, ``coupled.fmu`` (both in one FMU). Each is self-contained:
-its data in ``resources/`` (JSON settings, npz arrays) and a copy of the project's pure-Python
-packages (``structure``, ``soil_impedance``, ``fmus``) under a private package name
-(``resources/_uplift_<digest>/``, see ``bundle``), so that a host's own modules never shadow
-them; the host must provide Python 3.10+ with numpy and scipy (pythonfmu FMUs run in the host's
-libpython; ``resources/requirements.txt``). The npz arrays are stored uncompressed (see
+see fmus/coupling.py) and, when asked, ``coupled.fmu`` (both in one FMU). Each is self-contained:
+its data in ``resources/`` (JSON settings, npz arrays) and a copy of the project's modules it
+runs under a private package name (``resources/_uplift_<digest>/``, see ``fmus.bundle``), so
+that a host's own modules never shadow them; the host must provide Python 3.10+ with the
+packages of ``resources/requirements.txt`` (pythonfmu FMUs run in the host's libpython). The npz arrays are stored uncompressed (see
 ``_compression``).
 
 pythonfmu writes no output dependencies and no ``InitialUnknowns``; ``fix_model_description``
@@ -15,9 +14,7 @@ feedthrough), so ``fmpy.validation.validate_fmu`` reports nothing.
 """
 from __future__ import annotations
 
-import hashlib
 import json
-import re
 import shutil
 import sys
 import tempfile
@@ -28,12 +25,12 @@ from pathlib import Path
 
 import numpy as np
 
-from fmus.common import (DEFAULT_SOIL_FACTORY, MESH_FILE, MOTION_FILE, REQUIREMENTS, REQUIREMENTS_FILE,
-                         SOIL_INSTANT_FILE, SOIL_MODEL_FILE, history_gains, save_rational, soil_from_model)
+from fmus.bundle import bundle, requirements_of
+from fmus.coupling import history_gains
+from fmus.resources import (DEFAULT_SOIL_FACTORY, MESH_FILE, MOTION_FILE, REQUIREMENTS_FILE, SOIL_INSTANT_FILE,
+                            SOIL_MODEL_FILE, save_rational, soil_from_model)
 
 HERE = Path(__file__).resolve().parent
-ROOT = HERE.parent
-PACKAGES = ("structure", "soil_impedance", "fmus")
 OPTIONS = dict(canHandleVariableCommunicationStepSize=False, canGetAndSetFMUstate=True,
                canSerializeFMUstate=True, canInterpolateInputs=False, needsExecutionTool=True)
 
@@ -94,14 +91,13 @@ def build_fmus(data: FmuData, outdir, coupled: bool = False) -> dict:
     roles = {"structure": stepper, "soil": common}
     if coupled:
         roles["coupled"] = stepper
-    extra = [Path(p).resolve() for p in data.extra_modules] + [ROOT / p for p in PACKAGES]
+    extra = [Path(p).resolve() for p in data.extra_modules]
     out = {}
     with tempfile.TemporaryDirectory(prefix="uplift_fmu_") as tmp:
         for role, settings in roles.items():
             d = Path(tmp) / role
             d.mkdir()
             (d / f"uplift_{role}.json").write_text(json.dumps(settings, indent=1))
-            (d / REQUIREMENTS_FILE).write_text("\n".join(REQUIREMENTS) + "\n")
             save_rational(d / SOIL_MODEL_FILE, data.soil_model)      # the structure's sub-steps need it
             if role != "soil":
                 np.savez(d / MESH_FILE, xy=np.asarray(data.xy, float), area=np.asarray(data.area, float))
@@ -109,83 +105,21 @@ def build_fmus(data: FmuData, outdir, coupled: bool = False) -> dict:
                     np.savez(d / MOTION_FILE, acc=np.asarray(data.motion, float), dt=float(data.dt))
             if role == "structure":
                 _save_instantaneous(d / SOIL_INSTANT_FILE, soil, data.dt)
-        private, script_of = bundle(Path(tmp) / "bundle", extra)
+        private, script_of = bundle(Path(tmp) / "bundle", extra, [f"fmus.{role}_fmu" for role in roles]
+                                    + [data.soil_factory.partition(":")[0]])
+        requirements = "\n".join(requirements_of(private)) + "\n"
         for role in roles:
             d = Path(tmp) / role
+            (d / REQUIREMENTS_FILE).write_text(requirements)
             out[role] = _build(script_of(HERE / f"{role}_fmu.py"), outdir / f"{role}.fmu",
                                sorted(d.iterdir()) + [private])
     return out
 
 
-#: __init__.py of the private package: ``adopt`` is called by each FMU script before its
-#: imports and by each instance (fmus.common.adopt_resources)
-PACKAGE_INIT = '''"""The uplift code bundled in this FMU (a private package)."""
-import os
-import sys
-
-
-def adopt(resources):
-    """Point this package and its loaded subpackages at ``resources``. Python modules are shared
-    by every FMU instance in a process, the resources folders are not: the folder the package
-    was first loaded from may be gone (a host deletes it when it frees that instance) when a
-    later instance imports a submodule not needed yet."""
-    for name, module in list(sys.modules.items()):
-        if (name == __name__ or name.startswith(__name__ + ".")) and hasattr(module, "__path__"):
-            module.__path__ = [os.path.join(resources, *name.split("."))]
-'''
-
-#: the project's packages as imported by the bundled code (rewritten to the private package)
-IMPORT = re.compile(r"^(\s*)(from|import) (structure|soil_impedance|fmus)\b", re.M)
-
-
-def bundle(folder: Path, sources) -> tuple[Path, object]:
-    """Copy the packages and modules ``sources`` into a private package ``folder/_uplift_<digest>``
-    with their imports of the project's packages rewritten to it, so that a host's own
-    ``structure`` (or another copy of the project) can never shadow the FMU's code. The digest
-    is that of the sources: two versions in one process do not share modules. Returns (the
-    package folder, a function writing an FMU script with the same rewrite)."""
-    files = []
-    for src in sources:
-        src = Path(src)
-        base = src.parent
-        for f in sorted(src.rglob("*") if src.is_dir() else [src]):
-            if f.is_file() and "__pycache__" not in f.parts and f.suffix in (".py", ".toml", ".json"):
-                files.append((f.relative_to(base), f.read_bytes()))
-    digest = hashlib.sha1(b"".join(str(r).encode() + b"\0" + data for r, data in files)).hexdigest()[:12]
-    name = f"_uplift_{digest}"
-    rewrite = lambda text: IMPORT.sub(rf"\1\2 {name}.\3", text)
-    pkg = folder / name
-    pkg.mkdir(parents=True)
-    (pkg / "__init__.py").write_text(PACKAGE_INIT)
-    for rel, data in files:
-        dest = pkg / rel
-        dest.parent.mkdir(parents=True, exist_ok=True)
-        if rel.suffix == ".py":
-            dest.write_text(rewrite(data.decode("utf-8")), encoding="utf-8")
-        else:
-            dest.write_bytes(data)
-
-    def script_of(script: Path) -> Path:
-        """The FMU script, its imports rewritten, and first of all the bundled package pointed
-        at this FMU's resources (``adopt`` of PACKAGE_INIT): an FMU of another role from the
-        same export may have loaded it from a folder its host has deleted since. The script's
-        name carries the digest: pythonfmu imports it by name, and an FMU of another export
-        loaded in the same process must not reuse it."""
-        text = rewrite(script.read_text(encoding="utf-8"))
-        future = "from __future__ import annotations\n"
-        head, _, body = text.partition(future)
-        adopt = f"import os as _os\nimport {name}\n{name}.adopt(_os.path.dirname(_os.path.abspath(__file__)))\n"
-        dest = folder / f"{script.stem}_{digest}.py"        # its module name: one per bundle
-        dest.write_text(head + future + adopt + body, encoding="utf-8")
-        return dest
-
-    return pkg, script_of
-
-
 def _save_instantaneous(path, soil, dt) -> None:
     """What the structure FMU folds in, dense, computed by the soil object itself (the soil owns
     its discretisation), once, at export: K0, C0 at dt, K_static and the history gains Gx, Gv
-    (fmus.common.history_gains)."""
+    (fmus.coupling.history_gains)."""
     import scipy.sparse as sp
     dense = lambda a: a.toarray() if sp.issparse(a) else np.asarray(a, float)
     K0, C0 = soil.instantaneous(float(dt))

@@ -12,7 +12,9 @@ from __future__ import annotations
 
 from pythonfmu import Fmi2Slave
 
-from fmus.common import BankedSlave, RealBank, make_soil, read_settings
+from fmus.bank import RealBank, register_schema
+from fmus.resources import make_soil, read_settings
+from fmus.slave import BankedSlave
 from fmus.stepper import StepperOutputs
 
 
@@ -27,7 +29,7 @@ class UpliftCoupled(StepperOutputs, BankedSlave, Fmi2Slave):
         self.settings = s = read_settings(self.resources, "coupled")
         self._init_life_cycle(s["dt"])
         self.bank = RealBank()
-        self.sl = {}
+        self.sl = register_schema(self, "coupled", int(s["n_dof"]), int(s["n_interface"]), s["output_nodes"])
         self._register_stepper(s)
         self.stamped = {}
 

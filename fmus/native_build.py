@@ -5,7 +5,7 @@ only).
 ``build_native_fmus(data, outdir, coupled)`` writes ``structure.fmu``, ``soil.fmu`` (and
 ``coupled.fmu``) with the variables, the coupling and the answers of the Python FMUs
 (fmus/build.py): the same variable names, causalities, units and value references, the same
-split coupling with the stamps x_time / g_time (fmus/common.py), the same discrete equations
+split coupling with the stamps x_time / g_time (fmus/coupling.py), the same discrete equations
 (results equal to round-off). Each FMU holds
 
     modelDescription.xml    with <SourceFiles> (the C files of sources/)
@@ -13,14 +13,14 @@ split coupling with the stamps x_time / g_time (fmus/common.py), the same discre
                             linux64, win64 and darwin64 (FMI 2.0 platform names) by the C
                             compiler of the ``ziglang`` package (it cross-compiles), or by the
                             system compiler (``cc``, $CC) for the host platform only
-    sources/*.c, uplift.h   the runtime's sources, so a tool can compile for another platform
+    sources/*.c, *.h        the runtime's sources, so a tool can compile for another platform
                             (with the FMI 2.0 headers of the tool)
     resources/uplift.bin    the model data in the binary format of fmus/native/README.md
 
 What is a function of the model only is computed here, once, by the Python objects the
 Python FMUs use: the structure's matrices, the static preload (P0, delta0) and the penalty
 (``structure.NewmarkStepper``), the soil's poles and residues split into real poles and
-conjugate pairs, and for the structure FMU the history gains Gx, Gv (fmus.common.history_gains);
+conjugate pairs, and for the structure FMU the history gains Gx, Gv (fmus.coupling.history_gains);
 the soil's passivity is verified here. The C code builds what depends on the step size (the
 soil's recursion coefficients and D0, the condensed effective matrices) for dt and for each
 step-halving level. Native FMUs run the recursive convolution of the rational model only
@@ -45,15 +45,19 @@ from pathlib import Path
 import numpy as np
 
 from fmus.build import FmuData
-from fmus.common import DEFAULT_SOIL_FACTORY, UNITS, history_gains, interface_units, soil_from_model
 from fmus.coupled_fmu import UpliftCoupled
+from fmus.coupling import history_gains
+from fmus.resources import DEFAULT_SOIL_FACTORY, soil_from_model
+from fmus.schema import UNITS, slot_table, variables
 from fmus.soil_fmu import UpliftSoil
-from fmus.stepper import ENERGY_TERMS
 from fmus.structure_fmu import UpliftStructure
 
 NATIVE = Path(__file__).resolve().parent / "native"
-SOURCES = ("fmi2.c", "stepper.c", "soil.c", "linalg.c", "resources.c")
-HEADERS = ("uplift.h",)
+#: the runtime's C files (fmus/native/) and its headers (fmus/native/include/, shipped beside the
+#: C files in the FMU's sources/ so that a tool compiles them with no include path of ours)
+SOURCES = ("fmi2.c", "instance.c", "model.c", "variables.c", "state.c", "stepper.c", "soil.c", "linalg.c",
+           "resources.c")
+HEADERS = ("uplift.h", "fmu.h", "uplift_messages.h")
 RESOURCE_FILE = "uplift.bin"
 #: FMI 2.0 platform -> (zig target, shared library suffix); glibc 2.17 for old Linux hosts
 PLATFORMS = {"linux64": ("x86_64-linux-gnu.2.17", "so"), "win64": ("x86_64-windows-gnu", "dll"),
@@ -62,9 +66,6 @@ CFLAGS = ("-std=c99", "-O2", "-ffp-contract=off", "-fvisibility=hidden", "-fPIC"
 COMPILERS = ("zig", "cc")
 #: the Python FMU class of each role: its model name, identifier, description and author are reused
 ROLES = {"soil": UpliftSoil, "structure": UpliftStructure, "coupled": UpliftCoupled}
-#: the named vectors of Real variables, in the order of the C runtime's slot table (fmi2.c)
-SLOTS = ("x", "xdot", "x_time", "g", "g_time", "f", "dissipated_energy", "ag", "P", "gap", "nodes", "energy",
-         "newton_iters", "max_uplift", "max_raft_rotation")
 #: the contact settings of the Newton iteration (structure.ContactSettings) a caller may override
 NEWTON_KEYS = ("tol", "max_iter", "max_subdiv")
 MAGIC = b"UPLIFTNB"
@@ -76,75 +77,17 @@ class NativeBuildError(RuntimeError):
     """The C runtime could not be compiled (the message has the compiler's output)."""
 
 
-# ---- the variables (those of the Python FMUs, in their order) --------------------------------
-@dataclasses.dataclass(frozen=True)
-class Var:
-    name: str
-    causality: str
-    description: str
-    unit: str | None = None
-    type: str = "Real"
-    start: str | None = None
-    variability: str | None = None
-    slot: str | None = None
-
-
-def _vector(slot, n, causality, description, unit, name=None):
-    """Real variables name[0..n-1] (or the scalar when n is None) of one slot."""
-    name = name or slot
-    units = [unit] * (n or 1) if isinstance(unit, str) else list(unit)
-    names = [name] if n is None else [f"{name}[{i}]" for i in range(n)]
-    start = "0" if causality == "input" else None
-    return [Var(nm, causality, description, u, start=start, slot=slot) for nm, u in zip(names, units)]
-
-
-def variables(role: str, n: int, N: int, nodes, motion: bool) -> list:
-    """The model variables of a native FMU, as the Python FMU of ``role`` registers them (value
-    references in list order, Reals first; the Boolean internal_motion last)."""
-    if role == "soil":
-        return (_vector("x", n, "input", "interface displacements", "m")
-                + _vector("xdot", n, "input", "interface velocities", "m/s")
-                + _vector("x_time", None, "input", "time of x", "s")
-                + _vector("g", n, "output", "history force for the structure's next step without its latest "
-                          "state's part", "N")
-                + _vector("g_time", None, "output", "start of the structure step g is meant for", "s")
-                + _vector("f", n, "output", "total force on the soil", "N")
-                + _vector("dissipated_energy", None, "output", "energy dissipated in the soil", "J"))
-    out = []
-    if role == "structure":
-        out += (_vector("g", n, "input", "soil history force without the part of the structure's latest state",
-                        interface_units(n, "N", "N.m"))
-                + _vector("g_time", None, "input", "start of the step g is meant for", "s")
-                + _vector("x_time", None, "output", "time of x", "s"))
-    out += (_vector("ag", 3, "input", "ground acceleration at t + dt", "m/s2")
-            + _vector("x", n, "output", "interface displacements [q, w]", interface_units(n, "m", "rad"))
-            + _vector("xdot", n, "output", "interface velocities", interface_units(n, "m/s", "rad/s"))
-            + _vector("P", N, "output", "total contact forces", "N")
-            + _vector("gap", N, "output", "uplift", "m"))
-    for nm in nodes:
-        out += (_vector("nodes", 3, "output", f"absolute acceleration of {nm}", "m/s2", name=f"acc_{nm}")
-                + _vector("nodes", 3, "output", f"displacement of {nm}", "m", name=f"disp_{nm}"))
-    for term in ENERGY_TERMS:
-        out += _vector("energy", None, "output", f"energy term {term}", "J", name=f"energy.{term}")
-    out += (_vector("newton_iters", None, "output", "linear solves of the last step", "1")
-            + _vector("max_uplift", None, "output", "running maximum of the uplift", "m")
-            + _vector("max_raft_rotation", None, "output", "running maximum of the raft rotation", "rad"))
-    out.append(Var("internal_motion", "parameter", "true: the ground motion bundled in resources; false: the "
-                   "input ag", type="Boolean", start="true" if motion else "false", variability="fixed"))
-    return out
-
-
+# ---- the variables (fmus/schema.py) -----------------------------------------------------------
 def layout(vars_: list) -> dict:
-    """What the C runtime needs of the variables: n_real, the first value reference of each slot
-    (-1 when absent), the causality of each Real (0 input, 1 output), the Boolean's reference."""
+    """What the C runtime needs of the variables (fmus.schema.variables): n_real, the first value
+    reference of each slot as the record ``vr.<slot>`` (-1 when absent; the runtime looks them up
+    by name), the causality of each Real (0 input, 1 output), the Boolean's reference."""
     reals = [v for v in vars_ if v.type == "Real"]
-    first = {}
-    for vr, v in enumerate(reals):
-        first.setdefault(v.slot, vr)
     booleans = [v for v in vars_ if v.type == "Boolean"]
-    return {"n_real": float(len(reals)), "slots": np.array([first.get(s, -1) for s in SLOTS], np.int64),
+    return {"n_real": float(len(reals)),
+            **{f"vr.{slot}": float(vr) for slot, vr in slot_table(vars_).items()},
             "causality": np.array([0 if v.causality == "input" else 1 for v in reals], np.int64),
-            "vr_internal_motion": float(len(reals) if booleans else -1)}
+            "vr_internal_motion": float(booleans[0].value_reference if booleans else -1)}
 
 
 # ---- the binary resource file -----------------------------------------------------------------
@@ -244,7 +187,7 @@ def compile_runtime(platforms=tuple(PLATFORMS), compiler: str = "zig") -> dict:
                 cmd = [sys.executable, "-m", "ziglang", "cc", "-target", target, "-s"]
             else:
                 cmd = [os.environ.get("CC", "cc")]
-            cmd += [*CFLAGS, f"-I{include}", f"-I{NATIVE}", "-o", str(lib), *sources, "-lm"]
+            cmd += [*CFLAGS, f"-I{include}", f"-I{NATIVE / 'include'}", "-o", str(lib), *sources, "-lm"]
             try:
                 proc = subprocess.run(cmd, cwd=tmp, capture_output=True, text=True, timeout=900)
             except FileNotFoundError as exc:
@@ -328,15 +271,16 @@ def model_description(role: str, guid: str, vars_: list, dt: float, stop_time) -
     for unit in units:
         ET.SubElement(ET.SubElement(defs, "Unit", name=unit), "BaseUnit", {k: str(e) for k, e in UNITS[unit].items()})
     cats = ET.SubElement(root, "LogCategories")
+    ET.SubElement(cats, "Category", name="logEvents", description="events: instantiation, steps (when logging is on)")
     ET.SubElement(cats, "Category", name="logStatusError", description="errors: refused calls and failed steps")
     ex = {"startTime": "0.0", "stepSize": repr(float(dt))}
     if stop_time is not None:
         ex["stopTime"] = repr(float(stop_time))
     ET.SubElement(root, "DefaultExperiment", ex)
     mv = ET.SubElement(root, "ModelVariables")
-    outputs, vr_real = [], 0
+    outputs = []
     for k, v in enumerate(vars_, start=1):
-        attrs = {"name": v.name, "valueReference": str(vr_real),
+        attrs = {"name": v.name, "valueReference": str(v.value_reference),
                  "description": v.description, "causality": v.causality}
         if v.variability:
             attrs["variability"] = v.variability
@@ -350,7 +294,6 @@ def model_description(role: str, guid: str, vars_: list, dt: float, stop_time) -
         if v.unit:
             typed["unit"] = v.unit
         ET.SubElement(sv, v.type, typed)
-        vr_real += v.type == "Real"
     ms = ET.SubElement(root, "ModelStructure")
     for tag in ("Outputs", "InitialUnknowns"):
         node = ET.SubElement(ms, tag)
@@ -405,8 +348,10 @@ def _zip(path: Path, identifier: str, md: bytes, resources: bytes, binaries: dic
         add(z, "modelDescription.xml", md)
         for platform, blob in binaries.items():
             add(z, f"binaries/{platform}/{identifier}.{PLATFORMS[platform][1]}", blob)
-        for src in SOURCES + HEADERS:
+        for src in SOURCES:
             add(z, f"sources/{src}", (NATIVE / src).read_bytes())
+        for header in HEADERS:
+            add(z, f"sources/{header}", (NATIVE / "include" / header).read_bytes())
         add(z, f"resources/{RESOURCE_FILE}", resources, zipfile.ZIP_STORED)   # read at every instantiation
     shutil.move(tmp, path)
     return path

@@ -3,6 +3,7 @@ recursive convolution of the fitted rational model) built from resources/.
 
 Variables (n = 6 + N interface DOFs; SI units)
 
+  (the variables of fmus/schema.py, role "soil")
   inputs   x[0..n-1]     m, rad       interface displacements: the structure's output x
            xdot[0..n-1]  m/s, rad/s   interface velocities: the structure's output xdot
            x_time        s            the structure's time of x (its output x_time)
@@ -10,22 +11,24 @@ Variables (n = 6 + N interface DOFs; SI units)
                               the part driven by the structure's latest state (the structure
                               adds Gx x + Gv xdot itself): depends on the soil's past only
            g_time        s    start time of the structure step g is meant for
-           f[0..n-1]     N    total force on the soil at the last committed state (at g_time − dt)
+           f[0..n-1]     N, N.m  total force on the soil at the last committed state (at g_time − dt)
            dissipated_energy  J   energy dissipated in the soil so far (NaN if the soil
                               object does not report it)
 
 A step from t commits the interface state of t (taken now or held from the previous step, see
-fmus.common.StampedInput) and publishes g for the structure step from t + dt. At t = 0 the
+fmus.coupling.StampedInput) and publishes g for the structure step from t + dt. At t = 0 the
 soil is at rest: nothing to commit, g = 0 for the step from 0. Exact under Jacobi and under
 Gauss-Seidel in either order.
 """
 from __future__ import annotations
 
 import numpy as np
-from pythonfmu import Fmi2Causality, Fmi2Slave
+from pythonfmu import Fmi2Slave
 
-from fmus.common import (BankedSlave, RealBank, StampedInput, history_ahead, make_soil, read_settings,
-                         register_vector)
+from fmus.bank import RealBank, register_schema
+from fmus.coupling import StampedInput, history_ahead
+from fmus.resources import make_soil, read_settings
+from fmus.slave import BankedSlave
 
 
 class UpliftSoil(BankedSlave, Fmi2Slave):
@@ -40,19 +43,7 @@ class UpliftSoil(BankedSlave, Fmi2Slave):
         self._init_life_cycle(self.settings["dt"])
         n = int(self.settings["n_dof"])
         self.bank = RealBank()
-        inp, out = Fmi2Causality.input, Fmi2Causality.output
-        self.sl = {
-            "x": register_vector(self, "x", n, inp, description="interface displacements", unit="m"),
-            "xdot": register_vector(self, "xdot", n, inp, description="interface velocities", unit="m/s"),
-            "x_time": register_vector(self, "x_time", None, inp, description="time of x", unit="s"),
-            "g": register_vector(self, "g", n, out, description="history force for the structure's next "
-                                 "step without its latest state's part", unit="N"),
-            "g_time": register_vector(self, "g_time", None, out, description="start of the structure step "
-                                      "g is meant for", unit="s"),
-            "f": register_vector(self, "f", n, out, description="total force on the soil", unit="N"),
-            "dissipated_energy": register_vector(self, "dissipated_energy", None, out,
-                                                 description="energy dissipated in the soil", unit="J"),
-        }
+        self.sl = register_schema(self, "soil", n, n - 6)
         self.stamped = {"x": StampedInput("x, xdot", "x_time", np.zeros(2 * n))}
         self.soil = None
 

@@ -1,7 +1,7 @@
 """What the structure FMU and the coupled FMU share: ``structure.NewmarkStepper`` built from
 the resources, the ground motion (bundled or an input), and the outputs.
 
-Outputs (n = 6 + N interface DOFs [q, w], N interface nodes; SI units)
+Outputs (fmus/schema.py; n = 6 + N interface DOFs [q, w], N interface nodes; SI units)
 
   x[0..n-1]      m, rad      interface displacements [q, w] at t
   xdot[0..n-1]   m/s, rad/s
@@ -25,48 +25,23 @@ import numpy as np
 from pythonfmu import Boolean, Fmi2Causality
 from pythonfmu.enums import Fmi2Variability
 
-from fmus.common import MESH_FILE, MOTION_FILE, interface_units, register_vector
-
-ENERGY_TERMS = ("input", "kinetic", "strain", "damping", "soil", "contact", "contact_potential")
+from fmus.resources import MESH_FILE, MOTION_FILE
+from fmus.schema import INTERNAL_MOTION_DESCRIPTION, message
 
 
 class StepperOutputs:
-    """Mixin (with fmus.common.BankedSlave): registers ``ag`` and the outputs, builds the
+    """Mixin (with fmus.slave.BankedSlave): registers the parameter internal_motion, builds the
     stepper from the resources with the soil the FMU gives it (``_soil``), publishes."""
 
     engine = "stepper"
 
     def _register_stepper(self, settings):
-        n, N = int(settings["n_dof"]), int(settings["n_interface"])
+        """After the schema's Real variables (fmus.bank.register_schema): the Boolean parameter."""
         self.nodes = list(settings["output_nodes"])
-        inp, out = Fmi2Causality.input, Fmi2Causality.output
-        sl = self.sl
-        sl["ag"] = register_vector(self, "ag", 3, inp, description="ground acceleration at t + dt", unit="m/s2")
-        sl["x"] = register_vector(self, "x", n, out, description="interface displacements [q, w]",
-                                  unit=interface_units(n, "m", "rad"))
-        sl["xdot"] = register_vector(self, "xdot", n, out, description="interface velocities",
-                                     unit=interface_units(n, "m/s", "rad/s"))
-        sl["P"] = register_vector(self, "P", N, out, description="total contact forces", unit="N")
-        sl["gap"] = register_vector(self, "gap", N, out, description="uplift", unit="m")
-        for nm in self.nodes:
-            sl[f"acc_{nm}"] = register_vector(self, f"acc_{nm}", 3, out,
-                                              description=f"absolute acceleration of {nm}", unit="m/s2")
-            sl[f"disp_{nm}"] = register_vector(self, f"disp_{nm}", 3, out, description=f"displacement of {nm}",
-                                               unit="m")
-        for term in ENERGY_TERMS:
-            sl[f"energy.{term}"] = register_vector(self, f"energy.{term}", None, out,
-                                                   description=f"energy term {term}", unit="J")
-        sl["newton_iters"] = register_vector(self, "newton_iters", None, out,
-                                             description="linear solves of the last step", unit="1")
-        sl["max_uplift"] = register_vector(self, "max_uplift", None, out,
-                                           description="running maximum of the uplift", unit="m")
-        sl["max_raft_rotation"] = register_vector(self, "max_raft_rotation", None, out,
-                                                  description="running maximum of the raft rotation", unit="rad")
         self.internal_motion = bool(settings.get("motion"))
         self.register_variable(Boolean("internal_motion", causality=Fmi2Causality.parameter,
-                                       variability=Fmi2Variability.fixed,
-                                       description="true: the ground motion bundled in resources; "
-                                                   "false: the input ag"), nested=False)
+                                       variability=Fmi2Variability.fixed, description=INTERNAL_MOTION_DESCRIPTION),
+                               nested=False)
         self.stepper = None
 
     def _build_stepper(self, soil, external_soil: bool):
@@ -79,8 +54,7 @@ class StepperOutputs:
         self.motion = None
         if self.internal_motion:
             if not s.get("motion"):
-                raise ValueError("internal_motion = true but this FMU was exported without a motion: "
-                                 "set internal_motion = false and drive the input ag")
+                raise ValueError(message("no_motion"))
             with np.load(f"{res}/{MOTION_FILE}", allow_pickle=False) as z:
                 self.motion = np.array(z["acc"], float)
         model = model_from_spec(s["structure"], xy, area)

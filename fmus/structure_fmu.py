@@ -3,12 +3,12 @@ soil's instantaneous matrices folded in and the soil's history force completed f
 
 Variables: the outputs and the input ag of fmus/stepper.py, and (n = 6 + N)
 
-  inputs   g[0..n-1]   N   the soil FMU's output g: its history force for this structure step
+  inputs   g[0..n-1]   N, N.m  the soil FMU's output g: its history force for this structure step
                            without the part driven by the structure's latest state
            g_time      s   the soil FMU's output g_time (start of the step g is meant for)
   outputs  x_time      s   time of x (= t): connect to the soil FMU's input x_time
 
-A step from t takes g of t (now, or held from the previous step: fmus.common.StampedInput)
+A step from t takes g of t (now, or held from the previous step: fmus.coupling.StampedInput)
 and the history force h = g + Gx x(t) + Gv xdot(t) with the soil's gains measured at export,
 folds the soil's (K0, C0) into the implicit matrix and solves the step. This is the monolithic
 route's step to round-off, under Jacobi and under Gauss-Seidel in either order.
@@ -16,10 +16,12 @@ route's step to round-off, under Jacobi and under Gauss-Seidel in either order.
 from __future__ import annotations
 
 import numpy as np
-from pythonfmu import Fmi2Causality, Fmi2Slave
+from pythonfmu import Fmi2Slave
 
-from fmus.common import (SOIL_INSTANT_FILE, BankedSlave, RealBank, StampedInput, interface_units, make_soil,
-                         read_settings, register_vector)
+from fmus.bank import RealBank, register_schema
+from fmus.coupling import StampedInput
+from fmus.resources import SOIL_INSTANT_FILE, make_soil, read_settings
+from fmus.slave import BankedSlave
 from fmus.stepper import StepperOutputs
 
 
@@ -58,14 +60,7 @@ class UpliftStructure(StepperOutputs, BankedSlave, Fmi2Slave):
         self._init_life_cycle(s["dt"])
         n = int(s["n_dof"])
         self.bank = RealBank()
-        inp, out = Fmi2Causality.input, Fmi2Causality.output
-        self.sl = {
-            "g": register_vector(self, "g", n, inp, description="soil history force without the part of "
-                                 "the structure's latest state", unit=interface_units(n, "N", "N.m")),
-            "g_time": register_vector(self, "g_time", None, inp, description="start of the step g is meant for",
-                                      unit="s"),
-            "x_time": register_vector(self, "x_time", None, out, description="time of x", unit="s"),
-        }
+        self.sl = register_schema(self, "structure", n, int(s["n_interface"]), s["output_nodes"])
         self._register_stepper(s)
         self.stamped = {"g": StampedInput("g", "g_time", np.zeros(n))}
 

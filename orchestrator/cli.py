@@ -26,11 +26,13 @@ from structure.results import Status
 from orchestrator.bench import bench, bench_config, format_rows, json_safe, plot_rows
 from orchestrator.compare import compare, format_table
 from orchestrator.crosscheck import model_folder, write_cross_check
-from orchestrator.ensemble import CONNECT_TIMEOUT_S, DT_CHECKS, ensemble_summary, is_ensemble_file, run_ensemble
+from orchestrator.ensemble import (CONNECT_TIMEOUT_S, DT_CHECKS, ensemble_summary, is_ensemble_file, read_ensemble,
+                                   run_ensemble)
 from orchestrator.errors import ComputationError, SetupError, UserInputError
 from orchestrator.export import KINDS, export_scene
 from orchestrator.impedance import rigid_json, scene_fit, scene_impedance, scene_static
-from orchestrator.plots import plot_impedance, plot_run
+from orchestrator.motion import G
+from orchestrator.plots import plot_impedance, plot_run, pyplot
 from orchestrator.progress import Progress, frequency_bar, stage_bar, step_bar
 from orchestrator.report import write_ensemble_report, write_report
 from orchestrator.results import (ResultsFileError, check_output_folder, check_output_path, read_results, summary,
@@ -205,6 +207,7 @@ def _parser() -> argparse.ArgumentParser:
     max_pga(ens)
     no_cache(ens)
     ens.set_defaults(func=cmd_ensemble)
+    _fragility_parser(sub, json_flag)
 
     bch = sub.add_parser("bench", help="run time against error of every route and its accuracy knobs",
                          description="For the disk-halfspace and reactor scenes, sweep each route's "
@@ -265,18 +268,23 @@ def cmd_run(args) -> int:
                                 fit_progress=stage_bar(f"fit {scene.name}"))
     write_results(out, results, motion, scene.name)
     _say(f"wrote {out}")
-    summ = {"routes": {r: summary(res) for r, res in results.items()}}
+    summ = {"motion": {"label": motion.label, "components": list(motion.components),
+                       "pga_g": {a: float(p) / G for a, p in zip("xyz", motion.pga) if a in motion.components}},
+            "routes": {r: summary(res) for r, res in results.items()}}
     if args.plot_dir:
         _say(*(f"wrote {path}" for path in plot_run(results, motion, scene, args.plot_dir)))
     if args.json:
         print(json.dumps(summ))
     else:
+        _say(f"motion: {motion.label} (components {', '.join(motion.components)})")
         for r, s in summ["routes"].items():
             if s["status"] == Status.REFUSED.value:
                 _say(f"{r}: REFUSED: {s['message']}")
                 continue
-            _say(f"{r}: max uplift {1e3 * s['max_uplift_m']:.3f} mm at {s['max_uplift_time_s']:.3f} s, "
-                 f"raft rotation {s['max_raft_rotation_rad']:.3e} rad, min contact "
+            axes = s["max_raft_rotation_axes_rad"]
+            _say(f"{r} [{', '.join(s['components'])}]: max uplift {1e3 * s['max_uplift_m']:.3f} mm at "
+                 f"{s['max_uplift_time_s']:.3f} s, raft rotation {s['max_raft_rotation_rad']:.3e} rad "
+                 f"(rx {axes['x']:.3e}, ry {axes['y']:.3e}), min contact "
                  f"{100 * s['min_contact_fraction']:.1f} %, wall {s['wall_s']:.2f} s"
                  + ("" if s["converged"] else f"  STOPPED: {s['message']}"))
             if s["precheck"]:
@@ -412,6 +420,9 @@ def cmd_report(args) -> int:
 
 def cmd_ensemble(args) -> int:
     scene = load_scene(args.scene, max_pga_g=args.max_pga)
+    if scene.motion.direction is None:
+        raise SceneError(f"{args.scene}: motion.components: `uplift ensemble` takes one component of motion for "
+                         "now ([motion] direction = \"x\"); run several components at once with `uplift run`")
     out = args.output or Path(f"{scene.name}_ensemble.h5")
     ds = run_ensemble(scene, args.pga, records=args.records, seeds=args.seeds, routes=args.routes, output=out,
                       workers=args.workers, scheduler=args.scheduler, cache_dir=_cache(args),
@@ -441,6 +452,66 @@ def cmd_ensemble(args) -> int:
     if summ["refused"]:
         return EXIT_INPUT
     return EXIT_FAILED if summ["stopped"] or summ["failed"] else EXIT_OK
+
+
+def _fragility_parser(sub, json_flag):
+    frg = sub.add_parser("fragility", help="lognormal fragility curves of limit states from an ensemble file",
+                         description="Per limit state and route: the maximum-likelihood lognormal fragility "
+                                     "P(exceed | PGA) = Phi(ln(PGA / median) / beta) from the exceedances of the "
+                                     "converged cells per PGA, stored as the group 'fragility' of the ensemble "
+                                     "file (drawn by `uplift report`). See docs/fragility.md.")
+    frg.add_argument("ensemble", type=Path, help="ensemble file written by `uplift ensemble`")
+    frg.add_argument("--limit", action="append", dest="limits", required=True, metavar="'VAR OP VALUE [UNIT]'",
+                     help="limit state (repeatable): VAR a per-cell variable (max_uplift, max_raft_rotation, "
+                          "min_contact_ratio, or floor_spectrum[node=N, direction=D, frequency=F]), OP one of "
+                          "> >= < <=, UNIT optional (mm, mrad, %%, g, ...; default: the file's), e.g. "
+                          "'max_uplift > 5 mm', 'min_contact_ratio < 75 %%'")
+    frg.add_argument("--route", action="append", dest="routes", metavar="R",
+                     help="route of the file (repeatable; default: all of its routes)")
+    frg.add_argument("--bootstrap", type=int, default=0, metavar="N",
+                     help="resample the records N times for a band on the median and beta (default 0: none)")
+    frg.add_argument("--seed", type=int, default=0, help="seed of the bootstrap (default 0)")
+    frg.add_argument("--confidence", type=_fraction, default=0.9, help="share of the bootstrap band (default 0.9)")
+    frg.add_argument("--plot", type=Path, default=None, metavar="FILE", help="draw the curves to this image")
+    frg.add_argument("--no-store", action="store_true", help="do not write the fit into the ensemble file")
+    json_flag(frg, "print {\"fragility\": [...]} on stdout")
+    frg.set_defaults(func=cmd_fragility)
+
+
+def cmd_fragility(args) -> int:
+    from orchestrator import fragility as frag  # scipy.optimize and xarray: only this command pays them
+    if args.plot is not None:
+        check_output_path(args.plot)
+    try:
+        fits = frag.fragility(read_ensemble(args.ensemble), args.limits, routes=args.routes, samples=args.bootstrap,
+                              seed=args.seed, confidence=args.confidence)
+    except frag.FragilityError as exc:     # bad input (exit 2), named with its file
+        raise frag.FragilityError(f"{args.ensemble}: {exc}") from None
+    if not args.no_store:
+        _say(f"wrote the group {frag.GROUP!r} of {frag.store_fragility(args.ensemble, fits)}")
+    if args.plot is not None:
+        plt = pyplot()
+        fig = frag.fragility_figure(fits, title=f"{args.ensemble.name}: fragility")
+        fig.savefig(args.plot, dpi=120)
+        plt.close(fig)
+        _say(f"wrote {args.plot}")
+    out = frag.fragility_json(fits)
+    if args.json:
+        print(json.dumps(out))
+        return EXIT_OK
+    for e in out["fragility"]:
+        counts = ", ".join(f"{p:g} g {z}/{n}" for p, z, n in zip(e["pga_g"], e["exceedances"], e["cells"]))
+        left = ", ".join(f"{v} {k}" for k, v in e["left_out"].items() if v)
+        fit = (f"median {e['median_g']:.4g} g, beta {e['beta']:.3f}, ln L {e['log_likelihood']:.4g}"
+               if e["identifiable"] else f"NOT IDENTIFIABLE: {e['reason']}")
+        if e["bootstrap"] and e["bootstrap"]["median_g"]:
+            bs = e["bootstrap"]
+            fit += (f"; {100 * bs['confidence']:g} % band (bootstrap, {bs['identified']}/{bs['samples']} "
+                    f"resamples fitted): median {bs['median_g'][0]:.4g}-{bs['median_g'][1]:.4g} g, "
+                    f"beta {bs['beta'][0]:.3f}-{bs['beta'][1]:.3f}")
+        _say(f"{e['limit']} [{e['route']}]: {fit}", f"  exceedances per PGA: {counts}"
+             + (f"; left out: {left}" if left else ""))
+    return EXIT_OK
 
 
 def cmd_bench(args) -> int:

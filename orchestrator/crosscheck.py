@@ -22,7 +22,7 @@ motion bundled in them (internal_motion = true) and do not read their input ``ag
 columns hold a_g(t + dt) of that motion (zero after its end), the FMUs' convention for ``ag``.
 A replay of ``_in.csv`` (inputs held at the rows' values, read at the communication points)
 through one FMU alone reproduces its ``_ref.csv`` (bit for bit on the exporting host): the pair
-is exact under Jacobi (fmus/common.py), and the coupled FMU is the monolithic step.
+is exact under Jacobi (fmus/coupling.py), and the coupled FMU is the monolithic step.
 
 ``check_cross_check(xdir)`` returns what fmpy's checker (``fmpy.cross_check.validate_vendor_repo``)
 finds in the folder, plus a run longer than fmpy's cross-check runner can step (see
@@ -44,7 +44,7 @@ from fmpy import platform as FMPY_PLATFORM, read_model_description
 from fmpy.cross_check.validate_vendor_repo import validate_repo
 from fmpy.util import read_ref_opt_file
 
-from fmus.common import MOTION_FILE
+from fmus.resources import MOTION_FILE
 from fmus.native_build import RESOURCE_FILE, decode_resources
 from soil_impedance.cache import atomic_output
 
@@ -52,6 +52,8 @@ from orchestrator.export import HEADLINE, Export
 from orchestrator.master import FmuSlave
 
 TOOL = "uplift"
+#: the distribution whose version names the cross-check folder
+DISTRIBUTION = "uplift-ssi"
 #: the soil's _ref.csv: its history force g on the SOIL_REFERENCE_DOFS DOFs of largest peak (what
 #: it sends the structure; a component at round-off level would make a meaningless reference)
 #: and its dissipated energy; the structure's and the coupled FMU's: the headline outputs
@@ -68,7 +70,7 @@ README = """\
 
 FMI 2.0 co-simulation FMU exported by `uplift export` (uplift {version}){scene}. A pythonfmu FMU:
 it runs in the host's Python (3.10 or later, with the packages of the FMU's
-`resources/requirements.txt`: numpy, scipy).
+`resources/requirements.txt`: numpy, scipy, h5py, threadpoolctl).
 
 ## Experiment (`{model}_ref.opt`)
 
@@ -126,7 +128,7 @@ class CrossCheck:
 def tool_version() -> str:
     """The installed uplift's version (it names the cross-check folder)."""
     try:
-        return importlib.metadata.version(TOOL)
+        return importlib.metadata.version(DISTRIBUTION)
     except importlib.metadata.PackageNotFoundError:
         raise ValueError("uplift is not installed, and the cross-check folder is named by its version: "
                          "pip install -e . in the project's folder") from None

@@ -7,7 +7,8 @@ names the key, file or tool and the fix (exit 2); every computation that could n
 ``ComputationError`` family (exit 1, results so far written by the caller). Every error class of
 the project belongs to exactly one family (tests/test_error_families.py checks it).
 """
-from fmus.common import StepRefused
+from fmus.coupling import StepRefused
+from fmus.fmu_state import StateRefused
 from soil_impedance import BemError, MeshError, SoilError, TableError
 from soil_impedance.rational import FitError
 from soil_impedance.storage import ChangedFileError, OutputPathError
@@ -24,6 +25,10 @@ class EnsembleError(ValueError):
     """Bad input to an ensemble (a record, a PGA, a seed, the cluster); the message names it."""
 
 
+class FragilityError(ValueError):
+    """Bad input to a fragility fit (a limit, a route, a file); the message names it and the fix."""
+
+
 class SetupError(ValueError):
     """The machine lacks something a command needs (e.g. the C compiler of a native export);
     the message names it and how to get it."""
@@ -31,7 +36,7 @@ class SetupError(ValueError):
 
 #: bad input: a scene, a file, an option, the environment; the message says what to fix
 UserInputError = (SceneError, SoilError, MeshError, BemError, TableError, MotionError, StructureError, FitError,
-                  RouteInputError, ResultsFileError, EnsembleError, OutputPathError, ChangedFileError, SetupError,
-                  StepRefused, FileNotFoundError)
+                  RouteInputError, ResultsFileError, EnsembleError, FragilityError, OutputPathError, ChangedFileError, SetupError,
+                  StepRefused, StateRefused, FileNotFoundError)
 #: a computation that stopped (results so far are written by the caller)
 ComputationError = (RuntimeError, ArithmeticError)

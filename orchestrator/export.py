@@ -8,13 +8,14 @@
     outdir/system.ssd      SSP 1.0 system of the pair: both components, the coupling connections
                            (x, xdot, x_time from the structure to the soil; g, g_time back) and
                            the fixed-step algorithm named (OSP annotation) so that libcosim
-                           (libcosimpy) runs it as it is; the motion is bundled in the structure
-                           FMU (internal_motion = true)
+                           (libcosimpy) runs it as it is, and OMSimulator's simulation
+                           information (its fixed-step master at dt); the motion is bundled in
+                           the structure FMU (internal_motion = true)
     outdir/system.ssp      the same system packaged (SystemStructure.ssd + resources/*.fmu), for
                            SSP tools such as fmpy's ``simulate_ssp``
 
 The pair is exact under any master (Jacobi as in libcosim and fmpy's SSP runner, Gauss-Seidel
-in either order): see fmus/common.py and orchestrator/master.py. ``kind="native"`` writes the
+in either order): see fmus/coupling.py and orchestrator/master.py. ``kind="native"`` writes the
 same three FMUs as compiled C code (fmus/native_build.py, docs/native.md): the same variables,
 the same coupling, the same answers, and no Python needed in the host.
 """
@@ -30,8 +31,9 @@ from pathlib import Path
 import numpy as np
 from fmpy import read_model_description
 
-from fmus.build import PACKAGES, FmuData, build_fmus
-from fmus.common import DEFAULT_SOIL_FACTORY
+from fmus.build import FmuData, build_fmus
+from fmus.bundle import PACKAGES
+from fmus.resources import DEFAULT_SOIL_FACTORY
 from fmus.native_build import build_native_fmus
 from soil_impedance.cache import atomic_output
 from structure.spec import contact_table
@@ -44,6 +46,7 @@ KINDS = ("python", "native")
 SSD = "http://ssp-standard.org/SSP1/SystemStructureDescription"
 SSC = "http://ssp-standard.org/SSP1/SystemStructureCommon"
 OSP = "http://opensimulationplatform.com/SSP/OSPAnnotations"
+OMS = "https://raw.githubusercontent.com/OpenModelica/OMSimulator/master/schema/oms.xsd"
 
 
 @dataclass(frozen=True)
@@ -128,11 +131,14 @@ def write_ssd(path, structure_fmu, soil_fmu, dt: float, stop_time: float, name: 
     """SSP system: components "structure" and "soil" (sources relative to the .ssd, or under
     ``source_dir`` inside an SSP), the coupling (every input of one component from the output
     of the same name of the other; the structure's ag stays free, the motion is bundled), the
-    headline outputs, DefaultExperiment with the OSP FixedStepAlgorithm of step dt."""
+    headline outputs, DefaultExperiment with the OSP FixedStepAlgorithm of step dt, and the
+    system's OMSimulator annotation (SimulationInformation: its fixed-step master "oms-ma" at dt,
+    which OMSimulator needs to import the SSP; other tools ignore it)."""
     path = Path(path)
     ET.register_namespace("ssd", SSD)
     ET.register_namespace("ssc", SSC)
     ET.register_namespace("osp", OSP)
+    ET.register_namespace("oms", OMS)
     q = lambda ns, tag: f"{{{ns}}}{tag}"
     md = {comp: read_model_description(str(fmu)) for comp, fmu in (("structure", structure_fmu), ("soil", soil_fmu))}
     kinds = {comp: {v.name: v.causality for v in m.modelVariables if v.type == "Real"} for comp, m in md.items()}
@@ -156,6 +162,12 @@ def write_ssd(path, structure_fmu, soil_fmu, dt: float, stop_time: float, name: 
     for a, va, b, vb in pairs:
         ET.SubElement(connections, q(SSD, "Connection"), {"startElement": a, "startConnector": va,
                                                           "endElement": b, "endConnector": vb})
+    # OMSimulator's simulation information (its fixed-step master at dt); other tools ignore it
+    oms = ET.SubElement(ET.SubElement(ET.SubElement(system, q(SSD, "Annotations")), q(SSC, "Annotation"),
+                                      {"type": "org.openmodelica"}), q(OMS, "Annotations"))
+    ET.SubElement(ET.SubElement(oms, q(OMS, "SimulationInformation")), q(OMS, "FixedStepMaster"),
+                  {"description": "oms-ma", "stepSize": repr(float(dt)), "absoluteTolerance": "0.0001",
+                   "relativeTolerance": "0.0001"})
     ex = ET.SubElement(root, q(SSD, "DefaultExperiment"), {"startTime": "0.0", "stopTime": repr(float(stop_time))})
     ann = ET.SubElement(ET.SubElement(ex, q(SSD, "Annotations")), q(SSC, "Annotation"),
                         {"type": "com.opensimulationplatform"})

@@ -2,7 +2,7 @@
 
 Schedules for one step t_k -> t_{k+1} (S: structure FMU, G: soil FMU). The soil publishes g,
 its history force for the structure's next step without the part driven by the structure's
-latest state, which the structure adds itself (fmus/common.py); both stamp what they send
+latest state, which the structure adds itself (fmus/coupling.py); both stamp what they send
 (x_time, g_time), so every schedule is exact (equal to the monolithic route to round-off):
 
 ``gauss-seidel`` (default)
@@ -27,11 +27,11 @@ from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave, defaultCallbacks, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
 
+from fmus.schema import ENERGY_TERMS
 from structure.results import RouteResult, RunNotes, Status
 
 SCHEDULES = ("gauss-seidel", "soil-first", "jacobi")
 FMI2_WARNING = 1                    # fmi2Status above which a call failed (discard, error, fatal)
-ENERGY_TERMS = ("input", "kinetic", "strain", "damping", "soil", "contact", "contact_potential")
 
 
 class CosimError(RuntimeError):
@@ -128,8 +128,9 @@ class FmuSlave:
     def get_integer(self, name: str) -> int:
         return int(self.fmu.getInteger([self.vars[name].valueReference])[0])
 
-    def initialize(self, start_time: float = 0.0) -> None:
-        self._call("initialisation", self.fmu.setupExperiment, startTime=start_time)
+    def initialize(self, start_time: float = 0.0, stop_time: float | None = None) -> None:
+        """Set up (with the stop time, when given), enter and exit initialisation mode."""
+        self._call("initialisation", self.fmu.setupExperiment, startTime=start_time, stopTime=stop_time)
         self._call("initialisation", self.fmu.enterInitializationMode)
         self._call("initialisation", self.fmu.exitInitializationMode)
         self.t = start_time

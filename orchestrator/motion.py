@@ -1,7 +1,11 @@
 """Seismic motions: synthetic spectrum-compatible accelerograms and record readers.
 
-A motion is three components of free-field ground acceleration a_g(t), m/s², sampled at a
-constant step (vertically incident waves, no kinematic interaction).
+A motion is the vector of free-field ground acceleration a_g(t) = (a_x, a_y, a_z), m/s²,
+sampled at a constant step (vertically incident waves, no kinematic interaction); the routes
+apply it through the influence vectors of the three translations. ``Motion.components`` says
+which components carry a motion: one (``[motion] direction``) or any non-empty subset of x, y,
+z at once (``[motion] components``: a record file per component, or independent synthetic
+components).
 
 Synthetic motions (deterministic for a given seed): a Gaussian white noise under a
 Jennings-type envelope, its Fourier amplitudes corrected iteratively until its 5 %-damped
@@ -32,6 +36,8 @@ _IN = 0.0254
 #: the choices of the [motion] keys (and of the readers' arguments)
 SPECTRA = ("RG1.60",)
 DIRECTIONS = ("x", "y", "z")
+#: default peak of the synthetic vertical component over the horizontals' pga_g (the usual 2/3)
+VERTICAL_RATIO = 2.0 / 3.0
 FORMATS = ("two-column", "peer-at2")
 UNITS = ("g", "m/s2")
 
@@ -42,11 +48,22 @@ class MotionError(ValueError):
 
 @dataclass(frozen=True, eq=False)
 class Motion:
-    """Ground acceleration, shape (nt, 3), m/s², components x, y, z, step dt (s)."""
+    """Ground acceleration, shape (nt, 3), m/s², columns x, y, z, step dt (s).
+
+    components : the axes that carry a motion, in x, y, z order (default: the columns that are
+    not identically zero)."""
 
     dt: float
     acc: np.ndarray
     label: str = "motion"
+    components: tuple[str, ...] = ()
+
+    def __post_init__(self):
+        axes = self.components or [a for a, col in zip(DIRECTIONS, np.asarray(self.acc).T) if np.any(col)]
+        unknown = set(axes) - set(DIRECTIONS)
+        if unknown:
+            raise MotionError(f"Motion.components: unknown component {sorted(unknown)[0]!r}; use \"x\", \"y\", \"z\"")
+        object.__setattr__(self, "components", tuple(a for a in DIRECTIONS if a in axes))
 
     @property
     def time(self) -> np.ndarray:
@@ -68,7 +85,7 @@ class Motion:
             return self
         t_new = dt * np.arange(int(np.floor(self.duration / dt + 1e-9)) + 1)
         acc = np.column_stack([np.interp(t_new, self.time, self.acc[:, k]) for k in range(3)])
-        return Motion(dt, acc, self.label)
+        return Motion(dt, acc, self.label, self.components)
 
 
 def rg160_psa(freq_hz, pga: float = 1.0):
@@ -120,17 +137,54 @@ def synthetic_motion(pga_g: float = 0.25, duration_s: float = 10.0, dt: float = 
     The record is generated at SYNTHETIC_DT and resampled linearly to ``dt`` (it is piecewise
     linear, so a finer dt samples the same motion exactly; a coarser dt keeps its values at the
     common instants and may miss the peak between them). Returns a Motion whose ``direction``
-    component ("x", "y" or "z") carries the record.
+    component ("x", "y" or "z") carries the record (its generator seeded with ``seed``).
     """
+    axis = _axis(direction)
+    _check_synthetic(pga_g, duration_s, dt, spectrum)
+    acc = _synthetic(pga_g, duration_s, SYNTHETIC_DT, seed, spectrum, iterations)
+    out = np.zeros((acc.size, 3))
+    out[:, axis] = acc
+    return Motion(SYNTHETIC_DT, out, f"synthetic {spectrum} {pga_g:g} g seed {seed}", (direction,)).resampled(dt)
+
+
+def synthetic_components(pga_g: float = 0.25, duration_s: float = 10.0, dt: float = 0.005, seed: int = 1,
+                         spectrum: str = "RG1.60", iterations: int = 8, components=DIRECTIONS,
+                         vertical_ratio: float = VERTICAL_RATIO) -> Motion:
+    """Statistically independent spectrum-compatible components at once (deterministic for a seed).
+
+    components : a non-empty subset of "x", "y", "z". Each is generated like
+    ``synthetic_motion`` (same spectrum shape, envelope and baseline correction) from its own
+    generator: the child k of ``numpy.random.SeedSequence(seed)`` for axis k (x 0, y 1, z 2), so
+    a component does not depend on which others are asked for. The horizontals peak at pga_g,
+    the vertical at vertical_ratio x pga_g (g).
+    """
+    axes = check_components(components)
+    _check_synthetic(pga_g, duration_s, dt, spectrum)
+    if not (isinstance(vertical_ratio, (int, float)) and 0 < vertical_ratio <= 2):
+        raise MotionError(f"motion.vertical_ratio = {vertical_ratio!r}: the vertical peak over pga_g must lie in "
+                          "(0, 2], e.g. 2/3")
+    children = np.random.SeedSequence(seed).spawn(len(DIRECTIONS))
+    out = None
+    for a in axes:
+        k = DIRECTIONS.index(a)
+        peak = pga_g * (vertical_ratio if a == "z" else 1.0)
+        acc = _synthetic(peak, duration_s, SYNTHETIC_DT, children[k], spectrum, iterations)
+        out = np.zeros((acc.size, 3)) if out is None else out
+        out[:, k] = acc
+    ratio = f", z at {vertical_ratio:.3g} of it" if "z" in axes else ""
+    label = f"synthetic {spectrum} {pga_g:g} g{ratio}, seed {seed}"
+    return Motion(SYNTHETIC_DT, out, label, axes).resampled(dt)
+
+
+def _check_synthetic(pga_g, duration_s, dt, spectrum):
     if spectrum not in SPECTRA:
         raise MotionError(f"motion.spectrum = {spectrum!r}: only \"RG1.60\" is available")
     if not (pga_g > 0) or not (duration_s > 0) or not (dt > 0) or duration_s < 20 * max(dt, SYNTHETIC_DT):
         raise MotionError("motion: pga_g, duration_s and dt must be > 0, duration_s >= 20 dt")
-    base = _synthetic(pga_g, duration_s, SYNTHETIC_DT, seed, spectrum, iterations, direction)
-    return base.resampled(dt)
 
 
-def _synthetic(pga_g, duration_s, dt, seed, spectrum, iterations, direction) -> Motion:
+def _synthetic(pga_g, duration_s, dt, seed, spectrum, iterations) -> np.ndarray:
+    """One component (n,), m/s², peak pga_g (g); seed: an integer or a numpy SeedSequence."""
     n = int(round(duration_s / dt)) + 1
     t = np.arange(n) * dt
     env = _envelope(t, duration_s)
@@ -145,44 +199,59 @@ def _synthetic(pga_g, duration_s, dt, seed, spectrum, iterations, direction) -> 
         corr = np.interp(freqs, f_ctrl, ratio, left=ratio[0], right=ratio[-1])
         acc = np.fft.irfft(np.fft.rfft(acc) * corr, n) * env
     acc = _baseline(acc, dt, env)
-    acc *= pga_g * G / np.abs(acc).max()
-    axis = _axis(direction)
-    out = np.zeros((n, 3))
-    out[:, axis] = acc
-    return Motion(dt, out, f"synthetic {spectrum} {pga_g:g} g seed {seed}")
+    return acc * (pga_g * G / np.abs(acc).max())
 
 
 def _axis(direction) -> int:
     if direction not in DIRECTIONS:
         raise MotionError(f"motion.direction = {direction!r}: use \"x\", \"y\" or \"z\"")
-    return "xyz".index(direction)
+    return DIRECTIONS.index(direction)
+
+
+def check_components(components, where: str = "motion.components") -> tuple:
+    """The axes of ``components`` (a non-empty collection of "x", "y", "z", each once) in x, y, z order."""
+    if isinstance(components, str) or not isinstance(components, (list, tuple, dict)) or not components:
+        raise MotionError(f"{where} = {components!r} must name a non-empty subset of \"x\", \"y\", \"z\", "
+                          'e.g. ["x", "y", "z"]')
+    for a in components:
+        if a not in DIRECTIONS:
+            raise MotionError(f"{where}: unknown component {a!r}; components are \"x\", \"y\" (horizontal) "
+                              'and "z" (vertical, up)')
+        if list(components).count(a) > 1:
+            raise MotionError(f"{where} lists {a!r} twice")
+    return tuple(a for a in DIRECTIONS if a in components)
 
 
 def make_motion(config, dt: float) -> Motion:
     """The motion of a scene's [motion] (an ``orchestrator.scene.MotionConfig``) at step dt (s).
 
-    Synthetic: ``synthetic_motion`` (generated at SYNTHETIC_DT, resampled linearly to dt).
-    Record: the file read (the copy read when the scene was loaded, ``config.record``, if any),
-    resampled linearly to dt when its step differs.
+    Synthetic: ``synthetic_motion`` on ``direction``, or ``synthetic_components`` (generated at
+    SYNTHETIC_DT, resampled linearly to dt). Record: the file(s) read (the copy read when the
+    scene was loaded, ``config.record``, if any), resampled linearly to dt when its step differs.
     """
     if config.kind == "synthetic":
-        return synthetic_motion(pga_g=config.pga_g, duration_s=config.duration_s, dt=dt, seed=config.seed,
-                                spectrum=config.spectrum, direction=config.direction)
-    rec = getattr(config, "record", None) or read_record(config.file, config.format, config.units,
-                                                         config.scale, config.direction)
+        common = dict(pga_g=config.pga_g, duration_s=config.duration_s, dt=dt, seed=config.seed,
+                      spectrum=config.spectrum)
+        if config.direction is not None:
+            return synthetic_motion(**common, direction=config.direction)
+        return synthetic_components(**common, components=config.components, vertical_ratio=config.vertical_ratio)
+    rec = getattr(config, "record", None)
+    if rec is None:
+        rec = read_components(config.files, config.format, config.units, config.scale)
     return rec.resampled(dt)
 
 
-def read_record(path, fmt: str = "two-column", units: str = "g", scale: float = 1.0, direction="x") -> Motion:
+def read_record(path, fmt: str = "two-column", units: str = "g", scale: float = 1.0, direction="x", *,
+                where: str = "motion.file") -> Motion:
     """Read an accelerogram: PEER NGA ``.AT2`` or two-column text (time, acceleration).
 
     units: "g" or "m/s2"; scale multiplies the record; the record goes on ``direction``.
     The file must be UTF-8 (or ASCII) text; a malformed file is a MotionError naming the file
-    and the line at fault.
+    and the line at fault (``where``: the scene key that gave the file).
     """
     path = Path(path)
     if not path.is_file():
-        raise MotionError(f"motion.file = {str(path)!r}: no such file (paths are relative to the scene file)")
+        raise MotionError(f"{where} = {str(path)!r}: no such file (paths are relative to the scene file)")
     if units not in UNITS:
         raise MotionError(f"motion.units = {units!r}: use \"g\" or \"m/s2\"")
     if fmt not in FORMATS:
@@ -192,7 +261,33 @@ def read_record(path, fmt: str = "two-column", units: str = "g", scale: float = 
     acc = acc * scale * (G if units == "g" else 1.0)
     out = np.zeros((acc.size, 3))
     out[:, axis] = acc
-    return Motion(dt, out, f"{path.name} x{scale:g}")
+    return Motion(dt, out, f"{path.name} x{scale:g}", (direction,))
+
+
+def read_components(files, fmt: str = "two-column", units: str = "g", scale: float = 1.0) -> Motion:
+    """Read one record per component at once: ``files`` {axis: path} or pairs (axis, path), axes
+    a non-empty subset of "x", "y", "z"; format, units and scale as ``read_record``, for all.
+
+    The components must share their time step (to 1e-6 relative) and their number of samples:
+    otherwise a MotionError names every file with its step and length (no resampling, no
+    zero padding: trim or resample the files to a common time base).
+    """
+    files = dict(files)
+    axes = check_components(list(files))
+    parts = {a: read_record(files[a], fmt, units, scale, a, where=f"motion.components.{a}") for a in axes}
+    first = parts[axes[0]]
+    steps = [m.dt for m in parts.values()]
+    sizes = [m.acc.shape[0] for m in parts.values()]
+    if max(steps) - min(steps) > 1e-6 * min(steps) or len(set(sizes)) > 1:
+        listing = "; ".join(f"{a} = {Path(files[a]).name!r}: {m.acc.shape[0]} samples at dt = {m.dt:g} s"
+                            for a, m in parts.items())
+        what = "time steps" if max(steps) - min(steps) > 1e-6 * min(steps) else "lengths"
+        raise MotionError(f"motion.components: the records differ in their {what} ({listing}); the components "
+                          "of a motion share one time base: resample or trim the files to a common step and "
+                          "length (they are not zero-padded)")
+    acc = sum(m.acc for m in parts.values())
+    label = ", ".join(f"{a}: {Path(files[a]).name}" for a in axes) + f" x{scale:g}"
+    return Motion(first.dt, acc, label, axes)
 
 
 def _lines(path: Path) -> list:

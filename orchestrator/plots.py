@@ -63,11 +63,12 @@ def plot_impedance(table, scene, path: Path, static=None):
     return path
 
 
-def _edges(xy):
-    """Indices of the interface nodes at the raft edges along x (min x and max x on y ≈ 0)."""
-    on_axis = np.abs(xy[:, 1]) <= np.abs(xy[:, 1]).min() + 1e-9
-    idx = np.flatnonzero(on_axis)
-    return idx[np.argmin(xy[idx, 0])], idx[np.argmax(xy[idx, 0])]
+def _edges(xy, axis: int = 0):
+    """Indices of the interface nodes at the raft edges along ``axis`` (0: x, 1: y): min and max
+    of that coordinate on the line through the centre (the other coordinate ≈ 0)."""
+    other = np.abs(xy[:, 1 - axis])
+    idx = np.flatnonzero(other <= other.min() + 1e-9)
+    return idx[np.argmin(xy[idx, axis])], idx[np.argmax(xy[idx, axis])]
 
 
 def plot_run(results: dict, motion, scene, directory) -> list:
@@ -83,57 +84,95 @@ def plot_run(results: dict, motion, scene, directory) -> list:
     return paths
 
 
+#: a direction of a node whose floor acceleration stays below this share of the node's peak is
+#: round-off (no spectrum drawn)
+ROUNDOFF = 1e-6
+
+
+def _edge_nodes(xy):
+    """[(label, node index)] of the raft edges along x and y (see ``_edges``)."""
+    (xm, xp), (ym, yp) = _edges(xy, 0), _edges(xy, 1)
+    return [(f"edge x- ({xy[xm, 0]:.1f} m)", xm), (f"edge x+ ({xy[xp, 0]:.1f} m)", xp),
+            (f"edge y- ({xy[ym, 1]:.1f} m)", ym), (f"edge y+ ({xy[yp, 1]:.1f} m)", yp)]
+
+
+def _raft_figure(plt, res, lin):
+    """Uplift at the four raft edges, the raft's vertical response (edges and centre), its
+    rocking about x and y and the rocking magnitude sqrt(rx² + ry²); ``lin`` dashed."""
+    t = res.time
+    fig, axes = plt.subplots(4, 1, figsize=(10, 12), sharex=True, constrained_layout=True)
+    trace = lambda r, x, y: r.raft[:, 2] + r.raft[:, 3] * y - r.raft[:, 4] * x
+    for label, i in _edge_nodes(res.xy):
+        axes[0].plot(t, 1e3 * res.gap[:, i], label=label)
+        x, y = res.xy[i]
+        line, = axes[1].plot(t, 1e3 * trace(res, x, y), label=label.split(" (")[0], lw=0.9)
+        if lin is not None:
+            axes[1].plot(lin.time, 1e3 * trace(lin, x, y), "--", color=line.get_color(), lw=0.6)
+    axes[1].plot(t, 1e3 * res.raft[:, 2], "k", lw=1.2, label="centre uz")
+    if lin is not None:
+        axes[1].plot(lin.time, 1e3 * lin.raft[:, 2], "k--", lw=0.8, label="centre uz, no uplift")
+    axes[2].plot(t, 1e3 * res.raft[:, 3], label="rx (about x)")
+    axes[2].plot(t, 1e3 * res.raft[:, 4], label="ry (about y)")
+    axes[3].plot(t, 1e3 * np.hypot(res.raft[:, 3], res.raft[:, 4]), "k", label="sqrt(rx² + ry²)")
+    if lin is not None:
+        axes[3].plot(lin.time, 1e3 * np.hypot(lin.raft[:, 3], lin.raft[:, 4]), "k--", lw=0.8, label="no uplift")
+    for ax, ylabel in zip(axes, ("uplift (mm)", "raft vertical displacement (mm)", "raft rotation (mrad)",
+                                 "rocking magnitude (mrad)")):
+        ax.set_ylabel(ylabel)
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="upper right", fontsize="small")
+    axes[-1].set_xlabel("time (s)")
+    return fig
+
+
+def _spectra_figure(plt, res, lin, motion):
+    """5 %-damped floor response spectra at the output nodes in x, y and z (round-off directions
+    left out), the ground's spectrum per component of ``motion``; ``lin`` dashed."""
+    f = np.geomspace(0.5, 40.0, 120)
+    dt = res.time[1] - res.time[0]
+    fig, axes = plt.subplots(1, 3, figsize=(15, 5), sharey=True, constrained_layout=True)
+    for j, (ax, d) in enumerate(zip(axes, "xyz")):
+        for name, acc in res.acc.items():
+            if np.abs(acc[:, j]).max(initial=0.0) <= ROUNDOFF * np.abs(acc).max(initial=0.0):
+                continue
+            s = response_spectrum(acc[:, j], dt, 1 / f, 0.05)
+            line, = ax.semilogx(f, s.psa / 9.81, label=name)
+            if lin is not None and name in lin.acc:
+                s0 = response_spectrum(lin.acc[name][:, j], lin.time[1] - lin.time[0], 1 / f, 0.05)
+                ax.semilogx(f, s0.psa / 9.81, "--", color=line.get_color(), lw=0.8, label=f"{name}, no uplift")
+        if motion is not None and d in motion.components:
+            ground = response_spectrum(motion.acc[: res.nt, j], motion.dt, 1 / f, 0.05)
+            ax.semilogx(f, ground.psa / 9.81, "k--", label="ground")
+        ax.set_title(f"{d} ({'vertical' if d == 'z' else 'horizontal'})")
+        ax.set_xlabel("frequency (Hz)")
+        ax.grid(True, which="both", alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize="small")
+    axes[0].set_ylabel("pseudo-acceleration, 5 % (g)")
+    return fig
+
+
 def run_figures(results: dict, motion, scene_name: str):
     """Figures of the paper's kind for each route, yielded as (name, matplotlib Figure): uplift
-    at the raft edges (fig. 3-4), raft edge displacements and rotation (``<route>_raft``),
-    floor response spectra at the output nodes (fig. 5-6, ``<route>_floor_spectra``).
-    When the ``linear`` route (no uplift) is among the results, it is drawn dashed on the other
-    routes' figures: the paper's "with and without uplift" comparison. ``motion`` (may be None)
-    adds the ground spectrum. The caller closes each figure."""
+    at the raft edges along x and y (fig. 3-4), the raft's vertical response and its rocking
+    about both axes (``<route>_raft``), floor response spectra at the output nodes in x, y and
+    z (fig. 5-6, ``<route>_floor_spectra``). When the ``linear`` route (no uplift) is among the
+    results, it is drawn dashed on the other routes' figures: the paper's "with and without
+    uplift" comparison. ``motion`` (may be None) names the components and adds the ground
+    spectra. Routes without histories (refused) have no figures. The caller closes each figure."""
     plt = pyplot()
     label = motion.label if motion is not None else ""
     linear = results.get("linear")
+    if linear is not None and linear.nt < 2:
+        linear = None
     for route, res in results.items():
-        left, right = _edges(res.xy)
-        t = res.time
+        if res.nt < 2 or res.xy is None:          # refused, or stopped before its second sample: nothing to draw
+            continue
         lin = linear if linear is not None and route != "linear" else None
-        fig, axes = plt.subplots(3, 1, figsize=(10, 9), sharex=True, constrained_layout=True)
-        for i, side in ((left, "edge x-"), (right, "edge x+")):
-            axes[0].plot(t, 1e3 * res.gap[:, i], label=f"{side} ({res.xy[i, 0]:.1f} m)")
-            x, y = res.xy[i]
-            trace = res.raft[:, 2] + res.raft[:, 3] * y - res.raft[:, 4] * x
-            line, = axes[1].plot(t, 1e3 * trace, label=side)
-            if lin is not None:
-                trace0 = lin.raft[:, 2] + lin.raft[:, 3] * y - lin.raft[:, 4] * x
-                axes[1].plot(lin.time, 1e3 * trace0, "--", color=line.get_color(), lw=0.8,
-                             label=f"{side}, no uplift")
-        axes[0].set_ylabel("uplift (mm)")
-        axes[1].set_ylabel("raft vertical displacement (mm)")
-        axes[2].plot(t, 1e3 * res.raft[:, 4], label="ry")
-        axes[2].plot(t, 1e3 * res.raft[:, 3], label="rx")
-        axes[2].set_ylabel("raft rotation (mrad)")
-        axes[2].set_xlabel("time (s)")
-        for ax in axes:
-            ax.grid(True, alpha=0.3)
-            ax.legend(loc="upper right")
+        fig = _raft_figure(plt, res, lin)
         fig.suptitle(f"{scene_name} [{route}]: raft response, {label}")
         yield f"{route}_raft", fig
         if res.acc:
-            f = np.geomspace(0.5, 40.0, 120)
-            fig, ax = plt.subplots(figsize=(8, 5), constrained_layout=True)
-            for name, acc in res.acc.items():
-                s = response_spectrum(acc[:, 0], res.time[1] - res.time[0], 1 / f, 0.05)
-                line, = ax.semilogx(f, s.psa / 9.81, label=name)
-                if lin is not None and name in lin.acc:
-                    s0 = response_spectrum(lin.acc[name][:, 0], lin.time[1] - lin.time[0], 1 / f, 0.05)
-                    ax.semilogx(f, s0.psa / 9.81, "--", color=line.get_color(), lw=0.8,
-                                label=f"{name}, no uplift")
-            if motion is not None:
-                ground = response_spectrum(motion.acc[: res.nt, 0], motion.dt, 1 / f, 0.05)
-                ax.semilogx(f, ground.psa / 9.81, "k--", label="ground")
-            ax.set_xlabel("frequency (Hz)")
-            ax.set_ylabel("pseudo-acceleration, 5 % (g)")
-            ax.grid(True, which="both", alpha=0.3)
-            ax.legend()
-            ax.set_title(f"{scene_name} [{route}]: floor response spectra (x)")
+            fig = _spectra_figure(plt, res, lin, motion)
+            fig.suptitle(f"{scene_name} [{route}]: floor response spectra, {label}")
             yield f"{route}_floor_spectra", fig

@@ -1,16 +1,18 @@
 """A self-contained report of a results file: ``uplift report results.h5 -o DIR``.
 
-Writes ``DIR/report.html``: the scene, what each route is, the per-route summary (max uplift
-and its time, raft rotation, min contact fraction, wall time, converged or why not), the route
-comparison of ``orchestrator.compare`` and the figures of the paper's kind (fig. 3-6: uplift
-at the raft edges, raft displacements with and without uplift, floor response spectra),
+Writes ``DIR/report.html``: the scene, what each route is, the per-route summary (the motion's
+components, max uplift and its time, raft rotation sqrt(rx² + ry²) and per axis, min contact
+fraction, wall time, converged or why not), the route comparison of ``orchestrator.compare``
+and the figures of the paper's kind (fig. 3-6: uplift at the raft edges, raft displacements
+with and without uplift, rocking about both axes, floor response spectra in x, y and z),
 embedded as base64 PNG so that the page needs no other file. The figures are also written
 next to it as PNG files.
 
 ``uplift report ensemble.h5 -o DIR`` (an ensemble file, ``orchestrator.ensemble``) writes the
 ensemble's page instead: the fractiles over the records per PGA and route, the runs that did
 not converge and why, max uplift (raft rotation, contact ratio) against PGA and the fractile
-floor spectra per PGA.
+floor spectra per PGA, and the fragility curves stored by ``uplift fragility`` (one panel per
+limit state).
 """
 from __future__ import annotations
 
@@ -57,14 +59,16 @@ def summary_rows(results) -> list:
     rows = []
     for route, res in results.items():
         s = summary(res)
-        rows.append([route, f"{1e3 * s['max_uplift_m']:.4f}", f"{s['max_uplift_time_s']:.3f}",
-                     f"{s['max_raft_rotation_rad']:.4e}", f"{100 * s['min_contact_fraction']:.1f}",
+        axes = s["max_raft_rotation_axes_rad"]
+        rows.append([route, ", ".join(s["components"]) or "-", f"{1e3 * s['max_uplift_m']:.4f}",
+                     f"{s['max_uplift_time_s']:.3f}", f"{s['max_raft_rotation_rad']:.4e}",
+                     f"{axes['x']:.4e}", f"{axes['y']:.4e}", f"{100 * s['min_contact_fraction']:.1f}",
                      f"{s['wall_s']:.2f}", "yes" if s["converged"] else f"{s['status'].upper()}: {res.message}"])
     return rows
 
 
-SUMMARY_HEADER = ["route", "max uplift (mm)", "at t (s)", "max raft rotation (rad)",
-                  "min contact (%)", "wall (s)", "converged"]
+SUMMARY_HEADER = ["route", "components", "max uplift (mm)", "at t (s)", "max raft rotation sqrt(rx²+ry²) (rad)",
+                  "max |rx| (rad)", "max |ry| (rad)", "min contact (%)", "wall (s)", "converged"]
 
 
 def comparison_rows(cmp: dict) -> list:
@@ -102,8 +106,8 @@ def write_report(results_path, directory, reference: str | None = None) -> Path:
              f"<style>{STYLE}</style></head><body>",
              f"<h1>Foundation uplift: scene <code>{esc(scene)}</code></h1>",
              f"<p>Results file <code>{esc(str(results_path))}</code>, written {esc(created)}"
-             + (f"; motion: {esc(motion.label)}, {motion.acc.shape[0]} samples at {1e3 * motion.dt:g} ms"
-                if motion is not None else "") + ".</p>",
+             + (f"; motion: {esc(motion.label)}, components {esc(', '.join(motion.components))}, "
+                f"{motion.acc.shape[0]} samples at {1e3 * motion.dt:g} ms" if motion is not None else "") + ".</p>",
              "<h2>Routes</h2><ul>"
              + "".join(f"<li><b>{esc(r)}</b>: {esc(route_note(r))}</li>"
                        for r in results) + "</ul>",
@@ -112,9 +116,10 @@ def write_report(results_path, directory, reference: str | None = None) -> Path:
              "<p>Relative differences (route − reference) / reference; floor-spectrum peaks: "
              f"{100 * cmp['damping']:.0f} % damped pseudo-acceleration, largest difference over output "
              "nodes and directions.</p>", _table(COMPARISON_HEADER, comparison_rows(cmp)),
-             "<h2>Figures</h2><p>Per route: uplift at the raft edges and raft displacements (paper fig. 3-4), "
-             "floor response spectra (fig. 5-6); dashed: the <code>linear</code> route (no uplift) "
-             "when present.</p>"]
+             "<h2>Figures</h2><p>Per route: uplift at the raft edges along x and y, the raft's vertical "
+             "displacements (edges and centre) and its rocking about x and y with the magnitude "
+             "sqrt(rx² + ry²) (paper fig. 3-4), floor response spectra in x, y and z (fig. 5-6); dashed: "
+             "the <code>linear</code> route (no uplift) when present.</p>"]
     parts += _images(figures)
     return _write_page(directory, parts)
 
@@ -224,6 +229,34 @@ ENSEMBLE_HEADER = ["PGA (g)", "route", "converged", "max uplift median (mm)", "m
                    "min contact 16 % (%)", "median wall (s)"]
 
 
+FRAGILITY_HEADER = ["limit state", "route", "median (g)", "beta", "ln L", "median band, bootstrap (g)",
+                    "exceedances per PGA", "left out"]
+
+
+def fragility_parts(path, directory: Path) -> list:
+    """The page's fragility section: the fits stored in the ensemble file by ``uplift
+    fragility`` (a table and one panel per limit state, also ``directory/fragility.png``)."""
+    from orchestrator import fragility as frag  # scipy.optimize: only ensemble reports pay it
+    fits = frag.read_fragility(path)
+    if fits is None:
+        return ["<h2>Fragility</h2><p>None stored: <code>uplift fragility FILE --limit 'max_uplift &gt; 5 mm'</code> "
+                "fits one.</p>"]
+    rows = []
+    for e in frag.fragility_json(fits)["fragility"]:
+        counts = ", ".join(f"{p:g} g: {z}/{n}" for p, z, n in zip(e["pga_g"], e["exceedances"], e["cells"]))
+        left = ", ".join(f"{v} {k}" for k, v in e["left_out"].items() if v) or "none"
+        fit = ([f"{e['median_g']:.4g}", f"{e['beta']:.3f}", f"{e['log_likelihood']:.4g}"] if e["identifiable"]
+               else [f"not identifiable: {e['reason']}", "-", "-"])
+        bs = e["bootstrap"]
+        band = (f"{bs['median_g'][0]:.3g}-{bs['median_g'][1]:.3g} ({100 * bs['confidence']:g} %, "
+                f"{bs['identified']}/{bs['samples']})" if bs and bs["median_g"] else "-")
+        rows.append([e["limit"], e["route"], *fit, band, counts, left])
+    figure = _save_figures([("fragility", frag.fragility_figure(fits))], directory)
+    return ["<h2>Fragility</h2><p>Maximum-likelihood lognormal fits P(exceed | PGA) = &Phi;(ln(PGA / median) "
+            "/ beta) on the exceedances of the converged cells per PGA (dots: the observed fractions z/n).</p>",
+            _table(FRAGILITY_HEADER, rows)] + _images(figure)
+
+
 def write_ensemble_report(path, directory) -> Path:
     """Write ``directory/report.html`` (self-contained) for an ensemble file of ``uplift
     ensemble``: the fractiles per PGA and route, the runs that did not converge and why, the
@@ -254,4 +287,4 @@ def write_ensemble_report(path, directory) -> Path:
              + (_table(["record", "PGA (g)", "route", "status", "why"], others) if others else "<p>None.</p>"),
              "<h2>Figures</h2>"]
     parts += _images(figures)
-    return _write_page(directory, parts)
+    return _write_page(directory, parts + fragility_parts(path, directory))

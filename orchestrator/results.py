@@ -3,7 +3,7 @@
 Layout (open it with h5py; every array is in SI units)::
 
     /                       attrs: scene, created, sha256 (checksum of the file's content)
-    /motion/acc (nt, 3)     ground acceleration, m/s²; attrs: dt, label
+    /motion/acc (nt, 3)     ground acceleration, m/s²; attrs: dt, label, components ("x,y,z")
     /routes/<route>/        attrs: status (converged | stopped | refused), message, wall_s,
                                    notes (JSON: skipped, warnings, precheck, timings), info (JSON)
         time (nt,)  raft (nt, 6)  gap (nt, N)  contact_force (nt, N)  soil_w (nt, N)
@@ -94,6 +94,7 @@ def write_results(path, results: dict, motion=None, scene_name: str = "") -> Pat
             m = f.create_group("motion")
             m.create_dataset("acc", data=motion.acc)
             m.attrs["dt"], m.attrs["label"] = motion.dt, motion.label
+            m.attrs["components"] = ",".join(motion.components)
         routes = f.create_group("routes")
         for name, res in results.items():
             g = routes.create_group(name)
@@ -165,12 +166,16 @@ def read_motion(path):
         motion = None
         if "motion" in f:
             m = f["motion"]
-            motion = Motion(float(m.attrs["dt"]), m["acc"][()], str(m.attrs.get("label", "motion")))
+            axes = tuple(a for a in str(m.attrs.get("components", "")).split(",") if a)
+            motion = Motion(float(m.attrs["dt"]), m["acc"][()], str(m.attrs.get("label", "motion")), axes)
         return str(f.attrs.get("scene", "")), str(f.attrs.get("created", "")), motion
 
 
 def summary(res) -> dict:
-    """The per-route summary of ``uplift run --json`` (see the CLI docs)."""
+    """The per-route summary of ``uplift run --json`` (see the CLI docs). ``components``: the
+    motion's components the route ran (``run_scene`` records them in the result's info; empty
+    for a refused route); ``max_raft_rotation_rad``: the peak rocking magnitude
+    sqrt(rx² + ry²), with the per-axis peaks |rx|, |ry| in ``max_raft_rotation_axes_rad``."""
     gap = np.asarray(res.gap)
     if gap.size:
         k = np.unravel_index(np.argmax(gap), gap.shape)
@@ -179,12 +184,15 @@ def summary(res) -> dict:
     else:
         max_uplift, t_uplift, min_contact = 0.0, 0.0, 1.0
     rot = np.hypot(res.raft[:, 3], res.raft[:, 4])
+    peak = lambda a: float(np.abs(a).max()) if a.size else 0.0
     return {
         "status": res.status.value,
         "message": res.message,
+        "components": list(res.info.get("components", ())),
         "max_uplift_m": max_uplift,
         "max_uplift_time_s": t_uplift,
-        "max_raft_rotation_rad": float(rot.max()) if rot.size else 0.0,
+        "max_raft_rotation_rad": peak(rot),
+        "max_raft_rotation_axes_rad": {"x": peak(res.raft[:, 3]), "y": peak(res.raft[:, 4])},
         "min_contact_fraction": min_contact,
         "peak_acc_g": {name: float(np.abs(a).max() / G) if a.size else 0.0 for name, a in res.acc.items()},
         "wall_s": float(res.wall_s),

@@ -209,7 +209,8 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
                 res = res.with_notes(**dt_notes)
             if route.needs_fit and "fit" in ctx.shared and not ctx.fit().report.tol_reached:
                 res = res.with_notes(warnings=[f"rational soil fit: {ctx.fit().report.message}"])
-            results[route.name] = res.with_notes(skipped=_shared_skips(scene, route, sweep, ctx))
+            ran = {} if res.status is Status.REFUSED else {"components": list(motion.components)}
+            results[route.name] = res.with_notes(skipped=_shared_skips(scene, route, sweep, ctx), info=ran)
     return results, motion
 
 

@@ -31,8 +31,8 @@ except ModuleNotFoundError:  # Python < 3.11
 
 import numpy as np
 
-from orchestrator.motion import (DIRECTIONS, FORMATS, SPECTRA, SYNTHETIC_DT, UNITS, G, Motion, MotionError,
-                                 read_record)
+from orchestrator.motion import (DIRECTIONS, FORMATS, SPECTRA, SYNTHETIC_DT, UNITS, VERTICAL_RATIO, G, Motion,
+                                 MotionError, check_components, read_components, read_record)
 from orchestrator.routes import get_route, route_names
 from soil_impedance.mesh import InterfaceMesh, MeshError, circle_mesh, read_nodes_csv, rectangle_mesh
 from soil_impedance.profile import DAMPING_MODELS, Layer, Material, SoilError, SoilProfile
@@ -72,16 +72,24 @@ MAX_PGA_G = 5.0
 
 @dataclass(frozen=True)
 class MotionConfig:
-    """[motion]: a synthetic spectrum-compatible record or a recorded accelerogram, on one axis.
+    """[motion]: a synthetic spectrum-compatible record or recorded accelerograms, on one axis
+    (``direction``) or on several at once (``components``).
 
-    kind "synthetic": spectrum, pga_g (> 0, g), duration_s (> 0, s), seed (an integer >= 0)
-    (orchestrator.motion.synthetic_motion). kind "record": file (an absolute path, resolved
-    against the scene folder by the loader; it must exist and read), format "two-column" |
-    "peer-at2", units "g" | "m/s2", scale (a finite nonzero factor). ``record`` is the Motion
-    read at construction (at the record's own step)."""
+    direction : "x" | "y" | "z", one component (the default, "x", when components is not given);
+    None when ``components`` is given (the two are exclusive).
+    components : synthetic: a non-empty subset of "x", "y", "z" (independent components, see
+    orchestrator.motion.synthetic_components), kept as a tuple of axes in x, y, z order;
+    record: {axis: file} (absolute paths, resolved against the scene folder by the loader),
+    kept as a tuple of (axis, Path) pairs in x, y, z order.
+    kind "synthetic": spectrum, pga_g (> 0, g: the peak of each horizontal), duration_s (> 0,
+    s), seed (an integer >= 0), vertical_ratio (the vertical's peak over pga_g, in (0, 2],
+    default 2/3; only with "z" among the components). kind "record": file (with direction) or
+    components, format "two-column" | "peer-at2", units "g" | "m/s2", scale (a finite nonzero
+    factor, on every component). ``record`` is the Motion read at construction (at the
+    records' own step)."""
 
     kind: str = "synthetic"
-    direction: str = "x"
+    direction: str | None = None
     spectrum: str = "RG1.60"
     pga_g: float = 0.25
     duration_s: float = 10.0
@@ -90,11 +98,13 @@ class MotionConfig:
     format: str = "two-column"
     units: str = "g"
     scale: float = 1.0
+    components: tuple | None = None
+    vertical_ratio: float | None = None
     record: Motion | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         _choice("motion.kind", self.kind, ("synthetic", "record"))
-        _choice("motion.direction", self.direction, DIRECTIONS)
+        self._check_axes()
         if self.kind == "synthetic":
             _choice("motion.spectrum", self.spectrum, SPECTRA)
             _set(self, "pga_g", _number("motion.pga_g", self.pga_g, 0.0, expect="a peak ground acceleration > 0 g"))
@@ -106,24 +116,92 @@ class MotionConfig:
         if not _number("motion.scale", self.scale, expect="a finite nonzero factor"):
             raise SceneError(f"motion.scale = {show(self.scale)} must be a finite nonzero factor")
         _set(self, "scale", float(self.scale))
-        if self.file is None:
-            raise SceneError('motion.file is missing for kind = "record": give the record file '
-                             "(a path relative to the scene file)")
-        if not isinstance(self.file, (str, Path)) or not Path(self.file).is_absolute():
-            raise SceneError(f"motion.file = {show(self.file)} must be an absolute path here "
-                             "(the scene loader resolves it against the scene folder)")
-        _set(self, "file", Path(self.file))
-        if not self.file.is_file():
-            raise SceneError(f"motion.file = {str(self.file)!r}: no such file (paths are relative to the scene file)")
+        if self.components is None:
+            if self.file is None:
+                raise SceneError('motion.file is missing for kind = "record": give the record file '
+                                 "(a path relative to the scene file), or components = { x = ..., y = ..., z = ... }")
+            _set(self, "file", _record_path("motion.file", self.file))
+        where = "motion.file" if self.components is None else "motion.components"
         try:
-            _set(self, "record", read_record(self.file, self.format, self.units, self.scale, self.direction))
+            if self.components is None:
+                _set(self, "record", read_record(self.file, self.format, self.units, self.scale, self.direction))
+            else:
+                _set(self, "record", read_components(self.components, self.format, self.units, self.scale))
         except MotionError as exc:
-            raise SceneError(f"motion.file: {exc}") from None
+            raise SceneError(str(exc) if str(exc).startswith(where) else f"{where}: {exc}") from None
+
+    def _check_axes(self):
+        """direction or components (exclusive), normalised; vertical_ratio with a synthetic z only."""
+        if self.components is None:
+            _set(self, "direction", "x" if self.direction is None else self.direction)
+            _choice("motion.direction", self.direction, DIRECTIONS)
+        elif self.direction is not None:
+            raise SceneError("motion: give direction (one component, with file for a record) or components "
+                             "(several at once), not both")
+        elif self.kind == "synthetic":
+            if isinstance(self.components, dict):
+                raise SceneError(f"motion.components = {show(self.components)}: a synthetic motion takes a list "
+                                 'of axes, e.g. components = ["x", "y", "z"] (files are for kind = "record")')
+            _set(self, "components", _checked(check_components, self.components))
+        else:
+            pairs = self.components
+            if isinstance(pairs, dict):
+                pairs = tuple(pairs.items())
+            elif not (isinstance(pairs, (list, tuple)) and all(isinstance(p, (list, tuple)) and len(p) == 2
+                                                                 for p in pairs)):
+                raise SceneError(f"motion.components = {show(self.components)}: a record takes one file per "
+                                 'component, e.g. components = { x = "H1.AT2", y = "H2.AT2", z = "UP.AT2" }')
+            files = dict(pairs)
+            axes = _checked(check_components, list(files))
+            if self.file is not None:
+                raise SceneError("motion: give file (with direction) or components = { x = ..., ... }, not both")
+            _set(self, "components", tuple((a, _record_path(f"motion.components.{a}", files[a])) for a in axes))
+        if self.vertical_ratio is not None:
+            if self.kind != "synthetic" or "z" not in self.axes or self.direction is not None:
+                raise SceneError("motion.vertical_ratio scales the synthetic vertical component: it goes with "
+                                 'kind = "synthetic" and "z" in components (with direction = "z", pga_g is the '
+                                 "vertical peak); remove it")
+            _set(self, "vertical_ratio", _number("motion.vertical_ratio", self.vertical_ratio, 0.0, 2.0,
+                                                 expect="the vertical peak over pga_g, in (0, 2], e.g. 0.667"))
+        elif self.kind == "synthetic" and self.direction is None and "z" in self.axes:
+            _set(self, "vertical_ratio", VERTICAL_RATIO)
+
+    @property
+    def axes(self) -> tuple[str, ...]:
+        """The components that carry a motion, in x, y, z order."""
+        if self.direction is not None:
+            return (self.direction,)
+        return tuple(c if isinstance(c, str) else c[0] for c in self.components)
+
+    @property
+    def files(self) -> tuple:
+        """Record files as (axis, Path) pairs (empty for a synthetic motion)."""
+        if self.kind != "record":
+            return ()
+        return ((self.direction, self.file),) if self.direction is not None else self.components
 
     @property
     def length_s(self) -> float:
         """Duration of the motion, s."""
         return self.duration_s if self.kind == "synthetic" else self.record.duration
+
+
+def _checked(check, value):
+    """check(value), its MotionError as a SceneError."""
+    try:
+        return check(value)
+    except MotionError as exc:
+        raise SceneError(str(exc)) from None
+
+
+def _record_path(where: str, path) -> Path:
+    """An absolute path to an existing record file (the loader resolves relative ones)."""
+    if not isinstance(path, (str, Path)) or not Path(path).is_absolute():
+        raise SceneError(f"{where} = {show(path)} must be an absolute path here "
+                         "(the scene loader resolves it against the scene folder)")
+    if not Path(path).is_file():
+        raise SceneError(f"{where} = {str(path)!r}: no such file (paths are relative to the scene file)")
+    return Path(path)
 
 
 @dataclass(frozen=True)
@@ -275,10 +353,15 @@ class Scene:
     def _check_intensity(self):
         """Refuse a motion whose peak ground acceleration exceeds [analysis].max_pga_g."""
         m, limit = self.motion, self.analysis.max_pga_g
-        peak = m.pga_g if m.kind == "synthetic" else float(np.max(m.record.pga)) / G
+        if m.kind == "synthetic":
+            vertical = m.vertical_ratio if m.vertical_ratio is not None else 1.0      # set with a z component
+            peak = m.pga_g * max(1.0, vertical)
+            what = (f"motion.pga_g = {m.pga_g:g}" if peak == m.pga_g else
+                    f"motion.pga_g = {m.pga_g:g} with vertical_ratio = {vertical:g} peaks at {peak:.4g} g, which")
+        else:
+            peak = float(np.max(m.record.pga)) / G
+            what = f"motion.scale = {m.scale:g} makes the record peak at {peak:.4g} g, which"
         if peak > limit * (1 + 1e-9):          # a record scaled to the limit exactly passes
-            what = (f"motion.pga_g = {peak:g}" if m.kind == "synthetic" else
-                    f"motion.scale = {m.scale:g} makes the record peak at {peak:.4g} g, which")
             raise SceneError(f"{what} exceeds the intensity limit analysis.max_pga_g = {limit:g} g: check the "
                              "value (g, not m/s2?), or raise the limit (--max-pga on the command line)")
 
@@ -406,19 +489,31 @@ def _config(cls, table: dict, section: str):
     return cls(**table)
 
 
-MOTION_KEYS = {"synthetic": ("kind", "direction", "spectrum", "pga_g", "duration_s", "seed"),
-               "record": ("kind", "direction", "file", "format", "units", "scale")}
+MOTION_KEYS = {"synthetic": ("kind", "direction", "components", "spectrum", "pga_g", "vertical_ratio",
+                             "duration_s", "seed"),
+               "record": ("kind", "direction", "file", "components", "format", "units", "scale")}
 
 
 def _motion(table: dict, base_dir: Path) -> MotionConfig:
     kind = _choice("motion.kind", table.get("kind", "synthetic"), tuple(MOTION_KEYS))
     _check_keys(table, MOTION_KEYS[kind], "motion")
+    if "components" in table and "direction" in table:
+        raise SceneError("motion: give direction (one component) or components (several at once), not both; "
+                         'e.g. components = ["x", "y", "z"] alone')
+    resolve = lambda where, f: _resolve(where, f, base_dir)
     if "file" in table:
-        if not isinstance(table["file"], str) or not table["file"]:
-            raise SceneError(f"motion.file = {show(table['file'])} must be a path (a string, relative "
-                             "to the scene file)")
-        table = {**table, "file": (base_dir / table["file"]).resolve()}
+        table = {**table, "file": resolve("motion.file", table["file"])}
+    comps = table.get("components")
+    if kind == "record" and isinstance(comps, dict):
+        table = {**table, "components": {a: resolve(f"motion.components.{a}", f) for a, f in comps.items()}}
     return MotionConfig(**table)
+
+
+def _resolve(where: str, file, base_dir: Path) -> Path:
+    """A record path of the scene, resolved against the scene folder."""
+    if not isinstance(file, str) or not file:
+        raise SceneError(f"{where} = {show(file)} must be a path (a string, relative to the scene file)")
+    return (base_dir / file).resolve()
 
 
 def _winkler(table) -> WinklerConfig:

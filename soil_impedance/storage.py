@@ -159,7 +159,11 @@ def _update_value(h, value, f=None) -> None:
     references are hashed by the name of the object they point at in ``f`` (their bytes are
     addresses), compound values field by field."""
     if isinstance(value, h5py.Reference):
-        h.update(b"ref " + (f[value].name.encode() if value and f is not None else b""))
+        try:                                    # an object unlinked since (e.g. a replaced group) has no name
+            name = (f[value].name if value and f is not None else "") or "(unlinked)"
+        except (KeyError, ValueError):
+            name = "(dangling)"
+        h.update(b"ref " + name.encode())
         return
     a = np.asarray(value)
     h.update(f"{a.shape}".encode())

@@ -12,3 +12,12 @@ def exported(tmp_path_factory):
     scene = small_scene()
     return export_scene(scene, tmp_path_factory.mktemp("export"), soil_model(scene), motion=EXPORT_MOTION,
                         kind="python")
+
+
+@pytest.fixture(scope="session")
+def exported_native(tmp_path_factory):
+    """The same export as ``exported`` as native FMUs (linux64, win64, darwin64 binaries)."""
+    from orchestrator.export import export_scene
+    scene = small_scene()
+    return export_scene(scene, tmp_path_factory.mktemp("export_native"), soil_model(scene), motion=EXPORT_MOTION,
+                        kind="native")

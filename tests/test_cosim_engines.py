@@ -102,3 +102,63 @@ def test_pair_fmu_refuses_another_step(case):
     exp, _ = case
     with pytest.raises(Exception, match="fmi2DoStep failed with status 4"):
         simulate_fmu(str(exp.structure), output=["max_uplift"], output_interval=2 * exp.dt)
+
+
+@pytest.fixture(scope="module")
+def mono_export_motion():
+    from cosim_cases import EXPORT_MOTION
+    return run_monolithic(SCENE, EXPORT_MOTION, MODEL)
+
+
+@pytest.mark.parametrize("kind", ["python", "native"])
+@pytest.mark.parametrize("drift", [0.0, -1e-13])
+def test_omsimulator_stepping_of_the_ssp(exported, exported_native, mono_export_motion, tmp_path, kind, drift):
+    """What OMSimulator does with system.ssp (its fixed-step master, read from the annotation):
+    the stop time given to fmi2SetupExperiment, both FMUs stepped from the outputs at t
+    (Jacobi), the time accumulated by repeated addition of its step h and the last step
+    min(h, stop - t). With h = dt the accumulated time overshoots by round-off; with
+    h = dt (1 - 1e-13) (a host whose step is dt to round-off, as OMSimulator's accumulated time
+    2.499999999999969 s at a stop of 2.5 s) each step is taken as dt and the run ends with a
+    sliver step of about 6e-14 s, a no-op. The structure's outputs: the monolithic route to 1e-8."""
+    import xml.etree.ElementTree as ET
+    import zipfile
+    from orchestrator.export import OMS, SSC, SSD
+    from orchestrator.master import FmuSlave
+
+    exp = {"python": exported, "native": exported_native}[kind]
+    mono = mono_export_motion
+    with zipfile.ZipFile(exp.ssp) as z:
+        z.extractall(tmp_path)
+    root = ET.parse(tmp_path / "SystemStructure.ssd").getroot()
+    master = root.find(f"./{{{SSD}}}System/{{{SSD}}}Annotations/{{{SSC}}}Annotation/{{{OMS}}}Annotations/"
+                       f"{{{OMS}}}SimulationInformation/{{{OMS}}}FixedStepMaster")
+    h = float(master.get("stepSize")) * (1 + drift)
+    assert master.get("description") == "oms-ma" and h == pytest.approx(exp.dt, rel=1e-12)
+    stop = float(root.find(f"{{{SSD}}}DefaultExperiment").get("stopTime"))
+    sources = {c.get("name"): tmp_path / c.get("source") for c in root.iter(f"{{{SSD}}}Component")}
+    links = [(c.get("startElement"), c.get("startConnector"), c.get("endElement"), c.get("endConnector"))
+             for c in root.iter(f"{{{SSD}}}Connection")]
+    slaves = {name: FmuSlave(src, name) for name, src in sources.items()}
+    try:
+        for s in slaves.values():
+            s.initialize(stop_time=stop)
+        t, rows, slivers = 0.0, [slaves["structure"].get("x").copy()[:6]], 0
+        while t < stop:
+            step = min(h, stop - t)
+            values = [slaves[a].fmu.getReal([slaves[a].vars[va].valueReference])[0] for a, va, _, _ in links]
+            for (_, _, b, vb), value in zip(links, values):                    # outputs at t to inputs
+                slaves[b].fmu.setReal([slaves[b].vars[vb].valueReference], [value])
+            for s in slaves.values():
+                s.do_step(t, step)
+            slivers += step < 1e-6 * exp.dt
+            t += step
+            if step >= 1e-6 * exp.dt:
+                rows.append(slaves["structure"].get("x").copy()[:6])
+        final = slaves["structure"].get("max_uplift", "max_raft_rotation").copy()
+    finally:
+        for s in slaves.values():
+            s.close()
+    assert slivers == (1 if drift else 0)
+    assert rel(np.array(rows), mono.raft) <= 1e-8
+    assert final[0] == pytest.approx(mono.max_uplift(), rel=1e-8, abs=1e-15)
+    assert final[1] == pytest.approx(max_rotation(mono), rel=1e-8)

@@ -67,7 +67,7 @@ def test_every_schedule_equals_monolithic(mono, factory, schedule):
 def test_history_gains_split_the_history_exactly():
     """h_{k+2} = g_{k+2} + Gx x_{k+1} + Gv xdot_{k+1} on a random run of the soil, and the
     structure's own part is not negligible (without it the coupling would be one step late)."""
-    from fmus.common import history_ahead, history_gains
+    from fmus.coupling import history_ahead, history_gains
     from soil_impedance.convolution import RecursiveConvolutionSoil
     soil = RecursiveConvolutionSoil(MODEL, MOTION.dt)
     Gx, Gv = history_gains(soil, MOTION.dt)

@@ -37,7 +37,7 @@ ERRORS = _project_errors()
 def test_the_walk_finds_the_known_errors():
     names = {n.rsplit(".", 1)[1] for n in ERRORS}
     assert {"SceneError", "EnsembleError", "ChangedFileError", "OutputPathError", "SetupError", "ConvergenceError",
-            "CosimError", "MeshError", "NativeBuildError", "StepRefused"} <= names
+            "CosimError", "MeshError", "NativeBuildError", "StepRefused", "StateRefused", "FragilityError"} <= names
 
 
 @pytest.mark.parametrize("name", sorted(ERRORS))

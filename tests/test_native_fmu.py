@@ -14,7 +14,7 @@ rational soil with a history force), exported once per module in both kinds. Che
 - step halving (Newton limited to 2 iterations): the coupled FMU against the in-process
   stepper, the pair against the in-process split coupling, to 1e-10; a step that cannot
   converge is refused with the stepper's message;
-- a plain C program (fmus/native/host.c: dlopen, no Python in the process) runs coupled.fmu
+- a plain C program (tests/native/host.c: dlopen, no Python in the process) runs coupled.fmu
   (max uplift equal to monolithic to 1e-10, no allocation inside fmi2DoStep) and makes hostile
   calls (each refused with a status and a log message, the host survives), rolls back through
   a serialised state bit-identically; a damaged resource file is refused at instantiation.
@@ -32,7 +32,7 @@ import pytest
 from fmpy import read_model_description
 
 from cosim_cases import pulse_motion, small_scene, soil_model
-from fmus.native_build import (NATIVE, PLATFORMS, SOURCES, build_native_fmus, decode_resources,
+from fmus.native_build import (PLATFORMS, SOURCES, build_native_fmus, decode_resources,
                                encode_resources, fmi_headers)
 from orchestrator.export import export_scene, fmu_data
 from orchestrator.master import FmuSlave, cosimulate
@@ -129,7 +129,7 @@ def host(tmp_path_factory):
     if sys.platform != "linux" or cc is None:
         pytest.skip("the C host test needs Linux and a C compiler")
     exe = tmp_path_factory.mktemp("host") / "host"
-    subprocess.run([cc, "-O1", "-rdynamic", f"-I{fmi_headers()}", str(NATIVE / "host.c"), "-o", str(exe), "-ldl",
+    subprocess.run([cc, "-O1", "-rdynamic", f"-I{fmi_headers()}", str(Path(__file__).parent / "native" / "host.c"), "-o", str(exe), "-ldl",
                     "-lm"], check=True, capture_output=True, text=True)
     return exe
 
@@ -162,6 +162,7 @@ def test_variables_are_those_of_the_python_fmus(case):
         assert {f"sources/{s}" for s in listed} == {f"sources/{s}" for s in SOURCES} <= names
         assert {f"binaries/{p}/{a.coSimulation.modelIdentifier}.{PLATFORMS[p][1]}" for p in PLATFORMS} <= names
         assert not any(n.endswith((".py", ".npz")) for n in names)           # no Python in the FMU
+        assert not any(n.endswith("host.c") for n in names)                 # the test host is not shipped
 
 
 def test_binaries_need_no_python(case, tmp_path):
@@ -353,7 +354,7 @@ def _contact(data, max_iter):
 
 def test_step_halving_coupled_equals_the_stepper(halving):
     from fmpy import simulate_fmu
-    from fmus.common import soil_from_model
+    from fmus.resources import soil_from_model
     from structure import simulate
     data, fmus = halving
     ref = simulate(SCENE.model(), soil_from_model(MODEL, DT), MOTION.acc, DT, contact=_contact(data, 2),
@@ -365,7 +366,8 @@ def test_step_halving_coupled_equals_the_stepper(halving):
 
 
 def test_step_halving_pair_equals_the_split_in_process(halving):
-    from fmus.common import history_ahead, history_gains, soil_from_model
+    from fmus.coupling import history_ahead, history_gains
+    from fmus.resources import soil_from_model
     from structure import NewmarkStepper
     data, fmus = halving
     soil = soil_from_model(MODEL, DT)                                # the soil FMU's
@@ -389,7 +391,7 @@ def test_step_halving_pair_equals_the_split_in_process(halving):
 
 
 def test_a_step_that_cannot_converge_is_refused_with_the_steppers_message(halving):
-    from fmus.common import soil_from_model
+    from fmus.resources import soil_from_model
     from orchestrator.master import CosimError
     from structure import ConvergenceError, simulate
     data, fmus = halving

@@ -48,14 +48,17 @@ def test_run_json_and_results_file(tmp_path, capsys):
     out = tmp_path / "res.h5"
     assert main(["run", str(_scene(tmp_path)), "-o", str(out), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)["routes"]["winkler"]
-    assert set(summary) == {"status", "message", "max_uplift_m", "max_uplift_time_s", "max_raft_rotation_rad",
-                            "min_contact_fraction", "peak_acc_g", "wall_s", "converged", "skipped",
-                            "precheck", "warnings", "timings"}
+    assert set(summary) == {"status", "message", "components", "max_uplift_m", "max_uplift_time_s",
+                            "max_raft_rotation_rad", "max_raft_rotation_axes_rad", "min_contact_fraction",
+                            "peak_acc_g", "wall_s", "converged", "skipped", "precheck", "warnings", "timings"}
+    assert summary["components"] == ["x"]
     assert summary["status"] == "converged" and summary["message"] == ""
     res = read_results(out)["winkler"]
     # the summary is what the file holds
     assert summary["max_uplift_m"] == pytest.approx(res.gap.max())
     assert summary["max_raft_rotation_rad"] == pytest.approx(np.hypot(res.raft[:, 3], res.raft[:, 4]).max())
+    assert summary["max_raft_rotation_axes_rad"] == pytest.approx({"x": np.abs(res.raft[:, 3]).max(),
+                                                                   "y": np.abs(res.raft[:, 4]).max()})
     assert summary["peak_acc_g"]["top"] == pytest.approx(np.abs(res.acc["top"]).max() / 9.81)
     assert summary["max_uplift_m"] > 0 and summary["min_contact_fraction"] < 1
     assert np.all(np.isfinite(res.raft))

@@ -10,7 +10,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from soil_impedance.storage import atomic_output, require_checksum, stamp_file
+from soil_impedance.storage import CHECKSUM_ATTR, atomic_output, require_checksum, stamp_file
 from structure.results import Status
 
 from orchestrator.results import ResultsFileError, check_output_path
@@ -118,7 +118,9 @@ def read_ensemble(path, group: str | None = None):
     with h5py.File(path, "r") as f:
         require_checksum(f, path, "run `uplift ensemble` again with another -o to make a good one")
     with xr.open_dataset(path, engine="h5netcdf", group=group) as ds:
-        return ds.load()
+        ds = ds.load()
+    ds.attrs.pop(CHECKSUM_ATTR, None)          # the file's, not the data's: it changes with an append
+    return ds
 
 
 def ensemble_summary(ds) -> dict:

@@ -13,10 +13,6 @@ import tempfile
 import time
 from pathlib import Path
 
-from fmus.build import build_fmus
-
-from orchestrator.export import fmu_data
-from orchestrator.master import cosimulate
 from orchestrator.routes.base import Route, register
 from orchestrator.routes.monolithic import route_inputs
 
@@ -37,6 +33,10 @@ def run_cosim(scene, motion=None, soil_model=None, *, schedule: str = "gauss-sei
     time per part: FMU build, initialisation, structure step, soil step, transfers; the build
     is not in ``wall_s``) and ``info["timing_cpu"]`` (CPU time per part).
     """
+    # the FMU stack loads only when the route runs (`uplift --help` and scenes stay light):
+    from fmus.build import build_fmus               # pythonfmu
+    from orchestrator.export import fmu_data        # fmpy, the native builder
+    from orchestrator.master import cosimulate      # fmpy
     motion, soil_model, dt = route_inputs(scene, motion, soil_model, dt, cache_dir)
     with tempfile.TemporaryDirectory(prefix="uplift_cosim_") as tmp:
         out = Path(workdir) if workdir is not None else Path(tmp)

@@ -9,7 +9,7 @@ API::
 """
 from __future__ import annotations
 
-from fmus.common import DEFAULT_SOIL_FACTORY, soil_from_model
+from fmus.resources import DEFAULT_SOIL_FACTORY, soil_from_model
 from structure import ConvergenceError, simulate
 
 from orchestrator.impedance import scene_fit

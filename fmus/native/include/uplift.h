@@ -2,7 +2,7 @@
 
    One runtime serves the three FMUs (soil, structure, coupled); the role, the model data and
    the layout of the variables come from resources/uplift.bin, written by fmus/native_build.py
-   (format: README.md beside this file). C standard library only (libc, libm); one instance
+   (format: fmus/native/README.md). C standard library only (libc, libm); one instance
    allocates all its memory in fmi2Instantiate, fmi2DoStep allocates nothing.
 
    Numerics (the same discrete equations as the Python FMUs, so the results agree to
@@ -14,7 +14,7 @@
                 (structure/newmark.py, NewmarkStepper)
      linalg.c   dense LU with partial pivoting, matrix-vector products
      resources.c the binary resource file
-     fmi2.c     the FMI 2.0 co-simulation entry points, life cycle, variables, FMU state
+     instance.c, model.c, variables.c, state.c, fmi2.c   the FMI 2.0 side (include/fmu.h)
 
    Units: SI throughout (m, rad, s, N, J). Matrices are dense, row-major. */
 #ifndef UPLIFT_H
@@ -22,6 +22,64 @@
 
 #include <stddef.h>
 #include <stdint.h>
+
+/* Symbols. Everything the runtime's files share is named up_*; entry points are the FMI 2.0
+   functions. A tool that compiles several FMUs' sources into one binary defines
+   FMI2_FUNCTION_PREFIX (as fmi2Functions.h asks of source-code FMUs, e.g. UpliftSoil_): the
+   FMI functions and every up_* symbol then carry that prefix, so that two runtimes linked
+   together do not collide. */
+#ifdef FMI2_FUNCTION_PREFIX
+#define UP_PASTE_(a, b) a##b
+#define UP_PASTE(a, b) UP_PASTE_(a, b)
+#define UP_SYM(name) UP_PASTE(FMI2_FUNCTION_PREFIX, name)
+#define up_check_refs UP_SYM(up_check_refs)
+#define up_crc32 UP_SYM(up_crc32)
+#define up_dot UP_SYM(up_dot)
+#define up_free_instance UP_SYM(up_free_instance)
+#define up_guard UP_SYM(up_guard)
+#define up_initial_state UP_SYM(up_initial_state)
+#define up_instance UP_SYM(up_instance)
+#define up_log_error UP_SYM(up_log_error)
+#define up_log_event UP_SYM(up_log_event)
+#define up_lu UP_SYM(up_lu)
+#define up_lu_solve UP_SYM(up_lu_solve)
+#define up_matvec UP_SYM(up_matvec)
+#define up_matvec2 UP_SYM(up_matvec2)
+#define up_matvec_add UP_SYM(up_matvec_add)
+#define up_norm UP_SYM(up_norm)
+#define up_num UP_SYM(up_num)
+#define up_res_f64 UP_SYM(up_res_f64)
+#define up_res_find UP_SYM(up_res_find)
+#define up_res_free UP_SYM(up_res_free)
+#define up_res_i64 UP_SYM(up_res_i64)
+#define up_res_load UP_SYM(up_res_load)
+#define up_res_scalar UP_SYM(up_res_scalar)
+#define up_setup UP_SYM(up_setup)
+#define up_slot_names UP_SYM(up_slot_names)
+#define up_soil_ahead UP_SYM(up_soil_ahead)
+#define up_soil_bind UP_SYM(up_soil_bind)
+#define up_soil_commit UP_SYM(up_soil_commit)
+#define up_soil_force UP_SYM(up_soil_force)
+#define up_soil_free UP_SYM(up_soil_free)
+#define up_soil_history UP_SYM(up_soil_history)
+#define up_soil_init UP_SYM(up_soil_init)
+#define up_soil_level UP_SYM(up_soil_level)
+#define up_soil_rest UP_SYM(up_soil_rest)
+#define up_soil_state_len UP_SYM(up_soil_state_len)
+#define up_soil_step UP_SYM(up_soil_step)
+#define up_step UP_SYM(up_step)
+#define up_stepper_bind UP_SYM(up_stepper_bind)
+#define up_stepper_energies UP_SYM(up_stepper_energies)
+#define up_stepper_free UP_SYM(up_stepper_free)
+#define up_stepper_gap UP_SYM(up_stepper_gap)
+#define up_stepper_init UP_SYM(up_stepper_init)
+#define up_stepper_prepare UP_SYM(up_stepper_prepare)
+#define up_stepper_rest UP_SYM(up_stepper_rest)
+#define up_stepper_state_len UP_SYM(up_stepper_state_len)
+#define up_stepper_step UP_SYM(up_stepper_step)
+#define up_var UP_SYM(up_var)
+#endif
+
 
 #define UP_MSG 1024           /* length of an error message buffer */
 #define UP_MAXLEV 31          /* step-halving levels: dt / 2**k, k = 0 .. max_subdiv <= 30 */

@@ -1,0 +1,284 @@
+/* Instantiation of a native uplift FMU: the resource file (resources.c), the GUID, the layout
+   of the variables (records vr.<slot> looked up by name, fmus/schema.py), the numerics and the
+   state block; messages to the host's logger. */
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fmu.h"
+
+const char *const up_slot_names[NSLOT] = {"x", "xdot", "x_time", "g", "g_time", "f", "dissipated_energy", "ag",
+                                          "P", "gap", "nodes", "energy", "newton_iters", "max_uplift",
+                                          "max_raft_rotation"};
+
+/* ---- messages -------------------------------------------------------------------------------- */
+static void emit(UpInstance *I, fmi2Status status, const char *category, const char *fmt, va_list ap)
+{
+    char raw[UP_MSG + 256], msg[2 * (UP_MSG + 256)];
+    vsnprintf(raw, sizeof raw, fmt, ap);
+    size_t k = 0;
+    for (const char *p = raw; *p && k + 2 < sizeof msg; p++) {   /* the message is a printf format */
+        if (*p == '%')
+            msg[k++] = '%';
+        msg[k++] = *p;
+    }
+    msg[k] = '\0';
+    if (I->logger)
+        I->logger(I->env, I->name, status, category, msg);
+}
+
+void up_log_error(UpInstance *I, const char *fmt, ...)
+{
+    va_list ap;
+    va_start(ap, fmt);
+    emit(I, fmi2Error, "logStatusError", fmt, ap);
+    va_end(ap);
+}
+
+void up_log_event(UpInstance *I, const char *fmt, ...)
+{
+    if (!I->logging)
+        return;
+    va_list ap;
+    va_start(ap, fmt);
+    emit(I, fmi2OK, "logEvents", fmt, ap);
+    va_end(ap);
+}
+
+/* the shortest decimal that reads back as v (as Python's repr) */
+const char *up_num(double v, char *buf)
+{
+    for (int p = 1; p <= 17; p++) {
+        snprintf(buf, 32, "%.*g", p, v);
+        if (strtod(buf, NULL) == v || !isfinite(v))
+            break;
+    }
+    return buf;
+}
+
+UpInstance *up_instance(fmi2Component c)
+{
+    UpInstance *I = (UpInstance *)c;
+    return I && I->magic == UP_INSTANCE_MAGIC ? I : NULL;
+}
+
+
+/* ---- set up ------------------------------------------------------------------------------------ */
+static uint64_t hash_text(const char *s)
+{
+    uint64_t h = 14695981039346656037ULL;
+    for (; *s; s++) {
+        h ^= (unsigned char)*s;
+        h *= 1099511628211ULL;
+    }
+    return h;
+}
+
+/* resources folder URI (file:///path, file:/path, or a plain path) -> path of uplift.bin */
+static int resource_path(const char *uri, char *out, size_t size)
+{
+    const char *p = uri;
+    if (strncmp(p, "file://", 7) == 0) {
+        p += 7;
+        if (strncmp(p, "localhost/", 10) == 0)
+            p += 9;
+    } else if (strncmp(p, "file:", 5) == 0) {
+        p += 5;
+    }
+    if (p[0] == '/' && p[1] && p[2] == ':')      /* /C:/... on Windows */
+        p++;
+    size_t k = 0;
+    for (; *p && k + 1 < size; p++) {
+        if (*p == '%' && p[1] && p[2]) {
+            char hex[3] = {p[1], p[2], 0};
+            char *end;
+            long v = strtol(hex, &end, 16);
+            if (*end == 0) {
+                out[k++] = (char)v;
+                p += 2;
+                continue;
+            }
+        }
+        out[k++] = *p;
+    }
+    while (k > 0 && (out[k - 1] == '/' || out[k - 1] == '\\'))
+        k--;
+    const char *file = "/uplift.bin";
+    if (k + strlen(file) + 1 > size)
+        return -1;
+    strcpy(out + k, file);
+    return 0;
+}
+
+static int int_scalar(UpInstance *I, const char *name, double lo, double hi, int64_t *v)
+{
+    double x;
+    if (up_res_scalar(&I->res, name, &x, I->err))
+        return -1;
+    if (!(x >= lo && x <= hi) || x != floor(x)) {
+        snprintf(I->err, UP_MSG, "resource file %s: %s = %g must be an integer in [%g, %g]: export the FMU again",
+                 I->res.path, name, x, lo, hi);
+        return -1;
+    }
+    *v = (int64_t)x;
+    return 0;
+}
+
+/* the layout of the Real variables: slots, their lengths, causalities */
+
+/* the layout of the Real variables: the first value reference of each slot (record vr.<name>,
+   -1 when the FMU has none), their lengths, the causalities */
+static int read_layout(UpInstance *I)
+{
+    int64_t n_real, dims[1];
+    if (int_scalar(I, "n_real", 1, 1e7, &n_real) || int_scalar(I, "vr_internal_motion", -1, 1e7, &I->vr_internal_motion))
+        return -1;
+    I->n_real = (int)n_real;
+    dims[0] = n_real;
+    if (!(I->causality = up_res_i64(&I->res, "causality", 1, dims, I->err)))
+        return -1;
+    int n = I->n, N = I->N;
+    const int len[NSLOT] = {n, n, 1, n, 1, n, 1, 3, N, N, 6 * I->nnodes, 7, 1, 1, 1};
+    for (int k = 0; k < NSLOT; k++) {
+        char rec[40];
+        snprintf(rec, sizeof rec, "vr.%s", up_slot_names[k]);
+        if (int_scalar(I, rec, -1, (double)n_real - 1, &I->slot[k]))
+            return -1;
+        I->slot_len[k] = I->slot[k] < 0 ? 0 : len[k];
+        if (I->slot[k] >= 0 && I->slot[k] + len[k] > n_real) {
+            snprintf(I->err, UP_MSG, "resource file %s: the variables %s lie outside the %d Real variables: export "
+                     "the FMU again", I->res.path, up_slot_names[k], I->n_real);
+            return -1;
+        }
+    }
+    static const int need[3][NSLOT] = {
+        {1, 1, 1, 1, 1, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0},
+        {1, 1, 1, 1, 1, 0, 0, 1, 1, 1, 0, 1, 1, 1, 1},
+        {1, 1, 0, 0, 0, 0, 0, 1, 1, 1, 0, 1, 1, 1, 1}};
+    for (int k = 0; k < NSLOT; k++)
+        if (need[I->role][k] && I->slot[k] < 0) {
+            snprintf(I->err, UP_MSG, "resource file %s: no variables %s: export the FMU again", I->res.path,
+                     up_slot_names[k]);
+            return -1;
+        }
+    for (int64_t k = 0; k < n_real; k++)
+        if (I->causality[k] != 0 && I->causality[k] != 1) {
+            snprintf(I->err, UP_MSG, "resource file %s: bad causality record: export the FMU again", I->res.path);
+            return -1;
+        }
+    return 0;
+}
+
+int up_setup(UpInstance *I, const char *guid, const char *uri)
+{
+    char path[1024];
+    if (!uri || resource_path(uri, path, sizeof path)) {
+        snprintf(I->err, UP_MSG, "fmuResourceLocation %s is not a file URI of the FMU's resources folder",
+                 uri ? uri : "(null)");
+        return -1;
+    }
+    if (up_res_load(&I->res, path, I->err))
+        return -1;
+    const UpRecord *g = up_res_find(&I->res, "guid");
+    if (!g || g->kind != UP_TEXT || !guid || strlen(guid) != g->nbytes || memcmp(guid, g->data, g->nbytes) != 0) {
+        snprintf(I->err, UP_MSG, "GUID %s does not match the resources (%s): the resources folder belongs to "
+                 "another FMU; extract this FMU again", guid ? guid : "(null)", I->res.path);
+        return -1;
+    }
+    I->guid_hash = hash_text(guid);
+    int64_t role, n, N = 0, nnodes = 0;
+    if (int_scalar(I, "role", 0, 2, &role) || int_scalar(I, "n_dof", 1, 1e6, &n)
+        || up_res_scalar(&I->res, "dt", &I->dt, I->err))
+        return -1;
+    if (!(I->dt > 0) || !isfinite(I->dt)) {
+        snprintf(I->err, UP_MSG, "resource file %s: dt must be > 0: export the FMU again", I->res.path);
+        return -1;
+    }
+    I->role = (int)role;
+    I->n = (int)n;
+    I->has_stepper = I->role != ROLE_SOIL;
+    if (I->has_stepper) {
+        int64_t dims[2] = {-1, 3};
+        if (int_scalar(I, "N", 0, 1e6, &N) || !(I->node_dofs = up_res_i64(&I->res, "node_dofs", 2, dims, I->err)))
+            return -1;
+        nnodes = dims[0];
+        if (up_res_find(&I->res, "motion")) {
+            dims[0] = -1;
+            if (!(I->motion = up_res_f64(&I->res, "motion", 2, dims, I->err)))
+                return -1;
+            I->nt = dims[0];
+            I->has_motion = I->nt > 0;
+        }
+    }
+    I->N = (int)N;
+    I->nnodes = (int)nnodes;
+    int64_t levels = 0;                         /* the soil's matrices at each halving level */
+    if (read_layout(I) || (I->has_stepper && int_scalar(I, "contact_max_subdiv", 0, UP_MAXLEV - 1, &levels)))
+        return -1;
+    if (up_soil_init(&I->soil, &I->res, I->n, (int)levels + 1, I->role != ROLE_STRUCTURE, I->err))
+        return -1;
+    if (I->has_stepper) {
+        if (up_stepper_init(&I->st, &I->res, &I->soil, I->role == ROLE_STRUCTURE, I->err))
+            return -1;
+        for (int k = 0; k < 3 * I->nnodes; k++)
+            if (I->node_dofs[k] < 0 || I->node_dofs[k] >= I->st.n) {
+                snprintf(I->err, UP_MSG, "resource file %s: node_dofs out of range: export the FMU again", I->res.path);
+                return -1;
+            }
+        I->st.err = I->err;
+    } else {
+        up_soil_level(&I->soil, 0, I->dt);
+    }
+    if (I->role == ROLE_STRUCTURE) {
+        int64_t dims[2] = {n, n};
+        if (!(I->Gx = up_res_f64(&I->res, "Gx", 2, dims, I->err)) || !(I->Gv = up_res_f64(&I->res, "Gv", 2, dims, I->err)))
+            return -1;
+    }
+    /* the state block: time, internal_motion, held_t, the variables, held inputs, stepper, soil */
+    I->held_len = I->role == ROLE_SOIL ? 2 * I->n : I->role == ROLE_STRUCTURE ? I->n : 0;
+    size_t st_len = I->has_stepper ? up_stepper_state_len(&I->st) : 0;
+    size_t soil_len = I->role == ROLE_STRUCTURE ? 0 : up_soil_state_len(&I->soil);
+    I->block_len = 3 + (size_t)I->n_real + (size_t)I->held_len + st_len + soil_len;
+    int nsaves = I->has_stepper ? I->st.nlev : 0;
+    I->block = (double *)calloc(I->block_len, sizeof(double));
+    I->backup = (double *)calloc(I->block_len, sizeof(double));
+    I->saves = (double *)calloc((size_t)nsaves * I->block_len + 1, sizeof(double));
+    I->tmp = (double *)calloc(4 * (size_t)I->n + 8, sizeof(double));
+    if (!I->block || !I->backup || !I->saves || !I->tmp) {
+        snprintf(I->err, UP_MSG, "out of memory for the FMU state (%zu values)", I->block_len);
+        return -1;
+    }
+    I->time = I->block;
+    I->internal_motion = I->block + 1;
+    I->held_t = I->block + 2;
+    I->bank = I->block + 3;
+    I->held = I->bank + I->n_real;
+    double *rest = I->held + I->held_len;
+    if (I->has_stepper) {
+        up_stepper_bind(&I->st, rest, I->block, I->block_len, I->saves);
+        rest += st_len;
+    }
+    if (soil_len)
+        up_soil_bind(&I->soil, rest);
+    *I->internal_motion = I->has_motion;
+    if (I->has_stepper && up_stepper_prepare(&I->st, I->err))
+        return -1;
+    return 0;
+}
+
+void up_free_instance(UpInstance *I)
+{
+    if (I->has_stepper)
+        up_stepper_free(&I->st);
+    up_soil_free(&I->soil);
+    up_res_free(&I->res);
+    free(I->block);
+    free(I->backup);
+    free(I->saves);
+    free(I->tmp);
+    I->magic = 0;
+    free(I);
+}
+

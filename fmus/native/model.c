@@ -1,0 +1,158 @@
+/* The model at the FMI boundary: the initial state at t = 0, one step of dt from t (the soil,
+   the structure with the split coupling's stamped inputs, or both: fmus/coupling.py), the
+   outputs published into the variables. */
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fmu.h"
+
+double *up_var(UpInstance *I, int slot) { return I->bank + I->slot[slot]; }
+
+static void publish_stepper(UpInstance *I)
+{
+    UpStepper *st = &I->st;
+    int n = I->n, N = I->N;
+    memcpy(up_var(I, S_X), st->u + st->ni, (size_t)n * sizeof(double));
+    memcpy(up_var(I, S_XDOT), st->v + st->ni, (size_t)n * sizeof(double));
+    memcpy(up_var(I, S_P), st->P, (size_t)N * sizeof(double));
+    double *gap = up_var(I, S_GAP);
+    up_stepper_gap(st, gap);
+    double *node = up_var(I, S_NODES);
+    for (int k = 0; k < I->nnodes; k++)
+        for (int c = 0; c < 3; c++) {
+            int64_t d = I->node_dofs[3 * k + c];
+            node[6 * k + c] = st->a[d] + st->ag[c];
+            node[6 * k + 3 + c] = st->u[d];
+        }
+    up_stepper_energies(st, up_var(I, S_ENERGY));
+    double gmax = 0.0, *up = up_var(I, S_MAX_UPLIFT), *rot = up_var(I, S_MAX_ROTATION);
+    for (int i = 0; i < N; i++)
+        gmax = i == 0 || gap[i] > gmax ? gap[i] : gmax;
+    const double *q = st->u + st->ni;
+    double r = hypot(q[3], q[4]);
+    *up = *up >= gmax ? *up : gmax;
+    *rot = *rot >= r ? *rot : r;
+    if (I->slot[S_X_TIME] >= 0)
+        *up_var(I, S_X_TIME) = *st->t;
+}
+
+/* g is written by the step (or at rest, zero) */
+static void publish_soil(UpInstance *I, double t_next)
+{
+    *up_var(I, S_G_TIME) = t_next;
+    memcpy(up_var(I, S_F), I->soil.f, (size_t)I->n * sizeof(double));
+    *up_var(I, S_DISS) = *I->soil.work;
+}
+
+/* the model at rest at t = 0 with the current inputs and parameters; 0 or -1 with I->err */
+int up_initial_state(UpInstance *I)
+{
+    if (I->start_time != 0.0) {
+        char b[32];
+        snprintf(I->err, UP_MSG, UP_MSG_START_TIME, up_num(I->start_time, b));
+        return -1;
+    }
+    *I->time = 0.0;
+    *I->held_t = 0.0;
+    memset(I->held, 0, (size_t)I->held_len * sizeof(double));
+    if (!I->has_stepper) {
+        up_soil_rest(&I->soil);
+        up_soil_ahead(&I->soil, 0, up_var(I, S_G));
+        publish_soil(I, 0.0);
+        return 0;
+    }
+    double ag0[3];
+    if (*I->internal_motion != 0.0) {
+        if (!I->has_motion) {
+            snprintf(I->err, UP_MSG, UP_MSG_NO_MOTION);
+            return -1;
+        }
+        memcpy(ag0, I->motion, sizeof ag0);
+    } else {
+        memcpy(ag0, up_var(I, S_AG), sizeof ag0);
+        for (int c = 0; c < 3; c++)
+            if (!isfinite(ag0[c])) {
+                char b[32];
+                snprintf(I->err, UP_MSG, "input ag[%d] = %s at initialisation: inputs must be finite (check what "
+                         "is connected to it)", c, up_num(ag0[c], b));
+                return -1;
+            }
+    }
+    up_stepper_rest(&I->st, ag0);
+    *up_var(I, S_MAX_UPLIFT) = *up_var(I, S_MAX_ROTATION) = 0.0;
+    publish_stepper(I);
+    return 0;
+}
+
+/* ---- the step ----------------------------------------------------------------------------------- */
+/* the stamped input (values of length len, stamped by the partner's time): the values to use
+   for the step from t, or NULL with I->err (see fmus.coupling.StampedInput) */
+static const double *take(UpInstance *I, double t, double stamp, const double *values, int len, const char *name,
+                          const char *stamp_name)
+{
+    double tol = 1e-6 * I->dt;
+    if (fabs(stamp - t) <= tol)
+        return values;
+    if (fabs(stamp - (t + I->dt)) <= tol && fabs(*I->held_t - t) <= tol) {
+        double *used = I->tmp + 2 * (size_t)I->n;
+        memcpy(used, I->held, (size_t)len * sizeof(double));
+        *I->held_t = stamp;
+        memcpy(I->held, values, (size_t)len * sizeof(double));
+        return used;
+    }
+    char b1[32], b2[32];
+    snprintf(I->err, UP_MSG, UP_MSG_STAMP, name, stamp_name, up_num(stamp, b1), up_num(t, b2), stamp_name, name);
+    return NULL;
+}
+
+static void ag_next(UpInstance *I, double t)
+{
+    double *next = I->st.ag_next;
+    if (*I->internal_motion == 0.0) {
+        memcpy(next, up_var(I, S_AG), 3 * sizeof(double));
+        return;
+    }
+    int64_t k = (int64_t)floor(t / I->dt + 0.5) + 1;
+    for (int c = 0; c < 3; c++)
+        next[c] = k < I->nt ? I->motion[3 * k + c] : 0.0;
+}
+
+
+/* one step of dt from t: 0, UP_REFUSED (a wrong stamp) or UP_FAILED (no Newton convergence), with I->err */
+int up_step(UpInstance *I, double t)
+{
+    int n = I->n;
+    if (I->role == ROLE_SOIL) {
+        double *xx = I->tmp;
+        memcpy(xx, up_var(I, S_X), (size_t)n * sizeof(double));
+        memcpy(xx + n, up_var(I, S_XDOT), (size_t)n * sizeof(double));
+        const double *used = take(I, t, *up_var(I, S_X_TIME), xx, 2 * n, "x, xdot", "x_time");
+        if (!used)
+            return UP_REFUSED;
+        if (t > 0.5 * I->dt)                     /* at t = 0 the soil is at rest: nothing to commit */
+            up_soil_step(&I->soil, 0, used, used + n, up_var(I, S_G));
+        else
+            up_soil_ahead(&I->soil, 0, up_var(I, S_G));
+        publish_soil(I, t + I->dt);
+        return 0;
+    }
+    UpStepper *st = &I->st;
+    if (I->role == ROLE_STRUCTURE) {
+        const double *g = take(I, t, *up_var(I, S_G_TIME), up_var(I, S_G), n, "g", "g_time");
+        if (!g)
+            return UP_REFUSED;
+        const double *x = st->u + st->ni, *xd = st->v + st->ni;
+        for (int i = 0; i < n; i++)
+            st->h_ext[i] = (g[i] + up_dot(I->Gx + (size_t)i * n, x, n)) + up_dot(I->Gv + (size_t)i * n, xd, n);
+    }
+    ag_next(I, t);
+    if (up_stepper_step(st))
+        return UP_FAILED;
+    *up_var(I, S_NEWTON) = st->last_iters;
+    publish_stepper(I);
+    return 0;
+}
+

@@ -1,0 +1,193 @@
+/* FMU states of a native uplift FMU: the whole state block (time, variables, held stamped
+   inputs, stepper and soil) copied by fmi2GetFMUstate / fmi2SetFMUstate, and serialised as
+
+     offset  size  field
+     0       8     magic "UPLIFTST" (uint64 0x55504c4946545354)
+     8       4     format version, uint32 (UP_STATE_VERSION)
+     12      4     CRC-32 (IEEE, as zlib's crc32) of every byte from offset 16 to the end, uint32
+     16      8     identity of the FMU: a hash of its GUID, uint64
+     24      8     length of the block in doubles, uint64
+     32            the block
+
+   A buffer that fails any check (size, magic, version, checksum, identity, length) is refused
+   with fmi2Error and the reason in the log; nothing is allocated and the instance is unchanged. */
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#include "fmu.h"
+
+#define STATE_MAGIC 0x55504c4946545354ULL      /* "UPLIFTST" */
+#define SER_HEADER 32
+
+typedef struct {
+    uint64_t magic, guid_hash;
+    size_t len;
+    double data[1];
+} State;
+
+/* CRC-32 (IEEE 802.3, reflected, as zlib's crc32), bitwise: a few MB/s is plenty for a state */
+uint32_t up_crc32(const unsigned char *p, size_t n)
+{
+    uint32_t c = 0xFFFFFFFFu;
+    for (size_t i = 0; i < n; i++) {
+        c ^= p[i];
+        for (int k = 0; k < 8; k++)
+            c = (c >> 1) ^ (0xEDB88320u & (0u - (c & 1u)));
+    }
+    return c ^ 0xFFFFFFFFu;
+}
+
+static State *checked_state(UpInstance *I, fmi2FMUstate s, const char *fn)
+{
+    State *S = (State *)s;
+    if (!S || S->magic != STATE_MAGIC || S->guid_hash != I->guid_hash || S->len != I->block_len) {
+        up_log_error(I, "%s: not an FMU state of this FMU (get it with fmi2GetFMUstate or fmi2DeSerializeFMUstate)", fn);
+        return NULL;
+    }
+    return S;
+}
+
+static State *new_state(UpInstance *I)
+{
+    State *S = (State *)malloc(sizeof(State) + I->block_len * sizeof(double));
+    if (S) {
+        S->magic = STATE_MAGIC;
+        S->guid_hash = I->guid_hash;
+        S->len = I->block_len;
+    }
+    return S;
+}
+
+fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *s)
+{
+    UP_GUARD(fmi2GetFMUstate);
+    if (!s) {
+        up_log_error(I, "fmi2GetFMUstate: FMUstate pointer is NULL");
+        return fmi2Error;
+    }
+    State *S = (State *)*s;
+    if (S && !checked_state(I, S, "fmi2GetFMUstate"))
+        return fmi2Error;
+    if (!S && !(S = new_state(I))) {
+        up_log_error(I, "fmi2GetFMUstate: out of memory");
+        return fmi2Error;
+    }
+    memcpy(S->data, I->block, I->block_len * sizeof(double));
+    *s = S;
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate s)
+{
+    UP_GUARD(fmi2SetFMUstate);
+    State *S = checked_state(I, s, "fmi2SetFMUstate");
+    if (!S)
+        return fmi2Error;
+    memcpy(I->block, S->data, I->block_len * sizeof(double));
+    return fmi2OK;
+}
+
+fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *s)
+{
+    UP_GUARD(fmi2FreeFMUstate);
+    if (!s) {
+        up_log_error(I, "fmi2FreeFMUstate: FMUstate pointer is NULL");
+        return fmi2Error;
+    }
+    if (*s && !checked_state(I, *s, "fmi2FreeFMUstate"))
+        return fmi2Error;
+    if (*s)
+        ((State *)*s)->magic = 0;
+    free(*s);
+    *s = NULL;
+    return fmi2OK;
+}
+
+fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate s, size_t *size)
+{
+    UP_GUARD(fmi2SerializedFMUstateSize);
+    if (!size) {
+        up_log_error(I, "fmi2SerializedFMUstateSize: size pointer is NULL");
+        return fmi2Error;
+    }
+    if (!checked_state(I, s, "fmi2SerializedFMUstateSize"))
+        return fmi2Error;
+    *size = SER_HEADER + I->block_len * sizeof(double);
+    return fmi2OK;
+}
+
+fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate s, fmi2Byte bytes[], size_t size)
+{
+    UP_GUARD(fmi2SerializeFMUstate);
+    State *S = checked_state(I, s, "fmi2SerializeFMUstate");
+    if (!S)
+        return fmi2Error;
+    if (!bytes || size != SER_HEADER + S->len * sizeof(double)) {
+        up_log_error(I, "fmi2SerializeFMUstate: give a buffer of fmi2SerializedFMUstateSize bytes");
+        return fmi2Error;
+    }
+    unsigned char *b = (unsigned char *)bytes;
+    uint64_t magic = STATE_MAGIC, len = (uint64_t)S->len;
+    uint32_t version = UP_STATE_VERSION;
+    memcpy(b, &magic, 8);
+    memcpy(b + 8, &version, 4);
+    memcpy(b + 16, &S->guid_hash, 8);
+    memcpy(b + 24, &len, 8);
+    memcpy(b + SER_HEADER, S->data, S->len * sizeof(double));
+    uint32_t crc = up_crc32(b + 16, size - 16);
+    memcpy(b + 12, &crc, 4);
+    return fmi2OK;
+}
+
+/* NULL, or why the bytes are not a serialised state of this instance's FMU (buf: 64 chars) */
+static const char *state_fault(UpInstance *I, const unsigned char *b, size_t size, char *buf)
+{
+    uint64_t magic = 0, ident = 0, len = 0;
+    uint32_t version = 0, crc = 0;
+    if (size < SER_HEADER || (memcpy(&magic, b, 8), magic != STATE_MAGIC))
+        return UP_MSG_STATE_MAGIC;
+    memcpy(&version, b + 8, 4);
+    memcpy(&crc, b + 12, 4);
+    memcpy(&ident, b + 16, 8);
+    memcpy(&len, b + 24, 8);
+    if (version != UP_STATE_VERSION) {
+        char v[32], e[32];
+        snprintf(v, sizeof v, "%u", version);
+        snprintf(e, sizeof e, "%d", UP_STATE_VERSION);
+        snprintf(buf, 160, UP_MSG_STATE_VERSION, v, e);
+        return buf;
+    }
+    if (up_crc32(b + 16, size - 16) != crc)
+        return UP_MSG_STATE_CHECKSUM;
+    if (ident != I->guid_hash) {
+        char g[32], e[32];
+        snprintf(g, sizeof g, "%016llx", (unsigned long long)ident);
+        snprintf(e, sizeof e, "%016llx", (unsigned long long)I->guid_hash);
+        snprintf(buf, 160, UP_MSG_STATE_IDENTITY, g, e);
+        return buf;
+    }
+    if (len != I->block_len || size != SER_HEADER + I->block_len * sizeof(double))
+        return UP_MSG_STATE_SIZE;
+    return NULL;
+}
+
+fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte bytes[], size_t size, fmi2FMUstate *s)
+{
+    UP_GUARD(fmi2DeSerializeFMUstate);
+    char buf[160], sz[32];
+    const char *why = !s || !bytes ? "NULL bytes or state pointer" : state_fault(I, (const unsigned char *)bytes, size, buf);
+    if (why) {
+        snprintf(sz, sizeof sz, "%zu", size);
+        up_log_error(I, "fmi2DeSerializeFMUstate: " UP_MSG_BAD_STATE, sz, why);
+        return fmi2Error;
+    }
+    State *S = new_state(I);
+    if (!S) {
+        up_log_error(I, "fmi2DeSerializeFMUstate: out of memory");
+        return fmi2Error;
+    }
+    memcpy(S->data, (const unsigned char *)bytes + SER_HEADER, S->len * sizeof(double));
+    *s = S;
+    return fmi2OK;
+}

@@ -1,0 +1,234 @@
+"""The FMU schema: every variable of the three FMUs once, the refusal messages once, the limits
+the FMI boundary enforces. Both kinds of FMU are built from it: the Python adapters register
+their variables from ``variables(role, ...)``, the native builder writes the same list into the
+model description and the first value reference of each vector into ``resources/uplift.bin``
+(records ``vr.<vector>``, looked up by name by the C runtime), and the C runtime's message
+table ``fmus/native/include/uplift_messages.h`` is generated from ``MESSAGES``
+(``c_messages_header``; a test keeps the file equal to it).
+
+A *vector* is a named run of Real variables with consecutive value references: ``x[0..n-1]``
+over the interface DOFs [q, w] (n = 6 + N: raft ux, uy, uz, rx, ry, rz, then the soil's vertical
+displacement under each of the N interface nodes), ``P[0..N-1]`` over the nodes, ``ag[0..2]``
+over x, y, z, or a scalar. Its unit follows the DOF kind of each element (``QUANTITIES``):
+translations and gap DOFs m, m/s, N; rotations rad, rad/s, N.m.
+
+Value references are allocated in list order, Reals first (0, 1, ...), then the Boolean
+``internal_motion``. Names of the elements are ``name[i]`` unless a vector lists its own
+(``elements``): three motion inputs ``ag_x, ag_y, ag_z`` in place of ``ag[0..2]`` are the
+one-line change ``Vector("ag", ..., elements=("ag_x", "ag_y", "ag_z"))`` (the slot ``ag`` keeps
+three consecutive references, so neither runtime changes).
+"""
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+INPUT, OUTPUT, PARAMETER = "input", "output", "parameter"
+
+#: the SI units the FMUs use, as exponents of the SI base units (FMI 2.0 BaseUnit)
+UNITS = {"1": {}, "s": {"s": 1}, "m": {"m": 1}, "rad": {"rad": 1}, "m/s": {"m": 1, "s": -1},
+         "rad/s": {"rad": 1, "s": -1}, "m/s2": {"m": 1, "s": -2}, "N": {"kg": 1, "m": 1, "s": -2},
+         "N.m": {"kg": 1, "m": 2, "s": -2}, "J": {"kg": 1, "m": 2, "s": -2}}
+
+#: quantity -> (unit on a translation or gap DOF, unit on a rotation DOF)
+QUANTITIES = {"displacement": ("m", "rad"), "velocity": ("m/s", "rad/s"), "force": ("N", "N.m"),
+              "acceleration": ("m/s2", "m/s2"), "time": ("s", "s"), "energy": ("J", "J"),
+              "count": ("1", "1"), "angle": ("rad", "rad")}
+
+#: the energy terms of the stepper (structure.NewmarkStepper.energies), in output order
+ENERGY_TERMS = ("input", "kinetic", "strain", "damping", "soil", "contact", "contact_potential")
+
+
+@dataclass(frozen=True)
+class Vector:
+    """A named run of Real variables.
+
+    size : "n" (interface DOFs [q, w]), "N" (interface nodes), "3" (x, y, z) or "1" (a scalar)
+    quantity : a key of QUANTITIES (the unit of each element follows its DOF kind)
+    slot : the runtime's name of the run (default: name); the acc_/disp_ vectors of the output
+           nodes share the slot "nodes", the energy terms the slot "energy"
+    """
+    name: str
+    causality: str
+    size: str
+    quantity: str
+    description: str
+    slot: str | None = None
+    elements: tuple | None = None
+
+    def length(self, n: int, N: int) -> int:
+        return {"n": n, "N": N, "3": 3, "1": 1}[self.size]
+
+    def units(self, n: int, N: int) -> tuple:
+        """(length,) units: on [q, w] the rotations rx, ry, rz (elements 3..5) take the rotation unit."""
+        trans, rot = QUANTITIES[self.quantity]
+        k = self.length(n, N)
+        if self.size == "n":
+            return (trans,) * 3 + (rot,) * 3 + (trans,) * (k - 6)
+        return (trans,) * k
+
+    def names(self, n: int, N: int) -> list:
+        if self.elements is not None:
+            return list(self.elements)
+        return [self.name] if self.size == "1" else [f"{self.name}[{i}]" for i in range(self.length(n, N))]
+
+
+@dataclass(frozen=True)
+class Variable:
+    """One scalar variable of a model description (value references: Reals in order, then Booleans)."""
+    name: str
+    value_reference: int
+    causality: str
+    description: str
+    unit: str | None = None
+    type: str = "Real"
+    start: str | None = None
+    variability: str | None = None
+    slot: str | None = None
+
+
+# ---- the vectors of each role ----------------------------------------------------------------
+SOIL = (
+    Vector("x", INPUT, "n", "displacement", "interface displacements"),
+    Vector("xdot", INPUT, "n", "velocity", "interface velocities"),
+    Vector("x_time", INPUT, "1", "time", "time of x"),
+    Vector("g", OUTPUT, "n", "force", "history force for the structure's next step without its latest state's part"),
+    Vector("g_time", OUTPUT, "1", "time", "start of the structure step g is meant for"),
+    Vector("f", OUTPUT, "n", "force", "total force on the soil"),
+    Vector("dissipated_energy", OUTPUT, "1", "energy", "energy dissipated in the soil"),
+)
+#: the structure FMU's own vectors, before those of the stepper
+STRUCTURE = (
+    Vector("g", INPUT, "n", "force", "soil history force without the part of the structure's latest state"),
+    Vector("g_time", INPUT, "1", "time", "start of the step g is meant for"),
+    Vector("x_time", OUTPUT, "1", "time", "time of x"),
+)
+
+
+def stepper_vectors(nodes) -> tuple:
+    """The vectors of the structure and the coupled FMU (``fmus/stepper.py``)."""
+    out = [Vector("ag", INPUT, "3", "acceleration", "ground acceleration at t + dt"),
+           Vector("x", OUTPUT, "n", "displacement", "interface displacements [q, w]"),
+           Vector("xdot", OUTPUT, "n", "velocity", "interface velocities"),
+           Vector("P", OUTPUT, "N", "force", "total contact forces"),
+           Vector("gap", OUTPUT, "N", "displacement", "uplift")]
+    for nm in nodes:
+        out += [Vector(f"acc_{nm}", OUTPUT, "3", "acceleration", f"absolute acceleration of {nm}", slot="nodes"),
+                Vector(f"disp_{nm}", OUTPUT, "3", "displacement", f"displacement of {nm}", slot="nodes")]
+    out += [Vector(f"energy.{term}", OUTPUT, "1", "energy", f"energy term {term}", slot="energy")
+            for term in ENERGY_TERMS]
+    out += [Vector("newton_iters", OUTPUT, "1", "count", "linear solves of the last step"),
+            Vector("max_uplift", OUTPUT, "1", "displacement", "running maximum of the uplift"),
+            Vector("max_raft_rotation", OUTPUT, "1", "angle", "running maximum of the raft rotation")]
+    return tuple(out)
+
+
+INTERNAL_MOTION_DESCRIPTION = "true: the ground motion bundled in resources; false: the input ag"
+ROLES = ("soil", "structure", "coupled")
+#: the slots the C runtime looks up (records vr.<slot> of resources/uplift.bin; -1 when absent)
+SLOTS = ("x", "xdot", "x_time", "g", "g_time", "f", "dissipated_energy", "ag", "P", "gap", "nodes", "energy",
+         "newton_iters", "max_uplift", "max_raft_rotation")
+
+
+def vectors(role: str, nodes=()) -> tuple:
+    """The Real vectors of an FMU of ``role`` (soil, structure, coupled), in value-reference order."""
+    if role == "soil":
+        return SOIL
+    if role == "structure":
+        return STRUCTURE + stepper_vectors(nodes)
+    if role == "coupled":
+        return stepper_vectors(nodes)
+    raise ValueError(f"role {role!r}: one of {', '.join(ROLES)}")
+
+
+def variables(role: str, n: int, N: int, nodes=(), motion: bool = False) -> list:
+    """Every variable of an FMU of ``role`` with n = 6 + N interface DOFs, N interface nodes, the
+    named output ``nodes``; ``motion``: a motion is bundled (start of internal_motion)."""
+    out, vr = [], 0
+    for vec in vectors(role, nodes):
+        start = "0" if vec.causality == INPUT else None
+        for name, unit in zip(vec.names(n, N), vec.units(n, N)):
+            out.append(Variable(name, vr, vec.causality, vec.description, unit, start=start, slot=vec.slot or vec.name))
+            vr += 1
+    if role != "soil":
+        out.append(Variable("internal_motion", vr, PARAMETER, INTERNAL_MOTION_DESCRIPTION,
+                            type="Boolean", start="true" if motion else "false", variability="fixed"))
+    return out
+
+
+def slot_table(variables_) -> dict:
+    """{slot: first value reference} of the Real variables (every slot of SLOTS; -1 when absent)."""
+    first = {}
+    for v in variables_:
+        if v.type == "Real":
+            first.setdefault(v.slot, v.value_reference)
+    unknown = set(first) - set(SLOTS)
+    if unknown:
+        raise ValueError(f"slots {sorted(unknown)} are not in fmus.schema.SLOTS")
+    return {s: first.get(s, -1) for s in SLOTS}
+
+
+# ---- the FMI boundary: limits and refusals ---------------------------------------------------
+#: a communication step shorter than SLIVER dt is a no-op that returns OK (a host that
+#: accumulates its time by repeated addition asks for such a step at the end of its run)
+SLIVER = 1e-6
+#: a communication step within STEP_RTOL (relative) of a whole number of dt is that number
+STEP_RTOL = 1e-9
+#: a time or stamp within TIME_TOL dt of the expected one is it
+TIME_TOL = 1e-6
+#: at most this many steps of dt in one communication step (the coupled FMU); a longer one is
+#: refused before any work
+MAX_STEPS_PER_CALL = 100000
+
+#: the refusals both kinds make, as str.format templates with named fields (numbers in their
+#: shortest round-trip form); the C runtime's copy (include/uplift_messages.h) has the fields
+#: as %s in the order they appear
+MESSAGES = {
+    "refused": "step from t = {t} s refused: {why}",
+    "before_init": "{call} before initialisation (call fmi2ExitInitializationMode first)",
+    "wrong_state": "{call} is not allowed {state} (FMI 2.0 co-simulation state machine)",
+    "after_terminate": "{call} after fmi2Terminate (instantiate the FMU again)",
+    "wrong_time": "this FMU is at t = {time} s: steps must follow one another (restore an FMU state to go back)",
+    "bad_step": "communication step {h} s: a step must be finite and positive",
+    "wrong_step": "communication step {h} s: this FMU steps {allowed} {dt} s per communication step (export it "
+                  "again with the step you need)",
+    "too_many_steps": "communication step {h} s: more than {limit} steps of {dt} s in one communication step "
+                      "(call doStep more often)",
+    "past_stop": "communication step {h} s ends at {end} s, past the stop time {stop} s given to "
+                 "fmi2SetupExperiment",
+    "not_finite": "input {name}[{i}] = {value}: inputs must be finite (check what is connected to it)",
+    "stamp": "input {name} is stamped {stamp_name} = {stamp} s at a step from t = {t} s: it must be the partner's "
+             "output at t or at t + dt (connect the partner's {stamp_name} output to this input, with {name})",
+    "start_time": "start time {start} s: this FMU starts at t = 0 s, at rest, with the first sample of its record",
+    "no_motion": "internal_motion = true but this FMU was exported without a motion: set internal_motion = false "
+                 "and drive the input ag",
+    "bad_state": "the {size} bytes are not a serialised state of this FMU: {why}",
+    "state_magic": "not an uplift FMU state",
+    "state_version": "format version {version}, this FMU reads version {expected}",
+    "state_identity": "a state of another FMU (GUID hash {got}, this FMU {expected})",
+    "state_size": "size or length mismatch",
+    "state_checksum": "checksum mismatch (the bytes changed since they were written)",
+}
+
+#: the serialised FMU state: format version, magic of each kind
+STATE_VERSION = 1
+
+
+def message(key: str, **fields) -> str:
+    """A refusal of MESSAGES with its fields filled in."""
+    return MESSAGES[key].format(**fields)
+
+
+def c_messages_header() -> str:
+    """The C runtime's copy of MESSAGES, limits and state version (fmus/native/include/uplift_messages.h)."""
+    lines = ["/* Generated from fmus/schema.py by fmus.schema.c_messages_header(): do not edit.",
+             "   The refusals both kinds of FMU make (printf formats, fields as %s in the order of",
+             "   the Python template) and the limits of the FMI boundary. */",
+             "#ifndef UPLIFT_MESSAGES_H", "#define UPLIFT_MESSAGES_H", ""]
+    for key, text in MESSAGES.items():
+        c = re.sub(r"\{\w+\}", "%s", text.replace("%", "%%")).replace("\\", "\\\\").replace('"', '\\"')
+        lines.append(f'#define UP_MSG_{key.upper()} "{c}"')
+    lines += ["", f"#define UP_SLIVER {SLIVER!r}", f"#define UP_STEP_RTOL {STEP_RTOL!r}",
+              f"#define UP_TIME_TOL {TIME_TOL!r}", f"#define UP_MAX_STEPS_PER_CALL {MAX_STEPS_PER_CALL}",
+              f"#define UP_STATE_VERSION {STATE_VERSION}", "", "#endif", ""]
+    return "\n".join(lines)
