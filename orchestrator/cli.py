@@ -3,9 +3,9 @@
 Exit codes (orchestrator.settings): 0 success; 1 a computation stopped (results written so
 far, reason printed); 2 bad input (scene, file, option, a tool the machine lacks:
 orchestrator.errors); 130 interrupted (Ctrl-C: one line on stderr, no output half-written, a
-previous file at -o left as it was). Every output path is checked before any computation. Machine-readable output (``--json``)
-goes to stdout as exactly one JSON object; progress and messages go to stderr. This is the
-only module that prints.
+previous file at -o left as it was). Every output path is checked before any computation.
+Machine-readable output (``--json``) goes to stdout as exactly one JSON object; progress and
+messages go to stderr. This is the only module that prints.
 """
 from __future__ import annotations
 
