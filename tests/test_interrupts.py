@@ -1,13 +1,14 @@
 """Ctrl-C: `uplift run`, `uplift impedance` and `uplift ensemble` in a child process, SIGINT sent
 once they are computing: exit 130, one line on stderr and no traceback, the previous file at -o
 left as it was and no temporary file left beside it; the ensemble keeps its finished runs in
-<output>.cells/ for a resumed run."""
+<output>.cells/ for a resumed run, and its local cluster's processes are all gone."""
 import os
 import signal
 import subprocess
 import sys
 from pathlib import Path
 
+import psutil
 import pytest
 
 from orchestrator.ensemble import CellStore, plan_ensemble
@@ -57,11 +58,12 @@ def _interrupt(argv, folder, trigger):
     p = subprocess.Popen([sys.executable, "-m", "orchestrator.cli", *argv], cwd=folder, env=env, text=True,
                          stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                          preexec_fn=_restore_sigint)
-    lines, sent = [], False
+    lines, sent, children = [], False, []
     try:
         for line in p.stderr:
             lines.append(line.rstrip("\n"))
             if trigger in line and not sent:
+                children = psutil.Process(p.pid).children(recursive=True)
                 p.send_signal(signal.SIGINT)
                 sent = True
         code = p.wait(timeout=120)
@@ -69,7 +71,9 @@ def _interrupt(argv, folder, trigger):
         if p.poll() is None:
             p.kill()
     assert sent, "the command ended before it was interrupted:\n" + "\n".join(lines)
-    return code, lines
+    _, alive = psutil.wait_procs(children, timeout=10)
+    assert not alive, f"processes left running after the interrupt: {alive}"     # e.g. dask workers
+    return code, lines, len(children)
 
 
 def _check(code, lines, out, folder, expected):
@@ -86,7 +90,7 @@ def test_run_interrupted(tmp_path):
     (tmp_path / "s.toml").write_text(SCENE.format(soil=WINKLER, duration=20.0, dt=0.002))
     out = tmp_path / "out.h5"
     out.write_bytes(OLD)
-    code, lines = _interrupt(["run", "s.toml", "-o", "out.h5", "--no-cache"], tmp_path, "run s [winkler]:  10%")
+    code, lines, _ = _interrupt(["run", "s.toml", "-o", "out.h5", "--no-cache"], tmp_path, "run s [winkler]:  10%")
     _check(code, lines, out, tmp_path, ["s.toml", "out.h5"])
 
 
@@ -95,7 +99,7 @@ def test_impedance_interrupted(tmp_path):
     (tmp_path / "s.toml").write_text(SCENE.format(soil=HALFSPACE, duration=2.0, dt=0.01))
     out = tmp_path / "rigid.h5"
     out.write_bytes(OLD)
-    code, lines = _interrupt(["impedance", "s.toml", "-o", "rigid.h5", "--no-cache"], tmp_path, "impedance s:")
+    code, lines, _ = _interrupt(["impedance", "s.toml", "-o", "rigid.h5", "--no-cache"], tmp_path, "impedance s:")
     _check(code, lines, out, tmp_path, ["s.toml", "rigid.h5"])
 
 
@@ -106,9 +110,10 @@ def test_ensemble_interrupted_keeps_finished_runs(tmp_path):
     out = tmp_path / "e.h5"
     out.write_bytes(OLD)
     seeds = ["1", "2", "3", "4"]
-    code, lines = _interrupt(["ensemble", "s.toml", "--seeds", *seeds, "--pga", "0.3", "--workers", "1", "-o",
+    code, lines, workers = _interrupt(["ensemble", "s.toml", "--seeds", *seeds, "--pga", "0.3", "--workers", "1", "-o",
                               "e.h5", "--no-cache"], tmp_path, "(1/4)")
     _check(code, lines, out, tmp_path, ["s.toml", "e.h5", "e.h5.cells"])
+    assert workers >= 1                 # the local cluster's processes, all gone after the interrupt
     plan = plan_ensemble(load_scene(scene), [0.3], seeds=[int(s) for s in seeds])
     store = CellStore(out)
     kept = [c for c in plan.cells if store.read(c.key) is not None]
