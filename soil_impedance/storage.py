@@ -24,8 +24,8 @@ Usage::
             stamp_checksum(f)
     with h5py.File(path, "r") as f:
         require_checksum(f, path)            # ChangedFileError if it changed
-    with atomic_update(path) as tmp:         # append to a stamped file (e.g. with xarray,
-        ds.to_netcdf(tmp, mode="a", group="extra", engine="h5netcdf")   # mode "a")
+    with atomic_update(path) as tmp:         # append to a stamped file: a verified copy,
+        ds.to_netcdf(tmp, mode="a", group="extra", engine="h5netcdf")
                                              # re-stamped and renamed into place on exit
 """
 from __future__ import annotations
