@@ -25,11 +25,9 @@ from structure.results import Status
 
 from orchestrator.bench import bench, bench_config, format_rows, json_safe, plot_rows
 from orchestrator.compare import compare, format_table
-from orchestrator.crosscheck import model_folder, write_cross_check
 from orchestrator.ensemble import (CONNECT_TIMEOUT_S, DT_CHECKS, ensemble_summary, is_ensemble_file, read_ensemble,
                                    run_ensemble)
 from orchestrator.errors import ComputationError, SetupError, UserInputError
-from orchestrator.export import KINDS, export_scene
 from orchestrator.impedance import rigid_json, scene_fit, scene_impedance, scene_static
 from orchestrator.motion import G
 from orchestrator.plots import plot_impedance, plot_run, pyplot
@@ -40,7 +38,7 @@ from orchestrator.results import (ResultsFileError, check_output_folder, check_o
 from orchestrator.routes import route_names
 from orchestrator.run import run_scene
 from orchestrator.scene import MAX_PGA_G, SceneError, builtin_scenes, load_scene
-from orchestrator.settings import (EXIT_FAILED, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, compute_threads,
+from orchestrator.settings import (EXIT_FAILED, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, FMU_KINDS, compute_threads,
                                    default_cache_dir)
 
 #: the files ``uplift export`` writes into its folder
@@ -142,7 +140,7 @@ def _parser() -> argparse.ArgumentParser:
                                      "of the three FMUs with their reference results.")
     scene_arg(exp)
     exp.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output directory")
-    exp.add_argument("--kind", choices=KINDS[::-1], default="native",
+    exp.add_argument("--kind", choices=FMU_KINDS[::-1], default="native",
                      help="native (default): compiled C for linux64, win64 and darwin64, no Python needed by the "
                           "host; python: pythonfmu (the host needs Python with numpy and scipy). The same "
                           "variables and the same answers (docs/native.md)")
@@ -364,6 +362,9 @@ def cmd_fit(args) -> int:
 
 
 def cmd_export(args) -> int:
+    # the FMU stack (fmpy, pythonfmu, the native builder) loads only for an export:
+    from orchestrator.crosscheck import model_folder, write_cross_check     # fmpy
+    from orchestrator.export import export_scene                            # fmpy, pythonfmu
     scene = load_scene(args.scene)
     if scene.structure is None:
         raise SceneError(f"scene {scene.name!r} has no [structure]: nothing to export "

@@ -40,9 +40,10 @@ from structure.spec import contact_table
 
 from orchestrator.impedance import scene_fit
 from orchestrator.motion import make_motion
+from orchestrator.settings import FMU_KINDS
 
 #: the kinds of FMU export_scene writes: pythonfmu, or the native C runtime (fmus/native_build.py)
-KINDS = ("python", "native")
+KINDS = FMU_KINDS
 SSD = "http://ssp-standard.org/SSP1/SystemStructureDescription"
 SSC = "http://ssp-standard.org/SSP1/SystemStructureCommon"
 OSP = "http://opensimulationplatform.com/SSP/OSPAnnotations"

@@ -21,6 +21,9 @@ from pathlib import Path
 from threadpoolctl import threadpool_limits
 
 EXIT_OK, EXIT_FAILED, EXIT_INPUT = 0, 1, 2
+#: the kinds of FMU ``uplift export`` writes (orchestrator.export; named here so the command line
+#: lists them without loading the FMU stack)
+FMU_KINDS = ("python", "native")
 #: interrupted by the user (Ctrl-C, SIGINT): 128 + 2, as shells report it
 EXIT_INTERRUPTED = 130
 
