@@ -8,15 +8,14 @@ table ``fmus/native/include/uplift_messages.h`` is generated from ``MESSAGES``
 
 A *vector* is a named run of Real variables with consecutive value references: ``x[0..n-1]``
 over the interface DOFs [q, w] (n = 6 + N: raft ux, uy, uz, rx, ry, rz, then the soil's vertical
-displacement under each of the N interface nodes), ``P[0..N-1]`` over the nodes, ``ag[0..2]``
-over x, y, z, or a scalar. Its unit follows the DOF kind of each element (``QUANTITIES``):
+displacement under each of the N interface nodes), ``P[0..N-1]`` over the nodes, the three
+motion inputs ``ag_x, ag_y, ag_z`` (the vector ``ag``, ``AG``), or a scalar. Its unit follows the DOF kind of each element (``QUANTITIES``):
 translations and gap DOFs m, m/s, N; rotations rad, rad/s, N.m.
 
 Value references are allocated in list order, Reals first (0, 1, ...), then the Boolean
 ``internal_motion``. Names of the elements are ``name[i]`` unless a vector lists its own
-(``elements``): three motion inputs ``ag_x, ag_y, ag_z`` in place of ``ag[0..2]`` are the
-one-line change ``Vector("ag", ..., elements=("ag_x", "ag_y", "ag_z"))`` (the slot ``ag`` keeps
-three consecutive references, so neither runtime changes).
+(``elements``): the motion inputs are ``ag_x, ag_y, ag_z`` (m/s2, one per component of the
+scene's motion), three consecutive references in the slot ``ag``.
 """
 from __future__ import annotations
 
@@ -37,6 +36,8 @@ QUANTITIES = {"displacement": ("m", "rad"), "velocity": ("m/s", "rad/s"), "force
 
 #: the energy terms of the stepper (structure.NewmarkStepper.energies), in output order
 ENERGY_TERMS = ("input", "kinetic", "strain", "damping", "soil", "contact", "contact_potential")
+#: the ground-motion inputs of the structure and the coupled FMU: a_g(t + dt) along x, y, z, m/s2
+AG = ("ag_x", "ag_y", "ag_z")
 
 
 @dataclass(frozen=True)
@@ -107,7 +108,7 @@ STRUCTURE = (
 
 def stepper_vectors(nodes) -> tuple:
     """The vectors of the structure and the coupled FMU (``fmus/stepper.py``)."""
-    out = [Vector("ag", INPUT, "3", "acceleration", "ground acceleration at t + dt"),
+    out = [Vector("ag", INPUT, "3", "acceleration", "ground acceleration at t + dt", elements=AG),
            Vector("x", OUTPUT, "n", "displacement", "interface displacements [q, w]"),
            Vector("xdot", OUTPUT, "n", "velocity", "interface velocities"),
            Vector("P", OUTPUT, "N", "force", "total contact forces"),
@@ -123,7 +124,7 @@ def stepper_vectors(nodes) -> tuple:
     return tuple(out)
 
 
-INTERNAL_MOTION_DESCRIPTION = "true: the ground motion bundled in resources; false: the input ag"
+INTERNAL_MOTION_DESCRIPTION = "true: the ground motion bundled in resources; false: the inputs ag_x, ag_y, ag_z"
 ROLES = ("soil", "structure", "coupled")
 #: the slots the C runtime looks up (records vr.<slot> of resources/uplift.bin; -1 when absent)
 SLOTS = ("x", "xdot", "x_time", "g", "g_time", "f", "dissipated_energy", "ag", "P", "gap", "nodes", "energy",
@@ -196,12 +197,12 @@ MESSAGES = {
                       "(call doStep more often)",
     "past_stop": "communication step {h} s ends at {end} s, past the stop time {stop} s given to "
                  "fmi2SetupExperiment",
-    "not_finite": "input {name}[{i}] = {value}: inputs must be finite (check what is connected to it)",
+    "not_finite": "input {name} = {value}: inputs must be finite (check what is connected to it)",
     "stamp": "input {name} is stamped {stamp_name} = {stamp} s at a step from t = {t} s: it must be the partner's "
              "output at t or at t + dt (connect the partner's {stamp_name} output to this input, with {name})",
     "start_time": "start time {start} s: this FMU starts at t = 0 s, at rest, with the first sample of its record",
     "no_motion": "internal_motion = true but this FMU was exported without a motion: set internal_motion = false "
-                 "and drive the input ag",
+                 "and drive the inputs ag_x, ag_y, ag_z",
     "bad_state": "the {size} bytes are not a serialised state of this FMU: {why}",
     "state_magic": "not an uplift FMU state",
     "state_version": "format version {version}, this FMU reads version {expected}",

@@ -18,8 +18,8 @@ The reference run. The pair (structure.fmu, soil.fmu) is run under a parallel (J
 before the step from t each FMU is given the other's outputs at t, which are exactly the rows at
 t of its ``_in.csv``; coupled.fmu is run alone. Every FMU keeps its default parameters, as a
 cross-check importer does (it cannot set any): the structure and the coupled FMUs run on the
-motion bundled in them (internal_motion = true) and do not read their input ``ag``. The ``ag``
-columns hold a_g(t + dt) of that motion (zero after its end), the FMUs' convention for ``ag``.
+motion bundled in them (internal_motion = true) and do not read their inputs ``ag_x``, ``ag_y``,
+``ag_z``. Those columns hold a_g(t + dt) of that motion (zero after its end), the FMUs' convention.
 A replay of ``_in.csv`` (inputs held at the rows' values, read at the communication points)
 through one FMU alone reproduces its ``_ref.csv`` (bit for bit on the exporting host): the pair
 is exact under Jacobi (fmus/coupling.py), and the coupled FMU is the monolithic step.
@@ -45,6 +45,7 @@ from fmpy.cross_check.validate_vendor_repo import validate_repo
 from fmpy.util import read_ref_opt_file
 
 from fmus.resources import MOTION_FILE
+from fmus.schema import AG
 from fmus.native_build import RESOURCE_FILE, decode_resources
 from soil_impedance.cache import atomic_output
 
@@ -92,18 +93,18 @@ One row per communication point t = k dt, set before the step from t.
 Computed with the FMU's default parameters ({how}) on {platform}, Python {python}, numpy {numpy},
 scipy {scipy}.
 """
-AG = ("- `ag[0..2]` (m/s2): a_g(t + dt), the ground acceleration (x, y, z) at the end of the coming\n"
-      "  step, of the motion bundled in the FMU (zero past its end). Read only when the parameter\n"
-      "  `internal_motion` is false; by default (true, as here) the bundled motion drives the FMU.\n"
-      "  With internal_motion = false the FMU also reads `ag` at initialisation as a_g(0), which the\n"
-      "  row at t = 0 gives as a_g(dt): such a replay differs unless a_g(0) = a_g(dt).")
+AG_TEXT = ("- `ag_x`, `ag_y`, `ag_z` (m/s2): a_g(t + dt), the ground acceleration along x, y, z at the end\n"
+           "  of the coming step, of the motion bundled in the FMU (its components; zero past its end). Read\n"
+           "  only when the parameter `internal_motion` is false; by default (true, as here) the bundled\n"
+           "  motion drives the FMU. With internal_motion = false the FMU also reads them at initialisation\n"
+           "  as a_g(0), which the row at t = 0 gives as a_g(dt): such a replay differs unless a_g(0) = a_g(dt).")
 INPUTS = {
     "structure": "- `g[0..n-1]` (N, N.m), `g_time` (s): the soil FMU's outputs at t (its history force for\n"
-                 "  the structure's step from t, stamped g_time = t).\n" + AG,
+                 "  the structure's step from t, stamped g_time = t).\n" + AG_TEXT,
     "soil": "- `x[0..n-1]` (m, rad), `xdot[0..n-1]` (m/s, rad/s), `x_time` (s): the structure FMU's\n"
             "  outputs at t, the interface displacements and velocities [q, w] (q: raft ux, uy, uz, rx,\n"
             "  ry, rz; w: the vertical gap DOF of each interface node), stamped x_time = t.",
-    "coupled": AG,
+    "coupled": AG_TEXT,
 }
 HEADLINE_TEXT = ("`max_uplift` (m): running maximum of the uplift over the interface nodes;\n"
                  "`max_raft_rotation` (rad): running maximum of the raft rotation hypot(rx, ry).")
@@ -141,7 +142,7 @@ def model_folder(xdir, model: str) -> Path:
 
 def bundled_motion_ahead(structure_fmu, nt: int) -> np.ndarray:
     """(nt, 3) m/s^2: row k is a_g(t_k + dt) of the motion bundled in ``structure_fmu`` (zero past
-    its end), what the FMU's input ``ag`` means at the communication point t_k."""
+    its end), what the FMU's inputs ``ag_x``, ``ag_y``, ``ag_z`` mean at the communication point t_k."""
     with zipfile.ZipFile(structure_fmu) as z:
         names = z.namelist()
         if f"resources/{MOTION_FILE}" in names:                     # a pythonfmu FMU
@@ -176,7 +177,7 @@ def reference_histories(exported: Export) -> dict:
     with FmuSlave(exported.structure, "structure") as S, FmuSlave(exported.soil, "soil") as G, \
             FmuSlave(exported.coupled, "coupled") as C:
         for fmu in (S, C):
-            fmu.set("ag", ag[0])
+            fmu.set(*AG, ag[0])
             fmu.initialize()
         G.initialize()
         s_names, g_names = _names(S, s_out), _names(G, g_out)
@@ -185,15 +186,15 @@ def reference_histories(exported: Export) -> dict:
         A[0], B[0], Y[0] = S.get(*s_out), G.get(*g_out), C.get(*HEADLINE)
         for k in range(1, nt):
             t = (k - 1) * dt
-            S.set("g", "g_time", "ag", np.concatenate([B[k - 1, :ng], ag[k - 1]]))
+            S.set("g", "g_time", *AG, np.concatenate([B[k - 1, :ng], ag[k - 1]]))
             G.set("x", "xdot", "x_time", A[k - 1, :nx])
-            C.set("ag", ag[k - 1])
+            C.set(*AG, ag[k - 1])
             for fmu in (S, G, C):
                 fmu.do_step(t, dt)
             A[k], B[k], Y[k] = S.get(*s_out), G.get(*g_out), C.get(*HEADLINE)
         inputs = {m: [v.name for v in fmu.md.modelVariables if v.causality == "input"]
                   for m, fmu in (("structure", S), ("soil", G))}
-    ag_cols = {f"ag[{i}]": ag[:, i] for i in range(3)}
+    ag_cols = dict(zip(AG, ag.T))
     pair = {**dict(zip(s_names, A.T)), **dict(zip(g_names, B.T)), **ag_cols}
     peak = np.abs(B[:, :ng - 1]).max(axis=0)
     soil_ref = [g_names[i] for i in np.sort(np.argsort(-peak, kind="stable")[:SOIL_REFERENCE_DOFS])]

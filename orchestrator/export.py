@@ -7,6 +7,7 @@
     outdir/coupled.fmu     both in one FMU (nothing to connect; for tools that run one FMU)
     outdir/system.ssd      SSP 1.0 system of the pair: both components, the coupling connections
                            (x, xdot, x_time from the structure to the soil; g, g_time back) and
+                           the motion inputs ag_x, ag_y, ag_z of the structure (free),
                            the fixed-step algorithm named (OSP annotation) so that libcosim
                            (libcosimpy) runs it as it is, and OMSimulator's simulation
                            information (its fixed-step master at dt); the motion is bundled in
@@ -34,6 +35,7 @@ from fmpy import read_model_description
 from fmus.build import FmuData, build_fmus
 from fmus.bundle import PACKAGES
 from fmus.resources import DEFAULT_SOIL_FACTORY
+from fmus.schema import AG
 from fmus.native_build import build_native_fmus
 from soil_impedance.cache import atomic_output
 from structure.spec import contact_table
@@ -130,8 +132,9 @@ def write_ssd(path, structure_fmu, soil_fmu, dt: float, stop_time: float, name: 
               source_dir: str | None = None) -> Path:
     """SSP system: components "structure" and "soil" (sources relative to the .ssd, or under
     ``source_dir`` inside an SSP), the coupling (every input of one component from the output
-    of the same name of the other; the structure's ag stays free, the motion is bundled), the
-    headline outputs, DefaultExperiment with the OSP FixedStepAlgorithm of step dt, and the
+    of the same name of the other), the structure's motion inputs ag_x, ag_y, ag_z as free
+    connectors (the motion is bundled: a tool may connect a source to them with internal_motion
+    = false), the headline outputs, DefaultExperiment with the OSP FixedStepAlgorithm of step dt, and the
     system's OMSimulator annotation (SimulationInformation: its fixed-step master "oms-ma" at dt,
     which OMSimulator needs to import the SSP; other tools ignore it)."""
     path = Path(path)
@@ -145,7 +148,7 @@ def write_ssd(path, structure_fmu, soil_fmu, dt: float, stop_time: float, name: 
     pairs = [(a, v, b, v) for a, b in (("structure", "soil"), ("soil", "structure"))
              for v, kind in kinds[b].items() if kind == "input" and kinds[a].get(v) == "output"]
     ports = {comp: [v for a, v, b, _ in pairs if comp in (a, b)] for comp in md}
-    ports["structure"] += [v for v in HEADLINE if v in kinds["structure"]]
+    ports["structure"] += [v for v in AG + HEADLINE if v in kinds["structure"]]
     root = ET.Element(q(SSD, "SystemStructureDescription"), {"version": "1.0", "name": name})
     system = ET.SubElement(root, q(SSD, "System"), {"name": name})
     elements = ET.SubElement(system, q(SSD, "Elements"))

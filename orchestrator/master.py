@@ -6,7 +6,7 @@ latest state, which the structure adds itself (fmus/coupling.py); both stamp wha
 (x_time, g_time), so every schedule is exact (equal to the monolithic route to round-off):
 
 ``gauss-seidel`` (default)
-    S <- g, g_time, a_g(t_{k+1});  S.doStep;  G <- x, xdot, x_time at t_{k+1};  G.doStep
+    S <- g, g_time, a_g(t_{k+1}) (ag_x, ag_y, ag_z);  S.doStep;  G <- x, xdot, x_time at t_{k+1};  G.doStep
 ``soil-first``
     G <- x, xdot, x_time at t_k;  G.doStep;  S <- g, g_time (new), a_g(t_{k+1});  S.doStep
 ``jacobi``
@@ -27,7 +27,7 @@ from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave, defaultCallbacks, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
 
-from fmus.schema import ENERGY_TERMS
+from fmus.schema import AG, ENERGY_TERMS
 from structure.results import RouteResult, RunNotes, Status
 
 SCHEDULES = ("gauss-seidel", "soil-first", "jacobi")
@@ -218,7 +218,7 @@ def cosimulate(structure_fmu, soil_fmu, ag, dt: float, schedule: str = "gauss-se
                route: str = "cosim", progress=None, parameters: dict | None = None):
     """Co-simulate the exported pair over the ground acceleration ``ag`` (nt, 3) m/s^2 at
     step ``dt`` (the FMUs' fixed step) with ``schedule`` in SCHEDULES. The motion goes in
-    through the structure's ``ag`` inputs (``internal_motion = false``).
+    through the structure's inputs ``ag_x``, ``ag_y``, ``ag_z`` (``internal_motion = false``).
 
     structure_fmu, soil_fmu : paths of .fmu files (or open FmuSlaves, left open)
     Returns a RouteResult (route name ``route``; ``info["schedule"]``; ``notes.timings`` and
@@ -253,7 +253,7 @@ def cosimulate(structure_fmu, soil_fmu, ag, dt: float, schedule: str = "gauss-se
             own.append(G)
         params = {"internal_motion": False, **(parameters or {})}
         S.set_parameters(params)
-        S.set("ag", ag[0])
+        S.set(*AG, ag[0])
         S.initialize()
         G.initialize()
         return _run(S, G, ag, dt, schedule, route, progress, start)
@@ -284,7 +284,7 @@ def _run(S, G, ag, dt, schedule, route, progress, start):
         timer.add("soil step")
 
     def structure_step(t, k):
-        S.set("g", "g_time", "ag", np.concatenate([G.get("g", "g_time"), ag[k]]))
+        S.set("g", "g_time", *AG, np.concatenate([G.get("g", "g_time"), ag[k]]))
         timer.add("transfers")
         S.do_step(t, dt)
         timer.add("structure step")

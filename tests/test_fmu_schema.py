@@ -98,6 +98,16 @@ def test_units_match_across_every_connection_of_the_ssd_and_ssp(exported, export
             assert (ca, cb) == ("output", "input") and ua == ub and ua is not None, (a, va, b, vb, ua, ub)
         rotational = [va for a, va, b, vb in conns if units[a][va][0] in ("rad", "rad/s", "N.m")]
         assert len(rotational) == 9                      # x, xdot, g on rx, ry, rz
+        # every connector is a variable of its FMU with its causality; the structure's motion
+        # inputs are there, free (the motion is bundled), in m/s2
+        connectors = {(comp.get("name"), c.get("name")): c.get("kind") for comp in root.iter()
+                      if comp.tag.endswith("Component") for c in comp.iter() if c.tag.endswith("Connector")}
+        for (comp, name), kind_ in connectors.items():
+            assert units[comp][name][1] == kind_, (comp, name)
+        connected = {(a, va) for a, va, _, _ in conns} | {(b, vb) for _, _, b, vb in conns}
+        for name in schema.AG:
+            assert connectors[("structure", name)] == "input" and units["structure"][name][0] == "m/s2"
+            assert ("structure", name) not in connected
 
 
 def test_units_match_across_the_cross_check_folders(exported, tmp_path):

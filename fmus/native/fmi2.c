@@ -235,8 +235,8 @@ static double steps_of(UpInstance *I, double t, double h, char *why)
         const double *v = up_var(I, k);
         for (int i = 0; i < I->slot_len[k]; i++)
             if (!isfinite(v[i])) {
-                snprintf(b2, sizeof b2, "%d", i);
-                snprintf(why, UP_MSG, UP_MSG_NOT_FINITE, up_slot_names[k], b2, up_num(v[i], b1));
+                char name[48];
+                snprintf(why, UP_MSG, UP_MSG_NOT_FINITE, up_element_name(I, k, i, name), up_num(v[i], b1));
                 return -1;
             }
     }

@@ -58,6 +58,18 @@ const char *up_num(double v, char *buf)
     return buf;
 }
 
+/* the name of element i of a slot's variables, as the model description has it (buf[48]) */
+const char *up_element_name(const UpInstance *I, int slot, int i, char *buf)
+{
+    if (slot == S_AG)
+        snprintf(buf, 48, "ag_%c", "xyz"[i % 3]);
+    else if (I->slot_len[slot] == 1)
+        snprintf(buf, 48, "%s", up_slot_names[slot]);
+    else
+        snprintf(buf, 48, "%s[%d]", up_slot_names[slot], i);
+    return buf;
+}
+
 UpInstance *up_instance(fmi2Component c)
 {
     UpInstance *I = (UpInstance *)c;

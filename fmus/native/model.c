@@ -75,9 +75,8 @@ int up_initial_state(UpInstance *I)
         memcpy(ag0, up_var(I, S_AG), sizeof ag0);
         for (int c = 0; c < 3; c++)
             if (!isfinite(ag0[c])) {
-                char b[32];
-                snprintf(I->err, UP_MSG, "input ag[%d] = %s at initialisation: inputs must be finite (check what "
-                         "is connected to it)", c, up_num(ag0[c], b));
+                char b[32], name[48];
+                snprintf(I->err, UP_MSG, UP_MSG_NOT_FINITE, up_element_name(I, S_AG, c, name), up_num(ag0[c], b));
                 return -1;
             }
     }

@@ -70,6 +70,7 @@ void up_free_instance(UpInstance *I);
 void up_log_error(UpInstance *I, const char *fmt, ...);       /* logStatusError, always */
 void up_log_event(UpInstance *I, const char *fmt, ...);       /* logEvents, when logging is on */
 const char *up_num(double v, char *buf);                      /* shortest round-trip decimal, buf[32] */
+const char *up_element_name(const UpInstance *I, int slot, int i, char *buf);   /* "x[3]", "ag_x", buf[48] */
 
 /* model.c */
 enum { UP_REFUSED = 1, UP_FAILED = 2 };

@@ -35,6 +35,7 @@
 #define up_check_refs UP_SYM(up_check_refs)
 #define up_crc32 UP_SYM(up_crc32)
 #define up_dot UP_SYM(up_dot)
+#define up_element_name UP_SYM(up_element_name)
 #define up_free_instance UP_SYM(up_free_instance)
 #define up_guard UP_SYM(up_guard)
 #define up_initial_state UP_SYM(up_initial_state)
