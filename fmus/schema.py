@@ -182,21 +182,21 @@ TIME_TOL = 1e-6
 MAX_STEPS_PER_CALL = 100000
 
 #: the refusals both kinds make, as str.format templates with named fields (numbers in their
-#: shortest round-trip form); the C runtime's copy (include/uplift_messages.h) has the fields
-#: as %s in the order they appear
+#: shortest round-trip form; the FMI version's names ``api``, ``standard``, ``setup`` default to
+#: FMI 2.0's, API_FIELDS); the C runtime's copy (include/uplift_messages.h) has the fields as %s
+#: in the order they appear
 MESSAGES = {
     "refused": "step from t = {t} s refused: {why}",
-    "before_init": "{call} before initialisation (call fmi2ExitInitializationMode first)",
-    "wrong_state": "{call} is not allowed {state} (FMI 2.0 co-simulation state machine)",
-    "after_terminate": "{call} after fmi2Terminate (instantiate the FMU again)",
+    "before_init": "{call} before initialisation (call {api}ExitInitializationMode first)",
+    "wrong_state": "{call} is not allowed {state} ({standard} co-simulation state machine)",
+    "after_terminate": "{call} after {api}Terminate (instantiate the FMU again)",
     "wrong_time": "this FMU is at t = {time} s: steps must follow one another (restore an FMU state to go back)",
     "bad_step": "communication step {h} s: a step must be finite and positive",
     "wrong_step": "communication step {h} s: this FMU steps {allowed} {dt} s per communication step (export it "
                   "again with the step you need)",
     "too_many_steps": "communication step {h} s: more than {limit} steps of {dt} s in one communication step "
                       "(call doStep more often)",
-    "past_stop": "communication step {h} s ends at {end} s, past the stop time {stop} s given to "
-                 "fmi2SetupExperiment",
+    "past_stop": "communication step {h} s ends at {end} s, past the stop time {stop} s given to {setup}",
     "not_finite": "input {name} = {value}: inputs must be finite (check what is connected to it)",
     "stamp": "input {name} is stamped {stamp_name} = {stamp} s at a step from t = {t} s: it must be the partner's "
              "output at t or at t + dt (connect the partner's {stamp_name} output to this input, with {name})",
@@ -215,9 +215,14 @@ MESSAGES = {
 STATE_VERSION = 1
 
 
+#: the names of each FMI version in the messages (the Python FMUs are FMI 2.0)
+API_FIELDS = {2: {"api": "fmi2", "standard": "FMI 2.0", "setup": "fmi2SetupExperiment"},
+              3: {"api": "fmi3", "standard": "FMI 3.0", "setup": "fmi3EnterInitializationMode"}}
+
+
 def message(key: str, **fields) -> str:
-    """A refusal of MESSAGES with its fields filled in."""
-    return MESSAGES[key].format(**fields)
+    """A refusal of MESSAGES with its fields filled in (the FMI 2.0 names unless given)."""
+    return MESSAGES[key].format(**{**API_FIELDS[2], **fields})
 
 
 def c_messages_header() -> str:

@@ -5,14 +5,14 @@
 #define UPLIFT_MESSAGES_H
 
 #define UP_MSG_REFUSED "step from t = %s s refused: %s"
-#define UP_MSG_BEFORE_INIT "%s before initialisation (call fmi2ExitInitializationMode first)"
-#define UP_MSG_WRONG_STATE "%s is not allowed %s (FMI 2.0 co-simulation state machine)"
-#define UP_MSG_AFTER_TERMINATE "%s after fmi2Terminate (instantiate the FMU again)"
+#define UP_MSG_BEFORE_INIT "%s before initialisation (call %sExitInitializationMode first)"
+#define UP_MSG_WRONG_STATE "%s is not allowed %s (%s co-simulation state machine)"
+#define UP_MSG_AFTER_TERMINATE "%s after %sTerminate (instantiate the FMU again)"
 #define UP_MSG_WRONG_TIME "this FMU is at t = %s s: steps must follow one another (restore an FMU state to go back)"
 #define UP_MSG_BAD_STEP "communication step %s s: a step must be finite and positive"
 #define UP_MSG_WRONG_STEP "communication step %s s: this FMU steps %s %s s per communication step (export it again with the step you need)"
 #define UP_MSG_TOO_MANY_STEPS "communication step %s s: more than %s steps of %s s in one communication step (call doStep more often)"
-#define UP_MSG_PAST_STOP "communication step %s s ends at %s s, past the stop time %s s given to fmi2SetupExperiment"
+#define UP_MSG_PAST_STOP "communication step %s s ends at %s s, past the stop time %s s given to %s"
 #define UP_MSG_NOT_FINITE "input %s = %s: inputs must be finite (check what is connected to it)"
 #define UP_MSG_STAMP "input %s is stamped %s = %s s at a step from t = %s s: it must be the partner's output at t or at t + dt (connect the partner's %s output to this input, with %s)"
 #define UP_MSG_START_TIME "start time %s s: this FMU starts at t = 0 s, at rest, with the first sample of its record"
