@@ -157,6 +157,70 @@ def variables(role: str, n: int, N: int, nodes=(), motion: bool = False) -> list
     return out
 
 
+# ---- FMI 3.0: arrays ------------------------------------------------------------------------------
+#: an interface vector [q, w] of FMI 3.0 in parts of one unit each: (suffix, first element,
+#: length: 3 or "N", 0 for the translation unit or 1 for the rotation unit, what)
+INTERFACE_PARTS = (("_raft_u", 0, 3, 0, "raft translations ux, uy, uz"),
+                   ("_raft_r", 3, 3, 1, "raft rotations rx, ry, rz"),
+                   ("_w", 6, "N", 0, "the soil's vertical displacement under each interface node"))
+
+
+@dataclass(frozen=True)
+class Variable3:
+    """One variable of an FMI 3.0 model description: a Float64 scalar or array over the run of
+    elements ``first .. first + length - 1`` of the FMI 2.0 variables (``variables``), the
+    structural parameter N (UInt64) or the Boolean internal_motion.
+
+    dimension : None (a scalar), an int (a fixed length) or "N" (the structural parameter N)
+    vector : the FMI 2.0 vector (fmus.schema.Vector name) the variable is a part of
+    """
+    name: str
+    value_reference: int
+    causality: str
+    description: str
+    type: str = "Float64"
+    unit: str | None = None
+    dimension: int | str | None = None
+    start: str | None = None
+    variability: str | None = None
+    first: int = 0
+    length: int = 1
+    vector: str | None = None
+
+
+def variables3(role: str, n: int, N: int, nodes=(), motion: bool = False) -> list:
+    """Every variable of the FMI 3.0 FMU of ``role``: each vector of ``vectors`` as one array, an
+    interface vector [q, w] as the three arrays of INTERFACE_PARTS (an FMI 3.0 array has one
+    unit: the raft's translations, its rotations, the gap DOFs), the motion as the scalars
+    ag_x, ag_y, ag_z, scalars as scalars; then the independent variable time, the structural
+    parameter N and (not the soil) the Boolean internal_motion. Value references 0, 1, ... in
+    that order; ``first`` and ``length`` map each Float64 variable to the elements of
+    ``variables`` (the runtime's bank; time: first = -1, the FMU's time)."""
+    out, first = [], 0
+    for vec in vectors(role, nodes):
+        k, units = vec.length(n, N), vec.units(n, N)
+        start = "0" if vec.causality == INPUT else None
+        if vec.size == "n":
+            parts = [(vec.name + suffix, first + off, N if ln == "N" else ln, "N" if ln == "N" else ln,
+                      f"{vec.description}: {what}", units[off]) for suffix, off, ln, _, what in INTERFACE_PARTS]
+        elif vec.elements is not None:
+            parts = [(name, first + i, 1, None, vec.description, units[i]) for i, name in enumerate(vec.elements)]
+        else:
+            dim = None if vec.size == "1" else ("N" if vec.size == "N" else k)
+            parts = [(vec.name, first, k, dim, vec.description, units[0])]
+        for name, at, length, dim, description, unit in parts:
+            out.append(Variable3(name, len(out), vec.causality, description, unit=unit, dimension=dim, start=start,
+                                 first=at, length=length, vector=vec.name))
+        first += k
+    out.append(Variable3("time", len(out), "independent", "simulation time", unit="s", first=-1))
+    out.append(Variable3("N", len(out), "structuralParameter", "number of interface nodes", type="UInt64",
+                         start=str(N), variability="fixed"))
+    if role != "soil":
+        out.append(Variable3("internal_motion", len(out), PARAMETER, INTERNAL_MOTION_DESCRIPTION, type="Boolean",
+                             start="true" if motion else "false", variability="fixed"))
+    return out
+
+
 def slot_table(variables_) -> dict:
     """{slot: first value reference} of the Real variables (every slot of SLOTS; -1 when absent)."""
     first = {}

@@ -306,7 +306,8 @@ static int setup(UpInstance *I, const char *guid, const char *location, int uri)
         up_soil_level(&I->soil, 0, I->dt);
     }
     for (int64_t k = 0; k < I->nvars3; k++)
-        if (I->vars3[2 * k] < 0 || I->vars3[2 * k + 1] < 1 || I->vars3[2 * k] + I->vars3[2 * k + 1] > I->n_real) {
+        if (I->vars3[2 * k] < -1 || I->vars3[2 * k + 1] < 1 || I->vars3[2 * k] + I->vars3[2 * k + 1] > I->n_real
+            || (I->vars3[2 * k] == -1 && I->vars3[2 * k + 1] != 1)) {       /* -1: the time */
             snprintf(I->err, UP_MSG, "resource file %s: fmi3_float64 out of range: export the FMU again", I->res.path);
             return -1;
         }

@@ -57,7 +57,8 @@ struct UpInstance {
     const double *motion;                   /* (nt, 3) or NULL */
     int64_t nt, vr_internal_motion;
     int has_motion;
-    const int64_t *vars3;                   /* FMI 3.0: (nvars3, 2) first element, length of each Float64 variable */
+    const int64_t *vars3;                   /* FMI 3.0: (nvars3, 2) first element (-1: the time), length of each
+                                               Float64 variable */
     int64_t nvars3, vr3_N;
     const double *Gx, *Gv;                  /* (n, n), structure only */
     double dt, start_time, stop_time;       /* stop_time: +inf unless the host defines it */
