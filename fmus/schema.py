@@ -160,9 +160,19 @@ def variables(role: str, n: int, N: int, nodes=(), motion: bool = False) -> list
 # ---- FMI 3.0: arrays ------------------------------------------------------------------------------
 #: an interface vector [q, w] of FMI 3.0 in parts of one unit each: (suffix, first element,
 #: length: 3 or "N", 0 for the translation unit or 1 for the rotation unit, what)
+INTERFACE_VECTORS = ("x", "xdot", "g", "f")
 INTERFACE_PARTS = (("_raft_u", 0, 3, 0, "raft translations ux, uy, uz"),
                    ("_raft_r", 3, 3, 1, "raft rotations rx, ry, rz"),
                    ("_w", 6, "N", 0, "the soil's vertical displacement under each interface node"))
+
+
+def vector3(name: str) -> str:
+    """The vector an FMI 3.0 variable is part of: ``x`` for x_raft_u, x_raft_r, x_w (the
+    interface vectors' parts), else the name itself."""
+    for suffix, *_ in INTERFACE_PARTS:
+        if name.endswith(suffix) and name[:-len(suffix)] in INTERFACE_VECTORS:
+            return name[:-len(suffix)]
+    return name
 
 
 @dataclass(frozen=True)

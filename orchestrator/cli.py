@@ -119,6 +119,9 @@ def _parser() -> argparse.ArgumentParser:
                      help="native (default): compiled C for linux64, win64 and darwin64, no Python needed by the "
                           "host; python: pythonfmu (the host needs Python with numpy and scipy). The same "
                           "variables and the same answers (docs/native.md)")
+    exp.add_argument("--fmi-version", type=int, choices=(2, 3), default=2,
+                     help="2 (default: what most tools load today) or 3: FMI 3.0 FMUs of the native kind, "
+                          "interface vectors as arrays, binaries also for aarch64-darwin (docs/fmus.md)")
     exp.add_argument("--cross-check", type=Path, default=None, metavar="XDIR",
                      help="write XDIR/fmus/2.0/cs/<platform>/uplift/<version>/<Model>/ for each FMU (the FMU, "
                           "<Model>_in.csv, <Model>_ref.csv, <Model>_ref.opt, README.md; see docs/fmus.md), "
@@ -337,8 +340,12 @@ def cmd_export(args) -> int:
     if args.cross_check is not None and args.cross_check.exists() and not args.cross_check.is_dir():
         raise ResultsFileError(f"--cross-check {str(args.cross_check)!r} is a file: give a folder (the root "
                                "of a cross-check repository)")
+    if args.fmi_version == 3 and args.kind != "native":
+        raise ResultsFileError("--fmi-version 3 writes native FMUs only (pythonfmu writes FMI 2.0): drop --kind "
+                               "python")
     soil = scene_fit(scene, cache_dir=_cache(args), fit_progress=stage_bar(f"fit {scene.name}")).model
-    exported = export_scene(scene, args.output, soil, cache_dir=_cache(args), kind=args.kind)
+    exported = export_scene(scene, args.output, soil, cache_dir=_cache(args), kind=args.kind,
+                            fmi_version=args.fmi_version)
     _say(*(f"wrote {path}" for path in exported.files))
     if args.cross_check is not None:
         xc = write_cross_check(exported, args.cross_check, scene.name)
