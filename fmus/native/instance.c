@@ -279,7 +279,7 @@ static int setup(UpInstance *I, const char *guid, const char *location, int uri)
             I->has_motion = I->nt > 0;
         }
     }
-    I->N = (int)N;
+    I->N = I->has_stepper ? (int)N : I->n - 6;        /* the soil: n = 6 + N interface DOFs */
     I->nnodes = (int)nnodes;
     if (up_res_find(&I->res, "fmi3_float64")) {   /* FMI 3.0: the Float64 variables over the elements */
         int64_t dims[2] = {-1, 2};
