@@ -110,9 +110,9 @@ def _parser() -> argparse.ArgumentParser:
 
     exp = sub.add_parser("export", help="export the structure and soil FMUs and an SSP system",
                          description="Write structure.fmu, soil.fmu, coupled.fmu, system.ssd and system.ssp "
-                                     "(FMI 2.0 co-simulation, fixed step) for the scene; libcosimpy runs the "
-                                     ".ssd as it is. With --cross-check, also the FMI cross-check folders "
-                                     "of the three FMUs with their reference results.")
+                                     "(FMI 2.0 co-simulation, fixed step; FMI 3.0 with --fmi-version 3) for the "
+                                     "scene; libcosimpy runs the FMI 2.0 .ssd as it is. With --cross-check, also "
+                                     "the FMI cross-check folders of the three FMUs with their reference results.")
     scene_arg(exp)
     exp.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output directory")
     exp.add_argument("--kind", choices=KINDS[::-1], default="native",
@@ -123,7 +123,7 @@ def _parser() -> argparse.ArgumentParser:
                      help="2 (default: what most tools load today) or 3: FMI 3.0 FMUs of the native kind, "
                           "interface vectors as arrays, binaries also for aarch64-darwin (docs/fmus.md)")
     exp.add_argument("--cross-check", type=Path, default=None, metavar="XDIR",
-                     help="write XDIR/fmus/2.0/cs/<platform>/uplift/<version>/<Model>/ for each FMU (the FMU, "
+                     help="write XDIR/fmus/<2.0|3.0>/cs/<platform>/uplift/<version>/<Model>/ for each FMU (the FMU, "
                           "<Model>_in.csv, <Model>_ref.csv, <Model>_ref.opt, README.md; see docs/fmus.md), "
                           "checked with fmpy's cross-check validator")
     no_cache(exp)

@@ -328,3 +328,23 @@ def test_cross_check_folders_in_the_fmi3_layout(case, tmp_path):
             rows.append(g.get("g").copy())
     g_ref = np.hstack([ref["g_raft_u"], ref["g_raft_r"]])[1:]
     assert np.abs(g_ref).max() > 0 and rel(np.array(rows)[:, :6], g_ref) <= TOL
+
+
+def test_cli_export_fmi_version_3(tmp_path, monkeypatch, capsys):
+    """``uplift export --fmi-version 3`` writes FMI 3.0 FMUs and cross-check folders under
+    fmus/3.0; FMI 3.0 with --kind python is refused before any computation (exit 2)."""
+    from orchestrator.cli import main
+    from orchestrator.crosscheck import model_folder
+    from test_crosscheck import CLI_SCENE
+    monkeypatch.setenv("UPLIFT_CACHE", str(tmp_path / "cache"))
+    scene = tmp_path / "toy.toml"
+    scene.write_text(CLI_SCENE)
+    out, xdir = tmp_path / "fmus", tmp_path / "xc"
+    assert main(["export", str(scene), "-o", str(out), "--fmi-version", "3", "--cross-check", str(xdir)]) == 0
+    err = capsys.readouterr().err
+    assert "WARNING" not in err
+    for model in ROLES:
+        assert read_model_description(str(out / f"{model}.fmu")).fmiVersion == "3.0"
+        assert (model_folder(xdir, model, 3) / f"{model}_ref.csv").is_file()
+    assert main(["export", str(scene), "-o", str(tmp_path / "py"), "--fmi-version", "3", "--kind", "python"]) == 2
+    assert "--fmi-version 3" in capsys.readouterr().err and not (tmp_path / "py").exists()
