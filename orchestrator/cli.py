@@ -27,7 +27,7 @@ from orchestrator.bench import bench, bench_config, format_rows, json_safe, plot
 from orchestrator.compare import compare, format_table
 from orchestrator.ensemble import (CONNECT_TIMEOUT_S, DT_CHECKS, ensemble_summary, is_ensemble_file, read_ensemble,
                                    run_ensemble)
-from orchestrator.errors import ComputationError, SetupError, UserInputError
+from orchestrator.errors import ComputationError, OptionError, SetupError, UserInputError
 from orchestrator.impedance import rigid_json, scene_fit, scene_impedance, scene_static
 from orchestrator.motion import G
 from orchestrator.plots import plot_impedance, plot_run, pyplot
@@ -135,17 +135,20 @@ def _parser() -> argparse.ArgumentParser:
 
     exp = sub.add_parser("export", help="export the structure and soil FMUs and an SSP system",
                          description="Write structure.fmu, soil.fmu, coupled.fmu, system.ssd and system.ssp "
-                                     "(FMI 2.0 co-simulation, fixed step) for the scene; libcosimpy runs the "
-                                     ".ssd as it is. With --cross-check, also the FMI cross-check folders "
-                                     "of the three FMUs with their reference results.")
+                                     "(FMI 2.0 co-simulation, fixed step; FMI 3.0 with --fmi-version 3) for the "
+                                     "scene; libcosimpy runs the FMI 2.0 .ssd as it is. With --cross-check, also "
+                                     "the FMI cross-check folders of the three FMUs with their reference results.")
     scene_arg(exp)
     exp.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output directory")
     exp.add_argument("--kind", choices=FMU_KINDS[::-1], default="native",
                      help="native (default): compiled C for linux64, win64 and darwin64, no Python needed by the "
                           "host; python: pythonfmu (the host needs Python with numpy and scipy). The same "
                           "variables and the same answers (docs/native.md)")
+    exp.add_argument("--fmi-version", type=int, choices=(2, 3), default=2,
+                     help="2 (default: what most tools load today) or 3: FMI 3.0 FMUs of the native kind, "
+                          "interface vectors as arrays, binaries also for aarch64-darwin (docs/fmus.md)")
     exp.add_argument("--cross-check", type=Path, default=None, metavar="XDIR",
-                     help="write XDIR/fmus/2.0/cs/<platform>/uplift/<version>/<Model>/ for each FMU (the FMU, "
+                     help="write XDIR/fmus/<2.0|3.0>/cs/<platform>/uplift/<version>/<Model>/ for each FMU (the FMU, "
                           "<Model>_in.csv, <Model>_ref.csv, <Model>_ref.opt, README.md; see docs/fmus.md), "
                           "checked with fmpy's cross-check validator")
     no_cache(exp)
@@ -377,15 +380,18 @@ def cmd_export(args) -> int:
         check_output_folder(args.cross_check, (), "--cross-check")
         for model in ("structure", "soil", "coupled"):
             try:
-                folder = model_folder(args.cross_check, model)
+                folder = model_folder(args.cross_check, model, args.fmi_version)
             except ValueError as exc:           # the package's version (the folder's name) is unknown
                 raise SetupError(f"--cross-check: {exc}") from None
             check_output_folder(folder, [name.format(model) for name in CROSS_CHECK_FILES], "--cross-check")
     if args.kind == "native" and importlib.util.find_spec("ziglang") is None:
         raise SetupError("--kind native compiles the FMUs with the C compiler of the ziglang package, which is not "
                          "installed: pip install ziglang (a dependency of uplift), or export --kind python")
+    if args.fmi_version == 3 and args.kind != "native":
+        raise OptionError("--fmi-version 3 writes native FMUs only (pythonfmu writes FMI 2.0): drop --kind python")
     soil = scene_fit(scene, cache_dir=_cache(args), fit_progress=stage_bar(f"fit {scene.name}")).model
-    exported = export_scene(scene, args.output, soil, cache_dir=_cache(args), kind=args.kind)
+    exported = export_scene(scene, args.output, soil, cache_dir=_cache(args), kind=args.kind,
+                            fmi_version=args.fmi_version)
     _say(*(f"wrote {path}" for path in exported.files))
     if args.cross_check is not None:
         xc = write_cross_check(exported, args.cross_check, scene.name)

@@ -29,6 +29,10 @@ class FragilityError(ValueError):
     """Bad input to a fragility fit (a limit, a route, a file); the message names it and the fix."""
 
 
+class OptionError(ValueError):
+    """Command-line options that cannot go together; the message says which to drop."""
+
+
 class SetupError(ValueError):
     """The machine lacks something a command needs (e.g. the C compiler of a native export);
     the message names it and how to get it."""
@@ -36,7 +40,7 @@ class SetupError(ValueError):
 
 #: bad input: a scene, a file, an option, the environment; the message says what to fix
 UserInputError = (SceneError, SoilError, MeshError, BemError, TableError, MotionError, StructureError, FitError,
-                  RouteInputError, ResultsFileError, EnsembleError, FragilityError, OutputPathError, ChangedFileError, SetupError,
+                  RouteInputError, ResultsFileError, EnsembleError, FragilityError, OutputPathError, ChangedFileError, SetupError, OptionError,
                   StepRefused, StateRefused, FileNotFoundError)
 #: a computation that stopped (results so far are written by the caller)
 ComputationError = (RuntimeError, ArithmeticError)
