@@ -49,17 +49,18 @@ cell store), ``cluster`` (the dask cluster and the cells run on it), ``dataset``
 file, summary), ``runner`` (``run_ensemble``).
 """
 from .cluster import CONNECT_TIMEOUT_S, LOCAL_WORKER_CONFIG, default_workers
-from .dataset import (FRACTILE_VARIABLES, KIND, QUANTILES, assemble, ensemble_summary, is_ensemble_file,
-                      read_ensemble, write_ensemble)
+from .dataset import (FRACTILE_VARIABLES, KIND, QUANTILES, assemble, ensemble_components, ensemble_summary,
+                      is_ensemble_file, read_ensemble, write_ensemble)
 from .plan import (DT_CHECKS, RECORD_SUFFIXES, Cell, EnsembleError, Plan, Record, cell_key, code_digest,
-                   plan_ensemble, record_files)
+                   plan_ensemble, record_sources)
 from .runner import run_ensemble, strongest_check
 from .store import (CELL_VARIABLES, DAMPING, DIRECTIONS, FAILED, FREQUENCIES_HZ, ROUNDOFF, TEXT_VARIABLES,
                     CellStore, cell_values, run_cell)
+from .triplets import COMPONENTS_FILE, folder_components, peer_component
 
-__all__ = ["CELL_VARIABLES", "CONNECT_TIMEOUT_S", "DAMPING", "DIRECTIONS", "DT_CHECKS", "FAILED",
+__all__ = ["CELL_VARIABLES", "COMPONENTS_FILE", "CONNECT_TIMEOUT_S", "DAMPING", "DIRECTIONS", "DT_CHECKS", "FAILED",
            "FRACTILE_VARIABLES", "FREQUENCIES_HZ", "KIND", "LOCAL_WORKER_CONFIG", "QUANTILES", "RECORD_SUFFIXES",
            "ROUNDOFF", "TEXT_VARIABLES", "Cell", "CellStore", "EnsembleError", "Plan", "Record", "assemble",
-           "cell_key", "cell_values", "code_digest", "default_workers", "ensemble_summary", "is_ensemble_file",
-           "plan_ensemble", "read_ensemble", "record_files", "run_cell", "run_ensemble", "strongest_check",
-           "write_ensemble"]
+           "cell_key", "cell_values", "code_digest", "default_workers", "ensemble_components", "ensemble_summary",
+           "folder_components", "is_ensemble_file", "peer_component", "plan_ensemble", "read_ensemble",
+           "record_sources", "run_cell", "run_ensemble", "strongest_check", "write_ensemble"]

@@ -49,6 +49,9 @@ def run_ensemble(scene, pgas, records=None, seeds=None, routes=None, output=None
     connect_timeout = check_timeout(connect_timeout)
     out = check_output_path(output) if output is not None else None
     plan = plan_ensemble(scene, pgas, records, seeds, dt_check)
+    for rec in plan.records if log is not None else ():
+        if rec.told == "PEER names":
+            log(f"{rec.label}: " + ", ".join(f"{a} = {f.name}" for a, f in rec.files) + " (told by PEER's file names)")
     store = CellStore(out) if out is not None else None
     values = {}
     for cell in plan.cells if store is not None else ():
