@@ -74,8 +74,10 @@ def assemble(plan: Plan, values: dict, failures: dict, attrs: dict):
             ds[f"{name}_fractile"] = (("quantile",) + ds[name].dims[1:], q,
                                       {**ds[name].attrs, "long_name": f"fractile over the records of {name}"})
     if plan.records[0].files:
-        per_axis = lambda r, values, empty: [dict(zip(r.axes, values)).get(d, empty) for d in DIRECTIONS]
-        ds["record_file"] = (("record", "direction"), [per_axis(r, map(str, dict(r.files).values()), "")
+        def per_axis(r, values, empty):          # by direction, ``empty`` where the record has none
+            by_axis = dict(zip(r.axes, values))
+            return [by_axis.get(d, empty) for d in DIRECTIONS]
+        ds["record_file"] = (("record", "direction"), [per_axis(r, [str(f) for _, f in r.files], "")
                                                        for r in plan.records])
         ds["record_sha256"] = (("record", "direction"), [per_axis(r, r.checksums, "") for r in plan.records])
         ds["record_peak"] = (("record", "direction"), np.array([per_axis(r, r.peaks, np.nan) for r in plan.records]) / G,

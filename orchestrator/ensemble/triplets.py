@@ -70,12 +70,13 @@ def peer_component(name: str):
 
 
 def folder_components(folder: Path, suffixes) -> tuple[dict, str]:
-    """({axis: Path} in x, y, z order, how they were told: "components.toml" or "PEER names")
-    of the record folder ``folder``; ``suffixes``: the suffixes of record files (lower case)."""
+    """({axis: absolute Path} in x, y, z order, how they were told: "components.toml" or "PEER
+    names") of the record folder ``folder``; ``suffixes``: the suffixes of record files (lower
+    case). A folder that cannot be told raises EnsembleError naming it and the fix."""
     folder = Path(folder)
     if (folder / COMPONENTS_FILE).is_file():
         return _from_toml(folder), COMPONENTS_FILE
-    files = sorted(f for f in folder.iterdir() if f.is_file() and f.suffix.lower() in suffixes)
+    files = sorted(f.resolve() for f in folder.iterdir() if f.is_file() and f.suffix.lower() in suffixes)
     if not files:
         raise EnsembleError(f"--records {str(folder)!r}: no record files in this folder (suffixes: "
                            f"{', '.join(suffixes)}); a folder holds the components of one record")
