@@ -262,6 +262,8 @@ def test_records_that_do_not_go_together_are_refused(case, tmp_path):
     b = _folder(tmp_path / "b", ["s-E.txt", "s-V.txt"])
     with pytest.raises(ens.EnsembleError, match="'a' has the components x, y, z and 'b' x, z: every record"):
         ens.plan_ensemble(scene, [0.3], records=[a, b])
+    with pytest.raises(ens.EnsembleError, match="give at least one record folder or file"):
+        ens.plan_ensemble(scene, [0.3], records=[])
     with pytest.raises(ens.EnsembleError, match="give folders .* or files .*, not both"):
         ens.plan_ensemble(scene, [0.3], records=[a, b / "s-E.txt"])
     c = _folder(tmp_path / "c", ["s-E.txt"])

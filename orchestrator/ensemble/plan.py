@@ -189,18 +189,20 @@ def record_sources(paths, direction: str | None) -> list:
             out.append((p.name, {direction: p.resolve()}, False, ""))
         else:
             raise EnsembleError(f"--records {str(p)!r}: no such file or folder")
+    if not out:
+        raise EnsembleError("--records: give at least one record folder or file")
     if len({folder for _, _, folder, _ in out}) > 1:
         raise EnsembleError("--records: give folders (one record each, its components x, y, z) or files (one "
                             "component each, on [motion].direction), not both")
-    seen, labels = {}, {}
+    seen, labels = set(), set()
     for label, files, _, _ in out:
         for f in files.values():
             if f in seen:
                 raise EnsembleError(f"--records: {str(f)!r} is given twice")
-            seen[f] = label
+            seen.add(f)
         if label in labels:
             raise EnsembleError(f"--records: two records named {label!r}: rename one (the name labels the record)")
-        labels[label] = True
+        labels.add(label)
     return out
 
 

@@ -40,6 +40,8 @@ from orchestrator.motion import DIRECTIONS
 
 #: the file of a record folder that tells its components (it wins over the file names)
 COMPONENTS_FILE = "components.toml"
+#: how the components of a folder were told without it
+PEER_NAMES = "PEER names"
 #: PEER component codes at the end of a file's stem (upper-cased): (pattern, component)
 PEER_CODES = (
     (re.compile(r"(UP|DWN|DOWN|UD|VERT?|[-_.][VZ])$"), "z"),
@@ -98,7 +100,7 @@ def folder_components(folder: Path, suffixes) -> tuple[dict, str]:
                         f"name ({', '.join(f.name for a in ('x', 'y') for f in named.get(a, ()))})")
     out = {axis: fs[0] for axis, fs in named.items()}
     out.update(_by_azimuth(folder, azimuths))
-    return {a: out[a] for a in DIRECTIONS if a in out}, "PEER names"
+    return {a: out[a] for a in DIRECTIONS if a in out}, PEER_NAMES
 
 
 def _by_azimuth(folder: Path, azimuths: dict) -> dict:
