@@ -32,8 +32,12 @@ the files given one by one (each a one-component record).
 from __future__ import annotations
 
 import re
-import tomllib
 from pathlib import Path
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python < 3.11
+    import tomli as tomllib
 
 from orchestrator.errors import EnsembleError
 from orchestrator.motion import DIRECTIONS
