@@ -10,7 +10,9 @@ Modules (one concept each):
   soil_interface SoilInterface protocol (K0, C0, history h, commit, state) and WinklerSoil
   contact        ContactSettings, penalty "auto" rule, contact force / gap kernels
   preload        static equilibrium under self-weight: settlement, P0
-  newmark        NewmarkStepper (one step at a time; FMU-ready) and simulate()
+  newmark        NewmarkStepper (one step at a time; FMU-ready; a linear run at once)
+  closed         the closed-contact (linear) solver and the vectorised energy kernels
+  simulate       simulate(): the driver that runs a stepper over a record into a RouteResult
   results        RouteResult, the one result type of every route
   winkler        Winkler mattress: springs, dashpots, RCC-G composite modal damping
   spec           scene tables -> objects (model_from_spec, winkler_from_spec, contact_from_spec)
@@ -27,9 +29,10 @@ from .contact import ContactSettings
 from .damping import damping_matrix, fixed_base_modes
 from .errors import ConvergenceError, StructureError
 from .model import Beam, Damping, Mass, Node, Raft, Spring, StructureModel
-from .newmark import NewmarkStepper, simulate
+from .newmark import NewmarkStepper
 from .preload import StaticState, solve_static
 from .results import RouteResult
+from .simulate import simulate
 from .soil_interface import SoilInterface, WinklerSoil
 from .spec import contact_from_spec, model_from_spec, winkler_from_spec
 

@@ -21,13 +21,13 @@ soil history held) down to dt / 2**max_subdiv, then ConvergenceError is raised.
 
 Closed contact (contact disabled, or ``simulate``'s linear pre-check): the problem is linear;
 one factorisation of the whole effective matrix with every penalty spring closed
-(``_ClosedSolver``: the soil DOFs condensed exactly when they are uncoupled, else sparse LU),
-one solve per step, no Newton; ``simulate`` then records outputs and energies over the whole
-history at once (``_closed_run``, ``_closed_result``).
+(``closed.ClosedSolver``: the soil DOFs condensed exactly when they are uncoupled, else sparse
+LU), one solve per step, no Newton. ``march_closed`` runs the whole record that way and
+``closed_histories`` records its outputs and energies over the whole history at once; the
+driver ``simulate`` (simulate.py) chooses between that and ``step()``.
 """
 from __future__ import annotations
 
-import time as _time
 from collections import OrderedDict
 
 import numpy as np
@@ -36,14 +36,12 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ._blas import single_threaded_blas
+from .closed import ClosedSolver, MatVec, quad, work
 from .contact import ContactSettings, contact_force, gap, penalty_stiffness
 from .damping import damping_matrix
 from .errors import ConvergenceError, StructureError
 from .model import StructureModel
 from .preload import StaticState, embed, interface_operator, solve_static
-from types import SimpleNamespace
-
-from .results import RouteResult, RunNotes, Status
 
 
 class _NewtonFailure(Exception):
@@ -51,54 +49,13 @@ class _NewtonFailure(Exception):
         self.node, self.residual = node, residual
 
 
-class _ClosedSolver:
-    """u = A^-1 rhs for the effective matrix A (n, n) with every contact spring closed, split
-    as [[Ass, Asw], [Aws, Aww]] on the ns structure DOFs and the N soil DOFs w.
-
-    When Aww is diagonal (springs and dashpots under each node in series with the penalty:
-    Winkler soils) w is condensed exactly: S = Ass - Asw Aww^-1 Aws (ns, ns) is factorised
-    densely (a stick model has few DOFs), and a solve is a few vector operations; w couples
-    to the raft rows only, so Asw and Aws are kept on their bounding blocks. Otherwise (a soil
-    coupling the nodes, e.g. the BEM's recursive convolution) a sparse LU of A."""
-
-    def __init__(self, A, ns: int):
-        A = sp.csr_matrix(A)
-        self.n, self.ns = A.shape[0], ns
-        Aww = A[ns:, ns:]
-        dw = Aww.diagonal()
-        self.lu = None
-        if ns == 0 or (Aww - sp.diags(dw)).count_nonzero() or not np.all(dw != 0):
-            self.lu = spla.splu(A.tocsc())
-            return
-        Asw, Aws = A[:ns, ns:], A[ns:, :ns]
-        r, c = Asw.nonzero()[0], Aws.nonzero()[1]
-        self.r = slice(r.min(), r.max() + 1) if r.size else slice(0, 0)
-        self.c = slice(c.min(), c.max() + 1) if c.size else slice(0, 0)
-        self.dw = dw
-        self.Asw = Asw[self.r].toarray()                       # (rows of Asw, N)
-        self.G = Aws[:, self.c].toarray() / dw[:, None]        # Aww^-1 Aws on its columns
-        S = A[:ns, :ns].toarray()
-        S[:, self.c] -= Asw.toarray() @ self.G
-        self.S_lu = sla.lu_factor(S, check_finite=False)
-        self.Sinv = sla.lu_solve(self.S_lu, np.eye(ns), check_finite=False)
-
-    def solve(self, rhs):
-        """A^-1 rhs (rhs (n,) may be overwritten)."""
-        if self.lu is not None:
-            return self.lu.solve(rhs)
-        ns = self.ns
-        t = rhs[ns:] / self.dw
-        rs = rhs[:ns]
-        rs[self.r] -= self.Asw @ t
-        u = np.empty(self.n)
-        us = u[:ns]
-        np.matmul(self.Sinv, rs, out=us)
-        np.subtract(t, self.G @ us[self.c], out=u[ns:])
-        return u
-
 
 class NewmarkStepper:
     """One implicit time step at a time; the FMU calls ``step()`` exactly as ``simulate`` does.
+
+    Public: ``step()``, and for a linear run ``march_closed`` and ``closed_histories``; inputs
+    ``set_ground_acceleration``, ``set_soil_history``; outputs ``x``, ``xdot``, ``gap()``,
+    ``energies()``; ``get_state`` / ``set_state``.
 
     Parameters
     ----------
@@ -239,7 +196,7 @@ class NewmarkStepper:
         if lu is None:
             B = interface_operator(self.model)
             Kc = B.T @ sp.diags(self.kp) @ B
-            lu = sysd["lu_closed"] = _ClosedSolver(sysd["A"] + (1 + self.alpha) * Kc, self.ns)
+            lu = sysd["lu_closed"] = ClosedSolver(sysd["A"] + (1 + self.alpha) * Kc, self.ns)
             self.n_factorisations += 1
         return lu
 
@@ -445,281 +402,124 @@ class NewmarkStepper:
             if self.contact.enabled else float(np.sum(0.5 * self.kp * d * d))
         return e
 
+    # ---- a linear run at once --------------------------------------------------------------
+    def march_closed(self, ag, stop_on_tension: bool = False, progress=None):
+        """The whole run with every contact spring closed (linear): one factorisation, one solve
+        per step, the soil advanced through its protocol (not with an external soil). Returns
+        (Z, H): Z (nt, 3, n) the states [u, v, a] and H (nt, 6+N) the soil history force of each
+        step; or, when ``stop_on_tension``, the index k of the first step where a node goes into
+        tension (checked every 50 steps at most: the run goes on at most that far past it; the
+        soil is then left advanced, the stepper itself is not changed).
 
-def simulate(model: StructureModel, soil, ag, dt: float, contact: ContactSettings | None = None,
-             damping=None, alpha: float = 0.0, output_nodes=None, progress=None,
-             route: str = "newmark", static: StaticState | None = None) -> RouteResult:
-    """Time history of the structure on ``soil`` under ground acceleration ``ag``.
+        ag : (nt, 3) m/s^2 at t_k = k dt, ag[0] the stepper's a_g(0); progress : callable(k, nt)
+        or None. Starts from the stepper's state at t = 0.
 
-    ag : (nt, 3) m/s^2 at t_k = k dt (x, y, z); output_nodes : node names (default: all
-    named nodes); progress : callable(k, nt) or None. Returns a RouteResult; on a Newton
-    failure raises ConvergenceError with ``.result`` holding the samples computed so far.
+        The update is ``step()``'s with the contact closed, written on the predictors
+        p = -a_hat, q = -v_hat for speed: A u' = M p + (1+al) (C q + F' - h) - al F + al R,
+        v' = c1 u' - q, a' = c0 u' - p (tests/test_skip.py checks it against ``step()``)."""
+        with single_threaded_blas():
+            return self._march_closed(ag, stop_on_tension, progress)
 
-    What is skipped (``info["skipped"]``, ``info["precheck"]``): with the contact disabled,
-    or enabled with ``contact.precheck`` and the raft in full contact at rest, the run is the
-    closed-contact linear recursion (``_closed_run``: one factorisation, one solve per
-    step, outputs and energies computed at the end over the whole history). With the contact
-    enabled that run stops at the first step where a node would go into tension (the gap
-    opens), the soil is rolled back and the nonlinear stepper runs from t = 0, so a run with
-    uplift is exactly what ``precheck=False`` gives. Without tension the closed solution is
-    the unilateral one (the penalty law is linear while closed); it equals the Newton path to
-    round-off amplified by the penalty's conditioning (~1e-10 relative, as between any two
-    linear solvers of this system).
-    """
-    with single_threaded_blas():
-        return _simulate(model, soil, ag, dt, contact, damping, alpha, output_nodes, progress,
-                         route, static)
+    def _march_closed(self, ag, stop_on_tension, progress):
+        nt, dt, al = ag.shape[0], self.dt, self.alpha
+        sysd = self._system(dt)
+        lu = self._closed_lu(sysd)
+        c0, c1, c2, c3 = self._coeffs(dt)
+        b, g = self.beta, self.gamma
+        W = np.array([[c0, c2, c3], [c1, -(1 - g / b), -dt * (1 - g / (2 * b))]])
+        e = np.array([[1.0], [c1], [c0]])
+        M, ni, ns = self.M, self.ni, self.ns
+        Ktot, Ctot, B3, delta0 = sysd["Ktot"], sysd["Ctot"], self.Bq3, self.delta0
+        Cq = MatVec(Ctot)
+        F = -ag @ self.Mr.T
+        Fk = (1 + al) * F
+        Fk[1:] -= al * F[:-1]
+        Z = np.vstack([self.u, self.v, self.a])
+        Zh = np.empty((nt, 3, self.n))
+        H = np.zeros((nt, self.nb))
+        Zh[0] = Z
+        R = self.R
+        soil = self.soil
+        soil.instantaneous(dt)
+        every, k0 = max(1, min(50, nt // 100)), 1
+        for k in range(1, nt):
+            h = soil.history()
+            p, q = W @ Z
+            rhs = M * p
+            Cq.add_to(rhs, q, 1 + al)
+            if al:
+                rhs += al * R
+            rhs[ni:] -= (1 + al) * h if al else h
+            rhs += Fk[k]
+            u = lu.solve(rhs)
+            Z = e * u
+            Z[1] -= q
+            Z[2] -= p
+            soil.commit(u[ni:].copy(), Z[1, ni:].copy())
+            if al:
+                R = Ktot @ u + Ctot @ Z[1]
+                R[ni:] += h + self._contact(u[ni:])[2]
+            Zh[k] = Z
+            H[k] = h
+            if k % every == 0 or k == nt - 1:
+                # tension (d > delta0) checked in blocks of steps: the run restarts from t = 0 anyway
+                if stop_on_tension:
+                    blk = Zh[k0:k + 1, 0]
+                    tens = np.flatnonzero(((blk[:, ni + 2:ni + 5] @ B3.T - blk[:, ns:]) > delta0).any(axis=1))
+                    if tens.size:
+                        return k0 + int(tens[0])
+                    k0 = k + 1
+                if progress is not None:
+                    progress(k, nt)
+        return Zh, H
 
-
-def _closed_run(st: NewmarkStepper, ag, stop_on_tension: bool, progress=None):
-    """The whole run with every contact spring closed (linear): one factorisation, one solve
-    per step, the soil advanced through its protocol. Returns (Z, H): Z (nt, 3, n) the states
-    [u, v, a] and H (nt, 6+N) the soil history force of each step; or, when
-    ``stop_on_tension``, the index k of the first step where a node goes into tension (checked
-    every 50 steps at most: the run goes on at most that far past it; the soil is then left
-    advanced, the stepper itself is not changed).
-
-    The update is the stepper's (``_advance`` with the contact closed) written on the
-    predictors p = -a_hat, q = -v_hat for speed: A u' = M p + (1+al) (C q + F' - h) - al F + al R,
-    v' = c1 u' - q, a' = c0 u' - p (tests/test_skip.py checks it against ``step()``)."""
-    nt, dt, al = ag.shape[0], st.dt, st.alpha
-    sysd = st._system(dt)
-    lu = st._closed_lu(sysd)
-    c0, c1, c2, c3 = st._coeffs(dt)
-    b, g = st.beta, st.gamma
-    W = np.array([[c0, c2, c3], [c1, -(1 - g / b), -dt * (1 - g / (2 * b))]])
-    e = np.array([[1.0], [c1], [c0]])
-    M, ni, ns = st.M, st.ni, st.ns
-    Ktot, Ctot, B3, delta0 = sysd["Ktot"], sysd["Ctot"], st.Bq3, st.delta0
-    Cq = _MatVec(Ctot)
-    F = -ag @ st.Mr.T
-    Fk = (1 + al) * F
-    Fk[1:] -= al * F[:-1]
-    Z = np.vstack([st.u, st.v, st.a])
-    Zh = np.empty((nt, 3, st.n))
-    H = np.zeros((nt, st.nb))
-    Zh[0] = Z
-    R = st.R
-    soil = st.soil
-    soil.instantaneous(dt)
-    every, k0 = max(1, min(50, nt // 100)), 1
-    for k in range(1, nt):
-        h = soil.history()
-        p, q = W @ Z
-        rhs = M * p
-        Cq.add_to(rhs, q, 1 + al)
-        if al:
-            rhs += al * R
-        rhs[ni:] -= (1 + al) * h if al else h
-        rhs += Fk[k]
-        u = lu.solve(rhs)
-        Z = e * u
-        Z[1] -= q
-        Z[2] -= p
-        soil.commit(u[ni:].copy(), Z[1, ni:].copy())
-        if al:
-            R = Ktot @ u + Ctot @ Z[1]
-            R[ni:] += h + st._contact(u[ni:])[2]
-        Zh[k] = Z
-        H[k] = h
-        if k % every == 0 or k == nt - 1:
-            # tension (d > delta0) checked in blocks of steps: the run restarts from t = 0 anyway
-            if stop_on_tension:
-                blk = Zh[k0:k + 1, 0]
-                tens = np.flatnonzero(((blk[:, ni + 2:ni + 5] @ B3.T - blk[:, ns:]) > delta0).any(axis=1))
-                if tens.size:
-                    return k0 + int(tens[0])
-                k0 = k + 1
-            if progress is not None:
-                progress(k, nt)
-    return Zh, H
-
-
-def _rows_times(S, Z, r, c):
-    """(nt, |r|): rows r of S z_k for every row z_k of Z (nt, n), S sparse and zero outside
-    rows r and columns c: a dense block product when S is dense there, else sparse."""
-    Sb = S[r][:, c]
-    Zc = Z[:, c]
-    if Sb.nnz >= 0.1 * r.size * c.size:
-        return Zc @ Sb.toarray().T
-    return (Sb @ np.ascontiguousarray(Zc.T)).T
-
-
-def _work(dY, S, Z):
-    """(nt - 1,) dy_k . S (z_k + z_{k+1}) / 2 for dY (nt - 1, n), Z (nt, n) and a sparse S
-    (n, n): the work increments of the force S z, on the rows and columns S touches."""
-    rows, cols = S.nonzero()
-    if rows.size == 0:
-        return np.zeros(dY.shape[0])
-    r = np.unique(rows)
-    Q = _rows_times(S, Z, r, np.unique(cols))
-    return np.einsum("ij,ij->i", dY[:, r], 0.5 * (Q[:-1] + Q[1:]))
-
-
-def _quad(Y, S):
-    """(nt,) y_k . S y_k / 2 for Y (nt, n) and a sparse S (n, n)."""
-    rows, cols = S.nonzero()
-    r = np.unique(rows)
-    return 0.5 * np.einsum("ij,ij->i", Y[:, r], _rows_times(S, Y, r, np.unique(cols)))
-
-
-class _MatVec:
-    """y = S x for a constant sparse S, fast in a time loop: a dense product on the bounding
-    block of its nonzeros when S is dense there (the modal damping of a stick model), else
-    scipy's sparse product."""
-
-    def __init__(self, S):
-        S = sp.csr_matrix(S)
-        rows, cols = S.nonzero()
-        if rows.size == 0:
-            self.mode = "zero"
-            return
-        self.r = slice(rows.min(), rows.max() + 1)
-        self.c = slice(cols.min(), cols.max() + 1)
-        block = S[self.r, self.c]
-        self.mode = "dense" if block.nnz >= 0.1 * block.shape[0] * block.shape[1] else "sparse"
-        self.S = block.toarray() if self.mode == "dense" else S
-
-    def add_to(self, y, x, scale=1.0):
-        """y += scale * S x."""
-        if self.mode == "dense":
-            y[self.r] += self.S @ x[self.c] if scale == 1.0 else scale * (self.S @ x[self.c])
-        elif self.mode == "sparse":
-            y += self.S @ x if scale == 1.0 else scale * (self.S @ x)
-
-
-def _closed_result(st: NewmarkStepper, res: SimpleNamespace, ag, Zh, H, dofs) -> None:
-    """Fill the history buffers ``res`` from a closed run's histories: the stepper's step-by-step records and
-    energy works, vectorised over time."""
-    sysd = st._system(st.dt)
-    ni, ns = st.ni, st.ns
-    U, V, A = Zh[:, 0], Zh[:, 1], Zh[:, 2]
-    res.raft[:] = U[:, ni:ni + 6]
-    res.soil_w[:] = U[:, ns:]
-    d = res.raft[:, 2:5] @ st.Bq3.T - res.soil_w
-    if st.contact.enabled:
-        P = contact_force(d, st.delta0, st.kp)[0]
-        res.gap[:] = gap(d, st.delta0)
-    else:
-        P = st.P0 - st.kp * d
-    P[0] = st.P0                                   # the static state, as the stepper records it
-    res.contact_force[:] = P
-    for nm, dd in dofs.items():
-        res.acc[nm][:] = A[:, dd] + ag
-        res.disp[nm][:] = U[:, dd]
-    # works: sums over the steps of du . (f_n + f_{n+1}) / 2, as NewmarkStepper._advance
-    dU = np.diff(U, axis=0)
-    dX = dU[:, ni:]
-    dp = P - st.P0
-    dp[0] = 0.0                                    # the stepper starts from zero forces
-    works = {"input": -np.einsum("ij,ij->i", dU @ st.Mr, 0.5 * (ag[:-1] + ag[1:])),
-             "damping": _work(dU, st.Cs, V),
-             # fs = K0 x + C0 xdot + h (zero at t = 0, where x = xdot = h = 0)
-             "soil": _work(dX, sysd["K0"], U[:, ni:]) + _work(dX, sysd["C0"], V[:, ni:]),
-             # fc = -B^T dp on x, B x = d: dx . fc = -dd . dp
-             "contact": -np.einsum("ij,ij->i", np.diff(d, axis=0), 0.5 * (dp[:-1] + dp[1:]))}
-    if H.any():
-        works["soil"] += np.einsum("ij,ij->i", dX, 0.5 * (H[:-1] + H[1:]))
-    for key, w in works.items():
-        res.energy[key][0] = 0.0
-        np.cumsum(w, out=res.energy[key][1:])
-    res.energy["kinetic"][:] = 0.5 * np.einsum("ij,ij->i", V, V * st.M)
-    res.energy["strain"][:] = _quad(U, st.Ks)
-    if st.contact.enabled:
-        pen = np.maximum(0.0, st.delta0 - d)
-        pen0 = np.maximum(0.0, st.delta0)
-        res.energy["contact_potential"][:] = (0.5 * st.kp * (pen**2 - pen0**2) + st.P0 * d).sum(axis=1)
-    else:
-        res.energy["contact_potential"][:] = (0.5 * st.kp * d * d).sum(axis=1)
-
-
-def _simulate(model, soil, ag, dt, contact, damping, alpha, output_nodes, progress, route, static):
-    t0 = _time.perf_counter()
-    ag = np.asarray(ag, float)
-    if ag.ndim != 2 or ag.shape[1] != 3:
-        raise StructureError(f"ground acceleration must have shape (nt, 3), got {ag.shape}")
-    if not np.all(np.isfinite(ag)):
-        raise StructureError("ground acceleration contains NaN or inf")
-    st = NewmarkStepper(model, soil, dt, contact=contact, damping=damping, alpha=alpha,
-                        static=static, ag0=ag[0])
-    names = [n.name for n in model.nodes if n.name] if output_nodes is None else list(output_nodes)
-    dofs = {nm: model.dofs(model.node_by_name(nm).id)[:3] for nm in names}
-    nt, N = ag.shape[0], model.n_interface
-    res = SimpleNamespace(      # history buffers, filled in place, frozen into a RouteResult at the end
-        raft=np.zeros((nt, 6)), gap=np.zeros((nt, N)), contact_force=np.zeros((nt, N)), soil_w=np.zeros((nt, N)),
-        acc={nm: np.zeros((nt, 3)) for nm in names}, disp={nm: np.zeros((nt, 3)) for nm in names},
-        energy={k: np.zeros(nt) for k in ("input", "kinetic", "strain", "damping", "soil", "contact",
-                                          "contact_potential")},
-        newton_iters=np.zeros(nt, int))
-    info = dict(settlement=st.static.settlement, P0=st.P0.copy(), penalty=st.kp.copy(),
-                delta0=st.delta0.copy(), dt=dt, alpha=alpha, contact_enabled=st.contact.enabled)
-    skipped = []
-    enabled = st.contact.enabled
-    if not enabled:
-        closed, note = True, "not needed: contact disabled (bonded raft, linear)"
-    elif not st.contact.precheck:
-        closed, note = False, "off (contact.precheck = false): nonlinear contact iterations forced"
-    elif not np.all(st.P0 > 0):
-        closed, note = False, (f"not run: {int(np.sum(st.P0 <= 0))} interface nodes are not in contact at "
-                               "rest, the closed-contact problem is not the unilateral one")
-    else:
-        closed, note = True, ""
-    if closed:
-        soil0 = st.soil.get_state()
-        out = _closed_run(st, ag, enabled, progress)
-        if isinstance(out, int):
-            st.soil.set_state(soil0)
-            closed = False
-            note = f"tension at t = {out * dt:.6g} s (step {out}): the contact opens, nonlinear run from t = 0"
-        elif not (np.isfinite(out[0][-1]).all() and np.isfinite(out[1][-1]).all()):
-            # a linear recursion that overflows stays non-finite to the end
-            st.soil.set_state(soil0)          # let the stepper report where it breaks down
-            closed = False
-            note = "the closed-contact run is not finite: nonlinear run from t = 0"
+    def closed_histories(self, ag, Zh, H, dofs) -> dict:
+        """The records of a ``march_closed`` run (Zh, H), as ``step()`` would leave them step by
+        step, vectorised over time: raft (nt, 6) m and rad, soil_w, gap, contact_force (nt, N)
+        m and N, acc and disp {node: (nt, 3)} m/s^2 (absolute) and m for the DOFs ``dofs``
+        {node: (3,) indices}, energy {term: (nt,)} J (the terms of ``energies()``)."""
+        nt, N = ag.shape[0], self.N
+        out = dict(gap=np.zeros((nt, N)), acc={}, disp={},
+                   energy={k: np.zeros(nt) for k in ("input", "kinetic", "strain", "damping", "soil", "contact",
+                                              "contact_potential")})
+        sysd = self._system(self.dt)
+        ni, ns = self.ni, self.ns
+        U, V, A = Zh[:, 0], Zh[:, 1], Zh[:, 2]
+        out["raft"] = U[:, ni:ni + 6].copy()
+        out["soil_w"] = U[:, ns:].copy()
+        d = out["raft"][:, 2:5] @ self.Bq3.T - out["soil_w"]
+        if self.contact.enabled:
+            P = contact_force(d, self.delta0, self.kp)[0]
+            out["gap"][:] = gap(d, self.delta0)
         else:
-            _closed_result(st, res, ag, *out, dofs)
-            note = note or "no tension: the closed-contact (linear) solution is the unilateral one"
-            skipped.append(
-                "contact disabled: one linear solve per step, no Newton" if not enabled else
-                "no tension in the linear pre-check: nonlinear contact iterations skipped")
-    failure, n_subdivided = (None, 0) if closed else _nonlinear(st, res, ag, dofs, progress)
-    info.update(factorisations=st.n_factorisations, subdivided_steps=n_subdivided)
-    out = RouteResult(route=route, time=dt * np.arange(nt), **vars(res), wall_s=_time.perf_counter() - t0,
-                      xy=np.array(model.raft.xy), notes=RunNotes(skipped=skipped, precheck=note), info=info)
-    if failure is not None:
-        exc, k = failure
-        exc.result = out.truncated(k, Status.STOPPED, str(exc))
-        raise exc
-    return out
-
-
-def _nonlinear(st: NewmarkStepper, res: SimpleNamespace, ag, dofs, progress):
-    """The step-by-step run (Newton on the contact), recorded into the buffers ``res``.
-    Returns (failure, subdivided steps): failure is None or (ConvergenceError, first step not
-    computed)."""
-    ni, nt = st.ni, ag.shape[0]
-
-    def record(k):
-        res.raft[k] = st.u[ni:ni + 6]
-        res.gap[k] = st.gap()
-        res.contact_force[k] = st.P
-        res.soil_w[k] = st.u[st.ns:]
-        for nm, d in dofs.items():
-            res.acc[nm][k] = st.a[d] + st.ag
-            res.disp[nm][k] = st.u[d]
-        for key, val in st.energies().items():
-            res.energy[key][k] = val
-
-    record(0)
-    n_subdivided = 0
-    for k in range(1, nt):
-        st.set_ground_acceleration(ag[k])
-        try:
-            res.newton_iters[k] = st.step()
-            n_subdivided += st.last_substeps > 1
-        except ConvergenceError as exc:
-            return (exc, k), n_subdivided
-        record(k)
-        if progress is not None:
-            progress(k, nt)
-    return None, n_subdivided
+            P = self.P0 - self.kp * d
+        P[0] = self.P0                                   # the static state, as the stepper records it
+        out["contact_force"] = P
+        for nm, dd in dofs.items():
+            out["acc"][nm] = A[:, dd] + ag
+            out["disp"][nm] = U[:, dd].copy()
+        # works: sums over the steps of du . (f_n + f_{n+1}) / 2, as ``step()``
+        dU = np.diff(U, axis=0)
+        dX = dU[:, ni:]
+        dp = P - self.P0
+        dp[0] = 0.0                                    # the stepper starts from zero forces
+        works = {"input": -np.einsum("ij,ij->i", dU @ self.Mr, 0.5 * (ag[:-1] + ag[1:])),
+                 "damping": work(dU, self.Cs, V),
+                 # fs = K0 x + C0 xdot + h (zero at t = 0, where x = xdot = h = 0)
+                 "soil": work(dX, sysd["K0"], U[:, ni:]) + work(dX, sysd["C0"], V[:, ni:]),
+                 # fc = -B^T dp on x, B x = d: dx . fc = -dd . dp
+                 "contact": -np.einsum("ij,ij->i", np.diff(d, axis=0), 0.5 * (dp[:-1] + dp[1:]))}
+        if H.any():
+            works["soil"] += np.einsum("ij,ij->i", dX, 0.5 * (H[:-1] + H[1:]))
+        for key, w in works.items():
+            out["energy"][key][0] = 0.0
+            np.cumsum(w, out=out["energy"][key][1:])
+        out["energy"]["kinetic"][:] = 0.5 * np.einsum("ij,ij->i", V, V * self.M)
+        out["energy"]["strain"][:] = quad(U, self.Ks)
+        if self.contact.enabled:
+            pen = np.maximum(0.0, self.delta0 - d)
+            pen0 = np.maximum(0.0, self.delta0)
+            out["energy"]["contact_potential"][:] = (0.5 * self.kp * (pen**2 - pen0**2) + self.P0 * d).sum(axis=1)
+        else:
+            out["energy"]["contact_potential"][:] = (0.5 * self.kp * d * d).sum(axis=1)
+        return out

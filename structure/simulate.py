@@ -1,0 +1,139 @@
+"""The ``simulate`` driver: a time history of a structure on a soil under a ground motion,
+recorded into one RouteResult.
+
+It decides how to run (the closed-contact linear march when nothing can open, else the
+stepper step by step), records the stepper's outputs and energies, and freezes the records
+into a RouteResult. It uses the stepper's public interface only (``step()``,
+``march_closed``, ``closed_histories``, its state and outputs).
+"""
+from __future__ import annotations
+
+import time as _time
+from types import SimpleNamespace
+
+import numpy as np
+
+from ._blas import single_threaded_blas
+from .contact import ContactSettings
+from .errors import ConvergenceError, StructureError
+from .model import StructureModel
+from .newmark import NewmarkStepper
+from .preload import StaticState
+from .results import RouteResult, RunNotes, Status
+
+
+def simulate(model: StructureModel, soil, ag, dt: float, contact: ContactSettings | None = None,
+             damping=None, alpha: float = 0.0, output_nodes=None, progress=None,
+             route: str = "newmark", static: StaticState | None = None) -> RouteResult:
+    """Time history of the structure on ``soil`` under ground acceleration ``ag``.
+
+    ag : (nt, 3) m/s^2 at t_k = k dt (x, y, z); output_nodes : node names (default: all
+    named nodes); progress : callable(k, nt) or None. Returns a RouteResult; on a Newton
+    failure raises ConvergenceError with ``.result`` holding the samples computed so far.
+
+    What is skipped (``info["skipped"]``, ``info["precheck"]``): with the contact disabled,
+    or enabled with ``contact.precheck`` and the raft in full contact at rest, the run is the
+    closed-contact linear recursion (``NewmarkStepper.march_closed``: one factorisation, one solve per
+    step, outputs and energies computed at the end over the whole history). With the contact
+    enabled that run stops at the first step where a node would go into tension (the gap
+    opens), the soil is rolled back and the nonlinear stepper runs from t = 0, so a run with
+    uplift is exactly what ``precheck=False`` gives. Without tension the closed solution is
+    the unilateral one (the penalty law is linear while closed); it equals the Newton path to
+    round-off amplified by the penalty's conditioning (~1e-10 relative, as between any two
+    linear solvers of this system).
+    """
+    with single_threaded_blas():
+        return _simulate(model, soil, ag, dt, contact, damping, alpha, output_nodes, progress,
+                         route, static)
+
+
+def _simulate(model, soil, ag, dt, contact, damping, alpha, output_nodes, progress, route, static):
+    t0 = _time.perf_counter()
+    ag = np.asarray(ag, float)
+    if ag.ndim != 2 or ag.shape[1] != 3:
+        raise StructureError(f"ground acceleration must have shape (nt, 3), got {ag.shape}")
+    if not np.all(np.isfinite(ag)):
+        raise StructureError("ground acceleration contains NaN or inf")
+    st = NewmarkStepper(model, soil, dt, contact=contact, damping=damping, alpha=alpha,
+                        static=static, ag0=ag[0])
+    names = [n.name for n in model.nodes if n.name] if output_nodes is None else list(output_nodes)
+    dofs = {nm: model.dofs(model.node_by_name(nm).id)[:3] for nm in names}
+    nt, N = ag.shape[0], model.n_interface
+    res = SimpleNamespace(      # history buffers, filled in place, frozen into a RouteResult at the end
+        raft=np.zeros((nt, 6)), gap=np.zeros((nt, N)), contact_force=np.zeros((nt, N)), soil_w=np.zeros((nt, N)),
+        acc={nm: np.zeros((nt, 3)) for nm in names}, disp={nm: np.zeros((nt, 3)) for nm in names},
+        energy={k: np.zeros(nt) for k in ("input", "kinetic", "strain", "damping", "soil", "contact",
+                                          "contact_potential")},
+        newton_iters=np.zeros(nt, int))
+    info = dict(settlement=st.static.settlement, P0=st.P0.copy(), penalty=st.kp.copy(),
+                delta0=st.delta0.copy(), dt=dt, alpha=alpha, contact_enabled=st.contact.enabled)
+    skipped = []
+    enabled = st.contact.enabled
+    if not enabled:
+        closed, note = True, "not needed: contact disabled (bonded raft, linear)"
+    elif not st.contact.precheck:
+        closed, note = False, "off (contact.precheck = false): nonlinear contact iterations forced"
+    elif not np.all(st.P0 > 0):
+        closed, note = False, (f"not run: {int(np.sum(st.P0 <= 0))} interface nodes are not in contact at "
+                               "rest, the closed-contact problem is not the unilateral one")
+    else:
+        closed, note = True, ""
+    if closed:
+        soil0 = st.soil.get_state()
+        out = st.march_closed(ag, enabled, progress)
+        if isinstance(out, int):
+            st.soil.set_state(soil0)
+            closed = False
+            note = f"tension at t = {out * dt:.6g} s (step {out}): the contact opens, nonlinear run from t = 0"
+        elif not (np.isfinite(out[0][-1]).all() and np.isfinite(out[1][-1]).all()):
+            # a linear recursion that overflows stays non-finite to the end
+            st.soil.set_state(soil0)          # let the stepper report where it breaks down
+            closed = False
+            note = "the closed-contact run is not finite: nonlinear run from t = 0"
+        else:
+            vars(res).update(st.closed_histories(ag, *out, dofs))
+            note = note or "no tension: the closed-contact (linear) solution is the unilateral one"
+            skipped.append(
+                "contact disabled: one linear solve per step, no Newton" if not enabled else
+                "no tension in the linear pre-check: nonlinear contact iterations skipped")
+    failure, n_subdivided = (None, 0) if closed else _nonlinear(st, res, ag, dofs, progress)
+    info.update(factorisations=st.n_factorisations, subdivided_steps=n_subdivided)
+    out = RouteResult(route=route, time=dt * np.arange(nt), **vars(res), wall_s=_time.perf_counter() - t0,
+                      xy=np.array(model.raft.xy), notes=RunNotes(skipped=skipped, precheck=note), info=info)
+    if failure is not None:
+        exc, k = failure
+        exc.result = out.truncated(k, Status.STOPPED, str(exc))
+        raise exc
+    return out
+
+
+def _nonlinear(st: NewmarkStepper, res: SimpleNamespace, ag, dofs, progress):
+    """The step-by-step run (Newton on the contact), recorded into the buffers ``res``.
+    Returns (failure, subdivided steps): failure is None or (ConvergenceError, first step not
+    computed)."""
+    ni, nt = st.ni, ag.shape[0]
+
+    def record(k):
+        res.raft[k] = st.u[ni:ni + 6]
+        res.gap[k] = st.gap()
+        res.contact_force[k] = st.P
+        res.soil_w[k] = st.u[st.ns:]
+        for nm, d in dofs.items():
+            res.acc[nm][k] = st.a[d] + st.ag
+            res.disp[nm][k] = st.u[d]
+        for key, val in st.energies().items():
+            res.energy[key][k] = val
+
+    record(0)
+    n_subdivided = 0
+    for k in range(1, nt):
+        st.set_ground_acceleration(ag[k])
+        try:
+            res.newton_iters[k] = st.step()
+            n_subdivided += st.last_substeps > 1
+        except ConvergenceError as exc:
+            return (exc, k), n_subdivided
+        record(k)
+        if progress is not None:
+            progress(k, nt)
+    return None, n_subdivided
