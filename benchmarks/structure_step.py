@@ -4,7 +4,7 @@ Soil: rock E = 15 GPa, nu = 0.3, rho = 2500 kg/m^3; rigid-disk static springs (R
 shared by tributary area over circle_mesh(20, 2.28) (241 nodes). Damping as in the paper
 (§4.2): RCC-G composite modal damping (7 % structure, disk radiation ratios per direction
 weighted by soil strain energy), no dashpots; ``--dashpots`` uses rho Vp A_i, rho Vs A_i
-dashpots with 7 % fixed-base modal damping instead. Motion: seeded broadband accelerogram (structure._synthetic), 0.25 g along x.
+dashpots with 7 % fixed-base modal damping instead. Motion: seeded broadband accelerogram (structure.broadband), 0.25 g along x.
 Prints a table: wall time, Newton solves per step, factorisations, uplift; the same with
 contact disabled (linear, one factorisation). Budget: < 5 s on 2 cores.
 
@@ -19,7 +19,7 @@ import numpy as np
 
 from soil_impedance.mesh import circle_mesh
 from structure import ContactSettings, WinklerSoil, simulate
-from structure._synthetic import broadband_accelerogram
+from structure.broadband import broadband_accelerogram
 from structure.spec import model_from_spec
 from structure.winkler import (dashpots_from_waves, disk_radiation_ratios, disk_static_stiffness,
                                rccg_modal_damping, springs_from_rigid_impedance)

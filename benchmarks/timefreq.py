@@ -175,7 +175,7 @@ def ladder(pga):
 def small_case(pga):
     from soil_impedance.mesh import circle_mesh
     from structure import WinklerSoil
-    from structure._synthetic import broadband_accelerogram
+    from structure.broadband import broadband_accelerogram
     from structure.spec import model_from_spec
     from structure.winkler import dashpots_from_waves, disk_static_stiffness, springs_from_rigid_impedance
 

@@ -29,9 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
+from structure import G_ACC as G  # m/s^2 per g
+
 from orchestrator.spectra import response_spectrum
 
-G = 9.81
 _IN = 0.0254
 #: the choices of the [motion] keys (and of the readers' arguments)
 SPECTRA = ("RG1.60",)

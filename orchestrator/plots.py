@@ -5,6 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
+from orchestrator.motion import G
 from orchestrator.spectra import response_spectrum
 
 RIGID_GROUPS = (("ux", "horizontal"), ("uz", "vertical"), ("rx", "rocking"), ("rz", "torsion"))
@@ -136,13 +137,13 @@ def _spectra_figure(plt, res, lin, motion):
             if np.abs(acc[:, j]).max(initial=0.0) <= ROUNDOFF * np.abs(acc).max(initial=0.0):
                 continue
             s = response_spectrum(acc[:, j], dt, 1 / f, 0.05)
-            line, = ax.semilogx(f, s.psa / 9.81, label=name)
+            line, = ax.semilogx(f, s.psa / G, label=name)
             if lin is not None and name in lin.acc:
                 s0 = response_spectrum(lin.acc[name][:, j], lin.time[1] - lin.time[0], 1 / f, 0.05)
-                ax.semilogx(f, s0.psa / 9.81, "--", color=line.get_color(), lw=0.8, label=f"{name}, no uplift")
+                ax.semilogx(f, s0.psa / G, "--", color=line.get_color(), lw=0.8, label=f"{name}, no uplift")
         if motion is not None and d in motion.components:
             ground = response_spectrum(motion.acc[: res.nt, j], motion.dt, 1 / f, 0.05)
-            ax.semilogx(f, ground.psa / 9.81, "k--", label="ground")
+            ax.semilogx(f, ground.psa / G, "k--", label="ground")
         ax.set_title(f"{d} ({'vertical' if d == 'z' else 'horizontal'})")
         ax.set_xlabel("frequency (Hz)")
         ax.grid(True, which="both", alpha=0.3)

@@ -27,9 +27,8 @@ import numpy as np
 from soil_impedance.storage import ChangedFileError, OutputPathError, atomic_output, output_target, require_checksum, stamp_checksum
 from structure.results import RouteResult, RunNotes, Status
 
-from orchestrator.motion import Motion
+from orchestrator.motion import G, Motion
 
-G = 9.81
 ARRAYS = ("time", "raft", "gap", "contact_force", "soil_w", "newton_iters", "xy")
 GROUPS = ("acc", "disp", "energy")
 REMEDY = "run `uplift run SCENE -o FILE` again to make a good one"

@@ -28,7 +28,7 @@ Typical use::
 from .contact import ContactSettings
 from .damping import damping_matrix, fixed_base_modes
 from .errors import ConvergenceError, StructureError
-from .model import Beam, Damping, Mass, Node, Raft, Spring, StructureModel
+from .model import G_ACC, Beam, Damping, Mass, Node, Raft, Spring, StructureModel
 from .newmark import NewmarkStepper
 from .preload import StaticState, solve_static
 from .results import RouteResult
@@ -36,7 +36,7 @@ from .simulate import simulate
 from .soil_interface import SoilInterface, WinklerSoil
 from .spec import contact_from_spec, model_from_spec, winkler_from_spec
 
-__all__ = ["Beam", "ContactSettings", "ConvergenceError", "Damping", "Mass", "NewmarkStepper",
+__all__ = ["G_ACC", "Beam", "ContactSettings", "ConvergenceError", "Damping", "Mass", "NewmarkStepper",
            "Node", "Raft", "RouteResult", "SoilInterface", "Spring", "StaticState",
            "StructureError", "StructureModel", "WinklerSoil", "damping_matrix",
            "contact_from_spec", "fixed_base_modes", "model_from_spec", "simulate",

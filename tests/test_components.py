@@ -15,7 +15,7 @@ from orchestrator.results import read_motion, read_results, summary
 from orchestrator.run import run_scene
 from orchestrator.scene import SceneError, scene_from_dict
 from structure import ContactSettings, simulate
-from structure._synthetic import broadband_accelerogram
+from structure.broadband import broadband_accelerogram
 
 DT = 0.01
 SOIL = {"halfspace": {"vs": 500.0, "nu": 0.3, "rho": 2000.0}}

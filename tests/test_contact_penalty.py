@@ -2,7 +2,7 @@
 import numpy as np
 
 from structure import ContactSettings, simulate
-from structure._synthetic import broadband_accelerogram
+from structure.broadband import broadband_accelerogram
 from structure.contact import AUTO_FACTOR
 from test_newmark import MODEL, soil
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from structure import ContactSettings, ConvergenceError, simulate
-from structure._synthetic import broadband_accelerogram
+from structure.broadband import broadband_accelerogram
 from test_newmark import MODEL, soil
 
 

@@ -12,7 +12,7 @@ from passive_models import oscillator_model
 from soil_impedance.convolution import RecursiveConvolutionSoil
 from soil_impedance.rational import RationalModel
 from structure import ContactSettings, simulate
-from structure._synthetic import broadband_accelerogram
+from structure.broadband import broadband_accelerogram
 from test_newmark import MODEL, soil
 
 DT = 0.005

@@ -3,7 +3,7 @@ import numpy as np
 
 from soil_impedance.mesh import circle_mesh
 from structure import ContactSettings, NewmarkStepper, WinklerSoil, simulate
-from structure._synthetic import broadband_accelerogram
+from structure.broadband import broadband_accelerogram
 from structure.spec import model_from_spec
 from structure.winkler import dashpots_from_waves, disk_static_stiffness, springs_from_rigid_impedance
 

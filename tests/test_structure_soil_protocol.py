@@ -9,7 +9,7 @@ reproduce the WinklerSoil run to round-off, with contact switching and sub-stepp
 import numpy as np
 
 from structure import ContactSettings, SoilInterface, WinklerSoil, simulate
-from structure._synthetic import broadband_accelerogram
+from structure.broadband import broadband_accelerogram
 from test_newmark import MODEL, soil
 
 
