@@ -18,7 +18,7 @@ import time
 import numpy as np
 
 from soil_impedance.mesh import circle_mesh
-from structure import ContactSettings, WinklerSoil, simulate
+from structure import G_ACC, ContactSettings, WinklerSoil, simulate
 from structure.broadband import broadband_accelerogram
 from structure.spec import model_from_spec
 from structure.winkler import (dashpots_from_waves, disk_radiation_ratios, disk_static_stiffness,
@@ -44,7 +44,7 @@ def setup(pga_g: float, seed: int, duration=10.0, dt=0.005, dashpots=False):
         damping, _ = rccg_modal_damping(model, soil, 0.07,
                                         radiation=lambda f: disk_radiation_ratios(f, 20.0, vs))
     ag = np.zeros((int(round(duration / dt)) + 1, 3))
-    ag[:, 0] = broadband_accelerogram(duration, dt, pga_g * 9.81, seed=seed)
+    ag[:, 0] = broadband_accelerogram(duration, dt, pga_g * G_ACC, seed=seed)
     return model, soil, ag, dt, damping
 
 
@@ -94,7 +94,7 @@ def run_opensees(model, soil, kp, ag, dt, a1):
     for n in model.nodes:
         mz = m[model.dofs(n.id)[2]]
         if mz > 0:
-            ops.load(n.id, 0.0, 0.0, -9.81 * float(mz), 0.0, 0.0, 0.0)
+            ops.load(n.id, 0.0, 0.0, -G_ACC * float(mz), 0.0, 0.0, 0.0)
     ops.constraints("Transformation")
     ops.numberer("RCM")
     ops.system("UmfPack")

@@ -174,7 +174,7 @@ def ladder(pga):
 
 def small_case(pga):
     from soil_impedance.mesh import circle_mesh
-    from structure import WinklerSoil
+    from structure import G_ACC, WinklerSoil
     from structure.broadband import broadband_accelerogram
     from structure.spec import model_from_spec
     from structure.winkler import dashpots_from_waves, disk_static_stiffness, springs_from_rigid_impedance
@@ -188,7 +188,7 @@ def small_case(pga):
     s = springs_from_rigid_impedance(disk_static_stiffness(G, nu, 20.0), mesh.xy, mesh.area)
     cv, ch = dashpots_from_waves(mesh.area, rho, vp, vs)
     soil = WinklerSoil(mesh.xy, s.kv, s.kx, cv, ch)
-    a = broadband_accelerogram(6.0, 0.005, pga * 9.81, seed=3)
+    a = broadband_accelerogram(6.0, 0.005, pga * G_ACC, seed=3)
     ag = np.zeros((a.size, 3))
     ag[:, 0] = a
     ag[:, 2] = 0.3 * a
