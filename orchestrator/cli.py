@@ -31,7 +31,7 @@ from orchestrator.errors import ComputationError, OptionError, SetupError, UserI
 from orchestrator.impedance import rigid_json, scene_fit, scene_impedance, scene_static
 from orchestrator.motion import G
 from orchestrator.plots import plot_impedance, plot_run, pyplot
-from orchestrator.progress import Progress, frequency_bar, stage_bar, step_bar
+from orchestrator.progress import Progress, labelled_bars
 from orchestrator.report import write_ensemble_report, write_report
 from orchestrator.results import (ResultsFileError, check_output_folder, check_output_path, read_results, summary,
                                   write_results)
@@ -267,9 +267,9 @@ def cmd_run(args) -> int:
     if args.plot_dir is not None:
         check_output_folder(args.plot_dir, _pngs(args.plot_dir), "--plot-dir")
     results, motion = run_scene(scene, args.routes, cache_dir=_cache(args),
-                                progress=lambda route: step_bar(Progress(f"run {scene.name} [{route}]")),
-                                sweep_progress=frequency_bar(Progress(f"impedance {scene.name}")),
-                                fit_progress=stage_bar(f"fit {scene.name}"))
+                                progress=labelled_bars(f"run {scene.name} [{{label}}]"),
+                                sweep_progress=Progress(f"impedance {scene.name}"),
+                                fit_progress=labelled_bars(f"fit {scene.name}: {{label}}"))
     write_results(out, results, motion, scene.name)
     _say(f"wrote {out}")
     summ = {"motion": {"label": motion.label, "components": list(motion.components),
@@ -315,7 +315,7 @@ def cmd_impedance(args) -> int:
     cache = _cache(args)
     outputs = ("rigid", "gap") if args.gap else ("rigid",)
     tables = scene_impedance(scene, outputs, cache_dir=cache,
-                             progress=frequency_bar(Progress(f"impedance {scene.name}")))
+                             progress=Progress(f"impedance {scene.name}"))
     wall = time.perf_counter() - t0
     for name, path in (("rigid", args.output), ("gap", args.gap)):
         if path:
@@ -345,9 +345,9 @@ def cmd_fit(args) -> int:
     tol = args.tol if args.tol is not None else scene.analysis.fit_tol
     cache = _cache(args)
     table = scene_impedance(scene, (args.table,), cache_dir=cache,
-                            progress=frequency_bar(Progress(f"impedance {scene.name}")))[args.table]
+                            progress=Progress(f"impedance {scene.name}"))[args.table]
     xy = {"node_xy": None} if args.table == "rigid" else {}
-    result = scene_fit(scene, cache_dir=cache, table=table, tol=tol, fit_progress=stage_bar(f"fit {scene.name}"),
+    result = scene_fit(scene, cache_dir=cache, table=table, tol=tol, fit_progress=labelled_bars(f"fit {scene.name}: {{label}}"),
                        **xy)
     if args.output:
         save_fit(result, args.output)
@@ -392,7 +392,7 @@ def cmd_export(args) -> int:
                          "installed: pip install ziglang (a dependency of uplift), or export --kind python")
     if args.fmi_version == 3 and args.kind != "native":
         raise OptionError("--fmi-version 3 writes native FMUs only (pythonfmu writes FMI 2.0): drop --kind python")
-    soil = scene_fit(scene, cache_dir=_cache(args), fit_progress=stage_bar(f"fit {scene.name}")).model
+    soil = scene_fit(scene, cache_dir=_cache(args), fit_progress=labelled_bars(f"fit {scene.name}: {{label}}")).model
     exported = export_scene(scene, args.output, soil, cache_dir=_cache(args), kind=args.kind,
                             fmi_version=args.fmi_version)
     _say(*(f"wrote {path}" for path in exported.files))
@@ -434,8 +434,8 @@ def cmd_ensemble(args) -> int:
     ds = run_ensemble(scene, args.pga, records=args.records, seeds=args.seeds, routes=args.routes, output=out,
                       workers=args.workers, scheduler=args.scheduler, cache_dir=_cache(args),
                       dt_check=args.dt_check, progress=Progress(f"ensemble {scene.name}"),
-                      sweep_progress=frequency_bar(Progress(f"impedance {scene.name}")),
-                      fit_progress=stage_bar(f"fit {scene.name}"), log=_say, connect_timeout=args.connect_timeout)
+                      sweep_progress=Progress(f"impedance {scene.name}"),
+                      fit_progress=labelled_bars(f"fit {scene.name}: {{label}}"), log=_say, connect_timeout=args.connect_timeout)
     _say(f"wrote {out}")
     summ = ensemble_summary(ds)
     mm = lambda v: "-" if v is None else f"{1e3 * v:.3f} mm"

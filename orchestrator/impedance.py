@@ -14,10 +14,10 @@ def scene_impedance(scene, outputs=("rigid",), cache_dir=None, progress=None, st
     0 when every output was read from the cache) and ``from_cache`` (True in that case)."""
     solved = []
 
-    def counting(done, total, freq_hz):
-        solved.append(freq_hz)
+    def counting(done, total, label=""):
+        solved.append(done)
         if progress is not None:
-            progress(done, total, freq_hz)
+            progress(done, total, label)
 
     tables = impedance_sweep(scene.profile, scene.mesh, scene.frequencies_hz, contact=scene.contact_kind,
                              outputs=outputs, cache_dir=cache_dir, progress=counting)
@@ -36,12 +36,13 @@ def scene_fit(scene, cache_dir=None, progress=None, table=None, fit_progress=Non
     """FitResult (model and report) of the scene's gap impedance table ((6+N)^2: raft DOFs and
     the soil vertical displacement under each node; swept here unless given), fitted by
     soil_impedance.fit.fit_table at the scene's ``[analysis].fit_tol`` unless ``tol`` is given.
-    progress follows the sweep (callable(done, total, freq_hz)), fit_progress the fit
-    (callable(stage, done, total))."""
+    progress follows the sweep, fit_progress the fit (label: its stage); both follow the
+    progress protocol (orchestrator.progress)."""
     if table is None:
         table = scene_impedance(scene, ("gap",), cache_dir=cache_dir, progress=progress)["gap"]
     fit_options.setdefault("cache_dir", cache_dir)
-    fit_options.setdefault("progress", fit_progress)
+    if fit_progress is not None:
+        fit_options.setdefault("progress", lambda stage, done, total: fit_progress(done, total, stage))
     fit_options.setdefault("tol", scene.analysis.fit_tol)
     fit_options.setdefault("node_xy", scene.mesh.xy)     # for the rigid-raft correction of the fit
     return fit_table(table, **fit_options)

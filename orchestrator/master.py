@@ -344,7 +344,7 @@ def _run(S, G, ag, dt, schedule, route, progress, start):
             timer.add("transfers")
             done = k + 1
             if progress is not None:
-                progress(k, nt)
+                progress(done, nt)
     except CosimError as exc:
         message = str(exc)
     cols = _columns(Y[:done], names, [S.size(nm) for nm in names])

@@ -1,8 +1,22 @@
-"""A minimal progress bar on stderr (silent when stderr is not a terminal unless forced)."""
+"""The progress protocol and a minimal progress bar on stderr.
+
+Every long computation of the project reports through one callback signature,
+``progress(done, total, label="")``: ``done`` of ``total`` units finished (0 <= done <= total:
+frequencies of a sweep, samples of a time history, candidates of the fit's order search,
+cells of an ensemble), ``label`` saying what (a frequency, a stage, a cell). The lower packages
+(soil_impedance, structure) call it without importing this module.
+"""
 from __future__ import annotations
 
 import sys
 import time
+from typing import Protocol
+
+
+class ProgressCallback(Protocol):
+    """``progress(done, total, label="")``: done of total units finished, label says what."""
+
+    def __call__(self, done: int, total: int, label: str = "") -> None: ...
 
 
 class Progress:
@@ -39,22 +53,13 @@ class Progress:
         self.stream.flush()
 
 
-def frequency_bar(bar):
-    """Adapt a bar to the sweeps' callback ``progress(done, total, freq_hz)``."""
-    return lambda done, total, f_hz: bar(done, total, f"{f_hz:.3g} Hz")
-
-
-def step_bar(bar):
-    """Adapt a bar to the steppers' callback ``progress(k, nt)`` (k from 1 to nt - 1)."""
-    return lambda k, nt: bar(k + 1, nt)
-
-
-def stage_bar(title: str):
-    """A callback ``progress(stage, done, total)`` (the rational fit's) printing one bar per stage."""
+def labelled_bars(title: str) -> ProgressCallback:
+    """A callback that prints one bar per label: ``title`` with ``{label}`` in it is the bar's
+    title for each label (the fit's stages, the routes of a run)."""
     bars = {}
 
-    def progress(stage, done, total):
-        if stage not in bars:
-            bars[stage] = Progress(f"{title}: {stage}")
-        bars[stage](done, total)
+    def progress(done, total, label=""):
+        if label not in bars:
+            bars[label] = Progress(title.format(label=label))
+        bars[label](done, total)
     return progress

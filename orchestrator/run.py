@@ -167,10 +167,10 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
     value}} (route options such as the TF padding, see ``Route.options``); motion : a Motion
     replacing the scene's (resampled to ``[analysis].dt``); shared : a ``prepare_run`` of this
     scene for these routes (or more): its sweep, fit and proxy springs are used, not recomputed.
-    ``progress(route)`` returns a callable(k, nt) for each route; ``sweep_progress(done, total,
-    freq_hz)`` follows the BEM sweep, done once for all routes (one factorisation per
-    frequency for every table); ``fit_progress(stage, done, total)`` the rational fit. A route
-    that stops keeps its results so far (status STOPPED,
+    ``progress`` follows each route (label: the route's name), ``sweep_progress`` the BEM
+    sweep, done once for all routes (one factorisation per frequency for every table),
+    ``fit_progress`` the rational fit (label: its stage); all three follow the progress
+    protocol ``progress(done, total, label)`` (orchestrator.progress). A route that stops keeps its results so far (status STOPPED,
     ``message`` says why) and the other routes still run; a route that cannot run on this
     scene is REFUSED with the reason. Bad input found before any route runs raises.
     """
@@ -204,7 +204,7 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
         results = {}
         for route in chosen:
             res = _run_route(route, ctx.for_route(route, (options or {}).get(route.name)),
-                             progress(route.name) if progress else None)
+                             _labelled(progress, route.name))
             if route.time_stepped:
                 res = res.with_notes(**dt_notes)
             if route.needs_fit and "fit" in ctx.shared and not ctx.fit().report.tol_reached:
@@ -242,3 +242,10 @@ def _shared_skips(scene, route, sweep, ctx) -> list:
     if route.needs_fit and "fit" in ctx.shared and ctx.fit().report.cached:
         out.append("rational fit read from cache")
     return out
+
+
+def _labelled(progress, label: str):
+    """progress(done, total) with ``label`` for a route (None for None)."""
+    if progress is None:
+        return None
+    return lambda done, total, _label="": progress(done, total, label)

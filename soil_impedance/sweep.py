@@ -113,7 +113,7 @@ def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("r
     outputs : iterable of "rigid" (6×6), "gap" (6+N), "nodal" (3N, large)
     cache_dir : path or None             read/write ``impedance_<output>_<hash>.h5`` there
                                          (None: no cache, always compute)
-    progress : callable(done, total, freq_hz) or None, called after each frequency
+    progress : callable(done, total, label) or None, called after each frequency (label: "2.5 Hz")
     rule : passed to ``greens.regular_green``
 
     Returns
@@ -189,7 +189,7 @@ def _compute(bem, f, outputs, progress) -> dict[str, np.ndarray]:
             Kg[6:] = X[2::3]
             out["gap"][k] = 0.5 * (Kg + Kg.T)
         if progress is not None:
-            progress(k + 1, f.size, float(fk))
+            progress(k + 1, f.size, f"{fk:.3g} Hz")
     return out
 
 

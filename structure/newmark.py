@@ -411,8 +411,8 @@ class NewmarkStepper:
         tension (checked every 50 steps at most: the run goes on at most that far past it; the
         soil is then left advanced, the stepper itself is not changed).
 
-        ag : (nt, 3) m/s^2 at t_k = k dt, ag[0] the stepper's a_g(0); progress : callable(k, nt)
-        or None. Starts from the stepper's state at t = 0.
+        ag : (nt, 3) m/s^2 at t_k = k dt, ag[0] the stepper's a_g(0); progress : callable(done,
+        total) or None, with done = k + 1 samples of total = nt. Starts from the stepper's state at t = 0.
 
         The update is ``step()``'s with the contact closed, written on the predictors
         p = -a_hat, q = -v_hat for speed: A u' = M p + (1+al) (C q + F' - h) - al F + al R,
@@ -470,7 +470,7 @@ class NewmarkStepper:
                         return k0 + int(tens[0])
                     k0 = k + 1
                 if progress is not None:
-                    progress(k, nt)
+                    progress(k + 1, nt)
         return Zh, H
 
     def closed_histories(self, ag, Zh, H, dofs) -> dict:

@@ -28,8 +28,9 @@ def simulate(model: StructureModel, soil, ag, dt: float, contact: ContactSetting
     """Time history of the structure on ``soil`` under ground acceleration ``ag``.
 
     ag : (nt, 3) m/s^2 at t_k = k dt (x, y, z); output_nodes : node names (default: all
-    named nodes); progress : callable(k, nt) or None. Returns a RouteResult; on a Newton
-    failure raises ConvergenceError with ``.result`` holding the samples computed so far.
+    named nodes); progress : callable(done, total) or None, called as the run goes with
+    done = k + 1 of total = nt samples. Returns a RouteResult; on a Newton failure raises
+    ConvergenceError with ``.result`` holding the samples computed so far.
 
     What is skipped (``info["skipped"]``, ``info["precheck"]``): with the contact disabled,
     or enabled with ``contact.precheck`` and the raft in full contact at rest, the run is the
@@ -135,5 +136,5 @@ def _nonlinear(st: NewmarkStepper, res: SimpleNamespace, ag, dofs, progress):
             return (exc, k), n_subdivided
         record(k)
         if progress is not None:
-            progress(k, nt)
+            progress(k + 1, nt)
     return None, n_subdivided

@@ -85,7 +85,7 @@ def test_sweep_cache_hit_returns_identical_arrays_without_recomputation(tmp_path
     seen = []
     a = impedance_sweep(prof, mesh, [0.0], outputs=("rigid", "gap"), cache_dir=tmp_path,
                         progress=lambda *p: seen.append(p))
-    assert calls == [1] and seen == [(1, 1, 0.0)] and len(list(tmp_path.glob("*.h5"))) == 2
+    assert calls == [1] and seen == [(1, 1, "0 Hz")] and len(list(tmp_path.glob("*.h5"))) == 2
     b = impedance_sweep(prof, mesh, [0.0], outputs=("rigid", "gap"), cache_dir=tmp_path)
     assert calls == [1]                                   # read back, not recomputed
     for o in a:

@@ -33,7 +33,8 @@ class Route:
 
     name : str, as in ``[analysis].routes`` and ``--route``
     summary : one line: what the route computes (help, reports)
-    run : callable(ctx: RunContext, progress) -> RouteResult; progress is callable(k, nt) or None.
+    run : callable(ctx: RunContext, progress) -> RouteResult; progress is callable(done, total) or None
+          (the progress protocol, orchestrator.progress).
           A computation that stops returns a result with status STOPPED and the reason; bad input
           raises RouteInputError (run_scene turns it into a REFUSED result)
     tables : callable(scene) -> tuple of impedance tables read ("rigid", "gap"); run_scene sweeps

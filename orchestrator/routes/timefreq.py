@@ -27,7 +27,7 @@ def run_timefreq(motion, model, table_gap, *, contact, output_nodes, max_seconds
     ``motion`` (orchestrator.motion.Motion: acc (nt, 3) m/s^2, dt s), the structure ``model``,
     the ContactSettings ``contact`` and the output node names.
 
-    max_seconds : time budget, s (None: none); progress : callable(k, n) as the steppers' bars:
+    max_seconds : time budget, s (None: none); progress : callable(done, total) (the progress protocol):
     the share of residual decades done, from the first sweep's residual down to the tolerance,
     as k out of n = 100 (at most 99 before the end). overrides : fields of GridOptions (pad_s,
     wrap_tol, bilinear, nfft, window) and SolveOptions (method, tol, max_iter, threads, paper,
