@@ -1,4 +1,4 @@
-"""Benchmark: run time against error of every route and its accuracy knobs (issue 7).
+"""Benchmark: run time against error of every route and its accuracy knobs.
 
 For the disk-halfspace scene (with the bench's tower) and the reactor scene, each route's
 knobs (dt, fit tolerance, BEM element size, TF padding, contact penalty) are swept; errors on

@@ -1,4 +1,4 @@
-"""Benchmark: what the linear contact pre-check saves (issue 7, part 3).
+"""Benchmark: what the linear contact pre-check saves.
 
 A scene without uplift: the reactor stick model on its 241-node raft (Winkler springs, RCC-G
 damping, as benchmarks/structure_step.py), 10 s of seeded motion at dt = 5 ms, 0.02 g. Runs

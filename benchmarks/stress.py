@@ -1,4 +1,4 @@
-"""Numerical stability stress tests (issue 7): each case stays stable and accurate, or is refused
+"""Numerical stability stress tests: each case stays stable and accurate, or is refused
 with a clear message; the energy balance is tracked in each.
 
 Scene: a 20 m tower (3e6 kg) on a 10 m x 10 m rigid raft, 16 interface nodes, on a half-space

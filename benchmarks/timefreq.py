@@ -127,7 +127,7 @@ def _timed(fn, *args, **kw):
 
 
 def ladder(pga):
-    """The verification ladder on the reactor (issue 6a): where TF (BEM table) and TD
+    """The verification ladder on the reactor: where TF (BEM table) and TD
     (rational fit) part. Rows: TF with the table; TF with the fit sampled on the table's
     frequencies and used as a table (same interpolation, continuation above f_max, window,
     continuous grid: isolates the fit); the monolithic TD route (fit, recursive convolution,

@@ -43,7 +43,7 @@ class FmuSlave:
     """One co-simulation FMU instance over fmpy, FMI 2.0 or FMI 3.0, with vector access by name.
 
     ``FmuSlave(path, name)`` extracts and instantiates; ``get("x")`` returns the Real vector
-    ``x[0..n-1]`` (or the scalar ``x``) as an ndarray, ``set("h", values)`` sets one. An FMI 3.0
+    ``x[0..n-1]`` (or the scalar ``x``) as an ndarray, ``set("g", values)`` sets one. An FMI 3.0
     FMU's arrays are read under the same names: ``x`` is its arrays x_raft_u, x_raft_r, x_w
     (fmus.schema.INTERFACE_PARTS) end to end, as the FMI 2.0 x[0..n-1]. One ctypes call per
     call of get/set/do_step, on the raw fmi2GetReal / fmi2SetReal / fmi2DoStep (fmi3GetFloat64
@@ -139,7 +139,7 @@ class FmuSlave:
         return val
 
     def set(self, *names_then_values) -> None:
-        """``set("h", h)`` or several vectors in one call: ``set("x", "xdot", values)``."""
+        """``set("g", g)`` or several vectors in one call: ``set("x", "xdot", values)``."""
         *names, values = names_then_values
         vr, val, args = self._buffers(tuple(names))
         val[:] = values

@@ -7,8 +7,7 @@ reason); 2 bad input (the message names the key or file and what would fix it); 
 Threads. The project's dense matrices are small (a few hundred wide: Newton matrices, the
 TF operator's bands, the fit's least squares) and a 2-core machine is often shared:
 threaded BLAS there is no faster idle and several times slower beside a busy process
-(threads spin-wait for busy cores; measured on the reactor's timefreq route, 16 s idle, 36 s
-beside one busy process with default threading, 18 s with one thread). Every computation
+(threads spin-wait for busy cores). Every computation
 started by the orchestrator therefore runs under ``compute_threads()``: BLAS/OpenMP pools at
 ``$UPLIFT_THREADS`` threads (default 1). Results do not depend on it beyond round-off.
 """

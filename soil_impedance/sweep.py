@@ -121,9 +121,9 @@ def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("r
     dict output -> ImpedanceTable; DOFs ``RIGID_DOFS``, ``gap_dofs(N)`` or ``nodal_dofs(N)``.
     One LU factorisation of F per frequency; K_out = Bᵀ F⁻¹ B (symmetrised).
 
-    Performance: the matrices are small (723×723 for 241 nodes); run with
-    ``OPENBLAS_NUM_THREADS=1`` (set before numpy is imported). On a loaded 2-core machine
-    threaded BLAS made the reactor sweep 5× slower (0.35 s vs 0.06 s per frequency).
+    Performance: the matrices are small (723×723 for 241 nodes); run with one BLAS thread
+    (the orchestrator does): threaded BLAS is no faster on them and several times slower
+    beside a busy process.
     """
     if contact not in CONTACTS:
         raise BemError(f"contact = {contact!r}: use one of {CONTACTS}")

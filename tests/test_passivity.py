@@ -103,7 +103,7 @@ def test_nonpassive_E_is_reported():
 
 
 def test_long_simulation_after_enforcement_is_stable(good_fit):
-    """Issue acceptance: the broken model, driven at its negative-damping resonance, draws
+    """The broken model, driven at its negative-damping resonance, draws
     energy out of the soil; the enforced model, driven the same way for 10^5 steps, never does
     (work >= 0 to round-off) and its force does not grow."""
     from soil_impedance.convolution import RecursiveConvolutionSoil

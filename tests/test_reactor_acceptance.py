@@ -1,4 +1,4 @@
-"""Issue 6's acceptance rows on the built-in reactor scene (241 nodes, causal 3 % rock, 0.25 g,
+"""The acceptance rows on the built-in reactor scene (241 nodes, causal 3 % rock, 0.25 g,
 10 s at 5 ms): the time-frequency reference on the BEM table against the time-domain routes on
 its rational fit. One BEM sweep, one fit and the routes, shared by the tests (~1 min)."""
 import dataclasses

@@ -1,4 +1,4 @@
-"""Skipping what a run does not need, and saying so (issue 7, part 3).
+"""Skipping what a run does not need, and saying so.
 
 The linear pre-check (structure.ContactSettings.precheck): with the raft in full contact at rest
 ``simulate`` first runs the closed-contact (linear) recursion; without tension that is the

@@ -1,4 +1,4 @@
-"""Stability stress tests (issue 7), short versions of benchmarks/stress.py (same cases, same
+"""Stability stress tests, short versions of benchmarks/stress.py (same cases, same
 measures): each case stays stable with its energy balanced, or is refused with a message that
 names the input and the fix. The full-length table: ``python benchmarks/stress.py``."""
 import importlib.util

@@ -22,11 +22,11 @@ CONNECT_TIMEOUT_S = 10.0
 #: a local cluster starts at most this many worker processes per usable core (more only queue
 #: for the cores, each with its own memory and start-up)
 WORKERS_PER_CORE = 2
-#: dask settings of the local workers, each measured on the reactor's monolithic run (CPU time
-#: of the task's thread against the same run in process, paired runs): no statistical profiler
-#: (it samples the running task's stack every 10 ms: +10-15 %), and glibc's own heap trimming
-#: rather than dask's MALLOC_TRIM_THRESHOLD_ = 64 KiB (the stepper's temporaries then go back
-#: to the system and fault in again: median +11 % over 8 pairs, against -3 % without it)
+#: dask settings of the local workers, each chosen on the CPU time of the reactor's monolithic
+#: run in a worker against the same run in process: no statistical profiler (it samples the
+#: running task's stack every 10 ms, a cost of its own), and glibc's own heap trimming rather
+#: than dask's MALLOC_TRIM_THRESHOLD_ = 64 KiB (with it the stepper's temporaries go back to
+#: the system and fault in again)
 LOCAL_WORKER_CONFIG = {"distributed.worker.profile.enabled": False,
                        "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
 
