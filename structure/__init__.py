@@ -12,7 +12,7 @@ Modules (one concept each):
   preload        static equilibrium under self-weight: settlement, P0
   newmark        NewmarkStepper (one step at a time; FMU-ready; a linear run at once)
   closed         the closed-contact (linear) solver and the vectorised energy kernels
-  simulate       simulate(): the driver that runs a stepper over a record into a RouteResult
+  driver         simulate(): the driver that runs a stepper over a record into a RouteResult
   results        RouteResult, the one result type of every route
   winkler        Winkler mattress: springs, dashpots, RCC-G composite modal damping
   spec           scene tables -> objects (model_from_spec, winkler_from_spec, contact_from_spec)
@@ -32,7 +32,7 @@ from .model import G_ACC, Beam, Damping, Mass, Node, Raft, Spring, StructureMode
 from .newmark import NewmarkStepper
 from .preload import StaticState, solve_static
 from .results import RouteResult
-from .simulate import simulate
+from .driver import simulate
 from .soil_interface import SoilInterface, WinklerSoil
 from .spec import contact_from_spec, model_from_spec, winkler_from_spec
 

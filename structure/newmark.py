@@ -24,7 +24,7 @@ one factorisation of the whole effective matrix with every penalty spring closed
 (``closed.ClosedSolver``: the soil DOFs condensed exactly when they are uncoupled, else sparse
 LU), one solve per step, no Newton. ``march_closed`` runs the whole record that way and
 ``closed_histories`` records its outputs and energies over the whole history at once; the
-driver ``simulate`` (simulate.py) chooses between that and ``step()``.
+driver ``simulate`` (driver.py) chooses between that and ``step()``.
 """
 from __future__ import annotations
 

@@ -1,5 +1,7 @@
-"""The project's shape: the dependency rule, no import cycle in the orchestrator, function-local
-imports only with a reason, and a route added in one place reaching every command."""
+"""The project's shape: the dependency rule between the packages and the layers inside them
+(the stepper and its driver, ensembles, the experimental timefreq solvers, the native host), no
+import cycle in the orchestrator, function-local imports only with a reason, and a route added
+in one place reaching every command."""
 import ast
 import json
 from pathlib import Path
@@ -16,6 +18,18 @@ PACKAGES = ("soil_impedance", "structure", "fmus", "orchestrator")
 ALLOWED = {"soil_impedance": {"soil_impedance"}, "structure": {"structure"},
            "fmus": {"fmus", "soil_impedance", "structure"}, "orchestrator": set(PACKAGES),
            "orchestrator.timefreq": {"orchestrator.timefreq", "soil_impedance", "structure"}}
+#: modules (and the names under them) that only some modules may import: module prefix ->
+#: importer prefixes. The stepper does not know its driver and the FMUs run the stepper, not
+#: ``simulate``; only the commands above an ensemble know ensembles; the experimental timefreq
+#: solvers are reached through the registry only; the in-process native host serves the
+#: orchestrator's routes, not the FMUs.
+IMPORTERS = {"structure.driver": {"structure"},
+             "structure.simulate": {"structure", "orchestrator"},
+             "orchestrator.ensemble": {"orchestrator.ensemble", "orchestrator.cli", "orchestrator.report",
+                                       "orchestrator.fragility"},
+             "orchestrator.timefreq.experimental": {"orchestrator.timefreq.experimental",
+                                                    "orchestrator.timefreq.methods"},
+             "fmus.native_host": {"fmus.native_host", "orchestrator"}}
 
 
 def _module_name(path: Path) -> str:
@@ -76,6 +90,34 @@ def test_dependency_rule(package):
             if target and not any(target == a or target.startswith(a + ".") for a in rule):
                 bad.append(f"{path.relative_to(ROOT)}:{line} imports {target}")
     assert not bad, "\n".join(bad)
+
+
+def _under(name: str, prefix: str) -> bool:
+    return name == prefix or name.startswith(prefix + ".")
+
+
+@pytest.mark.parametrize("restricted", sorted(IMPORTERS))
+def test_who_imports_what_inside_the_packages(restricted):
+    """Layers inside the packages (IMPORTERS), on every import of every module, by the name
+    written (``from structure import simulate``) and by the module it resolves to."""
+    bad = []
+    for pkg in PACKAGES:
+        for path in _sources(pkg):
+            here = _module_name(path)
+            if any(_under(here, a) for a in IMPORTERS[restricted]):
+                continue
+            for name, _, line, _ in _imports(path):
+                if _under(name, restricted) or _under(_project_module(name, KNOWN) or "", restricted):
+                    bad.append(f"{path.relative_to(ROOT)}:{line} imports {name}")
+    assert not bad, f"only {sorted(IMPORTERS[restricted])} may import {restricted}:\n" + "\n".join(bad)
+
+
+def test_the_rules_name_modules_that_exist():
+    """A rule about a module that is not there any more checks nothing: every restricted
+    prefix names a project module (optional ones excepted while their branch lands)."""
+    optional = {"fmus.native_host", "orchestrator.timefreq.experimental", "structure.simulate"}
+    missing = [r for r in IMPORTERS if r not in optional and not any(_under(k, r) for k in KNOWN)]
+    assert not missing, f"IMPORTERS names modules that do not exist: {missing}"
 
 
 def test_orchestrator_imports_form_no_cycle():
