@@ -216,3 +216,15 @@ def test_a_registered_route_reaches_every_command(toy_route, tmp_path, capsys):
     assert main(["report", str(out), "-o", str(tmp_path / "rep")]) == 0
     assert "rigid structure glued to the ground" in (tmp_path / "rep" / "report.html").read_text()
     assert bench_config()["toy-scene"] == {"toy": {"dt": [0.02, 0.01]}}
+
+
+def test_architecture_page_names_files_that_exist():
+    """ARCHITECTURE.md names the files on the data's way: each one it names is in the tree (a
+    path from the root, or a file name found in the package the paragraph is about)."""
+    import re
+    text = (ROOT / "ARCHITECTURE.md").read_text()
+    names = set(re.findall(r"`([\w./]+\.(?:py|c|h|toml|md))`", text)) | set(re.findall(r"`([\w/]+/)`", text))
+    files = [p for p in ROOT.rglob("*") if ".git" not in p.parts]
+    missing = [n for n in sorted(names) if not (ROOT / n).exists()
+               and not any(p.name == n.rstrip("/") for p in files)]
+    assert len(names) > 40 and not missing, f"ARCHITECTURE.md names what is not there: {missing}"
