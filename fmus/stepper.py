@@ -93,9 +93,11 @@ class StepperOutputs:
 
     def _engine_state(self):
         st = self.stepper
-        return {"stepper": st.get_state(), "ag_next": st._ag_next.copy(), "h_ext": st._h_ext.copy()}
+        ag_next, h_next = st.next_inputs()
+        return {"stepper": st.get_state(), "ag_next": ag_next, "h_ext": h_next}
 
     def _restore_engine(self, state):
         st = self.stepper
         st.set_state(state["stepper"])
-        st._ag_next, st._h_ext = np.array(state["ag_next"]), np.array(state["h_ext"])
+        st.set_ground_acceleration(np.array(state["ag_next"]))
+        st.set_soil_history(np.array(state["h_ext"]))

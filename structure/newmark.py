@@ -140,6 +140,11 @@ class NewmarkStepper:
         """Soil history force h (6+N,), N, for the next step (external soil only)."""
         self._h_ext = np.asarray(h, float).reshape(self.nb)
 
+    def next_inputs(self) -> tuple:
+        """Copies of the inputs set for the next step: (a_g(t + dt) (3,) m/s^2, h (6+N,) N); an
+        FMU keeps them in its state."""
+        return self._ag_next.copy(), self._h_ext.copy()
+
     # ---- outputs ---------------------------------------------------------------------
     @property
     def x(self) -> np.ndarray:
