@@ -3,7 +3,9 @@
 The reactor (built-in scene ``reactor``: 247 interface DOFs, its fitted soil, 10 s at 5 ms,
 2000 steps), one BLAS thread. The bare kernel is the least work a soil step does: numpy,
 2000 x (the history GEMV ``H g`` over the fit's poles, (6+N) x (m (6+N)), plus ``D0 x`` and
-``E xdot``). Each row is a wall time (best of --repeat) and its ratio to the kernel's.
+``E xdot``). Each row is a wall time (best of --repeat), its ratio to the kernel's, and the
+CPU time of that run (all threads and child processes: on a loaded machine the wall time
+grows, the CPU time much less).
 
 Rows (one small function each, registered with ``@row``; add one the same way):
 
@@ -178,19 +180,30 @@ def measure(names, repeat: int, busy: bool, case: Case | None = None) -> list:
     out = []
     with busy_process(busy):
         for name in names:
-            runs = [ROWS[name](case) for _ in range(repeat)]
-            wall = min(r[0] for r in runs)
-            out.append({"row": name, "wall_s": wall, "note": runs[-1][1]})
+            runs = []
+            for _ in range(repeat):
+                c0 = _cpu()
+                wall, note = ROWS[name](case)
+                runs.append((wall, _cpu() - c0, note))
+            wall, cpu, _ = min(runs)
+            out.append({"row": name, "wall_s": wall, "cpu_s": cpu, "note": runs[-1][2]})
     kernel = out[0]["wall_s"]
     for r in out:
         r["ratio"] = r["wall_s"] / kernel
     return out
 
 
+def _cpu() -> float:
+    """CPU seconds of this process (all its threads) and its finished children so far."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
 def format_rows(rows, busy: bool) -> str:
-    head = f"{'what':<24} {'wall s':>8} {'x kernel':>9}  ({'beside one busy process' if busy else 'idle'})"
+    head = (f"{'what':<24} {'wall s':>8} {'x kernel':>9} {'cpu s':>7}  "
+            f"({'beside one busy process' if busy else 'idle'})")
     lines = [head, "-" * len(head)]
-    lines += [f"{r['row']:<24} {r['wall_s']:8.3f} {r['ratio']:9.1f}  {r['note']}" for r in rows]
+    lines += [f"{r['row']:<24} {r['wall_s']:8.3f} {r['ratio']:9.1f} {r['cpu_s']:7.2f}  {r['note']}" for r in rows]
     return "\n".join(lines)
 
 
