@@ -39,6 +39,7 @@ import scipy.linalg as sla
 from structure.contact import contact_force
 
 from orchestrator.timefreq.problem import ContactEquation, Outcome, SolverStatus
+from orchestrator.timefreq.soil import AffineBand, dense
 
 #: |d| (m) past which a march has diverged (a soil whose causal part is not passive on the grid)
 DIVERGED_M = 100.0
@@ -59,22 +60,40 @@ def kernel_head(op, grid, n_lags: int, fold: bool = False, chunk: int = 24):
     period: the causal kernel with the same Im S(w) (the damping, so passive when S is) and the
     same static value. Truncating the negative lags instead changes Im S and can leave a
     non-passive causal part: the reactor's table (continued by springs and dashpots above
-    25 Hz) made the truncated march diverge from 0.6 g, the folded one converges."""
+    25 Hz) made the truncated march diverge from 0.6 g, the folded one converges.
+
+    Every step is linear per matrix entry: an affine band's K_ww = A + s B (a table's
+    continuation above its last frequency, a Winkler soil) contributes A (x) a_k + B (x) b_k,
+    a and b the kernels of the scalar series 1 and s on the band's frequencies, so only the
+    dense bands and the rank-6 structure term go through an FFT per entry."""
     N, nt, nf = op.N, grid.nt, grid.nfft
     rows = np.arange(N)
     k = np.arange(1, nf - nt + 1)
-    head = np.empty((n_lags, N, N))
-    for c0 in range(0, N, chunk):
-        cols = rows[c0:c0 + chunk]
-        Sc = np.ascontiguousarray(op.S_sub(rows, cols).transpose(1, 2, 0))   # (N, c, F)
+
+    def lags(X):                                  # (..., F) -> the (folded) kernel (..., n_lags)
         if not fold:
-            head[:, :, cols] = grid.to_time(Sc, n=n_lags).transpose(2, 0, 1)
-            continue
-        hw = np.fft.irfft(Sc, n=nf, axis=-1)                                 # windowed period
+            return grid.to_time(X, n=n_lags)
+        hw = np.fft.irfft(X, n=nf, axis=-1)                                  # windowed period
         hn = hw[..., nf - k] * np.exp(-grid.eta * grid.dt * k)               # h_{-1}, h_{-2}, ...
         h = hw[..., :n_lags] * np.exp(grid.eta * grid.dt * np.arange(n_lags))
         h[..., 1:] -= hn[..., :n_lags - 1]
         h[..., 0] += 2.0 * hn.sum(axis=-1)
+        return h
+
+    affine = [b for b in op.soil.bands if isinstance(b, AffineBand)]
+    series = np.zeros((2 * len(affine), op.s.size), complex)
+    for j, band in enumerate(affine):
+        series[2 * j, band.idx] = 1.0
+        series[2 * j + 1, band.idx] = op.s[band.idx]
+    ab = lags(series) if affine else None                                    # (2 m, n_lags)
+    head = np.empty((n_lags, N, N))
+    for c0 in range(0, N, chunk):
+        cols = rows[c0:c0 + chunk]
+        Sc = np.ascontiguousarray(op.S_sub(rows, cols, affine=False).transpose(1, 2, 0))   # (N, c, F)
+        h = lags(Sc)                                                          # (N, c, n_lags)
+        for j, band in enumerate(affine):
+            A, B = (dense(M[:, cols]) if hasattr(M, "tocsr") else M[:, cols] for M in band.ww())
+            h += A[:, :, None] * ab[2 * j] + B[:, :, None] * ab[2 * j + 1]
         head[:, :, cols] = h.transpose(2, 0, 1)
     return head
 
