@@ -49,7 +49,7 @@ import numpy as np
 
 from orchestrator.impedance import scene_impedance
 from orchestrator.scene import load_scene, scene_from_dict
-from soil_impedance.fit import _fit_order, _Problem, fit_table
+from soil_impedance.fit import Problem, fit_order, fit_table
 from soil_impedance.passivity import check_passive
 
 
@@ -57,7 +57,7 @@ def main(cache_dir=".cache"):
     t0 = time.perf_counter()
     table = scene_impedance(load_scene("reactor"), ("gap",), cache_dir=cache_dir)["gap"]
     print(f"table: {table!r} ({time.perf_counter() - t0:.1f} s)")
-    prob = _Problem(table, "relative", "auto")
+    prob = Problem(table, "relative", "auto")
     print(f"active DOFs {prob.idx.size}, independent entries {prob.X.shape[1]}, f_causal {prob.f_c} Hz, "
           f"compressed columns {prob.Y.shape[1]}")
     print(f"{'poles':>6} {'max rel err (f>=f_c)':>21} {'low-f err':>10} {'fit s':>7} {'passive':>8} "
@@ -65,7 +65,7 @@ def main(cache_dir=".cache"):
     rows = []
     for n_pairs in (1, 2, 4, 8, 12, 15):
         t1 = time.perf_counter()
-        poles, C, err = _fit_order(prob, n_pairs, 12)
+        poles, C, err = fit_order(prob, n_pairs, 12)
         t_fit = time.perf_counter() - t1
         model = prob.model(poles, C, {"f_max_hz": float(table.frequencies_hz[-1])})
         t2 = time.perf_counter()

@@ -41,8 +41,7 @@ def scene_fit(scene, cache_dir=None, progress=None, table=None, fit_progress=Non
     if table is None:
         table = scene_impedance(scene, ("gap",), cache_dir=cache_dir, progress=progress)["gap"]
     fit_options.setdefault("cache_dir", cache_dir)
-    if fit_progress is not None:
-        fit_options.setdefault("progress", lambda stage, done, total: fit_progress(done, total, stage))
+    fit_options.setdefault("progress", fit_progress)
     fit_options.setdefault("tol", scene.analysis.fit_tol)
     fit_options.setdefault("node_xy", scene.mesh.xy)     # for the rigid-raft correction of the fit
     return fit_table(table, **fit_options)

@@ -58,7 +58,7 @@ MAX_STEPS = 200_000
 #: most impedance frequencies (one BEM solve each)
 MAX_FREQUENCIES = 10_000
 #: default tolerance of the rational soil fit ([analysis].fit_tol). A causal model cannot follow
-#: hysteretic damping ξ closer than about ξ over the band (soil_impedance/fit.py): scenes on
+#: hysteretic damping ξ closer than about ξ over the band (docs/formulation.md, Causality): scenes on
 #: damped hysteretic soil set a looser one, e.g. 0.04 on 3 % rock
 FIT_TOL = 0.01
 #: default time budget of the timefreq route, s ([analysis].timefreq_max_s)

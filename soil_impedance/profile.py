@@ -6,7 +6,7 @@ multiplies both moduli, so ν is real and frequency independent):
 
 * ``"hysteretic"`` (default): ``G* = ρ vs² (1 + 2iξ)`` at every frequency. Not causal
   (Kramers-Kronig: a constant loss factor needs Re G* rising with frequency, and Im G*(0⁺) ≠ 0);
-  the rational fit fades the offset below a cut-off (``soil_impedance.fit``, causality note) and
+  the rational fit fades the offset below a cut-off (``soil_impedance.fit``; docs/formulation.md, Causality) and
   cannot follow Re and Im together in the band.
 * ``"causal"``: constant Q with a low-frequency cut-off, the shifted Kjartansson (1979) power law
 

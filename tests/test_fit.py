@@ -115,8 +115,8 @@ def test_causal_constant_q_table_is_fitted_below_the_hysteretic_floor():
 def test_hdf5_round_trip_and_cache_hit(disk_table, tmp_path, monkeypatch):
     first = fit_table(disk_table, tol=0.01, cache_dir=tmp_path)
     assert not first.report.cached and len(list(tmp_path.glob("fit-*.h5"))) == 1
-    import soil_impedance.fit as fitmod
-    monkeypatch.setattr(fitmod, "_fit_order", lambda *a, **k: (_ for _ in ()).throw(AssertionError("refit")))
+    import soil_impedance.fit.search as search        # where the order search fits an order
+    monkeypatch.setattr(search, "fit_order", lambda *a, **k: (_ for _ in ()).throw(AssertionError("refit")))
     again = fit_table(disk_table, tol=0.01, cache_dir=tmp_path)
     assert again.report.cached
     for name in ("poles", "residues", "D", "E"):
@@ -332,7 +332,7 @@ def test_damaged_cache_entry_is_recomputed_with_a_warning(causal_gap_table, tmp_
 
 def test_progress_reports_the_order_search_and_the_enforcement(causal_gap_table):
     calls = []
-    fit = fit_table(causal_gap_table, tol=0.02, progress=lambda stage, done, total: calls.append((stage, done, total)))
+    fit = fit_table(causal_gap_table, tol=0.02, progress=lambda done, total, stage: calls.append((stage, done, total)))
     search = [c for c in calls if c[0] == "order search"]
     assert [c[1] for c in search] == [1, 2, 3] and all(c[2] == 12 for c in search)   # 6 poles; 26 freqs: 12 pairs
     enforce = [c for c in calls if c[0].startswith("passivity")]
