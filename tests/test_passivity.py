@@ -160,7 +160,7 @@ def test_exact_test_with_singular_E_finds_the_closed_form_band():
     """E = 0 (the generalized eigenproblem of ``_crossings``): K = two condensed oscillators, the second
     one negative, G(ω)/ω = c1 k1²/((k1 − m1ω²)² + c1²ω²) − 0.05 c2 k2²/((k2 − m2ω²)² + c2²ω²) < 0 around
     the second resonance (2 Hz). The band edges are the roots of that closed form (brentq)."""
-    from passive_models import oscillator_model
+    from helpers import oscillator_model
     from scipy.optimize import brentq
 
     o1 = (1.0, 0.2, 1 / (2 * np.pi) ** 2)
@@ -202,7 +202,7 @@ def test_screen_and_early_exact_verdict_agree_with_the_full_test(good_fit):
     ``violations_only`` is the full one; a narrow violation is missed by the grid and found by the
     early exact verdict, with the same bands, without the grid; a broad one is seen by the grid,
     inside the exact bands."""
-    from passive_models import random_passive_model
+    from helpers import random_passive_model
     _, fit = good_fit
     grid = _default_grid()
     for model in (fit.model, *(random_passive_model(5, 3, 2, seed=s).with_provenance({"f_max_hz": 25.0})

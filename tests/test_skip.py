@@ -15,7 +15,7 @@ import json
 import numpy as np
 import pytest
 
-from cosim_cases import pulse_motion, small_scene, soil_model, winkler
+from helpers import pulse_motion, rel, small_scene, soil_model, winkler
 
 from soil_impedance.convolution import RecursiveConvolutionSoil
 from structure import ContactSettings, NewmarkStepper, StructureError, contact_from_spec, simulate
@@ -24,10 +24,6 @@ SCENE = small_scene()                 # reactor stick on a 21-node raft over roc
 MODEL = SCENE.model()
 FORCED = ContactSettings(precheck=False)
 TERMS = ("input", "kinetic", "strain", "damping", "soil", "contact", "contact_potential")
-
-
-def rel(a, b):
-    return np.abs(a - b).max() / np.abs(b).max()
 
 
 @pytest.mark.parametrize("soil_kind", ["winkler", "memory"])
