@@ -171,6 +171,7 @@ def _killer(client, log):
     return progress
 
 
+@pytest.mark.slow
 def test_killed_worker_missing_cells_reported_then_filled(case, tmp_path):
     ref = case["ds"]
     records = _files(case["tmp"], case["records"])

@@ -172,6 +172,7 @@ def test_scaled_vertical_over_the_intensity_limit_is_refused(case, capsys):
     assert "analysis.max_pga_g = 1 g" in err and not (case["tmp"] / "refused.h5").exists()
 
 
+@pytest.mark.slow
 def test_seeds_give_independent_synthetic_triplets(case, tmp_path, monkeypatch):
     """A synthetic scene of three components: each seed a triplet; the cells equal `uplift run`."""
     monkeypatch.setenv("UPLIFT_CACHE", str(case["tmp"] / "cache"))

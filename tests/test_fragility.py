@@ -226,6 +226,7 @@ def _check_against_file(entries, path, status_ok):
         assert e["log_likelihood"] >= ll - 1e-12                      # the module's optimum is not worse
 
 
+@pytest.mark.slow
 def test_cli_agrees_with_a_fit_of_the_files_cells(ensemble, tmp_path):
     path = tmp_path / "ens.h5"
     path.write_bytes(ensemble.read_bytes())

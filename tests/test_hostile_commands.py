@@ -228,6 +228,7 @@ def test_worker_count_is_capped():
     assert n == WORKERS_PER_CORE * cores and f"{WORKERS_PER_CORE} per usable core" in note
 
 
+@pytest.mark.slow
 def test_ensemble_asked_for_hundreds_of_workers_runs_on_few(tmp_path, capsys, monkeypatch):
     """--workers 300 for two runs: two workers, a note in the summary, the runs done, no hang."""
     monkeypatch.chdir(tmp_path)

@@ -71,6 +71,7 @@ def _check(code, lines, out, folder, expected):
     assert sorted(p.name for p in folder.iterdir()) == sorted(expected)        # no temporary left
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 def test_run_interrupted(tmp_path):
     write_scene(tmp_path / "s.toml", _scene(WINKLER, 20.0, 0.002))
@@ -89,6 +90,7 @@ def test_impedance_interrupted(tmp_path):
     _check(code, lines, out, tmp_path, ["s.toml", "rigid.h5"])
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 def test_ensemble_interrupted_keeps_finished_runs(tmp_path):
     scene = tmp_path / "s.toml"

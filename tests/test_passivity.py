@@ -102,6 +102,7 @@ def test_nonpassive_E_is_reported():
     assert rep2.passive and np.linalg.eigvalsh(fixed.E)[0] >= 0
 
 
+@pytest.mark.slow
 def test_long_simulation_after_enforcement_is_stable(good_fit):
     """The broken model, driven at its negative-damping resonance, draws
     energy out of the soil; the enforced model, driven the same way for 10^5 steps, never does
@@ -246,6 +247,7 @@ def _null_noise_model(n, seed=0, noise=2e-3, f_max=25.0):
                          {"f_max_hz": f_max})
 
 
+@pytest.mark.slow
 def test_enforcement_with_hundreds_of_directions_below_the_margin():
     """73 of 150 eigenvalues of G negative at every frequency: the enforcement converges in a few
     iterations (measured 7) with a small change (0.24 % of |K|; the noise is 0.2 %), poles unchanged,

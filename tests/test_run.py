@@ -154,6 +154,7 @@ def test_rccg_damping_warns_when_most_of_the_raft_lifts(tmp_path, capsys, pga, w
         assert 'damping = "dashpots"' in summary["warnings"][0]
 
 
+@pytest.mark.slow
 def test_step_doubling_warns_when_dt_does_not_resolve_the_contact(tmp_path, capsys):
     """A stiff tower on stiff springs at 0.6 g: 10 ms passes the first-mode check (9.2 Hz, 11
     steps a period) but not the contact dynamics. The step-doubling estimate (max uplift at dt

@@ -63,6 +63,7 @@ def test_time_budget_keeps_the_last_iterate():
     assert not nk.converged and "time budget" in nk.message
 
 
+@pytest.mark.slow
 def test_continuous_tf_is_the_limit_of_newmark_with_uplift():
     """K + i w C soil (exact in both routes), uplift under a smooth pulse: Newmark's max uplift
     approaches the continuous-time TF value (bilinear=False, dt = 2.5 ms) as dt -> 0, within
