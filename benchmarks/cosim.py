@@ -54,8 +54,7 @@ def soil_for(scene, kind, cache_dir):
         return model, (f"rational fit of the gap table at fit_tol = {tol}, {model.order} poles "
                        f"({time.perf_counter() - t0:.1f} s incl. sweep/cache)")
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-    from cosim_cases import winkler
-    from soil_double import winkler_rational
+    from helpers import winkler, winkler_rational
     model = winkler_rational(winkler(scene))
     return model, f"Winkler + 2 Maxwell terms stand-in, {model.order} poles"
 

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from passive_models import random_passive_model
+from helpers import random_passive_model
 
 from soil_impedance.convolution import RecursiveConvolutionSoil, recursion_transfer
 

@@ -1,7 +1,7 @@
 """Fixtures shared by test modules."""
 import pytest
 
-from cosim_cases import EXPORT_MOTION, small_scene, soil_model
+from helpers import EXPORT_MOTION, small_scene, soil_model
 
 
 @pytest.fixture(scope="session")

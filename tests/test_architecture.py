@@ -11,6 +11,7 @@ import pytest
 
 from orchestrator.routes import Route, register, route_names, unregister
 from structure.results import RouteResult
+from helpers import tower, write_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("soil_impedance", "structure", "fmus", "orchestrator")
@@ -156,30 +157,8 @@ def test_function_local_imports_say_why():
 
 # --- a toy route, registered in one place, reaches run, the summary, compare and bench ---
 
-TOY_SCENE = """
-[soil]
-winkler = { kv = 5.0e7, kh = 4.0e7 }
-[foundation]
-shape = "rectangle"
-lx = 10.0
-ly = 10.0
-element_size = 5.0
-[structure]
-nodes = [ { id = 1, xyz = [0, 0, 0] }, { id = 2, xyz = [0, 0, 20], name = "top" } ]
-beams = [ { nodes = [1, 2], E = 3e10, G = 1.25e10, A = 10.0, Iy = 20.0, Iz = 20.0, J = 40.0 } ]
-masses = [ { node = 2, m = 2.0e6, inertia = [0, 0, 0] } ]
-raft = { node = 1, m = 1.0e6, inertia = [1e7, 1e7, 2e7] }
-damping = { modal = 0.05 }
-[motion]
-kind = "synthetic"
-pga_g = 0.2
-duration_s = 1.0
-[analysis]
-routes = ["winkler"]
-dt = 0.01
-[output]
-nodes = ["top"]
-"""
+TOY_SCENE = tower(soil={"halfspace": None}, foundation={"element_size": 5.0}, contact=None,
+                  motion={"pga_g": 0.2, "duration_s": 1.0, "seed": None})
 
 
 def _toy_run(ctx, progress=None):
@@ -205,7 +184,7 @@ def test_a_registered_route_reaches_every_command(toy_route, tmp_path, capsys):
 
     assert "toy" in route_names()
     scene = tmp_path / "toy.toml"
-    scene.write_text(TOY_SCENE)
+    write_scene(scene, TOY_SCENE)
     out = tmp_path / "r.h5"
     assert main(["run", str(scene), "--route", "toy", "--route", "winkler", "-o", str(out), "--json"]) == 0
     summ = json.loads(capsys.readouterr().out)["routes"]

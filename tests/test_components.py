@@ -16,6 +16,7 @@ from orchestrator.run import run_scene
 from orchestrator.scene import SceneError, scene_from_dict
 from structure import ContactSettings, simulate
 from structure.broadband import broadband_accelerogram
+from helpers import changed, tower, write_scene
 
 DT = 0.01
 SOIL = {"halfspace": {"vs": 500.0, "nu": 0.3, "rho": 2000.0}}
@@ -133,32 +134,14 @@ def test_scene_contract(records):
 ])
 def test_scene_errors_exit_2_naming_the_file(records, tmp_path, capsys, motion, message):
     path = records / "bad.toml"
-    path.write_text(SCENE_TOML + "[motion]\n" + motion + "\n")
+    write_scene(path, SCENE, "[motion]\n" + motion + "\n")
     assert main(["run", str(path), "-o", str(tmp_path / "r.h5")]) == 2
     err = capsys.readouterr().err
     assert str(path) in err and message in err, err
     assert not (tmp_path / "r.h5").exists()
 
 
-SCENE_TOML = """
-[soil]
-halfspace = { vs = 500.0, nu = 0.3, rho = 2000.0 }
-winkler = { kv = 5.0e7, kh = 4.0e7 }
-[foundation]
-shape = "rectangle"
-lx = 10.0
-ly = 10.0
-element_size = 2.5
-[structure]
-nodes = [ { id = 1, xyz = [0, 0, 0] }, { id = 2, xyz = [0, 0, 20], name = "top" } ]
-beams = [ { nodes = [1, 2], E = 3e10, G = 1.25e10, A = 10.0, Iy = 20.0, Iz = 20.0, J = 40.0 } ]
-masses = [ { node = 2, m = 2.0e6, inertia = [0, 0, 0] } ]
-raft = { node = 1, m = 1.0e6, inertia = [1e7, 1e7, 2e7] }
-damping = { modal = 0.05 }
-[analysis]
-routes = ["winkler"]
-dt = 0.01
-"""
+SCENE = tower(contact=None, motion=None, output=None)
 
 
 # ---- the routes -----------------------------------------------------------------------------------
@@ -225,11 +208,10 @@ def test_every_route_takes_three_components(records, tmp_path, capsys):
     to the fit error (< 5 %); the results file keeps the components."""
     routes = ["winkler", "monolithic", "cosim", "linear", "timefreq"]
     path = tmp_path / "three.toml"
-    path.write_text(SCENE_TOML.replace('winkler = { kv = 5.0e7, kh = 4.0e7 }\n', "")
-                    .replace('routes = ["winkler"]', f"routes = {json.dumps(routes)}")
-                    + '[impedance]\nrange_hz = [0.0, 20.0, 11]\n[contact]\nenabled = true\n'
-                    '[motion]\nkind = "synthetic"\ncomponents = ["x", "y", "z"]\npga_g = 0.3\nduration_s = 3.0\n'
-                    'seed = 2\n')
+    write_scene(path, changed(SCENE, soil={"winkler": None}, analysis={"routes": routes},
+                              impedance={"range_hz": [0.0, 20.0, 11]}, contact={"enabled": True},
+                              motion={"kind": "synthetic", "components": ["x", "y", "z"], "pga_g": 0.3,
+                                      "duration_s": 3.0, "seed": 2}))
     out = tmp_path / "r.h5"
     assert main(["run", str(path), "-o", str(out), "--json"]) == 0
     summ = json.loads(capsys.readouterr().out)
@@ -254,8 +236,9 @@ def test_timefreq_load_takes_three_components_exactly():
     frequency-independent soil it equals the Newmark route with uplift to the solver tolerance
     (< 1e-8, measured ~1e-10)."""
     from orchestrator.timefreq import GridOptions, solve
-    from tests.test_timefreq_cases import MODEL, motion, rel, soil
-
+    from helpers import COARSE_RAFT, rel
+    from helpers import broadband as motion
+    MODEL, soil = COARSE_RAFT.model, COARSE_RAFT.soil
     ag = motion(0.3)
     ag[:, 1] = motion(0.3, seed=7)[:, 0]
     ag[:, 2] = motion(0.2, seed=11)[:, 0]
@@ -274,11 +257,11 @@ def test_report_names_the_components_and_rocking_axes(tmp_path, capsys):
     listed without figures (it has no histories)."""
     from orchestrator.results import write_results
     from structure.results import RouteResult
-    from tests.test_report import _result
+    from helpers import route_result
 
     nt = 300
     t = 0.01 * np.arange(nt)
-    run = _result("monolithic")
+    run = route_result("monolithic")
     raft = np.array(run.raft)
     raft[:, 3] = 2e-4 * np.cos(2 * np.pi * t)
     results = {"monolithic": run.replace(raft=raft).with_notes(info={"components": ["x", "y", "z"]}),

@@ -4,7 +4,9 @@ import numpy as np
 from structure import ContactSettings, simulate
 from structure.broadband import broadband_accelerogram
 from structure.contact import AUTO_FACTOR
-from test_newmark import MODEL, soil
+from helpers import FINE_RAFT
+
+MODEL, soil = FINE_RAFT.model, FINE_RAFT.soil
 
 
 def test_penalty_times_ten_moves_results_less_than_0_1_percent():

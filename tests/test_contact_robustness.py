@@ -5,7 +5,9 @@ import pytest
 
 from structure import ContactSettings, ConvergenceError, simulate
 from structure.broadband import broadband_accelerogram
-from test_newmark import MODEL, soil
+from helpers import FINE_RAFT
+
+MODEL, soil = FINE_RAFT.model, FINE_RAFT.soil
 
 
 @pytest.mark.parametrize("pga_g", [0.1, 0.5, 1.0, 2.0])

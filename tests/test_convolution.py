@@ -11,7 +11,7 @@ import warnings
 import numpy as np
 import pytest
 
-from passive_models import oscillator_model, random_passive_model
+from helpers import oscillator_model, random_passive_model
 from soil_impedance.convolution import RecursiveConvolutionSoil, bilinear_coefficients, bilinear_s, recursion_transfer
 from soil_impedance.passivity import check_passive
 from soil_impedance.poles_free import convolve

@@ -8,12 +8,14 @@
 """
 import numpy as np
 
-from passive_models import oscillator_model
+from helpers import oscillator_model
 from soil_impedance.convolution import RecursiveConvolutionSoil
 from soil_impedance.rational import RationalModel
 from structure import ContactSettings, simulate
 from structure.broadband import broadband_accelerogram
-from test_newmark import MODEL, soil
+from helpers import FINE_RAFT
+
+MODEL, soil = FINE_RAFT.model, FINE_RAFT.soil
 
 DT = 0.005
 

@@ -13,7 +13,7 @@ histories and the FMUs' headline outputs (running max uplift and raft rotation) 
 import numpy as np
 import pytest
 
-from cosim_cases import pulse_motion, rocks_about_both_axes, small_scene, soil_model
+from helpers import pulse_motion, rel, rocks_about_both_axes, small_scene, soil_model
 from orchestrator.export import export_scene
 from orchestrator.routes.monolithic import run_monolithic
 
@@ -29,10 +29,6 @@ def case(tmp_path_factory):
     mono = run_monolithic(SCENE, MOTION, MODEL)
     assert mono.converged and mono.max_uplift() > 1e-2 and rocks_about_both_axes(mono)
     return exp, mono
-
-
-def rel(a, b):
-    return np.abs(np.asarray(a) - np.asarray(b)).max() / np.abs(b).max()
 
 
 def max_rotation(res):
@@ -107,7 +103,7 @@ def test_pair_fmu_refuses_another_step(case):
 
 @pytest.fixture(scope="module")
 def mono_export_motion():
-    from cosim_cases import EXPORT_MOTION
+    from helpers import EXPORT_MOTION
     return run_monolithic(SCENE, EXPORT_MOTION, MODEL)
 
 

@@ -12,17 +12,13 @@ channel matters, so the equality is not trivial.
 import numpy as np
 import pytest
 
-from cosim_cases import pulse_motion, rocks_about_both_axes, small_scene, soil_model
+from helpers import pulse_motion, rel, rocks_about_both_axes, small_scene, soil_model
 from orchestrator.routes.cosim import run_cosim
 from orchestrator.routes.monolithic import run_monolithic
 
 SCENE = small_scene()
 MODEL = soil_model(SCENE)
 MOTION = pulse_motion(y=0.5)                 # x, y and z at once
-
-
-def rel(a, b):
-    return np.abs(a - b).max() / np.abs(b).max()
 
 
 @pytest.fixture(scope="module")
@@ -46,7 +42,7 @@ def test_case_has_uplift_and_soil_memory(mono):
     ("soil_impedance.convolution:RecursiveConvolutionSoil", "gauss-seidel"),
     ("soil_impedance.convolution:RecursiveConvolutionSoil", "soil-first"),
     ("soil_impedance.convolution:RecursiveConvolutionSoil", "jacobi"),
-    ("soil_double:TrapezoidRationalSoil", "jacobi")])
+    ("helpers.soil_double:TrapezoidRationalSoil", "jacobi")])
 def test_every_schedule_equals_monolithic(mono, factory, schedule):
     ref = mono if factory.startswith("soil_impedance") else run_monolithic(SCENE, MOTION, MODEL, soil_factory=factory)
     cos = run_cosim(SCENE, MOTION, MODEL, soil_factory=factory, schedule=schedule)

@@ -4,7 +4,7 @@ of the bank never confuses two lists."""
 import numpy as np
 import pytest
 
-from cosim_cases import EXPORT_MOTION
+from helpers import EXPORT_MOTION
 from fmus.bank import RealBank
 from orchestrator.master import CosimError, FmuSlave, cosimulate
 

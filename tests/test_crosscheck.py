@@ -19,7 +19,7 @@ from fmpy.cross_check import validate_result
 from fmpy.cross_check.validate_vendor_repo import validate_repo
 from fmpy.util import read_csv, read_ref_opt_file
 
-from cosim_cases import EXPORT_MOTION
+from helpers import EXPORT_MOTION, changed, export_tower, write_scene
 from orchestrator.cli import main
 from orchestrator.crosscheck import FMPY_MAX_INTERVALS, check_cross_check, model_folder, write_cross_check
 from orchestrator.master import cosimulate
@@ -99,37 +99,13 @@ def test_structure_reference_equals_coupled_and_the_project_master(xc, exported)
         assert structure[name][-1] == pytest.approx(gs.info[key], rel=1e-10)
 
 
-CLI_SCENE = """
-[soil]
-halfspace = { vs = 500.0, nu = 0.3333333333333333, rho = 2000.0, damping = 0.0 }
-[foundation]
-shape = "rectangle"
-lx = 10.0
-ly = 10.0
-element_size = 5.0
-[impedance]
-range_hz = [0.0, 10.0, 6]
-[structure]
-nodes = [ { id = 1, xyz = [0, 0, 0] }, { id = 2, xyz = [0, 0, 20], name = "top" } ]
-beams = [ { nodes = [1, 2], E = 3e10, G = 1.25e10, A = 10.0, Iy = 20.0, Iz = 20.0, J = 40.0 } ]
-masses = [ { node = 2, m = 2.0e6, inertia = [0, 0, 0] } ]
-raft = { node = 1, m = 1.0e6, inertia = [1e7, 1e7, 2e7] }
-damping = { modal = 0.05 }
-[motion]
-kind = "synthetic"
-pga_g = 0.2
-duration_s = 1.0
-[analysis]
-dt = 0.01
-[output]
-nodes = ["top"]
-"""
+CLI_SCENE = export_tower()
 
 
 def test_cli_export_cross_check(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("UPLIFT_CACHE", str(tmp_path / "cache"))
     scene = tmp_path / "toy.toml"
-    scene.write_text(CLI_SCENE)
+    write_scene(scene, CLI_SCENE)
     xdir = tmp_path / "xc"
     assert main(["export", str(scene), "-o", str(tmp_path / "fmus"), "--cross-check", str(xdir)]) == 0
     err = capsys.readouterr().err
@@ -143,6 +119,6 @@ def test_cli_export_cross_check(tmp_path, monkeypatch, capsys):
     assert main(["export", str(scene), "-o", str(tmp_path / "fmus2"), "--cross-check", str(a_file)]) == 2
     assert "--cross-check" in capsys.readouterr().err and not (tmp_path / "fmus2").exists()
     winkler_only = tmp_path / "winkler.toml"                  # no BEM soil to put in the soil FMU
-    winkler_only.write_text(CLI_SCENE.replace("halfspace = {", "winkler = { kv = 5.0e7, kh = 4.0e7 }\n#"))
+    write_scene(winkler_only, changed(CLI_SCENE, soil={"halfspace": None, "winkler": {"kv": 5.0e7, "kh": 4.0e7}}))
     assert main(["export", str(winkler_only), "-o", str(tmp_path / "fmus3")]) == 2
     assert "no layered soil" in capsys.readouterr().err

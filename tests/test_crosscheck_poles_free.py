@@ -9,7 +9,7 @@ exact response (1e-4); a 1 % fit error shows up in the time domain at most at it
 """
 import numpy as np
 
-from passive_models import random_passive_model
+from helpers import random_passive_model
 from soil_impedance.convolution import RecursiveConvolutionSoil
 from soil_impedance.poles_free import convolve, cq_weights, impulse_response
 from soil_impedance.rational import RationalModel

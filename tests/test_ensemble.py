@@ -22,32 +22,9 @@ from orchestrator.cli import main
 from orchestrator.results import read_results
 from orchestrator.scene import load_scene
 from orchestrator.spectra import response_spectrum
+from helpers import changed, small_reactor, write_scene
 
-SCENE = """
-[soil]
-halfspace = { vs = 1600.0, nu = 0.3, rho = 2500.0 }
-[foundation]
-shape = "circle"
-radius = 20.0
-element_size = 8.0
-[impedance]
-range_hz = [0.0, 25.0, 26]
-[structure]
-model = "reactor"
-damping = { modal = 0.07 }
-[contact]
-enabled = true
-[motion]
-kind = "synthetic"
-pga_g = 0.3
-duration_s = 1.5
-seed = 3
-[analysis]
-routes = ["monolithic"]
-dt = 0.005
-[output]
-nodes = ["top_outer", "internals_37m"]
-"""
+SCENE = small_reactor()
 PGAS = (0.4, 0.8)
 
 
@@ -86,7 +63,7 @@ def case(tmp_path_factory):
     env = pytest.MonkeyPatch()
     env.setenv("UPLIFT_CACHE", str(tmp / "cache"))
     scene = tmp / "small.toml"
-    scene.write_text(SCENE)
+    write_scene(scene, SCENE)
     records = _write_records(tmp / "records")
     out = tmp / "ens.h5"
     stdout = io.StringIO()
@@ -105,7 +82,7 @@ def _single_run(case, name, pga, tmp):
     motion = (f'[motion]\nkind = "record"\nfile = "{case["tmp"] / "records" / name}"\nformat = "{fmt}"\n'
               f'units = "g"\nscale = {float(pga / np.abs(values).max())!r}\n')
     path = tmp / "cell.toml"
-    path.write_text(re.sub(r"\[motion\][^\[]*", motion.replace("\\", "\\\\"), SCENE))
+    write_scene(path, changed(SCENE, motion=None), motion)
     stdout = io.StringIO()
     with contextlib.redirect_stdout(stdout):
         assert main(["run", str(path), "-o", str(tmp / "cell.h5"), "--json"]) == 0
@@ -170,7 +147,7 @@ def test_synthetic_seeds_on_one_worker_equal_uplift_run(case, tmp_path, monkeypa
     assert list(ds["record"].values) == ["seed 1", "seed 2"] and list(ds["seed"].values) == [1, 2]
     for seed in (1, 2):
         path = tmp_path / "s.toml"
-        path.write_text(SCENE.replace("pga_g = 0.3", "pga_g = 0.5").replace("seed = 3", f"seed = {seed}"))
+        write_scene(path, changed(SCENE, motion={"pga_g": 0.5, "seed": seed}))
         stdout = io.StringIO()
         with contextlib.redirect_stdout(stdout):
             assert main(["run", str(path), "-o", str(tmp_path / "s.h5"), "--json"]) == 0
@@ -194,6 +171,7 @@ def _killer(client, log):
     return progress
 
 
+@pytest.mark.slow
 def test_killed_worker_missing_cells_reported_then_filled(case, tmp_path):
     ref = case["ds"]
     records = _files(case["tmp"], case["records"])

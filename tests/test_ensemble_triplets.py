@@ -7,12 +7,11 @@ on a 21-node raft, 1.5 s records), one worker."""
 import contextlib
 import io
 import json
-import re
 
 import numpy as np
 import pytest
 import xarray as xr
-from test_ensemble import SCENE
+from helpers import changed, small_reactor, toml_text, write_scene
 
 from orchestrator import ensemble as ens
 from orchestrator.cli import main
@@ -21,6 +20,7 @@ from orchestrator.results import read_results
 from orchestrator.scene import load_scene
 from orchestrator.spectra import response_spectrum
 
+SCENE = small_reactor()
 PGAS = (0.4, 0.8)
 T = 0.01 * np.arange(151)
 
@@ -77,7 +77,7 @@ def case(tmp_path_factory):
     env = pytest.MonkeyPatch()
     env.setenv("UPLIFT_CACHE", str(tmp / "cache"))
     scene = tmp / "small.toml"
-    scene.write_text(SCENE)
+    write_scene(scene, SCENE)
     triplets = _write_triplets(tmp)
     out = tmp / "ens.h5"
     stdout, stderr = io.StringIO(), io.StringIO()
@@ -91,7 +91,7 @@ def case(tmp_path_factory):
 
 def _with_motion(motion: str) -> str:
     """The scene with ``motion`` as its [motion] table (its lines up to the next table)."""
-    return re.sub(r"\[motion\]\n(?:(?!\[)[^\n]*\n)*", motion.replace("\\", "\\\\"), SCENE)
+    return toml_text(changed(SCENE, motion=None)) + motion
 
 
 def _run(scene_text: str, tmp):
@@ -172,10 +172,11 @@ def test_scaled_vertical_over_the_intensity_limit_is_refused(case, capsys):
     assert "analysis.max_pga_g = 1 g" in err and not (case["tmp"] / "refused.h5").exists()
 
 
+@pytest.mark.slow
 def test_seeds_give_independent_synthetic_triplets(case, tmp_path, monkeypatch):
     """A synthetic scene of three components: each seed a triplet; the cells equal `uplift run`."""
     monkeypatch.setenv("UPLIFT_CACHE", str(case["tmp"] / "cache"))
-    scene_text = SCENE.replace("seed = 3", 'seed = 3\ncomponents = ["x", "y", "z"]\nvertical_ratio = 0.5')
+    scene_text = toml_text(changed(SCENE, motion={"components": ["x", "y", "z"], "vertical_ratio": 0.5}))
     scene = tmp_path / "syn.toml"
     scene.write_text(scene_text)
     ds = ens.run_ensemble(scene, [0.5], seeds=[1, 2], workers=1, cache_dir=case["tmp"] / "cache")
@@ -280,7 +281,7 @@ def test_records_that_do_not_go_together_are_refused(case, tmp_path):
     with pytest.raises(ens.EnsembleError, match="'e': the horizontals are zero everywhere"):
         ens.plan_ensemble(scene, [0.3], records=[e])
     xz = tmp_path / "xz.toml"
-    xz.write_text(SCENE.replace("seed = 3", 'seed = 3\ncomponents = ["x", "z"]'))
+    write_scene(xz, changed(SCENE, motion={"components": ["x", "z"]}))
     with pytest.raises(ens.EnsembleError, match="a file is a one-component record on .motion..direction"):
         ens.plan_ensemble(load_scene(xz), [0.3], records=[a / "s-E.txt"])
 

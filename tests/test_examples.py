@@ -52,6 +52,7 @@ def test_every_example_is_tested():
     assert {p.name for p in EXAMPLES.glob("*.py")} == tested
 
 
+@pytest.mark.slow
 def test_compare_routes(tmp_path):
     """Monolithic and cosim agree to round-off, and the printed max uplift is the file's."""
     from orchestrator.results import read_results, summary
@@ -66,6 +67,7 @@ def test_compare_routes(tmp_path):
     assert printed["cosim"] > 0.1      # the 0.3 g motion lifts the raft (mm)
 
 
+@pytest.mark.slow
 def test_ensemble(tmp_path):
     """The printed medians are the medians over records of the file's cells."""
     xr = pytest.importorskip("xarray")
@@ -85,6 +87,7 @@ def test_ensemble(tmp_path):
     assert (tmp_path / "coarse_reactor_ensemble_report" / "report.html").is_file()
 
 
+@pytest.mark.slow
 def test_run_exported_fmus(tmp_path):
     """The exported FMUs under the project's master give the monolithic route's max uplift."""
     from orchestrator.run import run_scene

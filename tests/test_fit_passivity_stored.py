@@ -12,7 +12,7 @@ from soil_impedance.convolution import RecursiveConvolutionSoil
 from soil_impedance.fit import fit_table
 from soil_impedance.rational import FitError
 
-from tests.passive_models import oscillator_model
+from helpers import oscillator_model
 
 
 @pytest.fixture(scope="module")

@@ -34,7 +34,7 @@ import numpy as np
 import pytest
 from fmpy import read_model_description
 
-from cosim_cases import pulse_motion, rocks_about_both_axes, small_scene, soil_model
+from helpers import pulse_motion, rel, rocks_about_both_axes, small_scene, soil_model
 from fmus.native_build import PLATFORMS3, SOURCES3, fmi_headers
 from fmus.schema import vector3
 from orchestrator.export import export_scene
@@ -48,10 +48,6 @@ DT = MOTION.dt
 N = SCENE.mesh.xy.shape[0]
 ROLES = ("structure", "soil", "coupled")
 TOL = 1e-8
-
-
-def rel(a, b):
-    return np.abs(np.asarray(a) - np.asarray(b)).max() / np.abs(b).max()
 
 
 def max_rotation(res):
@@ -335,10 +331,10 @@ def test_cli_export_fmi_version_3(tmp_path, monkeypatch, capsys):
     fmus/3.0; FMI 3.0 with --kind python is refused before any computation (exit 2)."""
     from orchestrator.cli import main
     from orchestrator.crosscheck import model_folder
-    from test_crosscheck import CLI_SCENE
+    from helpers import export_tower, write_scene
     monkeypatch.setenv("UPLIFT_CACHE", str(tmp_path / "cache"))
     scene = tmp_path / "toy.toml"
-    scene.write_text(CLI_SCENE)
+    write_scene(scene, export_tower())
     out, xdir = tmp_path / "fmus", tmp_path / "xc"
     assert main(["export", str(scene), "-o", str(out), "--fmi-version", "3", "--cross-check", str(xdir)]) == 0
     err = capsys.readouterr().err

@@ -20,7 +20,7 @@ import textwrap
 
 import pytest
 
-from cosim_cases import EXPORT_MOTION
+from helpers import EXPORT_MOTION
 
 DT = EXPORT_MOTION.dt
 OK = 0

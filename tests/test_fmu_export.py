@@ -6,7 +6,7 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 
-from cosim_cases import EXPORT_MOTION, small_scene
+from helpers import EXPORT_MOTION, small_scene
 from orchestrator.master import CosimError, FmuSlave
 
 SCENE = small_scene()

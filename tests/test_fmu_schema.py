@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from fmpy import read_model_description
 
-from cosim_cases import small_scene
+from helpers import small_scene
 from fmus import schema
 from fmus.bundle import LAZY_REQUIREMENTS, PROVIDED, REQUIREMENTS, third_party
 from fmus.native_build import NATIVE, SOURCES, fmi_headers, sources_of

@@ -17,6 +17,7 @@ from orchestrator import fragility as frag
 from orchestrator.cli import main
 from orchestrator.ensemble import read_ensemble, write_ensemble
 from orchestrator.report import fragility_parts
+from helpers import tower, write_scene
 
 # ---- the fit on arrays --------------------------------------------------------------------------
 
@@ -160,33 +161,7 @@ def test_limit_syntax(text, norm):
 
 # ---- a real ensemble ----------------------------------------------------------------------------
 
-TOWER = """
-[soil]
-winkler = { kv = 5.0e7, kh = 4.0e7 }
-[foundation]
-shape = "rectangle"
-lx = 10.0
-ly = 10.0
-element_size = 2.5
-[structure]
-nodes = [ { id = 1, xyz = [0, 0, 0] }, { id = 2, xyz = [0, 0, 20], name = "top" } ]
-beams = [ { nodes = [1, 2], E = 3e10, G = 1.25e10, A = 10.0, Iy = 20.0, Iz = 20.0, J = 40.0 } ]
-masses = [ { node = 2, m = 2.0e6, inertia = [0, 0, 0] } ]
-raft = { node = 1, m = 1.0e6, inertia = [1e7, 1e7, 2e7] }
-damping = { modal = 0.05 }
-[contact]
-enabled = true
-[motion]
-kind = "synthetic"
-pga_g = 0.2
-duration_s = 2.0
-seed = 1
-[analysis]
-routes = ["winkler"]
-dt = 0.01
-[output]
-nodes = ["top"]
-"""
+TOWER = tower(soil={"halfspace": None}, motion={"pga_g": 0.2, "duration_s": 2.0, "seed": 1})
 PGAS = ("0.05", "0.1", "0.15", "0.2", "0.3", "0.4")
 LIMITS = ("max_uplift > 2 mm", "min_contact_ratio < 75 %", "floor_spectrum[node=top, direction=x, frequency=5.0] > 0.2 g")
 
@@ -195,7 +170,7 @@ LIMITS = ("max_uplift > 2 mm", "min_contact_ratio < 75 %", "floor_spectrum[node=
 def ensemble(tmp_path_factory):
     """`uplift ensemble` of the tower: 8 seeds x 6 PGAs on the winkler route, 1 worker (~7 s)."""
     tmp = tmp_path_factory.mktemp("fragility")
-    (tmp / "tower.toml").write_text(TOWER)
+    write_scene(tmp / "tower.toml", TOWER)
     out = tmp / "ens.h5"
     with contextlib.redirect_stdout(io.StringIO()):
         code = main(["ensemble", str(tmp / "tower.toml"), "--seeds", *map(str, range(1, 9)), "--pga", *PGAS,
@@ -251,6 +226,7 @@ def _check_against_file(entries, path, status_ok):
         assert e["log_likelihood"] >= ll - 1e-12                      # the module's optimum is not worse
 
 
+@pytest.mark.slow
 def test_cli_agrees_with_a_fit_of_the_files_cells(ensemble, tmp_path):
     path = tmp_path / "ens.h5"
     path.write_bytes(ensemble.read_bytes())

@@ -18,38 +18,26 @@ import pytest
 import orchestrator.cli as cli
 from orchestrator.cli import main
 from orchestrator.ensemble.cluster import WORKERS_PER_CORE, default_workers, local_workers
+from helpers import changed, tower, write_scene
 
-TOWER = """\
-[foundation]
-shape = "circle"
-radius = 5.0
-element_size = 2.5
-[impedance]
-frequencies_hz = [0.0, 2.0]
-[structure]
-nodes = [ { id = 1, xyz = [0, 0, 0] }, { id = 2, xyz = [0, 0, 20], name = "top" } ]
-beams = [ { nodes = [1, 2], E = 3e10, G = 1.25e10, A = 10.0, Iy = 20.0, Iz = 20.0, J = 40.0 } ]
-masses = [ { node = 2, m = 2.0e6 } ]
-raft = { node = 1, m = 1.0e6 }
-[contact]
-enabled = true
-[analysis]
-routes = ["winkler"]
-dt = 0.01
-[output]
-nodes = ["top"]
-"""
-BEM_SOIL = '[soil]\nhalfspace = { vs = 500.0, nu = 0.3, rho = 2000.0 }\n'
-WINKLER_SOIL = '[soil]\nwinkler = { kv = 2.0e8, kh = 1.5e8 }\n'
-MOTION = '[motion]\nkind = "synthetic"\npga_g = 0.3\nduration_s = {duration}\nseed = 2\n'
+#: the tower on a 5 m disk, two frequencies, no damping, 2 s of synthetic motion; its soil apart
+TOWER = tower(soil=None, foundation={"shape": "circle", "radius": 5.0, "lx": None, "ly": None},
+              impedance={"frequencies_hz": [0.0, 2.0]},
+              structure={"masses": [{"node": 2, "m": 2.0e6}], "raft": {"node": 1, "m": 1.0e6}, "damping": None},
+              motion={"duration_s": 2.0})
+BEM_SOIL = {"halfspace": {"vs": 500.0, "nu": 0.3, "rho": 2000.0}}
+WINKLER_SOIL = {"winkler": {"kv": 2.0e8, "kh": 1.5e8}}
 
 
 def _scene(folder, soil=BEM_SOIL, motion=None, name="s.toml", foundation=None):
-    text = soil + TOWER + (motion or MOTION.format(duration=2.0))
+    """The tower on ``soil`` with [motion] changed by ``motion`` (a dict of keys, or the whole
+    table as TOML text) and [foundation] replaced by ``foundation``."""
+    scene = changed(TOWER, soil=soil, **({"motion": motion} if isinstance(motion, dict) else {}))
     if foundation is not None:
-        text = text.replace('shape = "circle"\nradius = 5.0\nelement_size = 2.5', foundation)
-    (folder / name).write_text(text)
-    return str(folder / name)
+        scene["foundation"] = foundation
+    if isinstance(motion, str):
+        scene.pop("motion")
+    return write_scene(folder / name, scene, motion if isinstance(motion, str) else "")
 
 
 def _fifo(path):
@@ -87,7 +75,7 @@ CASES = {
     "run -o under a file": (lambda t: ["run", _scene(t), "-o", str(_file(t / "f") / "r.h5")],
                             "a folder on its way is a file"),
     "run --plot-dir a file": (lambda t: ["run", _scene(t), "--plot-dir", str(_file(t / "f"))], "is not a folder"),
-    "run pga_g 1e6": (lambda t: ["run", _scene(t, motion=MOTION.format(duration=2.0).replace("0.3", "1.0e6"))],
+    "run pga_g 1e6": (lambda t: ["run", _scene(t, motion={"pga_g": 1.0e6})],
                       "motion.pga_g = 1e+06 exceeds the intensity limit analysis.max_pga_g = 5 g"),
     "run record scale 1e6": (lambda t: (_record(t), ["run", _scene(
         t, motion='[motion]\nkind = "record"\nfile = "rec.dat"\nscale = 1.0e6\n')])[1],
@@ -96,12 +84,12 @@ CASES = {
                                "motion.pga_g = 0.3 exceeds the intensity limit analysis.max_pga_g = 0.2 g"),
     "run --max-pga nan": (lambda t: ["run", _scene(t), "--max-pga", "nan"], "must be a finite number > 0"),
     "run one-node foundation": (lambda t: (_file(t / "n.csv", "x,y,area\n0,0,100\n"), ["run", _scene(
-        t, foundation='shape = "nodes"\nfile = "n.csv"')])[1],
+        t, foundation={"shape": "nodes", "file": "n.csv"})])[1],
         "1 interface node: a raft on fewer than three points cannot carry an overturning moment"),
     "run nodes on a line": (lambda t: (_file(t / "n.csv", "x,y,area\n-5,0,10\n0,0,10\n5,0,10\n"), ["run", _scene(
-        t, foundation='shape = "nodes"\nfile = "n.csv"')])[1], "n.csv: all 3 interface nodes lie on one line"),
+        t, foundation={"shape": "nodes", "file": "n.csv"})])[1], "n.csv: all 3 interface nodes lie on one line"),
     "run centre outside the nodes": (lambda t: (_file(t / "n.csv", "x,y,area\n1,1,1\n3,1,1\n1,3,1\n"), ["run", _scene(
-        t, foundation='shape = "nodes"\nfile = "n.csv"')])[1], "the raft centre (0, 0) is outside the footprint"),
+        t, foundation={"shape": "nodes", "file": "n.csv"})])[1], "the raft centre (0, 0) is outside the footprint"),
     "impedance -o fifo": (lambda t: ["impedance", _scene(t), "-o", _fifo(t / "p")], "is a FIFO"),
     "impedance --gap device": (lambda t: ["impedance", _scene(t), "--gap", "/dev/null"], "is a character device"),
     "fit -o fifo": (lambda t: ["fit", _scene(t), "-o", _fifo(t / "p")], "is a FIFO"),
@@ -240,10 +228,11 @@ def test_worker_count_is_capped():
     assert n == WORKERS_PER_CORE * cores and f"{WORKERS_PER_CORE} per usable core" in note
 
 
+@pytest.mark.slow
 def test_ensemble_asked_for_hundreds_of_workers_runs_on_few(tmp_path, capsys, monkeypatch):
     """--workers 300 for two runs: two workers, a note in the summary, the runs done, no hang."""
     monkeypatch.chdir(tmp_path)
-    scene = _scene(tmp_path, soil=WINKLER_SOIL, motion=MOTION.format(duration=1.0))
+    scene = _scene(tmp_path, soil=WINKLER_SOIL, motion={"duration_s": 1.0})
     stdout = io.StringIO()
     t0 = time.perf_counter()
     with contextlib.redirect_stdout(stdout):

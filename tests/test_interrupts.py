@@ -13,35 +13,21 @@ import pytest
 
 from orchestrator.ensemble import CellStore, plan_ensemble
 from orchestrator.scene import load_scene
+from helpers import changed, tower, write_scene
 
 ROOT = Path(__file__).resolve().parents[1]
-SCENE = """\
-[soil]
-{soil}
-[foundation]
-shape = "circle"
-radius = 5.0
-element_size = 2.5
-[impedance]
-range_hz = [0.0, 20.0, 21]
-[structure]
-nodes = [ {{ id = 1, xyz = [0, 0, 0] }}, {{ id = 2, xyz = [0, 0, 20], name = "top" }} ]
-beams = [ {{ nodes = [1, 2], E = 3e10, G = 1.25e10, A = 10.0, Iy = 20.0, Iz = 20.0, J = 40.0 }} ]
-masses = [ {{ node = 2, m = 2.0e6 }} ]
-raft = {{ node = 1, m = 1.0e6 }}
-[contact]
-enabled = true
-[motion]
-kind = "synthetic"
-pga_g = 0.3
-duration_s = {duration}
-seed = 2
-[analysis]
-routes = ["winkler"]
-dt = {dt}
-"""
-WINKLER = "winkler = { kv = 2.0e8, kh = 1.5e8 }"
-HALFSPACE = "halfspace = { vs = 500.0, nu = 0.3, rho = 2000.0 }"
+#: the tower on a 5 m disk, 21 frequencies to 20 Hz, no damping; soil, duration and step apart
+SCENE = tower(soil=None, foundation={"shape": "circle", "radius": 5.0, "lx": None, "ly": None},
+              impedance={"range_hz": [0.0, 20.0, 21]}, output=None,
+              structure={"masses": [{"node": 2, "m": 2.0e6}], "raft": {"node": 1, "m": 1.0e6}, "damping": None})
+WINKLER = {"winkler": {"kv": 2.0e8, "kh": 1.5e8}}
+HALFSPACE = {"halfspace": {"vs": 500.0, "nu": 0.3, "rho": 2000.0}}
+
+
+def _scene(soil, duration, dt):
+    return changed(SCENE, soil=soil, motion={"duration_s": duration}, analysis={"dt": dt})
+
+
 INTERRUPTED = "uplift: interrupted"
 OLD = b"a previous output, to be left as it was\n"
 
@@ -85,9 +71,10 @@ def _check(code, lines, out, folder, expected):
     assert sorted(p.name for p in folder.iterdir()) == sorted(expected)        # no temporary left
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 def test_run_interrupted(tmp_path):
-    (tmp_path / "s.toml").write_text(SCENE.format(soil=WINKLER, duration=20.0, dt=0.002))
+    write_scene(tmp_path / "s.toml", _scene(WINKLER, 20.0, 0.002))
     out = tmp_path / "out.h5"
     out.write_bytes(OLD)
     code, lines, _ = _interrupt(["run", "s.toml", "-o", "out.h5", "--no-cache"], tmp_path, "run s [winkler]:  10%")
@@ -96,17 +83,18 @@ def test_run_interrupted(tmp_path):
 
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 def test_impedance_interrupted(tmp_path):
-    (tmp_path / "s.toml").write_text(SCENE.format(soil=HALFSPACE, duration=2.0, dt=0.01))
+    write_scene(tmp_path / "s.toml", _scene(HALFSPACE, 2.0, 0.01))
     out = tmp_path / "rigid.h5"
     out.write_bytes(OLD)
     code, lines, _ = _interrupt(["impedance", "s.toml", "-o", "rigid.h5", "--no-cache"], tmp_path, "impedance s:")
     _check(code, lines, out, tmp_path, ["s.toml", "rigid.h5"])
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
 def test_ensemble_interrupted_keeps_finished_runs(tmp_path):
     scene = tmp_path / "s.toml"
-    scene.write_text(SCENE.format(soil=WINKLER, duration=10.0, dt=0.004))
+    write_scene(scene, _scene(WINKLER, 10.0, 0.004))
     out = tmp_path / "e.h5"
     out.write_bytes(OLD)
     seeds = ["1", "2", "3", "4"]

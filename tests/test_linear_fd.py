@@ -4,7 +4,10 @@ import numpy as np
 from structure import ContactSettings, simulate
 
 from orchestrator.timefreq import GridOptions, linear_fd
-from tests.test_timefreq_cases import MODEL, motion, rel, smooth_pulse, soil
+from helpers import COARSE_RAFT, rel, smooth_pulse
+from helpers import broadband as motion
+
+MODEL, soil = COARSE_RAFT.model, COARSE_RAFT.soil
 
 BONDED = ContactSettings(enabled=False)
 
@@ -57,7 +60,7 @@ def test_rational_soil_splits_time_step_error_from_fit_error():
     recursion's z-transform (bilinear grid) equals the bonded Newmark run to round-off, and
     linear FD with the model itself (continuous grid) differs from it by the time-step error
     only (O(dt^2): halving dt divides the peak raft rotation gap by ~4)."""
-    from passive_models import oscillator_model
+    from helpers import oscillator_model
     from soil_impedance.convolution import RecursiveConvolutionSoil
 
     w = soil()

@@ -32,7 +32,7 @@ import numpy as np
 import pytest
 from fmpy import read_model_description
 
-from cosim_cases import pulse_motion, rocks_about_both_axes, small_scene, soil_model
+from helpers import pulse_motion, rel, rocks_about_both_axes, small_scene, soil_model
 from fmus.schema import AG
 from fmus.native_build import (PLATFORMS, SOURCES, build_native_fmus, decode_resources,
                                encode_resources, fmi_headers)
@@ -46,10 +46,6 @@ MOTION = pulse_motion(T=1.0, y=0.5)          # x, y and z at once
 DT = MOTION.dt
 N = SCENE.mesh.xy.shape[0]
 ROLES = ("structure", "soil", "coupled")
-
-
-def rel(a, b):
-    return np.abs(np.asarray(a) - np.asarray(b)).max() / np.abs(b).max()
 
 
 def max_rotation(res):
@@ -193,7 +189,7 @@ def test_resource_format_round_trip():
 
 
 def test_other_soil_factories_are_refused():
-    data = dataclasses.replace(fmu_data(SCENE, MODEL, DT), soil_factory="soil_double:TrapezoidRationalSoil")
+    data = dataclasses.replace(fmu_data(SCENE, MODEL, DT), soil_factory="helpers.soil_double:TrapezoidRationalSoil")
     with pytest.raises(ValueError, match="kind = 'python'"):
         build_native_fmus(data, "unused")
     with pytest.raises(ValueError, match="kind = 'fortran'"):
@@ -499,7 +495,7 @@ def test_a_damaged_resource_file_is_refused(case, host, tmp_path):
     ("bad-vr", "value references 1000000")])
 def test_the_python_fmus_hostile_cases(case, case_name, message):
     """tests/test_fmu_hostile.py's host (fmpy, in a subprocess) on the native soil FMU."""
-    from test_fmu_hostile import ERROR, OK, run_host
+    from helpers.fmu_host import ERROR, OK, run_host
     out = run_host(case[0].soil, case_name)
     assert out["status"] == ERROR and message in out["log"]
     if "after" in out:

@@ -1,34 +1,11 @@
 """Newmark stepper: order of accuracy, energy balance, external soil, rollback, HHT."""
 import numpy as np
 
-from soil_impedance.mesh import circle_mesh
-from structure import ContactSettings, NewmarkStepper, WinklerSoil, simulate
+from helpers import FINE_RAFT, stepper_pulse as pulse
+from structure import ContactSettings, NewmarkStepper, simulate
 from structure.broadband import broadband_accelerogram
-from structure.spec import model_from_spec
-from structure.winkler import dashpots_from_waves, disk_static_stiffness, springs_from_rigid_impedance
 
-MESH = circle_mesh(20.0, 2.28)
-MODEL = model_from_spec({"model": "reactor"}, MESH.xy, MESH.area)
-E, NU, RHO = 15e9, 0.3, 2500.0
-G = E / (2 * (1 + NU))
-VS = np.sqrt(G / RHO)
-VP = VS * np.sqrt((2 - 2 * NU) / (1 - 2 * NU))
-
-
-def soil(damped=True):
-    s = springs_from_rigid_impedance(disk_static_stiffness(G, NU, 20.0), MESH.xy, MESH.area)
-    cv, ch = dashpots_from_waves(MESH.area, RHO, VP, VS) if damped else (0.0, 0.0)
-    return WinklerSoil(MESH.xy, s.kv, s.kx, cv, ch)
-
-
-def pulse(dt, T=1.2):
-    t = dt * np.arange(int(round(T / dt)) + 1)
-    a = np.zeros((t.size, 3))
-    tp = 0.5
-    s = np.where(t < tp, np.sin(np.pi * t / tp) ** 3, 0.0)
-    a[:, 0] = 2.0 * s
-    a[:, 2] = 0.7 * s
-    return a
+MODEL, soil = FINE_RAFT.model, FINE_RAFT.soil
 
 
 def test_second_order_in_dt_linear():

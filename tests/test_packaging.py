@@ -34,6 +34,7 @@ def wheel(tmp_path_factory):
     return path
 
 
+@pytest.mark.slow
 def test_wheel_carries_every_package_file_and_no_test(wheel):
     names = set(zipfile.ZipFile(wheel).namelist())
     shipped = {n for n in names if ".dist-info/" not in n}

@@ -102,6 +102,7 @@ def test_nonpassive_E_is_reported():
     assert rep2.passive and np.linalg.eigvalsh(fixed.E)[0] >= 0
 
 
+@pytest.mark.slow
 def test_long_simulation_after_enforcement_is_stable(good_fit):
     """The broken model, driven at its negative-damping resonance, draws
     energy out of the soil; the enforced model, driven the same way for 10^5 steps, never does
@@ -160,7 +161,7 @@ def test_exact_test_with_singular_E_finds_the_closed_form_band():
     """E = 0 (the generalized eigenproblem of ``_crossings``): K = two condensed oscillators, the second
     one negative, G(ω)/ω = c1 k1²/((k1 − m1ω²)² + c1²ω²) − 0.05 c2 k2²/((k2 − m2ω²)² + c2²ω²) < 0 around
     the second resonance (2 Hz). The band edges are the roots of that closed form (brentq)."""
-    from passive_models import oscillator_model
+    from helpers import oscillator_model
     from scipy.optimize import brentq
 
     o1 = (1.0, 0.2, 1 / (2 * np.pi) ** 2)
@@ -202,7 +203,7 @@ def test_screen_and_early_exact_verdict_agree_with_the_full_test(good_fit):
     ``violations_only`` is the full one; a narrow violation is missed by the grid and found by the
     early exact verdict, with the same bands, without the grid; a broad one is seen by the grid,
     inside the exact bands."""
-    from passive_models import random_passive_model
+    from helpers import random_passive_model
     _, fit = good_fit
     grid = _default_grid()
     for model in (fit.model, *(random_passive_model(5, 3, 2, seed=s).with_provenance({"f_max_hz": 25.0})
@@ -246,6 +247,7 @@ def _null_noise_model(n, seed=0, noise=2e-3, f_max=25.0):
                          {"f_max_hz": f_max})
 
 
+@pytest.mark.slow
 def test_enforcement_with_hundreds_of_directions_below_the_margin():
     """73 of 150 eigenvalues of G negative at every frequency: the enforcement converges in a few
     iterations (measured 7) with a small change (0.24 % of |K|; the noise is 0.2 %), poles unchanged,

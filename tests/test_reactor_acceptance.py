@@ -13,6 +13,9 @@ from orchestrator.scene import load_scene
 from soil_impedance.convolution import RecursiveConvolutionSoil
 from structure import simulate
 
+#: the reactor's sweep, fit and routes: about a minute
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def cache(tmp_path_factory):

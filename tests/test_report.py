@@ -9,27 +9,13 @@ import pytest
 from orchestrator.cli import main
 from orchestrator.motion import Motion
 from orchestrator.results import summary, write_results
-from structure.results import RouteResult, Status
-
-
-def _result(route, gap_scale=1.0, wall=1.0, converged=True):
-    nt, N = 300, 6
-    t = 0.01 * np.arange(nt)
-    xy = np.array([[-5.0, 0.0], [5.0, 0.0], [0.0, 0.0], [0.0, 4.0], [0.0, -4.0], [2.0, 2.0]])
-    raft = np.zeros((nt, 6))
-    raft[:, 4] = 1e-4 * np.sin(2 * np.pi * t)
-    gap = np.zeros((nt, N))
-    gap[:, 1] = gap_scale * np.maximum(0.0, 1e-3 * np.sin(2 * np.pi * t))
-    acc = {"top": np.column_stack([np.sin(2 * np.pi * 3 * t), 0 * t, 0.2 * np.sin(2 * np.pi * 7 * t)])}
-    return RouteResult(route=route, time=t, raft=raft, gap=gap, contact_force=np.ones((nt, N)), acc=acc,
-                       status=Status.CONVERGED if converged else Status.STOPPED,
-                       message="" if converged else "Newton failed at t = 1.5 s", wall_s=wall, xy=xy)
+from helpers import route_result
 
 
 @pytest.fixture
 def results_file(tmp_path):
-    res = {"winkler": _result("winkler", 1.2, 0.5, converged=False), "linear": _result("linear", 0.0, 2.0),
-           "monolithic": _result("monolithic", 1.0, 1.0)}
+    res = {"winkler": route_result("winkler", 1.2, 0.5, converged=False), "linear": route_result("linear", 0.0, 2.0),
+           "monolithic": route_result("monolithic", 1.0, 1.0)}
     motion = Motion(0.01, np.column_stack([np.sin(np.arange(300) * 0.1), np.zeros(300), np.zeros(300)]), "test motion")
     return write_results(tmp_path / "res.h5", res, motion, "tiny"), res
 

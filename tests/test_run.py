@@ -7,41 +7,13 @@ import pytest
 
 from orchestrator.cli import main
 from orchestrator.results import read_results
+from helpers import changed, toml_text, tower, write_scene
 
-SCENE = """
-[soil]
-halfspace = { vs = 500.0, nu = 0.3, rho = 2000.0 }
-winkler = { kv = 5.0e7, kh = 4.0e7 }
-[foundation]
-shape = "rectangle"
-lx = 10.0
-ly = 10.0
-element_size = 2.5
-[structure]
-nodes = [ { id = 1, xyz = [0, 0, 0] }, { id = 2, xyz = [0, 0, 20], name = "top" } ]
-beams = [ { nodes = [1, 2], E = 3e10, G = 1.25e10, A = 10.0, Iy = 20.0, Iz = 20.0, J = 40.0 } ]
-masses = [ { node = 2, m = 2.0e6, inertia = [0, 0, 0] } ]
-raft = { node = 1, m = 1.0e6, inertia = [1e7, 1e7, 2e7] }
-damping = { modal = 0.05 }
-[contact]
-enabled = true
-[motion]
-kind = "synthetic"
-pga_g = PGA
-duration_s = 3.0
-seed = 2
-[analysis]
-routes = ["winkler"]
-dt = 0.01
-[output]
-nodes = ["top"]
-"""
+SCENE = tower()
 
 
 def _scene(tmp_path, pga=0.3, extra=""):
-    path = tmp_path / "tower.toml"
-    path.write_text(SCENE.replace("PGA", str(pga)) + extra)
-    return path
+    return write_scene(tmp_path / "tower.toml", changed(SCENE, motion={"pga_g": pga}), extra)
 
 
 def test_run_json_and_results_file(tmp_path, capsys):
@@ -88,7 +60,7 @@ def test_plots_written(tmp_path, capsys):
 ])
 def test_invalid_run_sections(tmp_path, capsys, old, new, msg):
     path = tmp_path / "bad.toml"
-    path.write_text(SCENE.replace("PGA", "0.3").replace(old, new))
+    path.write_text(toml_text(SCENE).replace(old, new))
     assert main(["run", str(path)]) == 2
     assert msg in capsys.readouterr().err
 
@@ -96,8 +68,9 @@ def test_invalid_run_sections(tmp_path, capsys, old, new, msg):
 def test_time_step_that_does_not_resolve_the_rocking_mode_is_refused(tmp_path, capsys):
     """A stiff tower on stiff springs: first soil-structure mode 9.2 Hz, 20 ms is 5-6 steps a period."""
     path = tmp_path / "stiff.toml"
-    path.write_text(SCENE.replace("PGA", "0.3").replace("kv = 5.0e7, kh = 4.0e7", "kv = 5.0e9, kh = 4.0e9")
-                    .replace("E = 3e10, G = 1.25e10", "E = 3e12, G = 1.25e12").replace("dt = 0.01", "dt = 0.02"))
+    beam = dict(SCENE["structure"]["beams"][0], E=3e12, G=1.25e12)
+    write_scene(path, changed(SCENE, soil={"winkler": {"kv": 5.0e9, "kh": 4.0e9}}, structure={"beams": [beam]},
+                              analysis={"dt": 0.02}))
     assert main(["run", str(path), "-o", str(tmp_path / "r.h5")]) == 2
     err = capsys.readouterr().err
     assert "analysis.dt = 0.02 s gives" in err and "steps per period of the first soil-structure mode" in err
@@ -124,15 +97,14 @@ def test_reactor_scene_dominant_mode_near_3_9_hz():
 
 
 @pytest.mark.parametrize("winkler, exact", [
-    ('{ springs = "rigid", match = "rocking" }', "rocking"),
-    ('{ springs = "rigid", match = "vertical", damping = "dashpots" }', "vertical"),
-    ('{ springs = "nodal" }', None),
+    ({"springs": "rigid", "match": "rocking"}, "rocking"),
+    ({"springs": "rigid", "match": "vertical", "damping": "dashpots"}, "vertical"),
+    ({"springs": "nodal"}, None),
 ])
 def test_winkler_calibrated_on_bem(tmp_path, capsys, winkler, exact):
     """The mattress reproduces the BEM static stiffness it is matched on (to round-off)."""
-    text = SCENE.replace("PGA", "0.3").replace("winkler = { kv = 5.0e7, kh = 4.0e7 }", f"winkler = {winkler}")
     path = tmp_path / "cal.toml"
-    path.write_text(text + "[impedance]\nrange_hz = [0.0, 10.0, 6]\n")
+    write_scene(path, changed(SCENE, soil={"winkler": winkler}, impedance={"range_hz": [0.0, 10.0, 6]}))
     out = tmp_path / "r.h5"
     assert main(["run", str(path), "-o", str(out)]) == 0
     ratio = np.array(read_results(out)["winkler"].info["winkler_over_bem_static"])
@@ -148,9 +120,8 @@ def test_winkler_calibrated_on_bem(tmp_path, capsys, winkler, exact):
 def test_monolithic_and_cosim_routes_agree(tmp_path, capsys):
     """The BEM-soil routes through `uplift run`: co-simulation (Gauss-Seidel, impedance split)
     equals the monolithic route to round-off (1e-10 relative on the raft response)."""
-    text = SCENE.replace("PGA", "0.3").replace("winkler = { kv = 5.0e7, kh = 4.0e7 }\n", "")
     path = tmp_path / "bem.toml"
-    path.write_text(text + "[impedance]\nrange_hz = [0.0, 20.0, 11]\n")
+    write_scene(path, changed(SCENE, soil={"winkler": None}, impedance={"range_hz": [0.0, 20.0, 11]}))
     out = tmp_path / "r.h5"
     assert main(["run", str(path), "-o", str(out), "--route", "monolithic", "--route", "cosim",
                  "--route", "linear"]) == 0
@@ -171,10 +142,9 @@ def test_monolithic_and_cosim_routes_agree(tmp_path, capsys):
 @pytest.mark.parametrize("pga, warned", [(0.02, False), (1.0, True)])
 def test_rccg_damping_warns_when_most_of_the_raft_lifts(tmp_path, capsys, pga, warned):
     """RCC-G modal damping keeps acting on a lifted raft: flagged when uplift is no perturbation."""
-    text = SCENE.replace("PGA", str(pga)).replace("winkler = { kv = 5.0e7, kh = 4.0e7 }",
-                                                   'winkler = { springs = "rigid" }')
     path = tmp_path / "rccg.toml"
-    path.write_text(text + "[impedance]\nrange_hz = [0.0, 10.0, 6]\n")
+    write_scene(path, changed(SCENE, soil={"winkler": {"springs": "rigid"}}, motion={"pga_g": pga},
+                              impedance={"range_hz": [0.0, 10.0, 6]}))
     assert main(["run", str(path), "-o", str(tmp_path / "r.h5"), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)["routes"]["winkler"]
     res = read_results(tmp_path / "r.h5")["winkler"]
@@ -184,18 +154,20 @@ def test_rccg_damping_warns_when_most_of_the_raft_lifts(tmp_path, capsys, pga, w
         assert 'damping = "dashpots"' in summary["warnings"][0]
 
 
+@pytest.mark.slow
 def test_step_doubling_warns_when_dt_does_not_resolve_the_contact(tmp_path, capsys):
     """A stiff tower on stiff springs at 0.6 g: 10 ms passes the first-mode check (9.2 Hz, 11
     steps a period) but not the contact dynamics. The step-doubling estimate (max uplift at dt
     and dt/2 on a Winkler stand-in) says so in the summary and on stderr, and is the real
     time-step error within a factor 2 (measured: 8.5 % estimated, 9.6 % against 1.25 ms);
     at 5 ms (0.7 %) there is no warning."""
-    stiff = (SCENE.replace("PGA", "0.6").replace("kv = 5.0e7, kh = 4.0e7", "kv = 5.0e9, kh = 4.0e9")
-             .replace("E = 3e10, G = 1.25e10", "E = 3e12, G = 1.25e12"))
+    beam = dict(SCENE["structure"]["beams"][0], E=3e12, G=1.25e12)
+    stiff = changed(SCENE, soil={"winkler": {"kv": 5.0e9, "kh": 4.0e9}}, structure={"beams": [beam]},
+                    motion={"pga_g": 0.6})
     path, out = tmp_path / "stiff.toml", tmp_path / "r.h5"
     runs = {}
     for dt in (0.01, 0.005, 0.00125):
-        path.write_text(stiff.replace("dt = 0.01", f"dt = {dt}"))
+        write_scene(path, changed(stiff, analysis={"dt": dt}))
         assert main(["run", str(path), "-o", str(out), "--json"]) == 0
         summary = json.loads(capsys.readouterr().out)["routes"]["winkler"]
         runs[dt] = (summary, read_results(out)["winkler"].info["dt_check"])

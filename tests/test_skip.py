@@ -15,7 +15,7 @@ import json
 import numpy as np
 import pytest
 
-from cosim_cases import pulse_motion, small_scene, soil_model, winkler
+from helpers import changed, pulse_motion, rel, small_scene, soil_model, tower, winkler, write_scene
 
 from soil_impedance.convolution import RecursiveConvolutionSoil
 from structure import ContactSettings, NewmarkStepper, StructureError, contact_from_spec, simulate
@@ -24,10 +24,6 @@ SCENE = small_scene()                 # reactor stick on a 21-node raft over roc
 MODEL = SCENE.model()
 FORCED = ContactSettings(precheck=False)
 TERMS = ("input", "kinetic", "strain", "damping", "soil", "contact", "contact_potential")
-
-
-def rel(a, b):
-    return np.abs(a - b).max() / np.abs(b).max()
 
 
 @pytest.mark.parametrize("soil_kind", ["winkler", "memory"])
@@ -141,33 +137,9 @@ def test_precheck_scene_key():
         contact_from_spec({"pre_check": False})
 
 
-BEM_SCENE = """
-[soil]
-halfspace = { vs = 500.0, nu = 0.3, rho = 2000.0 }
-[foundation]
-shape = "rectangle"
-lx = 10.0
-ly = 10.0
-element_size = 5.0
-[impedance]
-frequencies_hz = [0.0, 5.0, 10.0]
-[structure]
-nodes = [ { id = 1, xyz = [0, 0, 0] }, { id = 2, xyz = [0, 0, 20], name = "top" } ]
-beams = [ { nodes = [1, 2], E = 3e10, G = 1.25e10, A = 10.0, Iy = 20.0, Iz = 20.0, J = 40.0 } ]
-masses = [ { node = 2, m = 2.0e6, inertia = [0, 0, 0] } ]
-raft = { node = 1, m = 1.0e6, inertia = [1e7, 1e7, 2e7] }
-damping = { modal = 0.05 }
-[contact]
-PRECHECK
-[motion]
-kind = "synthetic"
-pga_g = 0.02
-duration_s = 1.0
-seed = 2
-[analysis]
-routes = ["winkler", "linear"]
-dt = 0.01
-"""
+BEM_SCENE = tower(soil={"winkler": None}, foundation={"element_size": 5.0},
+                  impedance={"frequencies_hz": [0.0, 5.0, 10.0]}, output=None,
+                  motion={"pga_g": 0.02, "duration_s": 1.0}, analysis={"routes": ["winkler", "linear"]})
 
 
 def test_skipped_in_run_summary_and_true(tmp_path, capsys, monkeypatch):
@@ -178,7 +150,7 @@ def test_skipped_in_run_summary_and_true(tmp_path, capsys, monkeypatch):
 
     monkeypatch.setenv("UPLIFT_CACHE", str(tmp_path / "cache"))
     scene = tmp_path / "tiny.toml"
-    scene.write_text(BEM_SCENE.replace("PRECHECK", "enabled = true"))
+    write_scene(scene, BEM_SCENE)
 
     def run():
         assert main(["run", str(scene), "-o", str(tmp_path / "r.h5"), "--json"]) == 0
@@ -198,7 +170,7 @@ def test_skipped_in_run_summary_and_true(tmp_path, capsys, monkeypatch):
     from orchestrator.results import read_results
     assert list(read_results(tmp_path / "r.h5")["winkler"].notes.skipped) == second["winkler"]["skipped"]
 
-    scene.write_text(BEM_SCENE.replace("PRECHECK", "precheck = false"))
+    write_scene(scene, changed(BEM_SCENE, contact={"enabled": None, "precheck": False}))
     forced = run()["winkler"]
     assert forced["precheck"].startswith("off") and forced["skipped"] == ["impedance sweep read from cache"]
     assert forced["max_raft_rotation_rad"] == pytest.approx(second["winkler"]["max_raft_rotation_rad"], rel=1e-9)

@@ -10,7 +10,9 @@ import numpy as np
 
 from structure import ContactSettings, SoilInterface, WinklerSoil, simulate
 from structure.broadband import broadband_accelerogram
-from test_newmark import MODEL, soil
+from helpers import FINE_RAFT
+
+MODEL, soil = FINE_RAFT.model, FINE_RAFT.soil
 
 
 class TrapezoidalDashpotSoil(SoilInterface):

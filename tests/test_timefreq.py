@@ -7,7 +7,10 @@ import pytest
 from structure import ContactSettings, simulate
 
 from orchestrator.timefreq import GridOptions, PaperOptions, SolveOptions, solve
-from tests.test_timefreq_cases import MODEL, motion, rel, smooth_pulse, soil
+from helpers import COARSE_RAFT, rel, smooth_pulse
+from helpers import broadband as motion
+
+MODEL, soil = COARSE_RAFT.model, COARSE_RAFT.soil
 
 UPLIFT = ContactSettings(enabled=True)
 
@@ -65,6 +68,7 @@ def test_time_budget_keeps_the_last_iterate():
     assert not nk.converged and "time budget" in nk.message
 
 
+@pytest.mark.slow
 @EXPERIMENTAL
 def test_continuous_tf_is_the_limit_of_newmark_with_uplift():
     """K + i w C soil (exact in both routes), uplift under a smooth pulse: Newmark's max uplift
@@ -113,7 +117,7 @@ def test_padding_independent_with_uplift():
 def test_bilinear_map_with_rational_soil_equals_monolithic_newmark():
     """A frequency-dependent passive rational soil run by its recursive convolution: the TF
     route with the recursion's z-transform equals structure.simulate to < 1e-8."""
-    from passive_models import oscillator_model
+    from helpers import oscillator_model
     from soil_impedance.convolution import RecursiveConvolutionSoil
 
     w = soil()

@@ -14,9 +14,10 @@ from orchestrator.routes.linear import run_linear
 from orchestrator.routes.timefreq import run_timefreq
 from orchestrator.timefreq import (GridOptions, NewtonKrylovOptions, PaperOptions, SolveOptions, WorkerPool, linear_fd,
                                    solve)
-from tests.soil_double import winkler_rational
-from tests.test_timefreq_cases import MODEL, motion, rel, soil
-from tests.test_timefreq_table import hysteretic_table
+from helpers import COARSE_RAFT, hysteretic_table, rel, winkler_rational
+from helpers import broadband as motion
+
+MODEL, soil = COARSE_RAFT.model, COARSE_RAFT.soil
 
 UPLIFT = ContactSettings(enabled=True)
 

@@ -1,27 +1,19 @@
 """Frequency-domain routes with a hysteretic impedance table (material damping as complex
-moduli, Im K(0+) = 2 xi K_0: not causal), on the small Winkler case of test_timefreq_cases
+moduli, Im K(0+) = 2 xi K_0: not causal), on the coarse raft of the shared Winkler case (helpers.COARSE_RAFT)
 turned into a table K(f) = K (1 + 2 i xi) + i w C."""
 import numpy as np
 import pytest
 
-from soil_impedance.table import ImpedanceTable
 from structure import ContactSettings
 
 from orchestrator.compare import compare
 from orchestrator.timefreq import GridOptions, SolveOptions, causal_table, linear_fd, solve
-from tests.test_timefreq_cases import MODEL, motion, rel, soil
+from helpers import COARSE_RAFT, hysteretic_table, rel
+from helpers import broadband as motion
+
+MODEL, soil = COARSE_RAFT.model, COARSE_RAFT.soil
 
 BONDED = ContactSettings(enabled=False)
-XI = 0.03
-
-
-def hysteretic_table(xi=XI):
-    w = soil()
-    K = w.static_stiffness().toarray()
-    C = w.instantaneous(0.005)[1].toarray()
-    f = np.linspace(0.0, 25.0, 51)
-    Kf = K[None] * (1 + 2j * xi) + 2j * np.pi * f[:, None, None] * C[None]
-    return ImpedanceTable(f, Kf, [f"d{i}" for i in range(K.shape[0])], {"test": f"hysteretic {xi}"})
 
 
 def test_causal_table_fades_the_hysteretic_offset_only():

@@ -1,15 +1,13 @@
-"""Shared small cases for the co-simulation tests: a reactor stick on a coarse raft (21 nodes)
+"""The co-simulation tests' small case: a reactor stick on a coarse raft (21 nodes)
 over hard rock, a short strong motion (uplift), and a rational soil with a nonzero history
 (Winkler springs and wave dashpots with two Maxwell relaxation terms)."""
 import numpy as np
 
 from orchestrator.motion import Motion
 from orchestrator.scene import scene_from_dict
-from structure.winkler import dashpots_from_waves, disk_static_stiffness, springs_from_rigid_impedance
-from structure import WinklerSoil
-from soil_double import winkler_rational
 
-E_ROCK, NU, RHO, R = 15e9, 0.3, 2500.0, 20.0
+from .soil_double import winkler_rational
+from .winkler import NU, R, RHO, rock_winkler
 
 
 def small_scene(element_size=8.0, contact=True, structure="reactor"):
@@ -24,13 +22,9 @@ def small_scene(element_size=8.0, contact=True, structure="reactor"):
 
 
 def winkler(scene, stiffness_scale=1.0, dashpots=True):
-    G = E_ROCK / (2 * (1 + NU))
-    vs = np.sqrt(G / RHO)
-    vp = vs * np.sqrt((2 - 2 * NU) / (1 - 2 * NU))
-    s = springs_from_rigid_impedance(stiffness_scale * disk_static_stiffness(G, NU, R), scene.mesh.xy,
-                                     scene.mesh.area, match="rocking")
-    cv, ch = dashpots_from_waves(scene.mesh.area, RHO, vp, vs) if dashpots else (0.0, 0.0)
-    return WinklerSoil(scene.mesh.xy, s.kv, s.kx, cv, ch, ky=s.ky)
+    """The rock's springs (matched on rocking, with ky) and wave dashpots under the scene's nodes."""
+    return rock_winkler(scene.mesh.xy, scene.mesh.area, damped=dashpots, stiffness_scale=stiffness_scale,
+                        match="rocking", ky=True)
 
 
 def soil_model(scene, stiffness_scale=1.0):

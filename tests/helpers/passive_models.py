@@ -1,5 +1,5 @@
 """Passive RationalModels from mechanical building blocks: test and benchmark factories
-(``oscillator_model``, ``random_passive_model``). Import as ``from passive_models import ...``
+(``oscillator_model``, ``random_passive_model``). Import as ``from helpers import ...``
 (tests/ is on the path under pytest; benchmarks add it)."""
 import numpy as np
 
