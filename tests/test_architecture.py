@@ -116,7 +116,7 @@ def test_who_imports_what_inside_the_packages(restricted):
 def test_the_rules_name_modules_that_exist():
     """A rule about a module that is not there any more checks nothing: every restricted
     prefix names a project module (optional ones excepted while their branch lands)."""
-    optional = {"fmus.native_host", "orchestrator.timefreq.experimental", "structure.simulate"}
+    optional = {"fmus.native_host", "structure.simulate"}
     missing = [r for r in IMPORTERS if r not in optional and not any(_under(k, r) for k in KNOWN)]
     assert not missing, f"IMPORTERS names modules that do not exist: {missing}"
 
