@@ -11,9 +11,8 @@ import pytest
 
 from orchestrator.routes import Route, register, route_names, unregister
 from structure.results import RouteResult
-from helpers import tower, write_scene
+from helpers import ROOT, tower, write_scene
 
-ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("soil_impedance", "structure", "fmus", "orchestrator")
 #: what each package may import from the project (the dependency rule)
 ALLOWED = {"soil_impedance": {"soil_impedance"}, "structure": {"structure"},
@@ -207,3 +206,20 @@ def test_architecture_page_names_files_that_exist():
     missing = [n for n in sorted(names) if not (ROOT / n).exists()
                and not any(p.name == n.rstrip("/") for p in files)]
     assert len(names) > 40 and not missing, f"ARCHITECTURE.md names what is not there: {missing}"
+
+
+def test_tests_import_one_way():
+    """Test modules share code through tests/helpers only (``from helpers import ...``): none
+    imports another test module or the tests folder as a package, and no folder under tests/
+    is named like a project package (``tests`` is on the path: it would shadow the package
+    wherever that is only reachable through an editable install)."""
+    tests = ROOT / "tests"
+    bad = []
+    for path in sorted(tests.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            bad += [f"{path.relative_to(ROOT)} imports {n}" for n in names
+                    if n.split(".")[0] == "tests" or n.split(".")[0].startswith(("test_", "conftest"))]
+    shadows = [p.name for p in tests.iterdir() if p.is_dir() and p.name in PACKAGES]
+    assert not bad and not shadows, "\n".join(bad) + f"\nfolders named like packages: {shadows}"

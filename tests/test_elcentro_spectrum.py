@@ -4,14 +4,14 @@ Chopra, Dynamics of Structures (Fig. 6.6.1 and Example 6.x): at 2 % damping the
 deformation spectrum of the El Centro N-S record is D = 2.67, 5.97 and 7.47 in at
 T_n = 0.5, 1 and 2 s. The record is Chopra's digitisation (tests/data, see its SOURCE file).
 """
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from orchestrator.spectra import response_spectrum
+from helpers import DATA as DATA_DIR
 
-DATA = Path(__file__).parent / "data" / "elcentro_1940_ns_chopra.csv"
+DATA = DATA_DIR / "elcentro_1940_ns_chopra.csv"
 G_IN = 386.09          # in/s^2 (g = 9.80665 m/s^2), Chopra's unit for D
 
 

@@ -10,7 +10,6 @@ import re
 import signal
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,7 +21,7 @@ from orchestrator.cli import main
 from orchestrator.results import read_results
 from orchestrator.scene import load_scene
 from orchestrator.spectra import response_spectrum
-from helpers import changed, small_reactor, write_scene
+from helpers import ROOT, changed, small_reactor, write_scene
 
 SCENE = small_reactor()
 PGAS = (0.4, 0.8)
@@ -233,7 +232,7 @@ def test_cell_key_depends_on_the_inputs_only(case, monkeypatch):
             f"records=[{str(case['tmp'] / 'records' / 'rec0.txt')!r}]).cells[0].key)")
     other = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                            env={**os.environ, "PYTHONHASHSEED": "123",
-                                "PYTHONPATH": str(Path(__file__).resolve().parents[1])}).stdout.strip()
+                                "PYTHONPATH": str(ROOT)}).stdout.strip()
     assert other == key
     assert ens.plan_ensemble(scene, [0.41], records=[case["tmp"] / "records" / "rec0.txt"]).cells[0].key != key
     assert ens.plan_ensemble(scene.with_routes(["winkler"]), [0.4],

@@ -4,12 +4,13 @@ API cannot rot without a test failing."""
 import re
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+from helpers import ROOT
+
+EXAMPLES = ROOT / "examples"
 MM = r"([0-9.]+) mm"
 
 #: the coarse reactor of the examples as a scene file (5 m elements, 5 s, 4 % fit)

@@ -6,16 +6,14 @@ import os
 import signal
 import subprocess
 import sys
-from pathlib import Path
 
 import psutil
 import pytest
 
 from orchestrator.ensemble import CellStore, plan_ensemble
 from orchestrator.scene import load_scene
-from helpers import changed, tower, write_scene
+from helpers import ROOT, changed, tower, write_scene
 
-ROOT = Path(__file__).resolve().parents[1]
 #: the tower on a 5 m disk, 21 frequencies to 20 Hz, no damping; soil, duration and step apart
 SCENE = tower(soil=None, foundation={"shape": "circle", "radius": 5.0, "lx": None, "ly": None},
               impedance={"range_hz": [0.0, 20.0, 21]}, output=None,

@@ -4,12 +4,13 @@ names the input and the fix. The full-length table: ``python benchmarks/stress.p
 import importlib.util
 import sys
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-_spec = importlib.util.spec_from_file_location("stress", Path(__file__).parents[1] / "benchmarks" / "stress.py")
+from helpers import ROOT
+
+_spec = importlib.util.spec_from_file_location("stress", ROOT / "benchmarks" / "stress.py")
 stress = sys.modules.setdefault("stress", importlib.util.module_from_spec(_spec))
 _spec.loader.exec_module(stress)
 
