@@ -484,9 +484,8 @@ class NewmarkStepper:
         m and N, acc and disp {node: (nt, 3)} m/s^2 (absolute) and m for the DOFs ``dofs``
         {node: (3,) indices}, energy {term: (nt,)} J (the terms of ``energies()``)."""
         nt, N = ag.shape[0], self.N
-        out = dict(gap=np.zeros((nt, N)), acc={}, disp={},
-                   energy={k: np.zeros(nt) for k in ("input", "kinetic", "strain", "damping", "soil", "contact",
-                                              "contact_potential")})
+        terms = ("input", "kinetic", "strain", "damping", "soil", "contact", "contact_potential")
+        out = dict(gap=np.zeros((nt, N)), acc={}, disp={}, energy={k: np.zeros(nt) for k in terms})
         sysd = self._system(self.dt)
         ni, ns = self.ni, self.ns
         U, V, A = Zh[:, 0], Zh[:, 1], Zh[:, 2]
