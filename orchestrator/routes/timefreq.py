@@ -42,7 +42,7 @@ def run_timefreq(motion, model, table_gap, *, contact, output_nodes, max_seconds
         raise ValueError(f"run_timefreq: unknown option {unknown[0]!r}; options: GridOptions and SolveOptions "
                          f"fields or {', '.join(SOLVE_KEYWORDS)}")
     return solve(model, table_gap, motion.acc, motion.dt, contact=contact, output_nodes=output_nodes,
-                 grid=grid, options=options, progress=decades_bar(progress, options.tol or TOL), **rest)
+                 grid=grid, options=options, monitor=decades_bar(progress, options.tol or TOL), **rest)
 
 
 def decades_bar(bar, tol):

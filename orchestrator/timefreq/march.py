@@ -45,7 +45,7 @@ from orchestrator.timefreq.soil import AffineBand, dense
 DIVERGED_M = 100.0
 
 #: steps per block: the near field costs nt B N^2 / 2 multiply-adds, the far field nt / B
-#: applications of S (reactor, N = 241: B = 32 / 64 / 128 give sweeps of 2.4 / 1.8 / 2.3 s)
+#: applications of S (on the reactor, N = 241, 64 gives the shortest sweep of 32, 64 and 128)
 BLOCK = 64
 #: steps per sub-block of the near field (CausalSweep.run): step by step inside, one matrix
 #: product from a finished sub-block to the rest of its block; SUB = BLOCK is the plain
@@ -307,7 +307,7 @@ class MarchSweep:
     anderson: int = 0
 
 
-def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BLOCK, progress=None,
+def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BLOCK, monitor=None,
                       deadline=None, fold=False, sub=SUB) -> Outcome:
     """The whole-range equation g(y) = 0 (problem.ContactEquation) by marches.
 
@@ -322,12 +322,12 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
     stays stable, and W carries the rest. Without it the reactor's table diverged from 0.6 g
     (the truncated kernel is not passive: with the raft lifted almost everywhere the free
     soil's response grew as e^{10 t}). "auto" marches on the truncated kernel (cheaper: one S
-    application per block instead of a pair; reactor 0.25 g: 5 sweeps of 1.6 s against 4 of
-    2.6 s) and starts again folded if a march diverges (a ``MarchSweep`` with ``diverged`` on
+    application per block instead of a pair: on the reactor at 0.25 g one more sweep, each
+    cheaper, and less time in all) and starts again folded if a march diverges (a ``MarchSweep`` with ``diverged`` on
     the truncated kernel, then sweeps on the folded one).
     Measured (benchmarks/timefreq.py --map, --map-reactor): the 21-node Winkler raft (causal
     soil, no fold) from 0.1 to 1.0 g in <= 6 sweeps to 1e-10 (the wrap-around only).
-    progress : callable(sweep, residual); deadline : perf_counter time past which the best
+    monitor : callable(sweep, residual) after each sweep; deadline : perf_counter time past which the best
     iterate is returned, STOPPED; block, sub : CausalSweep's blocks and near-field sub-blocks.
 
     Returns an Outcome (history: one MarchSweep per sweep)."""
@@ -366,8 +366,8 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
         r = float(np.linalg.norm(g) / scale)
         hist.append(MarchSweep(k, r, time.perf_counter() - t0, kernel(), newton=info["newton"],
                                factors=info["factors"], anderson=len(Fs)))
-        if progress is not None:
-            progress(k, r)
+        if monitor is not None:
+            monitor(k, r)
         if best is None or r < best[0]:
             best = (r, y)
         elif r > 2 * best[0]:

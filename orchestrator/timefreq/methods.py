@@ -3,7 +3,7 @@
 march with the wrap-around fed back (march.py); the others live in ``experimental/``, are
 never a default and warn (``ExperimentalMethodWarning``) when ``solve`` uses them.
 
-Adding a solver is one entry: a function ``run(prob, options, *, fold, progress, deadline)
+Adding a solver is one entry: a function ``run(prob, options, *, fold, monitor, deadline)
 -> (Outcome, info dict)`` and its flags.
 """
 from __future__ import annotations
@@ -22,7 +22,7 @@ class ExperimentalMethodWarning(UserWarning):
 
 @dataclass(frozen=True)
 class Method:
-    """One solver. run(prob, options, fold=, progress=, deadline=) -> (Outcome, info);
+    """One solver. run(prob, options, fold=, monitor=, deadline=) -> (Outcome, info);
     experimental: warn when used, never a default; bilinear_only: needs the bilinear grid
     (a positive definite instantaneous kernel); aux_factor(options): the auxiliary stiffness
     factor of the unknown's normalisation (problem.prepare); summary: one line."""
@@ -34,13 +34,13 @@ class Method:
     aux_factor: Callable = lambda options: 1.0
 
 
-def _march(prob, options, *, fold, progress, deadline):
+def _march(prob, options, *, fold, monitor, deadline):
     out = defect_correction(prob, tol=options.tol or 1e-10, max_sweeps=options.max_iter or 60,
-                            progress=progress, deadline=deadline, fold=fold)
+                            monitor=monitor, deadline=deadline, fold=fold)
     return out, {}
 
 
-def _newton_krylov(prob, options, *, fold, progress, deadline):
+def _newton_krylov(prob, options, *, fold, monitor, deadline):
     nk = options.newton_krylov
     info = dict(guess=nk.guess)
     y0 = None
@@ -53,7 +53,7 @@ def _newton_krylov(prob, options, *, fold, progress, deadline):
     return out, info
 
 
-def _paper(prob, options, *, fold, progress, deadline):
+def _paper(prob, options, *, fold, monitor, deadline):
     pa = options.paper
     out = paper_scheme(prob, rho=pa.rho, windows=pa.windows, tol=options.tol or 1e-6,
                        max_iter=options.max_iter or 200)

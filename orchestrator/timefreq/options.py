@@ -16,10 +16,9 @@ from numbers import Integral, Real
 from dataclasses import dataclass, field, fields, replace
 
 #: default worker threads of the frequency-domain operator (operator.WorkerPool). The operator
-#: is ~30 % of a reactor solve; on two shared cores (benchmarks/timefreq.py --contention, best
-#: of 3, three sessions, one BLAS thread) a second thread changed the wall time by -2 to +5 %
-#: idle (17.9 -> 17.0 s) and -1 to +18 % beside one busy process: never materially slower.
-#: Its threads block (no spin-wait), unlike threaded BLAS.
+#: is about a third of a reactor solve; on two shared cores (benchmarks/timefreq.py
+#: --contention) a second thread is never materially slower, idle or beside a busy process:
+#: its threads block (no spin-wait), unlike threaded BLAS.
 THREADS = 2
 
 

@@ -46,7 +46,7 @@ from orchestrator.timefreq.problem import ContactEquation, SolverStatus, prepare
 
 
 def solve(model, soil, ag, dt, *, contact=None, damping=None, output_nodes=None, static=None,
-          grid: GridOptions | None = None, options: SolveOptions | None = None, progress=None,
+          grid: GridOptions | None = None, options: SolveOptions | None = None, monitor=None,
           route: str = "timefreq") -> RouteResult:
     """Uplift response to ground acceleration ag (nt, 3) m/s^2 at step dt (s).
 
@@ -55,7 +55,8 @@ def solve(model, soil, ag, dt, *, contact=None, damping=None, output_nodes=None,
     (structure.damping_matrix); output_nodes : node names (None: every named node); static :
     StaticState (default: solved here); grid : GridOptions (default GridOptions(); None fields:
     the bilinear grid with the window); options : SolveOptions (default SolveOptions());
-    progress : callable(sweep, residual) for the march.
+    monitor : callable(sweep, residual) after each sweep of the march (a solver monitor, not
+        the progress protocol: ``orchestrator.routes.timefreq.decades_bar`` turns it into one).
 
     Returns a RouteResult: status CONVERGED, or STOPPED with the reason in message and the
     best iterate's histories (not converged, diverged, time budget). info["status"] the
@@ -83,7 +84,7 @@ def solve(model, soil, ag, dt, *, contact=None, damping=None, output_nodes=None,
                        aux_factor=method.aux_factor(options), pool=pool)
         t_setup = time.perf_counter() - t0
         out, extra = method.run(prob, options, fold="auto" if isinstance(soil, ImpedanceTable) else False,
-                                progress=progress, deadline=deadline)
+                                monitor=monitor, deadline=deadline)
         info = dict(method=method.name, **extra)
         eq = ContactEquation(prob)
         residual = float(np.linalg.norm(eq.residual(out.y)) / eq.scale)
