@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from cosim_cases import EXPORT_MOTION, small_scene, soil_model
+from helpers import EXPORT_MOTION, small_scene, soil_model
 from orchestrator.export import SSD
 from orchestrator.routes.monolithic import run_monolithic
 
