@@ -161,8 +161,9 @@ def host_platform() -> str:
     return name
 
 
-def compile_runtime(platforms=tuple(PLATFORMS), compiler: str = "zig") -> dict:
-    """{platform: bytes of the shared library} of the C runtime for the FMI 2.0 ``platforms``.
+def compile_runtime(platforms=tuple(PLATFORMS), compiler: str = "zig", sources=SOURCES) -> dict:
+    """{platform: bytes of the shared library} of the C runtime for the FMI 2.0 ``platforms``
+    (``sources``: its C files in fmus/native/, by default those of the FMUs).
 
     compiler "zig": the C compiler of the ``ziglang`` package (cross-compiles to every platform;
     its cache makes a repeated build ~0.3 s, the first one per platform takes seconds to a
@@ -177,7 +178,7 @@ def compile_runtime(platforms=tuple(PLATFORMS), compiler: str = "zig") -> dict:
         raise ValueError(f"compiler = 'cc' builds for the host platform ({host_platform()}) only: use "
                          "compiler = 'zig' to cross-compile")
     include = fmi_headers()
-    sources = [str(NATIVE / s) for s in SOURCES]
+    sources = [str(NATIVE / s) for s in sources]
     out = {}
     with tempfile.TemporaryDirectory(prefix="uplift_native_") as tmp:
         for platform in platforms:
@@ -220,31 +221,46 @@ def model_records(data: FmuData, newton: dict | None = None) -> dict:
     if n != 6 + N:
         raise ValueError(f"the soil model has {n} DOFs, the interface needs 6 + N = {6 + N}")
     soil = soil_from_model(data.soil_model, dt, DEFAULT_SOIL_FACTORY, data.soil_kwargs)     # verifies passivity
-    pr, Rr, pc, Rc = data.soil_model.pole_split
-    common = {"dt": dt, "n_dof": float(n), "poles_real": pr, "poles_pair": np.stack([pc.real, pc.imag], -1).reshape(-1, 2),
-              "residues_real": Rr, "residues_pair": np.stack([Rc.real, Rc.imag], -1).reshape(-1, n, n, 2),
-              "D": data.soil_model.D, "E": data.soil_model.E}
     contact = dataclasses.replace(contact_from_spec(data.contact), **(newton or {}))
-    if not 0 <= contact.max_subdiv <= 30 or contact.max_iter < 1:
-        raise ValueError(f"newton: max_subdiv = {contact.max_subdiv} must lie in [0, 30] and max_iter = "
-                         f"{contact.max_iter} be >= 1")
     model = model_from_spec(data.structure, data.xy, data.area)
     st = NewmarkStepper(model, soil, dt, contact=contact, damping=data.damping, alpha=float(data.alpha),
                         external_soil=True)
-    ns = st.ns
-    dense = lambda a: np.asarray(a[:ns, :ns].toarray(), float)
     nodes = [model.dofs(model.node_by_name(nm).id)[:3] for nm in data.output_nodes]
-    stepper = {**common, "ns": float(ns), "N": float(N), "alpha": st.alpha,
-               "contact_enabled": float(contact.enabled), "contact_tol": float(contact.tol),
-               "contact_max_iter": float(contact.max_iter), "contact_max_subdiv": float(contact.max_subdiv),
-               "M": st.M, "Ks": dense(st.Ks), "Cs": dense(st.Cs), "Mr": st.Mr[:ns], "Bq3": st.Bq3, "kp": st.kp,
-               "P0": st.P0, "delta0": st.delta0,
-               "node_dofs": np.array(nodes, np.int64).reshape(-1, 3)}
+    common = soil_records(data.soil_model, dt)
+    stepper = {**common, **stepper_records(st, nodes)}
     if data.motion is not None:
         stepper["motion"] = np.asarray(data.motion, float).reshape(-1, 3)
     Gx, Gv = history_gains(soil, dt)
     return {"soil": {**common, "role": 0.0}, "structure": {**stepper, "role": 1.0, "Gx": Gx, "Gv": Gv},
             "coupled": {**stepper, "role": 2.0}}
+
+
+def soil_records(soil_model, dt: float) -> dict:
+    """The soil's records (every role): dt, n_dof, the poles split into real poles and one pole
+    per conjugate pair, their residues, D and E."""
+    n = soil_model.n
+    pr, Rr, pc, Rc = soil_model.pole_split
+    return {"dt": float(dt), "n_dof": float(n), "poles_real": pr,
+            "poles_pair": np.stack([pc.real, pc.imag], -1).reshape(-1, 2),
+            "residues_real": Rr, "residues_pair": np.stack([Rc.real, Rc.imag], -1).reshape(-1, n, n, 2),
+            "D": soil_model.D, "E": soil_model.E}
+
+
+def stepper_records(st, node_dofs) -> dict:
+    """The structure's records (structure and coupled roles) from a ``structure.NewmarkStepper``
+    (its matrices, static state, penalty and contact settings: the C stepper steps the same
+    equations) and the DOFs (ux, uy, uz) of the output nodes, (nodes, 3)."""
+    contact = st.contact
+    if not 0 <= contact.max_subdiv <= 30 or contact.max_iter < 1:
+        raise ValueError(f"newton: max_subdiv = {contact.max_subdiv} must lie in [0, 30] and max_iter = "
+                         f"{contact.max_iter} be >= 1")
+    ns = st.ns
+    dense = lambda a: np.asarray(a[:ns, :ns].toarray(), float)
+    return {"ns": float(ns), "N": float(st.N), "alpha": st.alpha,
+            "contact_enabled": float(contact.enabled), "contact_tol": float(contact.tol),
+            "contact_max_iter": float(contact.max_iter), "contact_max_subdiv": float(contact.max_subdiv),
+            "M": st.M, "Ks": dense(st.Ks), "Cs": dense(st.Cs), "Mr": st.Mr[:ns], "Bq3": st.Bq3, "kp": st.kp,
+            "P0": st.P0, "delta0": st.delta0, "node_dofs": np.array(node_dofs, np.int64).reshape(-1, 3)}
 
 
 # ---- the model description ---------------------------------------------------------------------

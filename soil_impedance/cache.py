@@ -37,6 +37,13 @@ _UMASK = os.umask(0o022)
 os.umask(_UMASK)
 
 
+def default_cache_dir() -> Path:
+    """The project's cache folder (impedance tables, fits, the host's compiled runtime):
+    $UPLIFT_CACHE, else ~/.cache/uplift."""
+    env = os.environ.get("UPLIFT_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "uplift"
+
+
 class CacheWarning(UserWarning):
     """A damaged cache entry was discarded; the result is recomputed."""
 

@@ -359,6 +359,7 @@ static const double *jacobian(UpStepper *s, int lev, const unsigned char *act, c
         J[(size_t)(6 + i) * nb + 6 + i] += si;
     }
     s->cache_lev[slot] = -1;
+    s->n_factorisations++;
     if (up_lu(J, p, nb))
         return NULL;
     s->cache_lev[slot] = lev;
@@ -618,6 +619,7 @@ static int span(UpStepper *s, int depth, const double *ag0, const double *ag1, c
                  *s->t + dt, dt, depth, fail.node, fail.residual);
         return -1;
     }
+    s->last_halved = 1;
     double agm[3];
     for (int k = 0; k < 3; k++)
         agm[k] = 0.5 * (ag0[k] + ag1[k]);
@@ -642,6 +644,7 @@ int up_stepper_step(UpStepper *s)
     memcpy(ag1, s->ag_next, sizeof ag1);
     int iters = 0;
     s->last_iters = 0;
+    s->last_halved = 0;
     if (span(s, 0, ag0, ag1, s->external ? s->h_ext : NULL, &iters)) {
         memcpy(s->block, s->saves, s->block_len * sizeof(double));
         return -1;

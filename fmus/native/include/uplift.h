@@ -53,8 +53,10 @@
 #define up_res_free UP_SYM(up_res_free)
 #define up_res_i64 UP_SYM(up_res_i64)
 #define up_res_load UP_SYM(up_res_load)
+#define up_res_parse UP_SYM(up_res_parse)
 #define up_res_scalar UP_SYM(up_res_scalar)
 #define up_setup UP_SYM(up_setup)
+#define up_simulate UP_SYM(up_simulate)
 #define up_slot_names UP_SYM(up_slot_names)
 #define up_soil_ahead UP_SYM(up_soil_ahead)
 #define up_soil_bind UP_SYM(up_soil_bind)
@@ -81,6 +83,14 @@
 #endif
 
 
+/* what a library built for an in-process host exports (simulate.c); the FMUs export the FMI
+   functions only */
+#if defined(_WIN32)
+#define UP_API __declspec(dllexport)
+#else
+#define UP_API __attribute__((visibility("default")))
+#endif
+
 #define UP_MSG 1024           /* length of an error message buffer */
 #define UP_MAXLEV 31          /* step-halving levels: dt / 2**k, k = 0 .. max_subdiv <= 30 */
 #define UP_NCACHE 16          /* Newton Jacobian factorisations kept (per level and active set) */
@@ -104,6 +114,8 @@ typedef struct {
 } UpRes;
 
 int up_res_load(UpRes *r, const char *path, char *err);
+/* the same from size bytes in memory (copied); name stands for the path in messages */
+int up_res_parse(UpRes *r, const unsigned char *data, size_t size, const char *name, char *err);
 void up_res_free(UpRes *r);
 const UpRecord *up_res_find(const UpRes *r, const char *name);
 /* the float64 (int64) record ``name`` with ndim dimensions; dims[k] >= 0 are checked, -1 any
@@ -190,6 +202,8 @@ typedef struct {
     double *block;
     size_t block_len;
     int last_iters;
+    int last_halved;          /* 1 when the last step was halved */
+    long n_factorisations;    /* Jacobian LU factorisations so far */
     char *err;                /* message of a failed step */
 } UpStepper;
 
@@ -202,5 +216,9 @@ int up_stepper_prepare(UpStepper *s, char *err);        /* the system at dt, bef
 int up_stepper_step(UpStepper *s);                       /* 0, or -1 with s->err */
 void up_stepper_gap(const UpStepper *s, double *gap);
 void up_stepper_energies(const UpStepper *s, double *e); /* input, kinetic, strain, damping, soil, contact, contact_potential */
+
+/* ---- simulate.c: a whole run in one call, for in-process hosts ------------------------------- */
+UP_API int up_simulate(const unsigned char *res, uint64_t size, const double *ag, int64_t nt, double *rows,
+                       int64_t *iters, int64_t *stats, char *err);
 
 #endif
