@@ -62,7 +62,7 @@ RESOURCE_FILE = "uplift.bin"
 #: FMI 2.0 platform -> (zig target, shared library suffix); glibc 2.17 for old Linux hosts
 PLATFORMS = {"linux64": ("x86_64-linux-gnu.2.17", "so"), "win64": ("x86_64-windows-gnu", "dll"),
              "darwin64": ("x86_64-macos", "dylib")}
-CFLAGS = ("-std=c99", "-O2", "-ffp-contract=off", "-fvisibility=hidden", "-fPIC", "-shared")
+CFLAGS = ("-std=c99", "-O3", "-ffp-contract=off", "-fvisibility=hidden", "-fPIC", "-shared")
 COMPILERS = ("zig", "cc")
 #: the Python FMU class of each role: its model name, identifier, description and author are reused
 ROLES = {"soil": UpliftSoil, "structure": UpliftStructure, "coupled": UpliftCoupled}

@@ -112,7 +112,7 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
     ok = ok && s->cache_lu && s->cache_piv && s->cache_lev && s->cache_act && s->cache_used;
     for (int k = 0; ok && k < UP_NCACHE; k++)
         s->cache_lev[k] = -1;
-    for (int k = 0; ok && k < 8; k++)
+    for (int k = 0; ok && k < 10; k++)
         ok = (s->w_n[k] = (double *)calloc((size_t)n, sizeof(double))) != NULL;
     for (int k = 0; ok && k < 10; k++)
         ok = (s->w_nb[k] = (double *)calloc((size_t)nb, sizeof(double))) != NULL;
@@ -147,7 +147,7 @@ void up_stepper_free(UpStepper *s)
     free(s->cache_lev);
     free(s->cache_act);
     free(s->cache_used);
-    for (int k = 0; k < 8; k++)
+    for (int k = 0; k < 10; k++)
         free(s->w_n[k]);
     for (int k = 0; k < 10; k++)
         free(s->w_nb[k]);
@@ -470,8 +470,9 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
     memcpy(yI, rhs, (size_t)ni * sizeof(double));
     if (ni > 0)
         up_lu_solve(y->AII, y->piv, ni, yI);
+    up_matvec(y->ABI, nb, ni, yI, r_hat);
     for (int i = 0; i < nb; i++)
-        r_hat[i] = rhs[ni + i] - up_dot(y->ABI + (size_t)i * ni, yI, ni);
+        r_hat[i] = rhs[ni + i] - r_hat[i];
     const int *piv;
     const double *lu;
     *iters = 0;
@@ -522,19 +523,22 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
                 double r = fabs(gv[6 + i]);
                 if (!isfinite(r))
                     finite = 0;
-                else if (r > best) {
+                else if (r > best)
                     best = r;
-                    node = i;
-                }
             }
+            for (int i = 0; i < N && node < 0; i++)      /* the first within round-off of the largest (ties) */
+                if (fabs(gv[6 + i]) >= best * (1 - 1e-9))
+                    node = i;
             fail->node = finite ? (N ? node : 0) : -1;
             fail->residual = up_norm(gv, nb);
             return -1;
         }
     }
     /* u_new = [y - X uB, uB] */
+    double *XuB = s->w_n[8];
+    up_matvec(y->X, ni, nb, uB, XuB);
     for (int i = 0; i < ni; i++)
-        u_new[i] = yI[i] - up_dot(y->X + (size_t)i * nb, uB, nb);
+        u_new[i] = yI[i] - XuB[i];
     memcpy(u_new + ni, uB, (size_t)nb * sizeof(double));
     if (!finite_all(u_new, (size_t)n)) {
         fail->node = -1;
@@ -567,8 +571,10 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
         vm[i] = 0.5 * (v[i] + v_new[i]);
     for (int i = 0; i < n; i++)
         w_in += (u_new[i] - u[i]) * (0.5 * (s->F[i] + F_new[i]));
+    double *Cvm = s->w_n[8];
+    up_matvec(s->Cs, ns, ns, vm, Cvm);
     for (int i = 0; i < ns; i++)
-        w_damp += (u_new[i] - u[i]) * up_dot(s->Cs + (size_t)i * ns, vm, ns);
+        w_damp += (u_new[i] - u[i]) * Cvm[i];
     for (int i = 0; i < nb; i++) {
         double du = u_new[ni + i] - u[ni + i];
         w_soil += du * (0.5 * (s->fs[i] + fs_new[i]));
@@ -669,8 +675,10 @@ void up_stepper_energies(const UpStepper *s, double *e)
     double kin = 0.0, strain = 0.0, pot = 0.0;
     for (int i = 0; i < n; i++)
         kin += s->v[i] * (s->M[i] * s->v[i]);
+    double *Ku = s->w_n[9];
+    up_matvec(s->Ks, ns, ns, s->u, Ku);
     for (int i = 0; i < ns; i++)
-        strain += s->u[i] * up_dot(s->Ks + (size_t)i * ns, s->u, ns);
+        strain += s->u[i] * Ku[i];
     double *d = s->w_N[5];
     relative(s, s->u + s->ni, d);
     for (int i = 0; i < N; i++) {

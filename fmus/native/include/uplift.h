@@ -44,7 +44,10 @@
 #define up_lu UP_SYM(up_lu)
 #define up_lu_solve UP_SYM(up_lu_solve)
 #define up_matvec UP_SYM(up_matvec)
-#define up_matvec2 UP_SYM(up_matvec2)
+#define up_gemv_t UP_SYM(up_gemv_t)
+#define up_spmv_add UP_SYM(up_spmv_add)
+#define up_spmv2_add UP_SYM(up_spmv2_add)
+#define up_gemv_t2 UP_SYM(up_gemv_t2)
 #define up_matvec_add UP_SYM(up_matvec_add)
 #define up_norm UP_SYM(up_norm)
 #define up_num UP_SYM(up_num)
@@ -128,8 +131,13 @@ int up_res_scalar(const UpRes *r, const char *name, double *value, char *err);
 int up_lu(double *A, int *piv, int n);                  /* in place; 0, or k + 1 on a zero pivot */
 void up_lu_solve(const double *LU, const int *piv, int n, double *b);   /* b <- A^-1 b */
 void up_matvec(const double *A, int rows, int cols, const double *x, double *y);        /* y = A x */
-void up_matvec2(const double *A, int rows, int cols, const double *x1, const double *x2, double *y1,
-                double *y2);                                                 /* both in one pass over A */
+/* y = At^T x for At (rows, cols): y (cols) accumulates x_j times row j of At, in the order of j */
+void up_gemv_t(const double *At, int rows, int cols, const double *x, double *y);
+void up_gemv_t2(const double *At, int rows, int cols, const double *x1, const double *x2, double *y1,
+                double *y2);                                                 /* both in one pass over At */
+/* y += P x for a symmetric (n, n) P packed by rows of its upper triangle (n (n + 1) / 2 values) */
+void up_spmv_add(const double *P, int n, const double *x, double *y);
+void up_spmv2_add(const double *P, int n, const double *x1, const double *x2, double *y1, double *y2);
 void up_matvec_add(const double *A, int rows, int cols, const double *x, double s, double *y); /* y += s A x */
 double up_dot(const double *a, const double *b, int n);
 double up_norm(const double *a, int n);
@@ -149,8 +157,10 @@ typedef struct {
     const double *pr, *pc;    /* (mr), (mc, 2) poles: real, and one (re, im) per conjugate pair */
     const double *Rr, *Rc;    /* (mr, n, n), (mc, n, n, 2) residues */
     const double *D, *E;      /* (n, n) */
-    double *H;                /* (n, L): h = H g, NULL when the soil is not stepped */
-    double *g, *g2, *fbuf;    /* (L), (L), (3 n) work */
+    double *H;                /* (L, n): H transposed (pole-major), h = H g; NULL when the soil is not stepped */
+    double *Hs;               /* the same when every residue is symmetric (reciprocity): the L / n blocks
+                                 of H (R_k; 2 Re R_k, -2 Im R_k) packed (up_spmv_add); H is then NULL */
+    double *g, *g2, *fbuf;    /* (L), (L), (5 n) work */
     UpSoilLevel lev[UP_MAXLEV];
     /* state, inside the instance's state block */
     double *yr, *yc, *u, *ud, *f, *work;
@@ -196,7 +206,7 @@ typedef struct {
     /* state, inside the instance's state block */
     double *t, *u, *v, *a, *P, *fs, *fc, *R, *F, *ag, *work, *ag_next, *h_ext;
     /* work */
-    double *w_n[8], *w_nb[10], *w_N[6], *hbuf;
+    double *w_n[10], *w_nb[10], *w_N[6], *hbuf;
     unsigned char *act, *act_new;
     double *saves;            /* (nlev + 1) copies of the instance's state block */
     double *block;
