@@ -105,13 +105,14 @@ def library_note(folder=None) -> str:
     return _loaded[Path(folder)][1]
 
 
-def simulate_native(st, ag, output_nodes=(), route: str = "native", lib=None):
+def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None):
     """``structure.simulate`` through the C runtime: the same histories to round-off.
 
     st : structure.NewmarkStepper at rest (external_soil=True), built on the soil and the model
          to run: its matrices, static state, penalty and contact settings are what the C stepper
          steps; its soil must be a RecursiveConvolutionSoil (``st.soil.model``: the rational model)
-    ag : (nt, 3) m/s^2 at k dt; output_nodes : node names with acc/disp histories
+    ag : (nt, 3) m/s^2 at k dt; output_nodes : node names with acc/disp histories (None: every
+    named node, as ``simulate``)
     lib : the library (default ``library()``; it must be available)
     Returns a RouteResult (notes: the precheck is not run: every step is a Newton step, one
     cached back-substitution while the active set holds); a Newton failure raises
@@ -128,7 +129,8 @@ def simulate_native(st, ag, output_nodes=(), route: str = "native", lib=None):
     if ag.ndim != 2 or ag.shape[1] != 3 or not np.all(np.isfinite(ag)):
         from structure import StructureError
         raise StructureError(f"ground acceleration must be a finite (nt, 3) array, got shape {ag.shape}")
-    model, names = st.model, list(output_nodes)
+    model = st.model
+    names = [n.name for n in model.nodes if n.name] if output_nodes is None else list(output_nodes)
     dofs = [model.dofs(model.node_by_name(nm).id)[:3] for nm in names]
     blob = encode_resources({**soil_records(st.soil.model, st.dt), **stepper_records(st, dofs)})
     nt, N, m = ag.shape[0], st.N, len(names)

@@ -2,6 +2,7 @@
    pivoting (as LAPACK getrf: row interchanges recorded as swaps), solves, products. Row-major;
    the inner loops run along rows, contiguous in memory. */
 #include <math.h>
+#include <stdlib.h>
 
 #include "uplift.h"
 
@@ -124,6 +125,55 @@ UP_WIDE void up_matvec(const double *A, int rows, int cols, const double *x, dou
         y[i] = dot(A + (size_t)i * cols, x, cols);
 }
 
+UP_WIDE void up_matvec_ld(const double *A, int rows, int cols, int lda, const double *x, double *y)
+{
+    for (int i = 0; i < rows; i++)
+        y[i] = dot(A + (size_t)i * lda, x, cols);
+}
+
+int up_sparse_init(UpSparse *S, const double *A, int rows, int cols)
+{
+    int nnz = 0;
+    for (size_t i = 0; i < (size_t)rows * cols; i++)
+        nnz += A[i] != 0.0;
+    S->rows = rows;
+    S->ptr = (int *)malloc(((size_t)rows + 1) * sizeof(int));
+    S->col = (int *)malloc(((size_t)nnz + 1) * sizeof(int));
+    S->val = (double *)malloc(((size_t)nnz + 1) * sizeof(double));
+    if (!S->ptr || !S->col || !S->val)
+        return -1;
+    int q = 0;
+    for (int i = 0; i < rows; i++) {
+        S->ptr[i] = q;
+        for (int j = 0; j < cols; j++)
+            if (A[(size_t)i * cols + j] != 0.0) {
+                S->col[q] = j;
+                S->val[q++] = A[(size_t)i * cols + j];
+            }
+    }
+    S->ptr[rows] = q;
+    return 0;
+}
+
+void up_sparse_free(UpSparse *S)
+{
+    free(S->ptr);
+    free(S->col);
+    free(S->val);
+    S->ptr = S->col = NULL;
+    S->val = NULL;
+}
+
+void up_sparse_matvec(const UpSparse *S, const double *x, double *y)
+{
+    for (int i = 0; i < S->rows; i++) {
+        double t = 0.0;
+        for (int q = S->ptr[i]; q < S->ptr[i + 1]; q++)
+            t += S->val[q] * x[S->col[q]];
+        y[i] = t;
+    }
+}
+
 /* y = At^T x, row by row of At (four at a time: y_i stays in a register through four updates,
    in their order); the inner loop runs along a row, with no reduction, so it vectorises at any
    width with the same result */
@@ -223,6 +273,12 @@ UP_WIDE void up_matvec_add(const double *A, int rows, int cols, const double *x,
 {
     for (int i = 0; i < rows; i++)
         y[i] += s * dot(A + (size_t)i * cols, x, cols);
+}
+
+UP_WIDE void up_axpy(double a, const double *restrict x, int n, double *restrict y)
+{
+    for (int i = 0; i < n; i++)
+        y[i] += a * x[i];
 }
 
 double up_dot(const double *a, const double *b, int n)

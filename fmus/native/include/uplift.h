@@ -49,6 +49,11 @@
 #define up_spmv2_add UP_SYM(up_spmv2_add)
 #define up_gemv_t2 UP_SYM(up_gemv_t2)
 #define up_matvec_add UP_SYM(up_matvec_add)
+#define up_matvec_ld UP_SYM(up_matvec_ld)
+#define up_sparse_init UP_SYM(up_sparse_init)
+#define up_sparse_free UP_SYM(up_sparse_free)
+#define up_sparse_matvec UP_SYM(up_sparse_matvec)
+#define up_axpy UP_SYM(up_axpy)
 #define up_norm UP_SYM(up_norm)
 #define up_num UP_SYM(up_num)
 #define up_res_f64 UP_SYM(up_res_f64)
@@ -96,7 +101,7 @@
 
 #define UP_MSG 1024           /* length of an error message buffer */
 #define UP_MAXLEV 31          /* step-halving levels: dt / 2**k, k = 0 .. max_subdiv <= 30 */
-#define UP_NCACHE 16          /* Newton Jacobian factorisations kept (per level and active set) */
+#define UP_NCACHE 16          /* Newton matrices kept (per level and active set) */
 
 /* ---- resources.c: the binary resource file ------------------------------------------------ */
 enum { UP_F64 = 1, UP_I64 = 2, UP_TEXT = 3 };
@@ -127,10 +132,21 @@ const double *up_res_f64(const UpRes *r, const char *name, int ndim, int64_t *di
 const int64_t *up_res_i64(const UpRes *r, const char *name, int ndim, int64_t *dims, char *err);
 int up_res_scalar(const UpRes *r, const char *name, double *value, char *err);
 
+/* a sparse matrix, compressed rows (the structure's stiffness and damping: mostly zeros) */
+typedef struct {
+    int rows;
+    int *ptr, *col;
+    double *val;
+} UpSparse;
+
 /* ---- linalg.c --------------------------------------------------------------------------------- */
 int up_lu(double *A, int *piv, int n);                  /* in place; 0, or k + 1 on a zero pivot */
 void up_lu_solve(const double *LU, const int *piv, int n, double *b);   /* b <- A^-1 b */
 void up_matvec(const double *A, int rows, int cols, const double *x, double *y);        /* y = A x */
+void up_matvec_ld(const double *A, int rows, int cols, int lda, const double *x, double *y);  /* rows of stride lda */
+int up_sparse_init(UpSparse *S, const double *A, int rows, int cols);   /* from dense A; -1 out of memory */
+void up_sparse_free(UpSparse *S);
+void up_sparse_matvec(const UpSparse *S, const double *x, double *y);   /* y = S x */
 /* y = At^T x for At (rows, cols): y (cols) accumulates x_j times row j of At, in the order of j */
 void up_gemv_t(const double *At, int rows, int cols, const double *x, double *y);
 void up_gemv_t2(const double *At, int rows, int cols, const double *x1, const double *x2, double *y1,
@@ -138,6 +154,7 @@ void up_gemv_t2(const double *At, int rows, int cols, const double *x1, const do
 /* y += P x for a symmetric (n, n) P packed by rows of its upper triangle (n (n + 1) / 2 values) */
 void up_spmv_add(const double *P, int n, const double *x, double *y);
 void up_spmv2_add(const double *P, int n, const double *x1, const double *x2, double *y1, double *y2);
+void up_axpy(double a, const double *x, int n, double *y);                      /* y += a x */
 void up_matvec_add(const double *A, int rows, int cols, const double *x, double s, double *y); /* y += s A x */
 double up_dot(const double *a, const double *b, int n);
 double up_norm(const double *a, int n);
@@ -184,9 +201,17 @@ typedef struct {
     double dt, c0, c1, c2, c3;
     double *AII;              /* (ni, ni) LU of the interior block */
     int *piv;
-    double *ABI;              /* (nb, ni) */
-    double *X;                /* (ni, nb) A_II^-1 A_IB */
+    double *ABI;              /* (nb, ni); rows abi_rows and on are zero (w couples to no interior DOF) */
+    double *X;                /* (ni, nb) A_II^-1 A_IB; columns x_cols and on are zero */
+    int abi_rows, x_cols;
     double *S0;               /* (nb, nb) Schur complement on x = [q, w] */
+    double *K0C;              /* (nb, nb) D0 + c1 E: the soil force's part in x at this step size */
+    /* the Newton matrix's two bases (stepper.c): every contact closed [0], every one open [1] */
+    double *Jb[2];            /* (nb, nb) their LU */
+    int *pb[2];
+    double *Z[2];             /* (N, nb) row i: base^-1 b_i, b_i node i's contact direction */
+    double *W[2];             /* (N, N) b_i . Z_j */
+    int base_ok[2];           /* 0 when that base is singular */
 } UpSystem;
 
 typedef struct {
@@ -194,26 +219,28 @@ typedef struct {
     double alpha, beta, gamma, tol;
     int enabled, max_iter, max_subdiv;
     const double *M, *Ks, *Cs, *Mr, *Bq3, *kp, *P0, *delta0;   /* (n), (ns, ns) x2, (ns, 3), (N, 3), (N) x3 */
+    UpSparse Ks_sp, Cs_sp;    /* Ks, Cs compressed (their products per step) */
     UpSoil *soil;             /* dt-dependent soil matrices; stepped unless external */
     int external;             /* 1: the history h is an input (h_ext), the soil is not stepped */
     UpSystem sys[UP_MAXLEV];
-    /* Jacobian factorisations, least recently used replaced */
+    /* per (level, active set): the base, the k nodes where J differs from it and the LU of the
+       (k, k) capacitance matrix; least recently used replaced */
     double *cache_lu;
-    int *cache_piv, *cache_lev;
+    int *cache_piv, *cache_lev, *cache_nodes, *cache_base, *cache_k;
     unsigned char *cache_act;
     long *cache_used;
     long clock;
     /* state, inside the instance's state block */
     double *t, *u, *v, *a, *P, *fs, *fc, *R, *F, *ag, *work, *ag_next, *h_ext;
     /* work */
-    double *w_n[10], *w_nb[10], *w_N[6], *hbuf;
+    double *w_n[10], *w_nb[12], *w_N[6], *hbuf;
     unsigned char *act, *act_new;
     double *saves;            /* (nlev + 1) copies of the instance's state block */
     double *block;
     size_t block_len;
     int last_iters;
     int last_halved;          /* 1 when the last step was halved */
-    long n_factorisations;    /* Jacobian LU factorisations so far */
+    long n_factorisations;    /* LU factorisations of Newton matrices so far (bases and capacitances) */
     char *err;                /* message of a failed step */
 } UpStepper;
 
