@@ -494,8 +494,7 @@ static double slope_at(const UpStepper *s, double a, double b, const double *dd,
     return a + b * t - sum;
 }
 
-static double line_search(UpStepper *s, const UpSystem *y, const double *uB, const double *dx, const double *g0,
-                          double *Sdx)
+static double line_search(UpStepper *s, const double *uB, const double *dx, const double *g0, const double *Sdx)
 {
     int N = s->N;
     double *d0 = s->w_N[0], *dd = s->w_N[1], *pen = s->w_N[2], *kinks = s->w_N[3];
@@ -507,7 +506,6 @@ static double line_search(UpStepper *s, const UpSystem *y, const double *uB, con
         lin += dd[i] * (s->kp[i] * (pen[i] > 0.0 ? pen[i] : 0.0));
     }
     double a = up_dot(dx, g0, s->nb) + (1 + s->alpha) * lin;
-    up_matvec(y->S0, s->nb, s->nb, dx, Sdx);
     double b = up_dot(dx, Sdx, s->nb);
     double f0 = slope_at(s, a, b, dd, pen, 0.0);
     if (slope_at(s, a, b, dd, pen, 1.0) <= 1e-12 * fabs(f0))
@@ -617,7 +615,19 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
             for (int i = 0; i < nb; i++)
                 dx[i] = -dx[i];
             ++*iters;
-            double t = line_search(s, y, uB, dx, gv, Sdx);
+            /* S0 dx = J dx - sum_active s_i b_i (b_i . dx), J dx = -g: no product with S0 */
+            for (int i = 0; i < nb; i++)
+                Sdx[i] = -gv[i];
+            for (int i = 0; i < N; i++)
+                if (s->act[i]) {
+                    double c = ((1 + al) * s->kp[i]) * along(s, i, dx);
+                    const double *b = s->Bq3 + 3 * (size_t)i;
+                    Sdx[2] -= c * b[0];
+                    Sdx[3] -= c * b[1];
+                    Sdx[4] -= c * b[2];
+                    Sdx[6 + i] += c;
+                }
+            double t = line_search(s, uB, dx, gv, Sdx);
             for (int i = 0; i < nb; i++) {
                 xn[i] = uB[i] + t * dx[i];
                 Sx[i] += t * Sdx[i];
