@@ -22,8 +22,8 @@ make single timings noisy):
                what the FMU layer costs.
 
 Native FMUs (fmus/native_build.py, compiled for this platform) in each repeat too: the native
-pair under the same master, the native coupled FMU stepped through its ag input; their wall and
-CPU time, start-up (extraction, instantiation, initialisation) and time per step beside the
+pair under the same master, the native coupled FMU stepped through its ag_x, ag_y, ag_z
+inputs; their wall and CPU time, start-up (extraction, instantiation, initialisation) and time per step beside the
 monolithic route's (target: the native coupled FMU faster than the monolithic route).
 
 Prints: wall and CPU time of each route, cosim / monolithic (target <= 1.5), the real-time
@@ -101,21 +101,22 @@ def split_in_process(scene, motion, model):
 
 
 def native_coupled(path, motion):
-    """The native coupled FMU driven by the motion's ag input, one step of dt per call (as the
-    pair): (wall s, CPU s, start-up s, max uplift m, raft (nt, 6)); start-up: extraction,
+    """The native coupled FMU driven by the motion's inputs ag_x, ag_y, ag_z, one step of dt per
+    call (as the pair): (wall s, CPU s, start-up s, max uplift m, raft (nt, 6)); start-up: extraction,
     instantiation, initialisation."""
+    from fmus.schema import AG
     from orchestrator.master import FmuSlave
 
     dt, nt = motion.dt, motion.acc.shape[0]
     t0, c0 = time.perf_counter(), time.process_time()
     with FmuSlave(path, "coupled", parameters={"internal_motion": False}) as C:
-        C.set("ag", motion.acc[0])
+        C.set(*AG, motion.acc[0])
         C.initialize()
         start = time.perf_counter() - t0
         raft = np.empty((nt, 6))
         raft[0] = C.get("x")[:6]
         for k in range(1, nt):
-            C.set("ag", motion.acc[k])
+            C.set(*AG, motion.acc[k])
             C.do_step((k - 1) * dt, dt)
             raft[k] = C.get("x")[:6]
         up = float(C.get("max_uplift")[0])
@@ -274,7 +275,7 @@ def main(argv=None):
               f"{abs(up - mono.max_uplift()) / mono.max_uplift():13.1e}")
     print(f"(the {host_platform()} binary, built in {native_build_s:.1f} s; start-up: extraction, instantiation,"
           " initialisation;\n monolithic: its wall_s, stepper construction included; native coupled driven through"
-          f" its ag input; raft\n native coupled vs monolithic "
+          f" its ag_x, ag_y, ag_z inputs; raft\n native coupled vs monolithic "
           f"{np.abs(raft_c - mono.raft).max() / np.abs(mono.raft).max():.1e}, native pair vs cosim "
           f"{np.abs(npair.raft - cos.raft).max() / np.abs(cos.raft).max():.1e} relative)")
     nc = rows["native coupled"]

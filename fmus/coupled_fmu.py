@@ -3,9 +3,9 @@ route's stepper (``structure.NewmarkStepper`` advancing the soil object itself) 
 communication step. For tools that run one FMU at a time (``fmpy simulate``) or treat
 co-simulation FMUs as direct feedthrough (Simulink): nothing to connect.
 
-Variables: the outputs and the input ag of fmus/stepper.py. Driven by the motion bundled in
-resources by default (parameter internal_motion = true); false: by the input ag (held over a
-communication step). A communication step may be any multiple of the exported dt (fmpy's
+Variables: the outputs and the inputs ag_x, ag_y, ag_z of fmus/stepper.py. Driven by the
+motion bundled in resources by default (parameter internal_motion = true); false: by the inputs
+ag_x, ag_y, ag_z (held over a communication step). A communication step may be any multiple of the exported dt (fmpy's
 ``simulate_fmu`` picks one when a record has more than 1000 steps): the FMU steps dt inside.
 """
 from __future__ import annotations

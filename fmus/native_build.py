@@ -1,6 +1,6 @@
 """Native FMUs: the soil, the structure and the coupled system as compiled C code that needs no
-Python in the host (the C runtime in fmus/native/, FMI 2.0 co-simulation, C standard library
-only).
+Python in the host (the C runtime in fmus/native/, FMI 2.0 or FMI 3.0 co-simulation, C
+standard library only).
 
 ``build_native_fmus(data, outdir, coupled)`` writes ``structure.fmu``, ``soil.fmu`` (and
 ``coupled.fmu``) with the variables, the coupling and the answers of the Python FMUs
@@ -8,14 +8,21 @@ only).
 split coupling with the stamps x_time / g_time (fmus/coupling.py), the same discrete equations
 (results equal to round-off). Each FMU holds
 
-    modelDescription.xml    with <SourceFiles> (the C files of sources/)
+    modelDescription.xml    FMI 2.0: with <SourceFiles> (the C files of sources/)
     binaries/<platform>/<modelIdentifier>.<so|dll|dylib>   one runtime, compiled at export for
-                            linux64, win64 and darwin64 (FMI 2.0 platform names) by the C
-                            compiler of the ``ziglang`` package (it cross-compiles), or by the
+                            linux64, win64 and darwin64 (FMI 2.0 platform names; FMI 3.0:
+                            x86_64-linux, x86_64-windows, x86_64-darwin, aarch64-darwin) by the
+                            C compiler of the ``ziglang`` package (it cross-compiles), or by the
                             system compiler (``cc``, $CC) for the host platform only
     sources/*.c, *.h        the runtime's sources, so a tool can compile for another platform
-                            (with the FMI 2.0 headers of the tool)
+                            (with the FMI headers of the tool); FMI 3.0: with
+                            sources/buildDescription.xml
     resources/uplift.bin    the model data in the binary format of fmus/native/README.md
+
+The two versions share the runtime (instance, model, variables, FMU states) and differ in the
+entry layer (fmi2.c, fmi3.c) and the model description: FMI 3.0 declares the interface vectors
+as arrays (fmus.schema.variables3: the gap DOFs over the structural parameter N) over the same
+elements, which the resource record ``fmi3_float64`` maps.
 
 What is a function of the model only is computed here, once, by the Python objects the
 Python FMUs use: the structure's matrices, the static preload (P0, delta0) and the penalty
@@ -48,20 +55,27 @@ from fmus.build import FmuData
 from fmus.coupled_fmu import UpliftCoupled
 from fmus.coupling import history_gains
 from fmus.resources import DEFAULT_SOIL_FACTORY, soil_from_model
-from fmus.schema import UNITS, slot_table, variables
+from fmus.schema import UNITS, slot_table, variables, variables3
 from fmus.soil_fmu import UpliftSoil
 from fmus.structure_fmu import UpliftStructure
 
 NATIVE = Path(__file__).resolve().parent / "native"
 #: the runtime's C files (fmus/native/) and its headers (fmus/native/include/, shipped beside the
-#: C files in the FMU's sources/ so that a tool compiles them with no include path of ours)
-SOURCES = ("fmi2.c", "instance.c", "model.c", "variables.c", "state.c", "stepper.c", "soil.c", "linalg.c",
-           "resources.c")
+#: C files in the FMU's sources/ so that a tool compiles them with no include path of ours):
+#: the FMI 2.0 entry layer and the files both versions share
+CORE = ("instance.c", "model.c", "variables.c", "state.c", "stepper.c", "soil.c", "linalg.c", "resources.c")
+SOURCES = ("fmi2.c",) + CORE
+#: the FMI 3.0 entry layer and the same files
+SOURCES3 = ("fmi3.c",) + CORE
 HEADERS = ("uplift.h", "fmu.h", "uplift_messages.h")
 RESOURCE_FILE = "uplift.bin"
 #: FMI 2.0 platform -> (zig target, shared library suffix); glibc 2.17 for old Linux hosts
 PLATFORMS = {"linux64": ("x86_64-linux-gnu.2.17", "so"), "win64": ("x86_64-windows-gnu", "dll"),
              "darwin64": ("x86_64-macos", "dylib")}
+#: FMI 3.0 platform tuple -> (zig target, suffix): the same three and Apple silicon
+PLATFORMS3 = {"x86_64-linux": ("x86_64-linux-gnu.2.17", "so"), "x86_64-windows": ("x86_64-windows-gnu", "dll"),
+              "x86_64-darwin": ("x86_64-macos", "dylib"), "aarch64-darwin": ("aarch64-macos", "dylib")}
+FMI_VERSIONS = (2, 3)
 CFLAGS = ("-std=c99", "-O3", "-ffp-contract=off", "-fvisibility=hidden", "-fPIC", "-shared")
 COMPILERS = ("zig", "cc")
 #: the Python FMU class of each role: its model name, identifier, description and author are reused
@@ -88,6 +102,19 @@ def layout(vars_: list) -> dict:
             **{f"vr.{slot}": float(vr) for slot, vr in slot_table(vars_).items()},
             "causality": np.array([0 if v.causality == "input" else 1 for v in reals], np.int64),
             "vr_internal_motion": float(booleans[0].value_reference if booleans else -1)}
+
+
+def layout3(vars_: list, vars3: list) -> dict:
+    """``layout`` for the FMI 3.0 FMU: the same elements, the Boolean's FMI 3.0 value reference,
+    the run of elements (first, length) of each Float64 variable in value-reference order
+    (``fmi3_float64``), the value reference of the structural parameter N (``fmi3_vr_N``)."""
+    floats = [v for v in vars3 if v.type == "Float64"]
+    if [v.value_reference for v in floats] != list(range(len(floats))):
+        raise ValueError("the FMI 3.0 Float64 variables must have the value references 0, 1, ...")
+    ref = {v.type: v.value_reference for v in vars3 if v.type != "Float64"}
+    return {**layout(vars_), "vr_internal_motion": float(ref.get("Boolean", -1)),
+            "fmi3_float64": np.array([(v.first, v.length) for v in floats], np.int64).reshape(-1, 2),
+            "fmi3_vr_N": float(ref["UInt64"])}
 
 
 # ---- the binary resource file -----------------------------------------------------------------
@@ -145,44 +172,72 @@ def decode_resources(data: bytes) -> dict:
 
 # ---- compiling the runtime ----------------------------------------------------------------------
 def fmi_headers() -> Path:
-    """The folder of the FMI 2.0 headers (fmi2Functions.h ...), shipped by fmpy."""
+    """The folder of the FMI 2.0 and 3.0 headers (fmi2Functions.h, fmi3Functions.h ...), shipped by fmpy."""
     import fmpy                        # a dependency of the project; only its C headers are used
     folder = Path(fmpy.__file__).resolve().parent / "c-code"
-    if not (folder / "fmi2Functions.h").is_file():
-        raise NativeBuildError(f"the FMI 2.0 headers are not in {folder}: reinstall fmpy (pip install fmpy)")
+    if not all((folder / h).is_file() for h in ("fmi2Functions.h", "fmi3Functions.h")):
+        raise NativeBuildError(f"the FMI headers are not in {folder}: reinstall fmpy (pip install fmpy)")
     return folder
 
 
-def host_platform() -> str:
-    """The FMI 2.0 platform name of this machine (the one the system compiler builds for)."""
-    name = {"linux": "linux64", "darwin": "darwin64", "win32": "win64"}.get(sys.platform)
-    if name is None:
-        raise ValueError(f"the host platform {sys.platform!r} is none of {', '.join(PLATFORMS)}")
+def _version(fmi_version) -> int:
+    if fmi_version not in FMI_VERSIONS:
+        raise ValueError(f"fmi_version = {fmi_version!r}: use one of {', '.join(map(str, FMI_VERSIONS))}")
+    return int(fmi_version)
+
+
+def platforms_of(fmi_version: int = 2) -> dict:
+    """{platform name of the FMI version: (zig target, library suffix)}."""
+    return PLATFORMS if _version(fmi_version) == 2 else PLATFORMS3
+
+
+def sources_of(fmi_version: int = 2) -> tuple:
+    """The C files of the runtime of the FMI version (its entry layer and the shared files)."""
+    return SOURCES if _version(fmi_version) == 2 else SOURCES3
+
+
+def host_platform(fmi_version: int = 2) -> str:
+    """The platform name (FMI 2.0: linux64 ...; FMI 3.0: x86_64-linux ...) of this machine (the one
+    the system compiler builds for)."""
+    import platform as _platform
+    if _version(fmi_version) == 2:
+        name = {"linux": "linux64", "darwin": "darwin64", "win32": "win64"}.get(sys.platform)
+    else:
+        arch = {"x86_64": "x86_64", "amd64": "x86_64", "arm64": "aarch64", "aarch64": "aarch64"}.get(
+            _platform.machine().lower())
+        system = {"linux": "linux", "darwin": "darwin", "win32": "windows"}.get(sys.platform)
+        name = f"{arch}-{system}" if arch and system else None
+    table = platforms_of(fmi_version)
+    if name not in table:
+        raise ValueError(f"the host platform {sys.platform!r} is none of {', '.join(table)}")
     return name
 
 
-def compile_runtime(platforms=tuple(PLATFORMS), compiler: str = "zig", sources=SOURCES) -> dict:
-    """{platform: bytes of the shared library} of the C runtime for the FMI 2.0 ``platforms``
-    (``sources``: its C files in fmus/native/, by default those of the FMUs).
+def compile_runtime(platforms=None, compiler: str = "zig", fmi_version: int = 2, sources=None) -> dict:
+    """{platform: bytes of the shared library} of the C runtime of ``fmi_version`` for
+    ``platforms`` (names of that version, default: all of platforms_of(fmi_version));
+    ``sources``: its C files in fmus/native/ (default: those of the FMUs, sources_of).
 
     compiler "zig": the C compiler of the ``ziglang`` package (cross-compiles to every platform;
     its cache makes a repeated build ~0.3 s, the first one per platform takes seconds to a
     minute while it builds that platform's C library stubs); "cc": the system compiler ($CC,
     else cc) for the host platform only."""
+    table = platforms_of(fmi_version)
+    platforms = tuple(table) if platforms is None else tuple(platforms)
     if compiler not in COMPILERS:
         raise ValueError(f"compiler = {compiler!r}: use one of {', '.join(COMPILERS)}")
-    bad = [p for p in platforms if p not in PLATFORMS]
+    bad = [p for p in platforms if p not in table]
     if bad or not platforms:
-        raise ValueError(f"platforms {bad or '(none)'}: give some of {', '.join(PLATFORMS)}")
-    if compiler == "cc" and set(platforms) != {host_platform()}:
-        raise ValueError(f"compiler = 'cc' builds for the host platform ({host_platform()}) only: use "
+        raise ValueError(f"platforms {bad or '(none)'}: give some of {', '.join(table)}")
+    if compiler == "cc" and set(platforms) != {host_platform(fmi_version)}:
+        raise ValueError(f"compiler = 'cc' builds for the host platform ({host_platform(fmi_version)}) only: use "
                          "compiler = 'zig' to cross-compile")
     include = fmi_headers()
-    sources = [str(NATIVE / s) for s in sources]
+    sources = [str(NATIVE / s) for s in (sources or sources_of(fmi_version))]
     out = {}
     with tempfile.TemporaryDirectory(prefix="uplift_native_") as tmp:
         for platform in platforms:
-            target, suffix = PLATFORMS[platform]
+            target, suffix = table[platform]
             lib = Path(tmp) / f"uplift.{suffix}"
             if compiler == "zig":
                 cmd = [sys.executable, "-m", "ziglang", "cc", "-target", target, "-s"]
@@ -264,9 +319,25 @@ def stepper_records(st, node_dofs) -> dict:
 
 
 # ---- the model description ---------------------------------------------------------------------
+def _common_elements(root, vars_, dt: float, stop_time) -> None:
+    """UnitDefinitions, LogCategories and DefaultExperiment, the same in both versions."""
+    units = list(dict.fromkeys(v.unit for v in vars_ if v.unit))
+    defs = ET.SubElement(root, "UnitDefinitions")
+    for unit in units:
+        ET.SubElement(ET.SubElement(defs, "Unit", name=unit), "BaseUnit", {k: str(e) for k, e in UNITS[unit].items()})
+    cats = ET.SubElement(root, "LogCategories")
+    ET.SubElement(cats, "Category", name="logEvents", description="events: instantiation, steps (when logging is on)")
+    ET.SubElement(cats, "Category", name="logStatusError", description="errors: refused calls and failed steps")
+    ex = {"startTime": "0.0", "stepSize": repr(float(dt))}
+    if stop_time is not None:
+        ex["stopTime"] = repr(float(stop_time))
+    ET.SubElement(root, "DefaultExperiment", ex)
+
+
 def model_description(role: str, guid: str, vars_: list, dt: float, stop_time) -> bytes:
-    """modelDescription.xml of a native FMU: the Python FMU's variables, units, model structure
-    (outputs without direct feedthrough) and default experiment, CoSimulation with SourceFiles."""
+    """modelDescription.xml of a native FMI 2.0 FMU: the Python FMU's variables, units, model
+    structure (outputs without direct feedthrough) and default experiment, CoSimulation with
+    SourceFiles."""
     cls = ROLES[role]
     root = ET.Element("fmiModelDescription", {
         "fmiVersion": "2.0", "modelName": cls.__name__, "guid": guid, "description": cls.description,
@@ -282,17 +353,7 @@ def model_description(role: str, guid: str, vars_: list, dt: float, stop_time) -
     files = ET.SubElement(cs, "SourceFiles")
     for src in SOURCES:
         ET.SubElement(files, "File", name=src)
-    units = list(dict.fromkeys(v.unit for v in vars_ if v.unit))
-    defs = ET.SubElement(root, "UnitDefinitions")
-    for unit in units:
-        ET.SubElement(ET.SubElement(defs, "Unit", name=unit), "BaseUnit", {k: str(e) for k, e in UNITS[unit].items()})
-    cats = ET.SubElement(root, "LogCategories")
-    ET.SubElement(cats, "Category", name="logEvents", description="events: instantiation, steps (when logging is on)")
-    ET.SubElement(cats, "Category", name="logStatusError", description="errors: refused calls and failed steps")
-    ex = {"startTime": "0.0", "stepSize": repr(float(dt))}
-    if stop_time is not None:
-        ex["stopTime"] = repr(float(stop_time))
-    ET.SubElement(root, "DefaultExperiment", ex)
+    _common_elements(root, vars_, dt, stop_time)
     mv = ET.SubElement(root, "ModelVariables")
     outputs = []
     for k, v in enumerate(vars_, start=1):
@@ -319,21 +380,88 @@ def model_description(role: str, guid: str, vars_: list, dt: float, stop_time) -
     return ET.tostring(root, encoding="UTF-8", xml_declaration=True)
 
 
+def model_description3(role: str, token: str, vars3: list, dt: float, stop_time) -> bytes:
+    """modelDescription.xml of a native FMI 3.0 FMU: the variables of fmus.schema.variables3
+    (arrays with a <Dimension>: a fixed length, or the structural parameter N), the units and
+    the default experiment of the FMI 2.0 FMU, co-simulation only (no event mode, no early
+    return, no intermediate update), outputs without direct feedthrough."""
+    cls = ROLES[role]
+    root = ET.Element("fmiModelDescription", {
+        "fmiVersion": "3.0", "modelName": cls.__name__, "instantiationToken": token,
+        "description": cls.description, "author": cls.author,
+        "generationTool": "uplift native (fmus/native_build.py)", "variableNamingConvention": "structured"})
+    ET.SubElement(root, "CoSimulation", {
+        "modelIdentifier": cls.__name__, "needsExecutionTool": "false",
+        "canBeInstantiatedOnlyOncePerProcess": "false", "canGetAndSetFMUState": "true",
+        "canSerializeFMUState": "true", "providesDirectionalDerivatives": "false",
+        "providesAdjointDerivatives": "false", "providesPerElementDependencies": "false",
+        "canHandleVariableCommunicationStepSize": "false", "fixedInternalStepSize": repr(float(dt)),
+        "maxOutputDerivativeOrder": "0", "providesIntermediateUpdate": "false",
+        "mightReturnEarlyFromDoStep": "false", "canReturnEarlyAfterIntermediateUpdate": "false",
+        "hasEventMode": "false", "providesEvaluateDiscreteStates": "false"})
+    _common_elements(root, vars3, dt, stop_time)
+    mv = ET.SubElement(root, "ModelVariables")
+    vr_n = next(v.value_reference for v in vars3 if v.name == "N")
+    for v in vars3:
+        attrs = {"name": v.name, "valueReference": str(v.value_reference), "description": v.description,
+                 "causality": v.causality}
+        if v.variability:
+            attrs["variability"] = v.variability
+        elif v.type == "Float64":
+            attrs["variability"] = "continuous"
+        if v.causality == "output":
+            attrs["initial"] = "calculated"
+        if v.start is not None:
+            attrs["start"] = v.start
+        if v.unit:
+            attrs["unit"] = v.unit
+        el = ET.SubElement(mv, v.type, attrs)
+        if v.dimension == "N":
+            ET.SubElement(el, "Dimension", valueReference=str(vr_n))
+        elif v.dimension is not None:
+            ET.SubElement(el, "Dimension", start=str(v.dimension))
+    ms = ET.SubElement(root, "ModelStructure")
+    for tag in ("Output", "InitialUnknown"):
+        for v in vars3:
+            if v.causality == "output":
+                ET.SubElement(ms, tag, valueReference=str(v.value_reference), dependencies="")
+    ET.indent(root)
+    return ET.tostring(root, encoding="UTF-8", xml_declaration=True)
+
+
+def build_description(identifier: str) -> bytes:
+    """sources/buildDescription.xml of an FMI 3.0 FMU: the C files of the runtime, C99, libm."""
+    root = ET.Element("fmiBuildDescription", fmiVersion="3.0")
+    conf = ET.SubElement(root, "BuildConfiguration", modelIdentifier=identifier,
+                         description="the native uplift runtime: C99 and the C standard library (libc, libm)")
+    files = ET.SubElement(conf, "SourceFileSet", language="C99")
+    for src in SOURCES3:
+        ET.SubElement(files, "SourceFile", name=src)
+    ET.SubElement(conf, "Library", name="m", description="libm (on platforms with a separate math library)")
+    ET.indent(root)
+    return ET.tostring(root, encoding="UTF-8", xml_declaration=True)
+
+
 # ---- the FMUs -------------------------------------------------------------------------------------
-def build_native_fmus(data: FmuData, outdir, coupled: bool = False, *, platforms=tuple(PLATFORMS),
-                      compiler: str = "zig", newton: dict | None = None) -> dict:
+def build_native_fmus(data: FmuData, outdir, coupled: bool = False, *, platforms=None,
+                      compiler: str = "zig", newton: dict | None = None, fmi_version: int = 2) -> dict:
     """Write ``outdir/structure.fmu`` and ``outdir/soil.fmu`` (and ``coupled.fmu`` if ``coupled``)
     as native FMUs; returns ``{"structure": path, "soil": path[, "coupled": path]}`` as
     fmus.build.build_fmus does.
 
-    platforms : FMI 2.0 platform names to compile for (default linux64, win64, darwin64)
+    platforms : platform names of the FMI version to compile for (default: all of
+                platforms_of(fmi_version): FMI 2.0 linux64, win64, darwin64; FMI 3.0
+                x86_64-linux, x86_64-windows, x86_64-darwin, aarch64-darwin)
     compiler : "zig" (the ziglang package, cross-compiles) or "cc" (system compiler, host only)
     newton : overrides of the contact Newton settings {tol, max_iter, max_subdiv} (the scene
              tables leave them at structure.ContactSettings' defaults, as the Python FMUs do)
+    fmi_version : 2 (FMI 2.0, scalar variables) or 3 (FMI 3.0, arrays): the same runtime and
+                  answers
     """
+    version = _version(fmi_version)
     outdir = Path(outdir)
     records = model_records(data, newton)
-    binaries = compile_runtime(platforms, compiler)
+    binaries = compile_runtime(platforms, compiler, version)
     n, N = data.soil_model.n, np.asarray(data.xy).shape[0]
     stop = None if data.motion is None else (np.asarray(data.motion).shape[0] - 1) * float(data.dt)
     roles = ("structure", "soil") + (("coupled",) if coupled else ())
@@ -341,17 +469,23 @@ def build_native_fmus(data: FmuData, outdir, coupled: bool = False, *, platforms
     out = {}
     for role in roles:
         vars_ = variables(role, n, N, data.output_nodes, data.motion is not None)
-        recs = {**records[role], **layout(vars_)}
+        if version == 2:
+            recs = {**records[role], **layout(vars_)}
+            describe = lambda token, vars_=vars_, role=role: model_description(role, token, vars_, data.dt, stop)
+        else:
+            vars3 = variables3(role, n, N, data.output_nodes, data.motion is not None)
+            recs = {**records[role], **layout3(vars_, vars3)}
+            describe = lambda token, vars3=vars3, role=role: model_description3(role, token, vars3, data.dt, stop)
         payload = encode_resources(recs)
-        guid = str(uuid.UUID(bytes=hashlib.sha256(payload + model_description(role, "", vars_, data.dt, stop))
-                             .digest()[:16], version=4))
-        md = model_description(role, guid, vars_, data.dt, stop)
-        out[role] = _zip(outdir / f"{role}.fmu", ROLES[role].__name__, md,
-                         encode_resources({"guid": guid, **recs}), binaries)
+        guid = str(uuid.UUID(bytes=hashlib.sha256(payload + describe("")).digest()[:16], version=4))
+        if version == 3:
+            guid = "{" + guid + "}"
+        out[role] = _zip(outdir / f"{role}.fmu", ROLES[role].__name__, describe(guid),
+                         encode_resources({"guid": guid, **recs}), binaries, version)
     return out
 
 
-def _zip(path: Path, identifier: str, md: bytes, resources: bytes, binaries: dict) -> Path:
+def _zip(path: Path, identifier: str, md: bytes, resources: bytes, binaries: dict, fmi_version: int = 2) -> Path:
     """The FMU archive, written atomically, with fixed member dates (same inputs, same bytes)."""
     def add(z, name, blob, method=zipfile.ZIP_DEFLATED):
         info = zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0))
@@ -359,15 +493,18 @@ def _zip(path: Path, identifier: str, md: bytes, resources: bytes, binaries: dic
         info.external_attr = 0o644 << 16
         z.writestr(info, blob)
 
+    table = platforms_of(fmi_version)
     tmp = path.with_name(path.name + ".tmp")
     with zipfile.ZipFile(tmp, "w") as z:
         add(z, "modelDescription.xml", md)
         for platform, blob in binaries.items():
-            add(z, f"binaries/{platform}/{identifier}.{PLATFORMS[platform][1]}", blob)
-        for src in SOURCES:
+            add(z, f"binaries/{platform}/{identifier}.{table[platform][1]}", blob)
+        for src in sources_of(fmi_version):
             add(z, f"sources/{src}", (NATIVE / src).read_bytes())
         for header in HEADERS:
             add(z, f"sources/{header}", (NATIVE / "include" / header).read_bytes())
+        if fmi_version == 3:
+            add(z, "sources/buildDescription.xml", build_description(identifier))
         add(z, f"resources/{RESOURCE_FILE}", resources, zipfile.ZIP_STORED)   # read at every instantiation
     shutil.move(tmp, path)
     return path

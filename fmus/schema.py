@@ -8,15 +8,14 @@ table ``fmus/native/include/uplift_messages.h`` is generated from ``MESSAGES``
 
 A *vector* is a named run of Real variables with consecutive value references: ``x[0..n-1]``
 over the interface DOFs [q, w] (n = 6 + N: raft ux, uy, uz, rx, ry, rz, then the soil's vertical
-displacement under each of the N interface nodes), ``P[0..N-1]`` over the nodes, ``ag[0..2]``
-over x, y, z, or a scalar. Its unit follows the DOF kind of each element (``QUANTITIES``):
+displacement under each of the N interface nodes), ``P[0..N-1]`` over the nodes, the three
+motion inputs ``ag_x, ag_y, ag_z`` (the vector ``ag``, ``AG``), or a scalar. Its unit follows the DOF kind of each element (``QUANTITIES``):
 translations and gap DOFs m, m/s, N; rotations rad, rad/s, N.m.
 
 Value references are allocated in list order, Reals first (0, 1, ...), then the Boolean
 ``internal_motion``. Names of the elements are ``name[i]`` unless a vector lists its own
-(``elements``): three motion inputs ``ag_x, ag_y, ag_z`` in place of ``ag[0..2]`` are the
-one-line change ``Vector("ag", ..., elements=("ag_x", "ag_y", "ag_z"))`` (the slot ``ag`` keeps
-three consecutive references, so neither runtime changes).
+(``elements``): the motion inputs are ``ag_x, ag_y, ag_z`` (m/s2, one per component of the
+scene's motion), three consecutive references in the slot ``ag``.
 """
 from __future__ import annotations
 
@@ -37,6 +36,8 @@ QUANTITIES = {"displacement": ("m", "rad"), "velocity": ("m/s", "rad/s"), "force
 
 #: the energy terms of the stepper (structure.NewmarkStepper.energies), in output order
 ENERGY_TERMS = ("input", "kinetic", "strain", "damping", "soil", "contact", "contact_potential")
+#: the ground-motion inputs of the structure and the coupled FMU: a_g(t + dt) along x, y, z, m/s2
+AG = ("ag_x", "ag_y", "ag_z")
 
 
 @dataclass(frozen=True)
@@ -107,7 +108,7 @@ STRUCTURE = (
 
 def stepper_vectors(nodes) -> tuple:
     """The vectors of the structure and the coupled FMU (``fmus/stepper.py``)."""
-    out = [Vector("ag", INPUT, "3", "acceleration", "ground acceleration at t + dt"),
+    out = [Vector("ag", INPUT, "3", "acceleration", "ground acceleration at t + dt", elements=AG),
            Vector("x", OUTPUT, "n", "displacement", "interface displacements [q, w]"),
            Vector("xdot", OUTPUT, "n", "velocity", "interface velocities"),
            Vector("P", OUTPUT, "N", "force", "total contact forces"),
@@ -123,7 +124,7 @@ def stepper_vectors(nodes) -> tuple:
     return tuple(out)
 
 
-INTERNAL_MOTION_DESCRIPTION = "true: the ground motion bundled in resources; false: the input ag"
+INTERNAL_MOTION_DESCRIPTION = "true: the ground motion bundled in resources; false: the inputs ag_x, ag_y, ag_z"
 ROLES = ("soil", "structure", "coupled")
 #: the slots the C runtime looks up (records vr.<slot> of resources/uplift.bin; -1 when absent)
 SLOTS = ("x", "xdot", "x_time", "g", "g_time", "f", "dissipated_energy", "ag", "P", "gap", "nodes", "energy",
@@ -156,6 +157,80 @@ def variables(role: str, n: int, N: int, nodes=(), motion: bool = False) -> list
     return out
 
 
+# ---- FMI 3.0: arrays ------------------------------------------------------------------------------
+#: an interface vector [q, w] of FMI 3.0 in parts of one unit each: (suffix, first element,
+#: length: 3 or "N", 0 for the translation unit or 1 for the rotation unit, what)
+INTERFACE_VECTORS = ("x", "xdot", "g", "f")
+INTERFACE_PARTS = (("_raft_u", 0, 3, 0, "raft translations ux, uy, uz"),
+                   ("_raft_r", 3, 3, 1, "raft rotations rx, ry, rz"),
+                   ("_w", 6, "N", 0, "the soil's vertical displacement under each interface node"))
+
+
+def vector3(name: str) -> str:
+    """The vector an FMI 3.0 variable is part of: ``x`` for x_raft_u, x_raft_r, x_w (the
+    interface vectors' parts), else the name itself."""
+    for suffix, *_ in INTERFACE_PARTS:
+        if name.endswith(suffix) and name[:-len(suffix)] in INTERFACE_VECTORS:
+            return name[:-len(suffix)]
+    return name
+
+
+@dataclass(frozen=True)
+class Variable3:
+    """One variable of an FMI 3.0 model description: a Float64 scalar or array over the run of
+    elements ``first .. first + length - 1`` of the FMI 2.0 variables (``variables``), the
+    structural parameter N (UInt64) or the Boolean internal_motion.
+
+    dimension : None (a scalar), an int (a fixed length) or "N" (the structural parameter N)
+    vector : the FMI 2.0 vector (fmus.schema.Vector name) the variable is a part of
+    """
+    name: str
+    value_reference: int
+    causality: str
+    description: str
+    type: str = "Float64"
+    unit: str | None = None
+    dimension: int | str | None = None
+    start: str | None = None
+    variability: str | None = None
+    first: int = 0
+    length: int = 1
+    vector: str | None = None
+
+
+def variables3(role: str, n: int, N: int, nodes=(), motion: bool = False) -> list:
+    """Every variable of the FMI 3.0 FMU of ``role``: each vector of ``vectors`` as one array, an
+    interface vector [q, w] as the three arrays of INTERFACE_PARTS (an FMI 3.0 array has one
+    unit: the raft's translations, its rotations, the gap DOFs), the motion as the scalars
+    ag_x, ag_y, ag_z, scalars as scalars; then the independent variable time, the structural
+    parameter N and (not the soil) the Boolean internal_motion. Value references 0, 1, ... in
+    that order; ``first`` and ``length`` map each Float64 variable to the elements of
+    ``variables`` (the runtime's bank; time: first = -1, the FMU's time)."""
+    out, first = [], 0
+    for vec in vectors(role, nodes):
+        k, units = vec.length(n, N), vec.units(n, N)
+        start = "0" if vec.causality == INPUT else None
+        if vec.size == "n":
+            parts = [(vec.name + suffix, first + off, N if ln == "N" else ln, "N" if ln == "N" else ln,
+                      f"{vec.description}: {what}", units[off]) for suffix, off, ln, _, what in INTERFACE_PARTS]
+        elif vec.elements is not None:
+            parts = [(name, first + i, 1, None, vec.description, units[i]) for i, name in enumerate(vec.elements)]
+        else:
+            dim = None if vec.size == "1" else ("N" if vec.size == "N" else k)
+            parts = [(vec.name, first, k, dim, vec.description, units[0])]
+        for name, at, length, dim, description, unit in parts:
+            out.append(Variable3(name, len(out), vec.causality, description, unit=unit, dimension=dim, start=start,
+                                 first=at, length=length, vector=vec.name))
+        first += k
+    out.append(Variable3("time", len(out), "independent", "simulation time", unit="s", first=-1))
+    out.append(Variable3("N", len(out), "structuralParameter", "number of interface nodes", type="UInt64",
+                         start=str(N), variability="fixed"))
+    if role != "soil":
+        out.append(Variable3("internal_motion", len(out), PARAMETER, INTERNAL_MOTION_DESCRIPTION, type="Boolean",
+                             start="true" if motion else "false", variability="fixed"))
+    return out
+
+
 def slot_table(variables_) -> dict:
     """{slot: first value reference} of the Real variables (every slot of SLOTS; -1 when absent)."""
     first = {}
@@ -181,27 +256,27 @@ TIME_TOL = 1e-6
 MAX_STEPS_PER_CALL = 100000
 
 #: the refusals both kinds make, as str.format templates with named fields (numbers in their
-#: shortest round-trip form); the C runtime's copy (include/uplift_messages.h) has the fields
-#: as %s in the order they appear
+#: shortest round-trip form; the FMI version's names ``api``, ``standard``, ``setup`` default to
+#: FMI 2.0's, API_FIELDS); the C runtime's copy (include/uplift_messages.h) has the fields as %s
+#: in the order they appear
 MESSAGES = {
     "refused": "step from t = {t} s refused: {why}",
-    "before_init": "{call} before initialisation (call fmi2ExitInitializationMode first)",
-    "wrong_state": "{call} is not allowed {state} (FMI 2.0 co-simulation state machine)",
-    "after_terminate": "{call} after fmi2Terminate (instantiate the FMU again)",
+    "before_init": "{call} before initialisation (call {api}ExitInitializationMode first)",
+    "wrong_state": "{call} is not allowed {state} ({standard} co-simulation state machine)",
+    "after_terminate": "{call} after {api}Terminate (instantiate the FMU again)",
     "wrong_time": "this FMU is at t = {time} s: steps must follow one another (restore an FMU state to go back)",
     "bad_step": "communication step {h} s: a step must be finite and positive",
     "wrong_step": "communication step {h} s: this FMU steps {allowed} {dt} s per communication step (export it "
                   "again with the step you need)",
     "too_many_steps": "communication step {h} s: more than {limit} steps of {dt} s in one communication step "
                       "(call doStep more often)",
-    "past_stop": "communication step {h} s ends at {end} s, past the stop time {stop} s given to "
-                 "fmi2SetupExperiment",
-    "not_finite": "input {name}[{i}] = {value}: inputs must be finite (check what is connected to it)",
+    "past_stop": "communication step {h} s ends at {end} s, past the stop time {stop} s given to {setup}",
+    "not_finite": "input {name} = {value}: inputs must be finite (check what is connected to it)",
     "stamp": "input {name} is stamped {stamp_name} = {stamp} s at a step from t = {t} s: it must be the partner's "
              "output at t or at t + dt (connect the partner's {stamp_name} output to this input, with {name})",
     "start_time": "start time {start} s: this FMU starts at t = 0 s, at rest, with the first sample of its record",
     "no_motion": "internal_motion = true but this FMU was exported without a motion: set internal_motion = false "
-                 "and drive the input ag",
+                 "and drive the inputs ag_x, ag_y, ag_z",
     "bad_state": "the {size} bytes are not a serialised state of this FMU: {why}",
     "state_magic": "not an uplift FMU state",
     "state_version": "format version {version}, this FMU reads version {expected}",
@@ -214,9 +289,14 @@ MESSAGES = {
 STATE_VERSION = 1
 
 
+#: the names of each FMI version in the messages (the Python FMUs are FMI 2.0)
+API_FIELDS = {2: {"api": "fmi2", "standard": "FMI 2.0", "setup": "fmi2SetupExperiment"},
+              3: {"api": "fmi3", "standard": "FMI 3.0", "setup": "fmi3EnterInitializationMode"}}
+
+
 def message(key: str, **fields) -> str:
-    """A refusal of MESSAGES with its fields filled in."""
-    return MESSAGES[key].format(**fields)
+    """A refusal of MESSAGES with its fields filled in (the FMI 2.0 names unless given)."""
+    return MESSAGES[key].format(**{**API_FIELDS[2], **fields})
 
 
 def c_messages_header() -> str:

@@ -168,7 +168,8 @@ class BankedSlave:
         for name in self.inputs:
             bad = np.flatnonzero(~np.isfinite(v[self.sl[name]]))
             if bad.size:
-                raise StepRefused(message("not_finite", name=name, i=bad[0], value=repr(v[self.sl[name]][bad[0]])))
+                vr = self.sl[name].start + int(bad[0])
+                raise StepRefused(message("not_finite", name=self.vars[vr].name, value=repr(v[vr])))
         return n
 
     def _fail(self, what, exc):

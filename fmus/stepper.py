@@ -13,9 +13,10 @@ Outputs (fmus/schema.py; n = 6 + N interface DOFs [q, w], N interface nodes; SI 
   max_uplift     m           running maximum of gap over the nodes and the steps so far
   max_raft_rotation  rad     running maximum of hypot(rx, ry) of the raft
 
-Input ``ag[0..2]`` (m/s2): the ground acceleration at the END of the coming step, a_g(t + dt)
-(the scheme is implicit), read only when the parameter ``internal_motion`` is false; by
-default the motion bundled in resources drives the FMU (after its last sample: zero).
+Inputs ``ag_x, ag_y, ag_z`` (m/s2, the slot ``ag``): the ground acceleration along x, y, z at
+the END of the coming step, a_g(t + dt) (the scheme is implicit), read only when the parameter
+``internal_motion`` is false; by default the motion bundled in resources (every component of
+the scene's motion) drives the FMU (after its last sample: zero).
 Outputs are computed at initialisation (the static state) and after each step; none depends
 on an input at the same communication point (no direct feedthrough).
 """
@@ -68,7 +69,7 @@ class StepperOutputs:
         self._publish()
 
     def _ag_next(self, t):
-        """a_g(t + dt): the bundled motion's sample, or the input ag."""
+        """a_g(t + dt): the bundled motion's sample, or the inputs ag_x, ag_y, ag_z."""
         if not self.internal_motion:
             return self.bank.values[self.sl["ag"]].copy()
         k = int(round(t / self.dt)) + 1

@@ -1,7 +1,7 @@
 """The structure FMU: ``structure.NewmarkStepper`` (Newmark + penalty contact + Newton) with the
 soil's instantaneous matrices folded in and the soil's history force completed from its input.
 
-Variables: the outputs and the input ag of fmus/stepper.py, and (n = 6 + N)
+Variables: the outputs and the inputs ag_x, ag_y, ag_z of fmus/stepper.py, and (n = 6 + N)
 
   inputs   g[0..n-1]   N, N.m  the soil FMU's output g: its history force for this structure step
                            without the part driven by the structure's latest state

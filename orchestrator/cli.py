@@ -1,13 +1,16 @@
 """The ``uplift`` command line: parsing, printing, exit codes.
 
 Exit codes (orchestrator.settings): 0 success; 1 a computation stopped (results written so
-far, reason printed); 2 bad input (scene, file, option). Machine-readable output (``--json``)
-goes to stdout as exactly one JSON object; progress and messages go to stderr. This is the
-only module that prints.
+far, reason printed); 2 bad input (scene, file, option, a tool the machine lacks:
+orchestrator.errors); 130 interrupted (Ctrl-C: one line on stderr, no output half-written, a
+previous file at -o left as it was). Every output path is checked before any computation.
+Machine-readable output (``--json``) goes to stdout as exactly one JSON object; progress and
+messages go to stderr. This is the only module that prints.
 """
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import math
 import os
@@ -18,25 +21,30 @@ from pathlib import Path
 import numpy as np
 
 from soil_impedance.fit import save_fit
+from structure.results import Status
 
 from orchestrator.bench import bench, bench_config, format_rows, json_safe, plot_rows
 from orchestrator.compare import compare, format_table
-from orchestrator.crosscheck import write_cross_check
-from orchestrator.ensemble import (DT_CHECKS, EnsembleError, ensemble_summary, is_ensemble_file, read_ensemble,
+from orchestrator.ensemble import (CONNECT_TIMEOUT_S, DT_CHECKS, ensemble_summary, is_ensemble_file, read_ensemble,
                                    run_ensemble)
-from orchestrator.errors import ComputationError, UserInputError
-from orchestrator.export import KINDS, export_scene
+from orchestrator.errors import ComputationError, OptionError, SetupError, UserInputError
 from orchestrator.impedance import rigid_json, scene_fit, scene_impedance, scene_static
 from orchestrator.motion import G
 from orchestrator.plots import plot_impedance, plot_run, pyplot
 from orchestrator.progress import Progress, frequency_bar, stage_bar, step_bar
 from orchestrator.report import write_ensemble_report, write_report
-from orchestrator.results import ResultsFileError, check_output_path, read_results, summary, write_results
+from orchestrator.results import (ResultsFileError, check_output_folder, check_output_path, read_results, summary,
+                                  write_results)
 from orchestrator.routes import route_names
 from orchestrator.run import run_scene
-from orchestrator.scene import SceneError, builtin_scenes, load_scene
-from orchestrator.settings import EXIT_FAILED, EXIT_INPUT, EXIT_OK, compute_threads, default_cache_dir
-from structure.results import Status
+from orchestrator.scene import MAX_PGA_G, SceneError, builtin_scenes, load_scene
+from orchestrator.settings import (EXIT_FAILED, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, FMU_KINDS, compute_threads,
+                                   default_cache_dir)
+
+#: the files ``uplift export`` writes into its folder
+EXPORT_FILES = ("structure.fmu", "soil.fmu", "coupled.fmu", "system.ssd", "system.ssp")
+#: the files of a cross-check folder of model M
+CROSS_CHECK_FILES = ("{}.fmu", "{}_in.csv", "{}_ref.csv", "{}_ref.opt", "README.md")
 
 
 def _fraction(text: str) -> float:
@@ -47,6 +55,17 @@ def _fraction(text: str) -> float:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
     if not (math.isfinite(v) and 0 < v < 1):
         raise argparse.ArgumentTypeError(f"{text!r} must lie in (0, 1), e.g. 0.01 for 1 %")
+    return v
+
+
+def _positive(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"{text!r} must be a finite number > 0")
     return v
 
 
@@ -67,6 +86,11 @@ def _parser() -> argparse.ArgumentParser:
     def json_flag(cmd, what="print one JSON object on stdout"):
         cmd.add_argument("--json", action="store_true", help=what)
 
+    def max_pga(cmd):
+        cmd.add_argument("--max-pga", type=_positive, default=None, metavar="G",
+                         help=f"refuse motions peaking above G g (default: the scene's [analysis].max_pga_g, else "
+                              f"{MAX_PGA_G:g} g)")
+
     run = sub.add_parser("run", help="run the scene's analyses (time-domain routes)",
                          description="Run the scene's analyses and write the results (HDF5) and a summary.")
     scene_arg(run)
@@ -77,6 +101,7 @@ def _parser() -> argparse.ArgumentParser:
                           "[analysis].routes")
     run.add_argument("--plot-dir", type=Path, default=None, help="write figures to this directory")
     json_flag(run, "print one JSON summary object on stdout")
+    max_pga(run)
     no_cache(run)
     run.set_defaults(func=cmd_run)
 
@@ -110,17 +135,20 @@ def _parser() -> argparse.ArgumentParser:
 
     exp = sub.add_parser("export", help="export the structure and soil FMUs and an SSP system",
                          description="Write structure.fmu, soil.fmu, coupled.fmu, system.ssd and system.ssp "
-                                     "(FMI 2.0 co-simulation, fixed step) for the scene; libcosimpy runs the "
-                                     ".ssd as it is. With --cross-check, also the FMI cross-check folders "
-                                     "of the three FMUs with their reference results.")
+                                     "(FMI 2.0 co-simulation, fixed step; FMI 3.0 with --fmi-version 3) for the "
+                                     "scene; libcosimpy runs the FMI 2.0 .ssd as it is. With --cross-check, also "
+                                     "the FMI cross-check folders of the three FMUs with their reference results.")
     scene_arg(exp)
     exp.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output directory")
-    exp.add_argument("--kind", choices=KINDS[::-1], default="native",
+    exp.add_argument("--kind", choices=FMU_KINDS[::-1], default="native",
                      help="native (default): compiled C for linux64, win64 and darwin64, no Python needed by the "
                           "host; python: pythonfmu (the host needs Python with numpy and scipy). The same "
                           "variables and the same answers (docs/native.md)")
+    exp.add_argument("--fmi-version", type=int, choices=(2, 3), default=2,
+                     help="2 (default: what most tools load today) or 3: FMI 3.0 FMUs of the native kind, "
+                          "interface vectors as arrays, binaries also for aarch64-darwin (docs/fmus.md)")
     exp.add_argument("--cross-check", type=Path, default=None, metavar="XDIR",
-                     help="write XDIR/fmus/2.0/cs/<platform>/uplift/<version>/<Model>/ for each FMU (the FMU, "
+                     help="write XDIR/fmus/<2.0|3.0>/cs/<platform>/uplift/<version>/<Model>/ for each FMU (the FMU, "
                           "<Model>_in.csv, <Model>_ref.csv, <Model>_ref.opt, README.md; see docs/fmus.md), "
                           "checked with fmpy's cross-check validator")
     no_cache(exp)
@@ -168,6 +196,8 @@ def _parser() -> argparse.ArgumentParser:
                        help="worker processes of a local dask cluster (default: the usable cores)")
     where.add_argument("--scheduler", default=None, metavar="ADDRESS",
                        help="address of a running dask scheduler (e.g. tcp://10.0.0.5:8786) instead")
+    ens.add_argument("--connect-timeout", type=_positive, default=CONNECT_TIMEOUT_S, metavar="S",
+                     help=f"seconds the scheduler has to answer (default {CONNECT_TIMEOUT_S:g})")
     ens.add_argument("--dt-check", choices=DT_CHECKS, default="strongest",
                      help="step-doubling check of the time step: once on the strongest motion (default) or "
                           "on each cell's motion, as `uplift run` does (about one run more per cell)")
@@ -175,6 +205,7 @@ def _parser() -> argparse.ArgumentParser:
                      help="ensemble file (default: <scene>_ensemble.h5); completed cells are kept in "
                           "<output>.cells/")
     json_flag(ens, "print one JSON summary object on stdout")
+    max_pga(ens)
     no_cache(ens)
     ens.set_defaults(func=cmd_ensemble)
     _fragility_parser(sub, json_flag)
@@ -202,6 +233,10 @@ def main(argv=None) -> int:
     try:
         with compute_threads():
             return args.func(args)
+    except KeyboardInterrupt:
+        print("uplift: interrupted (no output was half-written; an ensemble keeps its finished runs)",
+              file=sys.stderr)
+        return EXIT_INTERRUPTED
     except UserInputError as exc:
         print(f"uplift: error: {exc}", file=sys.stderr)
         return EXIT_INPUT
@@ -224,10 +259,10 @@ def _say(*lines):
 
 
 def cmd_run(args) -> int:
-    scene = load_scene(args.scene)
+    scene = load_scene(args.scene, max_pga_g=args.max_pga)
     out = check_output_path(args.output or Path(f"{scene.name}_results.h5"))
-    if args.plot_dir is not None and args.plot_dir.exists() and not args.plot_dir.is_dir():
-        raise ResultsFileError(f"--plot-dir {str(args.plot_dir)!r} is a file: give a folder")
+    if args.plot_dir is not None:
+        check_output_folder(args.plot_dir, _pngs(args.plot_dir), "--plot-dir")
     results, motion = run_scene(scene, args.routes, cache_dir=_cache(args),
                                 progress=lambda route: step_bar(Progress(f"run {scene.name} [{route}]")),
                                 sweep_progress=frequency_bar(Progress(f"impedance {scene.name}")),
@@ -261,6 +296,11 @@ def cmd_run(args) -> int:
     if Status.REFUSED in statuses:
         return EXIT_INPUT
     return EXIT_FAILED if Status.STOPPED in statuses else EXIT_OK
+
+
+def _pngs(folder: Path) -> list:
+    """The PNG names already in ``folder`` (figures a command may replace)."""
+    return sorted(p.name for p in folder.glob("*.png")) if folder.is_dir() else []
 
 
 def cmd_impedance(args) -> int:
@@ -325,20 +365,33 @@ def cmd_fit(args) -> int:
 
 
 def cmd_export(args) -> int:
+    # the FMU stack (fmpy, pythonfmu, the native builder) loads only for an export:
+    from orchestrator.crosscheck import model_folder, write_cross_check     # fmpy
+    from orchestrator.export import export_scene                            # fmpy, pythonfmu
     scene = load_scene(args.scene)
     if scene.structure is None:
-        raise ResultsFileError(f"scene {scene.name!r} has no [structure]: nothing to export "
-                               "(add [structure] model = \"reactor\", or inline nodes/beams/masses/raft)")
+        raise SceneError(f"scene {scene.name!r} has no [structure]: nothing to export "
+                         "(add [structure] model = \"reactor\", or inline nodes/beams/masses/raft)")
     if scene.profile is None:
-        raise ResultsFileError(f"scene {scene.name!r} has no layered soil: the soil FMU carries the BEM impedance "
-                               "of [soil] (add halfspace = { vs = ..., nu = ..., rho = ... } and any layers)")
-    if args.output.exists() and not args.output.is_dir():
-        raise ResultsFileError(f"-o {str(args.output)!r} is a file: give a folder for the FMUs")
-    if args.cross_check is not None and args.cross_check.exists() and not args.cross_check.is_dir():
-        raise ResultsFileError(f"--cross-check {str(args.cross_check)!r} is a file: give a folder (the root "
-                               "of a cross-check repository)")
+        raise SceneError(f"scene {scene.name!r} has no layered soil: the soil FMU carries the BEM impedance "
+                         "of [soil] (add halfspace = { vs = ..., nu = ..., rho = ... } and any layers)")
+    check_output_folder(args.output, EXPORT_FILES)
+    if args.cross_check is not None:
+        check_output_folder(args.cross_check, (), "--cross-check")
+        for model in ("structure", "soil", "coupled"):
+            try:
+                folder = model_folder(args.cross_check, model, args.fmi_version)
+            except ValueError as exc:           # the package's version (the folder's name) is unknown
+                raise SetupError(f"--cross-check: {exc}") from None
+            check_output_folder(folder, [name.format(model) for name in CROSS_CHECK_FILES], "--cross-check")
+    if args.kind == "native" and importlib.util.find_spec("ziglang") is None:
+        raise SetupError("--kind native compiles the FMUs with the C compiler of the ziglang package, which is not "
+                         "installed: pip install ziglang (a dependency of uplift), or export --kind python")
+    if args.fmi_version == 3 and args.kind != "native":
+        raise OptionError("--fmi-version 3 writes native FMUs only (pythonfmu writes FMI 2.0): drop --kind python")
     soil = scene_fit(scene, cache_dir=_cache(args), fit_progress=stage_bar(f"fit {scene.name}")).model
-    exported = export_scene(scene, args.output, soil, cache_dir=_cache(args), kind=args.kind)
+    exported = export_scene(scene, args.output, soil, cache_dir=_cache(args), kind=args.kind,
+                            fmi_version=args.fmi_version)
     _say(*(f"wrote {path}" for path in exported.files))
     if args.cross_check is not None:
         xc = write_cross_check(exported, args.cross_check, scene.name)
@@ -358,8 +411,11 @@ def cmd_compare(args) -> int:
 
 
 def cmd_report(args) -> int:
-    if args.output.exists() and not args.output.is_dir():
-        raise ResultsFileError(f"-o {str(args.output)!r} is a file: give a folder for the report")
+    check_output_folder(args.output, ["report.html", *_pngs(args.output)])
+    if args.results.suffix.lower() == ".toml":
+        raise ResultsFileError(f"{args.results} is a scene: `uplift report` reads the file that `uplift run` or "
+                               f"`uplift ensemble` wrote (uplift run {args.results} -o FILE, then uplift report "
+                               "FILE -o DIR)")
     if is_ensemble_file(args.results):
         if args.reference is not None:
             raise ResultsFileError(f"--reference compares the routes of one run; {args.results} is an ensemble file")
@@ -370,20 +426,16 @@ def cmd_report(args) -> int:
 
 
 def cmd_ensemble(args) -> int:
-    scene = load_scene(args.scene)
+    scene = load_scene(args.scene, max_pga_g=args.max_pga)
     if scene.motion.direction is None:
         raise SceneError(f"{args.scene}: motion.components: `uplift ensemble` takes one component of motion for "
                          "now ([motion] direction = \"x\"); run several components at once with `uplift run`")
     out = args.output or Path(f"{scene.name}_ensemble.h5")
-    try:
-        ds = run_ensemble(scene, args.pga, records=args.records, seeds=args.seeds, routes=args.routes, output=out,
-                          workers=args.workers, scheduler=args.scheduler, cache_dir=_cache(args),
-                          dt_check=args.dt_check, progress=Progress(f"ensemble {scene.name}"),
-                          sweep_progress=frequency_bar(Progress(f"impedance {scene.name}")),
-                          fit_progress=stage_bar(f"fit {scene.name}"), log=_say)
-    except EnsembleError as exc:    # bad input, but not in errors.UserInputError (errors imports no command)
-        _say(f"uplift: error: {exc}")
-        return EXIT_INPUT
+    ds = run_ensemble(scene, args.pga, records=args.records, seeds=args.seeds, routes=args.routes, output=out,
+                      workers=args.workers, scheduler=args.scheduler, cache_dir=_cache(args),
+                      dt_check=args.dt_check, progress=Progress(f"ensemble {scene.name}"),
+                      sweep_progress=frequency_bar(Progress(f"impedance {scene.name}")),
+                      fit_progress=stage_bar(f"fit {scene.name}"), log=_say, connect_timeout=args.connect_timeout)
     _say(f"wrote {out}")
     summ = ensemble_summary(ds)
     mm = lambda v: "-" if v is None else f"{1e3 * v:.3f} mm"
@@ -392,7 +444,8 @@ def cmd_ensemble(args) -> int:
     else:
         _say(f"{summ['runs']} runs ({summ['computed']} computed, {summ['reused']} kept from {out}.cells) on "
              f"{summ['workers']} workers in {summ['wall_s']:.1f} s (cluster {summ['cluster_s']:.1f} s, "
-             f"sweep and fit {summ['setup_s']:.1f} s, time-step check {summ['dt_check_s']:.1f} s)")
+             f"sweep and fit {summ['setup_s']:.1f} s, time-step check {summ['dt_check_s']:.1f} s)"
+             + (f"; {summ['workers_note']}" if summ["workers_note"] else ""))
         for pga, routes in summ["pga"].items():
             for route, v in routes.items():
                 _say(f"{pga} g [{route}]: max uplift median {mm(v['median_max_uplift_m'])}, 84th percentile "
@@ -439,9 +492,8 @@ def cmd_fragility(args) -> int:
     try:
         fits = frag.fragility(read_ensemble(args.ensemble), args.limits, routes=args.routes, samples=args.bootstrap,
                               seed=args.seed, confidence=args.confidence)
-    except frag.FragilityError as exc:     # bad input, as in cmd_ensemble
-        _say(f"uplift: error: {args.ensemble}: {exc}")
-        return EXIT_INPUT
+    except frag.FragilityError as exc:     # bad input (exit 2), named with its file
+        raise frag.FragilityError(f"{args.ensemble}: {exc}") from None
     if not args.no_store:
         _say(f"wrote the group {frag.GROUP!r} of {frag.store_fragility(args.ensemble, fits)}")
     if args.plot is not None:

@@ -7,6 +7,7 @@
     outdir/coupled.fmu     both in one FMU (nothing to connect; for tools that run one FMU)
     outdir/system.ssd      SSP 1.0 system of the pair: both components, the coupling connections
                            (x, xdot, x_time from the structure to the soil; g, g_time back) and
+                           the motion inputs ag_x, ag_y, ag_z of the structure (free),
                            the fixed-step algorithm named (OSP annotation) so that libcosim
                            (libcosimpy) runs it as it is, and OMSimulator's simulation
                            information (its fixed-step master at dt); the motion is bundled in
@@ -17,7 +18,8 @@
 The pair is exact under any master (Jacobi as in libcosim and fmpy's SSP runner, Gauss-Seidel
 in either order): see fmus/coupling.py and orchestrator/master.py. ``kind="native"`` writes the
 same three FMUs as compiled C code (fmus/native_build.py, docs/native.md): the same variables,
-the same coupling, the same answers, and no Python needed in the host.
+the same coupling, the same answers, and no Python needed in the host; ``fmi_version=3`` writes
+them as FMI 3.0 FMUs (interface vectors as arrays).
 """
 from __future__ import annotations
 
@@ -34,15 +36,17 @@ from fmpy import read_model_description
 from fmus.build import FmuData, build_fmus
 from fmus.bundle import PACKAGES
 from fmus.resources import DEFAULT_SOIL_FACTORY
-from fmus.native_build import build_native_fmus
+from fmus.schema import AG
+from fmus.native_build import FMI_VERSIONS, build_native_fmus
 from soil_impedance.cache import atomic_output
 from structure.spec import contact_table
 
 from orchestrator.impedance import scene_fit
 from orchestrator.motion import make_motion
+from orchestrator.settings import FMU_KINDS
 
 #: the kinds of FMU export_scene writes: pythonfmu, or the native C runtime (fmus/native_build.py)
-KINDS = ("python", "native")
+KINDS = FMU_KINDS
 SSD = "http://ssp-standard.org/SSP1/SystemStructureDescription"
 SSC = "http://ssp-standard.org/SSP1/SystemStructureCommon"
 OSP = "http://opensimulationplatform.com/SSP/OSPAnnotations"
@@ -51,7 +55,7 @@ OMS = "https://raw.githubusercontent.com/OpenModelica/OMSimulator/master/schema/
 
 @dataclass(frozen=True)
 class Export:
-    """Paths written by export_scene."""
+    """Paths written by export_scene (``fmi_version``: 2 or 3)."""
     structure: Path
     soil: Path
     coupled: Path
@@ -59,6 +63,7 @@ class Export:
     ssp: Path
     dt: float
     stop_time: float
+    fmi_version: int = 2
 
     @property
     def files(self) -> tuple:
@@ -92,7 +97,7 @@ def fmu_data(scene, soil_model, dt: float, motion=None, soil_factory: str | None
 
 def export_scene(scene, outdir, soil_model=None, *, dt: float | None = None, motion=None,
                  soil_factory: str | None = None, soil_kwargs: dict | None = None,
-                 extra_modules=(), cache_dir=None, kind: str = "native") -> Export:
+                 extra_modules=(), cache_dir=None, kind: str = "native", fmi_version: int = 2) -> Export:
     """Write structure.fmu, soil.fmu, coupled.fmu, system.ssd and system.ssp for ``scene``
     into ``outdir``.
 
@@ -104,9 +109,18 @@ def export_scene(scene, outdir, soil_model=None, *, dt: float | None = None, mot
            darwin64, no Python in the host; the default soil factory only) or "python"
            (pythonfmu: the host needs Python with numpy and scipy); the same variables and
            the same answers
+    fmi_version : 2 (default) or 3: FMI 3.0 co-simulation FMUs of the native runtime (the
+                  interface vectors as arrays, binaries for x86_64-linux, x86_64-windows,
+                  x86_64-darwin and aarch64-darwin), the same answers; the pair's system.ssd
+                  connects the arrays, one connection each
     """
     if kind not in KINDS:
         raise ValueError(f"kind = {kind!r}: use one of {', '.join(KINDS)}")
+    if fmi_version not in FMI_VERSIONS:
+        raise ValueError(f"fmi_version = {fmi_version!r}: use one of {', '.join(map(str, FMI_VERSIONS))}")
+    if fmi_version == 3 and kind != "native":
+        raise ValueError("fmi_version = 3: FMI 3.0 FMUs are native only (pythonfmu writes FMI 2.0): export with "
+                         "kind = 'native'")
     if dt is None:
         dt = scene.analysis.dt
     if motion is None:
@@ -115,11 +129,14 @@ def export_scene(scene, outdir, soil_model=None, *, dt: float | None = None, mot
         soil_model = scene_fit(scene, cache_dir=cache_dir).model
     data = fmu_data(scene, soil_model, dt, motion, soil_factory, soil_kwargs, extra_modules)
     outdir = Path(outdir)
-    fmus = (build_native_fmus if kind == "native" else build_fmus)(data, outdir, coupled=True)
+    if kind == "native":
+        fmus = build_native_fmus(data, outdir, coupled=True, fmi_version=fmi_version)
+    else:
+        fmus = build_fmus(data, outdir, coupled=True)
     stop = (motion.acc.shape[0] - 1) * dt
     ssd = write_ssd(outdir / "system.ssd", fmus["structure"], fmus["soil"], dt, stop, name=scene.name)
     ssp = write_ssp(outdir / "system.ssp", fmus["structure"], fmus["soil"], dt, stop, name=scene.name)
-    return Export(fmus["structure"], fmus["soil"], fmus["coupled"], ssd, ssp, float(dt), float(stop))
+    return Export(fmus["structure"], fmus["soil"], fmus["coupled"], ssd, ssp, float(dt), float(stop), fmi_version)
 
 
 #: outputs of the structure listed as SSD connectors beside the coupling (what an SSP tool records)
@@ -130,8 +147,10 @@ def write_ssd(path, structure_fmu, soil_fmu, dt: float, stop_time: float, name: 
               source_dir: str | None = None) -> Path:
     """SSP system: components "structure" and "soil" (sources relative to the .ssd, or under
     ``source_dir`` inside an SSP), the coupling (every input of one component from the output
-    of the same name of the other; the structure's ag stays free, the motion is bundled), the
-    headline outputs, DefaultExperiment with the OSP FixedStepAlgorithm of step dt, and the
+    of the same name of the other: FMI 2.0 scalars; FMI 3.0 arrays, one connection per array,
+    which SSP 1.0, with no array type, types as Real), the structure's motion inputs ag_x, ag_y, ag_z as free
+    connectors (the motion is bundled: a tool may connect a source to them with internal_motion
+    = false), the headline outputs, DefaultExperiment with the OSP FixedStepAlgorithm of step dt, and the
     system's OMSimulator annotation (SimulationInformation: its fixed-step master "oms-ma" at dt,
     which OMSimulator needs to import the SSP; other tools ignore it)."""
     path = Path(path)
@@ -141,11 +160,12 @@ def write_ssd(path, structure_fmu, soil_fmu, dt: float, stop_time: float, name: 
     ET.register_namespace("oms", OMS)
     q = lambda ns, tag: f"{{{ns}}}{tag}"
     md = {comp: read_model_description(str(fmu)) for comp, fmu in (("structure", structure_fmu), ("soil", soil_fmu))}
-    kinds = {comp: {v.name: v.causality for v in m.modelVariables if v.type == "Real"} for comp, m in md.items()}
+    kinds = {comp: {v.name: v.causality for v in m.modelVariables if v.type in ("Real", "Float64")}
+             for comp, m in md.items()}
     pairs = [(a, v, b, v) for a, b in (("structure", "soil"), ("soil", "structure"))
              for v, kind in kinds[b].items() if kind == "input" and kinds[a].get(v) == "output"]
     ports = {comp: [v for a, v, b, _ in pairs if comp in (a, b)] for comp in md}
-    ports["structure"] += [v for v in HEADLINE if v in kinds["structure"]]
+    ports["structure"] += [v for v in AG + HEADLINE if v in kinds["structure"]]
     root = ET.Element(q(SSD, "SystemStructureDescription"), {"version": "1.0", "name": name})
     system = ET.SubElement(root, q(SSD, "System"), {"name": name})
     elements = ET.SubElement(system, q(SSD, "Elements"))

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import operator
 import re
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -39,8 +38,9 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.special import gammaln, log_ndtr, ndtr
 
-from soil_impedance.cache import atomic_output
+from soil_impedance.storage import atomic_update, require_checksum
 
+from orchestrator.errors import FragilityError
 from orchestrator.motion import G
 
 #: the fitted median lies within [lowest PGA / MEDIAN_FACTOR, highest PGA * MEDIAN_FACTOR]
@@ -68,10 +68,6 @@ LEFT_OUT = ("failed", "stopped", "refused", "undefined")
 GROUP = "fragility"
 _LIMIT = re.compile(r"^\s*(?P<var>[A-Za-z_]\w*)\s*(?:\[(?P<sel>[^\]]*)\])?\s*(?P<op><=|>=|<|>)\s*"
                     r"(?P<value>[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(?P<unit>\S*)\s*$")
-
-
-class FragilityError(ValueError):
-    """Bad input to a fragility fit (a limit, a route, a file); the message names it and the fix."""
 
 
 @dataclass(frozen=True)
@@ -402,11 +398,10 @@ def fragility_json(frag) -> dict:
 
 def store_fragility(path, frag) -> Path:
     """Write ``frag`` as the group ``fragility`` of the ensemble file ``path`` (replacing an
-    earlier one), atomically: the file is copied, the group written into the copy, the copy
-    renamed onto ``path``."""
+    earlier one), atomically: the file is verified and copied, the group written into the copy,
+    the copy re-stamped with its checksum and renamed onto ``path`` (``storage.atomic_update``)."""
     path = Path(path)
-    with atomic_output(path) as tmp:
-        shutil.copyfile(path, tmp)
+    with atomic_update(path) as tmp:
         with h5py.File(tmp, "a") as f:
             if GROUP in f:
                 del f[GROUP]
@@ -418,6 +413,7 @@ def read_fragility(path):
     """The stored fragility dataset of an ensemble file (loaded), or None without one."""
     import xarray as xr  # start-up cost, see fragility
     with h5py.File(path, "r") as f:
+        require_checksum(f, path, "run `uplift ensemble` and `uplift fragility` again")
         if GROUP not in f:
             return None
     with xr.open_dataset(path, group=GROUP, engine="h5netcdf") as frag:

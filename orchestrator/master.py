@@ -6,7 +6,7 @@ latest state, which the structure adds itself (fmus/coupling.py); both stamp wha
 (x_time, g_time), so every schedule is exact (equal to the monolithic route to round-off):
 
 ``gauss-seidel`` (default)
-    S <- g, g_time, a_g(t_{k+1});  S.doStep;  G <- x, xdot, x_time at t_{k+1};  G.doStep
+    S <- g, g_time, a_g(t_{k+1}) (ag_x, ag_y, ag_z);  S.doStep;  G <- x, xdot, x_time at t_{k+1};  G.doStep
 ``soil-first``
     G <- x, xdot, x_time at t_k;  G.doStep;  S <- g, g_time (new), a_g(t_{k+1});  S.doStep
 ``jacobi``
@@ -26,12 +26,13 @@ import numpy as np
 from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave, defaultCallbacks, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
+from fmpy.fmi3 import FMU3Slave, fmi3Boolean
 
-from fmus.schema import ENERGY_TERMS
+from fmus.schema import AG, ENERGY_TERMS, vector3
 from structure.results import RouteResult, RunNotes, Status
 
 SCHEDULES = ("gauss-seidel", "soil-first", "jacobi")
-FMI2_WARNING = 1                    # fmi2Status above which a call failed (discard, error, fatal)
+FMI2_WARNING = 1                    # fmi2Status (fmi3Status) above which a call failed (discard, error, fatal)
 
 
 class CosimError(RuntimeError):
@@ -39,13 +40,15 @@ class CosimError(RuntimeError):
 
 
 class FmuSlave:
-    """One co-simulation FMU instance over fmpy, with vector access by variable name.
+    """One co-simulation FMU instance over fmpy, FMI 2.0 or FMI 3.0, with vector access by name.
 
     ``FmuSlave(path, name)`` extracts and instantiates; ``get("x")`` returns the Real vector
-    ``x[0..n-1]`` (or the scalar ``x``) as an ndarray, ``set("h", values)`` sets one. One
-    ctypes call per call of get/set/do_step, on the raw fmi2GetReal / fmi2SetReal /
-    fmi2DoStep with value-reference and value arrays built once per list of names (fmpy's
-    ``getReal``/``setReal`` build both per call). The instance owns its fmpy FMU2Slave: fmpy's
+    ``x[0..n-1]`` (or the scalar ``x``) as an ndarray, ``set("h", values)`` sets one. An FMI 3.0
+    FMU's arrays are read under the same names: ``x`` is its arrays x_raft_u, x_raft_r, x_w
+    (fmus.schema.INTERFACE_PARTS) end to end, as the FMI 2.0 x[0..n-1]. One ctypes call per
+    call of get/set/do_step, on the raw fmi2GetReal / fmi2SetReal / fmi2DoStep (fmi3GetFloat64
+    ...) with value-reference and value arrays built once per list of names (fmpy's
+    ``getReal``/``setReal`` build both per call). The instance owns its fmpy slave: fmpy's
     ``freeInstance`` unloads the shared library, so never re-instantiate it; open a new
     FmuSlave instead.
     """
@@ -53,24 +56,41 @@ class FmuSlave:
     def __init__(self, path, name: str | None = None, parameters: dict | None = None):
         self.path = Path(path)
         self.md = read_model_description(str(self.path))
+        self.version = 3 if self.md.fmiVersion.startswith("3") else 2
         self.name = name or self.md.modelName
         self._tmp = tempfile.TemporaryDirectory(prefix=f"uplift_{self.name}_")
         self.dir = extract(str(self.path), self._tmp.name)
         self.log: list[str] = []
-        self.fmu = FMU2Slave(guid=self.md.guid, unzipDirectory=self.dir,
-                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=self.name)
-        self.fmu.instantiate(callbacks=self._callbacks(), loggingOn=True)
-        dll = self.fmu.dll                 # the functions fmpy typed (argtypes, restype)
-        self._get_real, self._set_real, self._do_step = dll.fmi2GetReal, dll.fmi2SetReal, dll.fmi2DoStep
+        cls = FMU3Slave if self.version == 3 else FMU2Slave
+        self.fmu = cls(guid=self.md.guid, unzipDirectory=self.dir,
+                       modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=self.name)
+        dll = self.fmu.dll                 # the functions fmpy typed (argtypes, restype) at load
+        if self.version == 3:
+            self.fmu.instantiate(loggingOn=True, logMessage=self._logger3())
+            self._get_real, self._set_real, self._do_step = dll.fmi3GetFloat64, dll.fmi3SetFloat64, dll.fmi3DoStep
+            self._flags = (fmi3Boolean(), fmi3Boolean(), fmi3Boolean(), ctypes.c_double())
+            self._flag_refs = [ctypes.byref(f) for f in self._flags]
+        else:
+            self.fmu.instantiate(callbacks=self._callbacks(), loggingOn=True)
+            self._get_real, self._set_real, self._do_step = dll.fmi2GetReal, dll.fmi2SetReal, dll.fmi2DoStep
         self.vars = {v.name: v for v in self.md.modelVariables}
-        self._vr = {}
+        self._by_vr = {v.valueReference: v for v in self.md.modelVariables}
+        self._vr, self._len = {}, {}
         for v in self.md.modelVariables:
-            base = v.name.split("[")[0]
+            base = v.name.split("[")[0] if self.version == 2 else vector3(v.name)
             self._vr.setdefault(base, []).append(v.valueReference)
+            self._len[base] = self._len.get(base, 0) + self._length(v)
         self._arrays = {}
         self.t = 0.0
         if parameters:
             self.set_parameters(parameters)
+
+    def _length(self, v) -> int:
+        """Number of values of a variable (FMI 3.0: the product of its dimensions)."""
+        out = 1
+        for d in getattr(v, "dimensions", None) or ():
+            out *= int(d.start) if d.start is not None else int(self._by_vr[d.valueReference].start)
+        return out
 
     def _callbacks(self):
         def logger(env, instance, status, category, message):
@@ -84,6 +104,16 @@ class FmuSlave:
         self._cb = cb                     # keep the ctypes callbacks alive
         return cb
 
+    def _logger3(self):
+        def logger(env, status, category, message):
+            self.log.append(message.decode("utf-8", "replace") if message else "")
+        return logger
+
+    def size(self, name: str) -> int:
+        """Number of values of the vector ``name`` (what get(name) returns)."""
+        self.vrs(name)
+        return self._len[name]
+
     def vrs(self, name: str) -> list:
         if name not in self._vr:
             raise KeyError(f"FMU {self.name!r} has no variable {name!r}; it has "
@@ -94,26 +124,27 @@ class FmuSlave:
         key = tuple(names)
         if key not in self._arrays:
             vr = np.concatenate([np.asarray(self.vrs(n), np.uint32) for n in names])
-            val = np.zeros(vr.size)
-            self._arrays[key] = (vr, val, vr.ctypes.data_as(ctypes.POINTER(ctypes.c_uint)),
-                                 val.ctypes.data_as(ctypes.POINTER(ctypes.c_double)))
+            val = np.zeros(sum(self.size(n) for n in names))
+            extra = (val.size,) if self.version == 3 else ()       # FMI 3.0: nValues
+            self._arrays[key] = (vr, val, (vr.ctypes.data_as(ctypes.POINTER(ctypes.c_uint)), vr.size,
+                                           val.ctypes.data_as(ctypes.POINTER(ctypes.c_double))) + extra)
         return self._arrays[key]
 
     def get(self, *names) -> np.ndarray:
         """Real values of the named vectors, concatenated (the FMU's buffer for this list of
         names, overwritten by the next get of the same names: copy to keep it)."""
-        vr, val, pvr, pval = self._buffers(names)
-        if self._get_real(self.fmu.component, pvr, vr.size, pval) > FMI2_WARNING:
-            self._failed(f"getting {', '.join(names)}", "fmi2GetReal")
+        vr, val, args = self._buffers(names)
+        if self._get_real(self.fmu.component, *args) > FMI2_WARNING:
+            self._failed(f"getting {', '.join(names)}", self._get_real.__name__)
         return val
 
     def set(self, *names_then_values) -> None:
         """``set("h", h)`` or several vectors in one call: ``set("x", "xdot", values)``."""
         *names, values = names_then_values
-        vr, val, pvr, pval = self._buffers(tuple(names))
+        vr, val, args = self._buffers(tuple(names))
         val[:] = values
-        if self._set_real(self.fmu.component, pvr, vr.size, pval) > FMI2_WARNING:
-            self._failed(f"setting {', '.join(names)}", "fmi2SetReal")
+        if self._set_real(self.fmu.component, *args) > FMI2_WARNING:
+            self._failed(f"setting {', '.join(names)}", self._set_real.__name__)
 
     def set_parameters(self, parameters: dict) -> None:
         for key, value in parameters.items():
@@ -122,6 +153,8 @@ class FmuSlave:
                 self.fmu.setBoolean([v.valueReference], [bool(value)])
             elif v.type == "Integer":
                 self.fmu.setInteger([v.valueReference], [int(value)])
+            elif self.version == 3:
+                self.fmu.setFloat64([v.valueReference], [float(value)])
             else:
                 self.fmu.setReal([v.valueReference], [float(value)])
 
@@ -130,14 +163,18 @@ class FmuSlave:
 
     def initialize(self, start_time: float = 0.0, stop_time: float | None = None) -> None:
         """Set up (with the stop time, when given), enter and exit initialisation mode."""
-        self._call("initialisation", self.fmu.setupExperiment, startTime=start_time, stopTime=stop_time)
-        self._call("initialisation", self.fmu.enterInitializationMode)
+        if self.version == 3:
+            self._call("initialisation", self.fmu.enterInitializationMode, startTime=start_time, stopTime=stop_time)
+        else:
+            self._call("initialisation", self.fmu.setupExperiment, startTime=start_time, stopTime=stop_time)
+            self._call("initialisation", self.fmu.enterInitializationMode)
         self._call("initialisation", self.fmu.exitInitializationMode)
         self.t = start_time
 
     def do_step(self, t: float, dt: float) -> None:
-        if self._do_step(self.fmu.component, t, dt, 1) > FMI2_WARNING:
-            self._failed(f"step at t = {t:.6g} s", "fmi2DoStep")
+        flags = self._flag_refs if self.version == 3 else ()
+        if self._do_step(self.fmu.component, t, dt, 1, *flags) > FMI2_WARNING:
+            self._failed(f"step at t = {t:.6g} s", self._do_step.__name__)
         self.t = t + dt
 
     def _failed(self, what, function):
@@ -164,16 +201,16 @@ class FmuSlave:
 
     # ---- FMU state ------------------------------------------------------------------------
     def get_state(self):
-        return self.fmu.getFMUstate()
+        return self.fmu.getFMUState() if self.version == 3 else self.fmu.getFMUstate()
 
     def set_state(self, state) -> None:
-        self.fmu.setFMUstate(state)
+        (self.fmu.setFMUState if self.version == 3 else self.fmu.setFMUstate)(state)
 
     def serialize(self, state) -> bytes:
-        return self.fmu.serializeFMUstate(state)
+        return (self.fmu.serializeFMUState if self.version == 3 else self.fmu.serializeFMUstate)(state)
 
     def deserialize(self, data: bytes):
-        return self.fmu.deSerializeFMUstate(data)
+        return (self.fmu.deserializeFMUState if self.version == 3 else self.fmu.deSerializeFMUstate)(data)
 
     def close(self) -> None:
         if self.fmu is not None:
@@ -218,7 +255,7 @@ def cosimulate(structure_fmu, soil_fmu, ag, dt: float, schedule: str = "gauss-se
                route: str = "cosim", progress=None, parameters: dict | None = None):
     """Co-simulate the exported pair over the ground acceleration ``ag`` (nt, 3) m/s^2 at
     step ``dt`` (the FMUs' fixed step) with ``schedule`` in SCHEDULES. The motion goes in
-    through the structure's ``ag`` inputs (``internal_motion = false``).
+    through the structure's inputs ``ag_x``, ``ag_y``, ``ag_z`` (``internal_motion = false``).
 
     structure_fmu, soil_fmu : paths of .fmu files (or open FmuSlaves, left open)
     Returns a RouteResult (route name ``route``; ``info["schedule"]``; ``notes.timings`` and
@@ -253,7 +290,7 @@ def cosimulate(structure_fmu, soil_fmu, ag, dt: float, schedule: str = "gauss-se
             own.append(G)
         params = {"internal_motion": False, **(parameters or {})}
         S.set_parameters(params)
-        S.set("ag", ag[0])
+        S.set(*AG, ag[0])
         S.initialize()
         G.initialize()
         return _run(S, G, ag, dt, schedule, route, progress, start)
@@ -265,7 +302,7 @@ def cosimulate(structure_fmu, soil_fmu, ag, dt: float, schedule: str = "gauss-se
 def _run(S, G, ag, dt, schedule, route, progress, start):
     nodes = output_nodes(S)
     nt = ag.shape[0]
-    n = len(S.vrs("x"))
+    n = S.size("x")
     names = ("x", "xdot", "x_time", "P", "gap") + tuple(f"{k}_{nm}" for nm in nodes for k in ("acc", "disp")) + \
         tuple(f"energy.{e}" for e in ENERGY_TERMS) + ("newton_iters",)
     # every structure output at every step in one get, stored as one row: unpacked at the end
@@ -284,7 +321,7 @@ def _run(S, G, ag, dt, schedule, route, progress, start):
         timer.add("soil step")
 
     def structure_step(t, k):
-        S.set("g", "g_time", "ag", np.concatenate([G.get("g", "g_time"), ag[k]]))
+        S.set("g", "g_time", *AG, np.concatenate([G.get("g", "g_time"), ag[k]]))
         timer.add("transfers")
         S.do_step(t, dt)
         timer.add("structure step")
@@ -310,7 +347,7 @@ def _run(S, G, ag, dt, schedule, route, progress, start):
                 progress(k, nt)
     except CosimError as exc:
         message = str(exc)
-    cols = _columns(Y[:done], names, [len(S.vrs(nm)) for nm in names])
+    cols = _columns(Y[:done], names, [S.size(nm) for nm in names])
     x = cols["x"]
     headline = S.get("max_uplift", "max_raft_rotation")
     return RouteResult(

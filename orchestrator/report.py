@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from soil_impedance.storage import atomic_output
 from structure.results import Status
 
 from orchestrator.compare import compare
@@ -131,7 +132,8 @@ def _save_figures(figures, directory: Path) -> list:
         buf = io.BytesIO()
         fig.savefig(buf, format="png", dpi=100)
         plt.close(fig)
-        (directory / f"{name}.png").write_bytes(buf.getvalue())
+        with atomic_output(directory / f"{name}.png") as tmp:
+            tmp.write_bytes(buf.getvalue())
         out.append((name, base64.b64encode(buf.getvalue()).decode("ascii")))
     return out
 
@@ -144,7 +146,8 @@ def _images(figures) -> list:
 
 def _write_page(directory: Path, parts) -> Path:
     out = directory / "report.html"
-    out.write_text("\n".join(parts + ["</body></html>"]), encoding="utf-8")
+    with atomic_output(out) as tmp:
+        tmp.write_text("\n".join(parts + ["</body></html>"]), encoding="utf-8")
     return out
 
 

@@ -24,7 +24,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from soil_impedance.cache import atomic_output, stamp_checksum
+from soil_impedance.storage import ChangedFileError, OutputPathError, atomic_output, output_target, require_checksum, stamp_checksum
 from structure.results import RouteResult, RunNotes, Status
 
 from orchestrator.motion import Motion
@@ -32,6 +32,7 @@ from orchestrator.motion import Motion
 G = 9.81
 ARRAYS = ("time", "raft", "gap", "contact_force", "soil_w", "newton_iters", "xy")
 GROUPS = ("acc", "disp", "energy")
+REMEDY = "run `uplift run SCENE -o FILE` again to make a good one"
 
 
 class ResultsFileError(ValueError):
@@ -41,15 +42,45 @@ class ResultsFileError(ValueError):
 
 def check_output_path(path) -> Path:
     """Refuse, before any computation, an output file the run could not write: its folder
-    missing or not writable, or the path a folder."""
+    missing or not writable, the path a folder, or anything else that is not a regular file (a
+    device, a FIFO: a rename would replace it). A symlink is followed: the target is checked
+    and written, the link survives. Returns ``path``."""
     path = Path(path)
-    folder = path.parent if str(path.parent) else Path(".")
     if path.is_dir():
         raise ResultsFileError(f"output {str(path)!r} is a folder: give a file name, e.g. {path / 'results.h5'}")
+    try:
+        target = output_target(path)
+    except OutputPathError as exc:
+        raise ResultsFileError(str(exc)) from None
+    folder = target.parent if str(target.parent) else Path(".")
     if not folder.is_dir():
         raise ResultsFileError(f"output folder {str(folder)!r} does not exist: create it or choose another -o path")
     if not os.access(folder, os.W_OK):
         raise ResultsFileError(f"output folder {str(folder)!r} is not writable: choose another -o path")
+    return path
+
+
+def check_output_folder(path, names=(), option: str = "-o") -> Path:
+    """Refuse, before any computation, an output folder that cannot take the files ``names``:
+    ``path`` (or a folder on its way) a file, not writable, or one of ``names`` inside it
+    present and not a regular file (a symlink to one is followed). Returns ``path``."""
+    path = Path(path)
+    parts = [*reversed(path.absolute().parents), path.absolute()]
+    for p in parts:
+        if p.exists() or p.is_symlink():
+            if not p.is_dir():
+                where = "is" if p == path.absolute() else f"lies under {str(p)!r}, which is"
+                raise ResultsFileError(f"{option} {str(path)!r} {where} not a folder: give a folder "
+                                       "(it is created if it does not exist)")
+            existing = p
+    if not os.access(existing, os.W_OK):
+        raise ResultsFileError(f"{option} {str(path)!r}: folder {str(existing)!r} is not writable; choose another "
+                               "folder")
+    for name in names:
+        try:
+            output_target(path / name)
+        except OutputPathError as exc:
+            raise ResultsFileError(f"{option} {str(path)!r}: {exc}") from None
     return path
 
 
@@ -103,11 +134,12 @@ def read_results(path) -> dict:
         raise ResultsFileError(f"results file {str(path)!r} does not exist: run `uplift run SCENE -o FILE` first")
     try:
         with h5py.File(path, "r") as f:
+            require_checksum(f, path, REMEDY)
             if "routes" not in f or not len(f["routes"]):
                 raise ResultsFileError(f"{path} holds no routes (/routes/<route>): not a results file of "
                                        "`uplift run`; run `uplift run SCENE -o FILE` to make one")
             return {route: _read_route(route, g) for route, g in f["routes"].items()}
-    except ResultsFileError:
+    except (ResultsFileError, ChangedFileError):
         raise
     except OSError as exc:   # h5py: not an HDF5 file, truncated file
         raise ResultsFileError(f"{path} is not a readable HDF5 results file ({exc}); "
@@ -128,8 +160,9 @@ def _read_route(route, g) -> RouteResult:
 
 
 def read_motion(path):
-    """(scene name, created, Motion or None) of a results file."""
+    """(scene name, created, Motion or None) of a results file (its checksum verified)."""
     with h5py.File(path, "r") as f:
+        require_checksum(f, path, REMEDY)
         motion = None
         if "motion" in f:
             m = f["motion"]

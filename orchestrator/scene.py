@@ -31,7 +31,7 @@ except ModuleNotFoundError:  # Python < 3.11
 
 import numpy as np
 
-from orchestrator.motion import (DIRECTIONS, FORMATS, SPECTRA, SYNTHETIC_DT, UNITS, VERTICAL_RATIO, Motion,
+from orchestrator.motion import (DIRECTIONS, FORMATS, SPECTRA, SYNTHETIC_DT, UNITS, VERTICAL_RATIO, G, Motion,
                                  MotionError, check_components, read_components, read_record)
 from orchestrator.routes import get_route, route_names
 from soil_impedance.mesh import InterfaceMesh, MeshError, circle_mesh, read_nodes_csv, rectangle_mesh
@@ -63,6 +63,9 @@ MAX_FREQUENCIES = 10_000
 FIT_TOL = 0.01
 #: default time budget of the timefreq route, s ([analysis].timefreq_max_s)
 TIMEFREQ_MAX_S = 600.0
+#: default limit of the peak ground acceleration a scene may ask for, g ([analysis].max_pga_g):
+#: the strongest records ever measured peak near 3-4 g; far beyond, a scale or PGA is a typo
+MAX_PGA_G = 5.0
 
 
 # ---- section configurations -------------------------------------------------------------------
@@ -205,12 +208,14 @@ def _record_path(where: str, path) -> Path:
 class AnalysisConfig:
     """[analysis]: routes (names from orchestrator.routes.route_names(), each once), dt (s, in
     (0, 0.05]), fit_tol (relative error of the rational soil fit, in (0, 1), see FIT_TOL),
-    timefreq_max_s (time budget of the timefreq route, s; past it the best iterate is kept, flagged)."""
+    timefreq_max_s (time budget of the timefreq route, s; past it the best iterate is kept, flagged),
+    max_pga_g (the largest peak ground acceleration a motion may have, g; see MAX_PGA_G)."""
 
     routes: tuple[str, ...] = ("winkler",)
     dt: float = 0.005
     fit_tol: float = FIT_TOL
     timefreq_max_s: float = TIMEFREQ_MAX_S
+    max_pga_g: float = MAX_PGA_G
 
     def __post_init__(self):
         _set(self, "routes", check_routes(self.routes))
@@ -221,6 +226,8 @@ class AnalysisConfig:
                                       expect="a relative fit error in (0, 1), e.g. 0.04"))
         _set(self, "timefreq_max_s", _number("analysis.timefreq_max_s", self.timefreq_max_s, 0.0,
                                              expect="a positive number of seconds, e.g. 600"))
+        _set(self, "max_pga_g", _number("analysis.max_pga_g", self.max_pga_g, 0.0,
+                                        expect=f"a peak ground acceleration limit > 0 g, e.g. {MAX_PGA_G:g}"))
 
 
 @dataclass(frozen=True)
@@ -341,6 +348,22 @@ class Scene:
                     raise SceneError(f"output.nodes: {n!r} is not a named structure node; "
                                      f"named nodes: {', '.join(known)}")
         self._check_steps()
+        self._check_intensity()
+
+    def _check_intensity(self):
+        """Refuse a motion whose peak ground acceleration exceeds [analysis].max_pga_g."""
+        m, limit = self.motion, self.analysis.max_pga_g
+        if m.kind == "synthetic":
+            vertical = m.vertical_ratio if m.vertical_ratio is not None else 1.0      # set with a z component
+            peak = m.pga_g * max(1.0, vertical)
+            what = (f"motion.pga_g = {m.pga_g:g}" if peak == m.pga_g else
+                    f"motion.pga_g = {m.pga_g:g} with vertical_ratio = {vertical:g} peaks at {peak:.4g} g, which")
+        else:
+            peak = float(np.max(m.record.pga)) / G
+            what = f"motion.scale = {m.scale:g} makes the record peak at {peak:.4g} g, which"
+        if peak > limit * (1 + 1e-9):          # a record scaled to the limit exactly passes
+            raise SceneError(f"{what} exceeds the intensity limit analysis.max_pga_g = {limit:g} g: check the "
+                             "value (g, not m/s2?), or raise the limit (--max-pga on the command line)")
 
     def _check_steps(self):
         m, dt = self.motion, self.analysis.dt
@@ -375,8 +398,9 @@ def builtin_scenes() -> list[str]:
                   if p.name.endswith(".toml"))
 
 
-def load_scene(spec: str | Path) -> Scene:
-    """Load a scene from a TOML path or a built-in name (see ``builtin_scenes()``)."""
+def load_scene(spec: str | Path, max_pga_g: float | None = None) -> Scene:
+    """Load a scene from a TOML path or a built-in name (see ``builtin_scenes()``); ``max_pga_g``
+    (g), when given, replaces its [analysis].max_pga_g (the command line's --max-pga)."""
     path = Path(spec)
     builtins = ", ".join(builtin_scenes())
     if path.is_file():
@@ -407,6 +431,10 @@ def load_scene(spec: str | Path) -> Scene:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(f"{origin} is not valid TOML: {exc}") from None
+    if max_pga_g is not None:
+        if not isinstance(data.get("analysis", {}), dict):
+            raise SceneError(f"{origin}: [analysis] must be a table of keys (a section)")
+        data["analysis"] = {**data.get("analysis", {}), "max_pga_g": max_pga_g}
     return _scene(data, base, name, origin)
 
 

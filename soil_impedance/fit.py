@@ -925,10 +925,10 @@ def _report(prob, model, prep: PassivityReport, err_fit, history, settings, wall
 # ------------------------------------------------------------------------------------------
 def save_fit(result: FitResult, path) -> None:
     """Model (``rational.write_model`` layout) + the report as JSON attribute ``fit_report`` + the
-    content checksum (``cache.stamp_checksum``), written atomically (``cache.atomic_output``)."""
+    content checksum (``storage.stamp_checksum``), written atomically (``storage.atomic_output``)."""
     import h5py
 
-    from .cache import atomic_output, stamp_checksum
+    from .storage import atomic_output, stamp_checksum
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_output(path) as tmp, h5py.File(tmp, "w") as h:
@@ -939,17 +939,19 @@ def save_fit(result: FitResult, path) -> None:
 
 def load_fit(path) -> FitResult:
     """Read a FitResult written by ``save_fit`` (report.cached = True, wall_s = load time); FitError
-    naming the file when it is not one, or when its checksum does not match its content."""
+    naming the file when it is not one, or when it changed since it was written (its checksum)."""
     import h5py
 
-    from .cache import CHECKSUM_ATTR, verify_checksum
+    from .storage import ChangedFileError, require_checksum
     try:
         h = h5py.File(path, "r")
     except OSError as exc:
         raise FitError(f"{path}: cannot open as an HDF5 fit ({exc})") from None
     with h:
-        if CHECKSUM_ATTR in h.attrs and not verify_checksum(h):
-            raise FitError(f"{path}: damaged fit file (content checksum mismatch): refit the table")
+        try:
+            require_checksum(h, path, "refit the table")
+        except ChangedFileError as exc:
+            raise FitError(str(exc)) from None
         return _read_fit(h, path)
 
 

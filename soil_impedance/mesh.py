@@ -197,4 +197,35 @@ def read_nodes_csv(path) -> InterfaceMesh:
     if not rows:
         raise MeshError(f"{path}: the node list is empty; give at least one row x,y,area")
     data = np.array(rows)
-    return nodes_mesh(data[:, :2], data[:, 2])
+    try:
+        mesh = nodes_mesh(data[:, :2], data[:, 2])
+    except MeshError as exc:
+        raise MeshError(f"{path}: {exc}") from None
+    check_footprint(mesh, str(path))
+    return mesh
+
+
+def check_footprint(mesh: InterfaceMesh, where: str) -> None:
+    """Refuse a node list that cannot carry a structure's rocking: fewer than three nodes, all
+    nodes on one line (no resistance to overturning about that line), or the raft centre (0, 0),
+    where the weight and the overturning moment act, not strictly inside the footprint (the
+    convex hull of the nodes). Areas are checked by InterfaceMesh. ``where`` names the input."""
+    xy = mesh.xy
+    fix = ("give at least three nodes around the raft centre (0, 0), in x, y about it, e.g. the corners "
+           "and the centres of the patches under the raft")
+    if mesh.n < 3:
+        raise MeshError(f"{where}: {mesh.n} interface node{'s' if mesh.n > 1 else ''}: a raft on fewer than three "
+                        f"points cannot carry an overturning moment; {fix}")
+    extent = float(np.abs(xy).max())
+    centred = xy - xy.mean(axis=0)
+    s = np.linalg.svd(centred, compute_uv=False)
+    if s[1] <= 1e-9 * max(s[0], extent):
+        raise MeshError(f"{where}: all {mesh.n} interface nodes lie on one line: the raft cannot carry an "
+                        f"overturning moment about it; {fix}")
+    from scipy.spatial import ConvexHull
+    hull = ConvexHull(xy)
+    margin = -hull.equations[:, 2].max()        # distance of (0, 0) inside the nearest hull edge
+    if margin <= 1e-6 * extent:
+        raise MeshError(f"{where}: the raft centre (0, 0) is {'on the edge of' if margin > -1e-6 * extent else 'outside'}"
+                        f" the footprint of the nodes (their convex hull): the weight would tip the raft over "
+                        f"that edge; {fix}")

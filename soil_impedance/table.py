@@ -7,10 +7,10 @@ HDF5 layout (open it with h5py, HDFView, MATLAB ``h5read``...):
   /dofs             utf-8 strings (n,)
   attrs: format = "uplift.ImpedanceTable", format_version = 1, hash (of the inputs: provenance
          + frequencies), data_sha256 (of matrices + dofs, checked on load), provenance (JSON),
-         sha256 (of the whole file, ``cache.stamp_checksum``; checked on load when present:
-         files written before it was added have none)
+         sha256 (of the whole file, ``storage.stamp_checksum``; checked on load: a file that
+         changed since it was written, or carries none, is refused)
 
-Files are written atomically (``cache.atomic_output``): a reader sees the old file or the
+Files are written atomically (``storage.atomic_output``): a reader sees the old file or the
 complete new one, never a half-written one.
 """
 from __future__ import annotations
@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .cache import CHECKSUM_ATTR, atomic_output, stamp_checksum, verify_checksum
+from .storage import ChangedFileError, atomic_output, require_checksum, stamp_checksum
 
 FORMAT = "uplift.ImpedanceTable"
 FORMAT_VERSION = 1
@@ -140,7 +140,7 @@ class ImpedanceTable:
 
     def save(self, path) -> None:
         """Write the table to an HDF5 file, atomically (replaces an existing file only once the
-        new one is complete; the folder must exist: ``cache.OutputFolderError`` otherwise)."""
+        new one is complete; the folder must exist: ``storage.OutputFolderError`` otherwise)."""
         import h5py
         with atomic_output(path) as tmp, h5py.File(tmp, "w") as h:
             h.attrs["format"] = FORMAT
@@ -171,15 +171,16 @@ class ImpedanceTable:
     @classmethod
     def from_hdf5(cls, h, path) -> ImpedanceTable:
         """Read the table in the open h5py file ``h`` (``path`` names it in errors); checks the
-        format, the whole-file checksum (if stored) and the hash and data digest."""
+        format, the whole-file checksum and the hash and data digest."""
         if h.attrs.get("format") != FORMAT:
             raise TableError(f"{path}: not an {FORMAT} file (attribute 'format' missing or wrong)")
         version = int(h.attrs.get("format_version", -1))
         if version != FORMAT_VERSION:
             raise TableError(f"{path}: format_version {version}, this code reads {FORMAT_VERSION}")
-        if CHECKSUM_ATTR in h.attrs and not verify_checksum(h):
-            raise TableError(f"{path}: stored hash '{CHECKSUM_ATTR}' does not match the content "
-                             "(file altered or truncated?): delete it and recompute")
+        try:
+            require_checksum(h, path, "delete it and recompute")
+        except ChangedFileError as exc:
+            raise TableError(str(exc)) from None
         try:
             f = h["frequencies_hz"][()]
             re, im = h["matrices_real"], h["matrices_imag"]

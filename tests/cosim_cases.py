@@ -37,14 +37,25 @@ def soil_model(scene, stiffness_scale=1.0):
     return winkler_rational(winkler(scene, stiffness_scale))
 
 
-def pulse_motion(dt=0.005, T=1.5, pga=8.0, tp=0.6):
-    """A strong one-sided pulse (x and z): uplift within the first second."""
+def pulse_motion(dt=0.005, T=1.5, pga=8.0, tp=0.6, y=0.0):
+    """A strong one-sided pulse (x and z): uplift within the first second. ``y`` > 0 adds a
+    component along y, y pga times a pulse of 2 tp / 3 starting tp / 4 later (x, y and z at
+    once: the raft rocks about both axes)."""
     t = dt * np.arange(int(round(T / dt)) + 1)
     s = np.where(t < tp, np.sin(np.pi * t / tp) ** 3, 0.0)
     acc = np.zeros((t.size, 3))
     acc[:, 0] = pga * s
     acc[:, 2] = 0.3 * pga * s
+    if y:
+        ty = t - tp / 4
+        acc[:, 1] = y * pga * np.where((ty > 0) & (ty < 2 * tp / 3), np.sin(1.5 * np.pi * ty / tp) ** 3, 0.0)
     return Motion(dt, acc, "pulse")
+
+
+def rocks_about_both_axes(res, ratio=0.2) -> bool:
+    """The raft of a RouteResult rocks about x and y: each peak at least ``ratio`` of the other."""
+    rx, ry = np.abs(res.raft[:, 3]).max(), np.abs(res.raft[:, 4]).max()
+    return min(rx, ry) >= ratio * max(rx, ry)
 
 
 #: the motion the exported pair is built with (tests/conftest.py ``exported``)

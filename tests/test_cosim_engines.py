@@ -6,19 +6,20 @@
   starting at 0 (no exchange at initialisation);
 - ``fmpy.simulate_fmu`` on ``coupled.fmu``, the whole system in one FMU.
 
-Small scene (reactor stick on a 21-node raft over rock, a pulse that lifts the raft by 34 mm),
+Small scene (reactor stick on a 21-node raft over rock, a pulse along x, y and z at once that
+lifts the raft by 52 mm and rocks it about both axes),
 histories and the FMUs' headline outputs (running max uplift and raft rotation) to 1e-10.
 """
 import numpy as np
 import pytest
 
-from cosim_cases import pulse_motion, small_scene, soil_model
+from cosim_cases import pulse_motion, rocks_about_both_axes, small_scene, soil_model
 from orchestrator.export import export_scene
 from orchestrator.routes.monolithic import run_monolithic
 
 SCENE = small_scene()
 MODEL = soil_model(SCENE)
-MOTION = pulse_motion(T=1.0)
+MOTION = pulse_motion(T=1.0, y=0.5)          # x, y and z at once
 N = SCENE.mesh.xy.shape[0]
 
 
@@ -26,7 +27,7 @@ N = SCENE.mesh.xy.shape[0]
 def case(tmp_path_factory):
     exp = export_scene(SCENE, tmp_path_factory.mktemp("engines"), MODEL, motion=MOTION, kind="python")
     mono = run_monolithic(SCENE, MOTION, MODEL)
-    assert mono.converged and mono.max_uplift() > 1e-2
+    assert mono.converged and mono.max_uplift() > 1e-2 and rocks_about_both_axes(mono)
     return exp, mono
 
 

@@ -7,7 +7,7 @@ past what fmpy's runner can step); a replay of each ``<Model>_in.csv`` through i
 by fmpy's simulate_fmu exactly as fmpy's cross-check runner calls it, reproduces ``_ref.csv`` to
 1e-8 relative and passes fmpy's epsilon-band comparison; the structure reference (pair under
 Jacobi) equals coupled.fmu's and the project's Gauss-Seidel master's (cosimulate, motion through
-the input ag) to round-off; ``uplift export --cross-check`` writes the folders and refuses a file
+the inputs ag_x, ag_y, ag_z) to round-off; ``uplift export --cross-check`` writes the folders and refuses a file
 as XDIR (and a scene without a layered soil) before computing.
 """
 import shutil

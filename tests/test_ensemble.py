@@ -255,7 +255,7 @@ def test_cell_key_depends_on_the_inputs_only(case, monkeypatch):
     assert ens.plan_ensemble(scene, [0.41], records=[case["tmp"] / "records" / "rec0.txt"]).cells[0].key != key
     assert ens.plan_ensemble(scene.with_routes(["winkler"]), [0.4],
                              records=[case["tmp"] / "records" / "rec0.txt"]).cells[0].key != key
-    monkeypatch.setattr(ens, "code_digest", lambda: "changed code")
+    monkeypatch.setattr(ens.plan, "code_digest", lambda: "changed code")
     assert ens.plan_ensemble(scene, [0.4], records=[case["tmp"] / "records" / "rec0.txt"]).cells[0].key != key
 
 
@@ -288,8 +288,7 @@ def test_fractiles_over_converged_cells_only(case):
 ])
 def test_bad_input_exits_2(case, tmp_path, monkeypatch, capsys, args, message):
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(ens, "CONNECT_TIMEOUT_S", 1.0)
-    assert main(["ensemble", str(case["scene"]), "-o", str(tmp_path / "e.h5"), *args]) == 2
+    assert main(["ensemble", str(case["scene"]), "-o", str(tmp_path / "e.h5"), "--connect-timeout", "1", *args]) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "e.h5").exists()
 

@@ -18,7 +18,7 @@ from fmpy import read_model_description
 from cosim_cases import small_scene
 from fmus import schema
 from fmus.bundle import LAZY_REQUIREMENTS, PROVIDED, REQUIREMENTS, third_party
-from fmus.native_build import NATIVE, SOURCES, fmi_headers
+from fmus.native_build import NATIVE, SOURCES, fmi_headers, sources_of
 
 ROLES = ("structure", "soil", "coupled")
 SCENE = small_scene()
@@ -98,6 +98,16 @@ def test_units_match_across_every_connection_of_the_ssd_and_ssp(exported, export
             assert (ca, cb) == ("output", "input") and ua == ub and ua is not None, (a, va, b, vb, ua, ub)
         rotational = [va for a, va, b, vb in conns if units[a][va][0] in ("rad", "rad/s", "N.m")]
         assert len(rotational) == 9                      # x, xdot, g on rx, ry, rz
+        # every connector is a variable of its FMU with its causality; the structure's motion
+        # inputs are there, free (the motion is bundled), in m/s2
+        connectors = {(comp.get("name"), c.get("name")): c.get("kind") for comp in root.iter()
+                      if comp.tag.endswith("Component") for c in comp.iter() if c.tag.endswith("Connector")}
+        for (comp, name), kind_ in connectors.items():
+            assert units[comp][name][1] == kind_, (comp, name)
+        connected = {(a, va) for a, va, _, _ in conns} | {(b, vb) for _, _, b, vb in conns}
+        for name in schema.AG:
+            assert connectors[("structure", name)] == "input" and units["structure"][name][0] == "m/s2"
+            assert ("structure", name) not in connected
 
 
 def test_units_match_across_the_cross_check_folders(exported, tmp_path):
@@ -123,23 +133,26 @@ def test_c_message_table_is_generated_from_the_schema():
     header = NATIVE / "include" / "uplift_messages.h"
     assert header.read_text() == schema.c_messages_header(), \
         "regenerate: python -c 'from fmus.schema import c_messages_header; print(c_messages_header(), end=\"\")'"
-    c = "".join((NATIVE / s).read_text() for s in SOURCES)
+    c = "".join((NATIVE / s).read_text() for s in sorted(set(SOURCES) | set(sources_of(3))))
     for key in schema.MESSAGES:                                    # every refusal used by the runtime
         assert f"UP_MSG_{key.upper()}" in c, key
 
 
-def test_two_runtimes_link_into_one_binary(tmp_path):
-    """The soil's and the structure's runtime compiled with their own FMI2_FUNCTION_PREFIX (as a
-    tool importing source-code FMUs does) link into one shared object: no symbol collides."""
+@pytest.mark.parametrize("version", [2, 3])
+def test_two_runtimes_link_into_one_binary(tmp_path, version):
+    """The soil's and the structure's runtime compiled with their own FMI2_FUNCTION_PREFIX
+    (FMI3_FUNCTION_PREFIX: the FMI 3.0 runtime), as a tool importing source-code FMUs does, link
+    into one shared object: no symbol collides."""
     cc = shutil.which("cc") or shutil.which("gcc")
     if cc is None or sys.platform != "linux":
         pytest.skip("needs Linux and a C compiler")
     objects = []
     for prefix in ("UpliftSoil_", "UpliftStructure_"):
-        for src in SOURCES:
+        for src in sources_of(version):
             obj = tmp_path / f"{prefix}{src}.o"
-            subprocess.run([cc, "-std=c99", "-O0", "-fPIC", f"-DFMI2_FUNCTION_PREFIX={prefix}", f"-I{fmi_headers()}",
-                            f"-I{NATIVE / 'include'}", "-c", str(NATIVE / src), "-o", str(obj)], check=True)
+            subprocess.run([cc, "-std=c99", "-O0", "-fPIC", f"-DFMI{version}_FUNCTION_PREFIX={prefix}",
+                            f"-I{fmi_headers()}", f"-I{NATIVE / 'include'}", "-c", str(NATIVE / src), "-o", str(obj)],
+                           check=True)
             objects.append(str(obj))
     lib = tmp_path / "both.so"
     proc = subprocess.run([cc, "-shared", "-Wl,--no-undefined", *objects, "-o", str(lib), "-lm"],
@@ -147,8 +160,8 @@ def test_two_runtimes_link_into_one_binary(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     symbols = subprocess.run(["nm", "-g", "--defined-only", str(lib)], capture_output=True, text=True).stdout
     names = [line.split()[-1] for line in symbols.splitlines() if line.strip()]
-    ours = [s for s in names if "fmi2" in s or s.startswith("up_") or "_up_" in s]
-    assert "UpliftSoil_fmi2DoStep" in ours and "UpliftStructure_fmi2DoStep" in ours
+    ours = [s for s in names if f"fmi{version}" in s or s.startswith("up_") or "_up_" in s]
+    assert f"UpliftSoil_fmi{version}DoStep" in ours and f"UpliftStructure_fmi{version}DoStep" in ours
     assert all(s.startswith(("UpliftSoil_", "UpliftStructure_")) for s in ours), ours
 
 

@@ -53,3 +53,18 @@ def test_wheel_metadata(wheel):
     assert "\nName: uplift-ssi\n" in text
     entry = z.read(next(n for n in z.namelist() if n.endswith(".dist-info/entry_points.txt"))).decode()
     assert "uplift = orchestrator.cli:main" in entry
+
+
+def test_start_up_loads_no_fmu_or_cluster_stack():
+    """`uplift --help`, a scene load and the route registry import neither fmpy, pythonfmu nor dask
+    (they load when an export, a co-simulation or an ensemble runs)."""
+    code = ("import sys, contextlib, io\n"
+            "from orchestrator.cli import main\n"
+            "from orchestrator.scene import load_scene\n"
+            "from orchestrator.routes import route_names, get_route\n"
+            "with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):\n"
+            "    main(['--help'])\n"
+            "load_scene('reactor'); [get_route(r) for r in route_names()]\n"
+            "print(' '.join(sorted({m.split('.')[0] for m in sys.modules} & {'fmpy', 'pythonfmu', 'dask', 'distributed'})))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
+    assert out.stdout.strip() == ""

@@ -111,7 +111,7 @@ def test_base_scene_and_range():
 
 
 def test_relative_node_file(tmp_path):
-    (tmp_path / "nodes.csv").write_text("x,y,area\n0,0,1\n1,0,1\n0,1,1\n")
+    (tmp_path / "nodes.csv").write_text("x,y,area\n-1,-1,1\n1,-1,1\n0,1,1\n")
     (tmp_path / "s.toml").write_text(
         '[soil]\nhalfspace = { vs = 500.0, nu = 0.3, rho = 2000.0 }\n'
         '[foundation]\nshape = "nodes"\nfile = "nodes.csv"\n')

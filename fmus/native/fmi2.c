@@ -1,10 +1,10 @@
-/* The FMI 2.0 co-simulation entry points of the native uplift FMUs: the life cycle, the step,
-   the status queries (the variables are in variables.c, the FMU states in state.c). Behaves as
-   the Python FMUs (fmus/slave.py): the same refusals, with the messages of fmus/schema.py
-   (uplift_messages.h).
+/* The FMI 2.0 co-simulation entry points of the native uplift FMUs, on the runtime the FMI 3.0
+   layer (fmi3.c) shares: the instance (instance.c), the model, its life cycle and step
+   (model.c), the variables (variables.c), the FMU states (state.c). Behaves as the Python FMUs
+   (fmus/slave.py): the same refusals, with the messages of fmus/schema.py (uplift_messages.h).
 
    Every entry point opens with UP_GUARD(its name): the instance is checked and the call is
-   allowed only in the states of its mask MASK_<name> (below, in the manner of the Modelica
+   allowed only in the states of its mask MASK_<name> (fmu.h, in the manner of the Modelica
    Reference-FMUs); a call in another state is refused with fmi2Error and a message naming the
    state, the instance unchanged. A call that cannot be right returns fmi2Error with the
    instance as it was: a step at the wrong time, not finite or negative, past the stop time of
@@ -20,24 +20,25 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "fmi2Functions.h"
 #include "fmu.h"
 
-/* ---- the guard of every entry point (the masks are in fmu.h) ------------------------------------ */
-UpInstance *up_guard(fmi2Component c, int mask, const char *fn)
+/* FMI2_FUNCTION_PREFIX prefixes the entry points too, also with FMI 2.0 headers whose
+   fmi2FullName ignores it (fmpy's) */
+#ifdef FMI2_FUNCTION_PREFIX
+#undef fmi2FullName
+#define fmi2FullName(name) UP_PASTE(FMI2_FUNCTION_PREFIX, name)
+#endif
+
+static void emit(UpInstance *I, int status, const char *category, const char *message)
 {
-    UpInstance *I = up_instance(c);
-    if (!I || (I->state & mask))
-        return I;
-    if (mask & UP_STEPPING)                   /* a call of the stepping phase, too early or too late */
-        up_log_error(I, I->state == UP_TERMINATED ? UP_MSG_AFTER_TERMINATE : UP_MSG_BEFORE_INIT, fn);
-    else
-        up_log_error(I, UP_MSG_WRONG_STATE, fn,
-                     I->state == UP_INSTANTIATED     ? "before fmi2EnterInitializationMode"
-                     : I->state == UP_INITIALISATION ? "in initialisation mode"
-                     : I->state == UP_STEPPING       ? "after initialisation (fmi2Reset first)"
-                                                     : "after fmi2Terminate (fmi2Reset first)");
-    return NULL;
+    ((fmi2CallbackLogger)I->logger)(I->env, I->name, (fmi2Status)status, category, message);
 }
+
+static const UpApi API = {"fmi2", "FMI 2.0", "fmi2SetupExperiment", emit};
+
+#define UP_ERROR_STATUS fmi2Error
+#define STATUS(rc) ((rc) ? fmi2Error : fmi2OK)
 
 /* ---- FMI 2.0: common functions ------------------------------------------------------------------- */
 const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
@@ -46,18 +47,7 @@ const char *fmi2GetVersion(void) { return fmi2Version; }
 fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nCategories, const fmi2String categories[])
 {
     UP_GUARD(fmi2SetDebugLogging);
-    if (nCategories > 0 && !categories) {
-        up_log_error(I, "fmi2SetDebugLogging: categories is NULL with nCategories = %zu", nCategories);
-        return fmi2Error;
-    }
-    for (size_t k = 0; k < nCategories; k++)
-        if (!categories[k] || (strcmp(categories[k], "logEvents") && strcmp(categories[k], "logStatusError"))) {
-            up_log_error(I, "fmi2SetDebugLogging: unknown log category %s (this FMU has logEvents and "
-                         "logStatusError)", categories[k] ? categories[k] : "(null)");
-            return fmi2Error;
-        }
-    I->logging = loggingOn != fmi2False;
-    return fmi2OK;
+    return STATUS(up_set_logging(I, "fmi2SetDebugLogging", loggingOn != fmi2False, nCategories, categories));
 }
 
 fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2String fmuGUID,
@@ -65,29 +55,11 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
                               fmi2Boolean visible, fmi2Boolean loggingOn)
 {
     (void)visible;
-    UpInstance *I = (UpInstance *)calloc(1, sizeof(UpInstance));
-    if (!I)
-        return NULL;
-    I->magic = UP_INSTANCE_MAGIC;
-    I->stop_time = INFINITY;
-    snprintf(I->name, sizeof I->name, "%s", instanceName ? instanceName : "uplift");
-    if (functions) {
-        I->logger = functions->logger;
-        I->env = functions->componentEnvironment;
-    }
-    I->logging = loggingOn != fmi2False;
-    if (!instanceName || !*instanceName)
-        snprintf(I->err, UP_MSG, "instanceName is empty: give the instance a name");
-    else if (fmuType != fmi2CoSimulation)
-        snprintf(I->err, UP_MSG, "this FMU is for co-simulation only (fmuType = fmi2CoSimulation)");
-    else if (up_setup(I, fmuGUID, fmuResourceLocation) == 0) {
-        I->state = UP_INSTANTIATED;
-        up_log_event(I, "instantiated from %s: %d Real variables, dt = %g s", I->res.path, I->n_real, I->dt);
-        return I;
-    }
-    up_log_error(I, "instantiation failed: %s", I->err);
-    up_free_instance(I);
-    return NULL;
+    return up_instantiate(&API, instanceName, fmuGUID, fmuResourceLocation, 1,
+                          functions ? (void (*)(void))functions->logger : NULL,
+                          functions ? functions->componentEnvironment : NULL, loggingOn != fmi2False,
+                          fmuType != fmi2CoSimulation ? "this FMU is for co-simulation only (fmuType = fmi2CoSimulation)"
+                                                      : NULL);
 }
 
 void fmi2FreeInstance(fmi2Component c)
@@ -102,37 +74,19 @@ fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fm
 {
     (void)toleranceDefined, (void)tolerance;
     UP_GUARD(fmi2SetupExperiment);
-    if (stopTimeDefined && !(stopTime >= startTime)) {
-        char b1[32], b2[32];
-        up_log_error(I, "fmi2SetupExperiment: stop time %s s before the start time %s s", up_num(stopTime, b1),
-                     up_num(startTime, b2));
-        return fmi2Error;
-    }
-    I->start_time = startTime;
-    I->stop_time = stopTimeDefined ? stopTime : INFINITY;
-    return fmi2OK;
+    return STATUS(up_setup_experiment(I, "fmi2SetupExperiment", stopTimeDefined != fmi2False, startTime, stopTime));
 }
 
 fmi2Status fmi2EnterInitializationMode(fmi2Component c)
 {
     UP_GUARD(fmi2EnterInitializationMode);
-    if (up_initial_state(I)) {
-        up_log_error(I, "initialisation failed: %s", I->err);
-        return fmi2Error;
-    }
-    I->state = UP_INITIALISATION;
-    return fmi2OK;
+    return (fmi2Status)up_enter_initialisation(I);
 }
 
 fmi2Status fmi2ExitInitializationMode(fmi2Component c)
 {
     UP_GUARD(fmi2ExitInitializationMode);
-    if (up_initial_state(I)) {                 /* inputs and parameters set during initialisation */
-        up_log_error(I, "initialisation failed: %s", I->err);
-        return fmi2Error;
-    }
-    I->state = UP_STEPPING;
-    return fmi2OK;
+    return (fmi2Status)up_exit_initialisation(I);
 }
 
 fmi2Status fmi2Terminate(fmi2Component c)
@@ -145,12 +99,105 @@ fmi2Status fmi2Terminate(fmi2Component c)
 fmi2Status fmi2Reset(fmi2Component c)
 {
     UP_GUARD(fmi2Reset);
-    memset(I->block, 0, I->block_len * sizeof(double));
-    *I->internal_motion = I->has_motion;
-    I->start_time = 0.0;
-    I->stop_time = INFINITY;
-    I->state = UP_INSTANTIATED;
+    up_reset(I);
     return fmi2OK;
+}
+
+/* ---- FMI 2.0: variables ----------------------------------------------------------------------------- */
+fmi2Status fmi2GetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Real value[])
+{
+    UP_GUARD(fmi2GetReal);
+    return STATUS(up_get_reals(I, "fmi2GetReal", vr, nvr, value));
+}
+
+fmi2Status fmi2SetReal(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Real value[])
+{
+    UP_GUARD(fmi2SetReal);
+    return STATUS(up_set_reals(I, "fmi2SetReal", vr, nvr, value));
+}
+
+fmi2Status fmi2GetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Boolean value[])
+{
+    UP_GUARD(fmi2GetBoolean);
+    if (up_boolean_refs(I, "fmi2GetBoolean", vr, nvr, value, 0))
+        return fmi2Error;
+    for (size_t i = 0; i < nvr; i++)
+        value[i] = *I->internal_motion != 0.0 ? fmi2True : fmi2False;
+    return fmi2OK;
+}
+
+fmi2Status fmi2SetBoolean(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Boolean value[])
+{
+    UP_GUARD(fmi2SetBoolean);
+    if (up_boolean_refs(I, "fmi2SetBoolean", vr, nvr, value, 1))
+        return fmi2Error;
+    for (size_t i = 0; i < nvr; i++)
+        *I->internal_motion = value[i] != fmi2False;
+    return fmi2OK;
+}
+
+static fmi2Status no_variables(fmi2Component c, const char *fn, const char *type, const fmi2ValueReference vr[],
+                               size_t nvr, const void *value)
+{
+    UpInstance *I = up_guard(c, UP_ANY_STATE, fn);
+    return !I ? fmi2Error : STATUS(up_no_variables(I, fn, type, vr, nvr, value));
+}
+
+fmi2Status fmi2GetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2Integer value[])
+{
+    return no_variables(c, "fmi2GetInteger", "Integer", vr, nvr, value);
+}
+
+fmi2Status fmi2SetInteger(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2Integer value[])
+{
+    return no_variables(c, "fmi2SetInteger", "Integer", vr, nvr, value);
+}
+
+fmi2Status fmi2GetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, fmi2String value[])
+{
+    return no_variables(c, "fmi2GetString", "String", vr, nvr, value);
+}
+
+fmi2Status fmi2SetString(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const fmi2String value[])
+{
+    return no_variables(c, "fmi2SetString", "String", vr, nvr, value);
+}
+
+/* ---- FMI 2.0: FMU states ----------------------------------------------------------------------------- */
+fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *s)
+{
+    UP_GUARD(fmi2GetFMUstate);
+    return STATUS(up_state_get(I, "fmi2GetFMUstate", s));
+}
+
+fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate s)
+{
+    UP_GUARD(fmi2SetFMUstate);
+    return STATUS(up_state_set(I, "fmi2SetFMUstate", s));
+}
+
+fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *s)
+{
+    UP_GUARD(fmi2FreeFMUstate);
+    return STATUS(up_state_free(I, "fmi2FreeFMUstate", s));
+}
+
+fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate s, size_t *size)
+{
+    UP_GUARD(fmi2SerializedFMUstateSize);
+    return STATUS(up_state_size(I, "fmi2SerializedFMUstateSize", s, size));
+}
+
+fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate s, fmi2Byte bytes[], size_t size)
+{
+    UP_GUARD(fmi2SerializeFMUstate);
+    return STATUS(up_state_serialize(I, "fmi2SerializeFMUstate", s, (unsigned char *)bytes, size));
+}
+
+fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte bytes[], size_t size, fmi2FMUstate *s)
+{
+    UP_GUARD(fmi2DeSerializeFMUstate);
+    return STATUS(up_state_deserialize(I, "fmi2DeSerializeFMUstate", (const unsigned char *)bytes, size, s));
 }
 
 fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown_ref[], size_t nUnknown,
@@ -188,87 +235,11 @@ fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReferenc
     return fmi2Error;
 }
 
-/* a call that cannot be right: fmi2Error, logged, the instance as it was */
-static fmi2Status refuse(UpInstance *I, double t, const char *why)
-{
-    char b[32];
-    up_log_error(I, UP_MSG_REFUSED, up_num(t, b), why);
-    return fmi2Error;
-}
-
-/* The number of steps of dt in a communication step of h from t (0: a sliver, a no-op), or -1
-   with the reason in why (fmus.schema: SLIVER, STEP_RTOL, TIME_TOL, MAX_STEPS_PER_CALL) */
-static double steps_of(UpInstance *I, double t, double h, char *why)
-{
-    char b1[32], b2[32], b3[32];
-    double dt = I->dt;
-    if (!(isfinite(t) && fabs(t - *I->time) <= UP_TIME_TOL * dt)) {
-        snprintf(why, UP_MSG, UP_MSG_WRONG_TIME, up_num(*I->time, b1));
-        return -1;
-    }
-    if (!(isfinite(h) && h >= 0)) {
-        snprintf(why, UP_MSG, UP_MSG_BAD_STEP, up_num(h, b1));
-        return -1;
-    }
-    if (t + h > I->stop_time + UP_TIME_TOL * dt) {
-        snprintf(why, UP_MSG, UP_MSG_PAST_STOP, up_num(h, b1), up_num(t + h, b2), up_num(I->stop_time, b3));
-        return -1;
-    }
-    if (h < UP_SLIVER * dt)
-        return 0;
-    /* the coupled FMU takes any multiple of dt (steps of dt inside); the pair exactly dt, the
-       step its coupling is exchanged at */
-    int multistep = I->role == ROLE_COUPLED;
-    double steps = multistep ? floor(h / dt + 0.5) : 1.0;
-    if (steps > UP_MAX_STEPS_PER_CALL) {
-        snprintf(b2, sizeof b2, "%d", UP_MAX_STEPS_PER_CALL);
-        snprintf(why, UP_MSG, UP_MSG_TOO_MANY_STEPS, up_num(h, b1), b2, up_num(dt, b3));
-        return -1;
-    }
-    if (!(steps >= 1 && fabs(h - steps * dt) <= UP_STEP_RTOL * h)) {
-        snprintf(why, UP_MSG, UP_MSG_WRONG_STEP, up_num(h, b1), multistep ? "a multiple" : "exactly", up_num(dt, b2));
-        return -1;
-    }
-    for (int k = 0; k < NSLOT; k++) {
-        if (I->slot[k] < 0 || I->causality[I->slot[k]] != 0)
-            continue;                                         /* the inputs only */
-        const double *v = up_var(I, k);
-        for (int i = 0; i < I->slot_len[k]; i++)
-            if (!isfinite(v[i])) {
-                snprintf(b2, sizeof b2, "%d", i);
-                snprintf(why, UP_MSG, UP_MSG_NOT_FINITE, up_slot_names[k], b2, up_num(v[i], b1));
-                return -1;
-            }
-    }
-    return steps;
-}
-
 fmi2Status fmi2DoStep(fmi2Component c, fmi2Real t, fmi2Real h, fmi2Boolean noSetFMUStatePriorToCurrentPoint)
 {
     (void)noSetFMUStatePriorToCurrentPoint;
     UP_GUARD(fmi2DoStep);
-    char b1[32], why[UP_MSG];
-    double steps = steps_of(I, t, h, why);
-    if (steps < 0)
-        return refuse(I, t, why);
-    if (steps == 0) {                                         /* a sliver: nothing to compute */
-        *I->time = t + h;
-        return fmi2OK;
-    }
-    memcpy(I->backup, I->block, I->block_len * sizeof(double));
-    int rc = 0;
-    for (long i = 0; i < (long)steps && rc == 0; i++)
-        rc = up_step(I, t + (double)i * I->dt);
-    if (rc) {
-        memcpy(I->block, I->backup, I->block_len * sizeof(double));     /* the instance as it was */
-        if (rc == UP_REFUSED)
-            return refuse(I, t, I->err);
-        up_log_error(I, "step from t = %s s failed: %s", up_num(t, b1), I->err);
-        return fmi2Discard;                                           /* no Newton convergence */
-    }
-    *I->time = t + h;
-    up_log_event(I, "step from t = %s s: %ld step(s) of dt", up_num(t, b1), (long)steps);
-    return fmi2OK;
+    return (fmi2Status)up_do_step(I, t, h);
 }
 
 fmi2Status fmi2CancelStep(fmi2Component c)

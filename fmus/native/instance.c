@@ -14,7 +14,7 @@ const char *const up_slot_names[NSLOT] = {"x", "xdot", "x_time", "g", "g_time", 
                                           "max_raft_rotation"};
 
 /* ---- messages -------------------------------------------------------------------------------- */
-static void emit(UpInstance *I, fmi2Status status, const char *category, const char *fmt, va_list ap)
+static void emit(UpInstance *I, int status, const char *category, const char *fmt, va_list ap)
 {
     char raw[UP_MSG + 256], msg[2 * (UP_MSG + 256)];
     vsnprintf(raw, sizeof raw, fmt, ap);
@@ -26,14 +26,14 @@ static void emit(UpInstance *I, fmi2Status status, const char *category, const c
     }
     msg[k] = '\0';
     if (I->logger)
-        I->logger(I->env, I->name, status, category, msg);
+        I->api->emit(I, status, category, msg);
 }
 
 void up_log_error(UpInstance *I, const char *fmt, ...)
 {
     va_list ap;
     va_start(ap, fmt);
-    emit(I, fmi2Error, "logStatusError", fmt, ap);
+    emit(I, UP_ERROR, "logStatusError", fmt, ap);
     va_end(ap);
 }
 
@@ -43,7 +43,7 @@ void up_log_event(UpInstance *I, const char *fmt, ...)
         return;
     va_list ap;
     va_start(ap, fmt);
-    emit(I, fmi2OK, "logEvents", fmt, ap);
+    emit(I, UP_OK, "logEvents", fmt, ap);
     va_end(ap);
 }
 
@@ -58,10 +58,65 @@ const char *up_num(double v, char *buf)
     return buf;
 }
 
-UpInstance *up_instance(fmi2Component c)
+/* the name of element i of a slot's variables, as the model description has it (buf[48]) */
+const char *up_element_name(const UpInstance *I, int slot, int i, char *buf)
+{
+    if (slot == S_AG)
+        snprintf(buf, 48, "ag_%c", "xyz"[i % 3]);
+    else if (I->slot_len[slot] == 1)
+        snprintf(buf, 48, "%s", up_slot_names[slot]);
+    else
+        snprintf(buf, 48, "%s[%d]", up_slot_names[slot], i);
+    return buf;
+}
+
+UpInstance *up_instance(void *c)
 {
     UpInstance *I = (UpInstance *)c;
     return I && I->magic == UP_INSTANCE_MAGIC ? I : NULL;
+}
+
+/* ---- the guard of every entry point (the masks are in fmu.h) ------------------------------------ */
+UpInstance *up_guard(void *c, int mask, const char *fn)
+{
+    UpInstance *I = up_instance(c);
+    if (!I || (I->state & mask))
+        return I;
+    const char *api = I->api->api;
+    char state[96];
+    if (mask & UP_STEPPING) {                 /* a call of the stepping phase, too early or too late */
+        if (I->state == UP_TERMINATED)
+            up_log_error(I, UP_MSG_AFTER_TERMINATE, fn, api);
+        else
+            up_log_error(I, UP_MSG_BEFORE_INIT, fn, api);
+        return NULL;
+    }
+    if (I->state == UP_INSTANTIATED)
+        snprintf(state, sizeof state, "before %sEnterInitializationMode", api);
+    else if (I->state == UP_INITIALISATION)
+        snprintf(state, sizeof state, "in initialisation mode");
+    else if (I->state == UP_STEPPING)
+        snprintf(state, sizeof state, "after initialisation (%sReset first)", api);
+    else
+        snprintf(state, sizeof state, "after %sTerminate (%sReset first)", api, api);
+    up_log_error(I, UP_MSG_WRONG_STATE, fn, state, I->api->standard);
+    return NULL;
+}
+
+int up_set_logging(UpInstance *I, const char *fn, int on, size_t n, const char *const categories[])
+{
+    if (n > 0 && !categories) {
+        up_log_error(I, "%s: categories is NULL with nCategories = %zu", fn, n);
+        return -1;
+    }
+    for (size_t k = 0; k < n; k++)
+        if (!categories[k] || (strcmp(categories[k], "logEvents") && strcmp(categories[k], "logStatusError"))) {
+            up_log_error(I, "%s: unknown log category %s (this FMU has logEvents and logStatusError)", fn,
+                         categories[k] ? categories[k] : "(null)");
+            return -1;
+        }
+    I->logging = on;
+    return 0;
 }
 
 
@@ -76,10 +131,21 @@ static uint64_t hash_text(const char *s)
     return h;
 }
 
-/* resources folder URI (file:///path, file:/path, or a plain path) -> path of uplift.bin */
-static int resource_path(const char *uri, char *out, size_t size)
+/* resources folder URI (file:///path, file:/path, or a plain path; uri = 0: a path, as is) ->
+   path of uplift.bin */
+static int resource_path(const char *location, int uri, char *out, size_t size)
 {
-    const char *p = uri;
+    const char *p = location;
+    if (!uri) {
+        size_t k = strlen(p);
+        while (k > 0 && (p[k - 1] == '/' || p[k - 1] == '\\'))
+            k--;
+        if (k + 12 > size)
+            return -1;
+        memcpy(out, p, k);
+        strcpy(out + k, "/uplift.bin");
+        return 0;
+    }
     if (strncmp(p, "file://", 7) == 0) {
         p += 7;
         if (strncmp(p, "localhost/", 10) == 0)
@@ -171,12 +237,13 @@ static int read_layout(UpInstance *I)
     return 0;
 }
 
-int up_setup(UpInstance *I, const char *guid, const char *uri)
+static int setup(UpInstance *I, const char *guid, const char *location, int uri)
 {
     char path[1024];
-    if (!uri || resource_path(uri, path, sizeof path)) {
-        snprintf(I->err, UP_MSG, "fmuResourceLocation %s is not a file URI of the FMU's resources folder",
-                 uri ? uri : "(null)");
+    if (!location || resource_path(location, uri, path, sizeof path)) {
+        snprintf(I->err, UP_MSG, uri ? "fmuResourceLocation %s is not a file URI of the FMU's resources folder"
+                                     : "resourcePath %s is not the path of the FMU's resources folder",
+                 location ? location : "(null)");
         return -1;
     }
     if (up_res_load(&I->res, path, I->err))
@@ -212,8 +279,15 @@ int up_setup(UpInstance *I, const char *guid, const char *uri)
             I->has_motion = I->nt > 0;
         }
     }
-    I->N = (int)N;
+    I->N = I->has_stepper ? (int)N : I->n - 6;        /* the soil: n = 6 + N interface DOFs */
     I->nnodes = (int)nnodes;
+    if (up_res_find(&I->res, "fmi3_float64")) {   /* FMI 3.0: the Float64 variables over the elements */
+        int64_t dims[2] = {-1, 2};
+        if (!(I->vars3 = up_res_i64(&I->res, "fmi3_float64", 2, dims, I->err))
+            || int_scalar(I, "fmi3_vr_N", -1, 1e7, &I->vr3_N))
+            return -1;
+        I->nvars3 = dims[0];
+    }
     int64_t levels = 0;                         /* the soil's matrices at each halving level */
     if (read_layout(I) || (I->has_stepper && int_scalar(I, "contact_max_subdiv", 0, UP_MAXLEV - 1, &levels)))
         return -1;
@@ -231,6 +305,12 @@ int up_setup(UpInstance *I, const char *guid, const char *uri)
     } else {
         up_soil_level(&I->soil, 0, I->dt);
     }
+    for (int64_t k = 0; k < I->nvars3; k++)
+        if (I->vars3[2 * k] < -1 || I->vars3[2 * k + 1] < 1 || I->vars3[2 * k] + I->vars3[2 * k + 1] > I->n_real
+            || (I->vars3[2 * k] == -1 && I->vars3[2 * k + 1] != 1)) {       /* -1: the time */
+            snprintf(I->err, UP_MSG, "resource file %s: fmi3_float64 out of range: export the FMU again", I->res.path);
+            return -1;
+        }
     if (I->role == ROLE_STRUCTURE) {
         int64_t dims[2] = {n, n};
         if (!(I->Gx = up_res_f64(&I->res, "Gx", 2, dims, I->err)) || !(I->Gv = up_res_f64(&I->res, "Gv", 2, dims, I->err)))
@@ -266,6 +346,33 @@ int up_setup(UpInstance *I, const char *guid, const char *uri)
     if (I->has_stepper && up_stepper_prepare(&I->st, I->err))
         return -1;
     return 0;
+}
+
+UpInstance *up_instantiate(const UpApi *api, const char *name, const char *guid, const char *location, int uri,
+                           void (*logger)(void), void *env, int logging, const char *refusal)
+{
+    UpInstance *I = (UpInstance *)calloc(1, sizeof(UpInstance));
+    if (!I)
+        return NULL;
+    I->magic = UP_INSTANCE_MAGIC;
+    I->api = api;
+    I->stop_time = INFINITY;
+    snprintf(I->name, sizeof I->name, "%s", name ? name : "uplift");
+    I->logger = logger;
+    I->env = env;
+    I->logging = logging;
+    if (!name || !*name)
+        snprintf(I->err, UP_MSG, "instanceName is empty: give the instance a name");
+    else if (refusal)
+        snprintf(I->err, UP_MSG, "%s", refusal);
+    else if (setup(I, guid, location, uri) == 0) {
+        I->state = UP_INSTANTIATED;
+        up_log_event(I, "instantiated from %s: %d Real variables, dt = %g s", I->res.path, I->n_real, I->dt);
+        return I;
+    }
+    up_log_error(I, "instantiation failed: %s", I->err);
+    up_free_instance(I);
+    return NULL;
 }
 
 void up_free_instance(UpInstance *I)

@@ -1,6 +1,8 @@
 /* The model at the FMI boundary: the initial state at t = 0, one step of dt from t (the soil,
    the structure with the split coupling's stamped inputs, or both: fmus/coupling.py), the
-   outputs published into the variables. */
+   outputs published into the variables; the life cycle and the communication step both FMI
+   versions share (a step at the wrong time, not finite or negative, past the stop time, of the
+   wrong size, with a non-finite input or a wrong stamp is refused; see fmi2.c). */
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -75,9 +77,8 @@ int up_initial_state(UpInstance *I)
         memcpy(ag0, up_var(I, S_AG), sizeof ag0);
         for (int c = 0; c < 3; c++)
             if (!isfinite(ag0[c])) {
-                char b[32];
-                snprintf(I->err, UP_MSG, "input ag[%d] = %s at initialisation: inputs must be finite (check what "
-                         "is connected to it)", c, up_num(ag0[c], b));
+                char b[32], name[48];
+                snprintf(I->err, UP_MSG, UP_MSG_NOT_FINITE, up_element_name(I, S_AG, c, name), up_num(ag0[c], b));
                 return -1;
             }
     }
@@ -159,3 +160,129 @@ int up_step(UpInstance *I, double t)
     return 0;
 }
 
+
+/* ---- the life cycle and the communication step (both FMI versions) -------------------------------- */
+int up_setup_experiment(UpInstance *I, const char *fn, int stop_defined, double start, double stop)
+{
+    if (stop_defined && !(stop >= start)) {
+        char b1[32], b2[32];
+        up_log_error(I, "%s: stop time %s s before the start time %s s", fn, up_num(stop, b1), up_num(start, b2));
+        return -1;
+    }
+    I->start_time = start;
+    I->stop_time = stop_defined ? stop : INFINITY;
+    return 0;
+}
+
+int up_enter_initialisation(UpInstance *I)
+{
+    if (up_initial_state(I)) {
+        up_log_error(I, "initialisation failed: %s", I->err);
+        return UP_ERROR;
+    }
+    I->state = UP_INITIALISATION;
+    return UP_OK;
+}
+
+int up_exit_initialisation(UpInstance *I)
+{
+    if (up_initial_state(I)) {                 /* inputs and parameters set during initialisation */
+        up_log_error(I, "initialisation failed: %s", I->err);
+        return UP_ERROR;
+    }
+    I->state = UP_STEPPING;
+    return UP_OK;
+}
+
+void up_reset(UpInstance *I)
+{
+    memset(I->block, 0, I->block_len * sizeof(double));
+    *I->internal_motion = I->has_motion;
+    I->start_time = 0.0;
+    I->stop_time = INFINITY;
+    I->state = UP_INSTANTIATED;
+}
+
+/* a call that cannot be right: UP_ERROR, logged, the instance as it was */
+static int refuse(UpInstance *I, double t, const char *why)
+{
+    char b[32];
+    up_log_error(I, UP_MSG_REFUSED, up_num(t, b), why);
+    return UP_ERROR;
+}
+
+/* The number of steps of dt in a communication step of h from t (0: a sliver, a no-op), or -1
+   with the reason in why (fmus.schema: SLIVER, STEP_RTOL, TIME_TOL, MAX_STEPS_PER_CALL) */
+static double steps_of(UpInstance *I, double t, double h, char *why)
+{
+    char b1[32], b2[32], b3[32];
+    double dt = I->dt;
+    if (!(isfinite(t) && fabs(t - *I->time) <= UP_TIME_TOL * dt)) {
+        snprintf(why, UP_MSG, UP_MSG_WRONG_TIME, up_num(*I->time, b1));
+        return -1;
+    }
+    if (!(isfinite(h) && h >= 0)) {
+        snprintf(why, UP_MSG, UP_MSG_BAD_STEP, up_num(h, b1));
+        return -1;
+    }
+    if (t + h > I->stop_time + UP_TIME_TOL * dt) {
+        snprintf(why, UP_MSG, UP_MSG_PAST_STOP, up_num(h, b1), up_num(t + h, b2), up_num(I->stop_time, b3),
+                 I->api->setup);
+        return -1;
+    }
+    if (h < UP_SLIVER * dt)
+        return 0;
+    /* the coupled FMU takes any multiple of dt (steps of dt inside); the pair exactly dt, the
+       step its coupling is exchanged at */
+    int multistep = I->role == ROLE_COUPLED;
+    double steps = multistep ? floor(h / dt + 0.5) : 1.0;
+    if (steps > UP_MAX_STEPS_PER_CALL) {
+        snprintf(b2, sizeof b2, "%d", UP_MAX_STEPS_PER_CALL);
+        snprintf(why, UP_MSG, UP_MSG_TOO_MANY_STEPS, up_num(h, b1), b2, up_num(dt, b3));
+        return -1;
+    }
+    if (!(steps >= 1 && fabs(h - steps * dt) <= UP_STEP_RTOL * h)) {
+        snprintf(why, UP_MSG, UP_MSG_WRONG_STEP, up_num(h, b1), multistep ? "a multiple" : "exactly", up_num(dt, b2));
+        return -1;
+    }
+    for (int k = 0; k < NSLOT; k++) {
+        if (I->slot[k] < 0 || I->causality[I->slot[k]] != 0)
+            continue;                                         /* the inputs only */
+        const double *v = up_var(I, k);
+        for (int i = 0; i < I->slot_len[k]; i++)
+            if (!isfinite(v[i])) {
+                char name[48];
+                snprintf(why, UP_MSG, UP_MSG_NOT_FINITE, up_element_name(I, k, i, name), up_num(v[i], b1));
+                return -1;
+            }
+    }
+    return steps;
+}
+
+/* the communication step from t of h: UP_OK; UP_ERROR for a call that cannot be right, UP_DISCARD
+   for a step whose Newton iteration fails (after its halvings), the instance as it was, logged */
+int up_do_step(UpInstance *I, double t, double h)
+{
+    char b1[32], why[UP_MSG];
+    double steps = steps_of(I, t, h, why);
+    if (steps < 0)
+        return refuse(I, t, why);
+    if (steps == 0) {                                         /* a sliver: nothing to compute */
+        *I->time = t + h;
+        return UP_OK;
+    }
+    memcpy(I->backup, I->block, I->block_len * sizeof(double));
+    int rc = 0;
+    for (long i = 0; i < (long)steps && rc == 0; i++)
+        rc = up_step(I, t + (double)i * I->dt);
+    if (rc) {
+        memcpy(I->block, I->backup, I->block_len * sizeof(double));     /* the instance as it was */
+        if (rc == UP_REFUSED)
+            return refuse(I, t, I->err);
+        up_log_error(I, "step from t = %s s failed: %s", up_num(t, b1), I->err);
+        return UP_DISCARD;                                            /* no Newton convergence */
+    }
+    *I->time = t + h;
+    up_log_event(I, "step from t = %s s: %ld step(s) of dt", up_num(t, b1), (long)steps);
+    return UP_OK;
+}

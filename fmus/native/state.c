@@ -1,5 +1,6 @@
 /* FMU states of a native uplift FMU: the whole state block (time, variables, held stamped
-   inputs, stepper and soil) copied by fmi2GetFMUstate / fmi2SetFMUstate, and serialised as
+   inputs, stepper and soil) copied by Get/SetFMUstate (fmi2.c, fmi3.c: the entry points call
+   the functions here), and serialised as
 
      offset  size  field
      0       8     magic "UPLIFTST" (uint64 0x55504c4946545354)
@@ -10,7 +11,7 @@
      32            the block
 
    A buffer that fails any check (size, magic, version, checksum, identity, length) is refused
-   with fmi2Error and the reason in the log; nothing is allocated and the instance is unchanged. */
+   with an error and the reason in the log; nothing is allocated and the instance is unchanged. */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -38,11 +39,12 @@ uint32_t up_crc32(const unsigned char *p, size_t n)
     return c ^ 0xFFFFFFFFu;
 }
 
-static State *checked_state(UpInstance *I, fmi2FMUstate s, const char *fn)
+static State *checked_state(UpInstance *I, void *s, const char *fn)
 {
     State *S = (State *)s;
     if (!S || S->magic != STATE_MAGIC || S->guid_hash != I->guid_hash || S->len != I->block_len) {
-        up_log_error(I, "%s: not an FMU state of this FMU (get it with fmi2GetFMUstate or fmi2DeSerializeFMUstate)", fn);
+        up_log_error(I, "%s: not an FMU state of this FMU (get it from this FMU: get the FMU state, or "
+                     "deserialise one)", fn);
         return NULL;
     }
     return S;
@@ -59,75 +61,69 @@ static State *new_state(UpInstance *I)
     return S;
 }
 
-fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *s)
+int up_state_get(UpInstance *I, const char *fn, void **s)
 {
-    UP_GUARD(fmi2GetFMUstate);
     if (!s) {
-        up_log_error(I, "fmi2GetFMUstate: FMUstate pointer is NULL");
-        return fmi2Error;
+        up_log_error(I, "%s: FMUstate pointer is NULL", fn);
+        return -1;
     }
     State *S = (State *)*s;
-    if (S && !checked_state(I, S, "fmi2GetFMUstate"))
-        return fmi2Error;
+    if (S && !checked_state(I, S, fn))
+        return -1;
     if (!S && !(S = new_state(I))) {
-        up_log_error(I, "fmi2GetFMUstate: out of memory");
-        return fmi2Error;
+        up_log_error(I, "%s: out of memory", fn);
+        return -1;
     }
     memcpy(S->data, I->block, I->block_len * sizeof(double));
     *s = S;
-    return fmi2OK;
+    return 0;
 }
 
-fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate s)
+int up_state_set(UpInstance *I, const char *fn, void *s)
 {
-    UP_GUARD(fmi2SetFMUstate);
-    State *S = checked_state(I, s, "fmi2SetFMUstate");
+    State *S = checked_state(I, s, fn);
     if (!S)
-        return fmi2Error;
+        return -1;
     memcpy(I->block, S->data, I->block_len * sizeof(double));
-    return fmi2OK;
+    return 0;
 }
 
-fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *s)
+int up_state_free(UpInstance *I, const char *fn, void **s)
 {
-    UP_GUARD(fmi2FreeFMUstate);
     if (!s) {
-        up_log_error(I, "fmi2FreeFMUstate: FMUstate pointer is NULL");
-        return fmi2Error;
+        up_log_error(I, "%s: FMUstate pointer is NULL", fn);
+        return -1;
     }
-    if (*s && !checked_state(I, *s, "fmi2FreeFMUstate"))
-        return fmi2Error;
+    if (*s && !checked_state(I, *s, fn))
+        return -1;
     if (*s)
         ((State *)*s)->magic = 0;
     free(*s);
     *s = NULL;
-    return fmi2OK;
+    return 0;
 }
 
-fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate s, size_t *size)
+int up_state_size(UpInstance *I, const char *fn, void *s, size_t *size)
 {
-    UP_GUARD(fmi2SerializedFMUstateSize);
     if (!size) {
-        up_log_error(I, "fmi2SerializedFMUstateSize: size pointer is NULL");
-        return fmi2Error;
+        up_log_error(I, "%s: size pointer is NULL", fn);
+        return -1;
     }
-    if (!checked_state(I, s, "fmi2SerializedFMUstateSize"))
-        return fmi2Error;
+    if (!checked_state(I, s, fn))
+        return -1;
     *size = SER_HEADER + I->block_len * sizeof(double);
-    return fmi2OK;
+    return 0;
 }
 
-fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate s, fmi2Byte bytes[], size_t size)
+int up_state_serialize(UpInstance *I, const char *fn, void *s, unsigned char *b, size_t size)
 {
-    UP_GUARD(fmi2SerializeFMUstate);
-    State *S = checked_state(I, s, "fmi2SerializeFMUstate");
+    State *S = checked_state(I, s, fn);
     if (!S)
-        return fmi2Error;
-    if (!bytes || size != SER_HEADER + S->len * sizeof(double)) {
-        up_log_error(I, "fmi2SerializeFMUstate: give a buffer of fmi2SerializedFMUstateSize bytes");
-        return fmi2Error;
+        return -1;
+    if (!b || size != SER_HEADER + S->len * sizeof(double)) {
+        up_log_error(I, "%s: give a buffer of the serialised state's size (SerializedFMUstateSize)", fn);
+        return -1;
     }
-    unsigned char *b = (unsigned char *)bytes;
     uint64_t magic = STATE_MAGIC, len = (uint64_t)S->len;
     uint32_t version = UP_STATE_VERSION;
     memcpy(b, &magic, 8);
@@ -137,7 +133,7 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate s, fmi2Byte bytes
     memcpy(b + SER_HEADER, S->data, S->len * sizeof(double));
     uint32_t crc = up_crc32(b + 16, size - 16);
     memcpy(b + 12, &crc, 4);
-    return fmi2OK;
+    return 0;
 }
 
 /* NULL, or why the bytes are not a serialised state of this instance's FMU (buf: 64 chars) */
@@ -172,22 +168,21 @@ static const char *state_fault(UpInstance *I, const unsigned char *b, size_t siz
     return NULL;
 }
 
-fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte bytes[], size_t size, fmi2FMUstate *s)
+int up_state_deserialize(UpInstance *I, const char *fn, const unsigned char *bytes, size_t size, void **s)
 {
-    UP_GUARD(fmi2DeSerializeFMUstate);
     char buf[160], sz[32];
-    const char *why = !s || !bytes ? "NULL bytes or state pointer" : state_fault(I, (const unsigned char *)bytes, size, buf);
+    const char *why = !s || !bytes ? "NULL bytes or state pointer" : state_fault(I, bytes, size, buf);
     if (why) {
         snprintf(sz, sizeof sz, "%zu", size);
-        up_log_error(I, "fmi2DeSerializeFMUstate: " UP_MSG_BAD_STATE, sz, why);
-        return fmi2Error;
+        up_log_error(I, "%s: " UP_MSG_BAD_STATE, fn, sz, why);
+        return -1;
     }
     State *S = new_state(I);
     if (!S) {
-        up_log_error(I, "fmi2DeSerializeFMUstate: out of memory");
-        return fmi2Error;
+        up_log_error(I, "%s: out of memory", fn);
+        return -1;
     }
-    memcpy(S->data, (const unsigned char *)bytes + SER_HEADER, S->len * sizeof(double));
+    memcpy(S->data, bytes + SER_HEADER, S->len * sizeof(double));
     *s = S;
-    return fmi2OK;
+    return 0;
 }

@@ -1,29 +1,25 @@
-/* The instance of a native uplift FMU and what the runtime's FMI files share:
+/* The instance of a native uplift FMU and what the runtime's FMI files share, with no FMI
+   header: the entry layers fmi2.c (FMI 2.0) and fmi3.c (FMI 3.0) include theirs and call
      instance.c   instantiation: the resource file, the layout of the variables, the state block
-     model.c      the model at the FMI boundary: initial state, one step of dt, the outputs
-     variables.c  fmi2Get/Set of the variables
+     model.c      the model at the FMI boundary: initial state, the communication step, the outputs
+     variables.c  get/set of the variables by element
      state.c      FMU states: get, set, serialise (versioned, identified, CRC-32 checked)
-     fmi2.c       the FMI 2.0 entry points of the life cycle and the step; the allowed-state
-                  mask of every entry point, checked by one guard (up_guard)
-   The refusal messages shared with the Python FMUs are in uplift_messages.h (generated from
-   fmus/schema.py). */
+   An entry point opens with UP_GUARD(its name): the instance, if it is one and the call is
+   allowed in its state (the mask MASK_<name> below, one per entry point of both versions),
+   else the entry point returns its error status with the reason logged. The status codes are the
+   values fmi2Status and fmi3Status share. The refusal messages shared with the Python FMUs are
+   in uplift_messages.h (generated from fmus/schema.py). */
 #ifndef UPLIFT_FMU_H
 #define UPLIFT_FMU_H
 
-#include "fmi2Functions.h"
 #include "uplift.h"
 #include "uplift_messages.h"
 
-/* FMI2_FUNCTION_PREFIX prefixes the entry points too, also with FMI 2.0 headers whose
-   fmi2FullName ignores it (fmpy's) */
-#ifdef FMI2_FUNCTION_PREFIX
-#undef fmi2FullName
-#define fmi2FullName(name) UP_PASTE(FMI2_FUNCTION_PREFIX, name)
-#endif
+enum { UP_OK = 0, UP_WARNING = 1, UP_DISCARD = 2, UP_ERROR = 3 };
 
 enum { ROLE_SOIL, ROLE_STRUCTURE, ROLE_COUPLED };
 
-/* the FMI states of an instance, one bit each (the masks of fmi2.c are unions of them) */
+/* the FMI states of an instance, one bit each (the masks are unions of them) */
 enum { UP_INSTANTIATED = 1 << 0, UP_INITIALISATION = 1 << 1, UP_STEPPING = 1 << 2, UP_TERMINATED = 1 << 3 };
 #define UP_ANY_STATE (UP_INSTANTIATED | UP_INITIALISATION | UP_STEPPING | UP_TERMINATED)
 
@@ -33,12 +29,23 @@ enum { S_X, S_XDOT, S_X_TIME, S_G, S_G_TIME, S_F, S_DISS, S_AG, S_P, S_GAP, S_NO
        S_MAX_UPLIFT, S_MAX_ROTATION, NSLOT };
 extern const char *const up_slot_names[NSLOT];
 
+typedef struct UpInstance UpInstance;
+
+/* what an entry layer gives the instance: its version's names and its logger */
 typedef struct {
+    const char *api;           /* "fmi2", "fmi3": the prefix of the entry points */
+    const char *standard;      /* "FMI 2.0", "FMI 3.0" */
+    const char *setup;         /* the call that takes the stop time */
+    void (*emit)(UpInstance *I, int status, const char *category, const char *message);
+} UpApi;
+
+struct UpInstance {
     uint64_t magic;
     int role, state, logging;
     char name[256];
-    fmi2CallbackLogger logger;
-    fmi2ComponentEnvironment env;
+    const UpApi *api;
+    void (*logger)(void);                   /* the host's logger, called through api->emit */
+    void *env;
     UpRes res;
     UpSoil soil;
     UpStepper st;
@@ -50,8 +57,11 @@ typedef struct {
     const double *motion;                   /* (nt, 3) or NULL */
     int64_t nt, vr_internal_motion;
     int has_motion;
+    const int64_t *vars3;                   /* FMI 3.0: (nvars3, 2) first element (-1: the time), length of each
+                                               Float64 variable */
+    int64_t nvars3, vr3_N;
     const double *Gx, *Gv;                  /* (n, n), structure only */
-    double dt, start_time, stop_time;       /* stop_time: +inf unless fmi2SetupExperiment defines it */
+    double dt, start_time, stop_time;       /* stop_time: +inf unless the host defines it */
     uint64_t guid_hash;
     /* the state block and its parts */
     double *block, *backup, *saves, *tmp;
@@ -59,34 +69,60 @@ typedef struct {
     double *time, *internal_motion, *held_t, *bank, *held;
     int held_len;
     char err[UP_MSG];
-} UpInstance;
+};
 
 #define UP_INSTANCE_MAGIC 0x75706c6966744e42ULL       /* "upliftNB" */
 
 /* instance.c */
-UpInstance *up_instance(fmi2Component c);                    /* NULL unless a live instance */
-int up_setup(UpInstance *I, const char *guid, const char *uri);
+UpInstance *up_instance(void *c);                             /* NULL unless a live instance */
+/* a new instance (NULL: out of memory, or a bad name or setup, logged); location: the resources
+   folder, a file URI (FMI 2.0) or a path (FMI 3.0, uri = 0) */
+UpInstance *up_instantiate(const UpApi *api, const char *name, const char *guid, const char *location, int uri,
+                           void (*logger)(void), void *env, int logging, const char *refusal);
 void up_free_instance(UpInstance *I);
 void up_log_error(UpInstance *I, const char *fmt, ...);       /* logStatusError, always */
 void up_log_event(UpInstance *I, const char *fmt, ...);       /* logEvents, when logging is on */
 const char *up_num(double v, char *buf);                      /* shortest round-trip decimal, buf[32] */
+const char *up_element_name(const UpInstance *I, int slot, int i, char *buf);   /* "x[3]", "ag_x", buf[48] */
+UpInstance *up_guard(void *c, int mask, const char *fn);
+int up_set_logging(UpInstance *I, const char *fn, int on, size_t n, const char *const categories[]);
+/* UP_ERROR_STATUS: the entry layer's error status (fmi2Error, fmi3Error) */
+#define UP_GUARD(fn)                                    \
+    UpInstance *I = up_guard(c, MASK_##fn, #fn);        \
+    if (!I)                                             \
+    return UP_ERROR_STATUS
 
 /* model.c */
 enum { UP_REFUSED = 1, UP_FAILED = 2 };
 double *up_var(UpInstance *I, int slot);
 int up_initial_state(UpInstance *I);                          /* 0, or -1 with I->err */
 int up_step(UpInstance *I, double t);                         /* 0, UP_REFUSED or UP_FAILED with I->err */
+int up_setup_experiment(UpInstance *I, const char *fn, int stop_defined, double start, double stop);  /* 0 / -1 */
+int up_enter_initialisation(UpInstance *I);                   /* UP_OK or UP_ERROR, logged */
+int up_exit_initialisation(UpInstance *I);
+void up_reset(UpInstance *I);
+int up_do_step(UpInstance *I, double t, double h);           /* UP_OK, UP_DISCARD or UP_ERROR, logged */
 
-/* fmi2.c: the guard opening every entry point: the instance, if it is one and the call is
-   allowed in its state (mask: MASK_<entry point>), else NULL with the reason logged */
-UpInstance *up_guard(fmi2Component c, int mask, const char *fn);
-#define UP_GUARD(fn)                                    \
-    UpInstance *I = up_guard(c, MASK_##fn, #fn);        \
-    if (!I)                                             \
-    return fmi2Error
+/* variables.c: the Real variables by element (value references 0 .. n_real - 1), the Boolean */
+int up_check_refs(UpInstance *I, const char *fn, const unsigned int vr[], size_t nvr, const void *value);
+int up_get_reals(UpInstance *I, const char *fn, const unsigned int vr[], size_t nvr, double value[]);
+int up_set_reals(UpInstance *I, const char *fn, const unsigned int vr[], size_t nvr, const double value[]);
+int up_boolean_refs(UpInstance *I, const char *fn, const unsigned int vr[], size_t nvr, const void *value,
+                    int setting);
+int up_no_variables(UpInstance *I, const char *fn, const char *type, const unsigned int vr[], size_t nvr,
+                    const void *value);
 
-/* the states each entry point is allowed in (FMI 2.0, co-simulation state machine; queries and
-   FMU states in every state; fmi2Terminate also ends a failed start) */
+/* state.c: FMU states (0, or -1 with the reason logged) */
+uint32_t up_crc32(const unsigned char *p, size_t n);
+int up_state_get(UpInstance *I, const char *fn, void **s);
+int up_state_set(UpInstance *I, const char *fn, void *s);
+int up_state_free(UpInstance *I, const char *fn, void **s);
+int up_state_size(UpInstance *I, const char *fn, void *s, size_t *size);
+int up_state_serialize(UpInstance *I, const char *fn, void *s, unsigned char *bytes, size_t size);
+int up_state_deserialize(UpInstance *I, const char *fn, const unsigned char *bytes, size_t size, void **s);
+
+/* the states each entry point is allowed in (the co-simulation state machines; queries and FMU
+   states in every state; Terminate also ends a failed start) */
 #define MASK_fmi2SetDebugLogging UP_ANY_STATE
 #define MASK_fmi2SetupExperiment UP_INSTANTIATED
 #define MASK_fmi2EnterInitializationMode UP_INSTANTIATED
@@ -108,10 +144,28 @@ UpInstance *up_guard(fmi2Component c, int mask, const char *fn);
 #define MASK_fmi2DoStep UP_STEPPING
 #define MASK_fmi2CancelStep UP_STEPPING
 
-/* variables.c */
-int up_check_refs(UpInstance *I, const char *fn, const fmi2ValueReference vr[], size_t nvr, const void *value);
-
-/* state.c */
-uint32_t up_crc32(const unsigned char *p, size_t n);
+#define MASK_fmi3SetDebugLogging UP_ANY_STATE
+#define MASK_fmi3EnterInitializationMode UP_INSTANTIATED
+#define MASK_fmi3ExitInitializationMode UP_INITIALISATION
+#define MASK_fmi3EnterEventMode UP_STEPPING        /* refused: the FMU has no event mode */
+#define MASK_fmi3EnterStepMode 0                   /* event mode only, never entered */
+#define MASK_fmi3EnterConfigurationMode (UP_INSTANTIATED | UP_STEPPING)   /* refused: N is fixed */
+#define MASK_fmi3ExitConfigurationMode 0
+#define MASK_fmi3Terminate UP_ANY_STATE
+#define MASK_fmi3Reset UP_ANY_STATE
+#define MASK_fmi3GetFloat64 UP_ANY_STATE
+#define MASK_fmi3SetFloat64 (UP_INSTANTIATED | UP_INITIALISATION | UP_STEPPING)
+#define MASK_fmi3GetUInt64 UP_ANY_STATE
+#define MASK_fmi3SetUInt64 UP_ANY_STATE           /* N: a structural parameter, refused */
+#define MASK_fmi3GetBoolean UP_ANY_STATE
+#define MASK_fmi3SetBoolean UP_ANY_STATE          /* internal_motion: fixed, checked by variability */
+#define MASK_fmi3GetFMUState UP_ANY_STATE
+#define MASK_fmi3SetFMUState UP_ANY_STATE
+#define MASK_fmi3FreeFMUState UP_ANY_STATE
+#define MASK_fmi3SerializedFMUStateSize UP_ANY_STATE
+#define MASK_fmi3SerializeFMUState UP_ANY_STATE
+#define MASK_fmi3DeserializeFMUState UP_ANY_STATE
+#define MASK_fmi3GetOutputDerivatives UP_ANY_STATE
+#define MASK_fmi3DoStep UP_STEPPING
 
 #endif

@@ -14,7 +14,8 @@
                 (structure/newmark.py, NewmarkStepper)
      linalg.c   dense LU with partial pivoting, matrix-vector products
      resources.c the binary resource file
-     instance.c, model.c, variables.c, state.c, fmi2.c   the FMI 2.0 side (include/fmu.h)
+     instance.c, model.c, variables.c, state.c   the FMI side both versions share (include/fmu.h)
+     fmi2.c, fmi3.c                              the FMI 2.0 and FMI 3.0 entry points
 
    Units: SI throughout (m, rad, s, N, J). Matrices are dense, row-major. */
 #ifndef UPLIFT_H
@@ -24,21 +25,33 @@
 #include <stdint.h>
 
 /* Symbols. Everything the runtime's files share is named up_*; entry points are the FMI 2.0
-   functions. A tool that compiles several FMUs' sources into one binary defines
-   FMI2_FUNCTION_PREFIX (as fmi2Functions.h asks of source-code FMUs, e.g. UpliftSoil_): the
-   FMI functions and every up_* symbol then carry that prefix, so that two runtimes linked
-   together do not collide. */
-#ifdef FMI2_FUNCTION_PREFIX
+   (fmi2.c) or the FMI 3.0 (fmi3.c) functions. A tool that compiles several FMUs' sources into
+   one binary defines FMI2_FUNCTION_PREFIX or FMI3_FUNCTION_PREFIX (as the FMI headers ask of
+   source-code FMUs, e.g. UpliftSoil_): the FMI functions and every up_* symbol then carry that
+   prefix, so that two runtimes linked together do not collide. */
+#if defined(FMI2_FUNCTION_PREFIX)
+#define UP_PREFIX FMI2_FUNCTION_PREFIX
+#elif defined(FMI3_FUNCTION_PREFIX)
+#define UP_PREFIX FMI3_FUNCTION_PREFIX
+#endif
 #define UP_PASTE_(a, b) a##b
 #define UP_PASTE(a, b) UP_PASTE_(a, b)
-#define UP_SYM(name) UP_PASTE(FMI2_FUNCTION_PREFIX, name)
+#ifdef UP_PREFIX
+#define UP_SYM(name) UP_PASTE(UP_PREFIX, name)
 #define up_check_refs UP_SYM(up_check_refs)
 #define up_crc32 UP_SYM(up_crc32)
 #define up_dot UP_SYM(up_dot)
+#define up_element_name UP_SYM(up_element_name)
+#define up_boolean_refs UP_SYM(up_boolean_refs)
+#define up_do_step UP_SYM(up_do_step)
+#define up_enter_initialisation UP_SYM(up_enter_initialisation)
+#define up_exit_initialisation UP_SYM(up_exit_initialisation)
 #define up_free_instance UP_SYM(up_free_instance)
+#define up_get_reals UP_SYM(up_get_reals)
 #define up_guard UP_SYM(up_guard)
 #define up_initial_state UP_SYM(up_initial_state)
 #define up_instance UP_SYM(up_instance)
+#define up_instantiate UP_SYM(up_instantiate)
 #define up_log_error UP_SYM(up_log_error)
 #define up_log_event UP_SYM(up_log_event)
 #define up_lu UP_SYM(up_lu)
@@ -55,6 +68,7 @@
 #define up_sparse_matvec UP_SYM(up_sparse_matvec)
 #define up_axpy UP_SYM(up_axpy)
 #define up_norm UP_SYM(up_norm)
+#define up_no_variables UP_SYM(up_no_variables)
 #define up_num UP_SYM(up_num)
 #define up_res_f64 UP_SYM(up_res_f64)
 #define up_res_find UP_SYM(up_res_find)
@@ -63,7 +77,10 @@
 #define up_res_load UP_SYM(up_res_load)
 #define up_res_parse UP_SYM(up_res_parse)
 #define up_res_scalar UP_SYM(up_res_scalar)
-#define up_setup UP_SYM(up_setup)
+#define up_reset UP_SYM(up_reset)
+#define up_set_logging UP_SYM(up_set_logging)
+#define up_set_reals UP_SYM(up_set_reals)
+#define up_setup_experiment UP_SYM(up_setup_experiment)
 #define up_simulate UP_SYM(up_simulate)
 #define up_slot_names UP_SYM(up_slot_names)
 #define up_soil_ahead UP_SYM(up_soil_ahead)
@@ -77,6 +94,12 @@
 #define up_soil_rest UP_SYM(up_soil_rest)
 #define up_soil_state_len UP_SYM(up_soil_state_len)
 #define up_soil_step UP_SYM(up_soil_step)
+#define up_state_deserialize UP_SYM(up_state_deserialize)
+#define up_state_free UP_SYM(up_state_free)
+#define up_state_get UP_SYM(up_state_get)
+#define up_state_serialize UP_SYM(up_state_serialize)
+#define up_state_set UP_SYM(up_state_set)
+#define up_state_size UP_SYM(up_state_size)
 #define up_step UP_SYM(up_step)
 #define up_stepper_bind UP_SYM(up_stepper_bind)
 #define up_stepper_energies UP_SYM(up_stepper_energies)

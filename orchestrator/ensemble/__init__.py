@@ -1,0 +1,65 @@
+"""Ensembles of records: one scene run under many motions at several PGAs, on dask.distributed,
+reduced to one ``xarray.Dataset`` with the fractiles over the records.
+
+A design or fragility study runs a set of recorded (or spectrum-matched) motions, each scaled
+to each intensity level, and reads fractiles over the records. Here a *cell* is one (record,
+pga, route): exactly ``uplift run`` of the scene with that motion, i.e. the record file scaled
+so that its peak is the PGA (``[motion]`` kind = "record", scale = pga / peak of the file) or,
+without record files, the scene's synthetic motion at that PGA and seed. A cell keeps what the
+run's summary gives (``orchestrator.results.summary``: max uplift, max raft rotation, minimum
+contact ratio, wall time, status) and the floor response spectra of the scene's output nodes.
+
+What the cells share is computed once per ensemble, on the calling process, and scattered to
+the workers once (``orchestrator.run.prepare_run``): the BEM sweep, the rational fit and the
+proxy springs of the time-step checks. The step-doubling check of the time step
+(``run.step_doubling``, a warning) runs by default once, on the ensemble's strongest motion
+(largest Arias intensity over its strongest window, at the largest PGA), and stands for every
+cell; ``dt_check="each"`` checks every cell's own motion as ``uplift run`` does (it costs about
+one monolithic run more per cell). A cell's numbers do not depend on it.
+
+Cells run on a dask.distributed cluster: a LocalCluster of N worker processes, one thread
+each, dask's statistical profiler off and glibc's heap trimming (LOCAL_WORKER_CONFIG), or an
+existing cluster given by its scheduler address (its workers need this package and should run
+one thread each with the profiler off: ``DASK_DISTRIBUTED__WORKER__PROFILE__ENABLED=False dask
+worker ADDRESS --nthreads 1``). A cell runs
+under the thread discipline of a single run (one BLAS thread, ``$UPLIFT_THREADS``) and depends
+on its inputs only, not on the number of workers or the order of completion. A cell whose task
+fails (its worker killed more often than the scheduler allows, an exception) is recorded as
+"failed" with the reason; the others complete.
+
+Resuming: with an output file, every completed cell is written as it finishes to the folder
+``<output>.cells/`` (one small HDF5 file per cell, atomic, checksummed), named by a hash of its
+inputs (the scene's content, the record file's SHA-256, the PGA, the route, the dt check, the
+package's sources); the output file is assembled from them at the end. A rerun with the same
+output keeps the cells whose inputs match and computes the others (failed ones included).
+
+The dataset (``write_ensemble``: netCDF4 through h5netcdf, ``xarray.open_dataset(path,
+engine="h5netcdf")``) has the dimensions record, pga (g), route, node, direction (x, y, z),
+frequency (Hz) and quantile (0.16, 0.5, 0.84). Per cell: ``max_uplift`` (m),
+``max_raft_rotation`` (rad, sqrt(rx² + ry²)), ``min_contact_ratio`` (share of the interface
+nodes in contact, gap = 0, its minimum over time), ``floor_spectrum`` (5 % damped
+pseudo-acceleration, m/s², at FREQUENCIES_HZ; NaN in a direction of round-off response),
+``wall_time`` (the route's, s), ``cell_time`` (the whole cell on its worker, s), ``status``
+(converged | stopped | refused | failed), ``message``, ``warnings``. Per PGA and route: ``<name>_fractile`` over the records, from the
+converged cells only (numpy's linear quantiles), and ``converged_records``. Per record: the
+file and its SHA-256 and the scale factor of each PGA, or the seed.
+
+The package: ``plan`` (inputs checked, cells, keys), ``store`` (one cell's run and values, the
+cell store), ``cluster`` (the dask cluster and the cells run on it), ``dataset`` (assembly,
+file, summary), ``runner`` (``run_ensemble``).
+"""
+from .cluster import CONNECT_TIMEOUT_S, LOCAL_WORKER_CONFIG, default_workers
+from .dataset import (FRACTILE_VARIABLES, KIND, QUANTILES, assemble, ensemble_summary, is_ensemble_file,
+                      read_ensemble, write_ensemble)
+from .plan import (DT_CHECKS, RECORD_SUFFIXES, Cell, EnsembleError, Plan, Record, cell_key, code_digest,
+                   plan_ensemble, record_files)
+from .runner import run_ensemble, strongest_check
+from .store import (CELL_VARIABLES, DAMPING, DIRECTIONS, FAILED, FREQUENCIES_HZ, ROUNDOFF, TEXT_VARIABLES,
+                    CellStore, cell_values, run_cell)
+
+__all__ = ["CELL_VARIABLES", "CONNECT_TIMEOUT_S", "DAMPING", "DIRECTIONS", "DT_CHECKS", "FAILED",
+           "FRACTILE_VARIABLES", "FREQUENCIES_HZ", "KIND", "LOCAL_WORKER_CONFIG", "QUANTILES", "RECORD_SUFFIXES",
+           "ROUNDOFF", "TEXT_VARIABLES", "Cell", "CellStore", "EnsembleError", "Plan", "Record", "assemble",
+           "cell_key", "cell_values", "code_digest", "default_workers", "ensemble_summary", "is_ensemble_file",
+           "plan_ensemble", "read_ensemble", "record_files", "run_cell", "run_ensemble", "strongest_check",
+           "write_ensemble"]

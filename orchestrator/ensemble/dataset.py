@@ -1,0 +1,151 @@
+"""The ensemble's dataset: assembled from the cells, with the fractiles over the records;
+written (netCDF4 through h5netcdf, atomically, with a checksum of its data), read back
+(verified) and summarised."""
+from __future__ import annotations
+
+import time
+import warnings
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from soil_impedance.storage import CHECKSUM_ATTR, atomic_output, require_checksum, stamp_file
+from structure.results import Status
+
+from orchestrator.results import ResultsFileError, check_output_path
+
+from .plan import Plan
+from .store import CELL_VARIABLES, DAMPING, DIRECTIONS, FAILED, FREQUENCIES_HZ, TEXT_VARIABLES
+
+#: fractiles over the records of each PGA: 16th percentile, median, 84th percentile
+QUANTILES = (0.16, 0.5, 0.84)
+#: root attribute ``uplift_file`` of an ensemble file (``is_ensemble_file``)
+KIND = "ensemble"
+#: the cell numbers that get fractiles over the records (with the floor spectra)
+FRACTILE_VARIABLES = ("max_uplift", "max_raft_rotation", "min_contact_ratio", "floor_spectrum")
+
+
+def assemble(plan: Plan, values: dict, failures: dict, attrs: dict):
+    """The ensemble's xarray.Dataset (the package docstring) from the cells' values ({key: values};
+    a cell without values is "failed", with its reason from ``failures``)."""
+    import xarray as xr  # start-up cost (~0.5 s, pandas): only ensembles pay it
+    shape = (len(plan.records), len(plan.pgas), len(plan.routes))
+    numbers = {name: np.full(shape, np.nan) for name in CELL_VARIABLES}
+    text = {name: np.full(shape, "", dtype=object) for name in TEXT_VARIABLES}
+    spectra = np.full(shape + (len(plan.nodes), len(DIRECTIONS), FREQUENCIES_HZ.size), np.nan)
+    for cell in plan.cells:
+        v = values.get(cell.key)
+        if v is None:
+            text["status"][cell.index] = FAILED
+            text["message"][cell.index] = failures.get(cell.key, "not run")
+            continue
+        for name in CELL_VARIABLES:
+            numbers[name][cell.index] = v[name]
+        for name in TEXT_VARIABLES:
+            text[name][cell.index] = v[name]
+        spectra[cell.index] = v["floor_spectrum"]
+    cell_dims = ("record", "pga", "route")
+    ds = xr.Dataset(coords={
+        "record": ("record", [r.label for r in plan.records]),
+        "pga": ("pga", np.array(plan.pgas), {"units": "g", "long_name": "peak ground acceleration"}),
+        "route": ("route", list(plan.routes)),
+        "node": ("node", list(plan.nodes)),
+        "direction": ("direction", list(DIRECTIONS)),
+        "frequency": ("frequency", FREQUENCIES_HZ, {"units": "Hz"}),
+        "quantile": ("quantile", np.array(QUANTILES), {"long_name": "fractile over the records"})})
+    for name, (units, long_name) in CELL_VARIABLES.items():
+        ds[name] = (cell_dims, numbers[name], {"units": units, "long_name": long_name})
+    ds["floor_spectrum"] = (cell_dims + ("node", "direction", "frequency"), spectra,
+                            {"units": "m s-2", "long_name": f"{100 * DAMPING:g} % damped pseudo-acceleration "
+                                                            "response spectrum of the floor acceleration"})
+    for name in TEXT_VARIABLES:
+        ds[name] = (cell_dims, text[name].astype(str))
+    converged = text["status"] == Status.CONVERGED.value
+    ds["converged_records"] = (("pga", "route"), converged.sum(axis=0),
+                               {"long_name": "converged cells over the records (those of the fractiles)"})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)        # all-NaN slices: no converged record
+        for name in FRACTILE_VARIABLES:
+            a = ds[name].values
+            mask = converged.reshape(converged.shape + (1,) * (a.ndim - 3))
+            q = np.nanquantile(np.where(mask, a, np.nan), QUANTILES, axis=0)
+            ds[f"{name}_fractile"] = (("quantile",) + ds[name].dims[1:], q,
+                                      {**ds[name].attrs, "long_name": f"fractile over the records of {name}"})
+    files = [r for r in plan.records if r.file is not None]
+    if files:
+        ds["record_file"] = ("record", [str(r.file) for r in plan.records])
+        ds["record_sha256"] = ("record", [r.sha256 for r in plan.records])
+        ds["record_scale"] = (("record", "pga"), np.array([[r.scale(p) for p in plan.pgas] for r in plan.records]),
+                              {"long_name": "factor on the record file's values ([motion] scale)"})
+    else:
+        ds["seed"] = ("record", np.array([r.seed for r in plan.records]))
+    s = plan.scene
+    ds.attrs.update(uplift_file=KIND, scene=s.name, created=time.strftime("%Y-%m-%dT%H:%M:%S"),
+                    dt=s.analysis.dt, motion_direction=s.motion.direction, damping=DAMPING, **attrs)
+    return ds
+
+
+def write_ensemble(ds, path) -> Path:
+    """Write the dataset to ``path`` (netCDF4 through h5netcdf), atomically, with the checksum of
+    its content (``soil_impedance.storage``; a later append re-stamps it with
+    ``storage.atomic_update``)."""
+    path = check_output_path(path)
+    with atomic_output(path) as tmp:
+        ds.to_netcdf(tmp, engine="h5netcdf")
+        stamp_file(tmp)
+    return path
+
+
+def is_ensemble_file(path) -> bool:
+    """True if ``path`` is a file written by ``write_ensemble``."""
+    try:
+        with h5py.File(path, "r") as f:
+            kind = f.attrs.get("uplift_file")
+    except OSError:
+        return False
+    return (kind.decode() if isinstance(kind, bytes) else kind) == KIND
+
+
+def read_ensemble(path, group: str | None = None):
+    """The dataset of an ensemble file (loaded, the file closed; ``group``: a group appended to
+    it); ResultsFileError when it is missing or not one, ChangedFileError when it changed since
+    it was written."""
+    import xarray as xr  # start-up cost, see assemble
+    if not is_ensemble_file(path):
+        raise ResultsFileError(f"{path} is not an ensemble file of `uplift ensemble` (run `uplift ensemble SCENE "
+                               "--pga G ... -o FILE` to make one)")
+    with h5py.File(path, "r") as f:
+        require_checksum(f, path, "run `uplift ensemble` again with another -o to make a good one")
+    with xr.open_dataset(path, engine="h5netcdf", group=group) as ds:
+        ds = ds.load()
+    ds.attrs.pop(CHECKSUM_ATTR, None)          # the file's, not the data's: it changes with an append
+    return ds
+
+
+def ensemble_summary(ds) -> dict:
+    """The JSON summary of ``uplift ensemble --json``: cell counts (runs, converged, stopped,
+    refused, failed, computed, reused), workers and workers_note (why fewer than asked), wall_s,
+    cluster_s (starting or joining the cluster),
+    setup_s (sweep and fit), dt_check_s (the step-doubling check on the strongest motion); per
+    PGA and route the median and 84th percentile of the max uplift (m; None without a converged
+    record); the cells that did not converge with their reason."""
+    status = ds["status"].values
+    counts = {s: int((status == s).sum()) for s in ("converged", "stopped", "refused", FAILED)}
+    finite = lambda v: float(v) if np.isfinite(v) else None
+    fr = ds["max_uplift_fractile"]
+    per_pga = {f"{p:g}": {route: {"median_max_uplift_m": finite(fr.sel(quantile=0.5, pga=p, route=route)),
+                                   "p84_max_uplift_m": finite(fr.sel(quantile=0.84, pga=p, route=route)),
+                                   "converged_records": int(ds["converged_records"].sel(pga=p, route=route))}
+                           for route in ds["route"].values}
+               for p in ds["pga"].values}
+    others = [{"record": str(ds["record"].values[i]), "pga_g": float(ds["pga"].values[j]),
+               "route": str(ds["route"].values[k]), "status": str(status[i, j, k]),
+               "message": str(ds["message"].values[i, j, k])}
+              for i, j, k in zip(*np.nonzero(status != "converged"))]
+    a = ds.attrs
+    return {"scene": a["scene"], "runs": int(status.size), **counts, "computed": int(a["computed"]),
+            "reused": int(a["reused"]), "workers": int(a["workers"]), "workers_note": str(a.get("workers_note", "")),
+            "wall_s": float(a["wall_s"]),
+            "cluster_s": float(a["cluster_s"]), "setup_s": float(a["setup_s"]),
+            "dt_check_s": float(a["dt_check_s"]), "pga": per_pga, "not_converged": others}

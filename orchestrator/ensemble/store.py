@@ -1,0 +1,106 @@
+"""One cell of an ensemble: its run on a worker, the values it keeps, and the store of the
+completed cells beside the output file (for resuming)."""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from soil_impedance.cache import read_entry
+from soil_impedance.storage import atomic_output, stamp_checksum
+from structure.results import Status
+
+from orchestrator.results import ResultsFileError, summary
+from orchestrator.run import run_scene
+from orchestrator.scene import Scene
+from orchestrator.spectra import response_spectrum
+
+#: floor response spectra: frequencies (Hz) and damping ratio (those of a single run's figures)
+FREQUENCIES_HZ = np.geomspace(0.5, 40.0, 120)
+DAMPING = 0.05
+#: a direction whose floor acceleration stays below this share of the node's peak is round-off
+#: (e.g. y under an x motion of a symmetric structure): its spectrum is NaN, not computed (the
+#: rule of orchestrator.compare)
+ROUNDOFF = 1e-6
+DIRECTIONS = ("x", "y", "z")
+FAILED = "failed"
+#: per-cell numbers: name -> (units, long name)
+CELL_VARIABLES = {
+    "max_uplift": ("m", "largest uplift of an interface node over the record"),
+    "max_raft_rotation": ("rad", "largest raft rotation sqrt(rx^2 + ry^2) over the record"),
+    "min_contact_ratio": ("1", "smallest share of the interface nodes in contact (gap = 0) over the record"),
+    "wall_time": ("s", "wall time of the route (as uplift run reports it)"),
+    "cell_time": ("s", "wall time of the whole cell on its worker (motion, checks, route, spectra)"),
+}
+TEXT_VARIABLES = ("status", "message", "warnings")
+
+
+def run_cell(scene: Scene, route: str, shared, nodes, cache_dir=None) -> dict:
+    """The values of one cell (``cell_values``): ``run_scene`` of the cell's scene on ``route``
+    with the ensemble's shared parts (a ``run.SharedRun``). Runs on a worker."""
+    t0 = time.perf_counter()
+    results, _ = run_scene(scene, [route], cache_dir=cache_dir, shared=shared)
+    values = cell_values(results[route], nodes)
+    values["cell_time"] = time.perf_counter() - t0
+    return values
+
+
+def cell_values(res, nodes) -> dict:
+    """A RouteResult reduced to the cell's values: the summary's max uplift (m), max raft
+    rotation (rad), min contact fraction, wall time (s), status, message and warnings (NaN
+    numbers for a refused route), and the floor spectra (len(nodes), 3, F) at FREQUENCIES_HZ
+    (NaN where the route gives no acceleration and in round-off directions, see ROUNDOFF)."""
+    s = summary(res)
+    spectra = np.full((len(nodes), len(DIRECTIONS), FREQUENCIES_HZ.size), np.nan)
+    if res.nt > 1:
+        dt = float(res.time[1] - res.time[0])
+        for i, node in enumerate(nodes):
+            acc = res.acc.get(node, np.zeros((0, 3)))
+            for j in np.flatnonzero(np.abs(acc).max(axis=0, initial=0.0) > ROUNDOFF * np.abs(acc).max(initial=0.0)):
+                spectra[i, j] = response_spectrum(acc[:, j], dt, 1 / FREQUENCIES_HZ, DAMPING).psa
+    number = (lambda v: np.nan) if res.status is Status.REFUSED else float
+    return {"status": s["status"], "message": s["message"], "warnings": "\n".join(s["warnings"]),
+            "max_uplift": number(s["max_uplift_m"]), "max_raft_rotation": number(s["max_raft_rotation_rad"]),
+            "min_contact_ratio": number(s["min_contact_fraction"]), "wall_time": float(s["wall_s"]),
+            "floor_spectrum": spectra}
+
+
+class CellStore:
+    """The completed cells of an ensemble written to ``output``: one HDF5 file per cell in
+    ``<output>.cells/``, named by its key, written atomically with a checksum (a damaged file
+    is moved aside with a warning and the cell recomputed)."""
+
+    def __init__(self, output):
+        self.folder = Path(f"{output}.cells")
+        if self.folder.exists() and not self.folder.is_dir():
+            raise ResultsFileError(f"{self.folder} is a file: the completed runs of -o {output} are kept in a "
+                                   "folder of that name; move the file or choose another -o")
+
+    def _path(self, key: str) -> Path:
+        return self.folder / f"{key[:32]}.h5"
+
+    def read(self, key: str) -> dict | None:
+        def reader(f):
+            if f.attrs["key"] != key:
+                raise ValueError(f"holds the cell {f.attrs['key'][:12]}, not {key[:12]}")
+            out = {name: f[name][()] for name in f}
+            out.update({k: v.item() if isinstance(v, np.generic) else str(v) for k, v in f.attrs.items()
+                        if k not in ("key", "sha256")})
+            missing = {*CELL_VARIABLES, *TEXT_VARIABLES, "floor_spectrum"} - set(out)
+            if missing:
+                raise ValueError(f"lacks {', '.join(sorted(missing))} (written by another version)")
+            return out
+        return read_entry(self._path(key), reader)
+
+    def write(self, key: str, values: dict) -> None:
+        self.folder.mkdir(exist_ok=True)
+        with atomic_output(self._path(key)) as tmp, h5py.File(tmp, "w") as f:
+            f.attrs["key"] = key
+            for name, value in values.items():
+                if isinstance(value, np.ndarray):
+                    f.create_dataset(name, data=value)
+                else:
+                    f.attrs[name] = value
+            stamp_checksum(f)

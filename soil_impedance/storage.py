@@ -1,0 +1,264 @@
+"""Files the project writes and reads back: atomic writes, output paths, data checksums.
+
+Atomic writes. Two processes writing the same file name interleave their writes, and a process
+killed (or interrupted) mid-write leaves a truncated file. Every file is therefore written
+under a unique temporary name in the target folder and renamed onto the target only once
+complete (``os.replace`` is atomic on one file system): a reader sees the old file or the new
+one, never a mix, and concurrent writers each succeed (the last one wins).
+
+Output paths. A rename replaces whatever the name points at: a device, a FIFO or a socket
+would be destroyed and a symlink turned into a plain file. ``output_target`` refuses a path
+that exists and is not a regular file (``OutputPathError``), and follows a symlink: the file
+is written atomically at the link's target and the link survives.
+
+Checksums. Every HDF5 file the project reads back (results, ensembles, cache entries,
+impedance tables, fits) carries a SHA-256 of its whole content (every group, dataset and
+attribute, in name order) as its root attribute ``"sha256"``; ``require_checksum`` refuses
+one whose content no longer matches (``ChangedFileError``: it changed since it was written).
+
+Usage::
+
+    with atomic_output(path) as tmp:
+        with h5py.File(tmp, "w") as f:
+            ...                              # write datasets and attributes
+            stamp_checksum(f)
+    with h5py.File(path, "r") as f:
+        require_checksum(f, path)            # ChangedFileError if it changed
+    with atomic_update(path) as tmp:         # append to a stamped file: a verified copy,
+        ds.to_netcdf(tmp, mode="a", group="extra", engine="h5netcdf")
+                                             # re-stamped and renamed into place on exit
+"""
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import os
+import shutil
+import stat
+import tempfile
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+CHECKSUM_ATTR = "sha256"
+_CHUNK_BYTES = 1 << 26          # datasets are hashed in slabs of about 64 MiB along axis 0
+_UMASK = os.umask(0o022)
+os.umask(_UMASK)
+
+
+class OutputPathError(ValueError):
+    """An output path that cannot be written as a file: it exists and is not a regular file
+    (a device, a FIFO, a socket, a folder), or it lies under a file."""
+
+
+class OutputFolderError(FileNotFoundError, OutputPathError):
+    """The folder of an output file does not exist (the caller decides whether to create it)."""
+
+
+class ChangedFileError(ValueError):
+    """A file the project wrote whose content no longer matches its checksum (or that has
+    none): it changed since it was written, and nothing is read from it."""
+
+
+# ---- output paths and atomic writes -------------------------------------------------------------
+
+def output_target(path) -> Path:
+    """The file to write for the output ``path``: ``path`` itself, or the target of the symlink
+    ``path`` (followed to the end). Raises OutputPathError when the path (or the link's target)
+    exists and is not a regular file, or when a folder on its way is a file."""
+    path = Path(path)
+    target = Path(os.path.realpath(path)) if path.is_symlink() else path
+    try:
+        mode = os.stat(target).st_mode
+    except FileNotFoundError:
+        return target
+    except NotADirectoryError:
+        raise OutputPathError(f"cannot write {str(path)!r}: a folder on its way is a file; "
+                              "choose another path") from None
+    except OSError as exc:
+        raise OutputPathError(f"cannot write {str(path)!r}: {exc.strerror}; choose another path") from None
+    if stat.S_ISREG(mode):
+        return target
+    what = {stat.S_IFDIR: "a folder", stat.S_IFCHR: "a character device", stat.S_IFBLK: "a block device",
+            stat.S_IFIFO: "a FIFO (named pipe)", stat.S_IFSOCK: "a socket"}.get(stat.S_IFMT(mode), "not a regular file")
+    via = f" (the target of the link {str(path)!r})" if target != path else ""
+    raise OutputPathError(f"output {str(target)!r}{via} is {what}, not a regular file: it would be replaced; "
+                          "give the path of a new or regular file")
+
+
+@contextlib.contextmanager
+def atomic_output(path):
+    """Yield a unique temporary ``Path`` next to the file to write; the caller writes it completely.
+
+    The file to write is ``output_target(path)`` (a symlink is followed; a path that is not a
+    regular file raises OutputPathError). On normal exit the temporary file is flushed to disk
+    (fsync), renamed onto the target (``os.replace``, atomic) and the folder entry is synced; on
+    any exception, KeyboardInterrupt included, it is removed and the exception re-raised: the old
+    file stays intact until the new one is complete, and concurrent writers never share a
+    temporary name (pid + random suffix). Raises OutputFolderError if the folder is missing.
+    """
+    target = output_target(path)
+    folder = target.parent
+    if not folder.is_dir():
+        raise OutputFolderError(f"cannot write {path}: folder {folder} does not exist "
+                                "(create it first or choose another path)")
+    fd, name = tempfile.mkstemp(dir=folder, prefix=f".{target.name}.{os.getpid()}.", suffix=".tmp")
+    os.close(fd)
+    tmp = Path(name)
+    try:
+        yield tmp
+        os.chmod(tmp, 0o666 & ~_UMASK)          # mkstemp makes 0600; keep the usual mode
+        fd = os.open(tmp, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        output_target(path)                     # still a regular file (or absent) at the rename
+        os.replace(tmp, target)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
+    _fsync_folder(folder)
+
+
+@contextlib.contextmanager
+def atomic_update(path):
+    """Append to the stamped HDF5 file ``path``: yield a temporary copy of it for the caller to
+    modify (h5py mode "r+" or "a", xarray ``to_netcdf(mode="a")``), then re-stamp its checksum
+    and rename it onto ``path`` atomically. The file is verified first (ChangedFileError)."""
+    path = Path(path)
+    with h5py.File(path, "r") as f:
+        require_checksum(f, path)
+    with atomic_output(path) as tmp:
+        shutil.copyfile(output_target(path), tmp)
+        yield tmp
+        with h5py.File(tmp, "r+") as f:
+            stamp_checksum(f)
+
+
+def _fsync_folder(folder) -> None:
+    """Make the rename durable (best effort: not every platform can open a folder)."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+# ---- checksums ----------------------------------------------------------------------------------
+
+def _update_value(h, value, f=None) -> None:
+    """Feed an attribute or dataset value (dtype, shape, bytes) into hash ``h``; object
+    references are hashed by the name of the object they point at in ``f`` (their bytes are
+    addresses), compound values field by field."""
+    if isinstance(value, h5py.Reference):
+        try:                                    # an object unlinked since (e.g. a replaced group) has no name
+            name = (f[value].name if value and f is not None else "") or "(unlinked)"
+        except (KeyError, ValueError):
+            name = "(dangling)"
+        h.update(b"ref " + name.encode())
+        return
+    a = np.asarray(value)
+    h.update(f"{a.shape}".encode())
+    if a.dtype.names:                           # compound (e.g. netCDF's REFERENCE_LIST)
+        for field in a.dtype.names:
+            h.update(b"field " + field.encode())
+            _update_value(h, a[field], f)
+    elif a.dtype.kind in "OSU":                 # strings (fixed or variable length), objects
+        h.update(b"str")
+        for x in a.reshape(-1):
+            if isinstance(x, (h5py.Reference, np.ndarray)):
+                _update_value(h, x, f)
+                continue
+            b = x.encode() if isinstance(x, str) else bytes(x)
+            h.update(len(b).to_bytes(8, "little") + b)
+    else:
+        h.update(a.dtype.str.encode())
+        h.update(np.ascontiguousarray(a).tobytes())
+
+
+def _update_dataset(h, ds, f) -> None:
+    h.update(f"dataset {ds.dtype.str} {ds.shape}".encode())
+    if ds.shape is None:                        # null dataspace
+        return
+    if ds.ndim == 0 or ds.size == 0:
+        _update_value(h, ds[()], f)
+        return
+    row = max(1, ds.dtype.itemsize * ds.size // ds.shape[0])
+    step = max(1, _CHUNK_BYTES // row)
+    for i in range(0, ds.shape[0], step):
+        _update_value(h, ds[i:i + step], f)
+
+
+def _update_attrs(h, obj, f, skip=()) -> None:
+    for key in sorted(obj.attrs):
+        if key not in skip:
+            h.update(b"attr " + key.encode() + b"\0")
+            _update_value(h, obj.attrs[key], f)
+
+
+def checksum(f: h5py.File) -> str:
+    """SHA-256 (hex) of every group, dataset and attribute of ``f`` in name order, except the
+    root checksum attribute."""
+    h = hashlib.sha256()
+    _update_attrs(h, f, f, skip=(CHECKSUM_ATTR,))
+    names = []
+    f.visit(names.append)
+    for name in sorted(names):
+        obj = f[name]
+        h.update(b"\0object " + name.encode() + b"\0")
+        if isinstance(obj, h5py.Dataset):
+            _update_dataset(h, obj, f)
+        else:
+            h.update(b"group")
+        _update_attrs(h, obj, f)
+    return h.hexdigest()
+
+
+def stamp_checksum(f: h5py.File) -> str:
+    """Compute the SHA-256 of the whole content of the open, writable file ``f`` (every dataset:
+    name, dtype, shape, bytes; every attribute: name, value; in a deterministic order), store it
+    as root attribute ``"sha256"`` and return it. Call it last, after every write."""
+    f.flush()
+    digest = checksum(f)
+    f.attrs[CHECKSUM_ATTR] = digest
+    return digest
+
+
+def stamp_file(path) -> str:
+    """Stamp the checksum of the HDF5 file ``path`` in place (a file written by another library,
+    e.g. xarray, before it is renamed into place) and return it."""
+    with h5py.File(path, "r+") as f:
+        return stamp_checksum(f)
+
+
+def verify_checksum(f: h5py.File) -> bool:
+    """True if the root ``"sha256"`` attribute matches the content of ``f``; False when it is
+    missing, different, or part of the file cannot be read."""
+    stored = f.attrs.get(CHECKSUM_ATTR)
+    if stored is None:
+        return False
+    if isinstance(stored, bytes):
+        stored = stored.decode(errors="replace")
+    try:
+        return str(stored) == checksum(f)
+    except (OSError, KeyError, RuntimeError, ValueError, TypeError):
+        return False
+
+
+def require_checksum(f: h5py.File, path, remedy: str = "write it again") -> None:
+    """Raise ChangedFileError naming ``path`` unless ``f`` carries a checksum that matches its
+    content; ``remedy`` says how to get a good file again."""
+    if CHECKSUM_ATTR not in f.attrs:
+        raise ChangedFileError(f"{path} carries no checksum of its data (root attribute {CHECKSUM_ATTR!r}): "
+                               f"it was not written by this version, or changed since it was written; {remedy}")
+    if not verify_checksum(f):
+        raise ChangedFileError(f"{path} changed since it was written (its data no longer match its "
+                               f"checksum): nothing is read from it; {remedy}")
