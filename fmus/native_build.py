@@ -444,7 +444,8 @@ def build_description(identifier: str) -> bytes:
 
 # ---- the FMUs -------------------------------------------------------------------------------------
 def build_native_fmus(data: FmuData, outdir, coupled: bool = False, *, platforms=None,
-                      compiler: str = "zig", newton: dict | None = None, fmi_version: int = 2) -> dict:
+                      compiler: str = "zig", newton: dict | None = None, fmi_version: int = 2,
+                      binaries: dict | None = None) -> dict:
     """Write ``outdir/structure.fmu`` and ``outdir/soil.fmu`` (and ``coupled.fmu`` if ``coupled``)
     as native FMUs; returns ``{"structure": path, "soil": path[, "coupled": path]}`` as
     fmus.build.build_fmus does.
@@ -457,11 +458,13 @@ def build_native_fmus(data: FmuData, outdir, coupled: bool = False, *, platforms
              tables leave them at structure.ContactSettings' defaults, as the Python FMUs do)
     fmi_version : 2 (FMI 2.0, scalar variables) or 3 (FMI 3.0, arrays): the same runtime and
                   answers
+    binaries : {platform: bytes} the runtime already compiled (e.g. fmus.native_host.fmu_binaries,
+               cached per content hash), instead of compiling it here
     """
     version = _version(fmi_version)
     outdir = Path(outdir)
     records = model_records(data, newton)
-    binaries = compile_runtime(platforms, compiler, version)
+    binaries = binaries or compile_runtime(platforms, compiler, version)
     n, N = data.soil_model.n, np.asarray(data.xy).shape[0]
     stop = None if data.motion is None else (np.asarray(data.motion).shape[0] - 1) * float(data.dt)
     roles = ("structure", "soil") + (("coupled",) if coupled else ())

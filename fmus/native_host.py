@@ -29,8 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
-from fmus.native_build import (CFLAGS, NATIVE, NativeBuildError, compile_runtime, encode_resources,
-                               host_platform, soil_records, stepper_records)
+from fmus.native_build import (CFLAGS, HEADERS, NATIVE, SOURCES, NativeBuildError, compile_runtime,
+                               encode_resources, host_platform, soil_records, stepper_records)
 
 #: the C files of the in-process library (the numerics and simulate.c; no FMI side)
 HOST_SOURCES = ("simulate.c", "stepper.c", "soil.c", "linalg.c", "resources.c")
@@ -54,24 +54,30 @@ def _compiler() -> tuple[str, str]:
     return "zig", f"zig {out.stdout.strip()}"
 
 
-def _digest(compiler_id: str) -> str:
+def _digest(compiler_id: str, sources, headers) -> str:
     h = hashlib.sha256()
-    for name in (*HOST_SOURCES, *(f"include/{x}" for x in HOST_HEADERS)):
+    for name in (*sources, *(f"include/{x}" for x in headers)):
         h.update(name.encode() + b"\0" + (NATIVE / name).read_bytes() + b"\0")
     h.update(f"{compiler_id}\0{' '.join(CFLAGS)}\0{host_platform()}".encode())
     return h.hexdigest()[:24]
 
 
-def _build(folder: Path) -> ctypes.CDLL:
+def _compiled(folder: Path, stem: str, sources, headers) -> Path:
+    """The shared library of ``sources`` for this machine in ``folder``, compiled when its
+    content hash (sources, headers, compiler, flags, platform) is not there yet."""
     compiler, ident = _compiler()
-    path = folder / f"uplift-host-{_digest(ident)}.{'dll' if sys.platform == 'win32' else 'so'}"
+    path = folder / f"{stem}-{_digest(ident, sources, headers)}.{'dll' if sys.platform == 'win32' else 'so'}"
     if not path.is_file():
-        blob = compile_runtime((host_platform(),), compiler, sources=HOST_SOURCES)[host_platform()]
+        blob = compile_runtime((host_platform(),), compiler, sources=sources)[host_platform()]
         folder.mkdir(parents=True, exist_ok=True)
         tmp = folder / f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp"
         tmp.write_bytes(blob)
         os.replace(tmp, path)                     # atomic: a concurrent build writes the same bytes
-    lib = ctypes.CDLL(str(path))
+    return path
+
+
+def _build(folder: Path) -> ctypes.CDLL:
+    lib = ctypes.CDLL(str(_compiled(folder, "uplift-host", HOST_SOURCES, HOST_HEADERS)))
     f = lib.up_simulate
     f.restype = ctypes.c_int
     f.argtypes = [ctypes.c_char_p, ctypes.c_uint64, ctypes.c_void_p, ctypes.c_int64, ctypes.c_void_p,
@@ -79,13 +85,25 @@ def _build(folder: Path) -> ctypes.CDLL:
     return lib
 
 
-def library(folder=None):
-    """The loaded host library (ctypes.CDLL), built on first use into ``folder`` (default
-    ``<cache>/native``); None when it cannot be built here (``library_note`` says why)."""
+def _folder(folder) -> Path:
     if folder is None:
         from soil_impedance.cache import default_cache_dir
         folder = default_cache_dir() / "native"
-    folder = Path(folder)
+    return Path(folder)
+
+
+def fmu_binaries(folder=None) -> dict:
+    """{host platform: bytes} of the native FMUs' FMI 2.0 runtime compiled for this machine, from
+    the cache folder (compiled on first use, as ``library``), for ``build_native_fmus(...,
+    binaries=...)``; raises NativeBuildError (or OSError) when it cannot be compiled here."""
+    path = _compiled(_folder(folder), "uplift-fmu2", SOURCES, HEADERS)
+    return {host_platform(): path.read_bytes()}
+
+
+def library(folder=None):
+    """The loaded host library (ctypes.CDLL), built on first use into ``folder`` (default
+    ``<cache>/native``); None when it cannot be built here (``library_note`` says why)."""
+    folder = _folder(folder)
     with _lock:
         if folder not in _loaded:
             try:
@@ -99,10 +117,7 @@ def library(folder=None):
 def library_note(folder=None) -> str:
     """Why ``library(folder)`` is None ("" when it is loaded)."""
     library(folder)
-    if folder is None:
-        from soil_impedance.cache import default_cache_dir
-        folder = default_cache_dir() / "native"
-    return _loaded[Path(folder)][1]
+    return _loaded[_folder(folder)][1]
 
 
 def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None):

@@ -11,9 +11,11 @@ Python stepper (structure.simulate), its readable reference.
   before it returned with status STOPPED;
 - without a compiler the route runs the Python stepper and says so (a warning, not an error);
 - the library's vector width does not change a bit of the answer (baseline SSE2 build against
-  the one with AVX2/AVX-512 clones).
+  the one with AVX2/AVX-512 clones);
+- the cosim route runs the native pair by default (the Python pair as an option): both equal
+  the monolithic route to 1e-10.
 
-About 5 s (the library is compiled once per content hash into the cache folder).
+About 10 s (the library is compiled once per content hash into the cache folder).
 """
 import ctypes
 import dataclasses
@@ -122,3 +124,14 @@ def test_the_vector_width_does_not_change_the_answer(tmp_path):
     base, _ = both(contact, lib=baseline)
     assert np.array_equal(wide.raft, base.raft) and np.array_equal(wide.gap, base.gap)
     assert all(np.array_equal(wide.acc[nm], base.acc[nm]) for nm in wide.acc)
+
+
+def test_cosim_route_runs_the_native_pair_by_default():
+    from orchestrator.routes.cosim import run_cosim
+    mono = run_monolithic(SCENE, MOTION, MODEL)
+    native = run_cosim(SCENE, MOTION, MODEL)
+    python = run_cosim(SCENE, MOTION, MODEL, kind="python")
+    assert native.info["fmu_kind"] == "native" and python.info["fmu_kind"] == "python"
+    assert native.max_uplift() > 1e-3
+    assert_same_histories(native, mono)
+    assert_same_histories(python, mono)
