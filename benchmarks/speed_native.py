@@ -225,6 +225,8 @@ def main(argv=None):
     rows = {}
     with busy(args.busy):
         for name in names:
+            if name.startswith("native coupled"):
+                case.coupled, case.host                  # noqa: B018  (the export and the host built untimed)
             best = None
             for _ in range(1 if name.startswith("ensemble") else args.repeat):
                 c0 = cpu_now()
