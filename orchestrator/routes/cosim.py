@@ -18,6 +18,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from fmus.resources import DEFAULT_SOIL_FACTORY
 from orchestrator.routes.base import Route, register
 from orchestrator.routes.monolithic import route_inputs
 
@@ -45,7 +46,7 @@ def run_cosim(scene, motion=None, soil_model=None, *, schedule: str = "gauss-sei
     """
     # the FMU stack loads only when the route runs (`uplift --help` and scenes stay light):
     from fmus.build import build_fmus               # pythonfmu
-    from fmus.native_build import build_native_fmus
+    from fmus.native_build import build_native_fmus  # fmpy's headers, the native builder
     from orchestrator.export import fmu_data        # fmpy, the native builder
     from orchestrator.master import cosimulate      # fmpy
     if kind not in KINDS:
@@ -73,9 +74,8 @@ def run_cosim(scene, motion=None, soil_model=None, *, schedule: str = "gauss-sei
 
 def _native_runtime(data):
     """({platform: bytes} of the native runtime for this machine, "") or (None, why not)."""
-    from fmus.native_build import NativeBuildError
-    from fmus.native_host import fmu_binaries
-    from fmus.resources import DEFAULT_SOIL_FACTORY
+    from fmus.native_build import NativeBuildError      # the FMU stack (fmpy, pythonfmu): only when the route runs
+    from fmus.native_host import fmu_binaries            # the same
     if data.soil_factory != DEFAULT_SOIL_FACTORY:
         return None, f"the soil factory {data.soil_factory} has no native runtime: the Python FMUs ran"
     try:

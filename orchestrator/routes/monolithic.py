@@ -63,7 +63,7 @@ def run_monolithic(scene, motion=None, soil_model=None, *, soil_factory: str | N
     model = model or scene.model()
     why = ""
     if stepper == "native":
-        from fmus.native_host import library_note
+        from fmus.native_host import library_note      # the FMU stack (fmpy, pythonfmu): only when it steps
         why = (f"the soil factory {factory} has no native runtime: the Python stepper ran"
                if factory != DEFAULT_SOIL_FACTORY else library_note())
     try:
@@ -81,7 +81,7 @@ def run_monolithic(scene, motion=None, soil_model=None, *, soil_factory: str | N
 
 def _native(model, soil, motion, scene, route, progress):
     """The run through the C runtime (fmus.native_host); wall_s includes the stepper's set-up."""
-    from fmus.native_host import simulate_native
+    from fmus.native_host import simulate_native       # the same: only when it steps
     t0 = time.perf_counter()
     st = NewmarkStepper(model, soil, motion.dt, contact=scene.contact, external_soil=True, ag0=motion.acc[0])
     try:
