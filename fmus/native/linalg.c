@@ -269,6 +269,31 @@ UP_WIDE void up_spmv2_add(const double *restrict P, int n, const double *restric
     }
 }
 
+/* P <- the upper triangle of A (n, n) packed by rows; 1 when A is symmetric (bit for bit) */
+int up_pack_sym(const double *A, int n, double *P)
+{
+    size_t q = 0;
+    for (int i = 0; i < n; i++)
+        for (int j = i; j < n; j++) {
+            if (A[(size_t)i * n + j] != A[(size_t)j * n + i])
+                return 0;
+            P[q++] = A[(size_t)i * n + j];
+        }
+    return 1;
+}
+
+/* y = A x: from P (A packed, half the memory traffic) when P is not NULL, else from A */
+void up_symv(const double *A, const double *P, int n, const double *x, double *y)
+{
+    if (!P) {
+        up_matvec(A, n, n, x, y);
+        return;
+    }
+    for (int i = 0; i < n; i++)
+        y[i] = 0.0;
+    up_spmv_add(P, n, x, y);
+}
+
 UP_WIDE void up_matvec_add(const double *A, int rows, int cols, const double *x, double s, double *y)
 {
     for (int i = 0; i < rows; i++)

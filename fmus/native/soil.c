@@ -138,12 +138,18 @@ int up_soil_init(UpSoil *s, const UpRes *r, int n, int nlev, int stepped, char *
         UpSoilLevel *lv = &s->lev[l];
         lv->ar = (double *)calloc((size_t)(2 * mr + 4 * mc) + 1, sizeof(double));
         lv->D0 = (double *)malloc((size_t)n * n * sizeof(double));
-        ok = lv->ar && lv->D0;
+        lv->D0p = (double *)malloc(((size_t)n * (n + 1) / 2 + 1) * sizeof(double));
+        ok = lv->ar && lv->D0 && lv->D0p;
         if (ok) {
             lv->br = lv->ar + mr;
             lv->ac = lv->br + mr;
             lv->bc = lv->ac + 2 * mc;
         }
+    }
+    if (ok && (s->Ep = (double *)malloc(((size_t)n * (n + 1) / 2 + 1) * sizeof(double))) != NULL
+        && !up_pack_sym(s->E, n, s->Ep)) {
+        free(s->Ep);                                      /* not symmetric: the dense products */
+        s->Ep = NULL;
     }
     if (!ok) {
         up_soil_free(s);
@@ -157,12 +163,14 @@ void up_soil_free(UpSoil *s)
 {
     free(s->H);
     free(s->Hs);
+    free(s->Ep);
     free(s->g);
     free(s->g2);
     free(s->fbuf);
     for (int l = 0; l < UP_MAXLEV; l++) {
         free(s->lev[l].ar);
         free(s->lev[l].D0);
+        free(s->lev[l].D0p);
     }
     memset(s, 0, sizeof *s);
 }
@@ -226,6 +234,7 @@ const UpSoilLevel *up_soil_level(UpSoil *s, int lev, double dt)
             double m = 0.5 * (D0[(size_t)i * n + j] + D0[(size_t)j * n + i]);
             D0[(size_t)i * n + j] = D0[(size_t)j * n + i] = m;
         }
+    up_pack_sym(D0, n, lv->D0p);
     lv->dt = dt;
     lv->ready = 1;
     return lv;
@@ -262,8 +271,8 @@ void up_soil_force(UpSoil *s, int lev, const double *x, const double *xd, const 
     const UpSoilLevel *lv = &s->lev[lev];
     int n = s->n;
     double *Dx = s->fbuf + 3 * (size_t)n, *Ev = Dx + n;
-    up_matvec(lv->D0, n, n, x, Dx);
-    up_matvec(s->E, n, n, xd, Ev);
+    up_symv(lv->D0, lv->D0p, n, x, Dx);
+    up_symv(s->E, s->Ep, n, xd, Ev);
     for (int i = 0; i < n; i++)
         f[i] = (Dx[i] + Ev[i]) + h[i];
 }

@@ -103,7 +103,8 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
         y->X = (double *)malloc(((size_t)ni * nb + 1) * sizeof(double));
         y->S0 = (double *)malloc((size_t)nb * nb * sizeof(double));
         y->K0C = (double *)malloc((size_t)nb * nb * sizeof(double));
-        ok = y->AII && y->piv && y->ABI && y->X && y->S0 && y->K0C;
+        y->K0Cp = (double *)malloc(((size_t)nb * (nb + 1) / 2 + 1) * sizeof(double));
+        ok = y->AII && y->piv && y->ABI && y->X && y->S0 && y->K0C && y->K0Cp;
         for (int c = 0; ok && c < 2; c++) {
             y->Jb[c] = (double *)malloc((size_t)nb * nb * sizeof(double));
             y->pb[c] = (int *)malloc((size_t)nb * sizeof(int));
@@ -154,6 +155,7 @@ void up_stepper_free(UpStepper *s)
         free(y->X);
         free(y->S0);
         free(y->K0C);
+        free(y->K0Cp);
         for (int c = 0; c < 2; c++) {
             free(y->Jb[c]);
             free(y->pb[c]);
@@ -312,6 +314,7 @@ static const UpSystem *system_at(UpStepper *s, int lev)
         }
     for (size_t i = 0; i < (size_t)nb * nb; i++)
         y->K0C[i] = sl->D0[i] + y->c1 * s->soil->E[i];
+    up_pack_sym(y->K0C, nb, y->K0Cp);                     /* symmetric when E is (D0 is) */
     y->base_ok[0] = base_at(s, y, 0) == 0;
     y->base_ok[1] = base_at(s, y, 1) == 0;
     y->ready = 1;
@@ -549,7 +552,7 @@ static void damp(const UpStepper *s, const double *v, double *out, double *Ev)
     up_sparse_matvec(&s->Cs_sp, v, out);
     for (int i = s->ns; i < s->n; i++)
         out[i] = 0.0;
-    up_matvec(s->soil->E, s->nb, s->nb, v + s->ni, Ev);            /* E v on x, kept for the soil force */
+    up_symv(s->soil->E, s->soil->Ep, s->nb, v + s->ni, Ev);          /* E v on x, kept for the soil force */
     for (int i = 0; i < s->nb; i++)
         out[s->ni + i] += Ev[i];
 }
@@ -679,7 +682,7 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
     contact(s, u_new + ni, P_new, s->act_new, fc_new);
     const double *x_new = u_new + ni, *xd_new = v_new + ni;
     /* the soil force K0 x + C0 xdot + h = (D0 + c1 E) x + E v_hat + h (xdot = c1 x + v_hat) */
-    up_matvec(y->K0C, nb, nb, x_new, fs_new);
+    up_symv(y->K0C, s->soil->Ep ? y->K0Cp : NULL, nb, x_new, fs_new);
     for (int i = 0; i < nb; i++)
         fs_new[i] = (fs_new[i] + Ev[i]) + h[i];
     if (al != 0.0) {

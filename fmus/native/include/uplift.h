@@ -59,6 +59,8 @@
 #define up_matvec UP_SYM(up_matvec)
 #define up_gemv_t UP_SYM(up_gemv_t)
 #define up_spmv_add UP_SYM(up_spmv_add)
+#define up_pack_sym UP_SYM(up_pack_sym)
+#define up_symv UP_SYM(up_symv)
 #define up_spmv2_add UP_SYM(up_spmv2_add)
 #define up_gemv_t2 UP_SYM(up_gemv_t2)
 #define up_matvec_add UP_SYM(up_matvec_add)
@@ -177,6 +179,8 @@ void up_gemv_t2(const double *At, int rows, int cols, const double *x1, const do
 /* y += P x for a symmetric (n, n) P packed by rows of its upper triangle (n (n + 1) / 2 values) */
 void up_spmv_add(const double *P, int n, const double *x, double *y);
 void up_spmv2_add(const double *P, int n, const double *x1, const double *x2, double *y1, double *y2);
+int up_pack_sym(const double *A, int n, double *P);       /* P <- A packed; 1 when A is symmetric */
+void up_symv(const double *A, const double *P, int n, const double *x, double *y);  /* y = A x, P if not NULL */
 void up_axpy(double a, const double *x, int n, double *y);                      /* y += a x */
 void up_matvec_add(const double *A, int rows, int cols, const double *x, double s, double *y); /* y += s A x */
 double up_dot(const double *a, const double *b, int n);
@@ -189,6 +193,7 @@ typedef struct {
     double *ar, *br;          /* (mr) real-pole coefficients */
     double *ac, *bc;          /* (mc) complex, as (re, im) pairs */
     double *D0;               /* (n, n) D + sum b_k R_k, symmetrised */
+    double *D0p;              /* D0 packed (up_pack_sym) */
 } UpSoilLevel;
 
 typedef struct {
@@ -197,6 +202,7 @@ typedef struct {
     const double *pr, *pc;    /* (mr), (mc, 2) poles: real, and one (re, im) per conjugate pair */
     const double *Rr, *Rc;    /* (mr, n, n), (mc, n, n, 2) residues */
     const double *D, *E;      /* (n, n) */
+    double *Ep;               /* E packed when it is symmetric (as a fit makes it), else NULL */
     double *H;                /* (L, n): H transposed (pole-major), h = H g; NULL when the soil is not stepped */
     double *Hs;               /* the same when every residue is symmetric (reciprocity): the L / n blocks
                                  of H (R_k; 2 Re R_k, -2 Im R_k) packed (up_spmv_add); H is then NULL */
@@ -229,6 +235,7 @@ typedef struct {
     int abi_rows, x_cols;
     double *S0;               /* (nb, nb) Schur complement on x = [q, w] */
     double *K0C;              /* (nb, nb) D0 + c1 E: the soil force's part in x at this step size */
+    double *K0Cp;             /* the same packed (used when E is symmetric: then K0C is) */
     /* the Newton matrix's two bases (stepper.c): every contact closed [0], every one open [1] */
     double *Jb[2];            /* (nb, nb) their LU */
     int *pb[2];
