@@ -98,7 +98,8 @@ def row_reactor(pga):
           f"{h['residual']:.1e} (per sweep: {sweeps}), "
           f"S applications {h['apply_S']}, nfft {h['nfft']} (pad {h['pad_s']:.2f} s, rule "
           f"{h['pad_rule_s']:.2f} s)")
-    tfc = run_timefreq(motion, model, table, **scene_inputs(scene), bilinear=False, route="timefreq-continuous")
+    tfc = run_timefreq(motion, model, table, **scene_inputs(scene), bilinear=False, method="newton-krylov",
+                       route="timefreq-continuous")
     results["timefreq-continuous"] = tfc
     print(f"timefreq on the continuous grid (Newton-Krylov): wall {tfc.wall_s:.2f} s, Newton "
           f"iterations {tfc.info['iterations']}, GMRES {tfc.info['gmres_total']}, converged {tfc.converged}")
@@ -158,8 +159,9 @@ def ladder(pga):
         ei = np.abs(Km[band, i, i].imag - Kt[band, i, i].imag).max() / np.abs(Kt[band, i, i].imag).max()
         print(f"  {lab}: |K| error {100 * e:.1f} %, damping (Im K) error {100 * ei:.1f} %")
     fit_as_table = ImpedanceTable(f, rm(2j * np.pi * f), table.dofs, dict(table.provenance, fitted=True))
-    res = {"tf table": run_timefreq(motion, model, table, **scene_inputs(scene), bilinear=False),
-           "tf fit-table": run_timefreq(motion, model, fit_as_table, **scene_inputs(scene), bilinear=False)}
+    nk = dict(bilinear=False, method="newton-krylov")       # the continuous grid's (experimental) solver
+    res = {"tf table": run_timefreq(motion, model, table, **scene_inputs(scene), **nk),
+           "tf fit-table": run_timefreq(motion, model, fit_as_table, **scene_inputs(scene), **nk)}
     res["td monolithic"] = _timed(simulate, model, RecursiveConvolutionSoil(rm, motion.dt), motion.acc, motion.dt,
                                   contact=contact, output_nodes=nodes, route="monolithic")
     print(format_table(compare(res, "tf table")))

@@ -4,7 +4,7 @@ PGAs on a local dask cluster, the fractiles of max uplift over the motions, the 
     python examples/ensemble.py [--workers 2] [--records PATH ...]
 
 The scene is the reactor stick on a coarse 20 m raft (element size 5 m) over layered rock, 5 s
-motions (seeds 1-5 of its synthetic RG1.60 motion, or the record files given), each at 0.15 and
+motions (seeds 1-5 of its synthetic RG1.60 motion, or the records given), each at 0.15 and
 0.3 g, on the monolithic route. ``run_ensemble`` returns an ``xarray.Dataset`` (dimensions
 record, pga, route, node, direction, frequency, quantile; see orchestrator/ensemble.py) and
 writes it to ``coarse_reactor_ensemble.h5``; rerunning the script computes nothing (the
@@ -33,7 +33,9 @@ SCENE = {
 if __name__ == "__main__":      # the local cluster starts worker processes that import this file
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--records", nargs="+", default=None, help="record files or folders instead of the seeds")
+    ap.add_argument("--records", nargs="+", default=None,
+                    help="record folders (one PEER triplet each) or record files (one component each) instead of "
+                         "the seeds")
     args = ap.parse_args()
     scene = scene_from_dict(SCENE, name="coarse_reactor")
     ds = run_ensemble(scene, [0.15, 0.3], records=args.records, seeds=None if args.records else [1, 2, 3, 4, 5],

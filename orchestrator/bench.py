@@ -225,8 +225,9 @@ def opensees_rows(data, scene, dts, cache_dir=None, log=None):
 
     try:
         import openseespy.opensees  # noqa: F401  (optional dependency: the [bench] extra)
-    except ImportError:
-        return skipped("openseespy not installed (pip install -e \".[bench]\"; apt-get install libblas3 liblapack3)")
+    except (ImportError, RuntimeError) as exc:   # RuntimeError: installed, but its BLAS/LAPACK libraries are absent
+        return skipped(f"openseespy not installed or cannot load ({exc}): pip install -e \".[bench]\"; "
+                       "apt-get install libblas3 liblapack3")
     path = Path(__file__).resolve().parents[1] / "benchmarks" / "structure_step.py"
     if not path.is_file():
         return skipped(f"{path} not found (the peer runs from a source checkout)")

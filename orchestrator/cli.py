@@ -182,10 +182,13 @@ def _parser() -> argparse.ArgumentParser:
                                      "the cells not done yet.")
     scene_arg(ens)
     ens.add_argument("--records", nargs="+", type=Path, metavar="PATH",
-                     help="record files or folders of them (*.AT2: PEER; *.txt, *.dat: two-column, or the "
-                          "scene's [motion] format); default: the scene's motion")
+                     help="record folders, each one record of up to three components (a PEER triplet told by "
+                          "its file names, or by a components.toml in the folder), or record files, each one "
+                          "component on the scene's [motion].direction (*.AT2: PEER; *.txt, *.dat: two-column, "
+                          "or the scene's [motion] format); default: the scene's motion")
     ens.add_argument("--seeds", nargs="+", type=int, metavar="N",
-                     help="without --records: seeds of the scene's synthetic motion (default: its seed)")
+                     help="without --records: seeds of the scene's synthetic motion, each all its components "
+                          "(default: its seed)")
     ens.add_argument("--pga", nargs="+", type=float, required=True, metavar="G",
                      help="peak ground accelerations (g) each record is scaled to")
     ens.add_argument("--route", action="append", dest="routes", metavar="R", choices=route_names(),
@@ -427,9 +430,6 @@ def cmd_report(args) -> int:
 
 def cmd_ensemble(args) -> int:
     scene = load_scene(args.scene, max_pga_g=args.max_pga)
-    if scene.motion.direction is None:
-        raise SceneError(f"{args.scene}: motion.components: `uplift ensemble` takes one component of motion for "
-                         "now ([motion] direction = \"x\"); run several components at once with `uplift run`")
     out = args.output or Path(f"{scene.name}_ensemble.h5")
     ds = run_ensemble(scene, args.pga, records=args.records, seeds=args.seeds, routes=args.routes, output=out,
                       workers=args.workers, scheduler=args.scheduler, cache_dir=_cache(args),
@@ -442,7 +442,7 @@ def cmd_ensemble(args) -> int:
     if args.json:
         print(json.dumps(summ))
     else:
-        _say(f"{summ['runs']} runs ({summ['computed']} computed, {summ['reused']} kept from {out}.cells) on "
+        _say(f"components {', '.join(summ['components'])}: {summ['runs']} runs ({summ['computed']} computed, {summ['reused']} kept from {out}.cells) on "
              f"{summ['workers']} workers in {summ['wall_s']:.1f} s (cluster {summ['cluster_s']:.1f} s, "
              f"sweep and fit {summ['setup_s']:.1f} s, time-step check {summ['dt_check_s']:.1f} s)"
              + (f"; {summ['workers_note']}" if summ["workers_note"] else ""))

@@ -27,7 +27,7 @@ from soil_impedance.storage import atomic_output
 from structure.results import Status
 
 from orchestrator.compare import compare
-from orchestrator.ensemble import read_ensemble
+from orchestrator.ensemble import ensemble_components, read_ensemble
 from orchestrator.motion import G
 from orchestrator.plots import pyplot, run_figures
 from orchestrator.results import ResultsFileError, read_motion, read_results, summary
@@ -183,7 +183,7 @@ def ensemble_figures(ds):
     axes[0].legend()
     fig.suptitle(f"{ds.attrs.get('scene', '')}: {ds.sizes['record']} records per PGA (dots: each record)")
     yield "ensemble_against_pga", fig
-    directions = list(dict.fromkeys([str(ds.attrs.get("motion_direction", "x")), "z"]))
+    directions = [d for d in "xyz" if d in ensemble_components(ds) or d == "z"]
     nodes = [str(n) for n in ds["node"].values]
     f = ds["frequency"].values
     for p in pga:

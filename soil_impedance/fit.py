@@ -77,7 +77,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .passivity import PassivityReport, check_passive, enforce_passivity
+from .passivity import PassivityReport, check_passive, enforce_passivity, with_verified_passivity
 from .rational import FitError, RationalModel, read_model, write_model
 from .vectfit import canonical_poles, compress, fit_coefficients, initial_poles, real_basis, vector_fit
 
@@ -878,7 +878,8 @@ def fit(table, options: FitOptions, progress=None) -> FitResult:
     model = model.with_provenance(dict(model.provenance, **({"enforcement_fallback": failures} if failures else {}),
                                        max_rel_error=report.max_rel_error, passive=report.passive,
                                        passivity_margin=report.passivity_margin))
-    return FitResult(model, report)
+    # the steppers' passivity test (default settings), run once here and stored with the model
+    return FitResult(with_verified_passivity(model), report)
 
 
 def _projection(table, options: FitOptions):

@@ -111,7 +111,19 @@ class PassivityReport:
                 "margin_freq_hz": float(self.margin_freq_hz),
                 "bands_hz": [[float(a), float(b)] for a, b in self.bands_hz], "method": self.method,
                 "certified": bool(self.certified), "e_min": float(self.e_min),
-                "static_min": float(self.static_min), "evaluations": int(self.evaluations)}
+                "static_min": float(self.static_min), "evaluations": int(self.evaluations),
+                "crossings_hz": [float(c) for c in self.crossings_hz]}
+
+    @classmethod
+    def from_dict(cls, d) -> PassivityReport:
+        """The report of ``to_dict`` (FitError naming the missing key of a malformed one)."""
+        try:
+            return cls(bool(d["passive"]), float(d["passivity_margin"]), float(d["margin_freq_hz"]),
+                       [(float(a), float(b)) for a, b in d["bands_hz"]], str(d["method"]), bool(d["certified"]),
+                       [float(c) for c in d.get("crossings_hz", [])], float(d["e_min"]),
+                       float(d["static_min"]), int(d["evaluations"]))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise FitError(f"malformed passivity report ({type(exc).__name__}: {exc})") from None
 
     def __str__(self) -> str:
         bands = ", ".join(f"{a:.4g}-{b:.4g} Hz" for a, b in self.bands_hz) or "none"
@@ -384,23 +396,56 @@ def _report(sc, a) -> PassivityReport:
 
 _REPORTS: OrderedDict = OrderedDict()   # (model digest, settings) -> report, the last REPORT_CACHE_SIZE
 
+#: provenance key of a passivity test stored with a model (``with_verified_passivity``)
+VERIFIED = "passivity_verified"
+
 
 def check_passive(model: RationalModel, method="auto", n_grid=400, max_pencil=MAX_PENCIL) -> PassivityReport:
     """Passivity of ``model``: dense grid + an exact test (see module docstring).
 
-    The exact test costs up to seconds for a (6+N)² model: the last ``REPORT_CACHE_SIZE`` reports
-    are kept by the model's content, so the fit, the export and each soil stepper built from one
-    model share one check.
+    The exact test costs up to seconds for a (6+N)² model, so it runs once per model content:
+    a test stored in the model's provenance by ``with_verified_passivity`` (a fit stores it;
+    it travels with the model into the fit cache, whose entries are checksummed, and to worker
+    processes) is used when its digest and settings are this model's and these; otherwise the
+    last ``REPORT_CACHE_SIZE`` reports are kept by the model's content, so the fit, the export
+    and each soil stepper built from one model in a process share one check.
     """
     key = (model.digest, method, n_grid, max_pencil)
     if key in _REPORTS:
         _REPORTS.move_to_end(key)
     else:
-        sc = model.scaled
-        _REPORTS[key] = _report(sc, _assess(sc, method, n_grid, max_pencil))
+        stored = _stored_report(model, method, n_grid, max_pencil)
+        if stored is None:
+            sc = model.scaled
+            stored = _report(sc, _assess(sc, method, n_grid, max_pencil))
+        _REPORTS[key] = stored
         while len(_REPORTS) > REPORT_CACHE_SIZE:
             _REPORTS.popitem(last=False)
     return _REPORTS[key]
+
+
+def _settings(method, n_grid, max_pencil) -> dict:
+    return {"method": str(method), "n_grid": int(n_grid), "max_pencil": int(max_pencil)}
+
+
+def _stored_report(model: RationalModel, method, n_grid, max_pencil) -> PassivityReport | None:
+    """The report stored in the model's provenance for this content and these settings, or None."""
+    rec = model.provenance.get(VERIFIED)
+    if not isinstance(rec, dict) or rec.get("digest") != model.digest or \
+            rec.get("settings") != _settings(method, n_grid, max_pencil) or not isinstance(rec.get("report"), dict):
+        return None
+    return PassivityReport.from_dict(rec["report"])
+
+
+def with_verified_passivity(model: RationalModel, method="auto", n_grid=400,
+                            max_pencil=MAX_PENCIL) -> RationalModel:
+    """``model`` with ``check_passive(model, ...)``'s report stored in its provenance (key
+    VERIFIED: the content digest it was run on, the settings, the report), so the time
+    steppers' guard (``require_passive``) reads it instead of testing again. A model whose
+    content changes no longer matches its digest and is tested again."""
+    rep = check_passive(model, method, n_grid, max_pencil)
+    rec = {"digest": model.digest, "settings": _settings(method, n_grid, max_pencil), "report": rep.to_dict()}
+    return model.with_provenance(dict(model.provenance, **{VERIFIED: rec}))
 
 
 def require_passive(model: RationalModel, force=False, report: PassivityReport | None = None) -> PassivityReport:

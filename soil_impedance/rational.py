@@ -284,6 +284,13 @@ def load_model(path) -> RationalModel:
         return read_model(h, path)
 
 
+def _complex(re, im) -> np.ndarray:
+    """re + i im bit for bit (``re + 1j * im`` turns -0.0 into 0.0: another content digest)."""
+    out = np.empty(np.shape(re), complex)
+    out.real, out.imag = re, im
+    return out
+
+
 def read_model(h, path="") -> RationalModel:
     """The model in the open h5py File ``h`` (``write_model`` layout); FitError naming ``path``
     when it is not one."""
@@ -294,8 +301,8 @@ def read_model(h, path="") -> RationalModel:
         raise FitError(f"{path}: format_version {h.attrs.get('format_version')}, "
                        f"this code reads {MODEL_FORMAT_VERSION}: refit the table")
     try:
-        p = h["poles_real"][()] + 1j * h["poles_imag"][()]
-        R = h["residues_real"][()] + 1j * h["residues_imag"][()]
+        p = _complex(h["poles_real"][()], h["poles_imag"][()])
+        R = _complex(h["residues_real"][()], h["residues_imag"][()])
         D, E = h["D"][()], h["E"][()]
         dofs = [d.decode() if isinstance(d, bytes) else str(d) for d in h["dofs"][()]]
         prov = json.loads(h.attrs["provenance"])

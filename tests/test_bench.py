@@ -67,7 +67,10 @@ def test_mark_best_and_table():
 def test_opensees_peer_matches_this_code(tiny, monkeypatch, tmp_path):
     """The same Winkler model in OpenSeesPy (an independent code): equal to round-off."""
     monkeypatch.delitem(sys.modules, "openseespy")
-    pytest.importorskip("openseespy.opensees")
+    try:
+        import openseespy.opensees  # noqa: F401
+    except (ImportError, RuntimeError) as exc:       # not installed, or Debian's libblas3/liblapack3 missing
+        pytest.skip(f"openseespy cannot run here: {exc}")
     data = bench.scene_data("disk-halfspace")
     rows = bench.opensees_rows(data, "disk-halfspace", [0.01], cache_dir=None)
     peer = next(r for r in rows if r["kind"] == "peer")

@@ -292,14 +292,3 @@ def test_report_names_the_components_and_rocking_axes(tmp_path, capsys):
     assert f"<td>{np.hypot(raft[:, 3], raft[:, 4]).max():.4e}</td>" in page
     assert sorted(p.name for p in (tmp_path / "rep").glob("*.png")) == ["monolithic_floor_spectra.png",
                                                                        "monolithic_raft.png"]
-
-
-def test_ensemble_refuses_several_components_for_now(records, tmp_path, capsys):
-    """Ensembles scale one component per record: a scene with components is refused (exit 2),
-    not run on one axis."""
-    path = records / "three.toml"
-    path.write_text(SCENE_TOML + '[motion]\nkind = "synthetic"\ncomponents = ["x", "y", "z"]\nduration_s = 3.0\n')
-    assert main(["ensemble", str(path), "--seeds", "1", "2", "--pga", "0.3", "-o", str(tmp_path / "e.h5")]) == 2
-    err = capsys.readouterr().err
-    assert str(path) in err and "one component" in err
-    assert not (tmp_path / "e.h5").exists()

@@ -73,6 +73,11 @@ def _write_records(folder):
             "rec2.AT2": ("peer-at2", np.array([float(v) for ln in lines[4:] for v in ln.split()]))}
 
 
+def _files(tmp, records) -> list:
+    """The record files, one by one (each a one-component record on the scene's direction)."""
+    return [str(tmp / "records" / name) for name in records]
+
+
 @pytest.fixture(scope="module")
 def case(tmp_path_factory):
     """The scene, its records and the ensemble of `uplift ensemble --workers 2 --json` (3 records
@@ -86,7 +91,7 @@ def case(tmp_path_factory):
     out = tmp / "ens.h5"
     stdout = io.StringIO()
     with contextlib.redirect_stdout(stdout):
-        code = main(["ensemble", str(scene), "--records", str(tmp / "records"), "--pga", *map(str, PGAS),
+        code = main(["ensemble", str(scene), "--records", *_files(tmp, records), "--pga", *map(str, PGAS),
                      "--workers", "2", "-o", str(out), "--json"])
     yield {"tmp": tmp, "scene": scene, "records": records, "out": out, "code": code,
            "summary": json.loads(stdout.getvalue()), "ds": xr.open_dataset(out, engine="h5netcdf").load()}
@@ -191,7 +196,7 @@ def _killer(client, log):
 
 def test_killed_worker_missing_cells_reported_then_filled(case, tmp_path):
     ref = case["ds"]
-    records = [str(case["tmp"] / "records")]
+    records = _files(case["tmp"], case["records"])
     with LocalCluster(n_workers=2, threads_per_worker=1, dashboard_address=None, silence_logs=50) as cluster, \
             Client(cluster) as client:
         address = cluster.scheduler_address
@@ -231,7 +236,7 @@ def test_killed_worker_missing_cells_reported_then_filled(case, tmp_path):
 def test_rerun_keeps_completed_cells_and_extends(case, capsys):
     """Same -o with one more PGA: the 6 cells are kept, the 3 new ones computed."""
     out = case["tmp"] / "ens.h5"
-    assert main(["ensemble", str(case["scene"]), "--records", str(case["tmp"] / "records"), "--pga", "0.4", "0.8",
+    assert main(["ensemble", str(case["scene"]), "--records", *_files(case["tmp"], case["records"]), "--pga", "0.4", "0.8",
                  "0.6", "--workers", "2", "-o", str(out), "--json"]) == 0
     summ = json.loads(capsys.readouterr().out)
     assert (summ["runs"], summ["computed"], summ["reused"]) == (9, 3, 6)
@@ -261,7 +266,7 @@ def test_cell_key_depends_on_the_inputs_only(case, monkeypatch):
 
 def test_fractiles_over_converged_cells_only(case):
     """assemble: a stopped and a failed cell are kept with their reason and left out of the fractiles."""
-    plan = ens.plan_ensemble(load_scene(case["scene"]), [0.4], records=[case["tmp"] / "records"])
+    plan = ens.plan_ensemble(load_scene(case["scene"]), [0.4], records=_files(case["tmp"], case["records"]))
     values = {}
     for (i, cell), uplift, status in zip(enumerate(plan.cells), (1.0, 5.0, 3.0), ("converged", "stopped", "")):
         if status:

@@ -1,6 +1,7 @@
 """The time-frequency package's interface: options checked on construction, the worker pool's
 lifetime and thread-independence, the solver status in the result, and the route glue."""
 import threading
+import warnings
 
 import numpy as np
 import pytest
@@ -45,6 +46,8 @@ def test_bad_inputs_are_value_errors():
     ag = motion(0.3, duration=1.0)
     with pytest.raises(ValueError, match="bilinear grid"):
         solve(MODEL, soil(), ag, 0.005, options=SolveOptions(method="march"), grid=GridOptions(bilinear=False))
+    with pytest.raises(ValueError, match="must be named"):    # no experimental default on the continuous grid
+        solve(MODEL, soil(), ag, 0.005, contact=UPLIFT, grid=GridOptions(bilinear=False))
     with pytest.raises(ValueError, match="linear route"):
         solve(MODEL, soil(), ag, 0.005, contact=ContactSettings(enabled=False))
     with pytest.raises(ValueError, match="run_timefreq: unknown option 'padding'"):
@@ -117,3 +120,27 @@ def test_route_glue_is_solve_with_the_route_defaults():
     assert lin.info["window"] is True and lin.route == "linear"
     assert np.array_equal(lin.raft, linear_fd(MODEL, tab, ag, 0.005, contact=UPLIFT, output_nodes=nodes,
                                               grid=GridOptions(window=True)).raft)
+
+
+def test_methods_by_registry_experimental_ones_warn_and_are_never_the_default():
+    """METHODS maps every name SolveOptions accepts; the default is the one robust method and
+    runs without a warning; the experimental solvers are out of the package's namespace and
+    warn when named."""
+    import orchestrator.timefreq as tf
+    from orchestrator.timefreq import DEFAULT, METHODS, ExperimentalMethodWarning
+
+    assert not METHODS[DEFAULT].experimental
+    assert {n for n, m in METHODS.items() if m.experimental} == {"newton-krylov", "paper"}
+    for name in ("newton_krylov", "newton_continuation", "paper_scheme", "NewtonIteration", "PaperIteration"):
+        assert name not in tf.__all__
+    for name in METHODS:
+        SolveOptions(method=name)
+    ag = motion(0.5, duration=2.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ExperimentalMethodWarning)
+        res = solve(MODEL, soil(), ag, 0.005, contact=UPLIFT)
+    assert res.info["method"] == DEFAULT and res.max_uplift() > 1e-3
+    for name in ("newton-krylov", "paper"):              # (their answers: tests/test_timefreq.py)
+        with pytest.warns(ExperimentalMethodWarning, match=name):
+            ex = solve(MODEL, soil(), ag, 0.005, contact=UPLIFT, options=SolveOptions(method=name, max_iter=1))
+        assert ex.info["method"] == name

@@ -3,9 +3,13 @@ reduced to one ``xarray.Dataset`` with the fractiles over the records.
 
 A design or fragility study runs a set of recorded (or spectrum-matched) motions, each scaled
 to each intensity level, and reads fractiles over the records. Here a *cell* is one (record,
-pga, route): exactly ``uplift run`` of the scene with that motion, i.e. the record file scaled
-so that its peak is the PGA (``[motion]`` kind = "record", scale = pga / peak of the file) or,
-without record files, the scene's synthetic motion at that PGA and seed. A cell keeps what the
+pga, route): exactly ``uplift run`` of the scene with that motion: a record folder (up to three
+components, e.g. a PEER triplet, told by ``triplets``) scaled so that its stronger horizontal
+peaks at the PGA, the other components by the same factor (without a horizontal, the vertical
+at the PGA; ``[motion]`` kind = "record", components = its files, scale = that factor); a
+record file, one component on the scene's direction, scaled so that its peak is the PGA; or,
+without records, the scene's synthetic motion (each of its components) at that PGA and seed.
+Every record of an ensemble runs the same components. A cell keeps what the
 run's summary gives (``orchestrator.results.summary``: max uplift, max raft rotation, minimum
 contact ratio, wall time, status) and the floor response spectra of the scene's output nodes.
 
@@ -29,8 +33,8 @@ fails (its worker killed more often than the scheduler allows, an exception) is 
 
 Resuming: with an output file, every completed cell is written as it finishes to the folder
 ``<output>.cells/`` (one small HDF5 file per cell, atomic, checksummed), named by a hash of its
-inputs (the scene's content, the record file's SHA-256, the PGA, the route, the dt check, the
-package's sources); the output file is assembled from them at the end. A rerun with the same
+inputs (the scene's content, the record files' SHA-256 and components, the PGA, the route,
+the dt check, the package's sources); the output file is assembled from them at the end. A rerun with the same
 output keeps the cells whose inputs match and computes the others (failed ones included).
 
 The dataset (``write_ensemble``: netCDF4 through h5netcdf, ``xarray.open_dataset(path,
@@ -41,25 +45,29 @@ nodes in contact, gap = 0, its minimum over time), ``floor_spectrum`` (5 % dampe
 pseudo-acceleration, m/s², at FREQUENCIES_HZ; NaN in a direction of round-off response),
 ``wall_time`` (the route's, s), ``cell_time`` (the whole cell on its worker, s), ``status``
 (converged | stopped | refused | failed), ``message``, ``warnings``. Per PGA and route: ``<name>_fractile`` over the records, from the
-converged cells only (numpy's linear quantiles), and ``converged_records``. Per record: the
-file and its SHA-256 and the scale factor of each PGA, or the seed.
+converged cells only (numpy's linear quantiles), and ``converged_records``. Per record and
+direction: the file, its SHA-256 and its peak (g, unscaled); per record the scale factor of
+each PGA, or the seed. The attribute ``components`` ("x y z") says which components ran
+(``ensemble_components``).
 
-The package: ``plan`` (inputs checked, cells, keys), ``store`` (one cell's run and values, the
+The package: ``plan`` (inputs checked, cells, keys), ``triplets`` (the components of a record
+folder), ``store`` (one cell's run and values, the
 cell store), ``cluster`` (the dask cluster and the cells run on it), ``dataset`` (assembly,
 file, summary), ``runner`` (``run_ensemble``).
 """
 from .cluster import CONNECT_TIMEOUT_S, LOCAL_WORKER_CONFIG, default_workers
-from .dataset import (FRACTILE_VARIABLES, KIND, QUANTILES, assemble, ensemble_summary, is_ensemble_file,
-                      read_ensemble, write_ensemble)
+from .dataset import (FRACTILE_VARIABLES, KIND, QUANTILES, assemble, ensemble_components, ensemble_summary,
+                      is_ensemble_file, read_ensemble, write_ensemble)
 from .plan import (DT_CHECKS, RECORD_SUFFIXES, Cell, EnsembleError, Plan, Record, cell_key, code_digest,
-                   plan_ensemble, record_files)
+                   plan_ensemble, record_sources)
 from .runner import run_ensemble, strongest_check
 from .store import (CELL_VARIABLES, DAMPING, DIRECTIONS, FAILED, FREQUENCIES_HZ, ROUNDOFF, TEXT_VARIABLES,
                     CellStore, cell_values, run_cell)
+from .triplets import COMPONENTS_FILE, folder_components, peer_component
 
-__all__ = ["CELL_VARIABLES", "CONNECT_TIMEOUT_S", "DAMPING", "DIRECTIONS", "DT_CHECKS", "FAILED",
+__all__ = ["CELL_VARIABLES", "COMPONENTS_FILE", "CONNECT_TIMEOUT_S", "DAMPING", "DIRECTIONS", "DT_CHECKS", "FAILED",
            "FRACTILE_VARIABLES", "FREQUENCIES_HZ", "KIND", "LOCAL_WORKER_CONFIG", "QUANTILES", "RECORD_SUFFIXES",
            "ROUNDOFF", "TEXT_VARIABLES", "Cell", "CellStore", "EnsembleError", "Plan", "Record", "assemble",
-           "cell_key", "cell_values", "code_digest", "default_workers", "ensemble_summary", "is_ensemble_file",
-           "plan_ensemble", "read_ensemble", "record_files", "run_cell", "run_ensemble", "strongest_check",
-           "write_ensemble"]
+           "cell_key", "cell_values", "code_digest", "default_workers", "ensemble_components", "ensemble_summary",
+           "folder_components", "is_ensemble_file", "peer_component", "plan_ensemble", "read_ensemble",
+           "record_sources", "run_cell", "run_ensemble", "strongest_check", "write_ensemble"]

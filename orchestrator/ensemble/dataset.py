@@ -13,6 +13,7 @@ import numpy as np
 from soil_impedance.storage import CHECKSUM_ATTR, atomic_output, require_checksum, stamp_file
 from structure.results import Status
 
+from orchestrator.motion import G
 from orchestrator.results import ResultsFileError, check_output_path
 
 from .plan import Plan
@@ -72,18 +73,33 @@ def assemble(plan: Plan, values: dict, failures: dict, attrs: dict):
             q = np.nanquantile(np.where(mask, a, np.nan), QUANTILES, axis=0)
             ds[f"{name}_fractile"] = (("quantile",) + ds[name].dims[1:], q,
                                       {**ds[name].attrs, "long_name": f"fractile over the records of {name}"})
-    files = [r for r in plan.records if r.file is not None]
-    if files:
-        ds["record_file"] = ("record", [str(r.file) for r in plan.records])
-        ds["record_sha256"] = ("record", [r.sha256 for r in plan.records])
+    if plan.records[0].files:
+        def per_axis(r, values, empty):          # by direction, ``empty`` where the record has none
+            by_axis = dict(zip(r.axes, values))
+            return [by_axis.get(d, empty) for d in DIRECTIONS]
+        ds["record_file"] = (("record", "direction"), [per_axis(r, [str(f) for _, f in r.files], "")
+                                                       for r in plan.records])
+        ds["record_sha256"] = (("record", "direction"), [per_axis(r, r.checksums, "") for r in plan.records])
+        ds["record_peak"] = (("record", "direction"), np.array([per_axis(r, r.peaks, np.nan) for r in plan.records]) / G,
+                             {"units": "g", "long_name": "peak of the record file as read, before scaling"})
         ds["record_scale"] = (("record", "pga"), np.array([[r.scale(p) for p in plan.pgas] for r in plan.records]),
-                              {"long_name": "factor on the record file's values ([motion] scale)"})
+                              {"long_name": "factor on the record files' values ([motion] scale): the stronger "
+                                            "horizontal (without one, the vertical) to the PGA"})
     else:
         ds["seed"] = ("record", np.array([r.seed for r in plan.records]))
     s = plan.scene
     ds.attrs.update(uplift_file=KIND, scene=s.name, created=time.strftime("%Y-%m-%dT%H:%M:%S"),
-                    dt=s.analysis.dt, motion_direction=s.motion.direction, damping=DAMPING, **attrs)
+                    dt=s.analysis.dt, components=" ".join(plan.components), damping=DAMPING, **attrs)
+    if not plan.records[0].files and "z" in plan.components and s.motion.vertical_ratio is not None:
+        ds.attrs["vertical_ratio"] = s.motion.vertical_ratio
     return ds
+
+
+def ensemble_components(ds) -> tuple:
+    """The components of motion an ensemble ran, in x, y, z order: its ``components``
+    attribute ("x y z"), or the ``motion_direction`` of a file written before it."""
+    text = ds.attrs.get("components", ds.attrs.get("motion_direction", "x"))
+    return tuple(a for a in DIRECTIONS if a in str(text).split())
 
 
 def write_ensemble(ds, path) -> Path:
@@ -144,7 +160,7 @@ def ensemble_summary(ds) -> dict:
                "message": str(ds["message"].values[i, j, k])}
               for i, j, k in zip(*np.nonzero(status != "converged"))]
     a = ds.attrs
-    return {"scene": a["scene"], "runs": int(status.size), **counts, "computed": int(a["computed"]),
+    return {"scene": a["scene"], "components": list(ensemble_components(ds)), "runs": int(status.size), **counts, "computed": int(a["computed"]),
             "reused": int(a["reused"]), "workers": int(a["workers"]), "workers_note": str(a.get("workers_note", "")),
             "wall_s": float(a["wall_s"]),
             "cluster_s": float(a["cluster_s"]), "setup_s": float(a["setup_s"]),

@@ -19,6 +19,7 @@ from .cluster import CONNECT_TIMEOUT_S, _client, _run_cells, check_timeout, loca
 from .dataset import assemble, write_ensemble
 from .plan import EnsembleError, Plan, plan_ensemble
 from .store import CellStore
+from .triplets import PEER_NAMES
 
 
 def run_ensemble(scene, pgas, records=None, seeds=None, routes=None, output=None, workers: int | None = None,
@@ -49,6 +50,9 @@ def run_ensemble(scene, pgas, records=None, seeds=None, routes=None, output=None
     connect_timeout = check_timeout(connect_timeout)
     out = check_output_path(output) if output is not None else None
     plan = plan_ensemble(scene, pgas, records, seeds, dt_check)
+    for rec in plan.records if log is not None else ():
+        if rec.told == PEER_NAMES:
+            log(f"{rec.label}: " + ", ".join(f"{a} = {f.name}" for a, f in rec.files) + " (told by PEER's file names)")
     store = CellStore(out) if out is not None else None
     values = {}
     for cell in plan.cells if store is not None else ():

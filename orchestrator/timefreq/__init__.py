@@ -14,8 +14,8 @@ operator       ModalStructure, InterfaceOperator (interface stiffness S, blocked
 problem        prepare -> ContactProblem (grid, operator, static preload, renormalised unknown),
                ContactEquation (whole-range residual g), SolverStatus, Outcome, route_result
 march          the default solver: causal marches + defect correction (MarchSweep per sweep)
-newton_krylov  EXPERIMENTAL: semi-smooth Newton-Krylov (fails from 0.4 g on the Winkler raft)
-paper          EXPERIMENTAL: the paper's quasi-Newton (fails from 0.2 g on the Winkler raft)
+methods        METHODS: the solvers by name (SolveOptions.method), DEFAULT "march"
+experimental/  newton_krylov, paper: EXPERIMENTAL solvers, by name only, warned when used
 uplift         solve(): options -> prepare -> solver -> RouteResult (the ``timefreq`` route's core)
 linear         linear_fd(), solve_bonded(): the raft bonded, no uplift (the ``linear`` route's core)
 ============== ===============================================================================
@@ -32,19 +32,18 @@ The scene-level glue (the scene's table, motion, contact and output nodes) is in
 from orchestrator.timefreq.grid import Grid, pad_rule_s
 from orchestrator.timefreq.linear import linear_fd, solve_bonded
 from orchestrator.timefreq.march import DIVERGED_M, MarchDiverged, MarchSweep, defect_correction, kernel_head, march
-from orchestrator.timefreq.newton_krylov import NewtonIteration, newton_continuation, newton_krylov
+from orchestrator.timefreq.methods import DEFAULT, METHODS, ExperimentalMethodWarning, Method
 from orchestrator.timefreq.operator import InterfaceOperator, ModalStructure, WorkerPool
-from orchestrator.timefreq.options import (METHODS, THREADS, GridOptions, NewtonKrylovOptions, PaperOptions,
+from orchestrator.timefreq.options import (THREADS, GridOptions, NewtonKrylovOptions, PaperOptions,
                                            SolveOptions, with_overrides)
-from orchestrator.timefreq.paper import PaperIteration, paper_scheme
 from orchestrator.timefreq.problem import (ContactEquation, ContactProblem, Outcome, SolverStatus, prepare,
                                            route_result)
 from orchestrator.timefreq.soil import SoilBands, causal_table, soil_bands
 from orchestrator.timefreq.uplift import solve
 
-__all__ = ["DIVERGED_M", "METHODS", "THREADS", "ContactEquation", "ContactProblem", "Grid", "GridOptions",
-           "InterfaceOperator", "MarchDiverged", "MarchSweep", "ModalStructure", "NewtonIteration",
-           "NewtonKrylovOptions", "Outcome", "PaperIteration", "PaperOptions", "SoilBands", "SolveOptions",
-           "SolverStatus", "WorkerPool", "causal_table", "defect_correction", "kernel_head", "linear_fd", "march",
-           "newton_continuation", "newton_krylov", "pad_rule_s", "paper_scheme", "prepare", "route_result",
-           "soil_bands", "solve", "solve_bonded", "with_overrides"]
+__all__ = ["DEFAULT", "DIVERGED_M", "METHODS", "THREADS", "ContactEquation", "ContactProblem",
+           "ExperimentalMethodWarning", "Grid", "GridOptions", "InterfaceOperator", "MarchDiverged", "MarchSweep",
+           "Method", "ModalStructure", "NewtonKrylovOptions", "Outcome", "PaperOptions", "SoilBands",
+           "SolveOptions", "SolverStatus", "WorkerPool", "causal_table", "defect_correction", "kernel_head",
+           "linear_fd", "march", "pad_rule_s", "prepare", "route_result", "soil_bands", "solve", "solve_bonded",
+           "with_overrides"]

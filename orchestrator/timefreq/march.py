@@ -17,8 +17,9 @@ with a semi-smooth Newton on the N contact conditions of step n (full steps, the
 h_0 + kp I^+ cached per active set; damped on the step's convex energy if an active set comes
 back), so no global iteration has to cross thousands of contact switches at once. The history
 H_n is split at blocks of B steps: the near field (the same block) directly with the kernel
-head h_1..h_{B-1} (formed per frequency, one column chunk at a time), the far field (earlier
-blocks) with one application of S per block, on the grid. Cost of a march: (nt / B) S
+head h_1..h_{B-1} (formed per frequency, one column chunk at a time; step by step inside
+sub-blocks of SUB steps, by one matrix product from a finished sub-block to the rest of the
+block), the far field (earlier blocks) with one application of S per block, on the grid. Cost of a march: (nt / B) S
 applications + nt B N^2 / 2 multiply-adds + one (N x N) LU per new active set.
 
 ``defect_correction`` feeds what the periodic grid adds back as a source, march after march,
@@ -38,6 +39,7 @@ import scipy.linalg as sla
 from structure.contact import contact_force
 
 from orchestrator.timefreq.problem import ContactEquation, Outcome, SolverStatus
+from orchestrator.timefreq.soil import AffineBand, dense
 
 #: |d| (m) past which a march has diverged (a soil whose causal part is not passive on the grid)
 DIVERGED_M = 100.0
@@ -45,6 +47,10 @@ DIVERGED_M = 100.0
 #: steps per block: the near field costs nt B N^2 / 2 multiply-adds, the far field nt / B
 #: applications of S (reactor, N = 241: B = 32 / 64 / 128 give sweeps of 2.4 / 1.8 / 2.3 s)
 BLOCK = 64
+#: steps per sub-block of the near field (CausalSweep.run): step by step inside, one matrix
+#: product from a finished sub-block to the rest of its block; SUB = BLOCK is the plain
+#: step-by-step near field (the same sums in another order)
+SUB = 16
 
 
 def kernel_head(op, grid, n_lags: int, fold: bool = False, chunk: int = 24):
@@ -54,22 +60,40 @@ def kernel_head(op, grid, n_lags: int, fold: bool = False, chunk: int = 24):
     period: the causal kernel with the same Im S(w) (the damping, so passive when S is) and the
     same static value. Truncating the negative lags instead changes Im S and can leave a
     non-passive causal part: the reactor's table (continued by springs and dashpots above
-    25 Hz) made the truncated march diverge from 0.6 g, the folded one converges."""
+    25 Hz) made the truncated march diverge from 0.6 g, the folded one converges.
+
+    Every step is linear per matrix entry: an affine band's K_ww = A + s B (a table's
+    continuation above its last frequency, a Winkler soil) contributes A (x) a_k + B (x) b_k,
+    a and b the kernels of the scalar series 1 and s on the band's frequencies, so only the
+    dense bands and the rank-6 structure term go through an FFT per entry."""
     N, nt, nf = op.N, grid.nt, grid.nfft
     rows = np.arange(N)
     k = np.arange(1, nf - nt + 1)
-    head = np.empty((n_lags, N, N))
-    for c0 in range(0, N, chunk):
-        cols = rows[c0:c0 + chunk]
-        Sc = np.ascontiguousarray(op.S_sub(rows, cols).transpose(1, 2, 0))   # (N, c, F)
+
+    def lags(X):                                  # (..., F) -> the (folded) kernel (..., n_lags)
         if not fold:
-            head[:, :, cols] = grid.to_time(Sc, n=n_lags).transpose(2, 0, 1)
-            continue
-        hw = np.fft.irfft(Sc, n=nf, axis=-1)                                 # windowed period
+            return grid.to_time(X, n=n_lags)
+        hw = np.fft.irfft(X, n=nf, axis=-1)                                  # windowed period
         hn = hw[..., nf - k] * np.exp(-grid.eta * grid.dt * k)               # h_{-1}, h_{-2}, ...
         h = hw[..., :n_lags] * np.exp(grid.eta * grid.dt * np.arange(n_lags))
         h[..., 1:] -= hn[..., :n_lags - 1]
         h[..., 0] += 2.0 * hn.sum(axis=-1)
+        return h
+
+    affine = [b for b in op.soil.bands if isinstance(b, AffineBand)]
+    series = np.zeros((2 * len(affine), op.s.size), complex)
+    for j, band in enumerate(affine):
+        series[2 * j, band.idx] = 1.0
+        series[2 * j + 1, band.idx] = op.s[band.idx]
+    ab = lags(series) if affine else None                                    # (2 m, n_lags)
+    head = np.empty((n_lags, N, N))
+    for c0 in range(0, N, chunk):
+        cols = rows[c0:c0 + chunk]
+        Sc = np.ascontiguousarray(op.S_sub(rows, cols, affine=False).transpose(1, 2, 0))   # (N, c, F)
+        h = lags(Sc)                                                          # (N, c, n_lags)
+        for j, band in enumerate(affine):
+            A, B = (dense(M[:, cols]) if hasattr(M, "tocsr") else M[:, cols] for M in band.ww())
+            h += A[:, :, None] * ab[2 * j] + B[:, :, None] * ab[2 * j + 1]
         head[:, :, cols] = h.transpose(2, 0, 1)
     return head
 
@@ -174,13 +198,15 @@ class CausalSweep:
     """The march's kernel head and step solver, kept from one sweep to the next (the LUs of
     h_0 + kp I^+ too)."""
 
-    def __init__(self, prob, block: int = BLOCK, fold: bool = False):
+    def __init__(self, prob, block: int = BLOCK, fold: bool = False, sub: int = SUB):
         t0 = time.perf_counter()
         self.prob, self.fold = prob, fold
         N, nt = prob.f.shape
         self.B = B = int(max(2, min(block, nt)))
+        self.b = int(max(1, min(sub, B)))
         head = kernel_head(prob.op, prob.grid, B, fold)
-        self.hflat = np.ascontiguousarray(head[1:].transpose(1, 0, 2).reshape(N, (B - 1) * N))
+        self.hflat = np.ascontiguousarray(head[1:].transpose(1, 0, 2).reshape(N, (B - 1) * N))   # [h_1 .. h_B-1]
+        self.hstack = np.ascontiguousarray(head[1:].reshape((B - 1) * N, N))                    # the same, stacked
         self.step = StepSolver(head[0], prob.kp, prob.static.delta0, prob.P0)
         self.head_s = time.perf_counter() - t0
 
@@ -188,25 +214,35 @@ class CausalSweep:
         """The contact history x (N, nt): step n solves its contact conditions with
         c_n = c0_n + sum_{k>=1} h_k x_{n-k}, the near field (same block of B steps) from the
         kernel head, the far field (earlier blocks) by one S application per block on the
-        grid. Returns (x, steps done, linear solves)."""
+        grid. The near field in two levels: within a sub-block of ``b`` steps step by step
+        (h_1..h_{b-1}, small enough to stay in cache), and from a finished sub-block to the rest
+        of its block at once, one matrix product for all its steps (the stacked head read once
+        per sub-block, not once per step). Returns (x, steps done, linear solves)."""
         g, op = self.prob.grid, self.prob.op
         N, nt = c0.shape
         nf = g.nfft
-        B, hflat = self.B, self.hflat
+        B, sb, hflat, hstack = self.B, self.b, self.hflat, self.hstack
         x = np.zeros((N, nt))
         H = np.array(c0, float)
         xn = np.zeros(N)
         solves = 0
         for a in range(0, nt, B):
             b = min(a + B, nt)
-            for n in range(a, b):
-                m = n - a
-                c = H[:, n]
-                if m:                                    # near field: h_1..h_m on x_{n-1}..x_a
-                    c = c + hflat[:, :m * N] @ x[:, n - 1:a - 1 if a else None:-1].T.ravel()
-                xn, it = self.step.solve(xn, c)
-                x[:, n] = xn
-                solves += it
+            for s0 in range(a, b, sb):
+                s1 = min(s0 + sb, b)
+                for n in range(s0, s1):
+                    m = n - s0
+                    c = H[:, n]
+                    if m:                            # h_1..h_m on x_{n-1}..x_{s0}
+                        c = c + hflat[:, :m * N] @ x[:, n - 1:s0 - 1 if s0 else None:-1].T.ravel()
+                    xn, it = self.step.solve(xn, c)
+                    x[:, n] = xn
+                    solves += it
+                if s1 < b:                           # this sub-block's steps -> the block's later steps
+                    L = b - 1 - s0                   # lags up to the block's last step
+                    Y = (hstack[:L * N] @ x[:, s0:s1]).reshape(L, N, s1 - s0)
+                    for i, s in enumerate(range(s0, s1)):
+                        H[:, s1:b] += Y[s1 - s - 1:b - 1 - s, :, i].T
             if b < nt and not self.fold:      # far field of this block, on the grid
                 X = np.zeros((N, nt))
                 X[:, a:b] = x[:, a:b]
@@ -272,7 +308,7 @@ class MarchSweep:
 
 
 def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BLOCK, progress=None,
-                      deadline=None, fold=False) -> Outcome:
+                      deadline=None, fold=False, sub=SUB) -> Outcome:
     """The whole-range equation g(y) = 0 (problem.ContactEquation) by marches.
 
     g = C + W: C the causal equations the march solves exactly, W(y) what the periodic grid
@@ -292,13 +328,13 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
     Measured (benchmarks/timefreq.py --map, --map-reactor): the 21-node Winkler raft (causal
     soil, no fold) from 0.1 to 1.0 g in <= 6 sweeps to 1e-10 (the wrap-around only).
     progress : callable(sweep, residual); deadline : perf_counter time past which the best
-    iterate is returned, STOPPED.
+    iterate is returned, STOPPED; block, sub : CausalSweep's blocks and near-field sub-blocks.
 
     Returns an Outcome (history: one MarchSweep per sweep)."""
     eq = ContactEquation(prob, lam)
     scale = eq.scale
     hist = []
-    sweep = CausalSweep(prob, block, fold is True)
+    sweep = CausalSweep(prob, block, fold is True, sub)
     W = np.zeros_like(prob.f)
     Gs, Fs = [], []                       # Anderson: past maps G(W) = W + g and residuals g
     best = None
@@ -318,7 +354,7 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
         except MarchDiverged as exc:
             hist.append(MarchSweep(k, math.nan, time.perf_counter() - t0, kernel(), diverged=True))
             if fold == "auto" and not sweep.fold:      # start again on the folded kernel
-                sweep = CausalSweep(prob, block, True)
+                sweep = CausalSweep(prob, block, True, sub)
                 W, Gs, Fs, best = np.zeros_like(prob.f), [], [], None
                 continue
             return ended(SolverStatus.DIVERGED, str(exc))

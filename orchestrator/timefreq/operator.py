@@ -213,12 +213,16 @@ class InterfaceOperator:
         """SubInverse: S[O, O]^-1 per frequency, applied to (m, F) arrays."""
         return SubInverse(self, np.asarray(O))
 
-    def S_sub(self, rows, cols):
-        """S[rows, cols] (F, m_r, m_c)."""
+    def S_sub(self, rows, cols, affine: bool = True):
+        """S[rows, cols] (F, m_r, m_c); affine False: without the affine bands' K_ww (A + s B,
+        whose kernel march.kernel_head forms from two scalar series instead)."""
         F = self.s.size
         out = np.empty((F, rows.size, cols.size), complex)
         for band in self.soil.bands:
-            out[band.idx] = band.sub_ww(rows, cols, self.s[band.idx])
+            if affine or not isinstance(band, AffineBand):
+                out[band.idx] = band.sub_ww(rows, cols, self.s[band.idx])
+            else:
+                out[band.idx] = 0.0
         out -= self.Vr[:, rows] @ (self.Zinv @ self.Vl[:, :, cols])
         return out
 

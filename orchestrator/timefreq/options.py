@@ -1,8 +1,8 @@
 """Options of the frequency-domain routes, as small frozen dataclasses checked on construction.
 
 ``GridOptions``          the time-frequency grid: padding, window, bilinear map, FFT length
-``SolveOptions``         the uplift solve: method, tolerance, iterations, time budget, threads,
-                         and the two experimental methods' own options:
+``SolveOptions``         the uplift solve: method (a name of methods.METHODS), tolerance,
+                         iterations, time budget, threads, and the experimental methods' options:
 ``PaperOptions``         the paper's quasi-Newton scheme (relaxation, windows, auxiliary stiffness)
 ``NewtonKrylovOptions``  the semi-smooth Newton-Krylov solver (windows, initial iterate)
 
@@ -15,8 +15,6 @@ import math
 from numbers import Integral, Real
 from dataclasses import dataclass, field, fields, replace
 
-#: methods of the uplift solve (``uplift.solve``)
-METHODS = ("march", "newton-krylov", "paper")
 #: default worker threads of the frequency-domain operator (operator.WorkerPool). The operator
 #: is ~30 % of a reactor solve; on two shared cores (benchmarks/timefreq.py --contention, best
 #: of 3, three sessions, one BLAS thread) a second thread changed the wall time by -2 to +5 %
@@ -117,8 +115,9 @@ class NewtonKrylovOptions:
 class SolveOptions:
     """The uplift solve.
 
-    method : "march" | "newton-krylov" | "paper" (None: "march" on the bilinear grid,
-             "newton-krylov" on the continuous one, whose instantaneous kernel is indefinite)
+    method : a name of methods.METHODS: "march" (the default, None) or an experimental one,
+             "newton-krylov" | "paper" (warned when used; the continuous grid, whose
+             instantaneous kernel is indefinite, has no robust method: name one there)
     tol : relative whole-range residual |g| / |f| (None: 1e-10; 1e-6 for "paper")
     max_iter : sweeps or iterations (None: 60 sweeps of the march, 200 iterations otherwise)
     max_seconds : time budget, s (None: none); when it runs out the best iterate is returned,
@@ -136,8 +135,10 @@ class SolveOptions:
     newton_krylov: NewtonKrylovOptions = field(default_factory=NewtonKrylovOptions)
 
     def __post_init__(self):
+        # the registry imports the solvers, which import these options: looked up when checked
+        from orchestrator.timefreq.methods import METHODS
         if self.method is not None and self.method not in METHODS:
-            raise ValueError(f"SolveOptions.method = {self.method!r}: use one of {METHODS} or None")
+            raise ValueError(f"SolveOptions.method = {self.method!r}: use one of {tuple(METHODS)} or None")
         _positive("SolveOptions", "tol", self.tol, allow_none=True)
         _count("SolveOptions", "max_iter", self.max_iter, allow_none=True)
         _positive("SolveOptions", "max_seconds", self.max_seconds, allow_none=True, allow_zero=True)

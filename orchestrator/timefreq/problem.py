@@ -37,7 +37,6 @@ from structure.results import RouteResult, Status
 
 from orchestrator.timefreq.grid import Grid, pad_rule_s
 from orchestrator.timefreq.operator import InterfaceOperator, ModalStructure, WorkerPool
-from orchestrator.timefreq.options import GridOptions
 from orchestrator.timefreq.soil import soil_bands
 
 
@@ -105,7 +104,7 @@ class ContactProblem:
         return np.minimum(z, 0.0) + self.eps[:, None] * np.maximum(z, 0.0)
 
 
-def prepare(model, soil, ag, dt, *, grid: GridOptions, contact=None, damping=None, static=None,
+def prepare(model, soil, ag, dt, *, grid, contact=None, damping=None, static=None,
             aux_factor=1.0, pool: WorkerPool | None = None) -> ContactProblem:
     """ContactProblem for ground acceleration ag (nt, 3) m/s^2 at step dt (s).
 

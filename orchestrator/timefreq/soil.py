@@ -54,10 +54,9 @@ class DenseBand:
         return np.matmul(self.ww()[sel], X)
 
     def ww(self):
-        """K_ww (Fb, N, N), the soil block, contiguous (cached)."""
-        if not hasattr(self, "_cache"):
-            object.__setattr__(self, "_cache", np.ascontiguousarray(self.K[:, 6:, 6:]))
-        return self._cache
+        """K_ww (Fb, N, N), the soil block: a view (its rows are contiguous, which is all the
+        batched products need: a copy would cost the time of several of them, and the memory)."""
+        return self.K[:, 6:, 6:]
 
     def sub_ww(self, rows, cols, s, sel=slice(None)):
         """K_ww[rows, cols] (Fb, m_r, m_c) at the band's frequencies sel (s unused)."""

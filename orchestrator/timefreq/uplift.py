@@ -1,8 +1,8 @@
 """The time-frequency solve with uplift (paper §3): ``solve`` -> RouteResult.
 
-Methods (``SolveOptions.method``):
+Methods (``SolveOptions.method``, by name from methods.METHODS):
 
-* "march" (default on the bilinear grid, march.defect_correction): the causal part of the
+* "march" (the default, march.defect_correction): the causal part of the
   equations marched step by step as the Newmark stepper does (a semi-smooth Newton on the N
   contact conditions of each step, the soil's history from the kernel of S per frequency),
   and what the periodic grid adds (the wrap-around; a table's non-causal part) fed back as a
@@ -12,10 +12,13 @@ Methods (``SolveOptions.method``):
   not causal on the grid (springs and dashpots continue it above its last frequency): its
   march starts on the truncated kernel and starts again on the folded one
   (march.kernel_head), causal with the table's damping, if a march diverges (the truncated
-  one did on the reactor from 0.6 g). A march that diverges anyway ends DIVERGED.
-* "newton-krylov" (EXPERIMENTAL; default on the continuous grid, newton_krylov.py):
-  semi-smooth Newton on the whole-range residual; fails from 0.4 g on the Winkler raft.
-* "paper" (EXPERIMENTAL, paper.py): the paper's quasi-Newton; fails from 0.2 g there.
+  one did on the reactor from 0.6 g). A march that diverges anyway ends DIVERGED. It needs
+  the bilinear grid.
+* "newton-krylov" (EXPERIMENTAL, experimental/newton_krylov.py): semi-smooth Newton on the
+  whole-range residual; fails from 0.4 g on the Winkler raft. The only method of the
+  continuous grid, where it must be named.
+* "paper" (EXPERIMENTAL, experimental/paper.py): the paper's quasi-Newton; fails from 0.2 g
+  there.
 
 With ``GridOptions(bilinear=True)`` (the default) and a RecursiveConvolutionSoil (or
 WinklerSoil / RationalModel) the route solves the same discrete equations as
@@ -29,17 +32,16 @@ from __future__ import annotations
 
 import dataclasses
 import time
+import warnings
 
 import numpy as np
 
 from soil_impedance.table import ImpedanceTable
 from structure.results import RouteResult, Status
 
-from orchestrator.timefreq.march import defect_correction, march, y_from_d
-from orchestrator.timefreq.newton_krylov import newton_continuation
+from orchestrator.timefreq.methods import DEFAULT, METHODS, ExperimentalMethodWarning
 from orchestrator.timefreq.operator import WorkerPool
 from orchestrator.timefreq.options import GridOptions, SolveOptions
-from orchestrator.timefreq.paper import paper_scheme
 from orchestrator.timefreq.problem import ContactEquation, SolverStatus, prepare, route_result
 
 
@@ -64,38 +66,25 @@ def solve(model, soil, ag, dt, *, contact=None, damping=None, output_nodes=None,
     t0 = time.perf_counter()
     grid = (grid or GridOptions()).resolved(bilinear=True, window=True)
     options = options or SolveOptions()
-    method = options.method or ("march" if grid.bilinear else "newton-krylov")
-    if method == "march" and not grid.bilinear:
-        raise ValueError("SolveOptions.method = 'march' needs the bilinear grid (GridOptions(bilinear=True)): on "
-                         "the continuous grid the instantaneous kernel is indefinite; use 'newton-krylov' there")
+    method = METHODS[options.method or DEFAULT]
+    if method.bilinear_only and not grid.bilinear:
+        how = f"SolveOptions.method = {method.name!r}" if options.method else "the default method ('march')"
+        raise ValueError(f"{how} needs the bilinear grid (GridOptions(bilinear=True)): on the continuous grid "
+                         "the instantaneous kernel is indefinite; there only the experimental "
+                         "method='newton-krylov' applies, and it must be named")
     if contact is not None and not contact.enabled:
         raise ValueError("contact.enabled is false: use the linear route (orchestrator.timefreq.linear_fd)")
+    if method.experimental:
+        warnings.warn(f"timefreq method {method.name!r} is experimental ({method.summary}); the robust "
+                      f"method is {DEFAULT!r}", ExperimentalMethodWarning, stacklevel=2)
     deadline = None if options.max_seconds is None else t0 + float(options.max_seconds)
-    aux = options.paper.aux_factor if method == "paper" else 1.0
     with WorkerPool(options.threads) as pool:
         prob = prepare(model, soil, ag, dt, grid=grid, contact=contact, damping=damping, static=static,
-                       aux_factor=aux, pool=pool)
+                       aux_factor=method.aux_factor(options), pool=pool)
         t_setup = time.perf_counter() - t0
-        info = dict(method=method)
-        if method == "march":
-            out = defect_correction(prob, tol=options.tol or 1e-10, max_sweeps=options.max_iter or 60,
-                                    progress=progress, deadline=deadline,
-                                    fold="auto" if isinstance(soil, ImpedanceTable) else False)
-        elif method == "newton-krylov":
-            nk = options.newton_krylov
-            y0 = None
-            if nk.guess == "march":
-                d, info["march"] = march(prob, deadline=deadline)
-                y0 = y_from_d(prob, d)
-            info["guess"] = nk.guess
-            out = newton_continuation(prob, tol=options.tol or 1e-10, max_iter=options.max_iter or 200,
-                                      windows=nk.windows, y0=y0, deadline=deadline)
-            info["gmres_total"] = int(sum(h.gmres for h in out.history))
-        else:
-            pa = options.paper
-            out = paper_scheme(prob, rho=pa.rho, windows=pa.windows, tol=options.tol or 1e-6,
-                               max_iter=options.max_iter or 200)
-            info.update(rho=pa.rho, windows=pa.windows, aux_factor=pa.aux_factor)
+        out, extra = method.run(prob, options, fold="auto" if isinstance(soil, ImpedanceTable) else False,
+                                progress=progress, deadline=deadline)
+        info = dict(method=method.name, **extra)
         eq = ContactEquation(prob)
         residual = float(np.linalg.norm(eq.residual(out.y)) / eq.scale)
         apply_S = prob.op.n_apply
@@ -108,7 +97,7 @@ def solve(model, soil, ag, dt, *, contact=None, damping=None, output_nodes=None,
     gap = np.maximum(0.0, -z)
     return route_result(prob, route, d, P, gap, output_nodes=output_nodes,
                         status=Status.CONVERGED if out.converged else Status.STOPPED,
-                        message=_message(method, out, residual, options.max_seconds), started=t0, info=info)
+                        message=_message(method.name, out, residual, options.max_seconds), started=t0, info=info)
 
 
 def _message(method, out, residual, max_seconds) -> str:

@@ -1,5 +1,5 @@
 """EXPERIMENTAL: the paper's quasi-Newton scheme (§3, eq. 17-20; method "paper"; the route's
-default is the march, march.py).
+default is the march, orchestrator/timefreq/march.py).
 
 y <- y - rho G^-1 g(y) on the whole-range residual g (problem.ContactEquation), G the order-0
 stochastic linearisation of the Jacobian J: the active-set indicators I^+- replaced by their

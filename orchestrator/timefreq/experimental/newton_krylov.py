@@ -1,5 +1,5 @@
 """EXPERIMENTAL: semi-smooth Newton-Krylov on the whole-range contact equation (method
-"newton-krylov"; the route's default is the march, march.py).
+"newton-krylov"; the route's default is the march, orchestrator/timefreq/march.py).
 
 Newton on g(y) = 0 (problem.ContactEquation): J dy = -g solved by right-preconditioned FGMRES
 to an Eisenstat-Walker forcing term, with the active-set preconditioner

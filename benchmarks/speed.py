@@ -1,0 +1,224 @@
+"""Benchmark: what each route costs against the bare dense kernel, measured in the same process.
+
+The reactor (built-in scene ``reactor``: 247 interface DOFs, its fitted soil, 10 s at 5 ms,
+2000 steps), one BLAS thread. The bare kernel is the least work a soil step does: numpy,
+2000 x (the history GEMV ``H g`` over the fit's poles, (6+N) x (m (6+N)), plus ``D0 x`` and
+``E xdot``). Each row is a wall time (best of --repeat), its ratio to the kernel's, and the
+CPU time of that run (all threads and child processes: on a loaded machine the wall time
+grows, the CPU time much less).
+
+Rows (one small function each, registered with ``@row``; add one the same way):
+
+  bare dense kernel          the reference (the ratio 1)
+  monolithic stepping        structure.simulate on the fit's recursive convolution
+  timefreq route             orchestrator.routes.timefreq.run_timefreq on the BEM table
+  uplift run (warm)          the whole command ``uplift run reactor --route monolithic`` in a
+                             fresh process, cache warm (the sweep and the fit are read here first)
+
+--busy runs every row beside one CPU-burning process (``python -c "while True: pass"``,
+started and stopped here): the machine has two cores, so a route that uses both feels it.
+
+    python benchmarks/speed.py [--repeat 3] [--busy] [--only ROW ...] [--json]
+
+The code measured is the one imported (PYTHONPATH), also by the ``uplift run`` row: the same
+file measures another checkout with PYTHONPATH=<checkout>. The machine may be shared: idle means nothing else of ours runs, not that the cores are free;
+compare rows of one run, and rerun when in doubt.
+"""
+from __future__ import annotations
+
+import os
+
+os.environ["OPENBLAS_NUM_THREADS"] = "1"      # before numpy: one BLAS thread, the benchmark's rule
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse
+import contextlib
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+SCENE = "reactor"
+DT = 0.005
+
+#: the rows, in order: name -> function(Case) -> (wall s, note)
+ROWS: dict = {}
+
+
+def row(name):
+    """Register a row: ``@row("name")`` on a function(case) -> (wall seconds, note string)."""
+    def register(fn):
+        ROWS[name] = fn
+        return fn
+    return register
+
+
+@dataclass
+class Case:
+    """The reactor's inputs, loaded once (the cache is read, or filled on the first run)."""
+
+    cache_dir: Path | None = None
+
+    @cached_property
+    def scene(self):
+        from orchestrator.scene import load_scene
+        return load_scene(SCENE)
+
+    @cached_property
+    def model(self):
+        return self.scene.model()
+
+    @cached_property
+    def motion(self):
+        from orchestrator.motion import make_motion
+        return make_motion(self.scene.motion, DT)
+
+    @cached_property
+    def table(self):
+        from orchestrator.impedance import scene_impedance
+        return scene_impedance(self.scene, ("gap",), cache_dir=self._cache())["gap"]
+
+    @cached_property
+    def fit(self):
+        from orchestrator.impedance import scene_fit
+        return scene_fit(self.scene, cache_dir=self._cache(), table=self.table)
+
+    def _cache(self):
+        if self.cache_dir is not None:
+            return self.cache_dir
+        env = os.environ.get("UPLIFT_CACHE")
+        return Path(env) if env else Path.home() / ".cache" / "uplift"
+
+
+@row("bare dense kernel")
+def bare_kernel(case: Case):
+    model = case.fit.model
+    n, m = model.n, model.poles.size
+    nt = case.motion.acc.shape[0]
+    rng = np.random.default_rng(0)
+    H = rng.standard_normal((n, m * n))
+    D0, E = rng.standard_normal((n, n)), rng.standard_normal((n, n))
+    g, x, xd = rng.standard_normal(m * n), rng.standard_normal(n), rng.standard_normal(n)
+    out = np.empty(n)
+    t0 = time.perf_counter()
+    for _ in range(nt):
+        np.matmul(H, g, out=out)
+        out += D0 @ x
+        out += E @ xd
+    return time.perf_counter() - t0, f"{nt} x (H {n}x{m * n}, D0 and E {n}x{n})"
+
+
+@row("monolithic stepping")
+def monolithic_stepping(case: Case):
+    from soil_impedance.convolution import RecursiveConvolutionSoil
+    from structure import simulate
+    soil = RecursiveConvolutionSoil(case.fit.model, DT)
+    sc = case.scene
+    t0 = time.perf_counter()
+    res = simulate(case.model, soil, case.motion.acc, DT, contact=sc.contact, output_nodes=sc.output.nodes)
+    return time.perf_counter() - t0, f"max uplift {1e3 * res.max_uplift():.4f} mm"
+
+
+@row("timefreq route")
+def timefreq_route(case: Case):
+    from orchestrator.routes.timefreq import run_timefreq
+    sc = case.scene
+    t0 = time.perf_counter()
+    res = run_timefreq(case.motion, case.model, case.table, contact=sc.contact, output_nodes=sc.output.nodes)
+    wall = time.perf_counter() - t0
+    info = res.info
+    return wall, (f"max uplift {1e3 * res.max_uplift():.6f} mm, {info['iterations']} sweeps, setup "
+                  f"{info['setup_s']:.2f} s")
+
+
+@row("uplift run (warm)")
+def uplift_run_warm(case: Case):
+    case.fit                                        # noqa: B018  (the cache warm before the timed command)
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [sys.executable, "-m", "orchestrator.cli", "run", SCENE, "--route", "monolithic",
+               "-o", str(Path(tmp) / "out.h5")]
+        import orchestrator                         # the code under test: the one this process imports
+        root = Path(orchestrator.__file__).resolve().parents[1]
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]))
+        if case.cache_dir is not None:
+            env["UPLIFT_CACHE"] = str(case.cache_dir)
+        t0 = time.perf_counter()
+        done = subprocess.run(cmd, cwd=tmp, env=env, capture_output=True, text=True)
+        wall = time.perf_counter() - t0
+    if done.returncode:
+        raise RuntimeError(f"uplift run failed ({done.returncode}): {done.stderr[-2000:]}")
+    return wall, "whole process: imports, cache reads, checks, stepping, the results file"
+
+
+@contextlib.contextmanager
+def busy_process(on: bool):
+    """One CPU-burning process beside the benchmark (stopped on exit), or nothing."""
+    if not on:
+        yield None
+        return
+    proc = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        time.sleep(0.5)
+        yield proc
+    finally:
+        proc.kill()
+        proc.wait()
+
+
+def measure(names, repeat: int, busy: bool, case: Case | None = None) -> list:
+    """[{row, wall_s (best of repeat), ratio to the bare kernel, note}] for the rows ``names``
+    (the bare kernel is always measured, first)."""
+    case = case or Case()
+    case.fit                                        # noqa: B018  (inputs loaded before any timing)
+    names = ["bare dense kernel"] + [n for n in names if n != "bare dense kernel"]
+    out = []
+    with busy_process(busy):
+        for name in names:
+            runs = []
+            for _ in range(repeat):
+                c0 = _cpu()
+                wall, note = ROWS[name](case)
+                runs.append((wall, _cpu() - c0, note))
+            wall, cpu, _ = min(runs)
+            out.append({"row": name, "wall_s": wall, "cpu_s": cpu, "note": runs[-1][2]})
+    kernel = out[0]["wall_s"]
+    for r in out:
+        r["ratio"] = r["wall_s"] / kernel
+    return out
+
+
+def _cpu() -> float:
+    """CPU seconds of this process (all its threads) and its finished children so far."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+def format_rows(rows, busy: bool) -> str:
+    head = (f"{'what':<24} {'wall s':>8} {'x kernel':>9} {'cpu s':>7}  "
+            f"({'beside one busy process' if busy else 'idle'})")
+    lines = [head, "-" * len(head)]
+    lines += [f"{r['row']:<24} {r['wall_s']:8.3f} {r['ratio']:9.1f} {r['cpu_s']:7.2f}  {r['note']}" for r in rows]
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--repeat", type=int, default=3, help="runs per row, best kept (default 3)")
+    ap.add_argument("--busy", action="store_true", help="beside one CPU-burning process")
+    ap.add_argument("--only", nargs="+", choices=list(ROWS), help="these rows only (and the kernel)")
+    ap.add_argument("--json", action="store_true", help="print the rows as JSON")
+    a = ap.parse_args(argv)
+    if a.repeat < 1:
+        ap.error("--repeat must be >= 1")
+    rows = measure(a.only or list(ROWS), a.repeat, a.busy)
+    print(json.dumps(rows, indent=1) if a.json else format_rows(rows, a.busy))
+
+
+if __name__ == "__main__":
+    main()
