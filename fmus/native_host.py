@@ -120,6 +120,20 @@ def library_note(folder=None) -> str:
     return _loaded[_folder(folder)][1]
 
 
+def springs_soil(soil, dt: float):
+    """A soil without memory (springs and dashpots: ``instantaneous(dt)`` -> (K, C), no history
+    force, e.g. structure.WinklerSoil) as the RecursiveConvolutionSoil of the rational model
+    D = K, E = C with no pole: the same equations, in the form the native stepper runs.
+    Passivity is not checked again (springs and dashpots of non-negative constants)."""
+    from soil_impedance.convolution import RecursiveConvolutionSoil
+    from soil_impedance.rational import RationalModel
+    dense = lambda a: np.asarray(a.toarray() if hasattr(a, "toarray") else a, float)
+    K, C = soil.instantaneous(dt)
+    n = soil.n_dof
+    model = RationalModel(np.zeros(0, complex), np.zeros((0, n, n), complex), dense(K), dense(C))
+    return RecursiveConvolutionSoil(model, dt, checked=True)
+
+
 def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None):
     """``structure.simulate`` through the C runtime: the same histories to round-off.
 

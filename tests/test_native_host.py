@@ -13,7 +13,9 @@ Python stepper (structure.simulate), its readable reference.
 - the library's vector width does not change a bit of the answer (baseline SSE2 build against
   the one with AVX2/AVX-512 clones);
 - the cosim route runs the native pair by default (the Python pair as an option): both equal
-  the monolithic route to 1e-10.
+  the monolithic route to 1e-10;
+- the run's step-doubling check on the proxy springs (the native stepper where available):
+  its two max uplifts equal the Python stepper's to 1e-10.
 
 About 10 s (the library is compiled once per content hash into the cache folder).
 """
@@ -135,3 +137,14 @@ def test_cosim_route_runs_the_native_pair_by_default():
     assert native.max_uplift() > 1e-3
     assert_same_histories(native, mono)
     assert_same_histories(python, mono)
+
+
+def test_step_doubling_check_on_the_native_stepper_equals_the_python_one(monkeypatch):
+    from orchestrator.run import proxy_springs, step_doubling
+    model, springs = SCENE.model(), proxy_springs(SCENE, True)
+    fast = step_doubling(SCENE, model, springs, MOTION)
+    monkeypatch.setattr(native_host, "library", lambda folder=None: None)     # no compiler: simulate runs
+    ref = step_doubling(SCENE, model, springs, MOTION)
+    assert ref["max_uplift_m"] > 1e-3
+    for key in ("max_uplift_m", "max_uplift_half_dt_m"):
+        assert fast[key] == pytest.approx(ref[key], rel=1e-10, abs=0.0)
