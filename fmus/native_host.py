@@ -5,7 +5,8 @@ resources.c) with ``simulate.c``'s one entry point, ``up_simulate``, which runs 
 and returns the histories (no call per step). The library is compiled for this machine by the
 FMUs' builder (``fmus.native_build.compile_runtime``: the system compiler, else ziglang's),
 once per content hash of its sources, the compiler and the flags, into the cache folder
-(``<cache>/native/``), and loaded with ctypes. ``structure.simulate`` (the Python stepper)
+(``<cache>/native/``; a temporary folder of the process for a run without cache), and loaded
+with ctypes. ``structure.simulate`` (the Python stepper)
 stays the readable reference; the two agree to round-off (tests/test_native_host.py: 1e-10
 on the raft and top histories, with uplift and step halving).
 
@@ -85,24 +86,41 @@ def _build(folder: Path) -> ctypes.CDLL:
     return lib
 
 
+_private: list = []                # the process's temporary folder, when no folder is given
+
+
 def _folder(folder) -> Path:
-    if folder is None:
-        from soil_impedance.cache import default_cache_dir
-        folder = default_cache_dir() / "native"
-    return Path(folder)
+    """``folder``, or (None) a temporary folder of this process, removed at exit: nothing is
+    written to the cache (a run with --no-cache), the library is compiled once per process."""
+    if folder is not None:
+        return Path(folder)
+    with _lock:
+        if not _private:
+            import atexit
+            import tempfile
+            _private.append(Path(tempfile.mkdtemp(prefix="uplift_native_")))
+            atexit.register(shutil.rmtree, _private[0], True)
+        return _private[0]
+
+
+def cache_folder(cache_dir) -> Path | None:
+    """Where the library of a run with the cache folder ``cache_dir`` lives: ``<cache_dir>/native``,
+    or None (a temporary folder of the process) when the run uses no cache."""
+    return None if cache_dir is None else Path(cache_dir) / "native"
 
 
 def fmu_binaries(folder=None) -> dict:
     """{host platform: bytes} of the native FMUs' FMI 2.0 runtime compiled for this machine, from
-    the cache folder (compiled on first use, as ``library``), for ``build_native_fmus(...,
+    ``folder`` as ``library`` (compiled on first use), for ``build_native_fmus(...,
     binaries=...)``; raises NativeBuildError (or OSError) when it cannot be compiled here."""
     path = _compiled(_folder(folder), "uplift-fmu2", SOURCES, HEADERS)
     return {host_platform(): path.read_bytes()}
 
 
 def library(folder=None):
-    """The loaded host library (ctypes.CDLL), built on first use into ``folder`` (default
-    ``<cache>/native``); None when it cannot be built here (``library_note`` says why)."""
+    """The loaded host library (ctypes.CDLL), built on first use into ``folder`` (a run's
+    ``cache_folder(cache_dir)``; None: a temporary folder of this process); None when it cannot be
+    built here (``library_note`` says why)."""
     folder = _folder(folder)
     with _lock:
         if folder not in _loaded:
@@ -142,7 +160,7 @@ def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None):
          steps; its soil must be a RecursiveConvolutionSoil (``st.soil.model``: the rational model)
     ag : (nt, 3) m/s^2 at k dt; output_nodes : node names with acc/disp histories (None: every
     named node, as ``simulate``)
-    lib : the library (default ``library()``; it must be available)
+    lib : the library (default ``library()``: a temporary folder of the process; it must be available)
     Returns a RouteResult (notes: the precheck is not run: every step is a Newton step, one
     cached back-substitution while the active set holds); a Newton failure raises
     ConvergenceError with ``.result`` holding the samples so far, as ``simulate`` does.

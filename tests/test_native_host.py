@@ -107,7 +107,7 @@ def test_without_a_compiler_the_python_stepper_runs_with_a_note(monkeypatch, tmp
 
     monkeypatch.setenv("UPLIFT_CACHE", str(tmp_path))
     monkeypatch.setattr(native_host, "_build", no_compiler)
-    res = run_monolithic(SCENE, MOTION, MODEL)
+    res = run_monolithic(SCENE, MOTION, MODEL, cache_dir=tmp_path)
     assert res.converged and res.info["stepper"] == "python"
     assert any("native stepper is not available" in w and "Python stepper ran" in w for w in res.notes.warnings)
 

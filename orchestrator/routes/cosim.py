@@ -57,7 +57,7 @@ def run_cosim(scene, motion=None, soil_model=None, *, schedule: str = "gauss-sei
         out = Path(workdir) if workdir is not None else Path(tmp)
         t0 = time.perf_counter()
         data = fmu_data(scene, soil_model, dt, None, soil_factory, soil_kwargs)
-        binaries, why = _native_runtime(data) if kind == "native" else (None, "")
+        binaries, why = _native_runtime(data, cache_dir) if kind == "native" else (None, "")
         if binaries is not None:
             fmus = build_native_fmus(data, out, platforms=tuple(binaries), binaries=binaries)
         else:
@@ -72,20 +72,20 @@ def run_cosim(scene, motion=None, soil_model=None, *, schedule: str = "gauss-sei
         info={"soil_model": soil_model.provenance, "fmu_kind": "native" if binaries is not None else "python"})
 
 
-def _native_runtime(data):
+def _native_runtime(data, cache_dir):
     """({platform: bytes} of the native runtime for this machine, "") or (None, why not)."""
     from fmus.native_build import NativeBuildError      # the FMU stack (fmpy, pythonfmu): only when the route runs
-    from fmus.native_host import fmu_binaries            # the same
+    from fmus.native_host import cache_folder, fmu_binaries   # the same
     if data.soil_factory != DEFAULT_SOIL_FACTORY:
         return None, f"the soil factory {data.soil_factory} has no native runtime: the Python FMUs ran"
     try:
-        return fmu_binaries(), ""
+        return fmu_binaries(cache_folder(cache_dir)), ""
     except (NativeBuildError, OSError, ValueError) as exc:
         return None, f"the native FMUs are not available ({str(exc).splitlines()[0]}): the Python FMUs ran"
 
 
 def run(ctx, progress=None):
-    return run_cosim(ctx.scene, ctx.motion, ctx.fit().model, progress=progress)
+    return run_cosim(ctx.scene, ctx.motion, ctx.fit().model, progress=progress, cache_dir=ctx.cache_dir)
 
 
 ROUTE = register(Route(

@@ -63,12 +63,13 @@ def run_monolithic(scene, motion=None, soil_model=None, *, soil_factory: str | N
     model = model or scene.model()
     why = ""
     if stepper == "native":
-        from fmus.native_host import library_note      # the FMU stack (fmpy, pythonfmu): only when it steps
+        from fmus.native_host import cache_folder, library_note   # the FMU stack: only when it steps
+        folder = cache_folder(cache_dir)
         why = (f"the soil factory {factory} has no native runtime: the Python stepper ran"
-               if factory != DEFAULT_SOIL_FACTORY else library_note())
+               if factory != DEFAULT_SOIL_FACTORY else library_note(folder))
     try:
         if stepper == "native" and not why:
-            res = _native(model, soil, motion, scene, route, progress)
+            res = _native(model, soil, motion, scene, route, progress, folder)
         else:
             res = simulate(model, soil, motion.acc, dt, contact=scene.contact, output_nodes=scene.output.nodes,
                            progress=progress, route=route)
@@ -79,13 +80,14 @@ def run_monolithic(scene, motion=None, soil_model=None, *, soil_factory: str | N
     return res.with_notes(info={"soil_model": soil_model.provenance})
 
 
-def _native(model, soil, motion, scene, route, progress):
-    """The run through the C runtime (fmus.native_host); wall_s includes the stepper's set-up."""
-    from fmus.native_host import simulate_native       # the same: only when it steps
+def _native(model, soil, motion, scene, route, progress, folder):
+    """The run through the C runtime (fmus.native_host, the library in ``folder``); wall_s
+    includes the stepper's set-up."""
+    from fmus.native_host import library, simulate_native   # the same: only when it steps
     t0 = time.perf_counter()
     st = NewmarkStepper(model, soil, motion.dt, contact=scene.contact, external_soil=True, ag0=motion.acc[0])
     try:
-        res = simulate_native(st, motion.acc, scene.output.nodes, route=route)
+        res = simulate_native(st, motion.acc, scene.output.nodes, route=route, lib=library(folder))
     except ConvergenceError as exc:
         exc.result = dataclasses.replace(exc.result, wall_s=time.perf_counter() - t0)
         raise
@@ -95,7 +97,8 @@ def _native(model, soil, motion, scene, route, progress):
 
 
 def run(ctx, progress=None):
-    return run_monolithic(ctx.scene, ctx.motion, ctx.fit().model, progress=progress, model=ctx.model())
+    return run_monolithic(ctx.scene, ctx.motion, ctx.fit().model, progress=progress, model=ctx.model(),
+                          cache_dir=ctx.cache_dir)
 
 
 ROUTE = register(Route(
