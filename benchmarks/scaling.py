@@ -5,11 +5,9 @@ Rafts of the reactor's soil (layered rock, radius 20 m) meshed at three element 
 
   sweep s/freq   one frequency (5 Hz) of the BEM sweep (the gap output; the Green's tables, the
                  flexibility, its LU, the reduction), and x 101 the reactor's table
-  history/step   the dense history product a step does with m = 8 poles: numpy's GEMV over
-                 H (n, m n) (the bare kernel's), and the packed symmetric product of the native
-                 runtime's layout (m n (n+1)/2 values: half the memory traffic), timed in numpy
-                 as m triangular-packed row passes is not possible, so given as the ratio of the
-                 bytes read (the product is memory-bound)
+  history/step   the bare kernel's product per step at that size, m = 8 poles: numpy's GEMV
+                 over H (n, m n) plus D0 x and E xdot (the native runtime reads half of H's
+                 bytes, its symmetric blocks packed, at every size)
   H-matrix       the node-node block K_ww of the impedance at 5 Hz (the residues of a fit have
                  the structure of K: the same kernel at a complex frequency) clustered by
                  recursive bisection of the nodes (leaves <= 32 nodes), blocks admissible when
