@@ -308,7 +308,7 @@ class MarchSweep:
 
 
 def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BLOCK, progress=None,
-                      deadline=None, fold=False, sub=SUB) -> Outcome:
+                      deadline=None, fold=False, sub=SUB, stand_in=None) -> Outcome:
     """The whole-range equation g(y) = 0 (problem.ContactEquation) by marches.
 
     g = C + W: C the causal equations the march solves exactly, W(y) what the periodic grid
@@ -329,12 +329,16 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
     soil, no fold) from 0.1 to 1.0 g in <= 6 sweeps to 1e-10 (the wrap-around only).
     progress : callable(sweep, residual); deadline : perf_counter time past which the best
     iterate is returned, STOPPED; block, sub : CausalSweep's blocks and near-field sub-blocks.
+    stand_in : a ContactProblem on the same grid and static state whose causal kernel the march
+    steps instead of prob's (a causal soil standing in for the table, e.g. its rational fit);
+    the residual, and so the fixed point, stay prob's.
 
     Returns an Outcome (history: one MarchSweep per sweep)."""
     eq = ContactEquation(prob, lam)
     scale = eq.scale
     hist = []
-    sweep = CausalSweep(prob, block, fold is True, sub)
+    marched = prob if stand_in is None else stand_in
+    sweep = CausalSweep(marched, block, fold is True, sub)
     W = np.zeros_like(prob.f)
     Gs, Fs = [], []                       # Anderson: past maps G(W) = W + g and residuals g
     best = None
@@ -354,7 +358,7 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
         except MarchDiverged as exc:
             hist.append(MarchSweep(k, math.nan, time.perf_counter() - t0, kernel(), diverged=True))
             if fold == "auto" and not sweep.fold:      # start again on the folded kernel
-                sweep = CausalSweep(prob, block, True, sub)
+                sweep = CausalSweep(marched, block, True, sub)
                 W, Gs, Fs, best = np.zeros_like(prob.f), [], [], None
                 continue
             return ended(SolverStatus.DIVERGED, str(exc))
