@@ -89,7 +89,7 @@ def kernel_head(op, grid, n_lags: int, fold: bool = False, chunk: int = 24):
     head = np.empty((n_lags, N, N))
     for c0 in range(0, N, chunk):
         cols = rows[c0:c0 + chunk]
-        Sc = np.ascontiguousarray(op.S_sub(rows, cols, affine=False).transpose(1, 2, 0))   # (N, c, F)
+        Sc = op.S_sub(rows, cols, affine=False).transpose(1, 2, 0)            # (N, c, F), a view
         h = lags(Sc)                                                          # (N, c, n_lags)
         for j, band in enumerate(affine):
             A, B = (dense(M[:, cols]) if hasattr(M, "tocsr") else M[:, cols] for M in band.ww())
