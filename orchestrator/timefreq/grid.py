@@ -42,8 +42,9 @@ def _import_pyfftw():
     if block:
         sys.modules["dask.array.fft"] = None          # an import of it raises ImportError
     try:
+        # here, not at the top: the import must run with dask.array.fft refused
         import pyfftw
-        import pyfftw.builders
+        import pyfftw.builders  # (the same reason)
     finally:
         if block and sys.modules.get("dask.array.fft", 0) is None:
             del sys.modules["dask.array.fft"]
