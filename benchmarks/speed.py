@@ -10,7 +10,18 @@ grows, the CPU time much less).
 Rows (one small function each, registered with ``@row``; add one the same way):
 
   bare dense kernel          the reference (the ratio 1)
-  monolithic stepping        structure.simulate on the fit's recursive convolution
+  monolithic stepping        structure.simulate (the Python stepper) on the fit's recursive
+                             convolution
+  monolithic route           ``run_monolithic``'s default: the C runtime in process, one call for
+                             the whole motion (its wall_s: the stepper's set-up included)
+  native coupled.fmu         the exported native coupled FMU under a plain C program (the
+                             project's test host, tests/native/host.c), the whole process: load,
+                             instantiate, 2000 steps of the bundled motion
+  cosim, native pair         ``run_cosim``'s default: the native pair under the project's master
+                             (wall_s, the FMU build apart)
+  cosim, python pair         ``run_cosim(kind="python")``
+  ensemble, 2 workers        ``run_ensemble`` of 8 seeds x 2 PGAs on 2 local workers from an empty
+                             output, runs per minute (cluster start, set-up, step check included)
   timefreq route             orchestrator.routes.timefreq.run_timefreq on the BEM table
   uplift run (warm)          the whole command ``uplift run reactor --route monolithic`` in a
                              fresh process, cache warm (the sweep and the fit are read here first)
@@ -89,6 +100,38 @@ class Case:
         from orchestrator.impedance import scene_fit
         return scene_fit(self.scene, cache_dir=self._cache(), table=self.table)
 
+    @cached_property
+    def coupled(self):
+        """(folder, library, GUID, {name: value reference}) of the native coupled FMU, exported here."""
+        import zipfile
+
+        from fmpy import read_model_description
+
+        from fmus.native_build import build_native_fmus
+        from fmus.native_host import fmu_binaries
+        from orchestrator.export import fmu_data
+        tmp = Path(tempfile.mkdtemp(prefix="speed_coupled_"))
+        bins = fmu_binaries()
+        path = build_native_fmus(fmu_data(self.scene, self.fit.model, DT, self.motion), tmp, coupled=True,
+                                 platforms=tuple(bins), binaries=bins)["coupled"]
+        with zipfile.ZipFile(path) as z:
+            z.extractall(tmp / "coupled")
+        md = read_model_description(str(path))
+        lib = tmp / "coupled" / "binaries" / "linux64" / f"{md.coSimulation.modelIdentifier}.so"
+        return tmp / "coupled", lib, md.guid, {v.name: v.valueReference for v in md.modelVariables}
+
+    @cached_property
+    def host(self):
+        """The plain C host of the native FMUs (tests/native/host.c), compiled here."""
+        import shutil
+
+        from fmus.native_build import fmi_headers
+        exe = Path(tempfile.mkdtemp(prefix="speed_host_")) / "host"
+        subprocess.run([shutil.which("cc") or "gcc", "-O2", "-rdynamic", f"-I{fmi_headers()}",
+                        str(Path(__file__).resolve().parents[1] / "tests" / "native" / "host.c"), "-o", str(exe),
+                        "-ldl", "-lm"], check=True)
+        return exe
+
     def _cache(self):
         if self.cache_dir is not None:
             return self.cache_dir
@@ -123,6 +166,55 @@ def monolithic_stepping(case: Case):
     t0 = time.perf_counter()
     res = simulate(case.model, soil, case.motion.acc, DT, contact=sc.contact, output_nodes=sc.output.nodes)
     return time.perf_counter() - t0, f"max uplift {1e3 * res.max_uplift():.4f} mm"
+
+
+@row("monolithic route")
+def monolithic_route(case: Case):
+    from orchestrator.routes.monolithic import run_monolithic
+    res = run_monolithic(case.scene, case.motion, case.fit.model, model=case.model)
+    return res.wall_s, f"max uplift {1e3 * res.max_uplift():.4f} mm ({res.info['stepper']} stepper)"
+
+
+@row("native coupled.fmu")
+def native_coupled(case: Case):
+    folder, lib, guid, vr = case.coupled
+    nt = case.motion.acc.shape[0]
+    t0 = time.perf_counter()
+    out = subprocess.run([str(case.host), "run", str(folder), str(lib), guid, repr(DT), str(nt - 1),
+                          str(vr["max_uplift"])], capture_output=True, text=True, check=True)
+    wall = time.perf_counter() - t0
+    up = float(dict(line.split() for line in out.stdout.splitlines() if line[:1].isdigit())[str(vr["max_uplift"])])
+    return wall, f"max uplift {1e3 * up:.4f} mm, plain C host (whole process)"
+
+
+def _cosim(case: Case, kind: str):
+    from orchestrator.routes.cosim import run_cosim
+    res = run_cosim(case.scene, case.motion, case.fit.model, kind=kind)
+    return res.wall_s, (f"max uplift {1e3 * res.max_uplift():.4f} mm ({res.info['fmu_kind']} pair; FMU build "
+                        f"{res.notes.timings['FMU build']:.2f} s apart)")
+
+
+@row("cosim, native pair")
+def cosim_native(case: Case):
+    return _cosim(case, "native")
+
+
+@row("cosim, python pair")
+def cosim_python(case: Case):
+    return _cosim(case, "python")
+
+
+@row("ensemble, 2 workers")
+def ensemble_two_workers(case: Case):
+    from orchestrator.ensemble import run_ensemble
+    scene = case.scene.with_routes(["monolithic"])
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        ds = run_ensemble(scene, [0.15, 0.3], seeds=list(range(1, 9)), output=Path(tmp) / "e.h5", workers=2,
+                          cache_dir=case._cache())
+        wall = time.perf_counter() - t0
+    runs = int(ds["status"].size)
+    return wall, f"{runs} runs: {60 * runs / wall:.1f} runs/min (cluster start, set-up, step check included)"
 
 
 @row("timefreq route")
@@ -180,6 +272,8 @@ def measure(names, repeat: int, busy: bool, case: Case | None = None) -> list:
     out = []
     with busy_process(busy):
         for name in names:
+            if name == "native coupled.fmu":
+                case.coupled, case.host                 # noqa: B018  (the export and the host built untimed)
             runs = []
             for _ in range(repeat):
                 c0 = _cpu()
@@ -203,7 +297,7 @@ def format_rows(rows, busy: bool) -> str:
     head = (f"{'what':<24} {'wall s':>8} {'x kernel':>9} {'cpu s':>7}  "
             f"({'beside one busy process' if busy else 'idle'})")
     lines = [head, "-" * len(head)]
-    lines += [f"{r['row']:<24} {r['wall_s']:8.3f} {r['ratio']:9.1f} {r['cpu_s']:7.2f}  {r['note']}" for r in rows]
+    lines += [f"{r['row']:<24} {r['wall_s']:8.3f} {r['ratio']:9.2f} {r['cpu_s']:7.2f}  {r['note']}" for r in rows]
     return "\n".join(lines)
 
 

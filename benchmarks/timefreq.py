@@ -26,7 +26,16 @@ Rows:
             state, their ratio (target <= 1.3), and the max uplift of every run against the
             1-thread idle run (the result must not depend on the threads or the load).
 
-    python benchmarks/timefreq.py [--pga 0.25] [--map] [--map-reactor] [--ladder] [--contention] [--no-reactor]
+  --stand-in  the march with the scene's passive rational fit standing in for the table
+            (march.defect_correction(stand_in=...): the fit's causal kernel marched, the
+            table's whole-range residual fed back, so the fixed point stays the table's) against
+            the default march on the table's own kernel: residual per sweep, CPU time, max
+            uplift (--sweeps, default 30: the stand-in's budget; ~4 min); and both again on
+            another reference, the table with the fit's own values above the table's last
+            frequency instead of its springs and dashpots.
+
+    python benchmarks/timefreq.py [--pga 0.25] [--map] [--map-reactor] [--ladder] [--contention] [--stand-in]
+                                  [--no-reactor]
 """
 from __future__ import annotations
 
@@ -311,6 +320,71 @@ def contention(pga, repeat=2, threads=(1, 2)):
     return dict(rows=rows, load_average=loads)
 
 
+def stand_in(pga, sweeps=30, tol=1e-6):
+    """Residual per sweep, CPU s and max uplift of defect_correction on the reactor's table,
+    marching the table's own kernel (the default) and the scene's rational fit (stand_in)."""
+    from orchestrator.timefreq import (GridOptions, InterfaceOperator, SoilBands, defect_correction, prepare,
+                                       soil_bands)
+    from orchestrator.timefreq.soil import DenseBand
+
+    scene, model, motion, table, _ = reactor(pga)
+    fit = _fit_soil(scene, table, motion.dt)
+    prob = prepare(model, table, motion.acc, motion.dt, grid=GridOptions().resolved(bilinear=True, window=True),
+                   contact=scene.contact)
+    op_fit = InterfaceOperator(model, soil_bands(fit, prob.grid), prob.grid, structure=prob.op.st)
+    k0 = prob.op.soil.K0
+    print(f"static stiffness, fit against table: {np.abs(op_fit.soil.K0 - k0).max() / np.abs(k0).max():.1e} "
+          "(max entry, relative)")
+    print("where the two soils differ (S the interface stiffness; rho: spectral radius of S_fit^-1 (S_table - "
+          "S_fit), the linear iteration's rate with every node open):\n   f Hz  warped Hz  |dS|/|S|     rho")
+    spectrum = []
+    for k in np.unique(np.geomspace(1, prob.grid.n_freq - 1, 16).astype(int)):
+        St, Sf = _interface_stiffness(prob.op, k), _interface_stiffness(op_fit, k)
+        rel = np.linalg.norm(St - Sf, 2) / np.linalg.norm(St, 2)
+        rho = np.abs(np.linalg.eigvals(np.linalg.solve(Sf, St - Sf))).max()
+        spectrum.append(dict(f_hz=float(prob.grid.freq_hz[k]), warped_hz=float(prob.grid.warped_hz[k]), rel=rel, rho=rho))
+        print(f"{prob.grid.freq_hz[k]:7.2f} {prob.grid.warped_hz[k]:10.2f} {rel:9.1e} {rho:9.1e}")
+    rows = {"spectrum": spectrum}
+    # the same with the fit instead of the springs and dashpots above the table's last frequency
+    # (another reference: the check that the stand-in works where the two soils agree)
+    lo, hi = prob.op.soil.bands
+    K_fit = op_fit.soil.bands[0].K
+    above = SoilBands((lo, DenseBand(hi.idx, K_fit[hi.idx[0]:hi.idx[-1] + 1])), prob.op.soil.K0, prob.op.soil.n,
+                      "table, fit above its last frequency")
+    op_above = InterfaceOperator(model, above, prob.grid, structure=prob.op.st)
+    prob_above = dataclasses.replace(prob, op=op_above, f=prob.grid.to_time(op_above.blocked_force(prob.ag_hat)))
+    for ref, p, name, kw in (
+            ("table", prob, "table kernel (default)", dict(fold="auto")),
+            ("table", prob, "rational fit stand-in", dict(stand_in=dataclasses.replace(prob, op=op_fit))),
+            ("table, fit above", prob_above, "own kernel (default)", dict(fold="auto")),
+            ("table, fit above", prob_above, "rational fit stand-in", dict(stand_in=dataclasses.replace(prob, op=op_fit)))):
+        c0 = time.process_time()
+        out = defect_correction(p, tol=tol, max_sweeps=sweeps, **kw)
+        cpu = time.process_time() - c0
+        uplift = float(np.maximum(0.0, -(p.z0[:, None] + out.y)).max())
+        res = [h.residual for h in out.history]
+        rows[f"{ref}: {name}"] = dict(status=out.status.value, sweeps=len(res), residuals=res, cpu_s=cpu,
+                                      max_uplift_m=uplift)
+        print(f"{ref:<17} {name:<24} {out.status.value:<14} {len(res):3d} sweeps  cpu {cpu:6.1f} s  max uplift "
+              f"{1e3 * uplift:.6f} mm  residuals " + " ".join(f"{r:.1e}" for r in res))
+    return rows
+
+
+def _interface_stiffness(op, k):
+    """S at the grid frequency k, (N, N) complex: the soil block of its band minus the rank-6 term."""
+    from orchestrator.timefreq.soil import AffineBand, dense
+    for band in op.soil.bands:
+        pos = np.flatnonzero(band.idx == k)
+        if pos.size:
+            if isinstance(band, AffineBand):
+                A, B = band.ww()
+                K = dense(A) + op.s[k] * dense(B)
+            else:
+                K = band.ww()[pos[0]]
+            return K - op.Vr[k] @ op.ZV[k]
+    raise IndexError(k)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--pga", type=float, default=0.25)
@@ -320,12 +394,16 @@ def main():
     ap.add_argument("--contention", action="store_true",
                     help="wall time idle and beside one busy process, 1 and 2 worker threads")
     ap.add_argument("--repeat", type=int, default=2, help="runs per state of --contention (best kept)")
+    ap.add_argument("--stand-in", action="store_true", help="the rational fit as the march's stand-in")
+    ap.add_argument("--sweeps", type=int, default=30, help="sweeps of --stand-in (default 30)")
     ap.add_argument("--no-reactor", action="store_true")
     ap.add_argument("--json", type=Path)
     a = ap.parse_args()
     out = {}
     if a.contention:
         out["contention"] = contention(a.pga, a.repeat)
+    elif a.stand_in:
+        out["stand_in"] = stand_in(a.pga, a.sweeps)
     elif not a.no_reactor:
         out["reactor"] = row_reactor(a.pga)
     if a.ladder:

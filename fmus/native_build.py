@@ -76,7 +76,7 @@ PLATFORMS = {"linux64": ("x86_64-linux-gnu.2.17", "so"), "win64": ("x86_64-windo
 PLATFORMS3 = {"x86_64-linux": ("x86_64-linux-gnu.2.17", "so"), "x86_64-windows": ("x86_64-windows-gnu", "dll"),
               "x86_64-darwin": ("x86_64-macos", "dylib"), "aarch64-darwin": ("aarch64-macos", "dylib")}
 FMI_VERSIONS = (2, 3)
-CFLAGS = ("-std=c99", "-O2", "-ffp-contract=off", "-fvisibility=hidden", "-fPIC", "-shared")
+CFLAGS = ("-std=c99", "-O3", "-ffp-contract=off", "-fvisibility=hidden", "-fPIC", "-shared")
 COMPILERS = ("zig", "cc")
 #: the Python FMU class of each role: its model name, identifier, description and author are reused
 ROLES = {"soil": UpliftSoil, "structure": UpliftStructure, "coupled": UpliftCoupled}
@@ -213,9 +213,10 @@ def host_platform(fmi_version: int = 2) -> str:
     return name
 
 
-def compile_runtime(platforms=None, compiler: str = "zig", fmi_version: int = 2) -> dict:
+def compile_runtime(platforms=None, compiler: str = "zig", fmi_version: int = 2, sources=None) -> dict:
     """{platform: bytes of the shared library} of the C runtime of ``fmi_version`` for
-    ``platforms`` (names of that version, default: all of platforms_of(fmi_version)).
+    ``platforms`` (names of that version, default: all of platforms_of(fmi_version));
+    ``sources``: its C files in fmus/native/ (default: those of the FMUs, sources_of).
 
     compiler "zig": the C compiler of the ``ziglang`` package (cross-compiles to every platform;
     its cache makes a repeated build ~0.3 s, the first one per platform takes seconds to a
@@ -232,7 +233,7 @@ def compile_runtime(platforms=None, compiler: str = "zig", fmi_version: int = 2)
         raise ValueError(f"compiler = 'cc' builds for the host platform ({host_platform(fmi_version)}) only: use "
                          "compiler = 'zig' to cross-compile")
     include = fmi_headers()
-    sources = [str(NATIVE / s) for s in sources_of(fmi_version)]
+    sources = [str(NATIVE / s) for s in (sources or sources_of(fmi_version))]
     out = {}
     with tempfile.TemporaryDirectory(prefix="uplift_native_") as tmp:
         for platform in platforms:
@@ -275,31 +276,46 @@ def model_records(data: FmuData, newton: dict | None = None) -> dict:
     if n != 6 + N:
         raise ValueError(f"the soil model has {n} DOFs, the interface needs 6 + N = {6 + N}")
     soil = soil_from_model(data.soil_model, dt, DEFAULT_SOIL_FACTORY, data.soil_kwargs)     # verifies passivity
-    pr, Rr, pc, Rc = data.soil_model.pole_split
-    common = {"dt": dt, "n_dof": float(n), "poles_real": pr, "poles_pair": np.stack([pc.real, pc.imag], -1).reshape(-1, 2),
-              "residues_real": Rr, "residues_pair": np.stack([Rc.real, Rc.imag], -1).reshape(-1, n, n, 2),
-              "D": data.soil_model.D, "E": data.soil_model.E}
     contact = dataclasses.replace(contact_from_spec(data.contact), **(newton or {}))
-    if not 0 <= contact.max_subdiv <= 30 or contact.max_iter < 1:
-        raise ValueError(f"newton: max_subdiv = {contact.max_subdiv} must lie in [0, 30] and max_iter = "
-                         f"{contact.max_iter} be >= 1")
     model = model_from_spec(data.structure, data.xy, data.area)
     st = NewmarkStepper(model, soil, dt, contact=contact, damping=data.damping, alpha=float(data.alpha),
                         external_soil=True)
-    ns = st.ns
-    dense = lambda a: np.asarray(a[:ns, :ns].toarray(), float)
     nodes = [model.dofs(model.node_by_name(nm).id)[:3] for nm in data.output_nodes]
-    stepper = {**common, "ns": float(ns), "N": float(N), "alpha": st.alpha,
-               "contact_enabled": float(contact.enabled), "contact_tol": float(contact.tol),
-               "contact_max_iter": float(contact.max_iter), "contact_max_subdiv": float(contact.max_subdiv),
-               "M": st.M, "Ks": dense(st.Ks), "Cs": dense(st.Cs), "Mr": st.Mr[:ns], "Bq3": st.Bq3, "kp": st.kp,
-               "P0": st.P0, "delta0": st.delta0,
-               "node_dofs": np.array(nodes, np.int64).reshape(-1, 3)}
+    common = soil_records(data.soil_model, dt)
+    stepper = {**common, **stepper_records(st, nodes)}
     if data.motion is not None:
         stepper["motion"] = np.asarray(data.motion, float).reshape(-1, 3)
     Gx, Gv = history_gains(soil, dt)
     return {"soil": {**common, "role": 0.0}, "structure": {**stepper, "role": 1.0, "Gx": Gx, "Gv": Gv},
             "coupled": {**stepper, "role": 2.0}}
+
+
+def soil_records(soil_model, dt: float) -> dict:
+    """The soil's records (every role): dt, n_dof, the poles split into real poles and one pole
+    per conjugate pair, their residues, D and E."""
+    n = soil_model.n
+    pr, Rr, pc, Rc = soil_model.pole_split
+    return {"dt": float(dt), "n_dof": float(n), "poles_real": pr,
+            "poles_pair": np.stack([pc.real, pc.imag], -1).reshape(-1, 2),
+            "residues_real": Rr, "residues_pair": np.stack([Rc.real, Rc.imag], -1).reshape(-1, n, n, 2),
+            "D": soil_model.D, "E": soil_model.E}
+
+
+def stepper_records(st, node_dofs) -> dict:
+    """The structure's records (structure and coupled roles) from a ``structure.NewmarkStepper``
+    (its matrices, static state, penalty and contact settings: the C stepper steps the same
+    equations) and the DOFs (ux, uy, uz) of the output nodes, (nodes, 3)."""
+    contact = st.contact
+    if not 0 <= contact.max_subdiv <= 30 or contact.max_iter < 1:
+        raise ValueError(f"newton: max_subdiv = {contact.max_subdiv} must lie in [0, 30] and max_iter = "
+                         f"{contact.max_iter} be >= 1")
+    ns = st.ns
+    dense = lambda a: np.asarray(a[:ns, :ns].toarray(), float)
+    return {"ns": float(ns), "N": float(st.N), "alpha": st.alpha,
+            "contact_enabled": float(contact.enabled), "contact_tol": float(contact.tol),
+            "contact_max_iter": float(contact.max_iter), "contact_max_subdiv": float(contact.max_subdiv),
+            "M": st.M, "Ks": dense(st.Ks), "Cs": dense(st.Cs), "Mr": st.Mr[:ns], "Bq3": st.Bq3, "kp": st.kp,
+            "P0": st.P0, "delta0": st.delta0, "node_dofs": np.array(node_dofs, np.int64).reshape(-1, 3)}
 
 
 # ---- the model description ---------------------------------------------------------------------
@@ -428,7 +444,8 @@ def build_description(identifier: str) -> bytes:
 
 # ---- the FMUs -------------------------------------------------------------------------------------
 def build_native_fmus(data: FmuData, outdir, coupled: bool = False, *, platforms=None,
-                      compiler: str = "zig", newton: dict | None = None, fmi_version: int = 2) -> dict:
+                      compiler: str = "zig", newton: dict | None = None, fmi_version: int = 2,
+                      binaries: dict | None = None) -> dict:
     """Write ``outdir/structure.fmu`` and ``outdir/soil.fmu`` (and ``coupled.fmu`` if ``coupled``)
     as native FMUs; returns ``{"structure": path, "soil": path[, "coupled": path]}`` as
     fmus.build.build_fmus does.
@@ -441,11 +458,13 @@ def build_native_fmus(data: FmuData, outdir, coupled: bool = False, *, platforms
              tables leave them at structure.ContactSettings' defaults, as the Python FMUs do)
     fmi_version : 2 (FMI 2.0, scalar variables) or 3 (FMI 3.0, arrays): the same runtime and
                   answers
+    binaries : {platform: bytes} the runtime already compiled (e.g. fmus.native_host.fmu_binaries,
+               cached per content hash), instead of compiling it here
     """
     version = _version(fmi_version)
     outdir = Path(outdir)
     records = model_records(data, newton)
-    binaries = compile_runtime(platforms, compiler, version)
+    binaries = binaries or compile_runtime(platforms, compiler, version)
     n, N = data.soil_model.n, np.asarray(data.xy).shape[0]
     stop = None if data.motion is None else (np.asarray(data.motion).shape[0] - 1) * float(data.dt)
     roles = ("structure", "soil") + (("coupled",) if coupled else ())

@@ -64,22 +64,37 @@ def strongest_window(motion, length_s: float = DT_CHECK_WINDOW_S):
     return Motion(motion.dt, motion.acc[k:k + n], motion.label), k * motion.dt
 
 
-def step_doubling(scene, model, soil, motion) -> dict:
+def step_doubling(scene, model, soil, motion, cache_dir=None) -> dict:
     """Max uplift of the structure on the proxy springs ``soil`` (Newmark + the scene's contact)
     at the motion's step and at half of it, on the record's strongest window: the time-step
     error estimate of the uplift routes. Returns a JSON-able dict (relative_change None when
-    neither run lifts off)."""
+    neither run lifts off). cache_dir: the run's cache folder (where the native stepper's library
+    is kept; None: a temporary folder of the process)."""
     window, t0 = strongest_window(motion)
     runs = []
     for m in (window, window.resampled(window.dt / 2)):
         try:
-            runs.append(simulate(model, soil, m.acc, m.dt, contact=scene.contact, route="dt-check").max_uplift())
+            runs.append(_dt_check_run(scene, model, soil, m, cache_dir).max_uplift())
         except ConvergenceError:
             runs.append(float("nan"))
     coarse, fine = runs
     change = None if max(coarse, fine) < UPLIFT_FLOOR else abs(coarse - fine) / max(fine, UPLIFT_FLOOR)
     return {"dt": motion.dt, "window_s": [t0, t0 + window.duration], "max_uplift_m": coarse,
             "max_uplift_half_dt_m": fine, "relative_change": change, "tolerance": DT_TOLERANCE}
+
+
+def _dt_check_run(scene, model, soil, motion, cache_dir=None):
+    """The structure on the proxy springs under ``motion``: through the native stepper where it
+    is available (the monolithic route's C runtime: the same answer to round-off, several
+    times faster), else ``simulate``. Raises ConvergenceError as ``simulate`` does."""
+    from fmus.native_host import cache_folder, library, simulate_native, springs_soil   # the FMU stack: when it checks
+    from structure import NewmarkStepper
+    lib = library(cache_folder(cache_dir))
+    if lib is None:
+        return simulate(model, soil, motion.acc, motion.dt, contact=scene.contact, route="dt-check")
+    st = NewmarkStepper(model, springs_soil(soil, motion.dt), motion.dt, contact=scene.contact,
+                        external_soil=True, ag0=motion.acc[0])
+    return simulate_native(st, motion.acc, [], route="dt-check", lib=lib)
 
 
 def step_doubling_warning(check: dict) -> str | None:
@@ -188,7 +203,7 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
         dt_notes = {}
         if scene.contact.enabled and any(r.time_stepped for r in chosen):
             dt_check = shared.dt_check if shared is not None and shared.dt_check is not None else \
-                step_doubling(scene, ctx.model(), springs, motion)
+                step_doubling(scene, ctx.model(), springs, motion, cache_dir)
             warning = step_doubling_warning(dt_check)
             dt_notes = {"warnings": [warning] if warning else [], "info": {"dt_check": dt_check}}
         sweep = {}

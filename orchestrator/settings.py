@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import os
 from contextlib import contextmanager
-from pathlib import Path
 
+from soil_impedance.cache import default_cache_dir  # noqa: F401  (the cache folder, re-exported)
 from threadpoolctl import threadpool_limits
 
 EXIT_OK, EXIT_FAILED, EXIT_INPUT = 0, 1, 2
@@ -25,12 +25,6 @@ EXIT_OK, EXIT_FAILED, EXIT_INPUT = 0, 1, 2
 FMU_KINDS = ("python", "native")
 #: interrupted by the user (Ctrl-C, SIGINT): 128 + 2, as shells report it
 EXIT_INTERRUPTED = 130
-
-
-def default_cache_dir() -> Path:
-    """Impedance and fit cache: $UPLIFT_CACHE, else ~/.cache/uplift."""
-    env = os.environ.get("UPLIFT_CACHE")
-    return Path(env) if env else Path.home() / ".cache" / "uplift"
 
 
 def thread_count() -> int:

@@ -62,24 +62,34 @@ def response_spectrum(acc, dt: float, periods, damping: float = 0.05) -> Spectru
     damping : float        ratio of critical damping, in [0, 1)
     """
     acc = np.asarray(acc, float)
+    if acc.ndim != 1:
+        raise ValueError("response_spectrum: acc must be a 1-D history with at least 2 samples")
+    return response_spectra(acc[:, None], dt, periods, damping)[0]
+
+
+def response_spectra(acc, dt: float, periods, damping: float = 0.05) -> list:
+    """Response spectra of the m histories acc (nt, m) (columns), in one pass over time: the
+    same recurrence as ``response_spectrum`` on (m, P) arrays (each column's numbers are those
+    of its own ``response_spectrum``). Returns a list of m Spectrum."""
+    acc = np.asarray(acc, float)
     periods = np.asarray(periods, float)
-    if acc.ndim != 1 or acc.size < 2:
+    if acc.ndim != 2 or acc.shape[0] < 2:
         raise ValueError("response_spectrum: acc must be a 1-D history with at least 2 samples")
     if np.any(periods <= 0) or not (0.0 <= damping < 1.0) or dt <= 0:
         raise ValueError("response_spectrum: periods and dt must be > 0 and damping in [0, 1)")
     omega = 2 * np.pi / periods
     a11, a12, a21, a22, b0u, b1u, b0v, b1v = _coefficients(omega, damping, dt)
-    u = np.zeros_like(omega)
-    v = np.zeros_like(omega)
-    umax = np.zeros_like(omega)
-    amax = np.zeros_like(omega)
-    p = -acc
-    for n in range(acc.size - 1):
+    shape = (acc.shape[1], omega.size)
+    u, v, umax, amax = (np.zeros(shape) for _ in range(4))
+    p = -acc[:, :, None]                                   # (nt, m, 1)
+    cv, cu = 2 * damping * omega, omega ** 2
+    for n in range(acc.shape[0] - 1):
         u, v = (a11 * u + a12 * v + b0u * p[n] + b1u * p[n + 1],
                 a21 * u + a22 * v + b0v * p[n] + b1v * p[n + 1])
         np.maximum(umax, np.abs(u), out=umax)
-        np.maximum(amax, np.abs(2 * damping * omega * v + omega ** 2 * u), out=amax)
-    return Spectrum(periods, damping, umax, omega * umax, omega ** 2 * umax, amax)
+        np.maximum(amax, np.abs(cv * v + cu * u), out=amax)
+    return [Spectrum(periods, damping, umax[j], omega * umax[j], omega ** 2 * umax[j], amax[j])
+            for j in range(shape[0])]
 
 
 def broaden(freqs, values, ratio: float = 0.15):

@@ -23,6 +23,13 @@ from .storage import (CHECKSUM_ATTR, OutputFolderError, atomic_output, stamp_che
                       verify_checksum)
 
 
+def default_cache_dir() -> Path:
+    """The project's cache folder (impedance tables, fits, the host's compiled runtime):
+    $UPLIFT_CACHE, else ~/.cache/uplift."""
+    env = os.environ.get("UPLIFT_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "uplift"
+
+
 class CacheWarning(UserWarning):
     """A damaged cache entry was discarded; the result is recomputed."""
 

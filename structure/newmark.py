@@ -313,7 +313,8 @@ class NewmarkStepper:
                     break
             if not conv or not np.all(np.isfinite(uB)):
                 rn = np.abs(gv[6:]) if self.N else np.zeros(1)
-                node = int(np.argmax(rn)) if np.all(np.isfinite(rn)) else -1
+                # the first node within round-off of the largest residual (ties of symmetric nodes)
+                node = int(np.flatnonzero(rn >= rn.max() * (1 - 1e-9))[0]) if np.all(np.isfinite(rn)) else -1
                 raise _NewtonFailure(node, float(np.linalg.norm(gv)))
             u_new = np.empty(self.n)
             u_new[ni:] = uB

@@ -1,5 +1,7 @@
 """The time-frequency package's interface: options checked on construction, the worker pool's
 lifetime and thread-independence, the solver status in the result, and the route glue."""
+import subprocess
+import sys
 import threading
 import warnings
 
@@ -145,3 +147,15 @@ def test_methods_by_registry_experimental_ones_warn_and_are_never_the_default():
         with pytest.warns(ExperimentalMethodWarning, match=name):
             ex = solve(MODEL, soil(), ag, 0.005, contact=UPLIFT, options=SolveOptions(method=name, max_iter=1))
         assert ex.info["method"] == name
+
+
+def test_the_solver_imports_pyfftw_without_dask():
+    """pyfftw's package init would import dask.array (and xarray, ~0.9 s) for an interface the
+    solver does not use: the solver's import leaves dask out, and dask still imports after."""
+    code = ("import sys\n"
+            "import orchestrator.timefreq\n"
+            "print(sorted({m.split('.')[0] for m in sys.modules} & {'dask', 'xarray'}))\n"
+            "import dask.array.fft\n"
+            "print(callable(dask.array.fft.fft_wrap))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
+    assert out.stdout.split("\n")[:2] == ["[]", "True"]

@@ -2,6 +2,7 @@
    pivoting (as LAPACK getrf: row interchanges recorded as swaps), solves, products. Row-major;
    the inner loops run along rows, contiguous in memory. */
 #include <math.h>
+#include <stdlib.h>
 
 #include "uplift.h"
 
@@ -12,7 +13,32 @@
    algorithm (the same result, bit for bit); only the memory traffic changes. */
 #define LU_BLOCK 32
 
-int up_lu(double *A, int *piv, int n)
+/* The hot loops (the history product, the LU's trailing update) run along contiguous rows with
+   no reduction, so the compiler vectorises them without reassociating anything: the result is
+   the same at every vector width. Baseline x86-64 code (SSE2) for every machine; on ELF x86-64
+   with GCC or clang, AVX2 and AVX-512 versions too, picked at load time by the CPU's features
+   (target_clones). */
+#if defined(__x86_64__) && defined(__ELF__) && defined(__GNUC__) && !defined(UP_BASELINE_ONLY)
+#define UP_WIDE __attribute__((target_clones("avx512f", "avx2", "default")))
+#else
+#define UP_WIDE
+#endif
+
+/* a . b with eight partial sums: independent chains in vector registers (two of four, or one of
+   eight lanes), the same sums at every width; inlined into the loops that call it */
+static inline double dot(const double *restrict a, const double *restrict b, int n)
+{
+    double s[8] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
+    int i = 0;
+    for (; i + 8 <= n; i += 8)
+        for (int k = 0; k < 8; k++)
+            s[k] += a[i + k] * b[i + k];
+    for (; i < n; i++)
+        s[0] += a[i] * b[i];
+    return ((s[0] + s[1]) + (s[2] + s[3])) + ((s[4] + s[5]) + (s[6] + s[7]));
+}
+
+UP_WIDE int up_lu(double *A, int *piv, int n)
 {
     for (int k0 = 0; k0 < n; k0 += LU_BLOCK) {
         int k1 = k0 + LU_BLOCK < n ? k0 + LU_BLOCK : n;
@@ -77,7 +103,7 @@ int up_lu(double *A, int *piv, int n)
     return 0;
 }
 
-void up_lu_solve(const double *LU, const int *piv, int n, double *b)
+UP_WIDE void up_lu_solve(const double *LU, const int *piv, int n, double *b)
 {
     for (int k = 0; k < n; k++)
         if (piv[k] != k) {
@@ -85,69 +111,204 @@ void up_lu_solve(const double *LU, const int *piv, int n, double *b)
             b[k] = b[piv[k]];
             b[piv[k]] = t;
         }
-    for (int i = 1; i < n; i++) {
-        const double *ri = LU + (size_t)i * n;
-        double s = b[i];
-        for (int j = 0; j < i; j++)
-            s -= ri[j] * b[j];
-        b[i] = s;
-    }
+    for (int i = 1; i < n; i++)
+        b[i] -= dot(LU + (size_t)i * n, b, i);
     for (int i = n - 1; i >= 0; i--) {
         const double *ri = LU + (size_t)i * n;
-        double s = b[i];
-        for (int j = i + 1; j < n; j++)
-            s -= ri[j] * b[j];
-        b[i] = s / ri[i];
+        b[i] = (b[i] - dot(ri + i + 1, b + i + 1, n - i - 1)) / ri[i];
     }
 }
 
-void up_matvec(const double *A, int rows, int cols, const double *x, double *y)
+UP_WIDE void up_matvec(const double *A, int rows, int cols, const double *x, double *y)
 {
     for (int i = 0; i < rows; i++)
-        y[i] = up_dot(A + (size_t)i * cols, x, cols);
+        y[i] = dot(A + (size_t)i * cols, x, cols);
 }
 
-void up_matvec2(const double *A, int rows, int cols, const double *x1, const double *x2, double *y1, double *y2)
+UP_WIDE void up_matvec_ld(const double *A, int rows, int cols, int lda, const double *x, double *y)
 {
+    for (int i = 0; i < rows; i++)
+        y[i] = dot(A + (size_t)i * lda, x, cols);
+}
+
+int up_sparse_init(UpSparse *S, const double *A, int rows, int cols)
+{
+    int nnz = 0;
+    for (size_t i = 0; i < (size_t)rows * cols; i++)
+        nnz += A[i] != 0.0;
+    S->rows = rows;
+    S->ptr = (int *)malloc(((size_t)rows + 1) * sizeof(int));
+    S->col = (int *)malloc(((size_t)nnz + 1) * sizeof(int));
+    S->val = (double *)malloc(((size_t)nnz + 1) * sizeof(double));
+    if (!S->ptr || !S->col || !S->val)
+        return -1;
+    int q = 0;
     for (int i = 0; i < rows; i++) {
-        const double *a = A + (size_t)i * cols;
-        double s0 = 0.0, s1 = 0.0, t0 = 0.0, t1 = 0.0;
-        int j = 0;
-        for (; j + 2 <= cols; j += 2) {
-            s0 += a[j] * x1[j];
-            s1 += a[j + 1] * x1[j + 1];
-            t0 += a[j] * x2[j];
-            t1 += a[j + 1] * x2[j + 1];
-        }
-        for (; j < cols; j++) {
-            s0 += a[j] * x1[j];
-            t0 += a[j] * x2[j];
-        }
-        y1[i] = s0 + s1;
-        y2[i] = t0 + t1;
+        S->ptr[i] = q;
+        for (int j = 0; j < cols; j++)
+            if (A[(size_t)i * cols + j] != 0.0) {
+                S->col[q] = j;
+                S->val[q++] = A[(size_t)i * cols + j];
+            }
+    }
+    S->ptr[rows] = q;
+    return 0;
+}
+
+void up_sparse_free(UpSparse *S)
+{
+    free(S->ptr);
+    free(S->col);
+    free(S->val);
+    S->ptr = S->col = NULL;
+    S->val = NULL;
+}
+
+void up_sparse_matvec(const UpSparse *S, const double *x, double *y)
+{
+    for (int i = 0; i < S->rows; i++) {
+        double t = 0.0;
+        for (int q = S->ptr[i]; q < S->ptr[i + 1]; q++)
+            t += S->val[q] * x[S->col[q]];
+        y[i] = t;
     }
 }
 
-void up_matvec_add(const double *A, int rows, int cols, const double *x, double s, double *y)
+/* y = At^T x, row by row of At (four at a time: y_i stays in a register through four updates,
+   in their order); the inner loop runs along a row, with no reduction, so it vectorises at any
+   width with the same result */
+UP_WIDE void up_gemv_t(const double *restrict At, int rows, int cols, const double *restrict x, double *restrict y)
+{
+    for (int i = 0; i < cols; i++)
+        y[i] = 0.0;
+    int j = 0;
+    for (; j + 4 <= rows; j += 4) {
+        const double *restrict r0 = At + (size_t)j * cols, *restrict r1 = r0 + cols, *restrict r2 = r1 + cols,
+                     *restrict r3 = r2 + cols;
+        double x0 = x[j], x1 = x[j + 1], x2 = x[j + 2], x3 = x[j + 3];
+        for (int i = 0; i < cols; i++) {
+            double t = y[i];
+            t += x0 * r0[i];
+            t += x1 * r1[i];
+            t += x2 * r2[i];
+            t += x3 * r3[i];
+            y[i] = t;
+        }
+    }
+    for (; j < rows; j++) {
+        const double *restrict r = At + (size_t)j * cols;
+        double xj = x[j];
+        for (int i = 0; i < cols; i++)
+            y[i] += xj * r[i];
+    }
+}
+
+UP_WIDE void up_gemv_t2(const double *restrict At, int rows, int cols, const double *restrict x1,
+                        const double *restrict x2, double *restrict y1, double *restrict y2)
+{
+    for (int i = 0; i < cols; i++)
+        y1[i] = y2[i] = 0.0;
+    int j = 0;
+    for (; j + 2 <= rows; j += 2) {
+        const double *restrict r0 = At + (size_t)j * cols, *restrict r1 = r0 + cols;
+        double a0 = x1[j], a1 = x1[j + 1], b0 = x2[j], b1 = x2[j + 1];
+        for (int i = 0; i < cols; i++) {
+            double t = y1[i], u = y2[i];
+            t += a0 * r0[i];
+            u += b0 * r0[i];
+            t += a1 * r1[i];
+            u += b1 * r1[i];
+            y1[i] = t;
+            y2[i] = u;
+        }
+    }
+    for (; j < rows; j++) {
+        const double *restrict r = At + (size_t)j * cols;
+        double a = x1[j], b = x2[j];
+        for (int i = 0; i < cols; i++) {
+            y1[i] += a * r[i];
+            y2[i] += b * r[i];
+        }
+    }
+}
+
+/* y += P x for a symmetric (n, n) matrix held packed: its upper triangle row by row (row i:
+   the n - i entries from the diagonal). Each entry is read once and used twice: in the dot
+   product of its row (y_i) and in the update of the rows below (y_j += P_ij x_i, j > i), so
+   the memory traffic is half a full product's. */
+UP_WIDE void up_spmv_add(const double *restrict P, int n, const double *restrict x, double *restrict y)
+{
+    for (int i = 0; i < n; i++) {
+        int len = n - i;
+        const double *restrict r = P;
+        double xi = x[i];
+        y[i] += dot(r, x + i, len);
+        double *restrict yi = y + i;
+        for (int j = 1; j < len; j++)
+            yi[j] += xi * r[j];
+        P += len;
+    }
+}
+
+/* y1 += P x1 and y2 += P x2 in one pass over P */
+UP_WIDE void up_spmv2_add(const double *restrict P, int n, const double *restrict x1, const double *restrict x2,
+                          double *restrict y1, double *restrict y2)
+{
+    for (int i = 0; i < n; i++) {
+        int len = n - i;
+        const double *restrict r = P;
+        double a = x1[i], b = x2[i];
+        y1[i] += dot(r, x1 + i, len);
+        y2[i] += dot(r, x2 + i, len);
+        double *restrict u = y1 + i, *restrict v = y2 + i;
+        for (int j = 1; j < len; j++) {
+            u[j] += a * r[j];
+            v[j] += b * r[j];
+        }
+        P += len;
+    }
+}
+
+/* P <- the upper triangle of A (n, n) packed by rows; 1 when A is symmetric (bit for bit) */
+int up_pack_sym(const double *A, int n, double *P)
+{
+    size_t q = 0;
+    for (int i = 0; i < n; i++)
+        for (int j = i; j < n; j++) {
+            if (A[(size_t)i * n + j] != A[(size_t)j * n + i])
+                return 0;
+            P[q++] = A[(size_t)i * n + j];
+        }
+    return 1;
+}
+
+/* y = A x: from P (A packed, half the memory traffic) when P is not NULL, else from A */
+void up_symv(const double *A, const double *P, int n, const double *x, double *y)
+{
+    if (!P) {
+        up_matvec(A, n, n, x, y);
+        return;
+    }
+    for (int i = 0; i < n; i++)
+        y[i] = 0.0;
+    up_spmv_add(P, n, x, y);
+}
+
+UP_WIDE void up_matvec_add(const double *A, int rows, int cols, const double *x, double s, double *y)
 {
     for (int i = 0; i < rows; i++)
-        y[i] += s * up_dot(A + (size_t)i * cols, x, cols);
+        y[i] += s * dot(A + (size_t)i * cols, x, cols);
+}
+
+UP_WIDE void up_axpy(double a, const double *restrict x, int n, double *restrict y)
+{
+    for (int i = 0; i < n; i++)
+        y[i] += a * x[i];
 }
 
 double up_dot(const double *a, const double *b, int n)
 {
-    /* four partial sums: independent chains the compiler can keep in vector registers */
-    double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
-    int i = 0;
-    for (; i + 4 <= n; i += 4) {
-        s0 += a[i] * b[i];
-        s1 += a[i + 1] * b[i + 1];
-        s2 += a[i + 2] * b[i + 2];
-        s3 += a[i + 3] * b[i + 3];
-    }
-    for (; i < n; i++)
-        s0 += a[i] * b[i];
-    return (s0 + s1) + (s2 + s3);
+    return dot(a, b, n);
 }
 
 double up_norm(const double *a, int n)

@@ -30,6 +30,8 @@ static uint32_t crc32(const unsigned char *p, size_t n)
     return c ^ 0xFFFFFFFFu;
 }
 
+static int parse(UpRes *r, size_t size, char *err);
+
 static int fail(UpRes *r, char *err, const char *what)
 {
     snprintf(err, UP_MSG, "resource file %s %s: export the FMU again (uplift export)", r->path, what);
@@ -61,8 +63,29 @@ int up_res_load(UpRes *r, const char *path, char *err)
     }
     size_t got = fread(r->buf, 1, (size_t)size, f);
     fclose(f);
+    if (got != (size_t)size)
+        return fail(r, err, "cannot be read");
+    return parse(r, (size_t)size, err);
+}
+
+int up_res_parse(UpRes *r, const unsigned char *data, size_t size, const char *name, char *err)
+{
+    memset(r, 0, sizeof *r);
+    snprintf(r->path, sizeof r->path, "%s", name);
+    if (size < HEADER)
+        return fail(r, err, "is too short");
+    r->buf = (unsigned char *)malloc(size);
+    if (!r->buf)
+        return fail(r, err, "does not fit in memory");
+    memcpy(r->buf, data, size);
+    return parse(r, size, err);
+}
+
+/* the checks and the record table of the file read whole into r->buf (size bytes) */
+static int parse(UpRes *r, size_t size, char *err)
+{
     const unsigned char *b = r->buf;
-    if (got != (size_t)size || memcmp(b, MAGIC, 8) != 0)
+    if (memcmp(b, MAGIC, 8) != 0)
         return fail(r, err, "is not an uplift resource file");
     if (rd32(b + 8) != VERSION)
         return fail(r, err, "has another format version than this runtime");

@@ -7,7 +7,11 @@
 
    Complex poles are carried once per conjugate pair (the partner gives the complex conjugate):
    h = H g with H (n, L) stacking R_k of the real poles and [2 Re R_k, -2 Im R_k] of the pairs,
-   g the stacked a_k y_k + b_k u (pairs as (re, im)). The coefficients and D0 depend on dt:
+   g the stacked a_k y_k + b_k u (pairs as (re, im)). The residues of a fitted model are
+   symmetric (reciprocity): H is then held as its L / n symmetric blocks, packed (half the
+   memory traffic of the product, which is what bounds it); otherwise pole-major, as its
+   transpose Ht (L, n), h accumulating g_j times row j of Ht (up_gemv_t). Either way the loops
+   vectorise with no reassociation (the same sums in the same order at every width). The coefficients and D0 depend on dt:
    one set per step-halving level, computed when first needed. */
 #include <math.h>
 #include <stdio.h>
@@ -15,6 +19,85 @@
 #include <string.h>
 
 #include "uplift.h"
+
+/* entry (i, j) of history block b (a real pole's R_k; a pair's 2 Re R_k, then -2 Im R_k) */
+static double block_entry(const UpSoil *s, int b, int i, int j)
+{
+    size_t n = (size_t)s->n;
+    if (b < s->mr)
+        return s->Rr[((size_t)b * n + i) * n + j];
+    int k = (b - s->mr) / 2, im = (b - s->mr) % 2;
+    double v = s->Rc[(((size_t)k * n + i) * n + j) * 2 + im];
+    return im ? -2.0 * v : 2.0 * v;
+}
+
+/* the history matrix: packed symmetric blocks when every residue is symmetric (as the fit makes
+   them), else H transposed; 0 when out of memory */
+static int history_matrix(UpSoil *s)
+{
+    int n = s->n, nb = s->mr + 2 * s->mc, sym = 1;
+    for (int b = 0; sym && b < nb; b++)
+        for (int i = 0; sym && i < n; i++)
+            for (int j = i + 1; sym && j < n; j++)
+                sym = block_entry(s, b, i, j) == block_entry(s, b, j, i);
+    if (sym) {
+        size_t packed = (size_t)n * (n + 1) / 2, q = 0;
+        if (!(s->Hs = (double *)malloc((nb ? nb * packed : 1) * sizeof(double))))
+            return 0;
+        for (int b = 0; b < nb; b++)
+            for (int i = 0; i < n; i++)
+                for (int j = i; j < n; j++)
+                    s->Hs[q++] = block_entry(s, b, i, j);
+        return 1;
+    }
+    if (!(s->H = (double *)malloc((s->L ? s->L : 1) * (size_t)n * sizeof(double))))
+        return 0;
+    for (int b = 0; b < nb; b++)                          /* Ht[c][i] = H[i][c] */
+        for (int j = 0; j < n; j++) {
+            size_t c = b < s->mr ? (size_t)b * n + j
+                                 : (size_t)s->mr * n + ((size_t)((b - s->mr) / 2) * n + j) * 2 + (b - s->mr) % 2;
+            for (int i = 0; i < n; i++)
+                s->H[c * n + i] = block_entry(s, b, i, j);
+        }
+    return 1;
+}
+
+/* the stacked input of block b into v (n): g's entries of that block (a pair's re or im parts) */
+static const double *block_input(const UpSoil *s, const double *g, int b, double *v)
+{
+    int n = s->n;
+    if (b < s->mr)
+        return g + (size_t)b * n;
+    const double *gc = g + (size_t)s->mr * n + (size_t)((b - s->mr) / 2) * n * 2 + (b - s->mr) % 2;
+    for (int j = 0; j < n; j++)
+        v[j] = gc[2 * j];
+    return v;
+}
+
+/* h = H g (and h2 = H g2 in the same pass over H when g2 is not NULL) */
+static void history_product(UpSoil *s, const double *g, const double *g2, double *h, double *h2)
+{
+    int n = s->n;
+    if (!s->Hs) {
+        if (g2)
+            up_gemv_t2(s->H, (int)s->L, n, g, g2, h, h2);
+        else
+            up_gemv_t(s->H, (int)s->L, n, g, h);
+        return;
+    }
+    size_t packed = (size_t)n * (n + 1) / 2;
+    double *v1 = s->fbuf + 3 * (size_t)n, *v2 = v1 + n;
+    memset(h, 0, (size_t)n * sizeof(double));
+    if (g2)
+        memset(h2, 0, (size_t)n * sizeof(double));
+    for (int b = 0; b < s->mr + 2 * s->mc; b++) {
+        const double *P = s->Hs + (size_t)b * packed, *x1 = block_input(s, g, b, v1);
+        if (g2)
+            up_spmv2_add(P, n, x1, block_input(s, g2, b, v2), h, h2);
+        else
+            up_spmv_add(P, n, x1, h);
+    }
+}
 
 int up_soil_init(UpSoil *s, const UpRes *r, int n, int nlev, int stepped, char *err)
 {
@@ -44,37 +127,29 @@ int up_soil_init(UpSoil *s, const UpRes *r, int n, int nlev, int stepped, char *
     }
     int mr = s->mr, mc = s->mc;
     s->L = (size_t)(mr + 2 * mc) * (size_t)n;
-    s->fbuf = (double *)calloc(3 * (size_t)n + 1, sizeof(double));
+    s->fbuf = (double *)calloc(5 * (size_t)n + 1, sizeof(double));
     int ok = s->fbuf != NULL;
     if (stepped && ok) {
-        s->H = (double *)malloc((s->L ? s->L : 1) * (size_t)n * sizeof(double));
         s->g = (double *)calloc(s->L + 1, sizeof(double));
         s->g2 = (double *)calloc(s->L + 1, sizeof(double));
-        ok = s->H && s->g && s->g2;
-        for (int i = 0; ok && i < n; i++) {
-            double *row = s->H + (size_t)i * s->L;
-            for (int k = 0; k < mr; k++)
-                memcpy(row + (size_t)k * n, s->Rr + ((size_t)k * n + i) * n, (size_t)n * sizeof(double));
-            double *rc = row + (size_t)mr * n;
-            for (int k = 0; k < mc; k++) {
-                const double *R = s->Rc + (((size_t)k * n + i) * n) * 2;
-                for (int j = 0; j < n; j++) {
-                    rc[((size_t)k * n + j) * 2] = 2.0 * R[2 * j];
-                    rc[((size_t)k * n + j) * 2 + 1] = -2.0 * R[2 * j + 1];
-                }
-            }
-        }
+        ok = s->g && s->g2 && history_matrix(s);
     }
     for (int l = 0; ok && l < nlev; l++) {
         UpSoilLevel *lv = &s->lev[l];
         lv->ar = (double *)calloc((size_t)(2 * mr + 4 * mc) + 1, sizeof(double));
         lv->D0 = (double *)malloc((size_t)n * n * sizeof(double));
-        ok = lv->ar && lv->D0;
+        lv->D0p = (double *)malloc(((size_t)n * (n + 1) / 2 + 1) * sizeof(double));
+        ok = lv->ar && lv->D0 && lv->D0p;
         if (ok) {
             lv->br = lv->ar + mr;
             lv->ac = lv->br + mr;
             lv->bc = lv->ac + 2 * mc;
         }
+    }
+    if (ok && (s->Ep = (double *)malloc(((size_t)n * (n + 1) / 2 + 1) * sizeof(double))) != NULL
+        && !up_pack_sym(s->E, n, s->Ep)) {
+        free(s->Ep);                                      /* not symmetric: the dense products */
+        s->Ep = NULL;
     }
     if (!ok) {
         up_soil_free(s);
@@ -87,12 +162,15 @@ int up_soil_init(UpSoil *s, const UpRes *r, int n, int nlev, int stepped, char *
 void up_soil_free(UpSoil *s)
 {
     free(s->H);
+    free(s->Hs);
+    free(s->Ep);
     free(s->g);
     free(s->g2);
     free(s->fbuf);
     for (int l = 0; l < UP_MAXLEV; l++) {
         free(s->lev[l].ar);
         free(s->lev[l].D0);
+        free(s->lev[l].D0p);
     }
     memset(s, 0, sizeof *s);
 }
@@ -156,6 +234,7 @@ const UpSoilLevel *up_soil_level(UpSoil *s, int lev, double dt)
             double m = 0.5 * (D0[(size_t)i * n + j] + D0[(size_t)j * n + i]);
             D0[(size_t)i * n + j] = D0[(size_t)j * n + i] = m;
         }
+    up_pack_sym(D0, n, lv->D0p);
     lv->dt = dt;
     lv->ready = 1;
     return lv;
@@ -184,15 +263,18 @@ static void stack(const UpSoil *s, const UpSoilLevel *lv, const double *yr, cons
 void up_soil_history(UpSoil *s, int lev, double *h)
 {
     stack(s, &s->lev[lev], s->yr, s->yc, s->u, s->g);
-    up_matvec(s->H, s->n, (int)s->L, s->g, h);
+    history_product(s, s->g, NULL, h, NULL);
 }
 
 void up_soil_force(UpSoil *s, int lev, const double *x, const double *xd, const double *h, double *f)
 {
     const UpSoilLevel *lv = &s->lev[lev];
     int n = s->n;
+    double *Dx = s->fbuf + 3 * (size_t)n, *Ev = Dx + n;
+    up_symv(lv->D0, lv->D0p, n, x, Dx);
+    up_symv(s->E, s->Ep, n, xd, Ev);
     for (int i = 0; i < n; i++)
-        f[i] = (up_dot(lv->D0 + (size_t)i * n, x, n) + up_dot(s->E + (size_t)i * n, xd, n)) + h[i];
+        f[i] = (Dx[i] + Ev[i]) + h[i];
 }
 
 /* y <- a y + b (x + u), the pole states after committing x on u (pair states as (re, im)) */
@@ -247,7 +329,7 @@ void up_soil_ahead(UpSoil *s, int lev, double *g)
     memcpy(s->g, s->yr, s->L * sizeof(double));
     advance_states(s, lv, zero, s->u, s->g, s->g + (size_t)s->mr * n);
     stack_ahead(s, lv, s->g);
-    up_matvec(s->H, n, (int)s->L, s->g, g);
+    history_product(s, s->g, NULL, g, NULL);
 }
 
 void up_soil_step(UpSoil *s, int lev, const double *x, const double *xd, double *g)
@@ -264,7 +346,7 @@ void up_soil_step(UpSoil *s, int lev, const double *x, const double *xd, double 
     advance_states(s, lv, x, s->u, s->g2, s->g2 + (size_t)s->mr * n);      /* after committing x */
     advance_states(s, lv, zero, x, s->g2, s->g2 + (size_t)s->mr * n);      /* then a zero state */
     stack_ahead(s, lv, s->g2);
-    up_matvec2(s->H, n, (int)s->L, s->g, s->g2, h, g);
+    history_product(s, s->g, s->g2, h, g);
     up_soil_force(s, lev, x, xd, h, f);
     up_soil_commit(s, lev, x, xd, f);
 }

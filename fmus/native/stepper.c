@@ -94,7 +94,7 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
             snprintf(err, UP_MSG, "resource file %s: contact penalty kp[%d] = %g must be > 0", r->path, i, s->kp[i]);
             return -1;
         }
-    int ok = 1;
+    int ok = up_sparse_init(&s->Ks_sp, s->Ks, ns_, ns_) == 0 && up_sparse_init(&s->Cs_sp, s->Cs, ns_, ns_) == 0;
     for (int l = 0; ok && l < s->nlev; l++) {
         UpSystem *y = &s->sys[l];
         y->AII = (double *)malloc(((size_t)ni * ni + 1) * sizeof(double));
@@ -102,19 +102,32 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
         y->ABI = (double *)malloc(((size_t)nb * ni + 1) * sizeof(double));
         y->X = (double *)malloc(((size_t)ni * nb + 1) * sizeof(double));
         y->S0 = (double *)malloc((size_t)nb * nb * sizeof(double));
-        ok = y->AII && y->piv && y->ABI && y->X && y->S0;
+        y->K0C = (double *)malloc((size_t)nb * nb * sizeof(double));
+        y->K0Cp = (double *)malloc(((size_t)nb * (nb + 1) / 2 + 1) * sizeof(double));
+        ok = y->AII && y->piv && y->ABI && y->X && y->S0 && y->K0C && y->K0Cp;
+        for (int c = 0; ok && c < 2; c++) {
+            y->Jb[c] = (double *)malloc((size_t)nb * nb * sizeof(double));
+            y->pb[c] = (int *)malloc((size_t)nb * sizeof(int));
+            y->Z[c] = (double *)malloc(((size_t)Ni * nb + 1) * sizeof(double));
+            y->W[c] = (double *)malloc(((size_t)Ni * Ni + 1) * sizeof(double));
+            ok = y->Jb[c] && y->pb[c] && y->Z[c] && y->W[c];
+        }
     }
-    s->cache_lu = (double *)malloc((size_t)UP_NCACHE * nb * nb * sizeof(double));
-    s->cache_piv = (int *)malloc((size_t)UP_NCACHE * nb * sizeof(int));
+    s->cache_lu = (double *)malloc(((size_t)UP_NCACHE * Ni * Ni + 1) * sizeof(double));
+    s->cache_piv = (int *)malloc(((size_t)UP_NCACHE * Ni + 1) * sizeof(int));
+    s->cache_nodes = (int *)malloc(((size_t)UP_NCACHE * Ni + 1) * sizeof(int));
     s->cache_lev = (int *)malloc(UP_NCACHE * sizeof(int));
+    s->cache_base = (int *)calloc(UP_NCACHE, sizeof(int));
+    s->cache_k = (int *)calloc(UP_NCACHE, sizeof(int));
     s->cache_act = (unsigned char *)calloc((size_t)UP_NCACHE * Ni + 1, 1);
     s->cache_used = (long *)calloc(UP_NCACHE, sizeof(long));
-    ok = ok && s->cache_lu && s->cache_piv && s->cache_lev && s->cache_act && s->cache_used;
+    ok = ok && s->cache_lu && s->cache_piv && s->cache_nodes && s->cache_lev && s->cache_base && s->cache_k
+         && s->cache_act && s->cache_used;
     for (int k = 0; ok && k < UP_NCACHE; k++)
         s->cache_lev[k] = -1;
-    for (int k = 0; ok && k < 8; k++)
-        ok = (s->w_n[k] = (double *)calloc((size_t)n, sizeof(double))) != NULL;
     for (int k = 0; ok && k < 10; k++)
+        ok = (s->w_n[k] = (double *)calloc((size_t)n, sizeof(double))) != NULL;
+    for (int k = 0; ok && k < 12; k++)
         ok = (s->w_nb[k] = (double *)calloc((size_t)nb, sizeof(double))) != NULL;
     for (int k = 0; ok && k < 6; k++)
         ok = (s->w_N[k] = (double *)calloc((size_t)Ni + 1, sizeof(double))) != NULL;
@@ -141,15 +154,28 @@ void up_stepper_free(UpStepper *s)
         free(y->ABI);
         free(y->X);
         free(y->S0);
+        free(y->K0C);
+        free(y->K0Cp);
+        for (int c = 0; c < 2; c++) {
+            free(y->Jb[c]);
+            free(y->pb[c]);
+            free(y->Z[c]);
+            free(y->W[c]);
+        }
     }
+    up_sparse_free(&s->Ks_sp);
+    up_sparse_free(&s->Cs_sp);
     free(s->cache_lu);
     free(s->cache_piv);
+    free(s->cache_nodes);
+    free(s->cache_base);
+    free(s->cache_k);
     free(s->cache_lev);
     free(s->cache_act);
     free(s->cache_used);
-    for (int k = 0; k < 8; k++)
-        free(s->w_n[k]);
     for (int k = 0; k < 10; k++)
+        free(s->w_n[k]);
+    for (int k = 0; k < 12; k++)
         free(s->w_nb[k]);
     for (int k = 0; k < 6; k++)
         free(s->w_N[k]);
@@ -209,6 +235,7 @@ void up_stepper_rest(UpStepper *s, const double *ag0)
 }
 
 /* ---- the per-level system ------------------------------------------------------------------ */
+static int base_at(UpStepper *s, UpSystem *y, int c);
 static const UpSystem *system_at(UpStepper *s, int lev)
 {
     UpSystem *y = &s->sys[lev];
@@ -266,6 +293,15 @@ static const UpSystem *system_at(UpStepper *s, int lev)
         for (int i = 0; i < ni; i++)
             y->X[(size_t)i * nb + j] = col[i];
     }
+    y->abi_rows = y->x_cols = 0;
+    for (int i = 0; i < nb; i++)
+        for (int k = 0; k < ni; k++)
+            if (y->ABI[(size_t)i * ni + k] != 0.0)
+                y->abi_rows = i + 1;
+    for (int i = 0; i < ni; i++)
+        for (int j = 0; j < nb; j++)
+            if (y->X[(size_t)i * nb + j] != 0.0 && j + 1 > y->x_cols)
+                y->x_cols = j + 1;
     for (int i = 0; i < nb; i++)
         for (int k = 0; k < ni; k++) {
             double a = y->ABI[(size_t)i * ni + k];
@@ -276,6 +312,11 @@ static const UpSystem *system_at(UpStepper *s, int lev)
             for (int j = 0; j < nb; j++)
                 si[j] -= a * xk[j];
         }
+    for (size_t i = 0; i < (size_t)nb * nb; i++)
+        y->K0C[i] = sl->D0[i] + y->c1 * s->soil->E[i];
+    up_pack_sym(y->K0C, nb, y->K0Cp);                     /* symmetric when E is (D0 is) */
+    y->base_ok[0] = base_at(s, y, 0) == 0;
+    y->base_ok[1] = base_at(s, y, 1) == 0;
     y->ready = 1;
     return y;
 }
@@ -314,58 +355,134 @@ static void contact(const UpStepper *s, const double *x, double *P, unsigned cha
     }
 }
 
-/* g = S0 x + (1 + al) fc(x) - r_hat, with the active set at x */
-static void residual(const UpStepper *s, const UpSystem *y, const double *x, const double *r_hat, double *g,
+/* g = S0 x + (1 + al) fc(x) - r_hat, with the active set at x; Sx = S0 x given (S0 is linear: the
+   Newton loop updates it from the line search's S0 dx, one product per iteration) */
+static void residual(const UpStepper *s, const double *Sx, const double *x, const double *r_hat, double *g,
                      unsigned char *act)
 {
     double *fc = s->w_nb[9], *P = s->w_N[4];
     contact(s, x, P, act, fc);
-    up_matvec(y->S0, s->nb, s->nb, x, g);
     for (int i = 0; i < s->nb; i++)
-        g[i] = (g[i] + (1 + s->alpha) * fc[i]) - r_hat[i];
+        g[i] = (Sx[i] + (1 + s->alpha) * fc[i]) - r_hat[i];
 }
 
-/* LU of S0 + (1 + al) B^T diag(kp active) B, from the cache or factorised into the least
-   recently used slot; NULL when singular */
-static const double *jacobian(UpStepper *s, int lev, const unsigned char *act, const int **piv)
+/* ---- the Newton matrix J(act) = S0 + sum over the active nodes of s_i b_i b_i^T ----------------
+   s_i = (1 + al) kp_i, b_i the contact direction of node i (Bq3_i on q[2:5], -1 on w_i). Two
+   bases per level, factorised once: every contact closed (Jc) and every contact open (S0), with
+   Z = base^-1 b_i for every node and W_ij = b_i . Z_j. J(act) differs from the nearer base by
+   the k = min(open, closed) nodes K: J = base + sigma U_K S_K U_K^T (sigma -1 from the closed
+   base, +1 from the open one), so by Woodbury
+       J^-1 r = y - Z_K C^-1 (U_K^T y),  y = base^-1 r,  C = sigma S_K^-1 + W_KK  (k, k).
+   Only C is factorised per active set ((2/3) k^3 instead of (2/3) nb^3), kept per (level, active
+   set) in the cache (least recently used replaced). Every number depends on the level and the
+   active set only, never on what the cache held before: a replayed step is the same bit for bit. */
+static void direction(const UpStepper *s, int i, double *b)
 {
-    int N = s->N, nb = s->nb, slot = 0;
-    s->clock++;
-    for (int k = 0; k < UP_NCACHE; k++) {
-        if (s->cache_lev[k] == lev && memcmp(s->cache_act + (size_t)k * N, act, (size_t)N) == 0) {
-            s->cache_used[k] = s->clock;
-            *piv = s->cache_piv + (size_t)k * nb;
-            return s->cache_lu + (size_t)k * nb * nb;
-        }
-        if (s->cache_used[k] < s->cache_used[slot])
-            slot = k;
-    }
-    double *J = s->cache_lu + (size_t)slot * nb * nb;
-    int *p = s->cache_piv + (size_t)slot * nb;
-    memcpy(J, s->sys[lev].S0, (size_t)nb * nb * sizeof(double));
-    const double *B = s->Bq3;
-    for (int i = 0; i < N; i++) {
-        double si = (1 + s->alpha) * s->kp[i] * (act[i] ? 1.0 : 0.0);
-        if (si == 0.0)
-            continue;
-        const double *b = B + 3 * (size_t)i;
+    memset(b, 0, (size_t)s->nb * sizeof(double));
+    memcpy(b + 2, s->Bq3 + 3 * (size_t)i, 3 * sizeof(double));
+    b[6 + i] = -1.0;
+}
+
+static double along(const UpStepper *s, int i, const double *x)
+{
+    const double *b = s->Bq3 + 3 * (size_t)i;
+    return ((b[0] * x[2] + b[1] * x[3]) + b[2] * x[4]) - x[6 + i];
+}
+
+/* base c of level lev: its LU, Z and W; 0, or -1 when singular */
+static int base_at(UpStepper *s, UpSystem *y, int c)
+{
+    int N = s->N, nb = s->nb;
+    double *J = y->Jb[c];
+    memcpy(J, y->S0, (size_t)nb * nb * sizeof(double));
+    for (int i = 0; c == 0 && i < N; i++) {
+        double si = (1 + s->alpha) * s->kp[i];
+        const double *b = s->Bq3 + 3 * (size_t)i;
         for (int r = 0; r < 3; r++) {
-            for (int c = 0; c < 3; c++)
-                J[(size_t)(2 + r) * nb + 2 + c] += b[r] * (si * b[c]);
+            for (int q = 0; q < 3; q++)
+                J[(size_t)(2 + r) * nb + 2 + q] += b[r] * (si * b[q]);
             double cross = -(si * b[r]);
             J[(size_t)(6 + i) * nb + 2 + r] += cross;
             J[(size_t)(2 + r) * nb + 6 + i] += cross;
         }
         J[(size_t)(6 + i) * nb + 6 + i] += si;
     }
+    s->n_factorisations++;
+    if (up_lu(J, y->pb[c], nb))
+        return -1;
+    for (int i = 0; i < N; i++) {
+        double *z = y->Z[c] + (size_t)i * nb;
+        direction(s, i, z);
+        up_lu_solve(J, y->pb[c], nb, z);
+    }
+    for (int i = 0; i < N; i++)
+        for (int j = 0; j < N; j++)
+            y->W[c][(size_t)i * N + j] = along(s, i, y->Z[c] + (size_t)j * nb);
+    return 0;
+}
+
+/* the cache slot of (lev, act): its base, nodes K and the LU of C; -1 when singular */
+static int capacitance(UpStepper *s, int lev, const unsigned char *act)
+{
+    int N = s->N, slot = 0;
+    UpSystem *y = &s->sys[lev];
+    s->clock++;
+    for (int k = 0; k < UP_NCACHE; k++) {
+        if (s->cache_lev[k] == lev && memcmp(s->cache_act + (size_t)k * N, act, (size_t)N) == 0) {
+            s->cache_used[k] = s->clock;
+            return k;
+        }
+        if (s->cache_used[k] < s->cache_used[slot])
+            slot = k;
+    }
+    int closed = 0;
+    for (int i = 0; i < N; i++)
+        closed += act[i] != 0;
+    int c = y->base_ok[1] && closed < N - closed ? 1 : 0;     /* the nearer base: all open (1), all closed (0) */
+    if (!y->base_ok[c])
+        return -1;
+    int *K = s->cache_nodes + (size_t)slot * N, k = 0;
+    for (int i = 0; i < N; i++)
+        if ((act[i] != 0) == (c == 1))
+            K[k++] = i;
+    double sigma = c == 1 ? 1.0 : -1.0, *C = s->cache_lu + (size_t)slot * N * N;
+    for (int a = 0; a < k; a++)
+        for (int b = 0; b < k; b++)
+            C[(size_t)a * k + b] = y->W[c][(size_t)K[a] * N + K[b]]
+                                   + (a == b ? sigma / ((1 + s->alpha) * s->kp[K[a]]) : 0.0);
     s->cache_lev[slot] = -1;
-    if (up_lu(J, p, nb))
-        return NULL;
+    if (k > 0) {
+        s->n_factorisations++;
+        if (up_lu(C, s->cache_piv + (size_t)slot * N, k))
+            return -1;
+    }
     s->cache_lev[slot] = lev;
     s->cache_used[slot] = s->clock;
+    s->cache_base[slot] = c;
+    s->cache_k[slot] = k;
     memcpy(s->cache_act + (size_t)slot * N, act, (size_t)N);
-    *piv = p;
-    return J;
+    return slot;
+}
+
+/* x <- J(act)^-1 x at level lev; 0, or -1 when J is singular */
+static int newton_solve(UpStepper *s, int lev, const unsigned char *act, double *x)
+{
+    int slot = capacitance(s, lev, act);
+    if (slot < 0)
+        return -1;
+    const UpSystem *y = &s->sys[lev];
+    int N = s->N, nb = s->nb, c = s->cache_base[slot], k = s->cache_k[slot];
+    const int *K = s->cache_nodes + (size_t)slot * N;
+    up_lu_solve(y->Jb[c], y->pb[c], nb, x);
+    if (k == 0)
+        return 0;
+    double *t = s->w_N[3];
+    for (int a = 0; a < k; a++)
+        t[a] = along(s, K[a], x);
+    up_lu_solve(s->cache_lu + (size_t)slot * N * N, s->cache_piv + (size_t)slot * N, k, t);
+    for (int a = 0; a < k; a++)
+        up_axpy(-t[a], y->Z[c] + (size_t)K[a] * nb, nb, x);
+    return 0;
 }
 
 /* exact line search on the incremental energy along dx: the step t in (0, 1] where
@@ -380,10 +497,10 @@ static double slope_at(const UpStepper *s, double a, double b, const double *dd,
     return a + b * t - sum;
 }
 
-static double line_search(UpStepper *s, const UpSystem *y, const double *uB, const double *dx, const double *g0)
+static double line_search(UpStepper *s, const double *uB, const double *dx, const double *g0, const double *Sdx)
 {
     int N = s->N;
-    double *d0 = s->w_N[0], *dd = s->w_N[1], *pen = s->w_N[2], *kinks = s->w_N[3], *Sdx = s->w_nb[8];
+    double *d0 = s->w_N[0], *dd = s->w_N[1], *pen = s->w_N[2], *kinks = s->w_N[3];
     relative(s, uB, d0);
     relative(s, dx, dd);
     double lin = 0.0;
@@ -392,7 +509,6 @@ static double line_search(UpStepper *s, const UpSystem *y, const double *uB, con
         lin += dd[i] * (s->kp[i] * (pen[i] > 0.0 ? pen[i] : 0.0));
     }
     double a = up_dot(dx, g0, s->nb) + (1 + s->alpha) * lin;
-    up_matvec(y->S0, s->nb, s->nb, dx, Sdx);
     double b = up_dot(dx, Sdx, s->nb);
     double f0 = slope_at(s, a, b, dd, pen, 0.0);
     if (slope_at(s, a, b, dd, pen, 1.0) <= 1e-12 * fabs(f0))
@@ -431,12 +547,14 @@ typedef struct {
 } Failure;
 
 /* C v on u = [structure | x]: Cs on the structure block, E (the soil's C0) on x */
-static void damp(const UpStepper *s, const double *v, double *out)
+static void damp(const UpStepper *s, const double *v, double *out, double *Ev)
 {
-    up_matvec(s->Cs, s->ns, s->ns, v, out);
+    up_sparse_matvec(&s->Cs_sp, v, out);
     for (int i = s->ns; i < s->n; i++)
         out[i] = 0.0;
-    up_matvec_add(s->soil->E, s->nb, s->nb, v + s->ni, 1.0, out + s->ni);
+    up_symv(s->soil->E, s->soil->Ep, s->nb, v + s->ni, Ev);          /* E v on x, kept for the soil force */
+    for (int i = 0; i < s->nb; i++)
+        out[s->ni + i] += Ev[i];
 }
 
 static int advance(UpStepper *s, int lev, const double *ag_new, const double *h, int *iters, Failure *fail)
@@ -458,7 +576,8 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
         a_hat[i] = (-c0 * u[i] - c2 * v[i]) - c3 * a[i];
         v_hat[i] = (-c1 * u[i] + (1 - g / b) * v[i]) + dt * (1 - g / (2 * b)) * a[i];
     }
-    damp(s, v_hat, Cv);
+    double *Ev = s->w_nb[10], *Sx = s->w_nb[11], *Sdx = s->w_nb[8];
+    damp(s, v_hat, Cv, Ev);
     for (int i = 0; i < n; i++)
         rhs[i] = (((-s->M[i] * a_hat[i] - (1 + al) * Cv[i]) + al * s->R[i]) + (1 + al) * F_new[i]) - al * s->F[i];
     for (int i = 0; i < nb; i++)
@@ -469,42 +588,54 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
     memcpy(yI, rhs, (size_t)ni * sizeof(double));
     if (ni > 0)
         up_lu_solve(y->AII, y->piv, ni, yI);
+    up_matvec(y->ABI, y->abi_rows, ni, yI, r_hat);
     for (int i = 0; i < nb; i++)
-        r_hat[i] = rhs[ni + i] - up_dot(y->ABI + (size_t)i * ni, yI, ni);
-    const int *piv;
-    const double *lu;
+        r_hat[i] = rhs[ni + i] - (i < y->abi_rows ? r_hat[i] : 0.0);
     *iters = 0;
     if (!s->enabled) {
         /* bonded: the contact is linear, x = J(all closed)^-1 r_hat */
         memset(s->act, 1, (size_t)N);
-        if (!(lu = jacobian(s, lev, s->act, &piv))) {
+        memcpy(uB, r_hat, (size_t)nb * sizeof(double));
+        if (newton_solve(s, lev, s->act, uB)) {
             fail->node = -1;
             fail->residual = INFINITY;
             return -1;
         }
-        memcpy(uB, r_hat, (size_t)nb * sizeof(double));
-        up_lu_solve(lu, piv, nb, uB);
     } else {
         memcpy(uB, u + ni, (size_t)nb * sizeof(double));
         double scale = up_norm(r_hat, nb), p0 = (1 + al) * up_norm(s->P0, N);
         scale = scale > p0 ? scale : p0;
         scale = scale > 1.0 ? scale : 1.0;
         double tol = s->tol * scale;
-        residual(s, y, uB, r_hat, gv, s->act);
+        up_matvec(y->S0, nb, nb, uB, Sx);
+        residual(s, Sx, uB, r_hat, gv, s->act);
         int conv = 0;
         for (int it = 0; it < s->max_iter; it++) {
-            if (!(lu = jacobian(s, lev, s->act, &piv)))
-                break;
             for (int i = 0; i < nb; i++)
                 dx[i] = gv[i];
-            up_lu_solve(lu, piv, nb, dx);
+            if (newton_solve(s, lev, s->act, dx))
+                break;
             for (int i = 0; i < nb; i++)
                 dx[i] = -dx[i];
             ++*iters;
-            double t = line_search(s, y, uB, dx, gv);
+            /* S0 dx = J dx - sum_active s_i b_i (b_i . dx), J dx = -g: no product with S0 */
             for (int i = 0; i < nb; i++)
+                Sdx[i] = -gv[i];
+            for (int i = 0; i < N; i++)
+                if (s->act[i]) {
+                    double c = ((1 + al) * s->kp[i]) * along(s, i, dx);
+                    const double *b = s->Bq3 + 3 * (size_t)i;
+                    Sdx[2] -= c * b[0];
+                    Sdx[3] -= c * b[1];
+                    Sdx[4] -= c * b[2];
+                    Sdx[6 + i] += c;
+                }
+            double t = line_search(s, uB, dx, gv, Sdx);
+            for (int i = 0; i < nb; i++) {
                 xn[i] = uB[i] + t * dx[i];
-            residual(s, y, xn, r_hat, gn, s->act_new);
+                Sx[i] += t * Sdx[i];
+            }
+            residual(s, Sx, xn, r_hat, gn, s->act_new);
             int same = memcmp(s->act, s->act_new, (size_t)N) == 0;
             memcpy(uB, xn, (size_t)nb * sizeof(double));
             memcpy(gv, gn, (size_t)nb * sizeof(double));
@@ -521,19 +652,22 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
                 double r = fabs(gv[6 + i]);
                 if (!isfinite(r))
                     finite = 0;
-                else if (r > best) {
+                else if (r > best)
                     best = r;
-                    node = i;
-                }
             }
+            for (int i = 0; i < N && node < 0; i++)      /* the first within round-off of the largest (ties) */
+                if (fabs(gv[6 + i]) >= best * (1 - 1e-9))
+                    node = i;
             fail->node = finite ? (N ? node : 0) : -1;
             fail->residual = up_norm(gv, nb);
             return -1;
         }
     }
     /* u_new = [y - X uB, uB] */
+    double *XuB = s->w_n[8];
+    up_matvec_ld(y->X, ni, y->x_cols, nb, uB, XuB);
     for (int i = 0; i < ni; i++)
-        u_new[i] = yI[i] - up_dot(y->X + (size_t)i * nb, uB, nb);
+        u_new[i] = yI[i] - XuB[i];
     memcpy(u_new + ni, uB, (size_t)nb * sizeof(double));
     if (!finite_all(u_new, (size_t)n)) {
         fail->node = -1;
@@ -547,11 +681,17 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
     }
     contact(s, u_new + ni, P_new, s->act_new, fc_new);
     const double *x_new = u_new + ni, *xd_new = v_new + ni;
-    up_soil_force(s->soil, lev, x_new, xd_new, h, fs_new);          /* K0 x + C0 xdot + h */
+    /* the soil force K0 x + C0 xdot + h = (D0 + c1 E) x + E v_hat + h (xdot = c1 x + v_hat) */
+    up_symv(y->K0C, s->soil->Ep ? y->K0Cp : NULL, nb, x_new, fs_new);
+    for (int i = 0; i < nb; i++)
+        fs_new[i] = (fs_new[i] + Ev[i]) + h[i];
     if (al != 0.0) {
         /* R = Ks u + Cs v, plus fs + fc on x: the internal force the HHT average needs */
-        up_matvec(s->Ks, ns, ns, u_new, R_new);
-        up_matvec_add(s->Cs, ns, ns, v_new, 1.0, R_new);
+        double *Cv_new = s->w_n[9];
+        up_sparse_matvec(&s->Ks_sp, u_new, R_new);
+        up_sparse_matvec(&s->Cs_sp, v_new, Cv_new);
+        for (int i = 0; i < ns; i++)
+            R_new[i] += Cv_new[i];
         for (int i = ns; i < n; i++)
             R_new[i] = 0.0;
         for (int i = 0; i < nb; i++)
@@ -566,8 +706,10 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
         vm[i] = 0.5 * (v[i] + v_new[i]);
     for (int i = 0; i < n; i++)
         w_in += (u_new[i] - u[i]) * (0.5 * (s->F[i] + F_new[i]));
+    double *Cvm = s->w_n[8];
+    up_sparse_matvec(&s->Cs_sp, vm, Cvm);
     for (int i = 0; i < ns; i++)
-        w_damp += (u_new[i] - u[i]) * up_dot(s->Cs + (size_t)i * ns, vm, ns);
+        w_damp += (u_new[i] - u[i]) * Cvm[i];
     for (int i = 0; i < nb; i++) {
         double du = u_new[ni + i] - u[ni + i];
         w_soil += du * (0.5 * (s->fs[i] + fs_new[i]));
@@ -618,6 +760,7 @@ static int span(UpStepper *s, int depth, const double *ag0, const double *ag1, c
                  *s->t + dt, dt, depth, fail.node, fail.residual);
         return -1;
     }
+    s->last_halved = 1;
     double agm[3];
     for (int k = 0; k < 3; k++)
         agm[k] = 0.5 * (ag0[k] + ag1[k]);
@@ -642,6 +785,7 @@ int up_stepper_step(UpStepper *s)
     memcpy(ag1, s->ag_next, sizeof ag1);
     int iters = 0;
     s->last_iters = 0;
+    s->last_halved = 0;
     if (span(s, 0, ag0, ag1, s->external ? s->h_ext : NULL, &iters)) {
         memcpy(s->block, s->saves, s->block_len * sizeof(double));
         return -1;
@@ -666,8 +810,10 @@ void up_stepper_energies(const UpStepper *s, double *e)
     double kin = 0.0, strain = 0.0, pot = 0.0;
     for (int i = 0; i < n; i++)
         kin += s->v[i] * (s->M[i] * s->v[i]);
+    double *Ku = s->w_n[9];
+    up_sparse_matvec(&s->Ks_sp, s->u, Ku);
     for (int i = 0; i < ns; i++)
-        strain += s->u[i] * up_dot(s->Ks + (size_t)i * ns, s->u, ns);
+        strain += s->u[i] * Ku[i];
     double *d = s->w_N[5];
     relative(s, s->u + s->ni, d);
     for (int i = 0; i < N; i++) {

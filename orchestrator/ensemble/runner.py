@@ -76,7 +76,7 @@ def run_ensemble(scene, pgas, records=None, seeds=None, routes=None, output=None
             t2 = time.perf_counter()
             if dt_check == "strongest":
                 with compute_threads():
-                    check = strongest_check(plan, shared)
+                    check = strongest_check(plan, shared, cache_dir)
                 shared = dataclasses.replace(shared, dt_check=check)
             times.update(cluster_s=t1 - t, setup_s=t2 - t1, dt_check_s=time.perf_counter() - t2)
             done, failures = _run_cells(client, todo, shared, plan.nodes, cache_dir, store, progress)
@@ -90,7 +90,7 @@ def run_ensemble(scene, pgas, records=None, seeds=None, routes=None, output=None
     return ds
 
 
-def strongest_check(plan: Plan, shared):
+def strongest_check(plan: Plan, shared, cache_dir=None):
     """The step-doubling check (``run.step_doubling``) on the ensemble's strongest motion: at the
     largest PGA, the record with the largest Arias intensity over its strongest window; None
     when no route of the plan is time-stepped with contact. The record and PGA are added."""
@@ -102,5 +102,5 @@ def strongest_check(plan: Plan, shared):
     motions = [make_motion(c.scene.motion, dt) for c in top]
     arias = [float((strongest_window(m)[0].acc ** 2).sum()) for m in motions]
     k = int(np.argmax(arias))
-    check = step_doubling(scene, scene.model(), shared.springs, motions[k])
+    check = step_doubling(scene, scene.model(), shared.springs, motions[k], cache_dir)
     return {**check, "record": plan.records[top[k].index[0]].label, "pga_g": plan.pgas[-1]}

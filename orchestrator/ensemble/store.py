@@ -15,7 +15,7 @@ from structure.results import Status
 from orchestrator.results import ResultsFileError, summary
 from orchestrator.run import run_scene
 from orchestrator.scene import Scene
-from orchestrator.spectra import response_spectrum
+from orchestrator.spectra import response_spectra
 
 #: floor response spectra: frequencies (Hz) and damping ratio (those of a single run's figures)
 FREQUENCIES_HZ = np.geomspace(0.5, 40.0, 120)
@@ -56,10 +56,15 @@ def cell_values(res, nodes) -> dict:
     spectra = np.full((len(nodes), len(DIRECTIONS), FREQUENCIES_HZ.size), np.nan)
     if res.nt > 1:
         dt = float(res.time[1] - res.time[0])
+        which, columns = [], []                  # every (node, direction) above round-off, in one pass
         for i, node in enumerate(nodes):
             acc = res.acc.get(node, np.zeros((0, 3)))
             for j in np.flatnonzero(np.abs(acc).max(axis=0, initial=0.0) > ROUNDOFF * np.abs(acc).max(initial=0.0)):
-                spectra[i, j] = response_spectrum(acc[:, j], dt, 1 / FREQUENCIES_HZ, DAMPING).psa
+                which.append((i, j))
+                columns.append(acc[:, j])
+        if columns:
+            for (i, j), sp in zip(which, response_spectra(np.stack(columns, axis=1), dt, 1 / FREQUENCIES_HZ, DAMPING)):
+                spectra[i, j] = sp.psa
     number = (lambda v: np.nan) if res.status is Status.REFUSED else float
     return {"status": s["status"], "message": s["message"], "warnings": "\n".join(s["warnings"]),
             "max_uplift": number(s["max_uplift_m"]), "max_raft_rotation": number(s["max_raft_rotation_rad"]),

@@ -2,6 +2,12 @@
 Newmark + penalty contact, in process (no FMU layer): the fast path and the co-simulation's
 reference (``cosim`` equals it to round-off).
 
+Two steppers compute the same discrete equations (to round-off): ``"native"`` (default), the C
+runtime of the native FMUs run in process over the whole motion (fmus/native_host.py), and
+``"python"``, ``structure.simulate`` (the readable reference). The native stepper runs the
+default soil (the recursive convolution of the rational model); with another soil factory, or
+where no C compiler is available, the Python stepper runs and ``notes.warnings`` says why.
+
 API::
 
     from orchestrator.routes.monolithic import run_monolithic
@@ -9,8 +15,11 @@ API::
 """
 from __future__ import annotations
 
+import dataclasses
+import time
+
 from fmus.resources import DEFAULT_SOIL_FACTORY, soil_from_model
-from structure import ConvergenceError, simulate
+from structure import ConvergenceError, NewmarkStepper, simulate
 
 from orchestrator.impedance import scene_fit
 from orchestrator.motion import make_motion
@@ -28,31 +37,68 @@ def route_inputs(scene, motion=None, soil_model=None, dt=None, cache_dir=None):
     return motion, soil_model, float(dt)
 
 
+#: the steppers of the route: the C runtime in process, or structure.simulate
+STEPPERS = ("native", "python")
+
+
 def run_monolithic(scene, motion=None, soil_model=None, *, soil_factory: str | None = None,
                    soil_kwargs: dict | None = None, dt: float | None = None, progress=None,
-                   cache_dir=None, model=None, route: str = "monolithic"):
-    """``structure.simulate`` with the soil object itself.
+                   cache_dir=None, model=None, route: str = "monolithic", stepper: str = "native"):
+    """The scene's structure on the soil model, stepped in process.
 
     motion : Motion (default: the scene's [motion] at dt); soil_model : RationalModel
     (default: the fit of the scene's gap table); soil_factory : "module:callable" building the
     soil as factory(model, dt, **soil_kwargs) (default: the recursive convolution); dt : s
     (default: the motion's, else the scene's [analysis] dt); model : the structure model
-    (default: built from the scene). Returns a RouteResult; a Newton failure returns the
+    (default: built from the scene); stepper : "native" (the C runtime, falling back to
+    "python" with a warning where it cannot run) or "python" (``structure.simulate``).
+    Returns a RouteResult (``info["stepper"]``: the one that ran); a Newton failure returns the
     samples so far with status STOPPED.
     """
+    if stepper not in STEPPERS:
+        raise ValueError(f"stepper = {stepper!r}: use one of {', '.join(STEPPERS)}")
     motion, soil_model, dt = route_inputs(scene, motion, soil_model, dt, cache_dir)
-    soil = soil_from_model(soil_model, dt, soil_factory or DEFAULT_SOIL_FACTORY, soil_kwargs)
+    factory = soil_factory or DEFAULT_SOIL_FACTORY
+    soil = soil_from_model(soil_model, dt, factory, soil_kwargs)
     model = model or scene.model()
+    why = ""
+    if stepper == "native":
+        from fmus.native_host import cache_folder, library_note   # the FMU stack: only when it steps
+        folder = cache_folder(cache_dir)
+        why = (f"the soil factory {factory} has no native runtime: the Python stepper ran"
+               if factory != DEFAULT_SOIL_FACTORY else library_note(folder))
     try:
-        res = simulate(model, soil, motion.acc, dt, contact=scene.contact, output_nodes=scene.output.nodes,
-                       progress=progress, route=route)
+        if stepper == "native" and not why:
+            res = _native(model, soil, motion, scene, route, progress, folder)
+        else:
+            res = simulate(model, soil, motion.acc, dt, contact=scene.contact, output_nodes=scene.output.nodes,
+                           progress=progress, route=route)
     except ConvergenceError as exc:
         res = exc.result
+    if res.info.get("stepper") != "native":
+        res = res.with_notes(info={"stepper": "python"}, warnings=[why] if why else [])
     return res.with_notes(info={"soil_model": soil_model.provenance})
 
 
+def _native(model, soil, motion, scene, route, progress, folder):
+    """The run through the C runtime (fmus.native_host, the library in ``folder``); wall_s
+    includes the stepper's set-up."""
+    from fmus.native_host import library, simulate_native   # the same: only when it steps
+    t0 = time.perf_counter()
+    st = NewmarkStepper(model, soil, motion.dt, contact=scene.contact, external_soil=True, ag0=motion.acc[0])
+    try:
+        res = simulate_native(st, motion.acc, scene.output.nodes, route=route, lib=library(folder))
+    except ConvergenceError as exc:
+        exc.result = dataclasses.replace(exc.result, wall_s=time.perf_counter() - t0)
+        raise
+    if progress is not None:
+        progress(motion.acc.shape[0], motion.acc.shape[0])
+    return dataclasses.replace(res, wall_s=time.perf_counter() - t0)
+
+
 def run(ctx, progress=None):
-    return run_monolithic(ctx.scene, ctx.motion, ctx.fit().model, progress=progress, model=ctx.model())
+    return run_monolithic(ctx.scene, ctx.motion, ctx.fit().model, progress=progress, model=ctx.model(),
+                          cache_dir=ctx.cache_dir)
 
 
 ROUTE = register(Route(

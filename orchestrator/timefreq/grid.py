@@ -26,12 +26,32 @@ Newmark one at the samples (for a_g(0) = 0, zero initial state).
 """
 from __future__ import annotations
 
+import sys
 import threading
 from dataclasses import dataclass
 
 import numpy as np
-import pyfftw
-import pyfftw.builders as fb
+
+
+def _import_pyfftw():
+    """pyfftw without dask: its package init imports pyfftw.interfaces, which imports dask.array
+    (and xarray with it, ~0.9 s) when dask is installed, only to offer a dask interface the
+    solver never uses. The import of dask.array.fft is refused while pyfftw loads (unless dask
+    is loaded already), and allowed again after."""
+    block = "pyfftw" not in sys.modules and "dask.array.fft" not in sys.modules
+    if block:
+        sys.modules["dask.array.fft"] = None          # an import of it raises ImportError
+    try:
+        # here, not at the top: the import must run with dask.array.fft refused
+        import pyfftw
+        import pyfftw.builders  # (the same reason)
+    finally:
+        if block and sys.modules.get("dask.array.fft", 0) is None:
+            del sys.modules["dask.array.fft"]
+    return pyfftw, pyfftw.builders
+
+
+pyfftw, fb = _import_pyfftw()
 
 #: FFTW plans per thread (a plan owns its input buffer: two threads transforming through one
 #: plan would write each other's data)

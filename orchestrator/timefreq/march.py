@@ -53,7 +53,7 @@ BLOCK = 64
 SUB = 16
 
 
-def kernel_head(op, grid, n_lags: int, fold: bool = False, chunk: int = 24):
+def kernel_head(op, grid, n_lags: int, fold: bool = False, chunk: int = 8):
     """S's discrete kernel at its first lags, (n_lags, N, N) real: h_0 .. h_{n_lags-1}, or
     with ``fold`` the folded kernel h_c[k] = h_k - h_{-k} (k >= 1), h_c[0] = h_0 + 2 sum_{k>=1}
     h_{-k}, the negative lags -1 .. -(nfft - nt) (the padding) read at the end of the windowed
@@ -65,7 +65,10 @@ def kernel_head(op, grid, n_lags: int, fold: bool = False, chunk: int = 24):
     Every step is linear per matrix entry: an affine band's K_ww = A + s B (a table's
     continuation above its last frequency, a Winkler soil) contributes A (x) a_k + B (x) b_k,
     a and b the kernels of the scalar series 1 and s on the band's frequencies, so only the
-    dense bands and the rank-6 structure term go through an FFT per entry."""
+    dense bands and the rank-6 structure term go through an FFT per entry. ``chunk`` columns of
+    S at a time, (N, chunk, F) complex arrays: ~35 MB each on the reactor at 8; at 24 (~100 MB
+    each, fresh memory paged in per chunk) the reactor's head cost ~3.6 CPU s against ~2.8 (the
+    same bits)."""
     N, nt, nf = op.N, grid.nt, grid.nfft
     rows = np.arange(N)
     k = np.arange(1, nf - nt + 1)
@@ -89,7 +92,7 @@ def kernel_head(op, grid, n_lags: int, fold: bool = False, chunk: int = 24):
     head = np.empty((n_lags, N, N))
     for c0 in range(0, N, chunk):
         cols = rows[c0:c0 + chunk]
-        Sc = np.ascontiguousarray(op.S_sub(rows, cols, affine=False).transpose(1, 2, 0))   # (N, c, F)
+        Sc = op.S_sub(rows, cols, affine=False).transpose(1, 2, 0)            # (N, c, F), a view
         h = lags(Sc)                                                          # (N, c, n_lags)
         for j, band in enumerate(affine):
             A, B = (dense(M[:, cols]) if hasattr(M, "tocsr") else M[:, cols] for M in band.ww())
@@ -123,6 +126,15 @@ class StepSolver:
         self.n_factor = 0
         self.symmetric = np.abs(h0 - h0.T).max() <= 1e-12 * np.abs(h0).max()
         self.scale = float(np.abs(P0).max() + np.abs(h0).max() * np.abs(delta0).max()) or 1.0
+        self._getrs = sla.get_lapack_funcs(("getrs",), (np.asarray(h0, float),))[0]
+
+    def _lu_solve(self, lu, b):
+        """scipy.linalg.lu_solve(lu, b) without its checks and wrappers (the same LAPACK getrs
+        call, so the same bits, at a fraction of the ~50 us overhead it adds to each step)."""
+        x, info = self._getrs(lu[0], lu[1], b)
+        if info:
+            raise ValueError(f"getrs: illegal value in argument {-info}")
+        return x
 
     def residual(self, d, c):
         return contact_force(d, self.delta0, self.kp)[0] - self.P0 - self.h0 @ d - c
@@ -157,8 +169,7 @@ class StepSolver:
         seen = set()
         for it in range(1, self.max_iter + 1):
             seen.add(active.tobytes())
-            d = sla.lu_solve(self._factor(active), self.kp * active * self.delta0 - self.P0 - c,
-                             check_finite=False)
+            d = self._lu_solve(self._factor(active), self.kp * active * self.delta0 - self.P0 - c)
             new = self.delta0 - d > 0
             if np.array_equal(new, active):
                 return d, it
@@ -177,7 +188,7 @@ class StepSolver:
         for it in range(1, self.max_iter + 1):
             if rn <= stop:
                 return d, it - 1
-            dd = sla.lu_solve(self._factor(self.delta0 - d > 0), r, check_finite=False)
+            dd = self._lu_solve(self._factor(self.delta0 - d > 0), r)
             m0 = self._merit(d, c, r)             # descent: dd = -J^-1 grad
             slope = -(r @ dd) if self.symmetric else -2.0 * (r @ r)
             t = 1.0
@@ -308,7 +319,7 @@ class MarchSweep:
 
 
 def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BLOCK, monitor=None,
-                      deadline=None, fold=False, sub=SUB) -> Outcome:
+                      deadline=None, fold=False, sub=SUB, stand_in=None) -> Outcome:
     """The whole-range equation g(y) = 0 (problem.ContactEquation) by marches.
 
     g = C + W: C the causal equations the march solves exactly, W(y) what the periodic grid
@@ -329,12 +340,16 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
     soil, no fold) from 0.1 to 1.0 g in <= 6 sweeps to 1e-10 (the wrap-around only).
     monitor : callable(sweep, residual) after each sweep; deadline : perf_counter time past which the best
     iterate is returned, STOPPED; block, sub : CausalSweep's blocks and near-field sub-blocks.
+    stand_in : a ContactProblem on the same grid and static state whose causal kernel the march
+    steps instead of prob's (a causal soil standing in for the table, e.g. its rational fit);
+    the residual, and so the fixed point, stay prob's.
 
     Returns an Outcome (history: one MarchSweep per sweep)."""
     eq = ContactEquation(prob, lam)
     scale = eq.scale
     hist = []
-    sweep = CausalSweep(prob, block, fold is True, sub)
+    marched = prob if stand_in is None else stand_in
+    sweep = CausalSweep(marched, block, fold is True, sub)
     W = np.zeros_like(prob.f)
     Gs, Fs = [], []                       # Anderson: past maps G(W) = W + g and residuals g
     best = None
@@ -354,7 +369,7 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
         except MarchDiverged as exc:
             hist.append(MarchSweep(k, math.nan, time.perf_counter() - t0, kernel(), diverged=True))
             if fold == "auto" and not sweep.fold:      # start again on the folded kernel
-                sweep = CausalSweep(prob, block, True, sub)
+                sweep = CausalSweep(marched, block, True, sub)
                 W, Gs, Fs, best = np.zeros_like(prob.f), [], [], None
                 continue
             return ended(SolverStatus.DIVERGED, str(exc))

@@ -205,12 +205,13 @@ def _table_bands(table, grid) -> SoilBands:
     if f_tab.size >= 4:
         # the spline is linear in the data: its weights (lo, F_tab) at Re f_c, combined with
         # the Taylor terms, times the table in one product (the spline of all n^2 entries
-        # would build 4 x F_tab x n^2 coefficients)
+        # would build 4 x F_tab x n^2 coefficients), written in place: a temporary product
+        # and its copy into K cost 4x the product itself (page faults on ~300 MB, reactor)
         sp = CubicSpline(f_tab, np.eye(f_tab.size), axis=0)
         fc = fq[lo]
         dz = (1j * fcx[lo].imag)[:, None]
         Wt = sp(fc) + dz * sp(fc, 1) + 0.5 * dz * dz * sp(fc, 2)
-        K[:] = (Wt @ Kt.reshape(f_tab.size, -1)).reshape(K.shape)
+        np.matmul(Wt, np.ascontiguousarray(Kt).reshape(f_tab.size, -1), out=K.reshape(lo.size, -1))
     else:
         K[:] = replace(table, matrices=Kt).at(fq[lo])
     bands = [DenseBand(lo, K)]

@@ -57,8 +57,18 @@
 #define up_lu UP_SYM(up_lu)
 #define up_lu_solve UP_SYM(up_lu_solve)
 #define up_matvec UP_SYM(up_matvec)
-#define up_matvec2 UP_SYM(up_matvec2)
+#define up_gemv_t UP_SYM(up_gemv_t)
+#define up_spmv_add UP_SYM(up_spmv_add)
+#define up_pack_sym UP_SYM(up_pack_sym)
+#define up_symv UP_SYM(up_symv)
+#define up_spmv2_add UP_SYM(up_spmv2_add)
+#define up_gemv_t2 UP_SYM(up_gemv_t2)
 #define up_matvec_add UP_SYM(up_matvec_add)
+#define up_matvec_ld UP_SYM(up_matvec_ld)
+#define up_sparse_init UP_SYM(up_sparse_init)
+#define up_sparse_free UP_SYM(up_sparse_free)
+#define up_sparse_matvec UP_SYM(up_sparse_matvec)
+#define up_axpy UP_SYM(up_axpy)
 #define up_norm UP_SYM(up_norm)
 #define up_no_variables UP_SYM(up_no_variables)
 #define up_num UP_SYM(up_num)
@@ -67,11 +77,13 @@
 #define up_res_free UP_SYM(up_res_free)
 #define up_res_i64 UP_SYM(up_res_i64)
 #define up_res_load UP_SYM(up_res_load)
+#define up_res_parse UP_SYM(up_res_parse)
 #define up_res_scalar UP_SYM(up_res_scalar)
 #define up_reset UP_SYM(up_reset)
 #define up_set_logging UP_SYM(up_set_logging)
 #define up_set_reals UP_SYM(up_set_reals)
 #define up_setup_experiment UP_SYM(up_setup_experiment)
+#define up_simulate UP_SYM(up_simulate)
 #define up_slot_names UP_SYM(up_slot_names)
 #define up_soil_ahead UP_SYM(up_soil_ahead)
 #define up_soil_bind UP_SYM(up_soil_bind)
@@ -104,9 +116,17 @@
 #endif
 
 
+/* what a library built for an in-process host exports (simulate.c); the FMUs export the FMI
+   functions only */
+#if defined(_WIN32)
+#define UP_API __declspec(dllexport)
+#else
+#define UP_API __attribute__((visibility("default")))
+#endif
+
 #define UP_MSG 1024           /* length of an error message buffer */
 #define UP_MAXLEV 31          /* step-halving levels: dt / 2**k, k = 0 .. max_subdiv <= 30 */
-#define UP_NCACHE 16          /* Newton Jacobian factorisations kept (per level and active set) */
+#define UP_NCACHE 16          /* Newton matrices kept (per level and active set) */
 
 /* ---- resources.c: the binary resource file ------------------------------------------------ */
 enum { UP_F64 = 1, UP_I64 = 2, UP_TEXT = 3 };
@@ -127,6 +147,8 @@ typedef struct {
 } UpRes;
 
 int up_res_load(UpRes *r, const char *path, char *err);
+/* the same from size bytes in memory (copied); name stands for the path in messages */
+int up_res_parse(UpRes *r, const unsigned char *data, size_t size, const char *name, char *err);
 void up_res_free(UpRes *r);
 const UpRecord *up_res_find(const UpRes *r, const char *name);
 /* the float64 (int64) record ``name`` with ndim dimensions; dims[k] >= 0 are checked, -1 any
@@ -135,12 +157,31 @@ const double *up_res_f64(const UpRes *r, const char *name, int ndim, int64_t *di
 const int64_t *up_res_i64(const UpRes *r, const char *name, int ndim, int64_t *dims, char *err);
 int up_res_scalar(const UpRes *r, const char *name, double *value, char *err);
 
+/* a sparse matrix, compressed rows (the structure's stiffness and damping: mostly zeros) */
+typedef struct {
+    int rows;
+    int *ptr, *col;
+    double *val;
+} UpSparse;
+
 /* ---- linalg.c --------------------------------------------------------------------------------- */
 int up_lu(double *A, int *piv, int n);                  /* in place; 0, or k + 1 on a zero pivot */
 void up_lu_solve(const double *LU, const int *piv, int n, double *b);   /* b <- A^-1 b */
 void up_matvec(const double *A, int rows, int cols, const double *x, double *y);        /* y = A x */
-void up_matvec2(const double *A, int rows, int cols, const double *x1, const double *x2, double *y1,
-                double *y2);                                                 /* both in one pass over A */
+void up_matvec_ld(const double *A, int rows, int cols, int lda, const double *x, double *y);  /* rows of stride lda */
+int up_sparse_init(UpSparse *S, const double *A, int rows, int cols);   /* from dense A; -1 out of memory */
+void up_sparse_free(UpSparse *S);
+void up_sparse_matvec(const UpSparse *S, const double *x, double *y);   /* y = S x */
+/* y = At^T x for At (rows, cols): y (cols) accumulates x_j times row j of At, in the order of j */
+void up_gemv_t(const double *At, int rows, int cols, const double *x, double *y);
+void up_gemv_t2(const double *At, int rows, int cols, const double *x1, const double *x2, double *y1,
+                double *y2);                                                 /* both in one pass over At */
+/* y += P x for a symmetric (n, n) P packed by rows of its upper triangle (n (n + 1) / 2 values) */
+void up_spmv_add(const double *P, int n, const double *x, double *y);
+void up_spmv2_add(const double *P, int n, const double *x1, const double *x2, double *y1, double *y2);
+int up_pack_sym(const double *A, int n, double *P);       /* P <- A packed; 1 when A is symmetric */
+void up_symv(const double *A, const double *P, int n, const double *x, double *y);  /* y = A x, P if not NULL */
+void up_axpy(double a, const double *x, int n, double *y);                      /* y += a x */
 void up_matvec_add(const double *A, int rows, int cols, const double *x, double s, double *y); /* y += s A x */
 double up_dot(const double *a, const double *b, int n);
 double up_norm(const double *a, int n);
@@ -152,6 +193,7 @@ typedef struct {
     double *ar, *br;          /* (mr) real-pole coefficients */
     double *ac, *bc;          /* (mc) complex, as (re, im) pairs */
     double *D0;               /* (n, n) D + sum b_k R_k, symmetrised */
+    double *D0p;              /* D0 packed (up_pack_sym) */
 } UpSoilLevel;
 
 typedef struct {
@@ -160,8 +202,11 @@ typedef struct {
     const double *pr, *pc;    /* (mr), (mc, 2) poles: real, and one (re, im) per conjugate pair */
     const double *Rr, *Rc;    /* (mr, n, n), (mc, n, n, 2) residues */
     const double *D, *E;      /* (n, n) */
-    double *H;                /* (n, L): h = H g, NULL when the soil is not stepped */
-    double *g, *g2, *fbuf;    /* (L), (L), (3 n) work */
+    double *Ep;               /* E packed when it is symmetric (as a fit makes it), else NULL */
+    double *H;                /* (L, n): H transposed (pole-major), h = H g; NULL when the soil is not stepped */
+    double *Hs;               /* the same when every residue is symmetric (reciprocity): the L / n blocks
+                                 of H (R_k; 2 Re R_k, -2 Im R_k) packed (up_spmv_add); H is then NULL */
+    double *g, *g2, *fbuf;    /* (L), (L), (5 n) work */
     UpSoilLevel lev[UP_MAXLEV];
     /* state, inside the instance's state block */
     double *yr, *yc, *u, *ud, *f, *work;
@@ -185,9 +230,18 @@ typedef struct {
     double dt, c0, c1, c2, c3;
     double *AII;              /* (ni, ni) LU of the interior block */
     int *piv;
-    double *ABI;              /* (nb, ni) */
-    double *X;                /* (ni, nb) A_II^-1 A_IB */
+    double *ABI;              /* (nb, ni); rows abi_rows and on are zero (w couples to no interior DOF) */
+    double *X;                /* (ni, nb) A_II^-1 A_IB; columns x_cols and on are zero */
+    int abi_rows, x_cols;
     double *S0;               /* (nb, nb) Schur complement on x = [q, w] */
+    double *K0C;              /* (nb, nb) D0 + c1 E: the soil force's part in x at this step size */
+    double *K0Cp;             /* the same packed (used when E is symmetric: then K0C is) */
+    /* the Newton matrix's two bases (stepper.c): every contact closed [0], every one open [1] */
+    double *Jb[2];            /* (nb, nb) their LU */
+    int *pb[2];
+    double *Z[2];             /* (N, nb) row i: base^-1 b_i, b_i node i's contact direction */
+    double *W[2];             /* (N, N) b_i . Z_j */
+    int base_ok[2];           /* 0 when that base is singular */
 } UpSystem;
 
 typedef struct {
@@ -195,24 +249,28 @@ typedef struct {
     double alpha, beta, gamma, tol;
     int enabled, max_iter, max_subdiv;
     const double *M, *Ks, *Cs, *Mr, *Bq3, *kp, *P0, *delta0;   /* (n), (ns, ns) x2, (ns, 3), (N, 3), (N) x3 */
+    UpSparse Ks_sp, Cs_sp;    /* Ks, Cs compressed (their products per step) */
     UpSoil *soil;             /* dt-dependent soil matrices; stepped unless external */
     int external;             /* 1: the history h is an input (h_ext), the soil is not stepped */
     UpSystem sys[UP_MAXLEV];
-    /* Jacobian factorisations, least recently used replaced */
+    /* per (level, active set): the base, the k nodes where J differs from it and the LU of the
+       (k, k) capacitance matrix; least recently used replaced */
     double *cache_lu;
-    int *cache_piv, *cache_lev;
+    int *cache_piv, *cache_lev, *cache_nodes, *cache_base, *cache_k;
     unsigned char *cache_act;
     long *cache_used;
     long clock;
     /* state, inside the instance's state block */
     double *t, *u, *v, *a, *P, *fs, *fc, *R, *F, *ag, *work, *ag_next, *h_ext;
     /* work */
-    double *w_n[8], *w_nb[10], *w_N[6], *hbuf;
+    double *w_n[10], *w_nb[12], *w_N[6], *hbuf;
     unsigned char *act, *act_new;
     double *saves;            /* (nlev + 1) copies of the instance's state block */
     double *block;
     size_t block_len;
     int last_iters;
+    int last_halved;          /* 1 when the last step was halved */
+    long n_factorisations;    /* LU factorisations of Newton matrices so far (bases and capacitances) */
     char *err;                /* message of a failed step */
 } UpStepper;
 
@@ -225,5 +283,9 @@ int up_stepper_prepare(UpStepper *s, char *err);        /* the system at dt, bef
 int up_stepper_step(UpStepper *s);                       /* 0, or -1 with s->err */
 void up_stepper_gap(const UpStepper *s, double *gap);
 void up_stepper_energies(const UpStepper *s, double *e); /* input, kinetic, strain, damping, soil, contact, contact_potential */
+
+/* ---- simulate.c: a whole run in one call, for in-process hosts ------------------------------- */
+UP_API int up_simulate(const unsigned char *res, uint64_t size, const double *ag, int64_t nt, double *rows,
+                       int64_t *iters, int64_t *stats, char *err);
 
 #endif

@@ -1,0 +1,215 @@
+"""The native C runtime run in process: the monolithic route's fast path.
+
+The stepper and the soil of the native FMUs (fmus/native/: stepper.c, soil.c, linalg.c,
+resources.c) with ``simulate.c``'s one entry point, ``up_simulate``, which runs a whole motion
+and returns the histories (no call per step). The library is compiled for this machine by the
+FMUs' builder (``fmus.native_build.compile_runtime``: the system compiler, else ziglang's),
+once per content hash of its sources, the compiler and the flags, into the cache folder
+(``<cache>/native/``; a temporary folder of the process for a run without cache), and loaded
+with ctypes. ``structure.simulate`` (the Python stepper)
+stays the readable reference; the two agree to round-off (tests/test_native_host.py: 1e-10
+on the raft and top histories, with uplift and step halving).
+
+API::
+
+    from fmus.native_host import library, simulate_native
+    if library() is not None:                       # None: no compiler here (library_note() says why)
+        res = simulate_native(stepper, ag, output_nodes=["top"])
+"""
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from fmus.native_build import (CFLAGS, HEADERS, NATIVE, SOURCES, NativeBuildError, compile_runtime,
+                               encode_resources, host_platform, soil_records, stepper_records)
+
+#: the C files of the in-process library (the numerics and simulate.c; no FMI side)
+HOST_SOURCES = ("simulate.c", "stepper.c", "soil.c", "linalg.c", "resources.c")
+HOST_HEADERS = ("uplift.h",)
+ENERGIES = ("input", "kinetic", "strain", "damping", "soil", "contact", "contact_potential")
+
+_lock = threading.Lock()
+_loaded: dict = {}                  # folder -> (CDLL or None, note)
+
+
+def _compiler() -> tuple[str, str]:
+    """(compiler for compile_runtime, its identity for the hash): the system compiler ($CC, else
+    cc) when there is one, else ziglang's."""
+    cc = os.environ.get("CC", "cc")
+    if shutil.which(cc):
+        out = subprocess.run([cc, "--version"], capture_output=True, text=True, timeout=60)
+        return "cc", f"{cc}: {out.stdout.strip()}"
+    out = subprocess.run([sys.executable, "-m", "ziglang", "version"], capture_output=True, text=True, timeout=60)
+    if out.returncode != 0:
+        raise NativeBuildError("no C compiler: neither $CC / cc nor the ziglang package (pip install ziglang)")
+    return "zig", f"zig {out.stdout.strip()}"
+
+
+def _digest(compiler_id: str, sources, headers) -> str:
+    h = hashlib.sha256()
+    for name in (*sources, *(f"include/{x}" for x in headers)):
+        h.update(name.encode() + b"\0" + (NATIVE / name).read_bytes() + b"\0")
+    h.update(f"{compiler_id}\0{' '.join(CFLAGS)}\0{host_platform()}".encode())
+    return h.hexdigest()[:24]
+
+
+def _compiled(folder: Path, stem: str, sources, headers) -> Path:
+    """The shared library of ``sources`` for this machine in ``folder``, compiled when its
+    content hash (sources, headers, compiler, flags, platform) is not there yet."""
+    compiler, ident = _compiler()
+    path = folder / f"{stem}-{_digest(ident, sources, headers)}.{'dll' if sys.platform == 'win32' else 'so'}"
+    if not path.is_file():
+        blob = compile_runtime((host_platform(),), compiler, sources=sources)[host_platform()]
+        folder.mkdir(parents=True, exist_ok=True)
+        tmp = folder / f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp"
+        tmp.write_bytes(blob)
+        os.replace(tmp, path)                     # atomic: a concurrent build writes the same bytes
+    return path
+
+
+def _build(folder: Path) -> ctypes.CDLL:
+    lib = ctypes.CDLL(str(_compiled(folder, "uplift-host", HOST_SOURCES, HOST_HEADERS)))
+    f = lib.up_simulate
+    f.restype = ctypes.c_int
+    f.argtypes = [ctypes.c_char_p, ctypes.c_uint64, ctypes.c_void_p, ctypes.c_int64, ctypes.c_void_p,
+                  ctypes.c_void_p, ctypes.c_void_p, ctypes.c_char_p]
+    return lib
+
+
+_private: list = []                # the process's temporary folder, when no folder is given
+
+
+def _folder(folder) -> Path:
+    """``folder``, or (None) a temporary folder of this process, removed at exit: nothing is
+    written to the cache (a run with --no-cache), the library is compiled once per process."""
+    if folder is not None:
+        return Path(folder)
+    with _lock:
+        if not _private:
+            import atexit
+            import tempfile
+            _private.append(Path(tempfile.mkdtemp(prefix="uplift_native_")))
+            atexit.register(shutil.rmtree, _private[0], True)
+        return _private[0]
+
+
+def cache_folder(cache_dir) -> Path | None:
+    """Where the library of a run with the cache folder ``cache_dir`` lives: ``<cache_dir>/native``,
+    or None (a temporary folder of the process) when the run uses no cache."""
+    return None if cache_dir is None else Path(cache_dir) / "native"
+
+
+def fmu_binaries(folder=None) -> dict:
+    """{host platform: bytes} of the native FMUs' FMI 2.0 runtime compiled for this machine, from
+    ``folder`` as ``library`` (compiled on first use), for ``build_native_fmus(...,
+    binaries=...)``; raises NativeBuildError (or OSError) when it cannot be compiled here."""
+    path = _compiled(_folder(folder), "uplift-fmu2", SOURCES, HEADERS)
+    return {host_platform(): path.read_bytes()}
+
+
+def library(folder=None):
+    """The loaded host library (ctypes.CDLL), built on first use into ``folder`` (a run's
+    ``cache_folder(cache_dir)``; None: a temporary folder of this process); None when it cannot be
+    built here (``library_note`` says why)."""
+    folder = _folder(folder)
+    with _lock:
+        if folder not in _loaded:
+            try:
+                _loaded[folder] = (_build(folder), "")
+            except (NativeBuildError, OSError, subprocess.SubprocessError, ValueError) as exc:
+                _loaded[folder] = (None, f"the native stepper is not available ({str(exc).splitlines()[0]}): "
+                                         "the Python stepper ran")
+        return _loaded[folder][0]
+
+
+def library_note(folder=None) -> str:
+    """Why ``library(folder)`` is None ("" when it is loaded)."""
+    library(folder)
+    return _loaded[_folder(folder)][1]
+
+
+def springs_soil(soil, dt: float):
+    """A soil without memory (springs and dashpots: ``instantaneous(dt)`` -> (K, C), no history
+    force, e.g. structure.WinklerSoil) as the RecursiveConvolutionSoil of the rational model
+    D = K, E = C with no pole: the same equations, in the form the native stepper runs.
+    Passivity is not checked again (springs and dashpots of non-negative constants)."""
+    from soil_impedance.convolution import RecursiveConvolutionSoil
+    from soil_impedance.rational import RationalModel
+    dense = lambda a: np.asarray(a.toarray() if hasattr(a, "toarray") else a, float)
+    K, C = soil.instantaneous(dt)
+    n = soil.n_dof
+    model = RationalModel(np.zeros(0, complex), np.zeros((0, n, n), complex), dense(K), dense(C))
+    return RecursiveConvolutionSoil(model, dt, checked=True)
+
+
+def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None):
+    """``structure.simulate`` through the C runtime: the same histories to round-off.
+
+    st : structure.NewmarkStepper at rest (external_soil=True), built on the soil and the model
+         to run: its matrices, static state, penalty and contact settings are what the C stepper
+         steps; its soil must be a RecursiveConvolutionSoil (``st.soil.model``: the rational model)
+    ag : (nt, 3) m/s^2 at k dt; output_nodes : node names with acc/disp histories (None: every
+    named node, as ``simulate``)
+    lib : the library (default ``library()``: a temporary folder of the process; it must be available)
+    Returns a RouteResult (notes: the precheck is not run: every step is a Newton step, one
+    cached back-substitution while the active set holds); a Newton failure raises
+    ConvergenceError with ``.result`` holding the samples so far, as ``simulate`` does.
+    """
+    from structure import ConvergenceError
+    from structure.results import RouteResult, RunNotes, Status
+
+    t0 = time.perf_counter()
+    lib = lib or library()
+    if lib is None:
+        raise NativeBuildError(library_note())
+    ag = np.ascontiguousarray(ag, float)
+    if ag.ndim != 2 or ag.shape[1] != 3 or not np.all(np.isfinite(ag)):
+        from structure import StructureError
+        raise StructureError(f"ground acceleration must be a finite (nt, 3) array, got shape {ag.shape}")
+    model = st.model
+    names = [n.name for n in model.nodes if n.name] if output_nodes is None else list(output_nodes)
+    dofs = [model.dofs(model.node_by_name(nm).id)[:3] for nm in names]
+    blob = encode_resources({**soil_records(st.soil.model, st.dt), **stepper_records(st, dofs)})
+    nt, N, m = ag.shape[0], st.N, len(names)
+    width = 6 + 3 * N + 6 * m + 7
+    rows = np.zeros((nt, width))
+    iters = np.zeros(nt, np.int64)
+    stats = np.zeros(3, np.int64)
+    err = ctypes.create_string_buffer(1024)
+    rc = lib.up_simulate(blob, len(blob), ag.ctypes.data, nt, rows.ctypes.data, iters.ctypes.data,
+                         stats.ctypes.data, err)
+    if rc < 0:
+        raise NativeBuildError(f"the native stepper refused the model: {err.value.decode(errors='replace')}")
+    node = rows[:, 6 + 3 * N:6 + 3 * N + 6 * m].reshape(nt, m, 6)
+    energy = rows[:, 6 + 3 * N + 6 * m:]
+    enabled = st.contact.enabled
+    info = dict(settlement=st.static.settlement, P0=st.P0.copy(), penalty=st.kp.copy(), delta0=st.delta0.copy(),
+                dt=st.dt, alpha=st.alpha, contact_enabled=enabled, factorisations=int(stats[1]),
+                subdivided_steps=int(stats[2]), stepper="native")
+    precheck = ("not run: the native stepper takes a Newton step at every step (one cached back-substitution "
+                "while the active set holds)" if enabled else "not needed: contact disabled (bonded raft, linear)")
+    res = RouteResult(route=route, time=st.dt * np.arange(nt), raft=rows[:, :6].copy(),
+                      gap=rows[:, 6:6 + N].copy(), contact_force=rows[:, 6 + N:6 + 2 * N].copy(),
+                      soil_w=rows[:, 6 + 2 * N:6 + 3 * N].copy(),
+                      acc={nm: node[:, j, :3].copy() for j, nm in enumerate(names)},
+                      disp={nm: node[:, j, 3:].copy() for j, nm in enumerate(names)},
+                      energy={k: energy[:, j].copy() for j, k in enumerate(ENERGIES)},
+                      newton_iters=iters.astype(int), wall_s=time.perf_counter() - t0, xy=np.array(model.raft.xy),
+                      notes=RunNotes(precheck=precheck), info=info)
+    if rc == 1:
+        k = int(stats[0])
+        msg = err.value.decode(errors="replace")
+        exc = ConvergenceError(msg, k * st.dt, -1, float("nan"))
+        exc.result = res.truncated(k, Status.STOPPED, msg)
+        raise exc
+    return res

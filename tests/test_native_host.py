@@ -1,0 +1,150 @@
+"""The monolithic route's fast path: the C runtime in process (fmus/native_host.py) against the
+Python stepper (structure.simulate), its readable reference.
+
+- a run with uplift, forced through Newton at every step (precheck off): raft, gap, contact
+  force, soil, node accelerations and displacements and every energy history to 1e-10 of their
+  largest value; the same with step halving (Newton limited to 2 iterations): the same steps
+  halved;
+- ``run_monolithic``'s default (native) against ``stepper="python"`` (whose linear pre-check
+  runs the closed-contact recursion until the contact opens): 1e-10;
+- a step that cannot converge: the same step and message as the Python stepper, the samples
+  before it returned with status STOPPED;
+- without a compiler the route runs the Python stepper and says so (a warning, not an error);
+- the library's vector width does not change a bit of the answer (baseline SSE2 build against
+  the one with AVX2/AVX-512 clones);
+- the cosim route runs the native pair by default (the Python pair as an option): both equal
+  the monolithic route to 1e-10;
+- the run's step-doubling check on the proxy springs (the native stepper where available):
+  its two max uplifts equal the Python stepper's to 1e-10.
+
+About 10 s (the library is compiled once per content hash into the cache folder).
+"""
+import ctypes
+import dataclasses
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from cosim_cases import pulse_motion, small_scene, soil_model
+from fmus import native_host
+from fmus.native_build import NATIVE, NativeBuildError
+from fmus.resources import soil_from_model
+from orchestrator.routes.monolithic import run_monolithic
+from structure import ConvergenceError, NewmarkStepper, simulate
+from structure.results import Status
+
+SCENE = small_scene()
+MODEL = soil_model(SCENE)
+MOTION = pulse_motion(T=1.0)
+DT = MOTION.dt
+
+pytestmark = pytest.mark.skipif(native_host.library() is None, reason="no C compiler for the native stepper")
+
+
+def rel(a, b):
+    """Largest difference relative to the largest reference value (0 for two zero histories)."""
+    return np.abs(np.asarray(a) - np.asarray(b)).max() / max(np.abs(b).max(), 1e-300)
+
+
+def assert_same_histories(res, ref, tol=1e-10):
+    assert res.time.shape == ref.time.shape
+    for name in ("raft", "gap", "contact_force", "soil_w"):
+        assert rel(getattr(res, name), getattr(ref, name)) <= tol, name
+    for nm in ref.acc:
+        assert rel(res.acc[nm], ref.acc[nm]) <= tol and rel(res.disp[nm], ref.disp[nm]) <= tol, nm
+    for key in ref.energy:
+        assert rel(res.energy[key], ref.energy[key]) <= tol, key
+
+
+def both(contact, lib=None):
+    """(native, python) results of SCENE on MODEL under MOTION with these contact settings."""
+    st = NewmarkStepper(SCENE.model(), soil_from_model(MODEL, DT), DT, contact=contact, external_soil=True,
+                        ag0=MOTION.acc[0])
+    fast = native_host.simulate_native(st, MOTION.acc, SCENE.output.nodes, lib=lib)
+    ref = simulate(SCENE.model(), soil_from_model(MODEL, DT), MOTION.acc, DT, contact=contact,
+                   output_nodes=SCENE.output.nodes)
+    return fast, ref
+
+
+@pytest.mark.parametrize("max_iter", [50, 2])
+def test_native_stepper_equals_the_python_stepper(max_iter):
+    contact = dataclasses.replace(SCENE.contact, max_iter=max_iter, precheck=False)
+    fast, ref = both(contact)
+    assert ref.max_uplift() > 1e-3                                 # the raft lifts off
+    assert_same_histories(fast, ref)
+    halved = ref.info["subdivided_steps"]
+    assert fast.info["subdivided_steps"] == halved and (halved > 0) == (max_iter == 2)
+    assert fast.info["stepper"] == "native"
+
+
+def test_route_default_equals_the_python_route():
+    fast = run_monolithic(SCENE, MOTION, MODEL)
+    ref = run_monolithic(SCENE, MOTION, MODEL, stepper="python")
+    assert fast.info["stepper"] == "native" and ref.info["stepper"] == "python"
+    assert fast.route == ref.route == "monolithic" and fast.converged
+    assert_same_histories(fast, ref)
+
+
+def test_a_step_that_cannot_converge_stops_where_the_python_stepper_stops():
+    contact = dataclasses.replace(SCENE.contact, max_iter=1, max_subdiv=2, precheck=False)
+    st = NewmarkStepper(SCENE.model(), soil_from_model(MODEL, DT), DT, contact=contact, external_soil=True,
+                        ag0=MOTION.acc[0])
+    with pytest.raises(ConvergenceError) as fast:
+        native_host.simulate_native(st, MOTION.acc, SCENE.output.nodes)
+    with pytest.raises(ConvergenceError) as ref:
+        simulate(SCENE.model(), soil_from_model(MODEL, DT), MOTION.acc, DT, contact=contact,
+                 output_nodes=SCENE.output.nodes)
+    f, r = fast.value.result, ref.value.result
+    assert str(fast.value) == str(ref.value) and f.status == Status.STOPPED and f.nt == r.nt > 1
+    assert_same_histories(f, r)
+
+
+def test_without_a_compiler_the_python_stepper_runs_with_a_note(monkeypatch, tmp_path):
+    def no_compiler(folder):
+        raise NativeBuildError("no C compiler: neither $CC / cc nor the ziglang package")
+
+    monkeypatch.setenv("UPLIFT_CACHE", str(tmp_path))
+    monkeypatch.setattr(native_host, "_build", no_compiler)
+    res = run_monolithic(SCENE, MOTION, MODEL, cache_dir=tmp_path)
+    assert res.converged and res.info["stepper"] == "python"
+    assert any("native stepper is not available" in w and "Python stepper ran" in w for w in res.notes.warnings)
+
+
+@pytest.mark.skipif(shutil.which("cc") is None, reason="needs the system compiler")
+def test_the_vector_width_does_not_change_the_answer(tmp_path):
+    contact = dataclasses.replace(SCENE.contact, precheck=False)
+    lib = tmp_path / "baseline.so"
+    subprocess.run(["cc", "-std=c99", "-O3", "-ffp-contract=off", "-fvisibility=hidden", "-fPIC", "-shared",
+                    "-DUP_BASELINE_ONLY", f"-I{NATIVE / 'include'}", "-o", str(lib),
+                    *(str(NATIVE / s) for s in native_host.HOST_SOURCES), "-lm"], check=True)
+    baseline = ctypes.CDLL(str(lib))
+    baseline.up_simulate.restype = ctypes.c_int
+    baseline.up_simulate.argtypes = native_host.library().up_simulate.argtypes
+    wide, _ = both(contact)
+    base, _ = both(contact, lib=baseline)
+    assert np.array_equal(wide.raft, base.raft) and np.array_equal(wide.gap, base.gap)
+    assert all(np.array_equal(wide.acc[nm], base.acc[nm]) for nm in wide.acc)
+
+
+def test_cosim_route_runs_the_native_pair_by_default():
+    from orchestrator.routes.cosim import run_cosim
+    mono = run_monolithic(SCENE, MOTION, MODEL)
+    native = run_cosim(SCENE, MOTION, MODEL)
+    python = run_cosim(SCENE, MOTION, MODEL, kind="python")
+    assert native.info["fmu_kind"] == "native" and python.info["fmu_kind"] == "python"
+    assert native.max_uplift() > 1e-3
+    assert_same_histories(native, mono)
+    assert_same_histories(python, mono)
+
+
+def test_step_doubling_check_on_the_native_stepper_equals_the_python_one(monkeypatch):
+    from orchestrator.run import proxy_springs, step_doubling
+    model, springs = SCENE.model(), proxy_springs(SCENE, True)
+    fast = step_doubling(SCENE, model, springs, MOTION)
+    monkeypatch.setattr(native_host, "library", lambda folder=None: None)     # no compiler: simulate runs
+    ref = step_doubling(SCENE, model, springs, MOTION)
+    assert ref["max_uplift_m"] > 1e-3
+    for key in ("max_uplift_m", "max_uplift_half_dt_m"):
+        assert fast[key] == pytest.approx(ref[key], rel=1e-10, abs=0.0)
