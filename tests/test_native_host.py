@@ -27,7 +27,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from cosim_cases import pulse_motion, small_scene, soil_model
+from helpers import pulse_motion, rel, small_scene, soil_model
 from fmus import native_host
 from fmus.native_build import NATIVE, NativeBuildError
 from fmus.resources import soil_from_model
@@ -41,11 +41,6 @@ MOTION = pulse_motion(T=1.0)
 DT = MOTION.dt
 
 pytestmark = pytest.mark.skipif(native_host.library() is None, reason="no C compiler for the native stepper")
-
-
-def rel(a, b):
-    """Largest difference relative to the largest reference value (0 for two zero histories)."""
-    return np.abs(np.asarray(a) - np.asarray(b)).max() / max(np.abs(b).max(), 1e-300)
 
 
 def assert_same_histories(res, ref, tol=1e-10):
