@@ -15,7 +15,7 @@ Rows (one small function each, registered with ``@row``; add one the same way):
   monolithic route           ``run_monolithic``'s default: the C runtime in process, one call for
                              the whole motion (its wall_s: the stepper's set-up included)
   native coupled.fmu         the exported native coupled FMU under a plain C program (the
-                             project's test host, tests/native/host.c), the whole process: load,
+                             project's test host, tests/fmu/native/host.c), the whole process: load,
                              instantiate, 2000 steps of the bundled motion
   cosim, native pair         ``run_cosim``'s default: the native pair under the project's master
                              (wall_s, the FMU build apart)
@@ -122,7 +122,7 @@ class Case:
 
     @cached_property
     def host(self):
-        """The plain C host of the native FMUs (tests/native/host.c), compiled here."""
+        """The plain C host of the native FMUs (tests/fmu/native/host.c), compiled here."""
         import shutil
 
         from fmus.native_build import fmi_headers

@@ -30,7 +30,7 @@ wall      route wall time (s)
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/stress.py [--quick] [--case NAME ...] [--plot out.png]
 
-``--quick`` runs the short versions that tests/test_stress.py asserts on.
+``--quick`` runs the short versions that tests/structural/test_stress.py asserts on.
 
 Measured (2 loaded cores, full run ~3 min): every small-scene case is "stable" on both routes,
 balance 1e-14..1e-10 (7e-10 with penalty x1000), soil work never negative; 200 s: back at rest
@@ -328,7 +328,7 @@ def plot(rows, path) -> None:
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--quick", action="store_true", help="the short versions tests/test_stress.py runs")
+    ap.add_argument("--quick", action="store_true", help="the short versions tests/structural/test_stress.py runs")
     ap.add_argument("--case", action="append", help="run only these cases (by name, repeatable)")
     ap.add_argument("--plot", help="write the raft rocking histories to this PNG")
     args = ap.parse_args(argv)

@@ -7,7 +7,7 @@ FMUs' builder (``fmus.native_build.compile_runtime``: the system compiler, else 
 once per content hash of its sources, the compiler and the flags, into the cache folder
 (``<cache>/native/``; a temporary folder of the process for a run without cache), and loaded
 with ctypes. ``structure.simulate`` (the Python stepper)
-stays the readable reference; the two agree to round-off (tests/test_native_host.py: 1e-10
+stays the readable reference; the two agree to round-off (tests/fmu/test_native_host.py: 1e-10
 on the raft and top histories, with uplift and step halving).
 
 API::

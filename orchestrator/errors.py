@@ -5,7 +5,7 @@ something a command needs) raises an exception of the ``UserInputError`` family,
 names the key, file or tool and the fix (exit 2); every computation that could not finish
 (Newton failing, a diverging march, a failed reference run) raises one of the
 ``ComputationError`` family (exit 1, results so far written by the caller). Every error class of
-the project belongs to exactly one family (tests/test_error_families.py checks it).
+the project belongs to exactly one family (tests/orchestration/test_error_families.py checks it).
 """
 from fmus.coupling import StepRefused
 from fmus.fmu_state import StateRefused

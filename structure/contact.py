@@ -14,7 +14,7 @@ internal-force vector on x = [q, w]: f_c = -B^T (P - P0), B (N, 6+N) = [Bq, -I].
 Penalty "auto": kp_i = auto_factor * K(0)[w_i, w_i] (default AUTO_FACTOR), the soil's local
 static vertical stiffness under node i. The soil spring and the penalty act in series, so the contact
 softens the soil by 1/(1 + AUTO_FACTOR) = 1e-4; multiplying kp by 10 moves the results by
-less than that (measured in tests/test_contact_penalty.py).
+less than that (measured in tests/structural/test_contact_penalty.py).
 """
 from __future__ import annotations
 

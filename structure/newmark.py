@@ -422,7 +422,7 @@ class NewmarkStepper:
 
         The update is ``step()``'s with the contact closed, written on the predictors
         p = -a_hat, q = -v_hat for speed: A u' = M p + (1+al) (C q + F' - h) - al F + al R,
-        v' = c1 u' - q, a' = c0 u' - p (tests/test_skip.py checks it against ``step()``)."""
+        v' = c1 u' - q, a' = c0 u' - p (tests/structural/test_skip.py checks it against ``step()``)."""
         with single_threaded_blas():
             return self._march_closed(ag, stop_on_tension, progress)
 

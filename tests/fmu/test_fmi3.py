@@ -13,7 +13,7 @@ exported once for the module. Checked:
   (the C runtime only), x86_64-darwin and aarch64-darwin are Mach-O dylibs for x86_64 and
   arm64 that load libSystem only;
 - fmpy.simulate_fmu on coupled.fmu, the pair under the project's master (every schedule), a
-  plain C host (tests/native/host3.c, no Python in the process) on the shipped binary and on
+  plain C host (tests/fmu/native/host3.c, no Python in the process) on the shipped binary and on
   one compiled from the FMU's sources: the monolithic route to 1e-8 (measured ~1e-12);
 - hostile calls through host3 are refused with a status and a message, the host survives;
   a serialised state replays bit-identically;

@@ -15,7 +15,7 @@ force), exported once per module in both kinds. Checked:
 - step halving (Newton limited to 2 iterations): the coupled FMU against the in-process
   stepper, the pair against the in-process split coupling, to 1e-10; a step that cannot
   converge is refused with the stepper's message;
-- a plain C program (tests/native/host.c: dlopen, no Python in the process) runs coupled.fmu
+- a plain C program (tests/fmu/native/host.c: dlopen, no Python in the process) runs coupled.fmu
   (max uplift equal to monolithic to 1e-10, no allocation inside fmi2DoStep) and makes hostile
   calls (each refused with a status and a log message, the host survives), rolls back through
   a serialised state bit-identically; a damaged resource file is refused at instantiation.
@@ -494,7 +494,7 @@ def test_a_damaged_resource_file_is_refused(case, host, tmp_path):
     ("before-init", "before initialisation"), ("bad-stamp", "stamped x_time"),
     ("bad-vr", "value references 1000000")])
 def test_the_python_fmus_hostile_cases(case, case_name, message):
-    """tests/test_fmu_hostile.py's host (fmpy, in a subprocess) on the native soil FMU."""
+    """The hostile-call host of helpers.fmu_host (fmpy, in a subprocess) on the native soil FMU."""
     from helpers.fmu_host import ERROR, OK, run_host
     out = run_host(case[0].soil, case_name)
     assert out["status"] == ERROR and message in out["log"]

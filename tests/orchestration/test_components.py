@@ -1,6 +1,6 @@
 """Three components of motion at once: the [motion] contract, the motion, every route, the summaries.
 
-The small scene is tests/test_run.py's tower on a square 10 m raft (4 x 4 nodes: symmetric under
+The small scene is tests/orchestration/test_run.py's tower on a square 10 m raft (4 x 4 nodes: symmetric under
 a quarter turn about z) over the BEM half-space; its impedance tables are cached after the first run.
 """
 import json

@@ -75,7 +75,7 @@ def reactor_soil():
 
 def test_reactor_dominant_soil_structure_mode():
     # on homogeneous E = 15 GPa rock with the rigid-disk rocking stiffness: 4.1 Hz (on the
-    # layered rock of the built-in reactor scene, 3.94 Hz: tests/test_run.py)
+    # layered rock of the built-in reactor scene, 3.94 Hz: tests/orchestration/test_run.py)
     model = model_from_spec({"model": "reactor"}, MESH.xy, MESH.area)
     names = {n.name for n in model.nodes}
     assert {"top_outer", "top_inner", "internals_37m"} <= names

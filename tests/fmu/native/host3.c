@@ -1,6 +1,6 @@
 /* A plain C host for the native uplift FMI 3.0 FMUs (no Python in the process): loads the
    FMU's shared library with dlopen, runs it through the FMI 3.0 calls and prints what it reads.
-   Used by tests/test_fmi3.py; the FMI 3.0 counterpart of host.c (POSIX: dlopen).
+   Used by tests/fmu/test_fmi3.py; the FMI 3.0 counterpart of host.c (POSIX: dlopen).
 
    cc -O2 -rdynamic -I<fmpy>/c-code host3.c -o host3 -ldl -lm   (-rdynamic: the counting malloc)
 

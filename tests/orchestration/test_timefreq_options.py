@@ -143,7 +143,7 @@ def test_methods_by_registry_experimental_ones_warn_and_are_never_the_default():
         warnings.simplefilter("error", ExperimentalMethodWarning)
         res = solve(MODEL, soil(), ag, 0.005, contact=UPLIFT)
     assert res.info["method"] == DEFAULT and res.max_uplift() > 1e-3
-    for name in ("newton-krylov", "paper"):              # (their answers: tests/test_timefreq.py)
+    for name in ("newton-krylov", "paper"):              # (their answers: tests/orchestration/test_timefreq.py)
         with pytest.warns(ExperimentalMethodWarning, match=name):
             ex = solve(MODEL, soil(), ag, 0.005, contact=UPLIFT, options=SolveOptions(method=name, max_iter=1))
         assert ex.info["method"] == name

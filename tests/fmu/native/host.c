@@ -1,6 +1,6 @@
 /* A plain C host for the native uplift FMUs (no Python in the process): loads the FMU's
    shared library with dlopen, runs it through the FMI 2.0 calls and prints what it reads.
-   Used by tests/test_native_fmu.py; an example of what a tool does with the FMU (POSIX: dlopen).
+   Used by tests/fmu/test_native_fmu.py; an example of what a tool does with the FMU (POSIX: dlopen).
 
    cc -O2 -rdynamic -I<fmpy>/c-code host.c -o host -ldl -lm   (-rdynamic: the counting malloc)
 
