@@ -32,11 +32,11 @@ import numpy as np
 
 from fmus.native_build import (CFLAGS, HEADERS, NATIVE, SOURCES, NativeBuildError, compile_runtime,
                                encode_resources, host_platform, soil_records, stepper_records)
+from fmus.schema import ENERGY_TERMS
 
 #: the C files of the in-process library (the numerics and simulate.c; no FMI side)
 HOST_SOURCES = ("simulate.c", "stepper.c", "soil.c", "linalg.c", "resources.c")
 HOST_HEADERS = ("uplift.h",)
-ENERGIES = ("input", "kinetic", "strain", "damping", "soil", "contact", "contact_potential")
 
 _lock = threading.Lock()
 _loaded: dict = {}                  # folder -> (CDLL or None, note)
@@ -203,7 +203,7 @@ def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None):
                       soil_w=rows[:, 6 + 2 * N:6 + 3 * N].copy(),
                       acc={nm: node[:, j, :3].copy() for j, nm in enumerate(names)},
                       disp={nm: node[:, j, 3:].copy() for j, nm in enumerate(names)},
-                      energy={k: energy[:, j].copy() for j, k in enumerate(ENERGIES)},
+                      energy={k: energy[:, j].copy() for j, k in enumerate(ENERGY_TERMS)},
                       newton_iters=iters.astype(int), wall_s=time.perf_counter() - t0, xy=np.array(model.raft.xy),
                       notes=RunNotes(precheck=precheck), info=info)
     if rc == 1:

@@ -22,6 +22,8 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
+from structure.newmark import ENERGY_TERMS  # the stepper's energy terms, in output order (re-exported)
+
 INPUT, OUTPUT, PARAMETER = "input", "output", "parameter"
 
 #: the SI units the FMUs use, as exponents of the SI base units (FMI 2.0 BaseUnit)
@@ -34,8 +36,6 @@ QUANTITIES = {"displacement": ("m", "rad"), "velocity": ("m/s", "rad/s"), "force
               "acceleration": ("m/s2", "m/s2"), "time": ("s", "s"), "energy": ("J", "J"),
               "count": ("1", "1"), "angle": ("rad", "rad")}
 
-#: the energy terms of the stepper (structure.NewmarkStepper.energies), in output order
-ENERGY_TERMS = ("input", "kinetic", "strain", "damping", "soil", "contact", "contact_potential")
 #: the ground-motion inputs of the structure and the coupled FMU: a_g(t + dt) along x, y, z, m/s2
 AG = ("ag_x", "ag_y", "ag_z")
 

@@ -17,7 +17,7 @@ from ._blas import single_threaded_blas
 from .contact import ContactSettings
 from .errors import ConvergenceError, StructureError
 from .model import StructureModel
-from .newmark import NewmarkStepper
+from .newmark import ENERGY_TERMS, NewmarkStepper
 from .preload import StaticState
 from .results import RouteResult, RunNotes, Status
 
@@ -63,8 +63,7 @@ def _simulate(model, soil, ag, dt, contact, damping, alpha, output_nodes, progre
     res = SimpleNamespace(      # history buffers, filled in place, frozen into a RouteResult at the end
         raft=np.zeros((nt, 6)), gap=np.zeros((nt, N)), contact_force=np.zeros((nt, N)), soil_w=np.zeros((nt, N)),
         acc={nm: np.zeros((nt, 3)) for nm in names}, disp={nm: np.zeros((nt, 3)) for nm in names},
-        energy={k: np.zeros(nt) for k in ("input", "kinetic", "strain", "damping", "soil", "contact",
-                                          "contact_potential")},
+        energy={k: np.zeros(nt) for k in ENERGY_TERMS},
         newton_iters=np.zeros(nt, int))
     info = dict(settlement=st.static.settlement, P0=st.P0.copy(), penalty=st.kp.copy(),
                 delta0=st.delta0.copy(), dt=dt, alpha=alpha, contact_enabled=st.contact.enabled)

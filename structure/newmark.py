@@ -50,6 +50,10 @@ class _NewtonFailure(Exception):
 
 
 
+#: the energy terms of ``NewmarkStepper.energies()`` and of every history's ``energy``, in output order, J
+ENERGY_TERMS = ("input", "kinetic", "strain", "damping", "soil", "contact", "contact_potential")
+
+
 class NewmarkStepper:
     """One implicit time step at a time; the FMU calls ``step()`` exactly as ``simulate`` does.
 
@@ -485,8 +489,7 @@ class NewmarkStepper:
         m and N, acc and disp {node: (nt, 3)} m/s^2 (absolute) and m for the DOFs ``dofs``
         {node: (3,) indices}, energy {term: (nt,)} J (the terms of ``energies()``)."""
         nt, N = ag.shape[0], self.N
-        terms = ("input", "kinetic", "strain", "damping", "soil", "contact", "contact_potential")
-        out = dict(gap=np.zeros((nt, N)), acc={}, disp={}, energy={k: np.zeros(nt) for k in terms})
+        out = dict(gap=np.zeros((nt, N)), acc={}, disp={}, energy={k: np.zeros(nt) for k in ENERGY_TERMS})
         sysd = self._system(self.dt)
         ni, ns = self.ni, self.ns
         U, V, A = Zh[:, 0], Zh[:, 1], Zh[:, 2]
