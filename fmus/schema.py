@@ -22,8 +22,6 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-from structure.newmark import ENERGY_TERMS  # the stepper's energy terms, in output order (re-exported)
-
 INPUT, OUTPUT, PARAMETER = "input", "output", "parameter"
 
 #: the SI units the FMUs use, as exponents of the SI base units (FMI 2.0 BaseUnit)
@@ -36,6 +34,9 @@ QUANTITIES = {"displacement": ("m", "rad"), "velocity": ("m/s", "rad/s"), "force
               "acceleration": ("m/s2", "m/s2"), "time": ("s", "s"), "energy": ("J", "J"),
               "count": ("1", "1"), "angle": ("rad", "rad")}
 
+#: the energy terms of the stepper, in output order: equal to structure.newmark.ENERGY_TERMS (tested; not
+#: imported, so that an FMU instantiates without loading the stepper and scipy)
+ENERGY_TERMS = ("input", "kinetic", "strain", "damping", "soil", "contact", "contact_potential")
 #: the ground-motion inputs of the structure and the coupled FMU: a_g(t + dt) along x, y, z, m/s2
 AG = ("ag_x", "ag_y", "ag_z")
 

@@ -129,6 +129,16 @@ def test_units_match_across_the_cross_check_folders(exported, tmp_path):
     assert checked == 2 * (6 + N) + 1 + (6 + N) + 1                 # x, xdot, x_time; g, g_time
 
 
+def test_energy_terms_are_the_steppers():
+    """The schema names the stepper's energy terms without importing it (an FMU instantiates
+    without scipy): the two tuples must stay equal, and equal to what the stepper computes."""
+    from structure.newmark import ENERGY_TERMS
+    assert schema.ENERGY_TERMS == ENERGY_TERMS
+    exported_terms = [v.name for v in schema.variables("structure", n=7, N=1, nodes=())
+                      if v.name.startswith("energy.")]
+    assert exported_terms == [f"energy.{t}" for t in ENERGY_TERMS]
+
+
 def test_c_message_table_is_generated_from_the_schema():
     header = NATIVE / "include" / "uplift_messages.h"
     assert header.read_text() == schema.c_messages_header(), \
