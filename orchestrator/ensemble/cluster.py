@@ -83,6 +83,10 @@ def _probe(address: str, timeout: float) -> None:
         raise ValueError(f"it answered, but not as a dask scheduler ({str(reply)[:80]})")
 
 
+#: a time limit reached (asyncio's is its own class before Python 3.11)
+_TIMEOUTS = (TimeoutError, asyncio.TimeoutError)
+
+
 @contextmanager
 def _client(workers, scheduler, log, timeout: float = CONNECT_TIMEOUT_S):
     """A dask Client: on an existing scheduler (which must answer within ``timeout`` s), or on a
@@ -94,15 +98,15 @@ def _client(workers, scheduler, log, timeout: float = CONNECT_TIMEOUT_S):
         try:
             _probe(scheduler, timeout)
             client = Client(scheduler, timeout=timeout)
-        except (OSError, TimeoutError, ValueError) as exc:
-            why = f"no answer within {timeout:g} s" if isinstance(exc, TimeoutError) else str(exc)
+        except (OSError, *_TIMEOUTS, ValueError) as exc:
+            why = f"no answer within {timeout:g} s" if isinstance(exc, _TIMEOUTS) else str(exc)
             raise EnsembleError(f"--scheduler {scheduler!r}: cannot connect ({why}); give the address of a "
                                 "running dask scheduler, e.g. tcp://10.0.0.5:8786, or a longer "
                                 "--connect-timeout") from None
         with client:
             try:
                 client.wait_for_workers(1, timeout=timeout)
-            except (OSError, TimeoutError) as exc:
+            except (OSError, *_TIMEOUTS) as exc:
                 raise EnsembleError(f"--scheduler {scheduler!r}: no worker joined within "
                                     f"{timeout:g} s ({exc}); start workers with "
                                     f"`dask worker {scheduler} --nthreads 1`") from None
