@@ -18,9 +18,7 @@ from pathlib import Path
 
 import h5py
 
-# the writing side of a cache entry, for the modules that write them
-from .storage import (CHECKSUM_ATTR, OutputFolderError, atomic_output, stamp_checksum,  # noqa: F401
-                      verify_checksum)
+from .storage import verify_checksum
 
 
 def default_cache_dir() -> Path:

@@ -14,8 +14,8 @@ import pytest
 
 import soil_impedance.sweep as sweep_mod
 from soil_impedance import ImpedanceTable, SoilProfile, TableError, circle_mesh, impedance_sweep
-from soil_impedance.cache import (CacheWarning, OutputFolderError, atomic_output, read_entry,
-                                  stamp_checksum, verify_checksum)
+from soil_impedance.cache import CacheWarning, read_entry
+from soil_impedance.storage import OutputFolderError, atomic_output, stamp_checksum, verify_checksum
 from soil_impedance.greens_rule import GreenRule
 from soil_impedance.sweep import provenance
 from soil_impedance.table import content_hash
