@@ -22,60 +22,18 @@
 #include <string.h>
 
 #include "fmi2FunctionTypes.h"
-
-/* ---- allocations inside a window (glibc: the executable's malloc interposes the library's) -- */
-extern void *__libc_malloc(size_t);
-extern void *__libc_calloc(size_t, size_t);
-extern void *__libc_realloc(void *, size_t);
-static int counting;
-static long allocations;
-
-void *malloc(size_t n)
-{
-    allocations += counting;
-    return __libc_malloc(n);
-}
-
-void *calloc(size_t n, size_t m)
-{
-    allocations += counting;
-    return __libc_calloc(n, m);
-}
-
-void *realloc(void *p, size_t n)
-{
-    allocations += counting;
-    return __libc_realloc(p, n);
-}
+#include "host_common.h"
 
 /* ---- the FMI functions --------------------------------------------------------------------- */
-static void *lib;
-#define FN(name) static name##TYPE *name
 FN(fmi2Instantiate); FN(fmi2FreeInstance); FN(fmi2SetupExperiment); FN(fmi2EnterInitializationMode);
 FN(fmi2ExitInitializationMode); FN(fmi2Terminate); FN(fmi2DoStep); FN(fmi2GetReal); FN(fmi2SetReal);
 FN(fmi2SetBoolean); FN(fmi2GetFMUstate); FN(fmi2SetFMUstate); FN(fmi2FreeFMUstate);
 FN(fmi2SerializedFMUstateSize); FN(fmi2SerializeFMUstate); FN(fmi2DeSerializeFMUstate);
 FN(fmi2GetRealStatus); FN(fmi2Reset);
 
-static void *sym(const char *name)
-{
-    void *f = dlsym(lib, name);
-    if (!f) {
-        fprintf(stderr, "missing %s\n", name);
-        exit(3);
-    }
-    return f;
-}
-
-#define LOAD(name) name = (name##TYPE *)sym(#name)
-
 static void load(const char *path)
 {
-    lib = dlopen(path, RTLD_NOW | RTLD_LOCAL);
-    if (!lib) {
-        fprintf(stderr, "dlopen: %s\n", dlerror());
-        exit(2);
-    }
+    open_library(path);
     LOAD(fmi2Instantiate); LOAD(fmi2FreeInstance); LOAD(fmi2SetupExperiment); LOAD(fmi2EnterInitializationMode);
     LOAD(fmi2ExitInitializationMode); LOAD(fmi2Terminate); LOAD(fmi2DoStep); LOAD(fmi2GetReal); LOAD(fmi2SetReal);
     LOAD(fmi2SetBoolean); LOAD(fmi2GetFMUstate); LOAD(fmi2SetFMUstate); LOAD(fmi2FreeFMUstate);

@@ -23,35 +23,9 @@
 #include <string.h>
 
 #include "fmi3FunctionTypes.h"
-
-/* ---- allocations inside a window (glibc: the executable's malloc interposes the library's) -- */
-extern void *__libc_malloc(size_t);
-extern void *__libc_calloc(size_t, size_t);
-extern void *__libc_realloc(void *, size_t);
-static int counting;
-static long allocations;
-
-void *malloc(size_t n)
-{
-    allocations += counting;
-    return __libc_malloc(n);
-}
-
-void *calloc(size_t n, size_t m)
-{
-    allocations += counting;
-    return __libc_calloc(n, m);
-}
-
-void *realloc(void *p, size_t n)
-{
-    allocations += counting;
-    return __libc_realloc(p, n);
-}
+#include "host_common.h"
 
 /* ---- the FMI functions --------------------------------------------------------------------- */
-static void *lib;
-#define FN(name) static name##TYPE *name
 FN(fmi3InstantiateCoSimulation); FN(fmi3InstantiateModelExchange); FN(fmi3FreeInstance);
 FN(fmi3EnterInitializationMode); FN(fmi3ExitInitializationMode); FN(fmi3Terminate); FN(fmi3DoStep);
 FN(fmi3GetFloat64); FN(fmi3SetFloat64); FN(fmi3GetUInt64); FN(fmi3SetUInt64); FN(fmi3SetBoolean);
@@ -59,25 +33,9 @@ FN(fmi3GetFMUState); FN(fmi3SetFMUState); FN(fmi3FreeFMUState); FN(fmi3Serialize
 FN(fmi3SerializeFMUState); FN(fmi3DeserializeFMUState); FN(fmi3Reset); FN(fmi3EnterEventMode);
 FN(fmi3EnterConfigurationMode);
 
-static void *sym(const char *name)
-{
-    void *f = dlsym(lib, name);
-    if (!f) {
-        fprintf(stderr, "missing %s\n", name);
-        exit(3);
-    }
-    return f;
-}
-
-#define LOAD(name) name = (name##TYPE *)sym(#name)
-
 static void load(const char *path)
 {
-    lib = dlopen(path, RTLD_NOW | RTLD_LOCAL);
-    if (!lib) {
-        fprintf(stderr, "dlopen: %s\n", dlerror());
-        exit(2);
-    }
+    open_library(path);
     LOAD(fmi3InstantiateCoSimulation); LOAD(fmi3InstantiateModelExchange); LOAD(fmi3FreeInstance);
     LOAD(fmi3EnterInitializationMode); LOAD(fmi3ExitInitializationMode); LOAD(fmi3Terminate); LOAD(fmi3DoStep);
     LOAD(fmi3GetFloat64); LOAD(fmi3SetFloat64); LOAD(fmi3GetUInt64); LOAD(fmi3SetUInt64); LOAD(fmi3SetBoolean);
