@@ -21,6 +21,7 @@ import textwrap
 import pytest
 
 from helpers import EXPORT_MOTION
+from helpers.fmu_host import OPEN_FMU2
 
 DT = EXPORT_MOTION.dt
 OK = 0
@@ -30,18 +31,8 @@ HOST = textwrap.dedent("""
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE, defaultCallbacks
     path, case, dt = sys.argv[1], sys.argv[2], float(sys.argv[3])
-    md = read_model_description(path)
-    vr = {v.name: v.valueReference for v in md.modelVariables}
-    log = []
-    def logger(env, inst, status, cat, msg):
-        log.append(msg.decode("utf-8", "replace"))
-    cb = fmi2CallbackFunctions()
-    cb.logger = fmi2CallbackLoggerTYPE(logger)
-    cb.allocateMemory, cb.freeMemory = defaultCallbacks.allocateMemory, defaultCallbacks.freeMemory
-    f = FMU2Slave(guid=md.guid, unzipDirectory=extract(path), modelIdentifier=md.coSimulation.modelIdentifier,
-                  instanceName="x")
-    f.instantiate(callbacks=cb, loggingOn=case != "quiet")
-    dll, c = f.dll, f.component
+    LOGGING = case != "quiet"
+""") + OPEN_FMU2 + textwrap.dedent("""
     stop = 40 * dt
     if case == "long":
         dll.fmi2SetupExperiment(c, 0, 0.0, 0.0, 0, 0.0)            # no stop time

@@ -11,6 +11,25 @@ from .cases import EXPORT_MOTION
 
 DT = EXPORT_MOTION.dt
 
+#: the part of a host script that opens the FMU (the script has set ``path`` and ``LOGGING`` and
+#: imported fmpy's extract, read_model_description, FMU2Slave, fmi2CallbackFunctions,
+#: fmi2CallbackLoggerTYPE and defaultCallbacks): ``md``, ``vr`` {name: value reference}, the
+#: FMU's messages collected in ``log``, the instance ``f`` (library ``dll``, component ``c``)
+OPEN_FMU2 = textwrap.dedent("""
+    md = read_model_description(path)
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    log = []
+    def logger(env, inst, status, cat, msg):
+        log.append(msg.decode("utf-8", "replace"))
+    cb = fmi2CallbackFunctions()
+    cb.logger = fmi2CallbackLoggerTYPE(logger)
+    cb.allocateMemory, cb.freeMemory = defaultCallbacks.allocateMemory, defaultCallbacks.freeMemory
+    f = FMU2Slave(guid=md.guid, unzipDirectory=extract(path), modelIdentifier=md.coSimulation.modelIdentifier,
+                  instanceName="x")
+    f.instantiate(callbacks=cb, loggingOn=LOGGING)
+    dll, c = f.dll, f.component
+""")
+
 HOST = textwrap.dedent("""
     import json, math, sys
     from fmpy import extract, read_model_description
@@ -22,18 +41,8 @@ HOST = textwrap.dedent("""
         import types
         for name in ("structure", "fmus", "soil_impedance"):
             sys.modules[name] = types.ModuleType(name)
-    md = read_model_description(path)
-    vr = {v.name: v.valueReference for v in md.modelVariables}
-    log = []
-    def logger(env, inst, status, cat, msg):
-        log.append(msg.decode("utf-8", "replace"))
-    cb = fmi2CallbackFunctions()
-    cb.logger = fmi2CallbackLoggerTYPE(logger)
-    cb.allocateMemory, cb.freeMemory = defaultCallbacks.allocateMemory, defaultCallbacks.freeMemory
-    f = FMU2Slave(guid=md.guid, unzipDirectory=extract(path), modelIdentifier=md.coSimulation.modelIdentifier,
-                  instanceName="x")
-    f.instantiate(callbacks=cb, loggingOn=True)
-    dll, c = f.dll, f.component
+    LOGGING = True
+""") + OPEN_FMU2 + textwrap.dedent("""
     import ctypes
     def set_real(name, value):
         return dll.fmi2SetReal(c, (ctypes.c_uint * 1)(vr[name]), 1, (ctypes.c_double * 1)(value))
