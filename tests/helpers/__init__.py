@@ -5,7 +5,7 @@
                  changed section by section, written as TOML (``write_scene``) for the command line
   results        ``route_result``: a made-up RouteResult
   fmu_host       a Python host of an FMU in a subprocess (``from helpers.fmu_host import ...``)
-  checks         ``rel``: the error of an array relative to a reference
+  checks         ``rel``: the error of an array relative to a reference; ``assert_pair_rolls_back``
   winkler        the shared Winkler case: the reactor on a rock disk (``FINE_RAFT``,
                  ``COARSE_RAFT``, ``rock_winkler``)
   motions        ground motions (broadband, pulses)
@@ -16,7 +16,7 @@
 from pathlib import Path
 
 from .cases import EXPORT_MOTION, pulse_motion, rocks_about_both_axes, small_scene, soil_model, winkler
-from .checks import rel
+from .checks import assert_pair_rolls_back, rel
 from .motions import broadband, smooth_pulse, stepper_pulse
 from .passive_models import oscillator_model, random_passive_model
 from .results import route_result
@@ -29,6 +29,7 @@ ROOT = Path(__file__).resolve().parents[2]
 DATA = ROOT / "tests" / "data"
 
 __all__ = ["COARSE_RAFT", "DATA", "EXPORT_MOTION", "FINE_RAFT", "ROOT", "SMALL_REACTOR", "TOWER", "RockCase", "TrapezoidRationalSoil",
+           "assert_pair_rolls_back",
            "broadband", "changed", "export_tower", "hysteretic_table", "oscillator_model", "pulse_motion", "random_passive_model", "rel",
            "rock_winkler", "rocks_about_both_axes", "route_result", "small_reactor", "small_scene", "smooth_pulse", "soil_model", "stepper_pulse",
            "toml_text", "tower", "winkler", "winkler_rational", "write_scene"]
