@@ -128,7 +128,7 @@ class Case:
         from fmus.native_build import fmi_headers
         exe = Path(tempfile.mkdtemp(prefix="speed_host_")) / "host"
         subprocess.run([shutil.which("cc") or "gcc", "-O2", "-rdynamic", f"-I{fmi_headers()}",
-                        str(Path(__file__).resolve().parents[1] / "tests" / "native" / "host.c"), "-o", str(exe),
+                        str(Path(__file__).resolve().parents[1] / "tests" / "fmu" / "native" / "host.c"), "-o", str(exe),
                         "-ldl", "-lm"], check=True)
         return exe
 
