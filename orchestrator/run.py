@@ -23,7 +23,7 @@ from structure.spec import winkler_from_moduli
 from structure.winkler import modes_on_soil, springs_from_rigid_impedance
 
 from orchestrator.errors import ComputationError, UserInputError
-from orchestrator.impedance import scene_fit, scene_impedance, scene_static
+from orchestrator.impedance import cached_scene_fit, scene_fit, scene_impedance, scene_static
 from orchestrator.motion import Motion, make_motion
 from orchestrator.routes import RunContext, get_route
 from orchestrator.scene import SceneError
@@ -212,10 +212,10 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
             if shared.fit is not None:
                 ctx.shared["fit"] = shared.fit
         elif outputs:
-            ctx.tables = scene_impedance(scene, outputs, cache_dir=cache_dir, progress=sweep_progress, stats=sweep)
+            ctx.tables = SweptTables(outputs, lambda: scene_impedance(scene, outputs, cache_dir=cache_dir,
+                                                                      progress=sweep_progress, stats=sweep))
         if "gap" in ctx.tables and "fit" not in ctx.shared:
-            ctx.fit_builder = lambda: scene_fit(scene, cache_dir=cache_dir, table=ctx.tables["gap"],
-                                                fit_progress=fit_progress)
+            ctx.fit_builder = lambda: _run_fit(scene, cache_dir, ctx.tables, fit_progress)
         results = {}
         for route in chosen:
             res = _run_route(route, ctx.for_route(route, (options or {}).get(route.name)),
@@ -227,6 +227,40 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
             ran = {} if res.status is Status.REFUSED else {"components": list(motion.components)}
             results[route.name] = res.with_notes(skipped=_shared_skips(scene, route, sweep, ctx), info=ran)
     return results, motion
+
+
+class SweptTables(Mapping):
+    """The run's impedance tables ``{output: ImpedanceTable}``, swept (or read from the cache) all
+    at once by ``load()`` when a route first reads one: a run whose routes only need the rational
+    fit, found in the cache by the table's inputs (``_run_fit``), reads no table."""
+
+    def __init__(self, outputs, load):
+        self._outputs, self._load, self._tables = tuple(outputs), load, None
+
+    def __getitem__(self, output):
+        if output not in self._outputs:
+            raise KeyError(output)
+        if self._tables is None:
+            self._tables = self._load()
+        return self._tables[output]
+
+    def __contains__(self, output):
+        return output in self._outputs
+
+    def __iter__(self):
+        return iter(self._outputs)
+
+    def __len__(self):
+        return len(self._outputs)
+
+
+def _run_fit(scene, cache_dir, tables, fit_progress):
+    """The run's soil fit: read from the cache by the gap table's inputs (the table is not read),
+    else fitted on the run's gap table (``tables["gap"]``, swept or read then)."""
+    hit = cached_scene_fit(scene, cache_dir)
+    if hit is not None:
+        return hit
+    return scene_fit(scene, cache_dir=cache_dir, table=tables["gap"], fit_progress=fit_progress)
 
 
 def _run_route(route, ctx, bar) -> RouteResult:
@@ -248,6 +282,9 @@ def _shared_skips(scene, route, sweep, ctx) -> list:
     tables = route.tables(scene)
     if tables and sweep.get("from_cache"):
         out.append("impedance sweep read from cache")
+    elif tables and not sweep and route.needs_fit and "fit" in ctx.shared and ctx.fit().report.cached:
+        out.append("impedance table not read: the route needs only the rational fit, found in the cache "
+                   "by the table's inputs")
     elif tables and sweep.get("computed") and scene.profile.is_homogeneous and scene.frequencies_hz[0] == 0.0:
         out.append("homogeneous half-space: K(0) from the closed-form static kernels "
                    "(no wavenumber integral at 0 Hz)")
