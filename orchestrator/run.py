@@ -12,10 +12,16 @@ that ``run_scene(..., shared=...)`` takes instead of recomputing it.
 """
 from __future__ import annotations
 
+import hashlib
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
+import h5py
 import numpy as np
+from soil_impedance.cache import CacheWarning, read_entry
+from soil_impedance.storage import atomic_output, stamp_checksum
 
 from structure import ConvergenceError, simulate
 from structure.results import RouteResult, Status
@@ -69,32 +75,78 @@ def step_doubling(scene, model, soil, motion, cache_dir=None) -> dict:
     at the motion's step and at half of it, on the record's strongest window: the time-step
     error estimate of the uplift routes. Returns a JSON-able dict (relative_change None when
     neither run lifts off). cache_dir: the run's cache folder (where the native stepper's library
-    is kept; None: a temporary folder of the process)."""
+    is kept, and the two answers: a warm run does not step them again, ``_dt_check_run``; None:
+    a temporary folder of the process, nothing kept)."""
     window, t0 = strongest_window(motion)
-    runs = []
-    for m in (window, window.resampled(window.dt / 2)):
-        try:
-            runs.append(_dt_check_run(scene, model, soil, m, cache_dir).max_uplift())
-        except ConvergenceError:
-            runs.append(float("nan"))
-    coarse, fine = runs
+    coarse, fine = (_dt_check_run(scene, model, soil, m, cache_dir)
+                    for m in (window, window.resampled(window.dt / 2)))
     change = None if max(coarse, fine) < UPLIFT_FLOOR else abs(coarse - fine) / max(fine, UPLIFT_FLOOR)
     return {"dt": motion.dt, "window_s": [t0, t0 + window.duration], "max_uplift_m": coarse,
             "max_uplift_half_dt_m": fine, "relative_change": change, "tolerance": DT_TOLERANCE}
 
 
-def _dt_check_run(scene, model, soil, motion, cache_dir=None):
-    """The structure on the proxy springs under ``motion``: through the native stepper where it
-    is available (the monolithic route's C runtime: the same answer to round-off, several
-    times faster), else ``simulate``. Raises ConvergenceError as ``simulate`` does."""
+def _dt_check_run(scene, model, soil, motion, cache_dir=None) -> float:
+    """Max uplift (m) of the structure on the proxy springs under ``motion``, NaN when Newton
+    fails: through the native stepper where it is available (the monolithic route's C runtime:
+    the same answer to round-off, several times faster), else ``simulate``. With a cache folder
+    the native answer is kept there (``dtcheck-<key>.h5``, checksummed, verified on read) under
+    the key of everything the C runtime reads (``_native_run_key``): read back, never stepped
+    again, by a run of the same structure, springs, contact, motion and step."""
     from fmus.native_host import cache_folder, library, simulate_native, springs_soil   # the FMU stack: when it checks
     from structure import NewmarkStepper
     lib = library(cache_folder(cache_dir))
     if lib is None:
-        return simulate(model, soil, motion.acc, motion.dt, contact=scene.contact, route="dt-check")
+        try:
+            return simulate(model, soil, motion.acc, motion.dt, contact=scene.contact, route="dt-check").max_uplift()
+        except ConvergenceError:
+            return float("nan")
     st = NewmarkStepper(model, springs_soil(soil, motion.dt), motion.dt, contact=scene.contact,
                         external_soil=True, ag0=motion.acc[0])
-    return simulate_native(st, motion.acc, [], route="dt-check", lib=lib)
+    path = None if cache_dir is None else Path(cache_dir) / f"dtcheck-{_native_run_key(lib, st, motion.acc)[:24]}.h5"
+    if path is not None:
+        hit = read_entry(path, lambda h: float(h.attrs["max_uplift_m"]))
+        if hit is not None:
+            return hit
+    try:
+        value = simulate_native(st, motion.acc, [], route="dt-check", lib=lib).max_uplift()
+    except ConvergenceError:
+        value = float("nan")
+    if path is not None:
+        _keep(path, value)
+    return value
+
+
+#: what the native answer of a check also depends on besides its inputs: the Python side that
+#: encodes them for the C runtime and the measure taken of its histories
+_CHECK_SOURCES = ("fmus/native_host.py", "fmus/native_build.py", "structure/results.py", "orchestrator/run.py")
+
+
+def _native_run_key(lib, st, acc) -> str:
+    """SHA-256 of what a native run reads: the compiled library (its file name is the digest of
+    its C sources, compiler, flags and platform), the encoded model (``st``: the structure's
+    matrices, static state, soil springs, penalty and contact settings, the step), the ground
+    acceleration, and the sources of the Python side (``_CHECK_SOURCES``)."""
+    from fmus.native_build import encode_resources, soil_records, stepper_records
+    h = hashlib.sha256(Path(lib._name).name.encode() + b"\0")
+    root = Path(__file__).resolve().parents[1]
+    for name in _CHECK_SOURCES:
+        h.update(name.encode() + b"\0" + (root / name).read_bytes())
+    h.update(encode_resources({**soil_records(st.soil.model, st.dt), **stepper_records(st, [])}))
+    a = np.ascontiguousarray(acc, "<f8")
+    h.update(f"{a.shape}".encode() + memoryview(a).cast("B"))
+    return h.hexdigest()
+
+
+def _keep(path, value: float) -> None:
+    """Store a check's answer (atomic, checksummed); a failure (read-only folder, disk full) only warns."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_output(path) as tmp, h5py.File(tmp, "w") as h:
+            h.attrs["max_uplift_m"] = value
+            stamp_checksum(h)
+    except OSError as exc:
+        warnings.warn(CacheWarning(f"could not write cache entry {path} ({exc}); continuing without it"),
+                      stacklevel=3)
 
 
 def step_doubling_warning(check: dict) -> str | None:

@@ -7,8 +7,10 @@ import pytest
 import orchestrator.impedance as impedance
 import soil_impedance.sweep as sweep
 from orchestrator.impedance import cached_scene_fit, scene_impedance
-from orchestrator.run import run_scene
+from orchestrator.motion import make_motion
+from orchestrator.run import proxy_springs, run_scene, step_doubling, step_doubling_warning
 from orchestrator.scene import scene_from_dict
+from soil_impedance.cache import CacheWarning
 from soil_impedance.sweep import table_key
 from helpers import small_reactor
 
@@ -23,7 +25,7 @@ def _key(scene):
 def test_the_fit_is_found_by_the_tables_inputs_without_reading_it(tmp_path, monkeypatch):
     """A second run of a fit-only route reads neither the table nor the BEM (the sweep is refused
     here) and gives the same answer to the bit; a route that reads the table still gets it, swept
-    once for the run."""
+    once for the run. The fit entry is still verified: a damaged one is fitted again."""
     scene = scene_from_dict(SCENE, name="small")
     first, _ = run_scene(scene, cache_dir=tmp_path)
     calls = []
@@ -46,6 +48,12 @@ def test_the_fit_is_found_by_the_tables_inputs_without_reading_it(tmp_path, monk
     assert calls == [("gap",)]                       # the linear route's read, once
     assert np.array_equal(both["linear"].gap, first["linear"].gap)
     assert np.array_equal(both["monolithic"].gap, first["monolithic"].gap)
+    (entry,) = tmp_path.glob("fit-*.h5")                # still verified on read: a changed value
+    with h5py.File(entry, "r+") as f:                  # (the checksum left as it was) is refitted
+        f["D"][0, 0] += 1.0
+    with pytest.warns(CacheWarning, match="damaged cache entry"):
+        refit, _ = run_scene(scene, routes=["monolithic"], cache_dir=tmp_path)
+    assert np.array_equal(refit["monolithic"].gap, first["monolithic"].gap)
 
 
 def test_the_table_key_is_the_tables_hash_and_moves_with_every_input(tmp_path, monkeypatch):
@@ -74,15 +82,52 @@ def test_the_table_key_is_the_tables_hash_and_moves_with_every_input(tmp_path, m
     assert cached_scene_fit(scene, tmp_path, impedance._fit_options(scene, {"tol": 0.5})) is None
 
 
-def test_a_damaged_fit_entry_is_refitted_from_the_table(tmp_path):
-    """The fit found by the table's inputs is still verified on read: a changed value discards it
-    (CacheWarning) and the run fits again from the table."""
-    from soil_impedance.cache import CacheWarning
-    scene = scene_from_dict(SCENE, name="small")
-    first, _ = run_scene(scene, routes=["monolithic"], cache_dir=tmp_path)
-    (entry,) = tmp_path.glob("fit-*.h5")
-    with h5py.File(entry, "r+") as f:                  # one value changed, the checksum left as it was
-        f["D"][0, 0] += 1.0
-    with pytest.warns(CacheWarning, match="damaged cache entry"):
-        again, _ = run_scene(scene, routes=["monolithic"], cache_dir=tmp_path)
-    assert np.array_equal(again["monolithic"].gap, first["monolithic"].gap)
+def _stiff_tower(dt, **sections):
+    """The stiff tower of test_run's step-doubling test (10 ms does not resolve its contact, 5 ms
+    does), the winkler route."""
+    from helpers import changed, tower
+    beam = dict(tower()["structure"]["beams"][0], E=3e12, G=1.25e12)
+    data = changed(tower(), soil={"winkler": {"kv": 5.0e9, "kh": 4.0e9}}, structure={"beams": [beam]},
+                   motion={"pga_g": 0.6}, analysis={"dt": dt})
+    return scene_from_dict(changed(data, **sections), name="stiff")
+
+
+def test_the_step_doubling_check_is_stepped_once_then_read(tmp_path, monkeypatch):
+    """The check warns where dt is too large and not where it is not; a second run reads its two
+    answers from the cache (the native stepper is not called) and carries the same check; any
+    change of what the stepper reads (motion, contact penalty, step) is a miss; a damaged entry is
+    stepped again with a CacheWarning."""
+    import fmus.native_host as native_host
+    calls = []
+    real = native_host.simulate_native
+
+    def counted(*args, **kwargs):
+        calls.append(kwargs.get("route"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(native_host, "simulate_native", counted)
+
+    def check(scene):
+        motion = make_motion(scene.motion, scene.analysis.dt)
+        out = step_doubling(scene, scene.model(), proxy_springs(scene, False), motion, tmp_path)
+        return out, step_doubling_warning(out) is not None
+
+    for dt, warned in ((0.01, True), (0.005, False)):
+        calls.clear()
+        first, warns = check(_stiff_tower(dt))
+        assert warns == warned and (first["relative_change"] > first["tolerance"]) == warned
+        assert calls == ["dt-check"] * 2
+        again, warns_again = check(_stiff_tower(dt))
+        assert again == first and warns_again == warned and len(calls) == 2
+        for change in (dict(motion={"pga_g": 0.55}), dict(contact={"enabled": True, "penalty": 2.0}),
+                       dict(analysis={"dt": dt * 0.8})):
+            calls.clear()
+            check(_stiff_tower(dt, **change))
+            assert len(calls) == 2, change
+        for entry in tmp_path.glob("dtcheck-*.h5"):
+            with h5py.File(entry, "r+") as f:
+                f.attrs["max_uplift_m"] = 1.0                  # changed, the checksum left as it was
+        calls.clear()
+        with pytest.warns(CacheWarning, match="damaged cache entry"):
+            damaged, _ = check(_stiff_tower(dt))
+        assert damaged == first and len(calls) == 2
