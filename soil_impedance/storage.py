@@ -181,7 +181,7 @@ def _update_value(h, value, f=None) -> None:
             h.update(len(b).to_bytes(8, "little") + b)
     else:
         h.update(a.dtype.str.encode())
-        h.update(np.ascontiguousarray(a).tobytes())
+        h.update(np.ascontiguousarray(a).reshape(-1).view(np.uint8))     # the bytes, not a copy of them
 
 
 def _update_dataset(h, ds, f) -> None:

@@ -93,7 +93,7 @@ def _read_cached(path, key):
     """The table cached at ``path`` for inputs hash ``key``, or None (absent, or damaged: then
     moved aside with a CacheWarning, see ``cache.read_entry``)."""
     def reader(h):
-        table = ImpedanceTable.from_hdf5(h, path)
+        table = ImpedanceTable.from_hdf5(h, path, verified=True)     # read_entry has checked it
         if table.hash != key:
             raise TableError(f"holds the table of inputs {table.hash[:20]}, not {key[:20]}")
         return table

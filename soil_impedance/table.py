@@ -169,16 +169,18 @@ class ImpedanceTable:
             return cls.from_hdf5(h, path)
 
     @classmethod
-    def from_hdf5(cls, h, path) -> ImpedanceTable:
+    def from_hdf5(cls, h, path, verified: bool = False) -> ImpedanceTable:
         """Read the table in the open h5py file ``h`` (``path`` names it in errors); checks the
-        format, the whole-file checksum and the hash and data digest."""
+        format, the whole-file checksum (unless ``verified``: the caller has just checked it, as
+        ``cache.read_entry`` does) and the hash and data digest."""
         if h.attrs.get("format") != FORMAT:
             raise TableError(f"{path}: not an {FORMAT} file (attribute 'format' missing or wrong)")
         version = int(h.attrs.get("format_version", -1))
         if version != FORMAT_VERSION:
             raise TableError(f"{path}: format_version {version}, this code reads {FORMAT_VERSION}")
         try:
-            require_checksum(h, path, "delete it and recompute")
+            if not verified:
+                require_checksum(h, path, "delete it and recompute")
         except ChangedFileError as exc:
             raise TableError(str(exc)) from None
         try:
