@@ -51,6 +51,10 @@ def _coefficients(omega, zeta, dt):
     return a11, a12, a21, a22, b0u, b1u, b0v, b1v
 
 
+#: steps whose input terms and states are held at once by ``response_spectra``
+_CHUNK = 256
+
+
 def response_spectrum(acc, dt: float, periods, damping: float = 0.05) -> Spectrum:
     """Response spectrum of an acceleration history.
 
@@ -80,14 +84,19 @@ def response_spectra(acc, dt: float, periods, damping: float = 0.05) -> list:
     omega = 2 * np.pi / periods
     a11, a12, a21, a22, b0u, b1u, b0v, b1v = _coefficients(omega, damping, dt)
     shape = (acc.shape[1], omega.size)
-    u, v, umax, amax = (np.zeros(shape) for _ in range(4))
     p = -acc[:, :, None]                                   # (nt, m, 1)
     cv, cu = 2 * damping * omega, omega ** 2
-    for n in range(acc.shape[0] - 1):
-        u, v = (a11 * u + a12 * v + b0u * p[n] + b1u * p[n + 1],
-                a21 * u + a22 * v + b0v * p[n] + b1v * p[n + 1])
-        np.maximum(umax, np.abs(u), out=umax)
-        np.maximum(amax, np.abs(cv * v + cu * u), out=amax)
+    u, v, umax, amax = (np.zeros(shape) for _ in range(4))
+    for k0 in range(0, acc.shape[0] - 1, _CHUNK):          # memory: _CHUNK steps of (m, P) at a time
+        k1 = min(k0 + _CHUNK, acc.shape[0] - 1)
+        iu0, iu1, iv0, iv1 = b0u * p[k0:k1], b1u * p[k0 + 1:k1 + 1], b0v * p[k0:k1], b1v * p[k0 + 1:k1 + 1]
+        us, vs = np.empty((k1 - k0, *shape)), np.empty((k1 - k0, *shape))
+        for n in range(k1 - k0):                           # only the recurrence steps one by one (the same sums)
+            u, v = (a11 * u + a12 * v + iu0[n] + iu1[n],
+                    a21 * u + a22 * v + iv0[n] + iv1[n])
+            us[n], vs[n] = u, v
+        np.maximum(umax, np.abs(us).max(axis=0), out=umax)
+        np.maximum(amax, np.abs(cv * vs + cu * us).max(axis=0), out=amax)
     return [Spectrum(periods, damping, umax[j], omega * umax[j], omega ** 2 * umax[j], amax[j])
             for j in range(shape[0])]
 

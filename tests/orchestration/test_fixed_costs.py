@@ -131,3 +131,21 @@ def test_the_step_doubling_check_is_stepped_once_then_read(tmp_path, monkeypatch
         with pytest.warns(CacheWarning, match="damaged cache entry"):
             damaged, _ = check(_stiff_tower(dt))
         assert damaged == first and len(calls) == 2
+
+
+@pytest.mark.parametrize("nt", [2, 256, 257, 700])
+def test_response_spectra_are_the_step_by_step_recurrence_to_the_bit(nt):
+    """The spectra (the synthetic motion's matching runs them on every run) keep the numbers of
+    the plain recurrence, one step at a time, whatever the chunking of the steps."""
+    from orchestrator.spectra import _coefficients, response_spectra
+    acc = np.random.default_rng(nt).standard_normal((nt, 2))
+    periods, dt, zeta = 1.0 / np.geomspace(0.2, 33.0, 60), 0.005, 0.05
+    omega = 2 * np.pi / periods
+    a11, a12, a21, a22, b0u, b1u, b0v, b1v = _coefficients(omega, zeta, dt)
+    u, v, umax, amax = (np.zeros((2, omega.size)) for _ in range(4))
+    p = -acc[:, :, None]
+    for n in range(nt - 1):
+        u, v = (a11 * u + a12 * v + b0u * p[n] + b1u * p[n + 1], a21 * u + a22 * v + b0v * p[n] + b1v * p[n + 1])
+        umax, amax = np.maximum(umax, np.abs(u)), np.maximum(amax, np.abs(2 * zeta * omega * v + omega ** 2 * u))
+    for j, spec in enumerate(response_spectra(acc, dt, periods, zeta)):
+        assert np.array_equal(spec.sd, umax[j]) and np.array_equal(spec.sa, amax[j])
