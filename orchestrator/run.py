@@ -266,8 +266,14 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
         elif outputs:
             ctx.tables = SweptTables(outputs, lambda: scene_impedance(scene, outputs, cache_dir=cache_dir,
                                                                       progress=sweep_progress, stats=sweep))
+            fit = cached_scene_fit(scene, cache_dir) if any(r.needs_fit for r in chosen) else None
+            if fit is not None:
+                ctx.shared["fit"] = fit
+            if fit is None or any(r.tables(scene) and not r.needs_fit for r in chosen):
+                ctx.tables.load()           # before the routes (one sweep for all; its errors raise here)
         if "gap" in ctx.tables and "fit" not in ctx.shared:
-            ctx.fit_builder = lambda: _run_fit(scene, cache_dir, ctx.tables, fit_progress)
+            ctx.fit_builder = lambda: scene_fit(scene, cache_dir=cache_dir, table=ctx.tables["gap"],
+                                                fit_progress=fit_progress)
         results = {}
         for route in chosen:
             res = _run_route(route, ctx.for_route(route, (options or {}).get(route.name)),
@@ -283,18 +289,21 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
 
 class SweptTables(Mapping):
     """The run's impedance tables ``{output: ImpedanceTable}``, swept (or read from the cache) all
-    at once by ``load()`` when a route first reads one: a run whose routes only need the rational
-    fit, found in the cache by the table's inputs (``_run_fit``), reads no table."""
+    at once by ``load()``: before the routes when one of them reads a table, else (its routes
+    need only the rational fit, found in the cache by the table's inputs) on first use, if any."""
 
-    def __init__(self, outputs, load):
-        self._outputs, self._load, self._tables = tuple(outputs), load, None
+    def __init__(self, outputs, sweep):
+        self._outputs, self._sweep, self._tables = tuple(outputs), sweep, None
+
+    def load(self) -> dict:
+        if self._tables is None:
+            self._tables = self._sweep()
+        return self._tables
 
     def __getitem__(self, output):
         if output not in self._outputs:
             raise KeyError(output)
-        if self._tables is None:
-            self._tables = self._load()
-        return self._tables[output]
+        return self.load()[output]
 
     def __contains__(self, output):
         return output in self._outputs
@@ -304,15 +313,6 @@ class SweptTables(Mapping):
 
     def __len__(self):
         return len(self._outputs)
-
-
-def _run_fit(scene, cache_dir, tables, fit_progress):
-    """The run's soil fit: read from the cache by the gap table's inputs (the table is not read),
-    else fitted on the run's gap table (``tables["gap"]``, swept or read then)."""
-    hit = cached_scene_fit(scene, cache_dir)
-    if hit is not None:
-        return hit
-    return scene_fit(scene, cache_dir=cache_dir, table=tables["gap"], fit_progress=fit_progress)
 
 
 def _run_route(route, ctx, bar) -> RouteResult:
