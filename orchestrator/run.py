@@ -126,7 +126,7 @@ def _native_run_key(lib, st, acc) -> str:
     its C sources, compiler, flags and platform), the encoded model (``st``: the structure's
     matrices, static state, soil springs, penalty and contact settings, the step), the ground
     acceleration, and the sources of the Python side (``_CHECK_SOURCES``)."""
-    from fmus.native_build import encode_resources, soil_records, stepper_records
+    from fmus.native_build import encode_resources, soil_records, stepper_records   # the FMU stack: when it checks
     h = hashlib.sha256(Path(lib._name).name.encode() + b"\0")
     root = Path(__file__).resolve().parents[1]
     for name in _CHECK_SOURCES:
@@ -176,7 +176,8 @@ def check_time_step(model, soil, dt: float) -> float:
 class SharedRun:
     """What the runs of one scene share whatever their motion, computed once by ``prepare_run``.
 
-    routes : the route names it was prepared for; tables : {"rigid"|"gap": ImpedanceTable};
+    routes : the route names it was prepared for; tables : {"rigid"|"gap": ImpedanceTable} (empty
+    when the routes need only the fit and it was found in the cache);
     sweep : the sweep's stats (``computed``, ``from_cache``); springs : the proxy springs of the
     time-step checks (``proxy_springs``); fit : the FitResult of the gap table, or None when no
     route needs it; dt_check : a step-doubling check (``step_doubling``) standing for every run,
@@ -207,21 +208,34 @@ def _tables_read(scene, chosen) -> tuple:
     return tuple(dict.fromkeys(t for r in chosen for t in r.tables(scene)))
 
 
+def _cached_fit(scene, chosen, outputs, cache_dir):
+    """The run's rational fit read from the cache, found by its table's inputs (no table is
+    read), when a route needs it; else (or on a miss) None."""
+    return cached_scene_fit(scene, cache_dir) if outputs and any(r.needs_fit for r in chosen) else None
+
+
+def _reads_tables(scene, chosen) -> bool:
+    """Whether a route reads an impedance table itself (not only through the rational fit)."""
+    return any(r.tables(scene) and not r.needs_fit for r in chosen)
+
+
 def prepare_run(scene, routes=None, cache_dir=None, sweep_progress=None, fit_progress=None) -> SharedRun:
     """The parts of ``run_scene`` that do not depend on the motion, for many runs of ``scene``
     with ``routes`` (default: the scene's): the time-step check (raises as ``run_scene`` does),
     one impedance sweep and, when a route needs it, one rational fit (built here, not on
-    demand: a fit that fails raises instead of refusing the route). Progress callbacks as in
+    demand: a fit that fails raises instead of refusing the route; a fit found in the cache
+    leaves the tables unread when no route reads them itself). Progress callbacks as in
     ``run_scene``."""
     scene, chosen = _chosen_routes(scene, routes)
     outputs = _tables_read(scene, chosen)
     with compute_threads():
         springs = proxy_springs(scene, bool(outputs), cache_dir)
         check_time_step(scene.model(), springs, scene.analysis.dt)
-        sweep, tables, fit = {}, {}, None
-        if outputs:
+        sweep, tables = {}, {}
+        fit = _cached_fit(scene, chosen, outputs, cache_dir)
+        if outputs and (fit is None or _reads_tables(scene, chosen)):
             tables = scene_impedance(scene, outputs, cache_dir=cache_dir, progress=sweep_progress, stats=sweep)
-        if "gap" in tables and any(r.needs_fit for r in chosen):
+        if fit is None and "gap" in tables and any(r.needs_fit for r in chosen):
             fit = scene_fit(scene, cache_dir=cache_dir, table=tables["gap"], fit_progress=fit_progress)
     return SharedRun(routes=tuple(scene.analysis.routes), tables=tables, sweep=sweep, springs=springs, fit=fit)
 
@@ -266,10 +280,10 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
         elif outputs:
             ctx.tables = SweptTables(outputs, lambda: scene_impedance(scene, outputs, cache_dir=cache_dir,
                                                                       progress=sweep_progress, stats=sweep))
-            fit = cached_scene_fit(scene, cache_dir) if any(r.needs_fit for r in chosen) else None
+            fit = _cached_fit(scene, chosen, outputs, cache_dir)
             if fit is not None:
                 ctx.shared["fit"] = fit
-            if fit is None or any(r.tables(scene) and not r.needs_fit for r in chosen):
+            if fit is None or _reads_tables(scene, chosen):
                 ctx.tables.load()           # before the routes (one sweep for all; its errors raise here)
         if "gap" in ctx.tables and "fit" not in ctx.shared:
             ctx.fit_builder = lambda: scene_fit(scene, cache_dir=cache_dir, table=ctx.tables["gap"],

@@ -89,7 +89,7 @@ def _client(workers, scheduler, log, timeout: float = CONNECT_TIMEOUT_S):
     """A dask Client: on an existing scheduler (which must answer within ``timeout`` s), or on a
     LocalCluster of ``workers`` worker processes (``local_workers``) with one thread each and the
     BLAS thread count of this process; the cluster is shut down on exit, whatever the exit."""
-    import asyncio
+    import asyncio  # start-up cost: only when a cluster is used (as dask below)
 
     import dask  # heavy import (~1 s): only ensembles pay it
     from dask.distributed import Client, LocalCluster  # (same)

@@ -8,7 +8,7 @@ import orchestrator.impedance as impedance
 import soil_impedance.sweep as sweep
 from orchestrator.impedance import cached_scene_fit, scene_impedance
 from orchestrator.motion import make_motion
-from orchestrator.run import proxy_springs, run_scene, step_doubling, step_doubling_warning
+from orchestrator.run import prepare_run, proxy_springs, run_scene, step_doubling, step_doubling_warning
 from orchestrator.scene import scene_from_dict
 from soil_impedance.cache import CacheWarning
 from soil_impedance.sweep import table_key
@@ -43,6 +43,10 @@ def test_the_fit_is_found_by_the_tables_inputs_without_reading_it(tmp_path, monk
     assert np.array_equal(again["monolithic"].gap, first["monolithic"].gap)
     assert any("impedance table not read" in s for s in again["monolithic"].notes.skipped)
     assert any("rational fit read from cache" in s for s in again["monolithic"].notes.skipped)
+    shared = prepare_run(scene, routes=["monolithic"], cache_dir=tmp_path)     # an ensemble's set-up: the same
+    assert shared.tables == {} and shared.fit.report.cached
+    cell, _ = run_scene(scene, routes=["monolithic"], cache_dir=tmp_path, shared=shared)
+    assert np.array_equal(cell["monolithic"].gap, first["monolithic"].gap)
     monkeypatch.setattr(impedance, "impedance_sweep", counted)
     both, _ = run_scene(scene, cache_dir=tmp_path)
     assert calls == [("gap",)]                       # the linear route's read, once
