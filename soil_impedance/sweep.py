@@ -92,12 +92,12 @@ def _cache_path(cache_dir, output, key) -> Path:
 def _read_cached(path, key):
     """The table cached at ``path`` for inputs hash ``key``, or None (absent, or damaged: then
     moved aside with a CacheWarning, see ``cache.read_entry``)."""
-    def reader(h):
-        table = ImpedanceTable.from_hdf5(h, path, verified=True)     # read_entry has checked it
+    def reader(h, data):
+        table = ImpedanceTable.from_hdf5(h, path, data)     # as read_entry verified it: read once
         if table.hash != key:
             raise TableError(f"holds the table of inputs {table.hash[:20]}, not {key[:20]}")
         return table
-    return read_entry(path, reader)
+    return read_entry(path, reader, keep=True)
 
 
 def _write_cached(cache_dir, output, table) -> None:
