@@ -153,3 +153,28 @@ def test_response_spectra_are_the_step_by_step_recurrence_to_the_bit(nt):
         umax, amax = np.maximum(umax, np.abs(u)), np.maximum(amax, np.abs(2 * zeta * omega * v + omega ** 2 * u))
     for j, spec in enumerate(response_spectra(acc, dt, periods, zeta)):
         assert np.array_equal(spec.sd, umax[j]) and np.array_equal(spec.sa, amax[j])
+
+
+def test_a_cached_table_is_read_and_hashed_once(tmp_path, monkeypatch):
+    """The verification of a cached table reads each dataset once and hands it to the reader
+    (the same digest as the slab-by-slab one); a changed value is still refused."""
+    from soil_impedance.storage import checksum
+    from soil_impedance.sweep import _cache_path, _read_cached
+    scene = scene_from_dict(SCENE, name="small")
+    table = scene_impedance(scene, ("gap",), cache_dir=tmp_path)["gap"]
+    path = _cache_path(tmp_path, "gap", table.hash)
+    with h5py.File(path) as f:
+        kept = {}
+        assert checksum(f, kept) == checksum(f) == f.attrs["sha256"]
+        assert np.array_equal(kept["/matrices_real"], table.matrices.real)
+    reads = []
+    real = h5py.Dataset.__getitem__
+    monkeypatch.setattr(h5py.Dataset, "__getitem__", lambda ds, key: reads.append(ds.name) or real(ds, key))
+    again = _read_cached(path, table.hash)
+    assert np.array_equal(again.matrices, table.matrices) and again.dofs == table.dofs
+    assert sorted(reads) == sorted(set(reads)) and "/matrices_real" in reads     # each dataset read once
+    monkeypatch.undo()
+    with h5py.File(path, "r+") as f:
+        f["matrices_imag"][0, 0, 0] += 1.0
+    with pytest.warns(CacheWarning, match="damaged cache entry"):
+        assert _read_cached(path, table.hash) is None
