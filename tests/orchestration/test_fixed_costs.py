@@ -22,6 +22,7 @@ def _key(scene):
     return table_key(scene.profile, scene.mesh, scene.frequencies_hz, scene.contact_kind, "gap")
 
 
+@pytest.mark.slow
 def test_the_fit_is_found_by_the_tables_inputs_without_reading_it(tmp_path, monkeypatch):
     """A second run of a fit-only route reads neither the table nor the BEM (the sweep is refused
     here) and gives the same answer to the bit; a route that reads the table still gets it, swept
@@ -96,6 +97,7 @@ def _stiff_tower(dt, **sections):
     return scene_from_dict(changed(data, **sections), name="stiff")
 
 
+@pytest.mark.slow
 def test_the_step_doubling_check_is_stepped_once_then_read(tmp_path, monkeypatch):
     """The check warns where dt is too large and not where it is not; a second run reads its two
     answers from the cache (the native stepper is not called) and carries the same check; any
