@@ -20,19 +20,14 @@ from pathlib import Path
 
 import numpy as np
 
-from soil_impedance.fit import save_fit
 from structure.results import Status
 
-from orchestrator.bench import bench, bench_config, format_rows, json_safe, plot_rows
-from orchestrator.compare import compare, format_table
-from orchestrator.ensemble import (CONNECT_TIMEOUT_S, DT_CHECKS, ensemble_summary, is_ensemble_file, read_ensemble,
-                                   run_ensemble)
+# what a command alone uses (bench, compare, ensembles, plots, reports, fits) is imported by it:
+# every command pays the imports at the top
+from orchestrator.ensemble import CONNECT_TIMEOUT_S, DT_CHECKS
 from orchestrator.errors import ComputationError, OptionError, SetupError, UserInputError
-from orchestrator.impedance import rigid_json, scene_fit, scene_impedance, scene_static
 from orchestrator.motion import G
-from orchestrator.plots import plot_impedance, plot_run, pyplot
 from orchestrator.progress import Progress, labelled_bars
-from orchestrator.report import write_ensemble_report, write_report
 from orchestrator.results import (ResultsFileError, check_output_folder, check_output_path, read_results, summary,
                                   write_results)
 from orchestrator.routes import route_names
@@ -276,6 +271,7 @@ def cmd_run(args) -> int:
                        "pga_g": {a: float(p) / G for a, p in zip("xyz", motion.pga) if a in motion.components}},
             "routes": {r: summary(res) for r, res in results.items()}}
     if args.plot_dir:
+        from orchestrator.plots import plot_run                  # start-up cost: only with --plot-dir
         _say(*(f"wrote {path}" for path in plot_run(results, motion, scene, args.plot_dir)))
     if args.json:
         print(json.dumps(summ))
@@ -307,6 +303,9 @@ def _pngs(folder: Path) -> list:
 
 
 def cmd_impedance(args) -> int:
+    # start-up cost: what only this command uses loads in it
+    from orchestrator.impedance import rigid_json, scene_impedance, scene_static
+    from orchestrator.plots import plot_impedance                # (same)
     t0 = time.perf_counter()
     scene = load_scene(args.scene)
     for path in (args.output, args.gap, args.plot):
@@ -337,6 +336,9 @@ def cmd_impedance(args) -> int:
 
 
 def cmd_fit(args) -> int:
+    # start-up cost: what only this command uses loads in it
+    from orchestrator.impedance import scene_fit, scene_impedance
+    from soil_impedance.fit import save_fit                      # (same)
     t0 = time.perf_counter()
     scene = load_scene(args.scene)
     for path in (args.output, args.plot):
@@ -392,6 +394,7 @@ def cmd_export(args) -> int:
                          "installed: pip install ziglang (a dependency of uplift), or export --kind python")
     if args.fmi_version == 3 and args.kind != "native":
         raise OptionError("--fmi-version 3 writes native FMUs only (pythonfmu writes FMI 2.0): drop --kind python")
+    from orchestrator.impedance import scene_fit                 # start-up cost (as above)
     soil = scene_fit(scene, cache_dir=_cache(args), fit_progress=labelled_bars(f"fit {scene.name}: {{label}}")).model
     exported = export_scene(scene, args.output, soil, cache_dir=_cache(args), kind=args.kind,
                             fmi_version=args.fmi_version)
@@ -404,6 +407,7 @@ def cmd_export(args) -> int:
 
 
 def cmd_compare(args) -> int:
+    from orchestrator.compare import compare, format_table       # start-up cost: only this command
     results = read_results(args.results)
     if args.reference is not None and args.reference not in results:
         raise ResultsFileError(f"--reference {args.reference!r} is not in {args.results} "
@@ -414,6 +418,9 @@ def cmd_compare(args) -> int:
 
 
 def cmd_report(args) -> int:
+    # start-up cost: what only this command uses loads in it
+    from orchestrator.ensemble import is_ensemble_file
+    from orchestrator.report import write_ensemble_report, write_report   # (same)
     check_output_folder(args.output, ["report.html", *_pngs(args.output)])
     if args.results.suffix.lower() == ".toml":
         raise ResultsFileError(f"{args.results} is a scene: `uplift report` reads the file that `uplift run` or "
@@ -429,6 +436,7 @@ def cmd_report(args) -> int:
 
 
 def cmd_ensemble(args) -> int:
+    from orchestrator.ensemble import ensemble_summary, run_ensemble   # start-up cost: only this command
     scene = load_scene(args.scene, max_pga_g=args.max_pga)
     out = args.output or Path(f"{scene.name}_ensemble.h5")
     ds = run_ensemble(scene, args.pga, records=args.records, seeds=args.seeds, routes=args.routes, output=out,
@@ -487,6 +495,8 @@ def _fragility_parser(sub, json_flag):
 
 def cmd_fragility(args) -> int:
     from orchestrator import fragility as frag  # scipy.optimize and xarray: only this command pays them
+    from orchestrator.ensemble import read_ensemble              # (same)
+    from orchestrator.plots import pyplot                        # (same)
     if args.plot is not None:
         check_output_path(args.plot)
     try:
@@ -522,6 +532,7 @@ def cmd_fragility(args) -> int:
 
 
 def cmd_bench(args) -> int:
+    from orchestrator.bench import bench, bench_config, format_rows, json_safe, plot_rows   # start-up cost
     if args.plot is not None:
         check_output_path(args.plot)
     rows = bench(bench_config(args.quick), cache_dir=_cache(args), log=lambda msg: _say(msg))

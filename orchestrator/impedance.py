@@ -4,7 +4,8 @@ from __future__ import annotations
 import numpy as np
 
 from soil_impedance import impedance_sweep, static_impedance
-from soil_impedance.fit import fit_table
+from soil_impedance.fit import FitOptions, cached_fit, fit_table
+from soil_impedance.sweep import table_key
 
 
 def scene_impedance(scene, outputs=("rigid",), cache_dir=None, progress=None, stats=None):
@@ -34,17 +35,40 @@ def scene_static(scene, output="rigid", cache_dir=None) -> np.ndarray:
 
 def scene_fit(scene, cache_dir=None, progress=None, table=None, fit_progress=None, **fit_options):
     """FitResult (model and report) of the scene's gap impedance table ((6+N)^2: raft DOFs and
-    the soil vertical displacement under each node; swept here unless given), fitted by
-    soil_impedance.fit.fit_table at the scene's ``[analysis].fit_tol`` unless ``tol`` is given.
-    progress follows the sweep, fit_progress the fit (label: its stage); both follow the
-    progress protocol (orchestrator.progress)."""
+    the soil vertical displacement under each node), fitted by soil_impedance.fit.fit_table at
+    the scene's ``[analysis].fit_tol`` unless ``tol`` is given (and on the scene's node
+    coordinates unless ``node_xy`` is). Without ``table``, a fit cached for the scene is read
+    (``cached_scene_fit``: the table is neither swept nor read), else the table is swept (or
+    read from the cache) and fitted. progress follows the sweep, fit_progress the fit (label:
+    its stage); both follow the progress protocol (orchestrator.progress)."""
+    options = _fit_options(scene, fit_options)
     if table is None:
+        hit = cached_scene_fit(scene, cache_dir, options)
+        if hit is not None:
+            return hit
         table = scene_impedance(scene, ("gap",), cache_dir=cache_dir, progress=progress)["gap"]
-    fit_options.setdefault("cache_dir", cache_dir)
-    fit_options.setdefault("progress", fit_progress)
+    return fit_table(table, cache_dir=cache_dir, progress=fit_progress, options=options)
+
+
+def cached_scene_fit(scene, cache_dir, options=None):
+    """The scene's fit from the cache folder ``cache_dir`` (None: no cache), or None. Found by the
+    key of the gap table it is made from (``soil_impedance.sweep.table_key``: the scene's soil,
+    mesh, contact and frequencies and the BEM code's digest) with the fit's options (default:
+    the scene's) and the fit code's digest: the 100 MB table is neither swept nor read, and a
+    change of any of them is a miss. The entry itself is verified on read (its checksum)."""
+    if cache_dir is None:
+        return None
+    key = table_key(scene.profile, scene.mesh, scene.frequencies_hz, scene.contact_kind, "gap")
+    return cached_fit(key, options or _fit_options(scene, {}), cache_dir)
+
+
+def _fit_options(scene, fit_options) -> FitOptions:
+    """FitOptions of the scene's fit: ``[analysis].fit_tol`` and the mesh's node coordinates
+    unless ``fit_options`` (FitOptions' keyword options) say otherwise."""
+    fit_options = dict(fit_options)
     fit_options.setdefault("tol", scene.analysis.fit_tol)
     fit_options.setdefault("node_xy", scene.mesh.xy)     # for the rigid-raft correction of the fit
-    return fit_table(table, **fit_options)
+    return FitOptions.make(**fit_options)
 
 
 def rigid_json(table, wall_s: float) -> dict:

@@ -12,10 +12,16 @@ that ``run_scene(..., shared=...)`` takes instead of recomputing it.
 """
 from __future__ import annotations
 
+import hashlib
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 
+import h5py
 import numpy as np
+from soil_impedance.cache import CacheWarning, read_entry
+from soil_impedance.storage import atomic_output, stamp_checksum
 
 from structure import ConvergenceError, simulate
 from structure.results import RouteResult, Status
@@ -23,7 +29,7 @@ from structure.spec import winkler_from_moduli
 from structure.winkler import modes_on_soil, springs_from_rigid_impedance
 
 from orchestrator.errors import ComputationError, UserInputError
-from orchestrator.impedance import scene_fit, scene_impedance, scene_static
+from orchestrator.impedance import cached_scene_fit, scene_fit, scene_impedance, scene_static
 from orchestrator.motion import Motion, make_motion
 from orchestrator.routes import RunContext, get_route
 from orchestrator.scene import SceneError
@@ -69,32 +75,78 @@ def step_doubling(scene, model, soil, motion, cache_dir=None) -> dict:
     at the motion's step and at half of it, on the record's strongest window: the time-step
     error estimate of the uplift routes. Returns a JSON-able dict (relative_change None when
     neither run lifts off). cache_dir: the run's cache folder (where the native stepper's library
-    is kept; None: a temporary folder of the process)."""
+    is kept, and the two answers: a warm run does not step them again, ``_dt_check_run``; None:
+    a temporary folder of the process, nothing kept)."""
     window, t0 = strongest_window(motion)
-    runs = []
-    for m in (window, window.resampled(window.dt / 2)):
-        try:
-            runs.append(_dt_check_run(scene, model, soil, m, cache_dir).max_uplift())
-        except ConvergenceError:
-            runs.append(float("nan"))
-    coarse, fine = runs
+    coarse, fine = (_dt_check_run(scene, model, soil, m, cache_dir)
+                    for m in (window, window.resampled(window.dt / 2)))
     change = None if max(coarse, fine) < UPLIFT_FLOOR else abs(coarse - fine) / max(fine, UPLIFT_FLOOR)
     return {"dt": motion.dt, "window_s": [t0, t0 + window.duration], "max_uplift_m": coarse,
             "max_uplift_half_dt_m": fine, "relative_change": change, "tolerance": DT_TOLERANCE}
 
 
-def _dt_check_run(scene, model, soil, motion, cache_dir=None):
-    """The structure on the proxy springs under ``motion``: through the native stepper where it
-    is available (the monolithic route's C runtime: the same answer to round-off, several
-    times faster), else ``simulate``. Raises ConvergenceError as ``simulate`` does."""
+def _dt_check_run(scene, model, soil, motion, cache_dir=None) -> float:
+    """Max uplift (m) of the structure on the proxy springs under ``motion``, NaN when Newton
+    fails: through the native stepper where it is available (the monolithic route's C runtime:
+    the same answer to round-off, several times faster), else ``simulate``. With a cache folder
+    the native answer is kept there (``dtcheck-<key>.h5``, checksummed, verified on read) under
+    the key of everything the C runtime reads (``_native_run_key``): read back, never stepped
+    again, by a run of the same structure, springs, contact, motion and step."""
     from fmus.native_host import cache_folder, library, simulate_native, springs_soil   # the FMU stack: when it checks
     from structure import NewmarkStepper
     lib = library(cache_folder(cache_dir))
     if lib is None:
-        return simulate(model, soil, motion.acc, motion.dt, contact=scene.contact, route="dt-check")
+        try:
+            return simulate(model, soil, motion.acc, motion.dt, contact=scene.contact, route="dt-check").max_uplift()
+        except ConvergenceError:
+            return float("nan")
     st = NewmarkStepper(model, springs_soil(soil, motion.dt), motion.dt, contact=scene.contact,
                         external_soil=True, ag0=motion.acc[0])
-    return simulate_native(st, motion.acc, [], route="dt-check", lib=lib)
+    path = None if cache_dir is None else Path(cache_dir) / f"dtcheck-{_native_run_key(lib, st, motion.acc)[:24]}.h5"
+    if path is not None:
+        hit = read_entry(path, lambda h: float(h.attrs["max_uplift_m"]))
+        if hit is not None:
+            return hit
+    try:
+        value = simulate_native(st, motion.acc, [], route="dt-check", lib=lib).max_uplift()
+    except ConvergenceError:
+        value = float("nan")
+    if path is not None:
+        _keep(path, value)
+    return value
+
+
+#: what the native answer of a check also depends on besides its inputs: the Python side that
+#: encodes them for the C runtime and the measure taken of its histories
+_CHECK_SOURCES = ("fmus/native_host.py", "fmus/native_build.py", "structure/results.py", "orchestrator/run.py")
+
+
+def _native_run_key(lib, st, acc) -> str:
+    """SHA-256 of what a native run reads: the compiled library (its file name is the digest of
+    its C sources, compiler, flags and platform), the encoded model (``st``: the structure's
+    matrices, static state, soil springs, penalty and contact settings, the step), the ground
+    acceleration, and the sources of the Python side (``_CHECK_SOURCES``)."""
+    from fmus.native_build import encode_resources, soil_records, stepper_records   # the FMU stack: when it checks
+    h = hashlib.sha256(Path(lib._name).name.encode() + b"\0")
+    root = Path(__file__).resolve().parents[1]
+    for name in _CHECK_SOURCES:
+        h.update(name.encode() + b"\0" + (root / name).read_bytes())
+    h.update(encode_resources({**soil_records(st.soil.model, st.dt), **stepper_records(st, [])}))
+    a = np.ascontiguousarray(acc, "<f8")
+    h.update(f"{a.shape}".encode() + memoryview(a).cast("B"))
+    return h.hexdigest()
+
+
+def _keep(path, value: float) -> None:
+    """Store a check's answer (atomic, checksummed); a failure (read-only folder, disk full) only warns."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_output(path) as tmp, h5py.File(tmp, "w") as h:
+            h.attrs["max_uplift_m"] = value
+            stamp_checksum(h)
+    except OSError as exc:
+        warnings.warn(CacheWarning(f"could not write cache entry {path} ({exc}); continuing without it"),
+                      stacklevel=3)
 
 
 def step_doubling_warning(check: dict) -> str | None:
@@ -124,7 +176,8 @@ def check_time_step(model, soil, dt: float) -> float:
 class SharedRun:
     """What the runs of one scene share whatever their motion, computed once by ``prepare_run``.
 
-    routes : the route names it was prepared for; tables : {"rigid"|"gap": ImpedanceTable};
+    routes : the route names it was prepared for; tables : {"rigid"|"gap": ImpedanceTable} (empty
+    when the routes need only the fit and it was found in the cache);
     sweep : the sweep's stats (``computed``, ``from_cache``); springs : the proxy springs of the
     time-step checks (``proxy_springs``); fit : the FitResult of the gap table, or None when no
     route needs it; dt_check : a step-doubling check (``step_doubling``) standing for every run,
@@ -155,21 +208,34 @@ def _tables_read(scene, chosen) -> tuple:
     return tuple(dict.fromkeys(t for r in chosen for t in r.tables(scene)))
 
 
+def _cached_fit(scene, chosen, outputs, cache_dir):
+    """The run's rational fit read from the cache, found by its table's inputs (no table is
+    read), when a route needs it; else (or on a miss) None."""
+    return cached_scene_fit(scene, cache_dir) if outputs and any(r.needs_fit for r in chosen) else None
+
+
+def _reads_tables(scene, chosen) -> bool:
+    """Whether a route reads an impedance table itself (not only through the rational fit)."""
+    return any(r.tables(scene) and not r.needs_fit for r in chosen)
+
+
 def prepare_run(scene, routes=None, cache_dir=None, sweep_progress=None, fit_progress=None) -> SharedRun:
     """The parts of ``run_scene`` that do not depend on the motion, for many runs of ``scene``
     with ``routes`` (default: the scene's): the time-step check (raises as ``run_scene`` does),
     one impedance sweep and, when a route needs it, one rational fit (built here, not on
-    demand: a fit that fails raises instead of refusing the route). Progress callbacks as in
+    demand: a fit that fails raises instead of refusing the route; a fit found in the cache
+    leaves the tables unread when no route reads them itself). Progress callbacks as in
     ``run_scene``."""
     scene, chosen = _chosen_routes(scene, routes)
     outputs = _tables_read(scene, chosen)
     with compute_threads():
         springs = proxy_springs(scene, bool(outputs), cache_dir)
         check_time_step(scene.model(), springs, scene.analysis.dt)
-        sweep, tables, fit = {}, {}, None
-        if outputs:
+        sweep, tables = {}, {}
+        fit = _cached_fit(scene, chosen, outputs, cache_dir)
+        if outputs and (fit is None or _reads_tables(scene, chosen)):
             tables = scene_impedance(scene, outputs, cache_dir=cache_dir, progress=sweep_progress, stats=sweep)
-        if "gap" in tables and any(r.needs_fit for r in chosen):
+        if fit is None and "gap" in tables and any(r.needs_fit for r in chosen):
             fit = scene_fit(scene, cache_dir=cache_dir, table=tables["gap"], fit_progress=fit_progress)
     return SharedRun(routes=tuple(scene.analysis.routes), tables=tables, sweep=sweep, springs=springs, fit=fit)
 
@@ -212,7 +278,13 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
             if shared.fit is not None:
                 ctx.shared["fit"] = shared.fit
         elif outputs:
-            ctx.tables = scene_impedance(scene, outputs, cache_dir=cache_dir, progress=sweep_progress, stats=sweep)
+            ctx.tables = SweptTables(outputs, lambda: scene_impedance(scene, outputs, cache_dir=cache_dir,
+                                                                      progress=sweep_progress, stats=sweep))
+            fit = _cached_fit(scene, chosen, outputs, cache_dir)
+            if fit is not None:
+                ctx.shared["fit"] = fit
+            if fit is None or _reads_tables(scene, chosen):
+                ctx.tables.load()           # before the routes (one sweep for all; its errors raise here)
         if "gap" in ctx.tables and "fit" not in ctx.shared:
             ctx.fit_builder = lambda: scene_fit(scene, cache_dir=cache_dir, table=ctx.tables["gap"],
                                                 fit_progress=fit_progress)
@@ -227,6 +299,34 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
             ran = {} if res.status is Status.REFUSED else {"components": list(motion.components)}
             results[route.name] = res.with_notes(skipped=_shared_skips(scene, route, sweep, ctx), info=ran)
     return results, motion
+
+
+class SweptTables(Mapping):
+    """The run's impedance tables ``{output: ImpedanceTable}``, swept (or read from the cache) all
+    at once by ``load()``: before the routes when one of them reads a table, else (its routes
+    need only the rational fit, found in the cache by the table's inputs) on first use, if any."""
+
+    def __init__(self, outputs, sweep):
+        self._outputs, self._sweep, self._tables = tuple(outputs), sweep, None
+
+    def load(self) -> dict:
+        if self._tables is None:
+            self._tables = self._sweep()
+        return self._tables
+
+    def __getitem__(self, output):
+        if output not in self._outputs:
+            raise KeyError(output)
+        return self.load()[output]
+
+    def __contains__(self, output):
+        return output in self._outputs
+
+    def __iter__(self):
+        return iter(self._outputs)
+
+    def __len__(self):
+        return len(self._outputs)
 
 
 def _run_route(route, ctx, bar) -> RouteResult:
@@ -248,6 +348,9 @@ def _shared_skips(scene, route, sweep, ctx) -> list:
     tables = route.tables(scene)
     if tables and sweep.get("from_cache"):
         out.append("impedance sweep read from cache")
+    elif tables and not sweep and route.needs_fit and "fit" in ctx.shared and ctx.fit().report.cached:
+        out.append("impedance table not read: the route needs only the rational fit, found in the cache "
+                   "by the table's inputs")
     elif tables and sweep.get("computed") and scene.profile.is_homogeneous and scene.frequencies_hz[0] == 0.0:
         out.append("homogeneous half-space: K(0) from the closed-form static kernels "
                    "(no wavenumber integral at 0 Hz)")

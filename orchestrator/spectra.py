@@ -51,6 +51,10 @@ def _coefficients(omega, zeta, dt):
     return a11, a12, a21, a22, b0u, b1u, b0v, b1v
 
 
+#: steps whose input terms and states are held at once by ``response_spectra``
+_CHUNK = 256
+
+
 def response_spectrum(acc, dt: float, periods, damping: float = 0.05) -> Spectrum:
     """Response spectrum of an acceleration history.
 
@@ -80,14 +84,21 @@ def response_spectra(acc, dt: float, periods, damping: float = 0.05) -> list:
     omega = 2 * np.pi / periods
     a11, a12, a21, a22, b0u, b1u, b0v, b1v = _coefficients(omega, damping, dt)
     shape = (acc.shape[1], omega.size)
-    u, v, umax, amax = (np.zeros(shape) for _ in range(4))
-    p = -acc[:, :, None]                                   # (nt, m, 1)
+    p = -acc[:, None, :, None]                             # (nt, 1, m, 1)
+    diag, off = np.stack([a11, a22])[:, None], np.stack([a12, a21])[:, None]     # (2, 1, P)
+    b0, b1 = np.stack([b0u, b0v])[:, None], np.stack([b1u, b1v])[:, None]
     cv, cu = 2 * damping * omega, omega ** 2
-    for n in range(acc.shape[0] - 1):
-        u, v = (a11 * u + a12 * v + b0u * p[n] + b1u * p[n + 1],
-                a21 * u + a22 * v + b0v * p[n] + b1v * p[n + 1])
-        np.maximum(umax, np.abs(u), out=umax)
-        np.maximum(amax, np.abs(cv * v + cu * u), out=amax)
+    x = np.zeros((2, *shape))                              # (u, v) of every oscillator
+    umax, amax = np.zeros(shape), np.zeros(shape)
+    for k0 in range(0, acc.shape[0] - 1, _CHUNK):          # memory: _CHUNK steps of (2, m, P) at a time
+        k1 = min(k0 + _CHUNK, acc.shape[0] - 1)
+        in0, in1 = b0 * p[k0:k1], b1 * p[k0 + 1:k1 + 1]    # the input terms of the chunk's steps
+        xs = np.empty((k1 - k0, 2, *shape))
+        for n in range(k1 - k0):                           # only the recurrence steps one by one: u = a11 u
+            x = diag * x + off * x[::-1] + in0[n] + in1[n]     # + a12 v + b0u p_n + b1u p_n+1, v likewise
+            xs[n] = x
+        np.maximum(umax, np.abs(xs[:, 0]).max(axis=0), out=umax)
+        np.maximum(amax, np.abs(cv * xs[:, 1] + cu * xs[:, 0]).max(axis=0), out=amax)
     return [Spectrum(periods, damping, umax[j], omega * umax[j], omega ** 2 * umax[j], amax[j])
             for j in range(shape[0])]
 

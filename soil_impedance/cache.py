@@ -32,8 +32,10 @@ class CacheWarning(UserWarning):
     """A damaged cache entry was discarded; the result is recomputed."""
 
 
-def read_entry(path, reader):
+def read_entry(path, reader, keep: bool = False):
     """Read the cache entry at ``path`` with ``reader(f: h5py.File)``; None means recompute.
+    keep: call ``reader(f, data)`` instead, ``data`` the entry's datasets as the checksum
+    verification read them (``{"/name": ndarray}``): a large entry is read and hashed once.
 
     None if the file is absent (or its folder is not one). If it cannot be opened, fails checksum verification, or
     ``reader`` raises (any Exception, including the user-input error types: ``reader`` may
@@ -48,9 +50,10 @@ def read_entry(path, reader):
         return None
     try:
         with h5py.File(path, "r") as f:
-            if not verify_checksum(f):
+            data = {} if keep else None
+            if not verify_checksum(f, data):
                 raise ValueError("checksum attribute 'sha256' missing or not matching the content")
-            return reader(f)
+            return reader(f) if data is None else reader(f, data)
     except Exception as exc:
         cause = f"{type(exc).__name__}: {exc}"
     aside = path.with_name(path.name + ".damaged")

@@ -34,7 +34,6 @@ adaptive quadrature), a transfer-matrix (expm) layer stiffness, and static limit
 from __future__ import annotations
 
 import numpy as np
-from scipy import special
 
 from .greens_layers import material_constants, static_flexibility, surface_flexibility
 from .greens_rule import GreenRule, KGrid
@@ -66,6 +65,7 @@ def static_radial(material, r, omega=None):
 
 def _bessel(x, real):
     """J0, J1, J1(x)/x for x (n_r, n_k); exact limits at x = 0."""
+    from scipy import special      # start-up cost: only a BEM sweep loads it (a cached run does not)
     if real:
         x = x.real
         j0, j1 = special.j0(x), special.j1(x)
@@ -104,6 +104,7 @@ def _tail_transforms(r, c, a):
     t1 = np.where(small, 0.5 - x / 6 + x ** 2 / 24 - x ** 3 / 120 + x ** 4 / 720,
                   (xs + np.expm1(-xs)) / xs ** 2)
     # kernel k J1: 1/r - ∫ k J1/sqrt(k²+a²) dk = 1/r - (a/2)(I0 K1 - I1 K0)(ar/2)
+    from scipy import special      # start-up cost (as in _bessel)
     y = 0.5 * np.where(x < 1e-4, 1.0, x)
     q = special.i0e(y) * special.k1e(y) - special.i1e(y) * special.k0e(y)
     tb = np.where(x < 1e-4, 0.0, 1.0 / (2.0 * y) - 0.5 * q)

@@ -181,20 +181,25 @@ def _update_value(h, value, f=None) -> None:
             h.update(len(b).to_bytes(8, "little") + b)
     else:
         h.update(a.dtype.str.encode())
-        h.update(np.ascontiguousarray(a).tobytes())
+        h.update(np.ascontiguousarray(a).reshape(-1).view(np.uint8))     # the bytes, not a copy of them
 
 
-def _update_dataset(h, ds, f) -> None:
+def _update_dataset(h, ds, f, keep=None) -> None:
+    """Feed dataset ``ds`` into ``h`` in slabs along axis 0; with ``keep`` (a dict) it is read
+    whole, once, hashed slab by slab from memory (the same digest) and kept as ``keep[ds.name]``."""
     h.update(f"dataset {ds.dtype.str} {ds.shape}".encode())
     if ds.shape is None:                        # null dataspace
         return
+    whole = ds[()] if keep is not None else None
+    if keep is not None:
+        keep[ds.name] = whole
     if ds.ndim == 0 or ds.size == 0:
-        _update_value(h, ds[()], f)
+        _update_value(h, ds[()] if whole is None else whole, f)
         return
     row = max(1, ds.dtype.itemsize * ds.size // ds.shape[0])
     step = max(1, _CHUNK_BYTES // row)
     for i in range(0, ds.shape[0], step):
-        _update_value(h, ds[i:i + step], f)
+        _update_value(h, ds[i:i + step] if whole is None else whole[i:i + step], f)
 
 
 def _update_attrs(h, obj, f, skip=()) -> None:
@@ -204,9 +209,10 @@ def _update_attrs(h, obj, f, skip=()) -> None:
             _update_value(h, obj.attrs[key], f)
 
 
-def checksum(f: h5py.File) -> str:
+def checksum(f: h5py.File, keep: dict | None = None) -> str:
     """SHA-256 (hex) of every group, dataset and attribute of ``f`` in name order, except the
-    root checksum attribute."""
+    root checksum attribute. keep: a dict filled with every dataset's value as it was read and
+    hashed (``{"/name": ndarray}``), for a caller that would otherwise read it again."""
     h = hashlib.sha256()
     _update_attrs(h, f, f, skip=(CHECKSUM_ATTR,))
     names = []
@@ -215,7 +221,7 @@ def checksum(f: h5py.File) -> str:
         obj = f[name]
         h.update(b"\0object " + name.encode() + b"\0")
         if isinstance(obj, h5py.Dataset):
-            _update_dataset(h, obj, f)
+            _update_dataset(h, obj, f, keep)
         else:
             h.update(b"group")
         _update_attrs(h, obj, f)
@@ -239,16 +245,16 @@ def stamp_file(path) -> str:
         return stamp_checksum(f)
 
 
-def verify_checksum(f: h5py.File) -> bool:
+def verify_checksum(f: h5py.File, keep: dict | None = None) -> bool:
     """True if the root ``"sha256"`` attribute matches the content of ``f``; False when it is
-    missing, different, or part of the file cannot be read."""
+    missing, different, or part of the file cannot be read. keep: as ``checksum``."""
     stored = f.attrs.get(CHECKSUM_ATTR)
     if stored is None:
         return False
     if isinstance(stored, bytes):
         stored = stored.decode(errors="replace")
     try:
-        return str(stored) == checksum(f)
+        return str(stored) == checksum(f, keep)
     except (OSError, KeyError, RuntimeError, ValueError, TypeError):
         return False
 

@@ -74,6 +74,17 @@ def provenance(profile, mesh, contact, rule, output) -> dict:
             "dof_order": "node-interleaved [ux0,uy0,uz0,ux1,...]" if output == "nodal" else output}
 
 
+def table_key(profile, mesh, frequencies_hz, contact="welded", output="gap", rule=None) -> str:
+    """The cache key of one sweep output (``ImpedanceTable.hash``: its inputs and the BEM code's
+    digest, ``provenance`` + frequencies), from the inputs alone: nothing is swept or read. What
+    is derived from a table and keyed by its hash (a rational fit) can be found with it."""
+    return content_hash(provenance(profile, mesh, contact, rule, output), _frequencies(frequencies_hz))
+
+
+def _frequencies(frequencies_hz) -> np.ndarray:
+    return np.asarray(frequencies_hz, dtype=float).reshape(-1)
+
+
 def _cache_path(cache_dir, output, key) -> Path:
     return Path(cache_dir) / f"impedance_{output}_{key[:20]}.h5"
 
@@ -81,12 +92,12 @@ def _cache_path(cache_dir, output, key) -> Path:
 def _read_cached(path, key):
     """The table cached at ``path`` for inputs hash ``key``, or None (absent, or damaged: then
     moved aside with a CacheWarning, see ``cache.read_entry``)."""
-    def reader(h):
-        table = ImpedanceTable.from_hdf5(h, path)
+    def reader(h, data):
+        table = ImpedanceTable.from_hdf5(h, path, data)     # as read_entry verified it: read once
         if table.hash != key:
             raise TableError(f"holds the table of inputs {table.hash[:20]}, not {key[:20]}")
         return table
-    return read_entry(path, reader)
+    return read_entry(path, reader, keep=True)
 
 
 def _write_cached(cache_dir, output, table) -> None:
@@ -131,7 +142,7 @@ def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("r
     bad = [o for o in outputs if o not in OUTPUTS]
     if bad or not outputs:
         raise BemError(f"outputs = {outputs!r}: choose among {OUTPUTS}")
-    f = np.asarray(frequencies_hz, dtype=float).reshape(-1)
+    f = _frequencies(frequencies_hz)
     if f.size == 0 or not np.all(np.isfinite(f)) or np.any(f < 0) or np.any(np.diff(f) <= 0):
         raise BemError("frequencies_hz must be a non-empty, strictly increasing list of finite "
                        "values >= 0 Hz")

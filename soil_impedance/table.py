@@ -169,27 +169,31 @@ class ImpedanceTable:
             return cls.from_hdf5(h, path)
 
     @classmethod
-    def from_hdf5(cls, h, path) -> ImpedanceTable:
+    def from_hdf5(cls, h, path, data: dict | None = None) -> ImpedanceTable:
         """Read the table in the open h5py file ``h`` (``path`` names it in errors); checks the
-        format, the whole-file checksum and the hash and data digest."""
+        format, the whole-file checksum and the hash and data digest. data: the file's datasets as
+        the caller's checksum verification read them (``cache.read_entry(..., keep=True)``): the
+        checksum is not computed again and nothing is read twice."""
         if h.attrs.get("format") != FORMAT:
             raise TableError(f"{path}: not an {FORMAT} file (attribute 'format' missing or wrong)")
         version = int(h.attrs.get("format_version", -1))
         if version != FORMAT_VERSION:
             raise TableError(f"{path}: format_version {version}, this code reads {FORMAT_VERSION}")
         try:
-            require_checksum(h, path, "delete it and recompute")
+            if data is None:
+                require_checksum(h, path, "delete it and recompute")
         except ChangedFileError as exc:
             raise TableError(str(exc)) from None
+        read = (lambda name: h[name][()]) if data is None else (lambda name: data["/" + name])
         try:
-            f = h["frequencies_hz"][()]
-            re, im = h["matrices_real"], h["matrices_imag"]
+            f = read("frequencies_hz")
+            re, im = read("matrices_real"), read("matrices_imag")
             if re.ndim != 3 or re.shape != im.shape:
                 raise TableError(f"{path}: matrices_real/imag must have the same shape (F, n, n), "
                                  f"got {re.shape} and {im.shape}")
             K = np.empty(re.shape, dtype=complex)
-            K.real, K.imag = re[()], im[()]             # copies: bit-exact, signed zeros kept
-            dofs = [d.decode() if isinstance(d, bytes) else str(d) for d in h["dofs"][()]]
+            K.real, K.imag = re, im                     # copies: bit-exact, signed zeros kept
+            dofs = [d.decode() if isinstance(d, bytes) else str(d) for d in read("dofs")]
             prov = json.loads(h.attrs["provenance"])
             stored = str(h.attrs["hash"])
             digest = str(h.attrs["data_sha256"])

@@ -2,7 +2,6 @@
 existing scheduler, and the cells run on it (the shared parts scattered once)."""
 from __future__ import annotations
 
-import asyncio
 import concurrent.futures
 import logging
 import math
@@ -64,6 +63,8 @@ def check_timeout(timeout) -> float:
 def _probe(address: str, timeout: float) -> None:
     """Ask the scheduler at ``address`` for its identity within ``timeout`` s (dask's own
     client waits forever on a server that accepts the connection and never answers)."""
+    import asyncio  # only when connecting (40 ms of every command otherwise)
+
     from distributed.comm import connect  # heavy import, see _client
 
     async def identity():
@@ -83,30 +84,29 @@ def _probe(address: str, timeout: float) -> None:
         raise ValueError(f"it answered, but not as a dask scheduler ({str(reply)[:80]})")
 
 
-#: a time limit reached (asyncio's is its own class before Python 3.11)
-_TIMEOUTS = (TimeoutError, asyncio.TimeoutError)
-
-
 @contextmanager
 def _client(workers, scheduler, log, timeout: float = CONNECT_TIMEOUT_S):
     """A dask Client: on an existing scheduler (which must answer within ``timeout`` s), or on a
     LocalCluster of ``workers`` worker processes (``local_workers``) with one thread each and the
     BLAS thread count of this process; the cluster is shut down on exit, whatever the exit."""
+    import asyncio  # start-up cost: only when a cluster is used (as dask below)
+
     import dask  # heavy import (~1 s): only ensembles pay it
     from dask.distributed import Client, LocalCluster  # (same)
+    timeouts = (TimeoutError, asyncio.TimeoutError)      # a time limit reached (asyncio's before Python 3.11)
     if scheduler is not None:
         try:
             _probe(scheduler, timeout)
             client = Client(scheduler, timeout=timeout)
-        except (OSError, *_TIMEOUTS, ValueError) as exc:
-            why = f"no answer within {timeout:g} s" if isinstance(exc, _TIMEOUTS) else str(exc)
+        except (OSError, *timeouts, ValueError) as exc:
+            why = f"no answer within {timeout:g} s" if isinstance(exc, timeouts) else str(exc)
             raise EnsembleError(f"--scheduler {scheduler!r}: cannot connect ({why}); give the address of a "
                                 "running dask scheduler, e.g. tcp://10.0.0.5:8786, or a longer "
                                 "--connect-timeout") from None
         with client:
             try:
                 client.wait_for_workers(1, timeout=timeout)
-            except (OSError, *_TIMEOUTS) as exc:
+            except (OSError, *timeouts) as exc:
                 raise EnsembleError(f"--scheduler {scheduler!r}: no worker joined within "
                                     f"{timeout:g} s ({exc}); start workers with "
                                     f"`dask worker {scheduler} --nthreads 1`") from None

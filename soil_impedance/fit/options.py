@@ -104,9 +104,10 @@ class FitOptions:
             np.ascontiguousarray(xy, "<f8").tobytes()).hexdigest()[:16]
         return d
 
-    def cache_key(self, table) -> str:
-        """SHA-256 of the table hash, every option (``settings``) and the fit code's digest."""
-        h = hashlib.sha256(table.hash.encode())
+    def cache_key(self, table_hash: str) -> str:
+        """SHA-256 of the table's hash (``ImpedanceTable.hash``: the inputs that made it), every
+        option (``settings``) and the fit code's digest."""
+        h = hashlib.sha256(table_hash.encode())
         h.update(json.dumps(self.settings(), sort_keys=True, default=str).encode())
         h.update(code_digest().encode())
         return h.hexdigest()

@@ -56,17 +56,28 @@ def fit_table(table, tol=None, *, cache_dir=None, node_xy=None, progress=None, o
         options = FitOptions.make(node_xy, **({} if tol is None else {"tol": tol}), **kwargs)
     elif kwargs or node_xy is not None or tol is not None:
         raise FitError("fit_table: give either options=FitOptions(...) or tol/node_xy/keyword options, not both")
-    path = None
     if cache_dir is not None:
-        path = Path(cache_dir) / f"fit-{options.cache_key(table)[:24]}.h5"
-        from ..cache import read_entry
-        hit = read_entry(path, lambda h: read_fit(h, path))
+        hit = cached_fit(table.hash, options, cache_dir)
         if hit is not None:
             return hit
     result = fit(table, options, progress)
-    if path is not None:
-        save_fit(result, path)
+    if cache_dir is not None:
+        save_fit(result, _cache_path(table.hash, options, cache_dir))
     return result
+
+
+def cached_fit(table_hash: str, options: FitOptions, cache_dir) -> FitResult | None:
+    """The fit ``fit_table`` cached in ``cache_dir`` for the table of hash ``table_hash`` (its
+    inputs, ``ImpedanceTable.hash``; ``sweep.table_key`` gives it without the table) and
+    ``options``, verified on read; None when there is none (a damaged entry is moved aside
+    with a CacheWarning, ``cache.read_entry``)."""
+    from ..cache import read_entry
+    path = _cache_path(table_hash, options, cache_dir)
+    return read_entry(path, lambda h: read_fit(h, path))
+
+
+def _cache_path(table_hash: str, options: FitOptions, cache_dir) -> Path:
+    return Path(cache_dir) / f"fit-{options.cache_key(table_hash)[:24]}.h5"
 
 
 def fit(table, options: FitOptions, progress=None) -> FitResult:

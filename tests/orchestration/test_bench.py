@@ -20,7 +20,7 @@ def tiny(monkeypatch, tmp_path):
     monkeypatch.setattr(bench, "DISK_ELEMENT", 4.0)
     monkeypatch.setitem(bench.DISK_TOWER["motion"], "duration_s", 1.5)
     monkeypatch.setitem(bench.DISK_TOWER["motion"], "pga_g", 0.4)
-    monkeypatch.setattr("orchestrator.cli.bench_config", lambda quick=False: TINY)
+    monkeypatch.setattr("orchestrator.bench.bench_config", lambda quick=False: TINY)
     monkeypatch.setitem(sys.modules, "openseespy", None)      # import openseespy -> ImportError
 
 
