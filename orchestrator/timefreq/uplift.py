@@ -109,7 +109,7 @@ def _message(method, out, residual, max_seconds) -> str:
     if out.status is SolverStatus.STOPPED:
         return (f"{method} stopped at its time budget ({max_seconds:g} s) after {n} iterations: relative "
                 f"residual {residual:.3e}; the histories are its best iterate")
-    if out.status is SolverStatus.DIVERGED and method == "march":
+    if out.status is SolverStatus.DIVERGED and method.startswith("march"):
         return (f"{method}: {out.reason} in sweep {n}: the soil's causal part on this grid is not passive; "
                 f"the histories are the best iterate (relative residual {residual:.3e}). Newton-Krylov "
                 "(method='newton-krylov') or the monolithic route with the soil's passive rational fit are "
