@@ -59,20 +59,61 @@ class AffineSplit:
             self.usable = False
             return
         self.c, self.alt = c, alt
-        Aw, Bw = affine[0].ww()
-        self.Bw = Bw
+        band = affine[0]
+        self.hi = _span(band.idx)
+        self.s_hi = op.s[band.idx]
+        Aw, Bw = band.ww()
+        self.Aw, self.Bw = Aw, Bw
+        (self.VrA, self.VlA, _), (self.VrB, self.VlB, _) = band.rows_P_parts(op.Bq)
+        self.Zinv_hi = op.Zinv[self.hi]
         Ad, Bd = dense(Aw), dense(Bw)
-        self.dense = [(b.idx, self._minus_affine(b.ww(), Ad, Bd, op.s[b.idx]))
-                      for b in bands if isinstance(b, DenseBand)]
+        self.dense = [(b.idx, self._dense_part(op, b, Ad, Bd)) for b in bands if isinstance(b, DenseBand)]
 
     @staticmethod
-    def _minus_affine(K, A, B, s):
-        """D = K - (A + s B) (Fb, N, N), one frequency at a time (no band-sized temporaries)."""
+    def _dense_part(op, band, A, B, chunk=16):
+        """S - (A + s B) on a dense band's frequencies, (Fb, N, N) complex: K_ww - Vr Zqq^-1 Vl
+        - A - s B, ``chunk`` frequencies at a time (no band-sized temporaries)."""
+        K, idx, s = band.ww(), band.idx, op.s[band.idx]
         D = np.empty(K.shape, complex)
-        for f in range(K.shape[0]):
-            np.subtract(K[f], A, out=D[f])
-            D[f] -= s[f] * B
+        for j0 in range(0, idx.size, chunk):
+            j = slice(j0, j0 + chunk)
+            f = idx[j]
+            np.matmul(op.Vr[f], op.ZV[f], out=D[j])
+            np.subtract(K[j], D[j], out=D[j])
+            D[j] -= A
+            D[j] -= s[j, None, None] * B
         return D
+
+    def kernel(self, n_lags: int, n_ahead: int = 0):
+        """S's grid kernel (kernel_lags without fold, to round-off) from the split: (head
+        (n_lags, N, N), ahead (n_ahead, N, N)), h_0 .. h_{n_lags-1} and h_{-1} .. h_{-n_ahead}.
+        A at lag 0 and B times s's scalar kernel; D by a direct inverse DFT restricted to the
+        dense bands' frequencies (one GEMM over all N^2 entries); the rank-6 term above the
+        table from its affine parts and three 6 x 6 kernels of Zqq^-1, s Zqq^-1, s^2 Zqq^-1."""
+        op, g = self.op, self.grid
+        nf, F = g.nfft, op.s.size
+        k = np.arange(n_lags)
+        ka = np.arange(1, n_ahead + 1)
+        n = np.concatenate([k, nf - ka])                                    # grid indices
+        w = np.exp(g.eta * g.dt * np.concatenate([k, -ka]))                 # the window undone
+        f = np.arange(F)
+        c = np.where((f == 0) | (2 * f == nf), 1.0, 2.0) / nf                # irfft's weights
+        E = c[:, None] * np.exp(2j * np.pi * np.outer(f, n) / nf) * w       # (F, L): h = Re(E^T X)
+        L = n.size
+        N = op.N
+        out = np.zeros((L, N, N))
+        sig = np.real(E.T @ op.s)                                           # s's kernel (L,)
+        out += sig[:, None, None] * dense(self.Bw)[None]
+        out += np.real(E.sum(axis=0))[:, None, None] * dense(self.Aw)[None]   # delta_0, to round-off
+        for idx, D in self.dense:
+            out += np.real(np.tensordot(E[idx], D, axes=(0, 0)))
+        Eh, sh = E[self.hi], self.s_hi
+        Z = [np.real(np.tensordot(Eh, self.Zinv_hi * sh[:, None, None] ** j, axes=(0, 0))) for j in range(3)]
+        M = np.block([[Z[0], Z[1]], [Z[1], Z[2]]])                          # (L, 12, 12)
+        Vr = np.hstack([self.VrA, self.VrB])                                # (N, 12)
+        Vl = np.vstack([self.VlA, self.VlB])                                # (12, N)
+        out -= (Vr @ M) @ Vl
+        return out[:n_lags], out[n_lags:]
 
     def __call__(self, xb, a, b, H):
         """H[:, b:] += (S * x_block)[:, b:] for the block x[:, a:b] (N, b - a)."""
@@ -81,26 +122,24 @@ class AffineSplit:
         N, nt = H.shape
         X = np.zeros((N, nt))
         X[:, a:b] = xb
-        Xf = np.ascontiguousarray(g.to_freq(X).T)[:, :, None]             # (F, N, 1)
-        Y = np.empty_like(Xf)
-
-        def task(sel):
-            def run():
-                Y[sel] = -(op.Vr[sel] @ (op.ZV[sel] @ Xf[sel]))
-            return run
-        F = Xf.shape[0]
-        op.pool.run([task(h) for h in op.pool.chunks(F)])
+        X = g.to_freq(X)                                                      # (N, F)
+        Y = np.empty_like(X)
+        # above the table: the rank-6 term from its affine parts, S + R6 = A + s B there
+        Xh = X[:, self.hi]
+        u = self.VlA @ Xh + (self.VlB @ Xh) * self.s_hi                       # (6, F_hi)
+        t = np.einsum("fij,jf->if", self.Zinv_hi, u)
+        Y[:, self.hi] = -(self.VrA @ t + self.VrB @ (t * self.s_hi))
 
         def dense_task(idx, D, h):
             def run():
                 i = _span(idx[h])
-                Y[i] += D[h] @ Xf[i]
+                Y[:, i] = (D[h] @ np.ascontiguousarray(X[:, i].T)[:, :, None])[:, :, 0].T
             return run
         tasks = []
         for idx, D in self.dense:
             tasks += [dense_task(idx, D, h) for h in op.pool.chunks(idx.size)]
         if tasks:
             op.pool.run(tasks)
-        H[:, b:] += g.to_time(Y[:, :, 0].T)[:, b:]
+        H[:, b:] += g.to_time(Y)[:, b:]
         gamma = xb @ self.alt[a:b]                                          # sum_m (-1)^m d_m
         H[:, b:] += (self.c * (self.Bw @ gamma))[:, None] * self.alt[None, b:]

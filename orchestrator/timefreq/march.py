@@ -244,7 +244,7 @@ class CausalSweep:
     (the truncated kernel only): a table's non-causal part sum_{k>=1} h_{-k} d_{n+k} taken
     with the future d_{n+k} held at d_n instead of left to the defect correction, which then
     carries only h_{-k} (d_{n+k} - d_n) and what lies further. The march stays causal; the
-    fixed point (the whole-range residual's) is the same. Skipped (ahead_used 0) if h_0 +
+    fixed point (the whole-range residual's) is the same. Skipped (self.ahead 0) if h_0 +
     sum h_{-k} is not symmetric positive definite like h_0."""
 
     def __init__(self, prob, block: int = BLOCK, fold: bool = False, sub: int = SUB, ahead: int = AHEAD):
@@ -254,7 +254,13 @@ class CausalSweep:
         self.B = B = int(max(2, min(block, nt)))
         self.b = int(max(1, min(sub, B)))
         n_ahead = 0 if fold else int(max(0, min(ahead, prob.grid.nfft - nt)))
-        head, lags_ahead = kernel_lags(prob.op, prob.grid, B, n_ahead, fold)
+        split = None if fold else AffineSplit(prob.op, prob.grid)
+        if split is not None and split.usable:
+            self.far = split
+            head, lags_ahead = split.kernel(B, n_ahead)
+        else:
+            self.far = generic_far_field(prob.op, prob.grid)
+            head, lags_ahead = kernel_lags(prob.op, prob.grid, B, n_ahead, fold)
         h0 = head[0]
         self.ahead = 0
         if n_ahead:
@@ -264,8 +270,6 @@ class CausalSweep:
         self.hflat = np.ascontiguousarray(head[1:].transpose(1, 0, 2).reshape(N, (B - 1) * N))   # [h_1 .. h_B-1]
         self.hstack = np.ascontiguousarray(head[1:].reshape((B - 1) * N, N))                    # the same, stacked
         self.step = StepSolver(h0, prob.kp, prob.static.delta0, prob.P0)
-        split = None if fold else AffineSplit(prob.op, prob.grid)
-        self.far = split if split is not None and split.usable else generic_far_field(prob.op, prob.grid)
         self.head_s = time.perf_counter() - t0
 
     def run(self, c0, progress=None, deadline=None):
@@ -319,16 +323,17 @@ class CausalSweep:
 
 
 def march(prob, lam: float = 1.0, block: int = BLOCK, progress=None, deadline: float | None = None,
-          sweep: CausalSweep | None = None, source=None):
+          sweep: CausalSweep | None = None, source=None, ahead: int = 0):
     """Marched contact history of a ContactProblem at motion scale lam.
 
     Returns (d (N, nt) m, info dict); d is the dynamic relative displacement (raft trace minus
     soil, the unknown of problem.route_result); source (N, nt) N: a known force added to the
-    equations (defect_correction). info: newton (linear solves of the steps), factors
+    equations (defect_correction); ahead: the look-ahead of a new sweep (CausalSweep; 0: the
+    causal equations alone). info: newton (linear solves of the steps), factors
     (LUs), block, head_s, wall_s, steps (completed; < nt when the deadline (perf_counter
     time) stopped it: d is then zero beyond)."""
     t0 = time.perf_counter()
-    sw = sweep or CausalSweep(prob, block)
+    sw = sweep or CausalSweep(prob, block, ahead=ahead)
     c0 = -lam * prob.f if source is None else -lam * prob.f - source
     d, done, solves = sw.run(c0, progress, deadline)
     info = dict(newton=int(solves), factors=int(sw.step.n_factor), block=sw.B, head_s=sw.head_s,
