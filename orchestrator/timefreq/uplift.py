@@ -13,7 +13,9 @@ Methods (``SolveOptions.method``, by name from methods.METHODS):
   march starts on the truncated kernel and starts again on the folded one
   (march.kernel_head), causal with the table's damping, if a march diverges (the truncated
   one did on the reactor from 0.6 g). A march that diverges anyway ends DIVERGED. It needs
-  the bilinear grid.
+  the bilinear grid. Its step stiffness holds the kernel's first negative lags at the step
+  (march.AHEAD: on the reactor's table four sweeps instead of five, the same fixed point).
+* "march-causal": the same marches on the plain causal kernel (no look-ahead).
 * "newton-krylov" (EXPERIMENTAL, experimental/newton_krylov.py): semi-smooth Newton on the
   whole-range residual; fails from 0.4 g on the Winkler raft. The only method of the
   continuous grid, where it must be named.
