@@ -64,7 +64,8 @@ class AffineSplit:
         self.s_hi = op.s[band.idx]
         Aw, Bw = band.ww()
         self.Aw, self.Bw = Aw, Bw
-        (self.VrA, self.VlA, _), (self.VrB, self.VlB, _) = band.rows_P_parts(op.Bq)
+        (VrA, VlA, _), (VrB, VlB, _) = band.rows_P_parts(op.Bq)
+        self.VrAB, self.VlAB = np.hstack([VrA, VrB]), np.vstack([VlA, VlB])  # (N, 12), (12, N)
         self.Zinv_hi = op.Zinv[self.hi]
         Ad, Bd = dense(Aw), dense(Bw)
         self.dense = [(b.idx, self._dense_part(op, b, Ad, Bd)) for b in bands if isinstance(b, DenseBand)]
@@ -110,25 +111,22 @@ class AffineSplit:
         Eh, sh = E[self.hi], self.s_hi
         Z = [np.real(np.tensordot(Eh, self.Zinv_hi * sh[:, None, None] ** j, axes=(0, 0))) for j in range(3)]
         M = np.block([[Z[0], Z[1]], [Z[1], Z[2]]])                          # (L, 12, 12)
-        Vr = np.hstack([self.VrA, self.VrB])                                # (N, 12)
-        Vl = np.vstack([self.VlA, self.VlB])                                # (12, N)
-        out -= (Vr @ M) @ Vl
+        out -= (self.VrAB @ M) @ self.VlAB
         return out[:n_lags], out[n_lags:]
 
     def __call__(self, xb, a, b, H):
         """H[:, b:] += (S * x_block)[:, b:] for the block x[:, a:b] (N, b - a)."""
         op, g = self.op, self.grid
         op.n_apply += 1
-        N, nt = H.shape
-        X = np.zeros((N, nt))
-        X[:, a:b] = xb
-        X = g.to_freq(X)                                                      # (N, F)
+        X = g.to_freq(xb, start=a)                                            # (N, F)
         Y = np.empty_like(X)
         # above the table: the rank-6 term from its affine parts, S + R6 = A + s B there
-        Xh = X[:, self.hi]
-        u = self.VlA @ Xh + (self.VlB @ Xh) * self.s_hi                       # (6, F_hi)
-        t = np.einsum("fij,jf->if", self.Zinv_hi, u)
-        Y[:, self.hi] = -(self.VrA @ t + self.VrB @ (t * self.s_hi))
+        Xh = _real_view(X[:, self.hi])                                       # (N, 2 F_hi)
+        U = (self.VlAB @ Xh).view(complex)                                   # [VlA; VlB] X: (12, F_hi)
+        u = U[:6] + U[6:] * self.s_hi
+        t = np.matmul(self.Zinv_hi, u.T[:, :, None])[:, :, 0].T              # (6, F_hi)
+        T = np.concatenate([t, t * self.s_hi])                               # (12, F_hi)
+        Y[:, self.hi] = -(self.VrAB @ _real_view(T)).view(complex)
 
         def dense_task(idx, D, h):
             def run():
@@ -140,6 +138,13 @@ class AffineSplit:
             tasks += [dense_task(idx, D, h) for h in op.pool.chunks(idx.size)]
         if tasks:
             op.pool.run(tasks)
-        H[:, b:] += g.to_time(Y)[:, b:]
-        gamma = xb @ self.alt[a:b]                                          # sum_m (-1)^m d_m
-        H[:, b:] += (self.c * (self.Bw @ gamma))[:, None] * self.alt[None, b:]
+        y = g.to_time(Y, start=b)                                            # (N, nt - b)
+        gamma = xb @ self.alt[a:b]                                           # sum_m (-1)^m d_m
+        y += (self.c * (self.Bw @ gamma))[:, None] * self.alt[None, b:]
+        H[:, b:] += y
+
+
+def _real_view(Z):
+    """A complex (m, n) array as float (m, 2 n) (no copy if C-contiguous)."""
+    Z = np.ascontiguousarray(Z)
+    return Z.view(float).reshape(Z.shape[0], 2 * Z.shape[1])
