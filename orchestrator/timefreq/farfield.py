@@ -18,6 +18,7 @@ go through the FFTs. The same sums in another order: equal to round-off.
 from __future__ import annotations
 
 import numpy as np
+from scipy.linalg.blas import zspmv
 
 from orchestrator.timefreq.operator import _span
 from orchestrator.timefreq.soil import AffineBand, DenseBand, dense
@@ -68,21 +69,31 @@ class AffineSplit:
         self.VrAB, self.VlAB = np.hstack([VrA, VrB]), np.vstack([VlA, VlB])  # (N, 12), (12, N)
         self.Zinv_hi = op.Zinv[self.hi]
         Ad, Bd = dense(Aw), dense(Bw)
-        self.dense = [(b.idx, self._dense_part(op, b, Ad, Bd)) for b in bands if isinstance(b, DenseBand)]
+        N = op.N
+        # a symmetric S: D's upper triangles packed column by column (BLAS 'U' packed storage:
+        # half the bytes per application, read by zspmv; the head's DFT on half the entries)
+        self.packed = op.symmetric()
+        self.upper = (np.concatenate([np.arange(j + 1) for j in range(N)]),
+                      np.repeat(np.arange(N), np.arange(1, N + 1))) if self.packed else None
+        self.dense = [(b.idx, self._dense_part(op, b, Ad, Bd, self.upper)) for b in bands if isinstance(b, DenseBand)]
 
     @staticmethod
-    def _dense_part(op, band, A, B, chunk=16):
-        """S - (A + s B) on a dense band's frequencies, (Fb, N, N) complex: K_ww - Vr Zqq^-1 Vl
-        - A - s B, ``chunk`` frequencies at a time (no band-sized temporaries)."""
+    def _dense_part(op, band, A, B, upper=None, chunk=16):
+        """S - (A + s B) on a dense band's frequencies: K_ww - Vr Zqq^-1 Vl - A - s B, (Fb, N, N)
+        complex, or with ``upper`` (row and column indices of the upper triangle, column by
+        column) its packed upper triangles (Fb, N (N + 1) / 2); ``chunk`` frequencies at a time
+        (no band-sized temporaries)."""
         K, idx, s = band.ww(), band.idx, op.s[band.idx]
-        D = np.empty(K.shape, complex)
+        N = K.shape[1]
+        D = np.empty((idx.size, N, N) if upper is None else (idx.size, upper[0].size), complex)
         for j0 in range(0, idx.size, chunk):
             j = slice(j0, j0 + chunk)
             f = idx[j]
-            np.matmul(op.Vr[f], op.ZV[f], out=D[j])
-            np.subtract(K[j], D[j], out=D[j])
-            D[j] -= A
-            D[j] -= s[j, None, None] * B
+            Dj = op.Vr[f] @ op.ZV[f]
+            np.subtract(K[j], Dj, out=Dj)
+            Dj -= A
+            Dj -= s[j, None, None] * B
+            D[j] = Dj if upper is None else Dj[:, upper[0], upper[1]]
         return D
 
     def kernel(self, n_lags: int, n_ahead: int = 0):
@@ -107,7 +118,14 @@ class AffineSplit:
         out += sig[:, None, None] * dense(self.Bw)[None]
         out += np.real(E.sum(axis=0))[:, None, None] * dense(self.Aw)[None]   # delta_0, to round-off
         for idx, D in self.dense:
-            out += np.real(np.tensordot(E[idx], D, axes=(0, 0)))
+            h = np.real(np.tensordot(E[idx], D, axes=(0, 0)))
+            if self.packed:
+                i, j = self.upper
+                out[:, i, j] += h
+                off = i != j
+                out[:, j[off], i[off]] += h[:, off]
+            else:
+                out += h
         Eh, sh = E[self.hi], self.s_hi
         Z = [np.real(np.tensordot(Eh, self.Zinv_hi * sh[:, None, None] ** j, axes=(0, 0))) for j in range(3)]
         M = np.block([[Z[0], Z[1]], [Z[1], Z[2]]])                          # (L, 12, 12)
@@ -131,7 +149,12 @@ class AffineSplit:
         def dense_task(idx, D, h):
             def run():
                 i = _span(idx[h])
-                Y[:, i] = (D[h] @ np.ascontiguousarray(X[:, i].T)[:, :, None])[:, :, 0].T
+                Xl = np.ascontiguousarray(X[:, i].T)                         # (Fc, N)
+                if self.packed:
+                    n, Dh = Xl.shape[1], D[h]
+                    Y[:, i] = np.array([zspmv(n, 1.0, Dh[j], Xl[j]) for j in range(Xl.shape[0])]).T
+                else:
+                    Y[:, i] = (D[h] @ Xl[:, :, None])[:, :, 0].T
             return run
         tasks = []
         for idx, D in self.dense:
