@@ -5,15 +5,19 @@ zero-padded, windowed FFT, S per frequency, inverse FFT. On a table that reads t
 (~250 MB on the reactor) and multiplies the affine band's A and B with the block's spectrum on
 every frequency above the table (858 frequencies on the reactor, ~40 % of the application).
 
-``AffineSplit`` computes the same sum with the soil's springs and dashpots K_inf = A + s B
-taken on *all* frequencies and removed from the dense band: S = K_inf + D - R6, D = K_ww -
-K_inf on the dense band's frequencies (zero above), R6 the structure's rank-6 term. On the
-bilinear grid K_inf's periodic kernel is closed form: A at lag 0 only, and s_d = (2/dt)
-(z - 1)/(z + 1) has h_0 = (2/dt)(1 + r)/(1 - r) and h_k = (4/dt)(-1)^k / (1 - r) for 0 < k
-< nfft, r = (-1)^nfft e^{-eta nfft dt} (the alternating tail of the trapezoidal rule's
-velocity, wrapped around the period). So K_inf's far field from a block [a, b) is the
-rank-one update (-1)^n c B sum_m (-1)^m d_m for n >= b, N^2 multiply-adds, and only D and R6
-go through the FFTs. The same sums in another order: equal to round-off.
+``AffineSplit`` computes the same sum with the soil's springs and dashpots K_inf = A + s B (the
+affine band's) taken on *all* frequencies: S = K_inf + D - R6_hi, where D = S - K_inf on the
+dense band's frequencies (K_ww - Vr Zqq^-1 Vl - A - s B, the rank-6 structure term folded in;
+zero above) and R6_hi the rank-6 term above the table, Vr Zqq^-1 Vl with Vr and Vl affine in s
+there (products with 6 or 12 columns, no band-sized arrays). On the bilinear grid K_inf's
+periodic kernel is closed form: A at lag 0 only, and s_d = (2/dt)(z - 1)/(z + 1) has h_0 =
+(2/dt)(1 + r)/(1 - r) and h_k = (4/dt)(-1)^k / (1 - r) for 0 < k < nfft, r = (-1)^nfft
+e^{-eta nfft dt} (the alternating tail of the trapezoidal rule's velocity, wrapped around the
+period). So K_inf's far field from a block [a, b) is the rank-one update (-1)^n c B sum_m
+(-1)^m d_m for n >= b, N^2 multiply-adds, and only D and R6_hi go through the FFTs. A
+symmetric S keeps D's upper triangles packed (BLAS packed storage, read by zspmv: half the
+bytes). The same sums in another order: equal to round-off. The kernel head comes from the
+same split (``AffineSplit.kernel``).
 """
 from __future__ import annotations
 
