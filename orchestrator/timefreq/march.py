@@ -383,10 +383,11 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
     stays stable, and W carries the rest. Without it and without the look-ahead the reactor's
     table diverged from 0.6 g (the truncated kernel is not passive: with the raft lifted almost
     everywhere the free soil's response grew as e^{10 t}); with the look-ahead it converges
-    there on the truncated kernel (7 sweeps, against 1 diverged + 5 folded). "auto" marches on the truncated kernel (cheaper: one S
-    application per block instead of a pair: on the reactor at 0.25 g one more sweep, each
-    cheaper, and less time in all) and starts again folded if a march diverges (a ``MarchSweep`` with ``diverged`` on
-    the truncated kernel, then sweeps on the folded one).
+    there on the truncated kernel (7 sweeps, against 1 diverged + 5 folded). "auto" marches
+    on the truncated kernel (cheaper: one S application per block instead of a pair: on the
+    reactor at 0.25 g one more sweep, each cheaper, and less time in all) and starts again
+    folded if a march diverges (a ``MarchSweep`` with ``diverged`` on the truncated kernel,
+    then sweeps on the folded one).
     Measured (benchmarks/timefreq.py --map, --map-reactor): the 21-node Winkler raft (causal
     soil, no fold) from 0.1 to 1.0 g in <= 6 sweeps to 1e-10 (the wrap-around only).
     monitor : callable(sweep, residual) after each sweep; deadline : perf_counter time past which the best
