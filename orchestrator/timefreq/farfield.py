@@ -60,7 +60,7 @@ class AffineSplit:
         sig = grid.to_time(op.s, n=nt)                      # the kernel of s on the grid
         alt = (-1.0) ** np.arange(nt)
         c = -sig[1] if nt > 1 else 0.0
-        if nt > 1 and np.abs(sig[1:] - c * alt[1:]).max() > ALTERNATING_RTOL * abs(c):
+        if nt > 1 and not np.abs(sig[1:] - c * alt[1:]).max() <= ALTERNATING_RTOL * abs(c):   # NaN: no
             self.usable = False
             return
         self.c, self.alt = c, alt
