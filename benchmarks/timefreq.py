@@ -34,8 +34,13 @@ Rows:
             another reference, the table with the fit's own values above the table's last
             frequency instead of its springs and dashpots.
 
+  --parts   where a march solve's CPU goes on the reactor (one thread): the far-field split and
+            the kernel head, per sweep the far field, the step solves and the rest (near field,
+            residual); the look-ahead (march.AHEAD) against none ("march-causal"): sweeps,
+            residuals, max uplift.
+
     python benchmarks/timefreq.py [--pga 0.25] [--map] [--map-reactor] [--ladder] [--contention] [--stand-in]
-                                  [--no-reactor]
+                                  [--parts] [--no-reactor]
 """
 from __future__ import annotations
 
@@ -370,6 +375,84 @@ def stand_in(pga, sweeps=30, tol=1e-6):
     return rows
 
 
+def parts(pga, tol=1e-6):
+    """Where a march solve's CPU goes on the reactor (one BLAS thread, one worker thread):
+    the far-field split and the kernel head (once), per sweep the near field, the step solves
+    and the far field (each timed by thread CPU time), the whole-range residual; for the
+    default look-ahead (march.AHEAD) and without it (method "march-causal"): sweeps, residuals,
+    max uplift and their difference, and the far field per application against one
+    application of S on the grid."""
+    import importlib
+
+    from orchestrator.timefreq import GridOptions, WorkerPool, prepare
+    from orchestrator.timefreq.farfield import AffineSplit, generic_far_field
+    march = importlib.import_module("orchestrator.timefreq.march")
+
+    scene, model, motion, table, _ = reactor(pga)
+    clock = time.thread_time
+    with WorkerPool(1) as pool:
+        c0 = clock()
+        prob = prepare(model, table, motion.acc, motion.dt, grid=GridOptions().resolved(bilinear=True, window=True),
+                       contact=scene.contact, pool=pool)
+        print(f"prepare: {clock() - c0:.2f} CPU s (nfft {prob.grid.nfft}, bands "
+              f"{[b.idx.size for b in prob.op.soil.bands]} frequencies)")
+        c0 = clock()
+        split = AffineSplit(prob.op, prob.grid)
+        c1 = clock()
+        split.kernel(march.BLOCK, march.AHEAD)
+        c2 = clock()
+        print(f"far-field split {c1 - c0:.2f} CPU s, kernel head {c2 - c1:.2f} CPU s "
+              f"(the inverse FFT of every entry of S: ", end="", flush=True)
+        march.kernel_lags(prob.op, prob.grid, march.BLOCK, march.AHEAD)
+        print(f"{clock() - c2:.2f} CPU s)")
+        N, nt = prob.f.shape
+        xb, H = np.random.default_rng(0).standard_normal((N, march.BLOCK)), np.zeros((N, nt))
+        plain = generic_far_field(prob.op, prob.grid)
+        for name, far in (("split", split), ("one application of S", plain)):
+            c0 = clock()
+            for a in range(0, 10 * march.BLOCK, march.BLOCK):
+                far(xb, a, a + march.BLOCK, H)
+            print(f"far field per block, {name}: {(clock() - c0) / 10 * 1e3:.1f} CPU ms")
+        rows = {}
+        plain_sweep = march.CausalSweep
+        spent = {}
+
+        def timed(key, fn):
+            def run(*args):
+                c = clock()
+                out = fn(*args)
+                spent[key] += clock() - c
+                return out
+            return run
+
+        class TimedSweep(plain_sweep):               # the sweep's step solves and far field timed
+            def __init__(self, *args, **kw):
+                super().__init__(*args, **kw)
+                self.step.solve, self.far = timed("steps", self.step.solve), timed("far", self.far)
+
+        for ahead in (march.AHEAD, 0):
+            spent.update(steps=0.0, far=0.0)
+            march.CausalSweep = TimedSweep
+            try:
+                c0 = clock()
+                out = march.defect_correction(prob, tol=tol, fold="auto", ahead=ahead)
+                total = clock() - c0
+            finally:
+                march.CausalSweep = plain_sweep
+            res = [h.residual for h in out.history]
+            uplift = float(np.maximum(0.0, -(prob.z0[:, None] + out.y)).max())
+            n = len(res)
+            near = total - spent["steps"] - spent["far"]
+            rows[ahead] = dict(sweeps=n, residuals=res, cpu_s=total, far_s=spent["far"], steps_s=spent["steps"],
+                               rest_s=near, max_uplift_m=uplift)
+            print(f"look-ahead {ahead}: {n} sweeps, {total:.2f} CPU s: far field {spent['far']:.2f}, step solves "
+                  f"{spent['steps']:.2f}, the rest (split, head, near field, residuals) {near:.2f}; max uplift {1e3 * uplift:.7f} mm; "
+                  "residuals " + " ".join(f"{r:.1e}" for r in res))
+        a, b = rows[march.AHEAD]["max_uplift_m"], rows[0]["max_uplift_m"]
+        print(f"max uplift, look-ahead {march.AHEAD} against none: {abs(a - b) / b:.1e} relative")
+    return {str(k): v for k, v in rows.items()}
+
+
 def _interface_stiffness(op, k):
     """S at the grid frequency k, (N, N) complex: the soil block of its band minus the rank-6 term."""
     from orchestrator.timefreq.soil import AffineBand, dense
@@ -396,6 +479,8 @@ def main():
     ap.add_argument("--repeat", type=int, default=2, help="runs per state of --contention (best kept)")
     ap.add_argument("--stand-in", action="store_true", help="the rational fit as the march's stand-in")
     ap.add_argument("--sweeps", type=int, default=30, help="sweeps of --stand-in (default 30)")
+    ap.add_argument("--parts", action="store_true",
+                    help="where a march solve's CPU goes; the look-ahead against none")
     ap.add_argument("--no-reactor", action="store_true")
     ap.add_argument("--json", type=Path)
     a = ap.parse_args()
@@ -404,6 +489,8 @@ def main():
         out["contention"] = contention(a.pga, a.repeat)
     elif a.stand_in:
         out["stand_in"] = stand_in(a.pga, a.sweeps)
+    elif a.parts:
+        out["parts"] = parts(a.pga)
     elif not a.no_reactor:
         out["reactor"] = row_reactor(a.pga)
     if a.ladder:

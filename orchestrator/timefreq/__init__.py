@@ -14,6 +14,8 @@ operator       ModalStructure, InterfaceOperator (interface stiffness S, blocked
 problem        prepare -> ContactProblem (grid, operator, static preload, renormalised unknown),
                ContactEquation (whole-range residual g), SolverStatus, Outcome, route_result
 march          the default solver: causal marches + defect correction (MarchSweep per sweep)
+farfield       the march's far field: one application of S, or the springs and dashpots in
+               closed form (AffineSplit, also the kernel head)
 methods        METHODS: the solvers by name (SolveOptions.method), DEFAULT "march"
 experimental/  newton_krylov, paper: EXPERIMENTAL solvers, by name only, warned when used
 uplift         solve(): options -> prepare -> solver -> RouteResult (the ``timefreq`` route's core)

@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 from orchestrator.timefreq.experimental.newton_krylov import newton_continuation
 from orchestrator.timefreq.experimental.paper import paper_scheme
-from orchestrator.timefreq.march import defect_correction, march, y_from_d
+from orchestrator.timefreq.march import AHEAD, defect_correction, march, y_from_d
 
 
 class ExperimentalMethodWarning(UserWarning):
@@ -34,10 +34,14 @@ class Method:
     aux_factor: Callable = lambda options: 1.0
 
 
-def _march(prob, options, *, fold, monitor, deadline):
+def _march(prob, options, *, fold, monitor, deadline, ahead=AHEAD):
     out = defect_correction(prob, tol=options.tol or 1e-10, max_sweeps=options.max_iter or 60,
-                            monitor=monitor, deadline=deadline, fold=fold)
-    return out, {}
+                            monitor=monitor, deadline=deadline, fold=fold, ahead=ahead)
+    return out, dict(ahead=ahead)
+
+
+def _march_causal(prob, options, *, fold, monitor, deadline):
+    return _march(prob, options, fold=fold, monitor=monitor, deadline=deadline, ahead=0)
 
 
 def _newton_krylov(prob, options, *, fold, monitor, deadline):
@@ -62,8 +66,10 @@ def _paper(prob, options, *, fold, monitor, deadline):
 
 #: the solvers by name (``SolveOptions.method``)
 METHODS = {m.name: m for m in (
-    Method("march", _march, "causal marches with the wrap-around fed back (the robust default)",
-           bilinear_only=True),
+    Method("march", _march, "causal marches with the wrap-around fed back, the kernel's first negative "
+           "lags held at the step (the robust default)", bilinear_only=True),
+    Method("march-causal", _march_causal, "the same marches on the plain causal kernel (no look-ahead: "
+           "one sweep more on a BEM table, the same fixed point)", bilinear_only=True),
     Method("newton-krylov", _newton_krylov, "semi-smooth Newton-Krylov on the whole-range residual; "
            "fails from 0.4 g on the Winkler raft", experimental=True),
     Method("paper", _paper, "the paper's quasi-Newton; fails from 0.2 g on the Winkler raft",

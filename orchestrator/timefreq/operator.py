@@ -209,6 +209,23 @@ class InterfaceOperator:
         Y = np.transpose(Y, (2, 1, 0))
         return Y if X.ndim == 3 else Y[0]
 
+    def symmetric(self, rtol: float = 1e-12) -> bool:
+        """S(s) = S(s)^T at every frequency to rtol of its largest entry (a reciprocal soil:
+        symmetric bands, Vr = Vl^T, Zqq symmetric), checked once."""
+        if not hasattr(self, "_symmetric"):
+            def sym(M):              # (..., n, n): one matrix at a time (in cache), exact first
+                M = dense(M) if hasattr(M, "toarray") else M
+                M3 = M.reshape((-1,) + M.shape[-2:])
+                if all(np.array_equal(m, m.T) for m in M3):
+                    return True
+                tol = rtol * np.abs(M3).max(initial=0.0)
+                return all(np.abs(m - m.T).max(initial=0.0) <= tol for m in M3)
+            bands = all(sym(band.ww()) if isinstance(band, DenseBand) else all(sym(M) for M in band.ww())
+                        for band in self.soil.bands)
+            rank6 = np.abs(self.Vr - self.Vl.swapaxes(1, 2)).max() <= rtol * np.abs(self.Vr).max(initial=0.0)
+            self._symmetric = bool(bands and rank6 and sym(self.Zqq))
+        return self._symmetric
+
     def sub_inverse(self, O):
         """SubInverse: S[O, O]^-1 per frequency, applied to (m, F) arrays."""
         return SubInverse(self, np.asarray(O))

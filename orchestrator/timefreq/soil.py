@@ -106,15 +106,20 @@ class AffineBand:
         return a[None] + s[sel][:, None, None] * b[None]
 
     def rows_P(self, s, Bq):
+        (a1, a2, a3), (b1, b2, b3) = self.rows_P_parts(Bq)
+        ss = s[:, None, None]
+        return a1 + ss * b1, a2 + ss * b2, a3 + ss * b3
+
+    def rows_P_parts(self, Bq):
+        """rows_P's three blocks as A's and B's parts, real: ((K[w, :] P, P^T K[:, w], P^T K P)
+        of A, the same of B); rows_P(s) = A's + s B's."""
         out = []
         for M in (dense(self.A), dense(self.B)):
             Vr = M[6:, :6] + M[6:, 6:] @ Bq
             Vl = M[:6, 6:] + Bq.T @ M[6:, 6:]
             KPP = M[:6, :6] + M[:6, 6:] @ Bq + Bq.T @ Vr
             out.append((Vr, Vl, KPP))
-        (a1, a2, a3), (b1, b2, b3) = out
-        ss = s[:, None, None]
-        return a1 + ss * b1, a2 + ss * b2, a3 + ss * b3
+        return tuple(out)
 
 
 def dense(M):

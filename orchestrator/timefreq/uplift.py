@@ -13,7 +13,9 @@ Methods (``SolveOptions.method``, by name from methods.METHODS):
   march starts on the truncated kernel and starts again on the folded one
   (march.kernel_head), causal with the table's damping, if a march diverges (the truncated
   one did on the reactor from 0.6 g). A march that diverges anyway ends DIVERGED. It needs
-  the bilinear grid.
+  the bilinear grid. Its step stiffness holds the kernel's first negative lags at the step
+  (march.AHEAD: on the reactor's table four sweeps instead of five, the same fixed point).
+* "march-causal": the same marches on the plain causal kernel (no look-ahead).
 * "newton-krylov" (EXPERIMENTAL, experimental/newton_krylov.py): semi-smooth Newton on the
   whole-range residual; fails from 0.4 g on the Winkler raft. The only method of the
   continuous grid, where it must be named.
@@ -109,7 +111,7 @@ def _message(method, out, residual, max_seconds) -> str:
     if out.status is SolverStatus.STOPPED:
         return (f"{method} stopped at its time budget ({max_seconds:g} s) after {n} iterations: relative "
                 f"residual {residual:.3e}; the histories are its best iterate")
-    if out.status is SolverStatus.DIVERGED and method == "march":
+    if out.status is SolverStatus.DIVERGED and method.startswith("march"):
         return (f"{method}: {out.reason} in sweep {n}: the soil's causal part on this grid is not passive; "
                 f"the histories are the best iterate (relative residual {residual:.3e}). Newton-Krylov "
                 "(method='newton-krylov') or the monolithic route with the soil's passive rational fit are "

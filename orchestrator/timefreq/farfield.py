@@ -1,0 +1,177 @@
+"""The march's far field: what a finished block of contact displacements adds to the later steps.
+
+The generic way (``generic_far_field``) is one application of S on the grid: the block's d
+zero-padded, windowed FFT, S per frequency, inverse FFT. On a table that reads the dense band
+(~250 MB on the reactor) and multiplies the affine band's A and B with the block's spectrum on
+every frequency above the table (858 frequencies on the reactor, ~40 % of the application).
+
+``AffineSplit`` computes the same sum with the soil's springs and dashpots K_inf = A + s B (the
+affine band's) taken on *all* frequencies: S = K_inf + D - R6_hi, where D = S - K_inf on the
+dense band's frequencies (K_ww - Vr Zqq^-1 Vl - A - s B, the rank-6 structure term folded in;
+zero above) and R6_hi the rank-6 term above the table, Vr Zqq^-1 Vl with Vr and Vl affine in s
+there (products with 6 or 12 columns, no band-sized arrays). On the bilinear grid K_inf's
+periodic kernel is closed form: A at lag 0 only, and s_d = (2/dt)(z - 1)/(z + 1) has h_0 =
+(2/dt)(1 + r)/(1 - r) and h_k = (4/dt)(-1)^k / (1 - r) for 0 < k < nfft, r = (-1)^nfft
+e^{-eta nfft dt} (the alternating tail of the trapezoidal rule's velocity, wrapped around the
+period). So K_inf's far field from a block [a, b) is the rank-one update (-1)^n c B sum_m
+(-1)^m d_m for n >= b, N^2 multiply-adds, and only D and R6_hi go through the FFTs. A
+symmetric S keeps D's upper triangles packed (BLAS packed storage, read by zspmv: half the
+bytes). The same sums in another order: equal to round-off. The kernel head comes from the
+same split (``AffineSplit.kernel``).
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg.blas import zspmv
+
+from orchestrator.timefreq.operator import _span
+from orchestrator.timefreq.soil import AffineBand, DenseBand, dense
+
+#: |h_k - c (-1)^k| <= ALTERNATING_RTOL |c| over the lags 1 .. nt-1 for the closed form to be used
+ALTERNATING_RTOL = 1e-10
+
+
+def generic_far_field(op, grid):
+    """far(x_block, a, b, H): H[:, b:] += (S * x_block)[:, b:] for the block x[:, a:b] (N, b - a),
+    by one application of S on the grid."""
+    N, nt = op.N, grid.nt
+
+    def far(xb, a, b, H):
+        X = np.zeros((N, nt))
+        X[:, a:b] = xb
+        H[:, b:] += grid.to_time(op.apply_S(grid.to_freq(X)))[:, b:]
+    return far
+
+
+class AffineSplit:
+    """The far field with the affine band taken on all frequencies (module notes). ``usable``
+    tells whether the soil and grid allow it: one AffineBand, the other bands dense, the
+    bilinear grid (checked on s's kernel itself)."""
+
+    def __init__(self, op, grid):
+        self.op, self.grid = op, grid
+        bands = op.soil.bands
+        affine = [b for b in bands if isinstance(b, AffineBand)]
+        self.usable = grid.bilinear and len(affine) == 1 and \
+            all(isinstance(b, (AffineBand, DenseBand)) for b in bands)
+        if not self.usable:
+            return
+        nt = grid.nt
+        sig = grid.to_time(op.s, n=nt)                      # the kernel of s on the grid
+        alt = (-1.0) ** np.arange(nt)
+        c = -sig[1] if nt > 1 else 0.0
+        if nt > 1 and not np.abs(sig[1:] - c * alt[1:]).max() <= ALTERNATING_RTOL * abs(c):   # NaN: no
+            self.usable = False
+            return
+        self.c, self.alt = c, alt
+        band = affine[0]
+        self.hi = _span(band.idx)
+        self.s_hi = op.s[band.idx]
+        Aw, Bw = band.ww()
+        self.Aw, self.Bw = Aw, Bw
+        (VrA, VlA, _), (VrB, VlB, _) = band.rows_P_parts(op.Bq)
+        self.VrAB, self.VlAB = np.hstack([VrA, VrB]), np.vstack([VlA, VlB])  # (N, 12), (12, N)
+        self.Zinv_hi = op.Zinv[self.hi]
+        Ad, Bd = dense(Aw), dense(Bw)
+        N = op.N
+        # a symmetric S: D's upper triangles packed column by column (BLAS 'U' packed storage:
+        # half the bytes per application, read by zspmv; the head's DFT on half the entries)
+        self.packed = op.symmetric()
+        self.upper = (np.concatenate([np.arange(j + 1) for j in range(N)]),
+                      np.repeat(np.arange(N), np.arange(1, N + 1))) if self.packed else None
+        self.dense = [(b.idx, self._dense_part(op, b, Ad, Bd, self.upper)) for b in bands if isinstance(b, DenseBand)]
+
+    @staticmethod
+    def _dense_part(op, band, A, B, upper=None, chunk=16):
+        """S - (A + s B) on a dense band's frequencies: K_ww - Vr Zqq^-1 Vl - A - s B, (Fb, N, N)
+        complex, or with ``upper`` (row and column indices of the upper triangle, column by
+        column) its packed upper triangles (Fb, N (N + 1) / 2); ``chunk`` frequencies at a time
+        (no band-sized temporaries)."""
+        K, idx, s = band.ww(), band.idx, op.s[band.idx]
+        N = K.shape[1]
+        D = np.empty((idx.size, N, N) if upper is None else (idx.size, upper[0].size), complex)
+        for j0 in range(0, idx.size, chunk):
+            j = slice(j0, j0 + chunk)
+            f = idx[j]
+            Dj = op.Vr[f] @ op.ZV[f]
+            np.subtract(K[j], Dj, out=Dj)
+            Dj -= A
+            Dj -= s[j, None, None] * B
+            D[j] = Dj if upper is None else Dj[:, upper[0], upper[1]]
+        return D
+
+    def kernel(self, n_lags: int, n_ahead: int = 0):
+        """S's grid kernel (kernel_lags without fold, to round-off) from the split: (head
+        (n_lags, N, N), ahead (n_ahead, N, N)), h_0 .. h_{n_lags-1} and h_{-1} .. h_{-n_ahead}.
+        A at lag 0 and B times s's scalar kernel; D by a direct inverse DFT restricted to the
+        dense bands' frequencies (one GEMM over all N^2 entries); the rank-6 term above the
+        table from its affine parts and three 6 x 6 kernels of Zqq^-1, s Zqq^-1, s^2 Zqq^-1."""
+        op, g = self.op, self.grid
+        nf, F = g.nfft, op.s.size
+        k = np.arange(n_lags)
+        ka = np.arange(1, n_ahead + 1)
+        n = np.concatenate([k, nf - ka])                                    # grid indices
+        w = np.exp(g.eta * g.dt * np.concatenate([k, -ka]))                 # the window undone
+        f = np.arange(F)
+        c = np.where((f == 0) | (2 * f == nf), 1.0, 2.0) / nf                # irfft's weights
+        E = c[:, None] * np.exp(2j * np.pi * np.outer(f, n) / nf) * w       # (F, L): h = Re(E^T X)
+        L = n.size
+        N = op.N
+        out = np.zeros((L, N, N))
+        sig = np.real(E.T @ op.s)                                           # s's kernel (L,)
+        out += sig[:, None, None] * dense(self.Bw)[None]
+        out += np.real(E.sum(axis=0))[:, None, None] * dense(self.Aw)[None]   # delta_0, to round-off
+        for idx, D in self.dense:
+            h = np.real(np.tensordot(E[idx], D, axes=(0, 0)))
+            if self.packed:
+                i, j = self.upper
+                out[:, i, j] += h
+                off = i != j
+                out[:, j[off], i[off]] += h[:, off]
+            else:
+                out += h
+        Eh, sh = E[self.hi], self.s_hi
+        Z = [np.real(np.tensordot(Eh, self.Zinv_hi * sh[:, None, None] ** j, axes=(0, 0))) for j in range(3)]
+        M = np.block([[Z[0], Z[1]], [Z[1], Z[2]]])                          # (L, 12, 12)
+        out -= (self.VrAB @ M) @ self.VlAB
+        return out[:n_lags], out[n_lags:]
+
+    def __call__(self, xb, a, b, H):
+        """H[:, b:] += (S * x_block)[:, b:] for the block x[:, a:b] (N, b - a)."""
+        op, g = self.op, self.grid
+        op.n_apply += 1
+        X = g.to_freq(xb, start=a)                                            # (N, F)
+        Y = np.empty_like(X)
+        # above the table: the rank-6 term from its affine parts, S + R6 = A + s B there
+        Xh = _real_view(X[:, self.hi])                                       # (N, 2 F_hi)
+        U = (self.VlAB @ Xh).view(complex)                                   # [VlA; VlB] X: (12, F_hi)
+        u = U[:6] + U[6:] * self.s_hi
+        t = np.matmul(self.Zinv_hi, u.T[:, :, None])[:, :, 0].T              # (6, F_hi)
+        T = np.concatenate([t, t * self.s_hi])                               # (12, F_hi)
+        Y[:, self.hi] = -(self.VrAB @ _real_view(T)).view(complex)
+
+        def dense_task(idx, D, h):
+            def run():
+                i = _span(idx[h])
+                Xl = np.ascontiguousarray(X[:, i].T)                         # (Fc, N)
+                if self.packed:
+                    n, Dh = Xl.shape[1], D[h]
+                    Y[:, i] = np.array([zspmv(n, 1.0, Dh[j], Xl[j]) for j in range(Xl.shape[0])]).T
+                else:
+                    Y[:, i] = (D[h] @ Xl[:, :, None])[:, :, 0].T
+            return run
+        tasks = []
+        for idx, D in self.dense:
+            tasks += [dense_task(idx, D, h) for h in op.pool.chunks(idx.size)]
+        if tasks:
+            op.pool.run(tasks)
+        y = g.to_time(Y, start=b)                                            # (N, nt - b)
+        gamma = xb @ self.alt[a:b]                                           # sum_m (-1)^m d_m
+        y += (self.c * (self.Bw @ gamma))[:, None] * self.alt[None, b:]
+        H[:, b:] += y
+
+
+def _real_view(Z):
+    """A complex (m, n) array as float (m, 2 n) (no copy if C-contiguous)."""
+    Z = np.ascontiguousarray(Z)
+    return Z.view(float).reshape(Z.shape[0], 2 * Z.shape[1])
