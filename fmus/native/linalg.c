@@ -24,6 +24,12 @@
 #define UP_WIDE
 #endif
 
+/* eight partial sums folded, the same at every width */
+static inline double fold8(const double *s)
+{
+    return ((s[0] + s[1]) + (s[2] + s[3])) + ((s[4] + s[5]) + (s[6] + s[7]));
+}
+
 /* a . b with eight partial sums: independent chains in vector registers (two of four, or one of
    eight lanes), the same sums at every width; inlined into the loops that call it */
 static inline double dot(const double *restrict a, const double *restrict b, int n)
@@ -35,7 +41,7 @@ static inline double dot(const double *restrict a, const double *restrict b, int
             s[k] += a[i + k] * b[i + k];
     for (; i < n; i++)
         s[0] += a[i] * b[i];
-    return ((s[0] + s[1]) + (s[2] + s[3])) + ((s[4] + s[5]) + (s[6] + s[7]));
+    return fold8(s);
 }
 
 UP_WIDE int up_lu(double *A, int *piv, int n)
@@ -117,6 +123,65 @@ UP_WIDE void up_lu_solve(const double *LU, const int *piv, int n, double *b)
         const double *ri = LU + (size_t)i * n;
         b[i] = (b[i] - dot(ri + i + 1, b + i + 1, n - i - 1)) / ri[i];
     }
+}
+
+/* B <- A^-1 B for B (n, k) row-major, from the LU of A (up_lu): the substitutions row by row of B
+   (each row of B updated by the rows above / below it, along its k entries: no reduction) */
+UP_WIDE void up_lu_solve_many(const double *LU, const int *piv, int n, double *B, int k)
+{
+    for (int i = 0; i < n; i++)
+        if (piv[i] != i) {
+            double *a = B + (size_t)i * k, *b = B + (size_t)piv[i] * k;
+            for (int j = 0; j < k; j++) {
+                double t = a[j];
+                a[j] = b[j];
+                b[j] = t;
+            }
+        }
+    for (int i = 1; i < n; i++) {
+        double *restrict bi = B + (size_t)i * k;
+        const double *li = LU + (size_t)i * n;
+        for (int p = 0; p < i; p++) {
+            const double *restrict bp = B + (size_t)p * k;
+            double l = li[p];
+            if (l != 0.0)
+                for (int j = 0; j < k; j++)
+                    bi[j] -= l * bp[j];
+        }
+    }
+    for (int i = n - 1; i >= 0; i--) {
+        double *restrict bi = B + (size_t)i * k;
+        const double *ui = LU + (size_t)i * n;
+        for (int p = i + 1; p < n; p++) {
+            const double *restrict bp = B + (size_t)p * k;
+            double u = ui[p];
+            if (u != 0.0)
+                for (int j = 0; j < k; j++)
+                    bi[j] -= u * bp[j];
+        }
+        double d = ui[i];
+        for (int j = 0; j < k; j++)
+            bi[j] /= d;
+    }
+}
+
+/* inv <- A^-1 (n, n) from the LU of A (up_lu). With P not NULL (A symmetric), inv is made
+   symmetric, (inv + inv^T) / 2, and packed into P (up_pack_sym): the round-off of the solves is
+   the only asymmetry. */
+void up_inverse(const double *LU, const int *piv, int n, double *inv, double *P)
+{
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < n; j++)
+            inv[(size_t)i * n + j] = i == j ? 1.0 : 0.0;
+    up_lu_solve_many(LU, piv, n, inv, n);
+    if (!P)
+        return;
+    for (int i = 0; i < n; i++)
+        for (int j = i + 1; j < n; j++) {
+            double m = 0.5 * (inv[(size_t)i * n + j] + inv[(size_t)j * n + i]);
+            inv[(size_t)i * n + j] = inv[(size_t)j * n + i] = m;
+        }
+    up_pack_sym(inv, n, P);
 }
 
 UP_WIDE void up_matvec(const double *A, int rows, int cols, const double *x, double *y)
@@ -235,17 +300,70 @@ UP_WIDE void up_gemv_t2(const double *restrict At, int rows, int cols, const dou
 /* y += P x for a symmetric (n, n) matrix held packed: its upper triangle row by row (row i:
    the n - i entries from the diagonal). Each entry is read once and used twice: in the dot
    product of its row (y_i) and in the update of the rows below (y_j += P_ij x_i, j > i), so
-   the memory traffic is half a full product's. */
+   the memory traffic is half a full product's. Four rows in one pass: the 4 x 4 block on the
+   diagonal first, then the columns right of it, where each column's four entries update y_j
+   in the order of the rows and feed the four rows' dot products (eight partial sums each,
+   lanes by the column's offset from the block's edge): four independent sums in flight and
+   y_j loaded and stored once per four rows; the remainder rows one by one. The same sums in
+   the same order at every vector width. */
 UP_WIDE void up_spmv_add(const double *restrict P, int n, const double *restrict x, double *restrict y)
 {
-    for (int i = 0; i < n; i++) {
+    int i = 0;
+    for (; i + 4 <= n; i += 4) {
         int len = n - i;
-        const double *restrict r = P;
+        const double *r0 = P, *r1 = r0 + len, *r2 = r1 + len - 1, *r3 = r2 + len - 2;  /* r_a[0]: (i+a, i+a) */
+        double x0 = x[i], x1 = x[i + 1], x2 = x[i + 2], x3 = x[i + 3];
+        double d0 = ((r0[0] * x0 + r0[1] * x1) + r0[2] * x2) + r0[3] * x3;
+        double d1 = (r1[0] * x1 + r1[1] * x2) + r1[2] * x3;
+        double d2 = r2[0] * x2 + r2[1] * x3;
+        double d3 = r3[0] * x3;
+        double y1 = y[i + 1] + x0 * r0[1];
+        double y2 = (y[i + 2] + x0 * r0[2]) + x1 * r1[1];
+        double y3 = ((y[i + 3] + x0 * r0[3]) + x1 * r1[2]) + x2 * r2[1];
+        const double *restrict a0 = r0 + 4, *restrict a1 = r1 + 3, *restrict a2 = r2 + 2, *restrict a3 = r3 + 1;
+        const double *restrict xr = x + i + 4;
+        double *restrict yr = y + i + 4;
+        double s0[8] = {0.0}, s1[8] = {0.0}, s2[8] = {0.0}, s3[8] = {0.0};
+        int m = len - 4, j = 0;
+        for (; j + 8 <= m; j += 8)
+            for (int k = 0; k < 8; k++) {
+                double xv = xr[j + k], v0 = a0[j + k], v1 = a1[j + k], v2 = a2[j + k], v3 = a3[j + k];
+                s0[k] += v0 * xv;
+                s1[k] += v1 * xv;
+                s2[k] += v2 * xv;
+                s3[k] += v3 * xv;
+                double t = yr[j + k];
+                t += x0 * v0;
+                t += x1 * v1;
+                t += x2 * v2;
+                t += x3 * v3;
+                yr[j + k] = t;
+            }
+        for (; j < m; j++) {
+            double xv = xr[j], v0 = a0[j], v1 = a1[j], v2 = a2[j], v3 = a3[j];
+            s0[0] += v0 * xv;
+            s1[0] += v1 * xv;
+            s2[0] += v2 * xv;
+            s3[0] += v3 * xv;
+            double t = yr[j];
+            t += x0 * v0;
+            t += x1 * v1;
+            t += x2 * v2;
+            t += x3 * v3;
+            yr[j] = t;
+        }
+        y[i] += d0 + fold8(s0);
+        y[i + 1] = y1 + (d1 + fold8(s1));
+        y[i + 2] = y2 + (d2 + fold8(s2));
+        y[i + 3] = y3 + (d3 + fold8(s3));
+        P = r3 + len - 3;
+    }
+    for (; i < n; i++) {
+        int len = n - i;
         double xi = x[i];
-        y[i] += dot(r, x + i, len);
-        double *restrict yi = y + i;
+        y[i] += dot(P, x + i, len);
         for (int j = 1; j < len; j++)
-            yi[j] += xi * r[j];
+            y[i + j] += xi * P[j];
         P += len;
     }
 }

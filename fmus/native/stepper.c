@@ -43,6 +43,20 @@ static int finite_all(const double *a, size_t n)
     return 1;
 }
 
+/* A (n, n) symmetric to round-off: |A_ij - A_ji| <= 1e-12 max |A| (an assembled stiffness is
+   symmetric but for the last bits of its products) */
+static int symmetric(const double *A, int n)
+{
+    double big = 0.0, off = 0.0;
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < n; j++) {
+            double a = fabs(A[(size_t)i * n + j]), d = fabs(A[(size_t)i * n + j] - A[(size_t)j * n + i]);
+            big = a > big ? a : big;
+            off = d > off ? d : off;
+        }
+    return off <= 1e-12 * big;
+}
+
 int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, char *err)
 {
     memset(s, 0, sizeof *s);
@@ -94,23 +108,26 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
             snprintf(err, UP_MSG, "resource file %s: contact penalty kp[%d] = %g must be > 0", r->path, i, s->kp[i]);
             return -1;
         }
+    s->sym = symmetric(s->Ks, ns_) && symmetric(s->Cs, ns_) && soil->Ep != NULL;
     int ok = up_sparse_init(&s->Ks_sp, s->Ks, ns_, ns_) == 0 && up_sparse_init(&s->Cs_sp, s->Cs, ns_, ns_) == 0;
     for (int l = 0; ok && l < s->nlev; l++) {
         UpSystem *y = &s->sys[l];
         y->AII = (double *)malloc(((size_t)ni * ni + 1) * sizeof(double));
-        y->piv = (int *)malloc(((size_t)ni + 1) * sizeof(int));
+        y->AIIp = (double *)malloc(((size_t)ni * (ni + 1) / 2 + 1) * sizeof(double));
         y->ABI = (double *)malloc(((size_t)nb * ni + 1) * sizeof(double));
         y->X = (double *)malloc(((size_t)ni * nb + 1) * sizeof(double));
         y->S0 = (double *)malloc((size_t)nb * nb * sizeof(double));
+        y->S0p = (double *)malloc(((size_t)nb * (nb + 1) / 2 + 1) * sizeof(double));
         y->K0C = (double *)malloc((size_t)nb * nb * sizeof(double));
         y->K0Cp = (double *)malloc(((size_t)nb * (nb + 1) / 2 + 1) * sizeof(double));
-        ok = y->AII && y->piv && y->ABI && y->X && y->S0 && y->K0C && y->K0Cp;
+        ok = y->AII && y->AIIp && y->ABI && y->X && y->S0 && y->S0p && y->K0C && y->K0Cp;
         for (int c = 0; ok && c < 2; c++) {
             y->Jb[c] = (double *)malloc((size_t)nb * nb * sizeof(double));
-            y->pb[c] = (int *)malloc((size_t)nb * sizeof(int));
+            y->Jp[c] = (double *)malloc(((size_t)nb * (nb + 1) / 2 + 1) * sizeof(double));
+            y->Jd[c] = (double *)malloc((size_t)nb * sizeof(double));
             y->Z[c] = (double *)malloc(((size_t)Ni * nb + 1) * sizeof(double));
             y->W[c] = (double *)malloc(((size_t)Ni * Ni + 1) * sizeof(double));
-            ok = y->Jb[c] && y->pb[c] && y->Z[c] && y->W[c];
+            ok = y->Jb[c] && y->Jp[c] && y->Jd[c] && y->Z[c] && y->W[c];
         }
     }
     s->cache_lu = (double *)malloc(((size_t)UP_NCACHE * Ni * Ni + 1) * sizeof(double));
@@ -132,10 +149,14 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
     for (int k = 0; ok && k < 6; k++)
         ok = (s->w_N[k] = (double *)calloc((size_t)Ni + 1, sizeof(double))) != NULL;
     if (ok) {
+        size_t big = (size_t)(ni > nb ? ni : nb);
+        s->lu = (double *)malloc((big * big + 1) * sizeof(double));
+        s->rhs = (double *)malloc((big * big + 1) * sizeof(double));
+        s->lu_piv = (int *)malloc((big + 1) * sizeof(int));
         s->hbuf = (double *)calloc((size_t)s->nlev * nb, sizeof(double));
         s->act = (unsigned char *)calloc((size_t)Ni + 1, 1);
         s->act_new = (unsigned char *)calloc((size_t)Ni + 1, 1);
-        ok = s->hbuf && s->act && s->act_new;
+        ok = s->lu && s->rhs && s->lu_piv && s->hbuf && s->act && s->act_new;
     }
     if (!ok) {
         up_stepper_free(s);
@@ -150,15 +171,17 @@ void up_stepper_free(UpStepper *s)
     for (int l = 0; l < UP_MAXLEV; l++) {
         UpSystem *y = &s->sys[l];
         free(y->AII);
-        free(y->piv);
+        free(y->AIIp);
         free(y->ABI);
         free(y->X);
         free(y->S0);
+        free(y->S0p);
         free(y->K0C);
         free(y->K0Cp);
         for (int c = 0; c < 2; c++) {
             free(y->Jb[c]);
-            free(y->pb[c]);
+            free(y->Jp[c]);
+            free(y->Jd[c]);
             free(y->Z[c]);
             free(y->W[c]);
         }
@@ -179,6 +202,9 @@ void up_stepper_free(UpStepper *s)
         free(s->w_nb[k]);
     for (int k = 0; k < 6; k++)
         free(s->w_N[k]);
+    free(s->lu);
+    free(s->rhs);
+    free(s->lu_piv);
     free(s->hbuf);
     free(s->act);
     free(s->act_new);
@@ -252,11 +278,13 @@ static const UpSystem *system_at(UpStepper *s, int lev)
     y->c2 = 1 / (b * dt);
     y->c3 = 1 / (2 * b) - 1;
     int ns = s->ns, ni = s->ni, nb = s->nb;
-    /* the blocks of A = diag(c0 M) + (1 + al)(K + c1 C), K = Ks + K0 and C = Cs + E embedded */
+    /* the blocks of A = diag(c0 M) + (1 + al)(K + c1 C), K = Ks + K0 and C = Cs + E embedded;
+       A_II factorised in the set-up's work (s->lu) */
+    double *LU = s->lu;
     for (int i = 0; i < ni; i++)
         for (int j = 0; j < ni; j++) {
             double k = s->Ks[(size_t)i * ns + j], c = s->Cs[(size_t)i * ns + j];
-            y->AII[(size_t)i * ni + j] = (1 + al) * (k + y->c1 * c) + (i == j ? y->c0 * s->M[i] : 0.0);
+            LU[(size_t)i * ni + j] = (1 + al) * (k + y->c1 * c) + (i == j ? y->c0 * s->M[i] : 0.0);
         }
     for (int i = 0; i < nb; i++)
         for (int j = 0; j < ni; j++) {
@@ -275,7 +303,7 @@ static const UpSystem *system_at(UpStepper *s, int lev)
             }
             S0[(size_t)i * nb + j] = (1 + al) * (k + y->c1 * c) + (i == j ? y->c0 * s->M[gi] : 0.0);
         }
-    if (ni > 0 && up_lu(y->AII, y->piv, ni))
+    if (ni > 0 && up_lu(LU, s->lu_piv, ni))
         return NULL;
     /* X = A_II^-1 A_IB, column by column; only the columns of the raft DOFs are not zero */
     memset(y->X, 0, (size_t)ni * nb * sizeof(double));
@@ -289,10 +317,13 @@ static const UpSystem *system_at(UpStepper *s, int lev)
         }
         if (!any)
             continue;
-        up_lu_solve(y->AII, y->piv, ni, col);
+        up_lu_solve(LU, s->lu_piv, ni, col);
         for (int i = 0; i < ni; i++)
             y->X[(size_t)i * nb + j] = col[i];
     }
+    /* A_II^-1 itself: a step's solve is then one product (packed: half the memory traffic) */
+    if (ni > 0)
+        up_inverse(LU, s->lu_piv, ni, y->AII, s->sym ? y->AIIp : NULL);
     y->abi_rows = y->x_cols = 0;
     for (int i = 0; i < nb; i++)
         for (int k = 0; k < ni; k++)
@@ -312,6 +343,14 @@ static const UpSystem *system_at(UpStepper *s, int lev)
             for (int j = 0; j < nb; j++)
                 si[j] -= a * xk[j];
         }
+    if (s->sym) {                                         /* symmetric but for the round-off of A_BI X */
+        for (int i = 0; i < nb; i++)
+            for (int j = i + 1; j < nb; j++) {
+                double m = 0.5 * (S0[(size_t)i * nb + j] + S0[(size_t)j * nb + i]);
+                S0[(size_t)i * nb + j] = S0[(size_t)j * nb + i] = m;
+            }
+        up_pack_sym(S0, nb, y->S0p);
+    }
     for (size_t i = 0; i < (size_t)nb * nb; i++)
         y->K0C[i] = sl->D0[i] + y->c1 * s->soil->E[i];
     up_pack_sym(y->K0C, nb, y->K0Cp);                     /* symmetric when E is (D0 is) */
@@ -376,24 +415,17 @@ static void residual(const UpStepper *s, const double *Sx, const double *x, cons
    Only C is factorised per active set ((2/3) k^3 instead of (2/3) nb^3), kept per (level, active
    set) in the cache (least recently used replaced). Every number depends on the level and the
    active set only, never on what the cache held before: a replayed step is the same bit for bit. */
-static void direction(const UpStepper *s, int i, double *b)
-{
-    memset(b, 0, (size_t)s->nb * sizeof(double));
-    memcpy(b + 2, s->Bq3 + 3 * (size_t)i, 3 * sizeof(double));
-    b[6 + i] = -1.0;
-}
-
 static double along(const UpStepper *s, int i, const double *x)
 {
     const double *b = s->Bq3 + 3 * (size_t)i;
     return ((b[0] * x[2] + b[1] * x[3]) + b[2] * x[4]) - x[6 + i];
 }
 
-/* base c of level lev: its LU, Z and W; 0, or -1 when singular */
+/* base c of level lev: its inverse, Z and W; 0, or -1 when singular */
 static int base_at(UpStepper *s, UpSystem *y, int c)
 {
     int N = s->N, nb = s->nb;
-    double *J = y->Jb[c];
+    double *J = s->lu, *Ji = y->Jb[c];
     memcpy(J, y->S0, (size_t)nb * nb * sizeof(double));
     for (int i = 0; c == 0 && i < N; i++) {
         double si = (1 + s->alpha) * s->kp[i];
@@ -407,14 +439,39 @@ static int base_at(UpStepper *s, UpSystem *y, int c)
         }
         J[(size_t)(6 + i) * nb + 6 + i] += si;
     }
-    s->n_factorisations++;
-    if (up_lu(J, y->pb[c], nb))
-        return -1;
-    for (int i = 0; i < N; i++) {
-        double *z = y->Z[c] + (size_t)i * nb;
-        direction(s, i, z);
-        up_lu_solve(J, y->pb[c], nb, z);
+    /* scaled by powers of two (exact) to a unit diagonal, d_r ~ |J_rr|^-1/2: the inverse of the
+       scaled base is symmetric to round-off of its own size, so its two triangles can be
+       averaged and packed (unscaled, the penalty's large entries leave the small ones of the
+       inverse with round-off of the large ones') */
+    double *d = y->Jd[c];
+    for (int r = 0; r < nb; r++) {
+        double jr = fabs(J[(size_t)r * nb + r]);
+        d[r] = jr > 0.0 && isfinite(jr) ? ldexp(1.0, -ilogb(jr) / 2) : 1.0;
     }
+    for (int r = 0; r < nb; r++)
+        for (int q = 0; q < nb; q++)
+            J[(size_t)r * nb + q] *= d[r] * d[q];
+    s->n_factorisations++;
+    if (up_lu(J, s->lu_piv, nb))
+        return -1;
+    up_inverse(J, s->lu_piv, nb, Ji, s->sym ? y->Jp[c] : NULL);
+    /* Z_i = base^-1 b_i, b_i = Bq3_i on q[2:5] and -1 on w_i: solved from the LU (a combination of
+       the inverse's columns would lose digits: the penalty couples them strongly) */
+    double *B = s->rhs;                                   /* (nb, N): column i is b_i */
+    memset(B, 0, (size_t)nb * N * sizeof(double));
+    for (int i = 0; i < N; i++) {
+        const double *b = s->Bq3 + 3 * (size_t)i;
+        for (int r = 0; r < 3; r++)
+            B[(size_t)(2 + r) * N + i] = b[r];
+        B[(size_t)(6 + i) * N + i] = -1.0;
+    }
+    for (int r = 0; r < nb; r++)
+        for (int i = 0; i < N; i++)
+            B[(size_t)r * N + i] *= d[r];
+    up_lu_solve_many(J, s->lu_piv, nb, B, N);
+    for (int i = 0; i < N; i++)
+        for (int r = 0; r < nb; r++)
+            y->Z[c][(size_t)i * nb + r] = d[r] * B[(size_t)r * N + i];
     for (int i = 0; i < N; i++)
         for (int j = 0; j < N; j++)
             y->W[c][(size_t)i * N + j] = along(s, i, y->Z[c] + (size_t)j * nb);
@@ -473,7 +530,13 @@ static int newton_solve(UpStepper *s, int lev, const unsigned char *act, double 
     const UpSystem *y = &s->sys[lev];
     int N = s->N, nb = s->nb, c = s->cache_base[slot], k = s->cache_k[slot];
     const int *K = s->cache_nodes + (size_t)slot * N;
-    up_lu_solve(y->Jb[c], y->pb[c], nb, x);
+    double *yb = s->w_nb[7];                              /* free during the Newton iteration */
+    const double *d = y->Jd[c];
+    for (int r = 0; r < nb; r++)
+        x[r] *= d[r];
+    up_symv(y->Jb[c], s->sym ? y->Jp[c] : NULL, nb, x, yb);      /* base^-1 = D (D base D)^-1 D */
+    for (int r = 0; r < nb; r++)
+        x[r] = d[r] * yb[r];
     if (k == 0)
         return 0;
     double *t = s->w_N[3];
@@ -585,9 +648,8 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
     /* condensation: y = A_II^-1 rhs_I, r_hat = rhs_B - A_BI y */
     double *yI = u_new, *r_hat = s->w_nb[0], *uB = s->w_nb[1], *gv = s->w_nb[2], *dx = s->w_nb[3];
     double *xn = s->w_nb[4], *gn = s->w_nb[5];
-    memcpy(yI, rhs, (size_t)ni * sizeof(double));
     if (ni > 0)
-        up_lu_solve(y->AII, y->piv, ni, yI);
+        up_symv(y->AII, s->sym ? y->AIIp : NULL, ni, rhs, yI);
     up_matvec(y->ABI, y->abi_rows, ni, yI, r_hat);
     for (int i = 0; i < nb; i++)
         r_hat[i] = rhs[ni + i] - (i < y->abi_rows ? r_hat[i] : 0.0);
@@ -607,7 +669,7 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
         scale = scale > p0 ? scale : p0;
         scale = scale > 1.0 ? scale : 1.0;
         double tol = s->tol * scale;
-        up_matvec(y->S0, nb, nb, uB, Sx);
+        up_symv(y->S0, s->sym ? y->S0p : NULL, nb, uB, Sx);
         residual(s, Sx, uB, r_hat, gv, s->act);
         int conv = 0;
         for (int it = 0; it < s->max_iter; it++) {
@@ -734,11 +796,11 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
     return 0;
 }
 
-/* one (sub)step of size dt / 2**depth, halved on a Newton failure */
+/* one (sub)step of size dt / 2**depth, halved on a Newton failure. advance writes the state
+   only when it succeeds, so the state is copied (to depth's slot of saves) only before a halving,
+   and a span that fails leaves the state as it found it. */
 static int span(UpStepper *s, int depth, const double *ag0, const double *ag1, const double *h_in, int *iters)
 {
-    double *saved = s->saves + (size_t)depth * s->block_len;
-    memcpy(saved, s->block, s->block_len * sizeof(double));
     const double *h = h_in;
     if (!s->external) {
         double *hd = s->hbuf + (size_t)depth * s->nb;
@@ -752,7 +814,6 @@ static int span(UpStepper *s, int depth, const double *ag0, const double *ag1, c
         *iters += it;
         return 0;
     }
-    memcpy(s->block, saved, s->block_len * sizeof(double));
     double dt = s->sys[depth].ready ? s->sys[depth].dt : s->sys[0].dt;
     if (depth >= s->max_subdiv) {
         snprintf(s->err, UP_MSG, "Newton contact iteration failed at t = %.6g s (step %.3g s after %d halvings), "
@@ -761,12 +822,15 @@ static int span(UpStepper *s, int depth, const double *ag0, const double *ag1, c
         return -1;
     }
     s->last_halved = 1;
+    double *saved = s->saves + (size_t)depth * s->block_len;
+    memcpy(saved, s->block, s->block_len * sizeof(double));
     double agm[3];
     for (int k = 0; k < 3; k++)
         agm[k] = 0.5 * (ag0[k] + ag1[k]);
-    if (span(s, depth + 1, ag0, agm, h_in, iters))
-        return -1;
-    return span(s, depth + 1, agm, ag1, h_in, iters);
+    if (span(s, depth + 1, ag0, agm, h_in, iters) == 0 && span(s, depth + 1, agm, ag1, h_in, iters) == 0)
+        return 0;
+    memcpy(s->block, saved, s->block_len * sizeof(double));
+    return -1;
 }
 
 int up_stepper_prepare(UpStepper *s, char *err)
@@ -786,10 +850,8 @@ int up_stepper_step(UpStepper *s)
     int iters = 0;
     s->last_iters = 0;
     s->last_halved = 0;
-    if (span(s, 0, ag0, ag1, s->external ? s->h_ext : NULL, &iters)) {
-        memcpy(s->block, s->saves, s->block_len * sizeof(double));
-        return -1;
-    }
+    if (span(s, 0, ag0, ag1, s->external ? s->h_ext : NULL, &iters))
+        return -1;                                        /* the state as it was */
     s->last_iters = iters;
     return 0;
 }
