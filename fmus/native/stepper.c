@@ -354,8 +354,7 @@ static const UpSystem *system_at(UpStepper *s, int lev)
     for (size_t i = 0; i < (size_t)nb * nb; i++)
         y->K0C[i] = sl->D0[i] + y->c1 * s->soil->E[i];
     up_pack_sym(y->K0C, nb, y->K0Cp);                     /* symmetric when E is (D0 is) */
-    y->base_ok[0] = base_at(s, y, 0) == 0;
-    y->base_ok[1] = base_at(s, y, 1) == 0;
+    y->base_ok[0] = y->base_ok[1] = 0;                    /* built when first needed (base) */
     y->ready = 1;
     return y;
 }
@@ -478,6 +477,15 @@ static int base_at(UpStepper *s, UpSystem *y, int c)
     return 0;
 }
 
+/* 1 when base c of the level is usable, built on first use (its numbers are the same whenever
+   it is built); 0 when it is singular */
+static int base(UpStepper *s, UpSystem *y, int c)
+{
+    if (y->base_ok[c] == 0)
+        y->base_ok[c] = base_at(s, y, c) == 0 ? 1 : -1;
+    return y->base_ok[c] > 0;
+}
+
 /* the cache slot of (lev, act): its base, nodes K and the LU of C; -1 when singular */
 static int capacitance(UpStepper *s, int lev, const unsigned char *act)
 {
@@ -495,8 +503,8 @@ static int capacitance(UpStepper *s, int lev, const unsigned char *act)
     int closed = 0;
     for (int i = 0; i < N; i++)
         closed += act[i] != 0;
-    int c = y->base_ok[1] && closed < N - closed ? 1 : 0;     /* the nearer base: all open (1), all closed (0) */
-    if (!y->base_ok[c])
+    int c = closed < N - closed && base(s, y, 1) ? 1 : 0;     /* the nearer base: all open (1), all closed (0) */
+    if (!base(s, y, c))
         return -1;
     int *K = s->cache_nodes + (size_t)slot * N, k = 0;
     for (int i = 0; i < N; i++)

@@ -248,7 +248,7 @@ typedef struct {
     double *Jp[2];            /* the same packed, when sym */
     double *Z[2];             /* (N, nb) row i: base^-1 b_i, b_i node i's contact direction */
     double *W[2];             /* (N, N) b_i . Z_j */
-    int base_ok[2];           /* 0 when that base is singular */
+    int base_ok[2];           /* 1 built, -1 singular, 0 not built yet (built when first needed) */
 } UpSystem;
 
 typedef struct {
