@@ -14,25 +14,94 @@
 #define LU_BLOCK 32
 
 /* The hot loops (the history product, the LU's trailing update) run along contiguous rows with
-   no reduction, so the compiler vectorises them without reassociating anything: the result is
-   the same at every vector width. Baseline x86-64 code (SSE2) for every machine; on ELF x86-64
-   with GCC or clang, AVX2 and AVX-512 versions too, picked at load time by the CPU's features
-   (target_clones). */
-#if defined(__x86_64__) && defined(__ELF__) && defined(__GNUC__) && !defined(UP_BASELINE_ONLY)
-#define UP_WIDE __attribute__((target_clones("avx512f", "avx2", "default")))
+   no reduction, or with eight fixed partial sums, so the compiler vectorises them without
+   reassociating anything: the result is the same at every vector width. Baseline x86-64 code
+   (SSE2) for every machine; on x86-64 with GCC or clang (zig cc), AVX2 and AVX-512 versions of
+   each kernel too, and the widest one the CPU and the OS support is called (cpuid, xgetbv: our
+   own test, as the compiler runtime's is not reliable everywhere: zig's reports no feature, so
+   target_clones ran the baseline). */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(UP_BASELINE_ONLY)
+#define UP_DISPATCH 1
+#include <cpuid.h>
+#define UP_BODY static inline __attribute__((always_inline))
 #else
-#define UP_WIDE
+#define UP_BODY static inline
 #endif
 
+#ifdef UP_DISPATCH
+/* 2: AVX-512F, 1: AVX2, 0: SSE2 only (each with its register state enabled by the OS) */
+static int cpu_detect(void)
+{
+    unsigned a, b, c, d, lo, hi;
+    if (!__get_cpuid(1, &a, &b, &c, &d) || !(c & (1u << 27)) || !(c & (1u << 28)))   /* OSXSAVE, AVX */
+        return 0;
+    __asm__ volatile("xgetbv" : "=a"(lo), "=d"(hi) : "c"(0));
+    if ((lo & 6u) != 6u || __get_cpuid_max(0, NULL) < 7)                              /* XMM, YMM state */
+        return 0;
+    __cpuid_count(7, 0, a, b, c, d);
+    if (!(b & (1u << 5)))                                                             /* AVX2 */
+        return 0;
+    return (b & (1u << 16)) && (lo & 0xE6u) == 0xE6u ? 2 : 1;     /* AVX-512F, opmask and ZMM state */
+}
+
+/* detected on first use; threads that race here write the same value */
+static int cpu_level(void)
+{
+    static int level = -1;
+    if (level < 0)
+        level = cpu_detect();
+    return level;
+}
+
+/* the kernel name##_k (UP_BODY, inlined into each) compiled for AVX-512, AVX2 and the baseline,
+   and the function name calling the one for this CPU */
+#define UP_KERNEL(name, params, args)                                                              \
+    __attribute__((target("avx512f"))) static void name##_avx512 params { name##_k args; }         \
+    __attribute__((target("avx2"))) static void name##_avx2 params { name##_k args; }              \
+    static void name##_sse2 params { name##_k args; }                                              \
+    void name params                                                                               \
+    {                                                                                              \
+        int level = cpu_level();                                                                   \
+        if (level == 2)                                                                            \
+            name##_avx512 args;                                                                    \
+        else if (level == 1)                                                                       \
+            name##_avx2 args;                                                                      \
+        else                                                                                       \
+            name##_sse2 args;                                                                      \
+    }
+#define UP_KERNEL_INT(name, params, args)                                                          \
+    __attribute__((target("avx512f"))) static int name##_avx512 params { return name##_k args; }  \
+    __attribute__((target("avx2"))) static int name##_avx2 params { return name##_k args; }       \
+    static int name##_sse2 params { return name##_k args; }                                       \
+    int name params                                                                                \
+    {                                                                                              \
+        int level = cpu_level();                                                                   \
+        return level == 2 ? name##_avx512 args : level == 1 ? name##_avx2 args : name##_sse2 args; \
+    }
+#else
+#define UP_KERNEL(name, params, args) void name params { name##_k args; }
+#define UP_KERNEL_INT(name, params, args) int name params { return name##_k args; }
+#endif
+
+/* the vector width the kernels run at: 2 AVX-512, 1 AVX2, 0 the baseline (SSE2 on x86-64) */
+int up_vector_level(void)
+{
+#ifdef UP_DISPATCH
+    return cpu_level();
+#else
+    return 0;
+#endif
+}
+
 /* eight partial sums folded, the same at every width */
-static inline double fold8(const double *s)
+UP_BODY double fold8(const double *s)
 {
     return ((s[0] + s[1]) + (s[2] + s[3])) + ((s[4] + s[5]) + (s[6] + s[7]));
 }
 
 /* a . b with eight partial sums: independent chains in vector registers (two of four, or one of
    eight lanes), the same sums at every width; inlined into the loops that call it */
-static inline double dot(const double *restrict a, const double *restrict b, int n)
+UP_BODY double dot(const double *restrict a, const double *restrict b, int n)
 {
     double s[8] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
     int i = 0;
@@ -44,7 +113,7 @@ static inline double dot(const double *restrict a, const double *restrict b, int
     return fold8(s);
 }
 
-UP_WIDE int up_lu(double *A, int *piv, int n)
+UP_BODY int up_lu_k(double *A, int *piv, int n)
 {
     for (int k0 = 0; k0 < n; k0 += LU_BLOCK) {
         int k1 = k0 + LU_BLOCK < n ? k0 + LU_BLOCK : n;
@@ -108,8 +177,9 @@ UP_WIDE int up_lu(double *A, int *piv, int n)
     }
     return 0;
 }
+UP_KERNEL_INT(up_lu, (double *A, int *piv, int n), (A, piv, n))
 
-UP_WIDE void up_lu_solve(const double *LU, const int *piv, int n, double *b)
+UP_BODY void up_lu_solve_k(const double *LU, const int *piv, int n, double *b)
 {
     for (int k = 0; k < n; k++)
         if (piv[k] != k) {
@@ -124,10 +194,11 @@ UP_WIDE void up_lu_solve(const double *LU, const int *piv, int n, double *b)
         b[i] = (b[i] - dot(ri + i + 1, b + i + 1, n - i - 1)) / ri[i];
     }
 }
+UP_KERNEL(up_lu_solve, (const double *LU, const int *piv, int n, double *b), (LU, piv, n, b))
 
 /* B <- A^-1 B for B (n, k) row-major, from the LU of A (up_lu): the substitutions row by row of B
    (each row of B updated by the rows above / below it, along its k entries: no reduction) */
-UP_WIDE void up_lu_solve_many(const double *LU, const int *piv, int n, double *B, int k)
+UP_BODY void up_lu_solve_many_k(const double *LU, const int *piv, int n, double *B, int k)
 {
     for (int i = 0; i < n; i++)
         if (piv[i] != i) {
@@ -164,6 +235,7 @@ UP_WIDE void up_lu_solve_many(const double *LU, const int *piv, int n, double *B
             bi[j] /= d;
     }
 }
+UP_KERNEL(up_lu_solve_many, (const double *LU, const int *piv, int n, double *B, int k), (LU, piv, n, B, k))
 
 /* inv <- A^-1 (n, n) from the LU of A (up_lu). With P not NULL (A symmetric), inv is made
    symmetric, (inv + inv^T) / 2, and packed into P (up_pack_sym): the round-off of the solves is
@@ -184,17 +256,19 @@ void up_inverse(const double *LU, const int *piv, int n, double *inv, double *P)
     up_pack_sym(inv, n, P);
 }
 
-UP_WIDE void up_matvec(const double *A, int rows, int cols, const double *x, double *y)
+UP_BODY void up_matvec_k(const double *A, int rows, int cols, const double *x, double *y)
 {
     for (int i = 0; i < rows; i++)
         y[i] = dot(A + (size_t)i * cols, x, cols);
 }
+UP_KERNEL(up_matvec, (const double *A, int rows, int cols, const double *x, double *y), (A, rows, cols, x, y))
 
-UP_WIDE void up_matvec_ld(const double *A, int rows, int cols, int lda, const double *x, double *y)
+UP_BODY void up_matvec_ld_k(const double *A, int rows, int cols, int lda, const double *x, double *y)
 {
     for (int i = 0; i < rows; i++)
         y[i] = dot(A + (size_t)i * lda, x, cols);
 }
+UP_KERNEL(up_matvec_ld, (const double *A, int rows, int cols, int lda, const double *x, double *y), (A, rows, cols, lda, x, y))
 
 int up_sparse_init(UpSparse *S, const double *A, int rows, int cols)
 {
@@ -242,7 +316,7 @@ void up_sparse_matvec(const UpSparse *S, const double *x, double *y)
 /* y = At^T x, row by row of At (four at a time: y_i stays in a register through four updates,
    in their order); the inner loop runs along a row, with no reduction, so it vectorises at any
    width with the same result */
-UP_WIDE void up_gemv_t(const double *restrict At, int rows, int cols, const double *restrict x, double *restrict y)
+UP_BODY void up_gemv_t_k(const double *restrict At, int rows, int cols, const double *restrict x, double *restrict y)
 {
     for (int i = 0; i < cols; i++)
         y[i] = 0.0;
@@ -267,8 +341,9 @@ UP_WIDE void up_gemv_t(const double *restrict At, int rows, int cols, const doub
             y[i] += xj * r[i];
     }
 }
+UP_KERNEL(up_gemv_t, (const double *restrict At, int rows, int cols, const double *restrict x, double *restrict y), (At, rows, cols, x, y))
 
-UP_WIDE void up_gemv_t2(const double *restrict At, int rows, int cols, const double *restrict x1,
+UP_BODY void up_gemv_t2_k(const double *restrict At, int rows, int cols, const double *restrict x1,
                         const double *restrict x2, double *restrict y1, double *restrict y2)
 {
     for (int i = 0; i < cols; i++)
@@ -296,6 +371,7 @@ UP_WIDE void up_gemv_t2(const double *restrict At, int rows, int cols, const dou
         }
     }
 }
+UP_KERNEL(up_gemv_t2, (const double *restrict At, int rows, int cols, const double *restrict x1, const double *restrict x2, double *restrict y1, double *restrict y2), (At, rows, cols, x1, x2, y1, y2))
 
 /* y += P x for a symmetric (n, n) matrix held packed: its upper triangle row by row (row i:
    the n - i entries from the diagonal). Each entry is read once and used twice: in the dot
@@ -306,7 +382,7 @@ UP_WIDE void up_gemv_t2(const double *restrict At, int rows, int cols, const dou
    lanes by the column's offset from the block's edge): four independent sums in flight and
    y_j loaded and stored once per four rows; the remainder rows one by one. The same sums in
    the same order at every vector width. */
-UP_WIDE void up_spmv_add(const double *restrict P, int n, const double *restrict x, double *restrict y)
+UP_BODY void up_spmv_add_k(const double *restrict P, int n, const double *restrict x, double *restrict y)
 {
     int i = 0;
     for (; i + 4 <= n; i += 4) {
@@ -367,9 +443,10 @@ UP_WIDE void up_spmv_add(const double *restrict P, int n, const double *restrict
         P += len;
     }
 }
+UP_KERNEL(up_spmv_add, (const double *restrict P, int n, const double *restrict x, double *restrict y), (P, n, x, y))
 
 /* y1 += P x1 and y2 += P x2 in one pass over P */
-UP_WIDE void up_spmv2_add(const double *restrict P, int n, const double *restrict x1, const double *restrict x2,
+UP_BODY void up_spmv2_add_k(const double *restrict P, int n, const double *restrict x1, const double *restrict x2,
                           double *restrict y1, double *restrict y2)
 {
     for (int i = 0; i < n; i++) {
@@ -386,6 +463,7 @@ UP_WIDE void up_spmv2_add(const double *restrict P, int n, const double *restric
         P += len;
     }
 }
+UP_KERNEL(up_spmv2_add, (const double *restrict P, int n, const double *restrict x1, const double *restrict x2, double *restrict y1, double *restrict y2), (P, n, x1, x2, y1, y2))
 
 /* P <- the upper triangle of A (n, n) packed by rows; 1 when A is symmetric (bit for bit) */
 int up_pack_sym(const double *A, int n, double *P)
@@ -412,17 +490,19 @@ void up_symv(const double *A, const double *P, int n, const double *x, double *y
     up_spmv_add(P, n, x, y);
 }
 
-UP_WIDE void up_matvec_add(const double *A, int rows, int cols, const double *x, double s, double *y)
+UP_BODY void up_matvec_add_k(const double *A, int rows, int cols, const double *x, double s, double *y)
 {
     for (int i = 0; i < rows; i++)
         y[i] += s * dot(A + (size_t)i * cols, x, cols);
 }
+UP_KERNEL(up_matvec_add, (const double *A, int rows, int cols, const double *x, double s, double *y), (A, rows, cols, x, s, y))
 
-UP_WIDE void up_axpy(double a, const double *restrict x, int n, double *restrict y)
+UP_BODY void up_axpy_k(double a, const double *restrict x, int n, double *restrict y)
 {
     for (int i = 0; i < n; i++)
         y[i] += a * x[i];
 }
+UP_KERNEL(up_axpy, (double a, const double *restrict x, int n, double *restrict y), (a, x, n, y))
 
 double up_dot(const double *a, const double *b, int n)
 {

@@ -58,6 +58,7 @@
 #define up_lu_solve UP_SYM(up_lu_solve)
 #define up_inverse UP_SYM(up_inverse)
 #define up_lu_solve_many UP_SYM(up_lu_solve_many)
+#define up_vector_level UP_SYM(up_vector_level)
 #define up_matvec UP_SYM(up_matvec)
 #define up_gemv_t UP_SYM(up_gemv_t)
 #define up_spmv_add UP_SYM(up_spmv_add)
@@ -189,6 +190,7 @@ void up_symv(const double *A, const double *P, int n, const double *x, double *y
 void up_axpy(double a, const double *x, int n, double *y);                      /* y += a x */
 void up_matvec_add(const double *A, int rows, int cols, const double *x, double s, double *y); /* y += s A x */
 double up_dot(const double *a, const double *b, int n);
+int up_vector_level(void);        /* the kernels' width on this CPU: 2 AVX-512, 1 AVX2, 0 the baseline */
 double up_norm(const double *a, int n);
 
 /* ---- soil.c: recursive convolution --------------------------------------------------------- */
