@@ -117,10 +117,10 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
         y->ABI = (double *)malloc(((size_t)nb * ni + 1) * sizeof(double));
         y->X = (double *)malloc(((size_t)ni * nb + 1) * sizeof(double));
         y->S0 = (double *)malloc((size_t)nb * nb * sizeof(double));
-        y->S0p = (double *)malloc(((size_t)nb * (nb + 1) / 2 + 1) * sizeof(double));
+        y->Sq = (double *)malloc(((size_t)nb + 36) * sizeof(double));
         y->K0C = (double *)malloc((size_t)nb * nb * sizeof(double));
         y->K0Cp = (double *)malloc(((size_t)nb * (nb + 1) / 2 + 1) * sizeof(double));
-        ok = y->AII && y->AIIp && y->ABI && y->X && y->S0 && y->S0p && y->K0C && y->K0Cp;
+        ok = y->AII && y->AIIp && y->ABI && y->X && y->S0 && y->Sq && y->K0C && y->K0Cp;
         for (int c = 0; ok && c < 2; c++) {
             y->Jb[c] = (double *)malloc((size_t)nb * nb * sizeof(double));
             y->Jp[c] = (double *)malloc(((size_t)nb * (nb + 1) / 2 + 1) * sizeof(double));
@@ -175,7 +175,7 @@ void up_stepper_free(UpStepper *s)
         free(y->ABI);
         free(y->X);
         free(y->S0);
-        free(y->S0p);
+        free(y->Sq);
         free(y->K0C);
         free(y->K0Cp);
         for (int c = 0; c < 2; c++) {
@@ -213,7 +213,7 @@ void up_stepper_free(UpStepper *s)
 
 size_t up_stepper_state_len(const UpStepper *s)
 {
-    return 1 + 5 * (size_t)s->n + (size_t)s->N + 3 * (size_t)s->nb + 13;
+    return 1 + 5 * (size_t)s->n + (size_t)s->N + 4 * (size_t)s->nb + 11;
 }
 
 void up_stepper_bind(UpStepper *s, double *state, double *block, size_t block_len, double *saves)
@@ -231,6 +231,8 @@ void up_stepper_bind(UpStepper *s, double *state, double *block, size_t block_le
     s->work = s->ag + 3;
     s->ag_next = s->work + 4;
     s->h_ext = s->ag_next + 3;
+    s->Kx = s->h_ext + s->nb;
+    s->kx_lev = s->Kx + s->nb;
     s->block = block;
     s->block_len = block_len;
     s->saves = saves;
@@ -343,13 +345,28 @@ static const UpSystem *system_at(UpStepper *s, int lev)
             for (int j = 0; j < nb; j++)
                 si[j] -= a * xk[j];
         }
+    /* S0 = (1 + al) K0C + diag(c0 M_B) + Sq on q: the structure's part (its stiffness, damping
+       and condensation) touches the raft's six DOFs only */
+    double *Sq = y->Sq, *cM = y->Sq + 36;
+    for (int i = 0; i < 6; i++)
+        for (int j = 0; j < 6; j++) {
+            int gi = ni + i, gj = ni + j;
+            double v = (1 + al) * (s->Ks[(size_t)gi * ns + gj] + y->c1 * s->Cs[(size_t)gi * ns + gj]);
+            for (int k = 0; k < ni; k++)
+                v -= y->ABI[(size_t)i * ni + k] * y->X[(size_t)k * nb + j];
+            Sq[6 * i + j] = v;
+        }
+    for (int i = 0; i < nb; i++)
+        cM[i] = y->c0 * s->M[ni + i];
     if (s->sym) {                                         /* symmetric but for the round-off of A_BI X */
         for (int i = 0; i < nb; i++)
             for (int j = i + 1; j < nb; j++) {
                 double m = 0.5 * (S0[(size_t)i * nb + j] + S0[(size_t)j * nb + i]);
                 S0[(size_t)i * nb + j] = S0[(size_t)j * nb + i] = m;
             }
-        up_pack_sym(S0, nb, y->S0p);
+        for (int i = 0; i < 6; i++)
+            for (int j = i + 1; j < 6; j++)
+                Sq[6 * i + j] = Sq[6 * j + i] = 0.5 * (Sq[6 * i + j] + Sq[6 * j + i]);
     }
     for (size_t i = 0; i < (size_t)nb * nb; i++)
         y->K0C[i] = sl->D0[i] + y->c1 * s->soil->E[i];
@@ -677,7 +694,17 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
         scale = scale > p0 ? scale : p0;
         scale = scale > 1.0 ? scale : 1.0;
         double tol = s->tol * scale;
-        up_symv(y->S0, s->sym ? y->S0p : NULL, nb, uB, Sx);
+        /* S0 x = (1 + al) K0C x + c0 M_B x + Sq x[0:6], K0C x from the step that left x (the
+           soil force's product) when it was at this level */
+        if (*s->kx_lev != (double)lev) {
+            up_symv(y->K0C, s->soil->Ep ? y->K0Cp : NULL, nb, uB, s->Kx);
+            *s->kx_lev = lev;
+        }
+        const double *Sq = y->Sq, *cM = y->Sq + 36;
+        for (int i = 0; i < nb; i++)
+            Sx[i] = (1 + al) * s->Kx[i] + cM[i] * uB[i];
+        for (int i = 0; i < 6; i++)
+            Sx[i] += up_dot(Sq + 6 * i, uB, 6);
         residual(s, Sx, uB, r_hat, gv, s->act);
         int conv = 0;
         for (int it = 0; it < s->max_iter; it++) {
@@ -752,9 +779,10 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
     contact(s, u_new + ni, P_new, s->act_new, fc_new);
     const double *x_new = u_new + ni, *xd_new = v_new + ni;
     /* the soil force K0 x + C0 xdot + h = (D0 + c1 E) x + E v_hat + h (xdot = c1 x + v_hat) */
-    up_symv(y->K0C, s->soil->Ep ? y->K0Cp : NULL, nb, x_new, fs_new);
+    double *Kx_new = s->w_nb[3];                          /* dx, free after the Newton iteration */
+    up_symv(y->K0C, s->soil->Ep ? y->K0Cp : NULL, nb, x_new, Kx_new);
     for (int i = 0; i < nb; i++)
-        fs_new[i] = (fs_new[i] + Ev[i]) + h[i];
+        fs_new[i] = (Kx_new[i] + Ev[i]) + h[i];
     if (al != 0.0) {
         /* R = Ks u + Cs v, plus fs + fc on x: the internal force the HHT average needs */
         double *Cv_new = s->w_n[9];
@@ -795,6 +823,8 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
     memcpy(s->P, P_new, (size_t)N * sizeof(double));
     memcpy(s->fs, fs_new, (size_t)nb * sizeof(double));
     memcpy(s->fc, fc_new, (size_t)nb * sizeof(double));
+    memcpy(s->Kx, Kx_new, (size_t)nb * sizeof(double));
+    *s->kx_lev = lev;
     memcpy(s->R, R_new, (size_t)n * sizeof(double));
     memcpy(s->F, F_new, (size_t)n * sizeof(double));
     *s->t += dt;

@@ -241,7 +241,7 @@ typedef struct {
     double *X;                /* (ni, nb) A_II^-1 A_IB; columns x_cols and on are zero */
     int abi_rows, x_cols;
     double *S0;               /* (nb, nb) Schur complement on x = [q, w]; symmetrised when sym */
-    double *S0p;              /* the same packed, when sym */
+    double *Sq;               /* (6, 6) then (nb): S0 - (1 + al) K0C - diag(c0 M_B) (on q only), then c0 M_B */
     double *K0C;              /* (nb, nb) D0 + c1 E: the soil force's part in x at this step size */
     double *K0Cp;             /* the same packed (used when E is symmetric: then K0C is) */
     /* the Newton matrix's two bases (stepper.c): every contact closed [0], every one open [1] */
@@ -273,6 +273,7 @@ typedef struct {
     long clock;
     /* state, inside the instance's state block */
     double *t, *u, *v, *a, *P, *fs, *fc, *R, *F, *ag, *work, *ag_next, *h_ext;
+    double *Kx, *kx_lev;      /* K0C x for the state's x = u[ni:], and the level it was computed at */
     /* work */
     double *w_n[10], *w_nb[12], *w_N[6], *hbuf;
     double *lu, *rhs;         /* (max(ni, nb)^2) x2: the set-up's LU factorisations and their solves */
