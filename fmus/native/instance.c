@@ -47,14 +47,20 @@ void up_log_event(UpInstance *I, const char *fmt, ...)
     va_end(ap);
 }
 
-/* the shortest decimal that reads back as v (as Python's repr) */
+/* the shortest decimal that reads back as v (as Python's repr): the fewest significant digits p
+   that do, by bisection (if p digits read back, p + 1 do: the p-digit decimal is one of them) */
 const char *up_num(double v, char *buf)
 {
-    for (int p = 1; p <= 17; p++) {
-        snprintf(buf, 32, "%.*g", p, v);
-        if (strtod(buf, NULL) == v || !isfinite(v))
-            break;
+    int lo = 1, hi = 17;
+    while (isfinite(v) && lo < hi) {
+        int mid = (lo + hi) / 2;
+        snprintf(buf, 32, "%.*g", mid, v);
+        if (strtod(buf, NULL) == v)
+            hi = mid;
+        else
+            lo = mid + 1;
     }
+    snprintf(buf, 32, "%.*g", isfinite(v) ? lo : 1, v);
     return buf;
 }
 

@@ -196,8 +196,33 @@ UP_BODY void up_lu_solve_k(const double *LU, const int *piv, int n, double *b)
 }
 UP_KERNEL(up_lu_solve, (const double *LU, const int *piv, int n, double *b), (LU, piv, n, b))
 
-/* B <- A^-1 B for B (n, k) row-major, from the LU of A (up_lu): the substitutions row by row of B
-   (each row of B updated by the rows above / below it, along its k entries: no reduction) */
+/* B <- A^-1 B for B (n, k) row-major, from the LU of A (up_lu): the substitutions row by row of B,
+   each row of B updated by the rows above (below) it, four at a time and in their order, along
+   its k entries (no reduction) */
+UP_BODY void rows_update(double *restrict bi, const double *B, const double *coef, int p0, int p1, int k)
+{
+    int p = p0;
+    for (; p + 4 <= p1; p += 4) {
+        const double *restrict b0 = B + (size_t)p * k, *restrict b1 = b0 + k, *restrict b2 = b1 + k,
+                     *restrict b3 = b2 + k;
+        double l0 = coef[p], l1 = coef[p + 1], l2 = coef[p + 2], l3 = coef[p + 3];
+        for (int j = 0; j < k; j++) {
+            double t = bi[j];
+            t -= l0 * b0[j];
+            t -= l1 * b1[j];
+            t -= l2 * b2[j];
+            t -= l3 * b3[j];
+            bi[j] = t;
+        }
+    }
+    for (; p < p1; p++) {
+        const double *restrict bp = B + (size_t)p * k;
+        double l = coef[p];
+        for (int j = 0; j < k; j++)
+            bi[j] -= l * bp[j];
+    }
+}
+
 UP_BODY void up_lu_solve_many_k(const double *LU, const int *piv, int n, double *B, int k)
 {
     for (int i = 0; i < n; i++)
@@ -209,28 +234,11 @@ UP_BODY void up_lu_solve_many_k(const double *LU, const int *piv, int n, double 
                 b[j] = t;
             }
         }
-    for (int i = 1; i < n; i++) {
-        double *restrict bi = B + (size_t)i * k;
-        const double *li = LU + (size_t)i * n;
-        for (int p = 0; p < i; p++) {
-            const double *restrict bp = B + (size_t)p * k;
-            double l = li[p];
-            if (l != 0.0)
-                for (int j = 0; j < k; j++)
-                    bi[j] -= l * bp[j];
-        }
-    }
+    for (int i = 1; i < n; i++)
+        rows_update(B + (size_t)i * k, B, LU + (size_t)i * n, 0, i, k);
     for (int i = n - 1; i >= 0; i--) {
-        double *restrict bi = B + (size_t)i * k;
-        const double *ui = LU + (size_t)i * n;
-        for (int p = i + 1; p < n; p++) {
-            const double *restrict bp = B + (size_t)p * k;
-            double u = ui[p];
-            if (u != 0.0)
-                for (int j = 0; j < k; j++)
-                    bi[j] -= u * bp[j];
-        }
-        double d = ui[i];
+        double *bi = B + (size_t)i * k, d = LU[(size_t)i * n + i];
+        rows_update(bi, B, LU + (size_t)i * n, i + 1, n, k);
         for (int j = 0; j < k; j++)
             bi[j] /= d;
     }

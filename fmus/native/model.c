@@ -302,6 +302,7 @@ int up_do_step(UpInstance *I, double t, double h)
         return UP_DISCARD;                                            /* no Newton convergence */
     }
     *I->time = t + h;
-    up_log_event(I, "step from t = %s s: %ld step(s) of dt", up_num(t, b1), (long)steps);
+    if (I->logging)                                                   /* the number formatted only then */
+        up_log_event(I, "step from t = %s s: %ld step(s) of dt", up_num(t, b1), (long)steps);
     return UP_OK;
 }
