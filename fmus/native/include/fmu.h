@@ -98,7 +98,7 @@ int up_set_logging(UpInstance *I, const char *fn, int on, size_t n, const char *
 enum { UP_REFUSED = 1, UP_FAILED = 2 };
 double *up_var(UpInstance *I, int slot);
 int up_initial_state(UpInstance *I);                          /* 0, or -1 with I->err */
-int up_step(UpInstance *I, double t);                         /* 0, UP_REFUSED or UP_FAILED with I->err */
+int up_step(UpInstance *I, double t, int last);  /* 0, UP_REFUSED or UP_FAILED with I->err; outputs if last */
 int up_setup_experiment(UpInstance *I, const char *fn, int stop_defined, double start, double stop);  /* 0 / -1 */
 int up_enter_initialisation(UpInstance *I);                   /* UP_OK or UP_ERROR, logged */
 int up_exit_initialisation(UpInstance *I);
