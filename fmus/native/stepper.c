@@ -8,12 +8,14 @@
    total contact force P_i = kp_i max(0, delta0_i - d_i), d = Bq3 q[2:5] - w.
 
    Per step size dt (one level per halving) the effective matrix
-   A = diag(c0 M) + (1 + alpha)(K + c1 C) is condensed on x: LU of the interior block A_II,
+   A = diag(c0 M) + (1 + alpha)(K + c1 C) is condensed on x: A_II^-1 (from its LU),
    X = A_II^-1 A_IB, S0 = A_BB - A_BI X. Newton solves (S0 + (1 + alpha) B^T diag(kp active) B) dx
-   = -g with the LU of that matrix kept per (level, active set); an exact line search on the
-   piecewise-quadratic incremental energy guards against cycling; a step whose Newton fails is
-   halved recursively (ground motion interpolated, soil history of an external soil held) down
-   to dt / 2**max_subdiv. No allocation after up_stepper_init. */
+   = -g by Woodbury from two bases (below); an exact line search on the piecewise-quadratic
+   incremental energy guards against cycling; a step whose Newton fails is halved recursively
+   (ground motion interpolated, soil history of an external soil held) down to dt / 2**max_subdiv.
+   A step writes the state only when it succeeds. When Ks, Cs (to round-off) and E are symmetric,
+   the matrices a step multiplies are held symmetrised and packed (half the memory traffic, which
+   bounds a step). No allocation after up_stepper_init. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -423,8 +425,8 @@ static void residual(const UpStepper *s, const double *Sx, const double *x, cons
 
 /* ---- the Newton matrix J(act) = S0 + sum over the active nodes of s_i b_i b_i^T ----------------
    s_i = (1 + al) kp_i, b_i the contact direction of node i (Bq3_i on q[2:5], -1 on w_i). Two
-   bases per level, factorised once: every contact closed (Jc) and every contact open (S0), with
-   Z = base^-1 b_i for every node and W_ij = b_i . Z_j. J(act) differs from the nearer base by
+   bases per level, each inverted once when first needed: every contact closed (Jc) and every
+   contact open (S0), with Z = base^-1 b_i for every node and W_ij = b_i . Z_j. J(act) differs from the nearer base by
    the k = min(open, closed) nodes K: J = base + sigma U_K S_K U_K^T (sigma -1 from the closed
    base, +1 from the open one), so by Woodbury
        J^-1 r = y - Z_K C^-1 (U_K^T y),  y = base^-1 r,  C = sigma S_K^-1 + W_KK  (k, k).
