@@ -7,6 +7,7 @@ Python stepper (structure.simulate), its readable reference.
   halved;
 - ``run_monolithic``'s default (native) against ``stepper="python"`` (whose linear pre-check
   runs the closed-contact recursion until the contact opens): 1e-10;
+- a soil model whose E is not symmetric (the dense products, not the packed ones): 1e-10;
 - a step that cannot converge: the same step and message as the Python stepper, the samples
   before it returned with status STOPPED;
 - without a compiler the route runs the Python stepper and says so (a warning, not an error);
@@ -83,6 +84,22 @@ def test_route_default_equals_the_python_route():
     assert fast.route == ref.route == "monolithic" and fast.converged
     assert_same_histories(fast, ref)
 
+
+def test_a_soil_model_without_symmetry_runs_the_dense_products():
+    """E made slightly unsymmetric (a skew part: its quadratic form, so passivity, unchanged): the
+    system's matrices held dense, not packed; the same answer as the Python stepper."""
+    rng = np.random.default_rng(1)
+    A = 1e-6 * np.abs(MODEL.E).max() * rng.standard_normal(MODEL.E.shape)
+    model = dataclasses.replace(MODEL, E=MODEL.E + (A - A.T))
+    assert not np.array_equal(model.E, model.E.T)
+    contact = dataclasses.replace(SCENE.contact, precheck=False)
+    st = NewmarkStepper(SCENE.model(), soil_from_model(model, DT), DT, contact=contact, external_soil=True,
+                        ag0=MOTION.acc[0])
+    fast = native_host.simulate_native(st, MOTION.acc, SCENE.output.nodes)
+    ref = simulate(SCENE.model(), soil_from_model(model, DT), MOTION.acc, DT, contact=contact,
+                   output_nodes=SCENE.output.nodes)
+    assert ref.max_uplift() > 1e-3
+    assert_same_histories(fast, ref)
 
 def test_a_step_that_cannot_converge_stops_where_the_python_stepper_stops():
     contact = dataclasses.replace(SCENE.contact, max_iter=1, max_subdiv=2, precheck=False)
