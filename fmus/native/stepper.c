@@ -697,14 +697,16 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
         scale = scale > 1.0 ? scale : 1.0;
         double tol = s->tol * scale;
         /* S0 x = (1 + al) K0C x + c0 M_B x + Sq x[0:6], K0C x from the step that left x (the
-           soil force's product) when it was at this level */
+           soil force's product) when it was at this level, else computed here (in fs_new's
+           work, free until the iteration ends: the state is written only by a step that succeeds) */
+        const double *Kx = s->Kx;
         if (*s->kx_lev != (double)lev) {
-            up_symv(y->K0C, s->soil->Ep ? y->K0Cp : NULL, nb, uB, s->Kx);
-            *s->kx_lev = lev;
+            up_symv(y->K0C, s->soil->Ep ? y->K0Cp : NULL, nb, uB, s->w_nb[6]);
+            Kx = s->w_nb[6];
         }
         const double *Sq = y->Sq, *cM = y->Sq + 36;
         for (int i = 0; i < nb; i++)
-            Sx[i] = (1 + al) * s->Kx[i] + cM[i] * uB[i];
+            Sx[i] = (1 + al) * Kx[i] + cM[i] * uB[i];
         for (int i = 0; i < 6; i++)
             Sx[i] += up_dot(Sq + 6 * i, uB, 6);
         residual(s, Sx, uB, r_hat, gv, s->act);
