@@ -45,7 +45,7 @@ static int finite_all(const double *a, size_t n)
     return 1;
 }
 
-/* A (n, n) symmetric to round-off: |A_ij - A_ji| <= 1e-12 max |A| (an assembled stiffness is
+/* A (n, n) symmetric to round-off: |A_ij - A_ji| <= 1e-13 max |A| (an assembled stiffness is
    symmetric but for the last bits of its products) */
 static int symmetric(const double *A, int n)
 {
@@ -56,7 +56,7 @@ static int symmetric(const double *A, int n)
             big = a > big ? a : big;
             off = d > off ? d : off;
         }
-    return off <= 1e-12 * big;
+    return off <= 1e-13 * big;
 }
 
 int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, char *err)
