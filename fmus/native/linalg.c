@@ -276,7 +276,8 @@ UP_BODY void up_matvec_ld_k(const double *A, int rows, int cols, int lda, const 
     for (int i = 0; i < rows; i++)
         y[i] = dot(A + (size_t)i * lda, x, cols);
 }
-UP_KERNEL(up_matvec_ld, (const double *A, int rows, int cols, int lda, const double *x, double *y), (A, rows, cols, lda, x, y))
+UP_KERNEL(up_matvec_ld, (const double *A, int rows, int cols, int lda, const double *x, double *y),
+          (A, rows, cols, lda, x, y))
 
 int up_sparse_init(UpSparse *S, const double *A, int rows, int cols)
 {
@@ -349,7 +350,8 @@ UP_BODY void up_gemv_t_k(const double *restrict At, int rows, int cols, const do
             y[i] += xj * r[i];
     }
 }
-UP_KERNEL(up_gemv_t, (const double *restrict At, int rows, int cols, const double *restrict x, double *restrict y), (At, rows, cols, x, y))
+UP_KERNEL(up_gemv_t, (const double *restrict At, int rows, int cols, const double *restrict x, double *restrict y),
+          (At, rows, cols, x, y))
 
 UP_BODY void up_gemv_t2_k(const double *restrict At, int rows, int cols, const double *restrict x1,
                         const double *restrict x2, double *restrict y1, double *restrict y2)
@@ -379,7 +381,10 @@ UP_BODY void up_gemv_t2_k(const double *restrict At, int rows, int cols, const d
         }
     }
 }
-UP_KERNEL(up_gemv_t2, (const double *restrict At, int rows, int cols, const double *restrict x1, const double *restrict x2, double *restrict y1, double *restrict y2), (At, rows, cols, x1, x2, y1, y2))
+UP_KERNEL(up_gemv_t2,
+          (const double *restrict At, int rows, int cols, const double *restrict x1, const double *restrict x2,
+           double *restrict y1, double *restrict y2),
+          (At, rows, cols, x1, x2, y1, y2))
 
 /* y += P x for a symmetric (n, n) matrix held packed: its upper triangle row by row (row i:
    the n - i entries from the diagonal). Each entry is read once and used twice: in the dot
@@ -517,7 +522,10 @@ UP_BODY void up_spmv2_add_k(const double *restrict P, int n, const double *restr
         P += len;
     }
 }
-UP_KERNEL(up_spmv2_add, (const double *restrict P, int n, const double *restrict x1, const double *restrict x2, double *restrict y1, double *restrict y2), (P, n, x1, x2, y1, y2))
+UP_KERNEL(up_spmv2_add,
+          (const double *restrict P, int n, const double *restrict x1, const double *restrict x2,
+           double *restrict y1, double *restrict y2),
+          (P, n, x1, x2, y1, y2))
 
 /* P <- the upper triangle of A (n, n) packed by rows; 1 when A is symmetric (bit for bit) */
 int up_pack_sym(const double *A, int n, double *P)
@@ -549,7 +557,8 @@ UP_BODY void up_matvec_add_k(const double *A, int rows, int cols, const double *
     for (int i = 0; i < rows; i++)
         y[i] += s * dot(A + (size_t)i * cols, x, cols);
 }
-UP_KERNEL(up_matvec_add, (const double *A, int rows, int cols, const double *x, double s, double *y), (A, rows, cols, x, s, y))
+UP_KERNEL(up_matvec_add, (const double *A, int rows, int cols, const double *x, double s, double *y),
+          (A, rows, cols, x, s, y))
 
 UP_BODY void up_axpy_k(double a, const double *restrict x, int n, double *restrict y)
 {
