@@ -162,7 +162,7 @@ def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None):
     named node, as ``simulate``)
     lib : the library (default ``library()``: a temporary folder of the process; it must be available)
     Returns a RouteResult (notes: the precheck is not run: every step is a Newton step, one
-    cached back-substitution while the active set holds); a Newton failure raises
+    product with a cached inverse while the active set holds); a Newton failure raises
     ConvergenceError with ``.result`` holding the samples so far, as ``simulate`` does.
     """
     from structure import ConvergenceError
@@ -196,8 +196,8 @@ def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None):
     info = dict(settlement=st.static.settlement, P0=st.P0.copy(), penalty=st.kp.copy(), delta0=st.delta0.copy(),
                 dt=st.dt, alpha=st.alpha, contact_enabled=enabled, factorisations=int(stats[1]),
                 subdivided_steps=int(stats[2]), stepper="native")
-    precheck = ("not run: the native stepper takes a Newton step at every step (one cached back-substitution "
-                "while the active set holds)" if enabled else "not needed: contact disabled (bonded raft, linear)")
+    precheck = ("not run: the native stepper takes a Newton step at every step (one product with a cached "
+                "inverse while the active set holds)" if enabled else "not needed: contact disabled (bonded raft, linear)")
     res = RouteResult(route=route, time=st.dt * np.arange(nt), raft=rows[:, :6].copy(),
                       gap=rows[:, 6:6 + N].copy(), contact_force=rows[:, 6 + N:6 + 2 * N].copy(),
                       soil_w=rows[:, 6 + 2 * N:6 + 3 * N].copy(),

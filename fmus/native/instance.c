@@ -47,14 +47,20 @@ void up_log_event(UpInstance *I, const char *fmt, ...)
     va_end(ap);
 }
 
-/* the shortest decimal that reads back as v (as Python's repr) */
+/* the shortest decimal that reads back as v (as Python's repr): the fewest significant digits p
+   that do, by bisection (if p digits read back, p + 1 do: the p-digit decimal is one of them) */
 const char *up_num(double v, char *buf)
 {
-    for (int p = 1; p <= 17; p++) {
-        snprintf(buf, 32, "%.*g", p, v);
-        if (strtod(buf, NULL) == v || !isfinite(v))
-            break;
+    int lo = 1, hi = 17;
+    while (isfinite(v) && lo < hi) {
+        int mid = (lo + hi) / 2;
+        snprintf(buf, 32, "%.*g", mid, v);
+        if (strtod(buf, NULL) == v)
+            hi = mid;
+        else
+            lo = mid + 1;
     }
+    snprintf(buf, 32, "%.*g", isfinite(v) ? lo : 1, v);
     return buf;
 }
 
@@ -315,6 +321,19 @@ static int setup(UpInstance *I, const char *guid, const char *location, int uri)
         int64_t dims[2] = {n, n};
         if (!(I->Gx = up_res_f64(&I->res, "Gx", 2, dims, I->err)) || !(I->Gv = up_res_f64(&I->res, "Gv", 2, dims, I->err)))
             return -1;
+        /* Gx symmetric (it is sum (a_k + 1) b_k R_k): packed, half the traffic of its product; Gv
+           zero (the recursion's state does not see xdot): no product at all */
+        if (!(I->Gxp = (double *)malloc(((size_t)n * (n + 1) / 2 + 1) * sizeof(double)))) {
+            snprintf(I->err, UP_MSG, "out of memory for the history gains (%d DOFs)", (int)n);
+            return -1;
+        }
+        if (!up_pack_sym(I->Gx, (int)n, I->Gxp)) {
+            free(I->Gxp);
+            I->Gxp = NULL;
+        }
+        I->Gv_zero = 1;
+        for (size_t k = 0; k < (size_t)n * n; k++)
+            I->Gv_zero &= I->Gv[k] == 0.0;
     }
     /* the state block: time, internal_motion, held_t, the variables, held inputs, stepper, soil */
     I->held_len = I->role == ROLE_SOIL ? 2 * I->n : I->role == ROLE_STRUCTURE ? I->n : 0;
@@ -381,6 +400,7 @@ void up_free_instance(UpInstance *I)
         up_stepper_free(&I->st);
     up_soil_free(&I->soil);
     up_res_free(&I->res);
+    free(I->Gxp);
     free(I->block);
     free(I->backup);
     free(I->saves);

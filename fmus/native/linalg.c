@@ -14,19 +14,94 @@
 #define LU_BLOCK 32
 
 /* The hot loops (the history product, the LU's trailing update) run along contiguous rows with
-   no reduction, so the compiler vectorises them without reassociating anything: the result is
-   the same at every vector width. Baseline x86-64 code (SSE2) for every machine; on ELF x86-64
-   with GCC or clang, AVX2 and AVX-512 versions too, picked at load time by the CPU's features
-   (target_clones). */
-#if defined(__x86_64__) && defined(__ELF__) && defined(__GNUC__) && !defined(UP_BASELINE_ONLY)
-#define UP_WIDE __attribute__((target_clones("avx512f", "avx2", "default")))
+   no reduction, or with eight fixed partial sums, so the compiler vectorises them without
+   reassociating anything: the result is the same at every vector width. Baseline x86-64 code
+   (SSE2) for every machine; on x86-64 with GCC or clang (zig cc), AVX2 and AVX-512 versions of
+   each kernel too, and the widest one the CPU and the OS support is called (cpuid, xgetbv: our
+   own test, as the compiler runtime's is not reliable everywhere: zig's reports no feature, so
+   target_clones ran the baseline). */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(UP_BASELINE_ONLY)
+#define UP_DISPATCH 1
+#include <cpuid.h>
+#define UP_BODY static inline __attribute__((always_inline))
 #else
-#define UP_WIDE
+#define UP_BODY static inline
 #endif
+
+#ifdef UP_DISPATCH
+/* 2: AVX-512F, 1: AVX2, 0: SSE2 only (each with its register state enabled by the OS) */
+static int cpu_detect(void)
+{
+    unsigned a, b, c, d, lo, hi;
+    if (!__get_cpuid(1, &a, &b, &c, &d) || !(c & (1u << 27)) || !(c & (1u << 28)))   /* OSXSAVE, AVX */
+        return 0;
+    __asm__ volatile("xgetbv" : "=a"(lo), "=d"(hi) : "c"(0));
+    if ((lo & 6u) != 6u || __get_cpuid_max(0, NULL) < 7)                              /* XMM, YMM state */
+        return 0;
+    __cpuid_count(7, 0, a, b, c, d);
+    if (!(b & (1u << 5)))                                                             /* AVX2 */
+        return 0;
+    return (b & (1u << 16)) && (lo & 0xE6u) == 0xE6u ? 2 : 1;     /* AVX-512F, opmask and ZMM state */
+}
+
+/* detected on first use; threads that race here write the same value */
+static int cpu_level(void)
+{
+    static int level = -1;
+    if (level < 0)
+        level = cpu_detect();
+    return level;
+}
+
+/* the kernel name##_k (UP_BODY, inlined into each) compiled for AVX-512, AVX2 and the baseline,
+   and the function name calling the one for this CPU */
+#define UP_KERNEL(name, params, args)                                                              \
+    __attribute__((target("avx512f"))) static void name##_avx512 params { name##_k args; }         \
+    __attribute__((target("avx2"))) static void name##_avx2 params { name##_k args; }              \
+    static void name##_sse2 params { name##_k args; }                                              \
+    void name params                                                                               \
+    {                                                                                              \
+        int level = cpu_level();                                                                   \
+        if (level == 2)                                                                            \
+            name##_avx512 args;                                                                    \
+        else if (level == 1)                                                                       \
+            name##_avx2 args;                                                                      \
+        else                                                                                       \
+            name##_sse2 args;                                                                      \
+    }
+#define UP_KERNEL_INT(name, params, args)                                                          \
+    __attribute__((target("avx512f"))) static int name##_avx512 params { return name##_k args; }  \
+    __attribute__((target("avx2"))) static int name##_avx2 params { return name##_k args; }       \
+    static int name##_sse2 params { return name##_k args; }                                       \
+    int name params                                                                                \
+    {                                                                                              \
+        int level = cpu_level();                                                                   \
+        return level == 2 ? name##_avx512 args : level == 1 ? name##_avx2 args : name##_sse2 args; \
+    }
+#else
+#define UP_KERNEL(name, params, args) void name params { name##_k args; }
+#define UP_KERNEL_INT(name, params, args) int name params { return name##_k args; }
+#endif
+
+/* the vector width the kernels run at: 2 AVX-512, 1 AVX2, 0 the baseline (SSE2 on x86-64) */
+int up_vector_level(void)
+{
+#ifdef UP_DISPATCH
+    return cpu_level();
+#else
+    return 0;
+#endif
+}
+
+/* eight partial sums folded, the same at every width */
+UP_BODY double fold8(const double *s)
+{
+    return ((s[0] + s[1]) + (s[2] + s[3])) + ((s[4] + s[5]) + (s[6] + s[7]));
+}
 
 /* a . b with eight partial sums: independent chains in vector registers (two of four, or one of
    eight lanes), the same sums at every width; inlined into the loops that call it */
-static inline double dot(const double *restrict a, const double *restrict b, int n)
+UP_BODY double dot(const double *restrict a, const double *restrict b, int n)
 {
     double s[8] = {0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0};
     int i = 0;
@@ -35,10 +110,10 @@ static inline double dot(const double *restrict a, const double *restrict b, int
             s[k] += a[i + k] * b[i + k];
     for (; i < n; i++)
         s[0] += a[i] * b[i];
-    return ((s[0] + s[1]) + (s[2] + s[3])) + ((s[4] + s[5]) + (s[6] + s[7]));
+    return fold8(s);
 }
 
-UP_WIDE int up_lu(double *A, int *piv, int n)
+UP_BODY int up_lu_k(double *A, int *piv, int n)
 {
     for (int k0 = 0; k0 < n; k0 += LU_BLOCK) {
         int k1 = k0 + LU_BLOCK < n ? k0 + LU_BLOCK : n;
@@ -102,8 +177,9 @@ UP_WIDE int up_lu(double *A, int *piv, int n)
     }
     return 0;
 }
+UP_KERNEL_INT(up_lu, (double *A, int *piv, int n), (A, piv, n))
 
-UP_WIDE void up_lu_solve(const double *LU, const int *piv, int n, double *b)
+UP_BODY void up_lu_solve_k(const double *LU, const int *piv, int n, double *b)
 {
     for (int k = 0; k < n; k++)
         if (piv[k] != k) {
@@ -118,18 +194,90 @@ UP_WIDE void up_lu_solve(const double *LU, const int *piv, int n, double *b)
         b[i] = (b[i] - dot(ri + i + 1, b + i + 1, n - i - 1)) / ri[i];
     }
 }
+UP_KERNEL(up_lu_solve, (const double *LU, const int *piv, int n, double *b), (LU, piv, n, b))
 
-UP_WIDE void up_matvec(const double *A, int rows, int cols, const double *x, double *y)
+/* B <- A^-1 B for B (n, k) row-major, from the LU of A (up_lu): the substitutions row by row of B,
+   each row of B updated by the rows above (below) it, four at a time and in their order, along
+   its k entries (no reduction) */
+UP_BODY void rows_update(double *restrict bi, const double *B, const double *coef, int p0, int p1, int k)
+{
+    int p = p0;
+    for (; p + 4 <= p1; p += 4) {
+        const double *restrict b0 = B + (size_t)p * k, *restrict b1 = b0 + k, *restrict b2 = b1 + k,
+                     *restrict b3 = b2 + k;
+        double l0 = coef[p], l1 = coef[p + 1], l2 = coef[p + 2], l3 = coef[p + 3];
+        for (int j = 0; j < k; j++) {
+            double t = bi[j];
+            t -= l0 * b0[j];
+            t -= l1 * b1[j];
+            t -= l2 * b2[j];
+            t -= l3 * b3[j];
+            bi[j] = t;
+        }
+    }
+    for (; p < p1; p++) {
+        const double *restrict bp = B + (size_t)p * k;
+        double l = coef[p];
+        for (int j = 0; j < k; j++)
+            bi[j] -= l * bp[j];
+    }
+}
+
+UP_BODY void up_lu_solve_many_k(const double *LU, const int *piv, int n, double *B, int k)
+{
+    for (int i = 0; i < n; i++)
+        if (piv[i] != i) {
+            double *a = B + (size_t)i * k, *b = B + (size_t)piv[i] * k;
+            for (int j = 0; j < k; j++) {
+                double t = a[j];
+                a[j] = b[j];
+                b[j] = t;
+            }
+        }
+    for (int i = 1; i < n; i++)
+        rows_update(B + (size_t)i * k, B, LU + (size_t)i * n, 0, i, k);
+    for (int i = n - 1; i >= 0; i--) {
+        double *bi = B + (size_t)i * k, d = LU[(size_t)i * n + i];
+        rows_update(bi, B, LU + (size_t)i * n, i + 1, n, k);
+        for (int j = 0; j < k; j++)
+            bi[j] /= d;
+    }
+}
+UP_KERNEL(up_lu_solve_many, (const double *LU, const int *piv, int n, double *B, int k), (LU, piv, n, B, k))
+
+/* inv <- A^-1 (n, n) from the LU of A (up_lu). With P not NULL (A symmetric), inv is made
+   symmetric, (inv + inv^T) / 2, and packed into P (up_pack_sym): the round-off of the solves is
+   the only asymmetry. */
+void up_inverse(const double *LU, const int *piv, int n, double *inv, double *P)
+{
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < n; j++)
+            inv[(size_t)i * n + j] = i == j ? 1.0 : 0.0;
+    up_lu_solve_many(LU, piv, n, inv, n);
+    if (!P)
+        return;
+    for (int i = 0; i < n; i++)
+        for (int j = i + 1; j < n; j++) {
+            double m = 0.5 * (inv[(size_t)i * n + j] + inv[(size_t)j * n + i]);
+            inv[(size_t)i * n + j] = inv[(size_t)j * n + i] = m;
+        }
+    up_pack_sym(inv, n, P);
+}
+
+UP_BODY void up_matvec_k(const double *A, int rows, int cols, const double *x, double *y)
 {
     for (int i = 0; i < rows; i++)
         y[i] = dot(A + (size_t)i * cols, x, cols);
 }
+UP_KERNEL(up_matvec, (const double *A, int rows, int cols, const double *x, double *y), (A, rows, cols, x, y))
 
-UP_WIDE void up_matvec_ld(const double *A, int rows, int cols, int lda, const double *x, double *y)
+UP_BODY void up_matvec_ld_k(const double *A, int rows, int cols, int lda, const double *x, double *y)
 {
     for (int i = 0; i < rows; i++)
         y[i] = dot(A + (size_t)i * lda, x, cols);
 }
+UP_KERNEL(up_matvec_ld, (const double *A, int rows, int cols, int lda, const double *x, double *y),
+          (A, rows, cols, lda, x, y))
 
 int up_sparse_init(UpSparse *S, const double *A, int rows, int cols)
 {
@@ -177,7 +325,7 @@ void up_sparse_matvec(const UpSparse *S, const double *x, double *y)
 /* y = At^T x, row by row of At (four at a time: y_i stays in a register through four updates,
    in their order); the inner loop runs along a row, with no reduction, so it vectorises at any
    width with the same result */
-UP_WIDE void up_gemv_t(const double *restrict At, int rows, int cols, const double *restrict x, double *restrict y)
+UP_BODY void up_gemv_t_k(const double *restrict At, int rows, int cols, const double *restrict x, double *restrict y)
 {
     for (int i = 0; i < cols; i++)
         y[i] = 0.0;
@@ -202,8 +350,10 @@ UP_WIDE void up_gemv_t(const double *restrict At, int rows, int cols, const doub
             y[i] += xj * r[i];
     }
 }
+UP_KERNEL(up_gemv_t, (const double *restrict At, int rows, int cols, const double *restrict x, double *restrict y),
+          (At, rows, cols, x, y))
 
-UP_WIDE void up_gemv_t2(const double *restrict At, int rows, int cols, const double *restrict x1,
+UP_BODY void up_gemv_t2_k(const double *restrict At, int rows, int cols, const double *restrict x1,
                         const double *restrict x2, double *restrict y1, double *restrict y2)
 {
     for (int i = 0; i < cols; i++)
@@ -231,43 +381,151 @@ UP_WIDE void up_gemv_t2(const double *restrict At, int rows, int cols, const dou
         }
     }
 }
+UP_KERNEL(up_gemv_t2,
+          (const double *restrict At, int rows, int cols, const double *restrict x1, const double *restrict x2,
+           double *restrict y1, double *restrict y2),
+          (At, rows, cols, x1, x2, y1, y2))
 
 /* y += P x for a symmetric (n, n) matrix held packed: its upper triangle row by row (row i:
    the n - i entries from the diagonal). Each entry is read once and used twice: in the dot
    product of its row (y_i) and in the update of the rows below (y_j += P_ij x_i, j > i), so
-   the memory traffic is half a full product's. */
-UP_WIDE void up_spmv_add(const double *restrict P, int n, const double *restrict x, double *restrict y)
+   the memory traffic is half a full product's. Four rows in one pass: the 4 x 4 block on the
+   diagonal first, then the columns right of it, where each column's four entries update y_j
+   in the order of the rows and feed the four rows' dot products (eight partial sums each,
+   lanes by the column's offset from the block's edge): four independent sums in flight and
+   y_j loaded and stored once per four rows; the remainder rows one by one. The same sums in
+   the same order at every vector width. */
+UP_BODY void up_spmv_add_k(const double *restrict P, int n, const double *restrict x, double *restrict y)
 {
-    for (int i = 0; i < n; i++) {
+    int i = 0;
+    for (; i + 4 <= n; i += 4) {
         int len = n - i;
-        const double *restrict r = P;
+        const double *r0 = P, *r1 = r0 + len, *r2 = r1 + len - 1, *r3 = r2 + len - 2;  /* r_a[0]: (i+a, i+a) */
+        double x0 = x[i], x1 = x[i + 1], x2 = x[i + 2], x3 = x[i + 3];
+        double d0 = ((r0[0] * x0 + r0[1] * x1) + r0[2] * x2) + r0[3] * x3;
+        double d1 = (r1[0] * x1 + r1[1] * x2) + r1[2] * x3;
+        double d2 = r2[0] * x2 + r2[1] * x3;
+        double d3 = r3[0] * x3;
+        double y1 = y[i + 1] + x0 * r0[1];
+        double y2 = (y[i + 2] + x0 * r0[2]) + x1 * r1[1];
+        double y3 = ((y[i + 3] + x0 * r0[3]) + x1 * r1[2]) + x2 * r2[1];
+        const double *restrict a0 = r0 + 4, *restrict a1 = r1 + 3, *restrict a2 = r2 + 2, *restrict a3 = r3 + 1;
+        const double *restrict xr = x + i + 4;
+        double *restrict yr = y + i + 4;
+        double s0[8] = {0.0}, s1[8] = {0.0}, s2[8] = {0.0}, s3[8] = {0.0};
+        int m = len - 4, j = 0;
+        for (; j + 8 <= m; j += 8)
+            for (int k = 0; k < 8; k++) {
+                double xv = xr[j + k], v0 = a0[j + k], v1 = a1[j + k], v2 = a2[j + k], v3 = a3[j + k];
+                s0[k] += v0 * xv;
+                s1[k] += v1 * xv;
+                s2[k] += v2 * xv;
+                s3[k] += v3 * xv;
+                double t = yr[j + k];
+                t += x0 * v0;
+                t += x1 * v1;
+                t += x2 * v2;
+                t += x3 * v3;
+                yr[j + k] = t;
+            }
+        for (; j < m; j++) {
+            double xv = xr[j], v0 = a0[j], v1 = a1[j], v2 = a2[j], v3 = a3[j];
+            s0[0] += v0 * xv;
+            s1[0] += v1 * xv;
+            s2[0] += v2 * xv;
+            s3[0] += v3 * xv;
+            double t = yr[j];
+            t += x0 * v0;
+            t += x1 * v1;
+            t += x2 * v2;
+            t += x3 * v3;
+            yr[j] = t;
+        }
+        y[i] += d0 + fold8(s0);
+        y[i + 1] = y1 + (d1 + fold8(s1));
+        y[i + 2] = y2 + (d2 + fold8(s2));
+        y[i + 3] = y3 + (d3 + fold8(s3));
+        P = r3 + len - 3;
+    }
+    for (; i < n; i++) {
+        int len = n - i;
         double xi = x[i];
-        y[i] += dot(r, x + i, len);
-        double *restrict yi = y + i;
+        y[i] += dot(P, x + i, len);
         for (int j = 1; j < len; j++)
-            yi[j] += xi * r[j];
+            y[i + j] += xi * P[j];
         P += len;
     }
 }
+UP_KERNEL(up_spmv_add, (const double *restrict P, int n, const double *restrict x, double *restrict y), (P, n, x, y))
 
-/* y1 += P x1 and y2 += P x2 in one pass over P */
-UP_WIDE void up_spmv2_add(const double *restrict P, int n, const double *restrict x1, const double *restrict x2,
-                          double *restrict y1, double *restrict y2)
+/* y1 += P x1 and y2 += P x2 in one pass over P: as up_spmv_add, two rows per pass (four dot
+   products in flight, each with its eight partial sums) */
+UP_BODY void up_spmv2_add_k(const double *restrict P, int n, const double *restrict x1, const double *restrict x2,
+                            double *restrict y1, double *restrict y2)
 {
-    for (int i = 0; i < n; i++) {
+    int i = 0;
+    for (; i + 2 <= n; i += 2) {
         int len = n - i;
-        const double *restrict r = P;
+        const double *r0 = P, *r1 = r0 + len;                         /* r_a[0]: (i+a, i+a) */
+        double a0 = x1[i], a1 = x1[i + 1], b0 = x2[i], b1 = x2[i + 1];
+        double d0 = r0[0] * a0 + r0[1] * a1, e0 = r0[0] * b0 + r0[1] * b1;
+        double d1 = r1[0] * a1, e1 = r1[0] * b1;
+        double u1 = y1[i + 1] + a0 * r0[1], v1 = y2[i + 1] + b0 * r0[1];
+        const double *restrict p0 = r0 + 2, *restrict p1 = r1 + 1, *restrict xa = x1 + i + 2, *restrict xb = x2 + i + 2;
+        double *restrict ya = y1 + i + 2, *restrict yb = y2 + i + 2;
+        double s0[8] = {0.0}, s1[8] = {0.0}, t0[8] = {0.0}, t1[8] = {0.0};
+        int m = len - 2, j = 0;
+        for (; j + 8 <= m; j += 8)
+            for (int k = 0; k < 8; k++) {
+                double v0 = p0[j + k], v1 = p1[j + k], xj = xa[j + k], zj = xb[j + k];
+                s0[k] += v0 * xj;
+                s1[k] += v1 * xj;
+                t0[k] += v0 * zj;
+                t1[k] += v1 * zj;
+                double p = ya[j + k], q = yb[j + k];
+                p += a0 * v0;
+                p += a1 * v1;
+                q += b0 * v0;
+                q += b1 * v1;
+                ya[j + k] = p;
+                yb[j + k] = q;
+            }
+        for (; j < m; j++) {
+            double v0 = p0[j], v1 = p1[j], xj = xa[j], zj = xb[j];
+            s0[0] += v0 * xj;
+            s1[0] += v1 * xj;
+            t0[0] += v0 * zj;
+            t1[0] += v1 * zj;
+            double p = ya[j], q = yb[j];
+            p += a0 * v0;
+            p += a1 * v1;
+            q += b0 * v0;
+            q += b1 * v1;
+            ya[j] = p;
+            yb[j] = q;
+        }
+        y1[i] += d0 + fold8(s0);
+        y2[i] += e0 + fold8(t0);
+        y1[i + 1] = u1 + (d1 + fold8(s1));
+        y2[i + 1] = v1 + (e1 + fold8(t1));
+        P = r1 + len - 1;
+    }
+    for (; i < n; i++) {                                              /* the last row, n odd */
+        int len = n - i;
         double a = x1[i], b = x2[i];
-        y1[i] += dot(r, x1 + i, len);
-        y2[i] += dot(r, x2 + i, len);
-        double *restrict u = y1 + i, *restrict v = y2 + i;
+        y1[i] += dot(P, x1 + i, len);
+        y2[i] += dot(P, x2 + i, len);
         for (int j = 1; j < len; j++) {
-            u[j] += a * r[j];
-            v[j] += b * r[j];
+            y1[i + j] += a * P[j];
+            y2[i + j] += b * P[j];
         }
         P += len;
     }
 }
+UP_KERNEL(up_spmv2_add,
+          (const double *restrict P, int n, const double *restrict x1, const double *restrict x2,
+           double *restrict y1, double *restrict y2),
+          (P, n, x1, x2, y1, y2))
 
 /* P <- the upper triangle of A (n, n) packed by rows; 1 when A is symmetric (bit for bit) */
 int up_pack_sym(const double *A, int n, double *P)
@@ -294,17 +552,20 @@ void up_symv(const double *A, const double *P, int n, const double *x, double *y
     up_spmv_add(P, n, x, y);
 }
 
-UP_WIDE void up_matvec_add(const double *A, int rows, int cols, const double *x, double s, double *y)
+UP_BODY void up_matvec_add_k(const double *A, int rows, int cols, const double *x, double s, double *y)
 {
     for (int i = 0; i < rows; i++)
         y[i] += s * dot(A + (size_t)i * cols, x, cols);
 }
+UP_KERNEL(up_matvec_add, (const double *A, int rows, int cols, const double *x, double s, double *y),
+          (A, rows, cols, x, s, y))
 
-UP_WIDE void up_axpy(double a, const double *restrict x, int n, double *restrict y)
+UP_BODY void up_axpy_k(double a, const double *restrict x, int n, double *restrict y)
 {
     for (int i = 0; i < n; i++)
         y[i] += a * x[i];
 }
+UP_KERNEL(up_axpy, (double a, const double *restrict x, int n, double *restrict y), (a, x, n, y))
 
 double up_dot(const double *a, const double *b, int n)
 {

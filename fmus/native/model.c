@@ -13,6 +13,22 @@
 
 double *up_var(UpInstance *I, int slot) { return I->bank + I->slot[slot]; }
 
+/* the gap and the running maxima of the uplift and the raft's rotation: after every step */
+static void track_maxima(UpInstance *I)
+{
+    UpStepper *st = &I->st;
+    double *gap = up_var(I, S_GAP), gmax = 0.0, *up = up_var(I, S_MAX_UPLIFT), *rot = up_var(I, S_MAX_ROTATION);
+    up_stepper_gap(st, gap);
+    for (int i = 0; i < I->N; i++)
+        gmax = i == 0 || gap[i] > gmax ? gap[i] : gmax;
+    const double *q = st->u + st->ni;
+    double r = hypot(q[3], q[4]);
+    *up = *up >= gmax ? *up : gmax;
+    *rot = *rot >= r ? *rot : r;
+}
+
+/* every output of the stepper: at the end of a communication step (its inner steps track the
+   maxima only: the other outputs are overwritten before anyone reads them) */
 static void publish_stepper(UpInstance *I)
 {
     UpStepper *st = &I->st;
@@ -20,8 +36,6 @@ static void publish_stepper(UpInstance *I)
     memcpy(up_var(I, S_X), st->u + st->ni, (size_t)n * sizeof(double));
     memcpy(up_var(I, S_XDOT), st->v + st->ni, (size_t)n * sizeof(double));
     memcpy(up_var(I, S_P), st->P, (size_t)N * sizeof(double));
-    double *gap = up_var(I, S_GAP);
-    up_stepper_gap(st, gap);
     double *node = up_var(I, S_NODES);
     for (int k = 0; k < I->nnodes; k++)
         for (int c = 0; c < 3; c++) {
@@ -30,13 +44,7 @@ static void publish_stepper(UpInstance *I)
             node[6 * k + 3 + c] = st->u[d];
         }
     up_stepper_energies(st, up_var(I, S_ENERGY));
-    double gmax = 0.0, *up = up_var(I, S_MAX_UPLIFT), *rot = up_var(I, S_MAX_ROTATION);
-    for (int i = 0; i < N; i++)
-        gmax = i == 0 || gap[i] > gmax ? gap[i] : gmax;
-    const double *q = st->u + st->ni;
-    double r = hypot(q[3], q[4]);
-    *up = *up >= gmax ? *up : gmax;
-    *rot = *rot >= r ? *rot : r;
+    track_maxima(I);
     if (I->slot[S_X_TIME] >= 0)
         *up_var(I, S_X_TIME) = *st->t;
 }
@@ -122,8 +130,10 @@ static void ag_next(UpInstance *I, double t)
 }
 
 
-/* one step of dt from t: 0, UP_REFUSED (a wrong stamp) or UP_FAILED (no Newton convergence), with I->err */
-int up_step(UpInstance *I, double t)
+/* one step of dt from t, the last of its communication step or not (then the stepper's outputs
+   but the maxima are not written): 0, UP_REFUSED (a wrong stamp) or UP_FAILED (no Newton
+   convergence), with I->err */
+int up_step(UpInstance *I, double t, int last)
 {
     int n = I->n;
     if (I->role == ROLE_SOIL) {
@@ -147,16 +157,24 @@ int up_step(UpInstance *I, double t)
             return UP_REFUSED;
         const double *x = st->u + st->ni, *xd = st->v + st->ni;
         double *Gx = st->w_n[8], *Gv = st->w_n[9];          /* work of the stepper, free between steps */
-        up_matvec(I->Gx, n, n, x, Gx);
-        up_matvec(I->Gv, n, n, xd, Gv);
-        for (int i = 0; i < n; i++)
-            st->h_ext[i] = (g[i] + Gx[i]) + Gv[i];
+        up_symv(I->Gx, I->Gxp, n, x, Gx);
+        if (I->Gv_zero) {
+            for (int i = 0; i < n; i++)
+                st->h_ext[i] = g[i] + Gx[i];
+        } else {
+            up_matvec(I->Gv, n, n, xd, Gv);
+            for (int i = 0; i < n; i++)
+                st->h_ext[i] = (g[i] + Gx[i]) + Gv[i];
+        }
     }
     ag_next(I, t);
     if (up_stepper_step(st))
         return UP_FAILED;
     *up_var(I, S_NEWTON) = st->last_iters;
-    publish_stepper(I);
+    if (last)
+        publish_stepper(I);
+    else
+        track_maxima(I);
     return 0;
 }
 
@@ -271,18 +289,38 @@ int up_do_step(UpInstance *I, double t, double h)
         *I->time = t + h;
         return UP_OK;
     }
-    memcpy(I->backup, I->block, I->block_len * sizeof(double));
+    /* the instance as it was if a step fails: a single step of the structure or the coupled
+       model changes only the held input and the stepper's inputs (ag_next, h_ext) before its
+       stepper step, which leaves the state as it found it when it fails: those are kept; else the
+       whole state block */
+    int whole = steps > 1 || !I->has_stepper;
+    double *in = I->st.ag_next, *keep = I->backup + 1 + I->held_len;
+    size_t in_len = whole ? 0 : 3 + (size_t)I->st.nb;     /* ag_next and h_ext, consecutive */
+    if (whole) {
+        memcpy(I->backup, I->block, I->block_len * sizeof(double));
+    } else {
+        I->backup[0] = *I->held_t;
+        memcpy(I->backup + 1, I->held, (size_t)I->held_len * sizeof(double));
+        memcpy(keep, in, in_len * sizeof(double));
+    }
     int rc = 0;
     for (long i = 0; i < (long)steps && rc == 0; i++)
-        rc = up_step(I, t + (double)i * I->dt);
+        rc = up_step(I, t + (double)i * I->dt, i + 1 == (long)steps);
     if (rc) {
-        memcpy(I->block, I->backup, I->block_len * sizeof(double));     /* the instance as it was */
+        if (whole) {
+            memcpy(I->block, I->backup, I->block_len * sizeof(double));     /* the instance as it was */
+        } else {
+            *I->held_t = I->backup[0];
+            memcpy(I->held, I->backup + 1, (size_t)I->held_len * sizeof(double));
+            memcpy(in, keep, in_len * sizeof(double));
+        }
         if (rc == UP_REFUSED)
             return refuse(I, t, I->err);
         up_log_error(I, "step from t = %s s failed: %s", up_num(t, b1), I->err);
         return UP_DISCARD;                                            /* no Newton convergence */
     }
     *I->time = t + h;
-    up_log_event(I, "step from t = %s s: %ld step(s) of dt", up_num(t, b1), (long)steps);
+    if (I->logging)                                                   /* the number formatted only then */
+        up_log_event(I, "step from t = %s s: %ld step(s) of dt", up_num(t, b1), (long)steps);
     return UP_OK;
 }

@@ -8,12 +8,14 @@
    total contact force P_i = kp_i max(0, delta0_i - d_i), d = Bq3 q[2:5] - w.
 
    Per step size dt (one level per halving) the effective matrix
-   A = diag(c0 M) + (1 + alpha)(K + c1 C) is condensed on x: LU of the interior block A_II,
+   A = diag(c0 M) + (1 + alpha)(K + c1 C) is condensed on x: A_II^-1 (from its LU),
    X = A_II^-1 A_IB, S0 = A_BB - A_BI X. Newton solves (S0 + (1 + alpha) B^T diag(kp active) B) dx
-   = -g with the LU of that matrix kept per (level, active set); an exact line search on the
-   piecewise-quadratic incremental energy guards against cycling; a step whose Newton fails is
-   halved recursively (ground motion interpolated, soil history of an external soil held) down
-   to dt / 2**max_subdiv. No allocation after up_stepper_init. */
+   = -g by Woodbury from two bases (below); an exact line search on the piecewise-quadratic
+   incremental energy guards against cycling; a step whose Newton fails is halved recursively
+   (ground motion interpolated, soil history of an external soil held) down to dt / 2**max_subdiv.
+   A step writes the state only when it succeeds. When Ks, Cs (to round-off) and E are symmetric,
+   the matrices a step multiplies are held symmetrised and packed (half the memory traffic, which
+   bounds a step). No allocation after up_stepper_init. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -41,6 +43,20 @@ static int finite_all(const double *a, size_t n)
         if (!isfinite(a[i]))
             return 0;
     return 1;
+}
+
+/* A (n, n) symmetric to round-off: |A_ij - A_ji| <= 1e-13 max |A| (an assembled stiffness is
+   symmetric but for the last bits of its products) */
+static int symmetric(const double *A, int n)
+{
+    double big = 0.0, off = 0.0;
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < n; j++) {
+            double a = fabs(A[(size_t)i * n + j]), d = fabs(A[(size_t)i * n + j] - A[(size_t)j * n + i]);
+            big = a > big ? a : big;
+            off = d > off ? d : off;
+        }
+    return off <= 1e-13 * big;
 }
 
 int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, char *err)
@@ -94,23 +110,26 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
             snprintf(err, UP_MSG, "resource file %s: contact penalty kp[%d] = %g must be > 0", r->path, i, s->kp[i]);
             return -1;
         }
+    s->sym = symmetric(s->Ks, ns_) && symmetric(s->Cs, ns_) && soil->Ep != NULL;
     int ok = up_sparse_init(&s->Ks_sp, s->Ks, ns_, ns_) == 0 && up_sparse_init(&s->Cs_sp, s->Cs, ns_, ns_) == 0;
     for (int l = 0; ok && l < s->nlev; l++) {
         UpSystem *y = &s->sys[l];
         y->AII = (double *)malloc(((size_t)ni * ni + 1) * sizeof(double));
-        y->piv = (int *)malloc(((size_t)ni + 1) * sizeof(int));
+        y->AIIp = (double *)malloc(((size_t)ni * (ni + 1) / 2 + 1) * sizeof(double));
         y->ABI = (double *)malloc(((size_t)nb * ni + 1) * sizeof(double));
         y->X = (double *)malloc(((size_t)ni * nb + 1) * sizeof(double));
         y->S0 = (double *)malloc((size_t)nb * nb * sizeof(double));
+        y->Sq = (double *)malloc(((size_t)nb + 36) * sizeof(double));
         y->K0C = (double *)malloc((size_t)nb * nb * sizeof(double));
         y->K0Cp = (double *)malloc(((size_t)nb * (nb + 1) / 2 + 1) * sizeof(double));
-        ok = y->AII && y->piv && y->ABI && y->X && y->S0 && y->K0C && y->K0Cp;
+        ok = y->AII && y->AIIp && y->ABI && y->X && y->S0 && y->Sq && y->K0C && y->K0Cp;
         for (int c = 0; ok && c < 2; c++) {
             y->Jb[c] = (double *)malloc((size_t)nb * nb * sizeof(double));
-            y->pb[c] = (int *)malloc((size_t)nb * sizeof(int));
+            y->Jp[c] = (double *)malloc(((size_t)nb * (nb + 1) / 2 + 1) * sizeof(double));
+            y->Jd[c] = (double *)malloc((size_t)nb * sizeof(double));
             y->Z[c] = (double *)malloc(((size_t)Ni * nb + 1) * sizeof(double));
             y->W[c] = (double *)malloc(((size_t)Ni * Ni + 1) * sizeof(double));
-            ok = y->Jb[c] && y->pb[c] && y->Z[c] && y->W[c];
+            ok = y->Jb[c] && y->Jp[c] && y->Jd[c] && y->Z[c] && y->W[c];
         }
     }
     s->cache_lu = (double *)malloc(((size_t)UP_NCACHE * Ni * Ni + 1) * sizeof(double));
@@ -132,10 +151,14 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
     for (int k = 0; ok && k < 6; k++)
         ok = (s->w_N[k] = (double *)calloc((size_t)Ni + 1, sizeof(double))) != NULL;
     if (ok) {
+        size_t big = (size_t)(ni > nb ? ni : nb);
+        s->lu = (double *)malloc((big * big + 1) * sizeof(double));
+        s->rhs = (double *)malloc((big * big + 1) * sizeof(double));
+        s->lu_piv = (int *)malloc((big + 1) * sizeof(int));
         s->hbuf = (double *)calloc((size_t)s->nlev * nb, sizeof(double));
         s->act = (unsigned char *)calloc((size_t)Ni + 1, 1);
         s->act_new = (unsigned char *)calloc((size_t)Ni + 1, 1);
-        ok = s->hbuf && s->act && s->act_new;
+        ok = s->lu && s->rhs && s->lu_piv && s->hbuf && s->act && s->act_new;
     }
     if (!ok) {
         up_stepper_free(s);
@@ -150,15 +173,17 @@ void up_stepper_free(UpStepper *s)
     for (int l = 0; l < UP_MAXLEV; l++) {
         UpSystem *y = &s->sys[l];
         free(y->AII);
-        free(y->piv);
+        free(y->AIIp);
         free(y->ABI);
         free(y->X);
         free(y->S0);
+        free(y->Sq);
         free(y->K0C);
         free(y->K0Cp);
         for (int c = 0; c < 2; c++) {
             free(y->Jb[c]);
-            free(y->pb[c]);
+            free(y->Jp[c]);
+            free(y->Jd[c]);
             free(y->Z[c]);
             free(y->W[c]);
         }
@@ -179,6 +204,9 @@ void up_stepper_free(UpStepper *s)
         free(s->w_nb[k]);
     for (int k = 0; k < 6; k++)
         free(s->w_N[k]);
+    free(s->lu);
+    free(s->rhs);
+    free(s->lu_piv);
     free(s->hbuf);
     free(s->act);
     free(s->act_new);
@@ -187,7 +215,7 @@ void up_stepper_free(UpStepper *s)
 
 size_t up_stepper_state_len(const UpStepper *s)
 {
-    return 1 + 5 * (size_t)s->n + (size_t)s->N + 3 * (size_t)s->nb + 13;
+    return 1 + 5 * (size_t)s->n + (size_t)s->N + 4 * (size_t)s->nb + 11;
 }
 
 void up_stepper_bind(UpStepper *s, double *state, double *block, size_t block_len, double *saves)
@@ -205,6 +233,8 @@ void up_stepper_bind(UpStepper *s, double *state, double *block, size_t block_le
     s->work = s->ag + 3;
     s->ag_next = s->work + 4;
     s->h_ext = s->ag_next + 3;
+    s->Kx = s->h_ext + s->nb;
+    s->kx_lev = s->Kx + s->nb;
     s->block = block;
     s->block_len = block_len;
     s->saves = saves;
@@ -252,11 +282,13 @@ static const UpSystem *system_at(UpStepper *s, int lev)
     y->c2 = 1 / (b * dt);
     y->c3 = 1 / (2 * b) - 1;
     int ns = s->ns, ni = s->ni, nb = s->nb;
-    /* the blocks of A = diag(c0 M) + (1 + al)(K + c1 C), K = Ks + K0 and C = Cs + E embedded */
+    /* the blocks of A = diag(c0 M) + (1 + al)(K + c1 C), K = Ks + K0 and C = Cs + E embedded;
+       A_II factorised in the set-up's work (s->lu) */
+    double *LU = s->lu;
     for (int i = 0; i < ni; i++)
         for (int j = 0; j < ni; j++) {
             double k = s->Ks[(size_t)i * ns + j], c = s->Cs[(size_t)i * ns + j];
-            y->AII[(size_t)i * ni + j] = (1 + al) * (k + y->c1 * c) + (i == j ? y->c0 * s->M[i] : 0.0);
+            LU[(size_t)i * ni + j] = (1 + al) * (k + y->c1 * c) + (i == j ? y->c0 * s->M[i] : 0.0);
         }
     for (int i = 0; i < nb; i++)
         for (int j = 0; j < ni; j++) {
@@ -275,7 +307,7 @@ static const UpSystem *system_at(UpStepper *s, int lev)
             }
             S0[(size_t)i * nb + j] = (1 + al) * (k + y->c1 * c) + (i == j ? y->c0 * s->M[gi] : 0.0);
         }
-    if (ni > 0 && up_lu(y->AII, y->piv, ni))
+    if (ni > 0 && up_lu(LU, s->lu_piv, ni))
         return NULL;
     /* X = A_II^-1 A_IB, column by column; only the columns of the raft DOFs are not zero */
     memset(y->X, 0, (size_t)ni * nb * sizeof(double));
@@ -289,10 +321,13 @@ static const UpSystem *system_at(UpStepper *s, int lev)
         }
         if (!any)
             continue;
-        up_lu_solve(y->AII, y->piv, ni, col);
+        up_lu_solve(LU, s->lu_piv, ni, col);
         for (int i = 0; i < ni; i++)
             y->X[(size_t)i * nb + j] = col[i];
     }
+    /* A_II^-1 itself: a step's solve is then one product (packed: half the memory traffic) */
+    if (ni > 0)
+        up_inverse(LU, s->lu_piv, ni, y->AII, s->sym ? y->AIIp : NULL);
     y->abi_rows = y->x_cols = 0;
     for (int i = 0; i < nb; i++)
         for (int k = 0; k < ni; k++)
@@ -312,11 +347,33 @@ static const UpSystem *system_at(UpStepper *s, int lev)
             for (int j = 0; j < nb; j++)
                 si[j] -= a * xk[j];
         }
+    /* S0 = (1 + al) K0C + diag(c0 M_B) + Sq on q: the structure's part (its stiffness, damping
+       and condensation) touches the raft's six DOFs only */
+    double *Sq = y->Sq, *cM = y->Sq + 36;
+    for (int i = 0; i < 6; i++)
+        for (int j = 0; j < 6; j++) {
+            int gi = ni + i, gj = ni + j;
+            double v = (1 + al) * (s->Ks[(size_t)gi * ns + gj] + y->c1 * s->Cs[(size_t)gi * ns + gj]);
+            for (int k = 0; k < ni; k++)
+                v -= y->ABI[(size_t)i * ni + k] * y->X[(size_t)k * nb + j];
+            Sq[6 * i + j] = v;
+        }
+    for (int i = 0; i < nb; i++)
+        cM[i] = y->c0 * s->M[ni + i];
+    if (s->sym) {                                         /* symmetric but for the round-off of A_BI X */
+        for (int i = 0; i < nb; i++)
+            for (int j = i + 1; j < nb; j++) {
+                double m = 0.5 * (S0[(size_t)i * nb + j] + S0[(size_t)j * nb + i]);
+                S0[(size_t)i * nb + j] = S0[(size_t)j * nb + i] = m;
+            }
+        for (int i = 0; i < 6; i++)
+            for (int j = i + 1; j < 6; j++)
+                Sq[6 * i + j] = Sq[6 * j + i] = 0.5 * (Sq[6 * i + j] + Sq[6 * j + i]);
+    }
     for (size_t i = 0; i < (size_t)nb * nb; i++)
         y->K0C[i] = sl->D0[i] + y->c1 * s->soil->E[i];
     up_pack_sym(y->K0C, nb, y->K0Cp);                     /* symmetric when E is (D0 is) */
-    y->base_ok[0] = base_at(s, y, 0) == 0;
-    y->base_ok[1] = base_at(s, y, 1) == 0;
+    y->base_ok[0] = y->base_ok[1] = 0;                    /* built when first needed (base) */
     y->ready = 1;
     return y;
 }
@@ -368,32 +425,25 @@ static void residual(const UpStepper *s, const double *Sx, const double *x, cons
 
 /* ---- the Newton matrix J(act) = S0 + sum over the active nodes of s_i b_i b_i^T ----------------
    s_i = (1 + al) kp_i, b_i the contact direction of node i (Bq3_i on q[2:5], -1 on w_i). Two
-   bases per level, factorised once: every contact closed (Jc) and every contact open (S0), with
-   Z = base^-1 b_i for every node and W_ij = b_i . Z_j. J(act) differs from the nearer base by
+   bases per level, each inverted once when first needed: every contact closed (Jc) and every
+   contact open (S0), with Z = base^-1 b_i for every node and W_ij = b_i . Z_j. J(act) differs from the nearer base by
    the k = min(open, closed) nodes K: J = base + sigma U_K S_K U_K^T (sigma -1 from the closed
    base, +1 from the open one), so by Woodbury
        J^-1 r = y - Z_K C^-1 (U_K^T y),  y = base^-1 r,  C = sigma S_K^-1 + W_KK  (k, k).
    Only C is factorised per active set ((2/3) k^3 instead of (2/3) nb^3), kept per (level, active
    set) in the cache (least recently used replaced). Every number depends on the level and the
    active set only, never on what the cache held before: a replayed step is the same bit for bit. */
-static void direction(const UpStepper *s, int i, double *b)
-{
-    memset(b, 0, (size_t)s->nb * sizeof(double));
-    memcpy(b + 2, s->Bq3 + 3 * (size_t)i, 3 * sizeof(double));
-    b[6 + i] = -1.0;
-}
-
 static double along(const UpStepper *s, int i, const double *x)
 {
     const double *b = s->Bq3 + 3 * (size_t)i;
     return ((b[0] * x[2] + b[1] * x[3]) + b[2] * x[4]) - x[6 + i];
 }
 
-/* base c of level lev: its LU, Z and W; 0, or -1 when singular */
+/* base c of level lev: its inverse, Z and W; 0, or -1 when singular */
 static int base_at(UpStepper *s, UpSystem *y, int c)
 {
     int N = s->N, nb = s->nb;
-    double *J = y->Jb[c];
+    double *J = s->lu, *Ji = y->Jb[c];
     memcpy(J, y->S0, (size_t)nb * nb * sizeof(double));
     for (int i = 0; c == 0 && i < N; i++) {
         double si = (1 + s->alpha) * s->kp[i];
@@ -407,18 +457,52 @@ static int base_at(UpStepper *s, UpSystem *y, int c)
         }
         J[(size_t)(6 + i) * nb + 6 + i] += si;
     }
-    s->n_factorisations++;
-    if (up_lu(J, y->pb[c], nb))
-        return -1;
-    for (int i = 0; i < N; i++) {
-        double *z = y->Z[c] + (size_t)i * nb;
-        direction(s, i, z);
-        up_lu_solve(J, y->pb[c], nb, z);
+    /* scaled by powers of two (exact) to a unit diagonal, d_r ~ |J_rr|^-1/2: the inverse of the
+       scaled base is symmetric to round-off of its own size, so its two triangles can be
+       averaged and packed (unscaled, the penalty's large entries leave the small ones of the
+       inverse with round-off of the large ones') */
+    double *d = y->Jd[c];
+    for (int r = 0; r < nb; r++) {
+        double jr = fabs(J[(size_t)r * nb + r]);
+        d[r] = jr > 0.0 && isfinite(jr) ? ldexp(1.0, -ilogb(jr) / 2) : 1.0;
     }
+    for (int r = 0; r < nb; r++)
+        for (int q = 0; q < nb; q++)
+            J[(size_t)r * nb + q] *= d[r] * d[q];
+    s->n_factorisations++;
+    if (up_lu(J, s->lu_piv, nb))
+        return -1;
+    up_inverse(J, s->lu_piv, nb, Ji, s->sym ? y->Jp[c] : NULL);
+    /* Z_i = base^-1 b_i, b_i = Bq3_i on q[2:5] and -1 on w_i: solved from the LU (a combination of
+       the inverse's columns would lose digits: the penalty couples them strongly) */
+    double *B = s->rhs;                                   /* (nb, N): column i is b_i */
+    memset(B, 0, (size_t)nb * N * sizeof(double));
+    for (int i = 0; i < N; i++) {
+        const double *b = s->Bq3 + 3 * (size_t)i;
+        for (int r = 0; r < 3; r++)
+            B[(size_t)(2 + r) * N + i] = b[r];
+        B[(size_t)(6 + i) * N + i] = -1.0;
+    }
+    for (int r = 0; r < nb; r++)
+        for (int i = 0; i < N; i++)
+            B[(size_t)r * N + i] *= d[r];
+    up_lu_solve_many(J, s->lu_piv, nb, B, N);
+    for (int i = 0; i < N; i++)
+        for (int r = 0; r < nb; r++)
+            y->Z[c][(size_t)i * nb + r] = d[r] * B[(size_t)r * N + i];
     for (int i = 0; i < N; i++)
         for (int j = 0; j < N; j++)
             y->W[c][(size_t)i * N + j] = along(s, i, y->Z[c] + (size_t)j * nb);
     return 0;
+}
+
+/* 1 when base c of the level is usable, built on first use (its numbers are the same whenever
+   it is built); 0 when it is singular */
+static int base(UpStepper *s, UpSystem *y, int c)
+{
+    if (y->base_ok[c] == 0)
+        y->base_ok[c] = base_at(s, y, c) == 0 ? 1 : -1;
+    return y->base_ok[c] > 0;
 }
 
 /* the cache slot of (lev, act): its base, nodes K and the LU of C; -1 when singular */
@@ -438,8 +522,8 @@ static int capacitance(UpStepper *s, int lev, const unsigned char *act)
     int closed = 0;
     for (int i = 0; i < N; i++)
         closed += act[i] != 0;
-    int c = y->base_ok[1] && closed < N - closed ? 1 : 0;     /* the nearer base: all open (1), all closed (0) */
-    if (!y->base_ok[c])
+    int c = closed < N - closed && base(s, y, 1) ? 1 : 0;     /* the nearer base: all open (1), all closed (0) */
+    if (!base(s, y, c))
         return -1;
     int *K = s->cache_nodes + (size_t)slot * N, k = 0;
     for (int i = 0; i < N; i++)
@@ -473,7 +557,13 @@ static int newton_solve(UpStepper *s, int lev, const unsigned char *act, double 
     const UpSystem *y = &s->sys[lev];
     int N = s->N, nb = s->nb, c = s->cache_base[slot], k = s->cache_k[slot];
     const int *K = s->cache_nodes + (size_t)slot * N;
-    up_lu_solve(y->Jb[c], y->pb[c], nb, x);
+    double *yb = s->w_nb[7];                              /* free during the Newton iteration */
+    const double *d = y->Jd[c];
+    for (int r = 0; r < nb; r++)
+        x[r] *= d[r];
+    up_symv(y->Jb[c], s->sym ? y->Jp[c] : NULL, nb, x, yb);      /* base^-1 = D (D base D)^-1 D */
+    for (int r = 0; r < nb; r++)
+        x[r] = d[r] * yb[r];
     if (k == 0)
         return 0;
     double *t = s->w_N[3];
@@ -585,9 +675,8 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
     /* condensation: y = A_II^-1 rhs_I, r_hat = rhs_B - A_BI y */
     double *yI = u_new, *r_hat = s->w_nb[0], *uB = s->w_nb[1], *gv = s->w_nb[2], *dx = s->w_nb[3];
     double *xn = s->w_nb[4], *gn = s->w_nb[5];
-    memcpy(yI, rhs, (size_t)ni * sizeof(double));
     if (ni > 0)
-        up_lu_solve(y->AII, y->piv, ni, yI);
+        up_symv(y->AII, s->sym ? y->AIIp : NULL, ni, rhs, yI);
     up_matvec(y->ABI, y->abi_rows, ni, yI, r_hat);
     for (int i = 0; i < nb; i++)
         r_hat[i] = rhs[ni + i] - (i < y->abi_rows ? r_hat[i] : 0.0);
@@ -607,7 +696,19 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
         scale = scale > p0 ? scale : p0;
         scale = scale > 1.0 ? scale : 1.0;
         double tol = s->tol * scale;
-        up_matvec(y->S0, nb, nb, uB, Sx);
+        /* S0 x = (1 + al) K0C x + c0 M_B x + Sq x[0:6], K0C x from the step that left x (the
+           soil force's product) when it was at this level, else computed here (in fs_new's
+           work, free until the iteration ends: the state is written only by a step that succeeds) */
+        const double *Kx = s->Kx;
+        if (*s->kx_lev != (double)lev) {
+            up_symv(y->K0C, s->soil->Ep ? y->K0Cp : NULL, nb, uB, s->w_nb[6]);
+            Kx = s->w_nb[6];
+        }
+        const double *Sq = y->Sq, *cM = y->Sq + 36;
+        for (int i = 0; i < nb; i++)
+            Sx[i] = (1 + al) * Kx[i] + cM[i] * uB[i];
+        for (int i = 0; i < 6; i++)
+            Sx[i] += up_dot(Sq + 6 * i, uB, 6);
         residual(s, Sx, uB, r_hat, gv, s->act);
         int conv = 0;
         for (int it = 0; it < s->max_iter; it++) {
@@ -682,9 +783,10 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
     contact(s, u_new + ni, P_new, s->act_new, fc_new);
     const double *x_new = u_new + ni, *xd_new = v_new + ni;
     /* the soil force K0 x + C0 xdot + h = (D0 + c1 E) x + E v_hat + h (xdot = c1 x + v_hat) */
-    up_symv(y->K0C, s->soil->Ep ? y->K0Cp : NULL, nb, x_new, fs_new);
+    double *Kx_new = s->w_nb[3];                          /* dx, free after the Newton iteration */
+    up_symv(y->K0C, s->soil->Ep ? y->K0Cp : NULL, nb, x_new, Kx_new);
     for (int i = 0; i < nb; i++)
-        fs_new[i] = (fs_new[i] + Ev[i]) + h[i];
+        fs_new[i] = (Kx_new[i] + Ev[i]) + h[i];
     if (al != 0.0) {
         /* R = Ks u + Cs v, plus fs + fc on x: the internal force the HHT average needs */
         double *Cv_new = s->w_n[9];
@@ -725,6 +827,8 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
     memcpy(s->P, P_new, (size_t)N * sizeof(double));
     memcpy(s->fs, fs_new, (size_t)nb * sizeof(double));
     memcpy(s->fc, fc_new, (size_t)nb * sizeof(double));
+    memcpy(s->Kx, Kx_new, (size_t)nb * sizeof(double));
+    *s->kx_lev = lev;
     memcpy(s->R, R_new, (size_t)n * sizeof(double));
     memcpy(s->F, F_new, (size_t)n * sizeof(double));
     *s->t += dt;
@@ -734,11 +838,11 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
     return 0;
 }
 
-/* one (sub)step of size dt / 2**depth, halved on a Newton failure */
+/* one (sub)step of size dt / 2**depth, halved on a Newton failure. advance writes the state
+   only when it succeeds, so the state is copied (to depth's slot of saves) only before a halving,
+   and a span that fails leaves the state as it found it. */
 static int span(UpStepper *s, int depth, const double *ag0, const double *ag1, const double *h_in, int *iters)
 {
-    double *saved = s->saves + (size_t)depth * s->block_len;
-    memcpy(saved, s->block, s->block_len * sizeof(double));
     const double *h = h_in;
     if (!s->external) {
         double *hd = s->hbuf + (size_t)depth * s->nb;
@@ -752,7 +856,6 @@ static int span(UpStepper *s, int depth, const double *ag0, const double *ag1, c
         *iters += it;
         return 0;
     }
-    memcpy(s->block, saved, s->block_len * sizeof(double));
     double dt = s->sys[depth].ready ? s->sys[depth].dt : s->sys[0].dt;
     if (depth >= s->max_subdiv) {
         snprintf(s->err, UP_MSG, "Newton contact iteration failed at t = %.6g s (step %.3g s after %d halvings), "
@@ -761,12 +864,15 @@ static int span(UpStepper *s, int depth, const double *ag0, const double *ag1, c
         return -1;
     }
     s->last_halved = 1;
+    double *saved = s->saves + (size_t)depth * s->block_len;
+    memcpy(saved, s->block, s->block_len * sizeof(double));
     double agm[3];
     for (int k = 0; k < 3; k++)
         agm[k] = 0.5 * (ag0[k] + ag1[k]);
-    if (span(s, depth + 1, ag0, agm, h_in, iters))
-        return -1;
-    return span(s, depth + 1, agm, ag1, h_in, iters);
+    if (span(s, depth + 1, ag0, agm, h_in, iters) == 0 && span(s, depth + 1, agm, ag1, h_in, iters) == 0)
+        return 0;
+    memcpy(s->block, saved, s->block_len * sizeof(double));
+    return -1;
 }
 
 int up_stepper_prepare(UpStepper *s, char *err)
@@ -786,10 +892,8 @@ int up_stepper_step(UpStepper *s)
     int iters = 0;
     s->last_iters = 0;
     s->last_halved = 0;
-    if (span(s, 0, ag0, ag1, s->external ? s->h_ext : NULL, &iters)) {
-        memcpy(s->block, s->saves, s->block_len * sizeof(double));
-        return -1;
-    }
+    if (span(s, 0, ag0, ag1, s->external ? s->h_ext : NULL, &iters))
+        return -1;                                        /* the state as it was */
     s->last_iters = iters;
     return 0;
 }

@@ -7,11 +7,13 @@ Python stepper (structure.simulate), its readable reference.
   halved;
 - ``run_monolithic``'s default (native) against ``stepper="python"`` (whose linear pre-check
   runs the closed-contact recursion until the contact opens): 1e-10;
+- a soil model whose E is not symmetric (the dense products, not the packed ones): 1e-10;
 - a step that cannot converge: the same step and message as the Python stepper, the samples
   before it returned with status STOPPED;
 - without a compiler the route runs the Python stepper and says so (a warning, not an error);
 - the library's vector width does not change a bit of the answer (baseline SSE2 build against
-  the one with AVX2/AVX-512 clones);
+  the one with AVX2/AVX-512 kernels); the widest kernels the CPU has are the ones that run, built
+  by the system compiler and by zig's (whose runtime's CPU test reports no feature);
 - the cosim route runs the native pair by default (the Python pair as an option): both equal
   the monolithic route to 1e-10;
 - the run's step-doubling check on the proxy springs (the native stepper where available):
@@ -23,6 +25,7 @@ import ctypes
 import dataclasses
 import shutil
 import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -82,6 +85,22 @@ def test_route_default_equals_the_python_route():
     assert_same_histories(fast, ref)
 
 
+def test_a_soil_model_without_symmetry_runs_the_dense_products():
+    """E made slightly unsymmetric (a skew part: its quadratic form, so passivity, unchanged): the
+    system's matrices held dense, not packed; the same answer as the Python stepper."""
+    rng = np.random.default_rng(1)
+    A = 1e-6 * np.abs(MODEL.E).max() * rng.standard_normal(MODEL.E.shape)
+    model = dataclasses.replace(MODEL, E=MODEL.E + (A - A.T))
+    assert not np.array_equal(model.E, model.E.T)
+    contact = dataclasses.replace(SCENE.contact, precheck=False)
+    st = NewmarkStepper(SCENE.model(), soil_from_model(model, DT), DT, contact=contact, external_soil=True,
+                        ag0=MOTION.acc[0])
+    fast = native_host.simulate_native(st, MOTION.acc, SCENE.output.nodes)
+    ref = simulate(SCENE.model(), soil_from_model(model, DT), MOTION.acc, DT, contact=contact,
+                   output_nodes=SCENE.output.nodes)
+    assert ref.max_uplift() > 1e-3
+    assert_same_histories(fast, ref)
+
 def test_a_step_that_cannot_converge_stops_where_the_python_stepper_stops():
     contact = dataclasses.replace(SCENE.contact, max_iter=1, max_subdiv=2, precheck=False)
     st = NewmarkStepper(SCENE.model(), soil_from_model(MODEL, DT), DT, contact=contact, external_soil=True,
@@ -122,6 +141,34 @@ def test_the_vector_width_does_not_change_the_answer(tmp_path):
     assert np.array_equal(wide.raft, base.raft) and np.array_equal(wide.gap, base.gap)
     assert all(np.array_equal(wide.acc[nm], base.acc[nm]) for nm in wide.acc)
 
+
+def _cpu_flags() -> set:
+    try:
+        with open("/proc/cpuinfo") as f:
+            return next((set(line.split(":", 1)[1].split()) for line in f if line.startswith("flags")), set())
+    except OSError:
+        return set()
+
+
+@pytest.mark.skipif(not _cpu_flags(), reason="needs Linux x86-64 (/proc/cpuinfo)")
+@pytest.mark.parametrize("compiler", ["cc", "zig"])
+def test_the_wide_kernels_run_where_the_cpu_has_them(tmp_path, compiler):
+    flags = _cpu_flags()
+    want = 2 if "avx512f" in flags else 1 if "avx2" in flags else 0
+    main = tmp_path / "main.c"
+    main.write_text('#include <stdio.h>\nint up_vector_level(void);\n'
+                    'int main(void) { printf("%d\\n", up_vector_level()); return 0; }\n')
+    exe = tmp_path / "level"
+    if compiler == "zig":
+        pytest.importorskip("ziglang")
+        cmd = [sys.executable, "-m", "ziglang", "cc", "-target", "x86_64-linux-gnu.2.17"]
+    elif shutil.which("cc"):
+        cmd = ["cc"]
+    else:
+        pytest.skip("needs the system compiler")
+    subprocess.run([*cmd, "-std=c99", "-O3", "-ffp-contract=off", f"-I{NATIVE / 'include'}", "-o", str(exe),
+                    str(main), str(NATIVE / "linalg.c"), "-lm"], check=True, cwd=tmp_path)
+    assert int(subprocess.run([str(exe)], capture_output=True, text=True, check=True).stdout) == want
 
 def test_cosim_route_runs_the_native_pair_by_default():
     from orchestrator.routes.cosim import run_cosim

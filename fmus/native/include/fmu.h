@@ -61,6 +61,8 @@ struct UpInstance {
                                                Float64 variable */
     int64_t nvars3, vr3_N;
     const double *Gx, *Gv;                  /* (n, n), structure only */
+    double *Gxp;                            /* Gx packed when it is symmetric, else NULL */
+    int Gv_zero;                            /* 1 when Gv is zero (no product) */
     double dt, start_time, stop_time;       /* stop_time: +inf unless the host defines it */
     uint64_t guid_hash;
     /* the state block and its parts */
@@ -96,7 +98,7 @@ int up_set_logging(UpInstance *I, const char *fn, int on, size_t n, const char *
 enum { UP_REFUSED = 1, UP_FAILED = 2 };
 double *up_var(UpInstance *I, int slot);
 int up_initial_state(UpInstance *I);                          /* 0, or -1 with I->err */
-int up_step(UpInstance *I, double t);                         /* 0, UP_REFUSED or UP_FAILED with I->err */
+int up_step(UpInstance *I, double t, int last);  /* 0, UP_REFUSED or UP_FAILED with I->err; outputs if last */
 int up_setup_experiment(UpInstance *I, const char *fn, int stop_defined, double start, double stop);  /* 0 / -1 */
 int up_enter_initialisation(UpInstance *I);                   /* UP_OK or UP_ERROR, logged */
 int up_exit_initialisation(UpInstance *I);

@@ -56,6 +56,9 @@
 #define up_log_event UP_SYM(up_log_event)
 #define up_lu UP_SYM(up_lu)
 #define up_lu_solve UP_SYM(up_lu_solve)
+#define up_inverse UP_SYM(up_inverse)
+#define up_lu_solve_many UP_SYM(up_lu_solve_many)
+#define up_vector_level UP_SYM(up_vector_level)
 #define up_matvec UP_SYM(up_matvec)
 #define up_gemv_t UP_SYM(up_gemv_t)
 #define up_spmv_add UP_SYM(up_spmv_add)
@@ -167,6 +170,9 @@ typedef struct {
 /* ---- linalg.c --------------------------------------------------------------------------------- */
 int up_lu(double *A, int *piv, int n);                  /* in place; 0, or k + 1 on a zero pivot */
 void up_lu_solve(const double *LU, const int *piv, int n, double *b);   /* b <- A^-1 b */
+void up_lu_solve_many(const double *LU, const int *piv, int n, double *B, int k);  /* B (n, k) <- A^-1 B */
+/* inv <- A^-1 from its LU; with P, inv symmetrised and packed into P */
+void up_inverse(const double *LU, const int *piv, int n, double *inv, double *P);
 void up_matvec(const double *A, int rows, int cols, const double *x, double *y);        /* y = A x */
 void up_matvec_ld(const double *A, int rows, int cols, int lda, const double *x, double *y);  /* rows of stride lda */
 int up_sparse_init(UpSparse *S, const double *A, int rows, int cols);   /* from dense A; -1 out of memory */
@@ -184,6 +190,7 @@ void up_symv(const double *A, const double *P, int n, const double *x, double *y
 void up_axpy(double a, const double *x, int n, double *y);                      /* y += a x */
 void up_matvec_add(const double *A, int rows, int cols, const double *x, double s, double *y); /* y += s A x */
 double up_dot(const double *a, const double *b, int n);
+int up_vector_level(void);        /* the kernels' width on this CPU: 2 AVX-512, 1 AVX2, 0 the baseline */
 double up_norm(const double *a, int n);
 
 /* ---- soil.c: recursive convolution --------------------------------------------------------- */
@@ -228,26 +235,30 @@ void up_soil_step(UpSoil *s, int lev, const double *x, const double *xd, double 
 typedef struct {
     int ready;
     double dt, c0, c1, c2, c3;
-    double *AII;              /* (ni, ni) LU of the interior block */
-    int *piv;
+    double *AII;              /* (ni, ni) A_II^-1 (from its LU: up_inverse) */
+    double *AIIp;             /* the same packed, when the system is symmetric (UpStepper.sym) */
     double *ABI;              /* (nb, ni); rows abi_rows and on are zero (w couples to no interior DOF) */
     double *X;                /* (ni, nb) A_II^-1 A_IB; columns x_cols and on are zero */
     int abi_rows, x_cols;
-    double *S0;               /* (nb, nb) Schur complement on x = [q, w] */
+    double *S0;               /* (nb, nb) Schur complement on x = [q, w]; symmetrised when sym */
+    double *Sq;               /* (6, 6) then (nb): S0 - (1 + al) K0C - diag(c0 M_B) (on q only), then c0 M_B */
     double *K0C;              /* (nb, nb) D0 + c1 E: the soil force's part in x at this step size */
     double *K0Cp;             /* the same packed (used when E is symmetric: then K0C is) */
     /* the Newton matrix's two bases (stepper.c): every contact closed [0], every one open [1] */
-    double *Jb[2];            /* (nb, nb) their LU */
-    int *pb[2];
+    double *Jd[2];            /* (nb) their scaling, powers of two: d_r ~ |J_rr|^-1/2 */
+    double *Jb[2];            /* (nb, nb) the inverses of the scaled bases, D J D (symmetrised when sym) */
+    double *Jp[2];            /* the same packed, when sym */
     double *Z[2];             /* (N, nb) row i: base^-1 b_i, b_i node i's contact direction */
     double *W[2];             /* (N, N) b_i . Z_j */
-    int base_ok[2];           /* 0 when that base is singular */
+    int base_ok[2];           /* 1 built, -1 singular, 0 not built yet (built when first needed) */
 } UpSystem;
 
 typedef struct {
     int n, ns, ni, N, nb, nlev;
     double alpha, beta, gamma, tol;
     int enabled, max_iter, max_subdiv;
+    int sym;                  /* 1: Ks, Cs (to round-off) and the soil's E symmetric: the system's matrices
+                                 are held symmetrised and packed (half the memory traffic) */
     const double *M, *Ks, *Cs, *Mr, *Bq3, *kp, *P0, *delta0;   /* (n), (ns, ns) x2, (ns, 3), (N, 3), (N) x3 */
     UpSparse Ks_sp, Cs_sp;    /* Ks, Cs compressed (their products per step) */
     UpSoil *soil;             /* dt-dependent soil matrices; stepped unless external */
@@ -262,8 +273,11 @@ typedef struct {
     long clock;
     /* state, inside the instance's state block */
     double *t, *u, *v, *a, *P, *fs, *fc, *R, *F, *ag, *work, *ag_next, *h_ext;
+    double *Kx, *kx_lev;      /* K0C x for the state's x = u[ni:], and the level it was computed at */
     /* work */
     double *w_n[10], *w_nb[12], *w_N[6], *hbuf;
+    double *lu, *rhs;         /* (max(ni, nb)^2) x2: the set-up's LU factorisations and their solves */
+    int *lu_piv;
     unsigned char *act, *act_new;
     double *saves;            /* (nlev + 1) copies of the instance's state block */
     double *block;
