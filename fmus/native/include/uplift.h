@@ -206,12 +206,16 @@ typedef struct {
     double *H;                /* (L, n): H transposed (pole-major), h = H g; NULL when the soil is not stepped */
     double *Hs;               /* the same when every residue is symmetric (reciprocity): the L / n blocks
                                  of H (R_k; 2 Re R_k, -2 Im R_k) packed (up_spmv_add); H is then NULL */
-    double *g, *g2, *fbuf;    /* (L), (L), (5 n) work */
+    double *g, *fbuf;         /* (L), (5 n) work */
+    double *Gx, *Gxp;         /* (n, n) history gain at level 0 and packed (NULL if not symmetric): a soil
+                                 stepped alone (up_soil_init's stepped = 2) only */
     UpSoilLevel lev[UP_MAXLEV];
-    /* state, inside the instance's state block */
-    double *yr, *yc, *u, *ud, *f, *work;
+    /* state, inside the instance's state block (gq, gp: a soil stepped alone) */
+    double *yr, *yc, *u, *ud, *f, *work, *gq, *gp;
 } UpSoil;
 
+/* stepped: 0 the history is given (a structure FMU), 1 stepped by the stepper, 2 stepped alone (a soil
+   FMU: up_soil_step) */
 int up_soil_init(UpSoil *s, const UpRes *r, int n, int nlev, int stepped, char *err);
 void up_soil_free(UpSoil *s);
 size_t up_soil_state_len(const UpSoil *s);
