@@ -54,3 +54,39 @@ def test_bank_index_is_exact():
     assert bank.values[bank.index(np.array([2, 9, 4]))].tolist() == [2.0, 9.0, 4.0]
     with pytest.raises(IndexError, match="Real variables of this FMU are 0..9"):
         bank.index([8, 9, 10])
+
+
+@pytest.mark.parametrize("pair", ["exported", "exported_native"])
+def test_parallel_jacobi_gives_the_same_bits(request, pair):
+    """The Jacobi schedule with the soil's steps on a thread of their own makes the same calls
+    on each FMU in the same order as on one thread: the same bits, also when the soil fails."""
+    exp, dt, fail_at = request.getfixturevalue(pair), MOTION.dt, 30
+    runs = []
+    for parallel in (False, True):
+        with FmuSlave(exp.structure, "structure") as S, FmuSlave(exp.soil, "soil") as G:
+            full = cosimulate(S, G, MOTION.acc, dt, schedule="jacobi", parallel=parallel)
+        with FmuSlave(exp.structure, "structure") as S, FmuSlave(exp.soil, "soil") as G:
+            step = G.do_step
+
+            def failing(t, h):
+                if t >= fail_at * dt - 1e-12:
+                    raise CosimError("FMU 'soil': step failed (injected)")
+                step(t, h)
+
+            G.do_step = failing
+            cut = cosimulate(S, G, MOTION.acc, dt, schedule="jacobi", parallel=parallel)
+        runs.append((full, cut))
+    (seq, seq_cut), (par, par_cut) = runs
+    assert par.converged and par.info["parallel"] and par.nt == MOTION.acc.shape[0] and par.max_uplift() > 1e-3
+    assert not par_cut.converged and "injected" in par_cut.message and par_cut.nt == seq_cut.nt == fail_at + 1
+    for a, b in ((seq, par), (seq_cut, par_cut)):
+        for field in ("raft", "gap", "contact_force", "soil_w", "newton_iters"):
+            assert np.array_equal(getattr(a, field), getattr(b, field)), field
+        for term in a.energy:
+            assert np.array_equal(a.energy[term], b.energy[term]), term
+    assert par.notes.timings["soil step"] > 0 and par.notes.timings["waiting for the soil"] >= 0
+
+
+def test_parallel_needs_the_jacobi_schedule(exported):
+    with pytest.raises(ValueError, match="only the jacobi schedule"):
+        cosimulate(exported.structure, exported.soil, MOTION.acc, MOTION.dt, parallel=True)
