@@ -64,7 +64,9 @@ class FmuSlave:
 
     def __init__(self, path, name: str | None = None, parameters: dict | None = None):
         self.path = Path(path)
-        self.md = read_model_description(str(self.path))
+        # not validated against the schema here (a third of the set-up): the export's tests run
+        # fmpy.validation.validate_fmu on every kind and version
+        self.md = read_model_description(str(self.path), validate=False)
         self.version = 3 if self.md.fmiVersion.startswith("3") else 2
         self.name = name or self.md.modelName
         self._tmp = tempfile.TemporaryDirectory(prefix=f"uplift_{self.name}_")
