@@ -316,6 +316,14 @@ static int setup(UpInstance *I, const char *guid, const char *location, int uri)
         int64_t dims[2] = {n, n};
         if (!(I->Gx = up_res_f64(&I->res, "Gx", 2, dims, I->err)) || !(I->Gv = up_res_f64(&I->res, "Gv", 2, dims, I->err)))
             return -1;
+        I->Gxp = (double *)malloc(((size_t)n * (n + 1) / 2 + 1) * sizeof(double));
+        if (I->Gxp && !up_pack_sym(I->Gx, n, I->Gxp)) {
+            free(I->Gxp);                       /* not symmetric (or no memory): the dense product */
+            I->Gxp = NULL;
+        }
+        I->Gv_zero = 1;
+        for (size_t i = 0; i < (size_t)n * n && I->Gv_zero; i++)
+            I->Gv_zero = I->Gv[i] == 0.0;
     }
     /* the state block: time, internal_motion, held_t, the variables, held inputs, stepper, soil */
     I->held_len = I->role == ROLE_SOIL ? 2 * I->n : I->role == ROLE_STRUCTURE ? I->n : 0;
@@ -384,6 +392,7 @@ void up_free_instance(UpInstance *I)
     up_res_free(&I->res);
     free(I->block);
     free(I->backup);
+    free(I->Gxp);
     free(I->saves);
     free(I->tmp);
     I->magic = 0;

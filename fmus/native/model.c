@@ -147,10 +147,15 @@ int up_step(UpInstance *I, double t)
             return UP_REFUSED;
         const double *x = st->u + st->ni, *xd = st->v + st->ni;
         double *Gx = st->w_n[8], *Gv = st->w_n[9];          /* work of the stepper, free between steps */
-        up_matvec(I->Gx, n, n, x, Gx);
-        up_matvec(I->Gv, n, n, xd, Gv);
-        for (int i = 0; i < n; i++)
-            st->h_ext[i] = (g[i] + Gx[i]) + Gv[i];
+        up_symv(I->Gx, I->Gxp, n, x, Gx);
+        if (I->Gv_zero)
+            for (int i = 0; i < n; i++)
+                st->h_ext[i] = g[i] + Gx[i];
+        else {
+            up_matvec(I->Gv, n, n, xd, Gv);
+            for (int i = 0; i < n; i++)
+                st->h_ext[i] = (g[i] + Gx[i]) + Gv[i];
+        }
     }
     ag_next(I, t);
     if (up_stepper_step(st))

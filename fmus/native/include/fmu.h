@@ -61,6 +61,8 @@ struct UpInstance {
                                                Float64 variable */
     int64_t nvars3, vr3_N;
     const double *Gx, *Gv;                  /* (n, n), structure only */
+    double *Gxp;                            /* Gx packed when it is symmetric (up_pack_sym), else NULL */
+    int Gv_zero;                            /* Gv is zero (a soil whose history ignores xdot): not applied */
     double dt, start_time, stop_time;       /* stop_time: +inf unless the host defines it */
     uint64_t guid_hash;
     /* the state block and its parts */
