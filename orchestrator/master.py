@@ -366,9 +366,12 @@ def _run(S, G, ag, dt, schedule, route, progress, start, parallel):
     timer.parts["initialisation"] = _time.perf_counter() - start[0]
     timer.cpu["initialisation"] = _time.process_time() - start[1]
 
-    def soil_step(t, row, timer=timer):           # G takes the structure's outputs of row `row`
+    def soil_inputs(row):                        # G takes the structure's outputs of row `row`
         if set_x(y0 + row * ys) > FMI2_WARNING:
             G.failed(set_x)
+
+    def soil_step(t, row):
+        soil_inputs(row)
         timer.add("transfers")
         G.do_step(t, dt)
         timer.add("soil step")
@@ -387,14 +390,15 @@ def _run(S, G, ag, dt, schedule, route, progress, start, parallel):
             S.failed(get_y)
 
     done, message = 1, ""                       # rows of Y filled
-    soil = _SoilThread(soil_step) if parallel else None
+    soil = _StepThread(G, dt) if parallel else None
     try:
         for k in range(1, nt):
             t = (k - 1) * dt
             timer.mark()
-            if parallel:                            # jacobi, the soil's step on the other thread
+            if parallel:                            # jacobi, the soil's doStep on the other thread
                 take_g(k)
-                soil.start(t, k - 1)
+                soil_inputs(k - 1)
+                soil.start(t)
                 try:
                     structure_step(t, k)
                 finally:
@@ -436,32 +440,34 @@ def _run(S, G, ag, dt, schedule, route, progress, start, parallel):
                   fmu_max_uplift=float(headline[0]), fmu_max_raft_rotation=float(headline[1])))
 
 
-class _SoilThread:
-    """The soil's steps of a parallel Jacobi run on a thread of their own: ``start(t, row)`` hands
-    it one step (``soil_step(t, row, timer)``), ``wait()`` returns when that step is done and
-    raises its CosimError, ``close()`` ends the thread and returns its Timer."""
+class _StepThread:
+    """An FMU's doStep on a thread of its own (a parallel Jacobi run): ``start(t)`` starts its
+    step from t, ``wait()`` returns when it is done and raises its error, ``close()`` ends the
+    thread and returns its Timer ("soil step"). The thread does nothing else: the FMU's inputs
+    and outputs are moved by the main thread while it is idle."""
 
-    def __init__(self, soil_step):
-        self._step, self._job, self._error = soil_step, None, None
+    def __init__(self, fmu: FmuSlave, dt: float):
+        self._fmu, self._dt, self._t, self._error = fmu, dt, None, None
         self._go, self._done = threading.Semaphore(0), threading.Semaphore(0)
         self.timer = Timer(_time.thread_time)
-        self._thread = threading.Thread(target=self._loop, name="uplift-soil-fmu", daemon=True)
+        self._thread = threading.Thread(target=self._loop, name=f"uplift-{fmu.name}-step", daemon=True)
         self._thread.start()
 
     def _loop(self):
         while True:
             self._go.acquire()
-            if self._job is None:
+            if self._t is None:
                 return
             try:
                 self.timer.mark()
-                self._step(*self._job, timer=self.timer)
+                self._fmu.do_step(self._t, self._dt)
+                self.timer.add("soil step")
             except BaseException as exc:                # raised in the main thread by wait()
                 self._error = exc
             self._done.release()
 
-    def start(self, t, row):
-        self._job = (t, row)
+    def start(self, t: float):
+        self._t = t
         self._go.release()
 
     def wait(self):
@@ -471,7 +477,7 @@ class _SoilThread:
             raise error
 
     def close(self) -> Timer:
-        self._job = None
+        self._t = None
         self._go.release()
         self._thread.join()
         return self.timer
