@@ -41,6 +41,9 @@ from fmus.schema import AG, ENERGY_TERMS, vector3
 from structure.results import RouteResult, RunNotes, Status
 
 SCHEDULES = ("gauss-seidel", "soil-first", "jacobi")
+#: the generation tool of the native FMUs (fmus/native_build.py), which log their errors whatever
+#: the debug logging and an event per step only with it on
+NATIVE_TOOL = "uplift native"
 FMI2_WARNING = 1                    # fmi2Status (fmi3Status) above which a call failed (discard, error, fatal)
 
 
@@ -84,6 +87,8 @@ class FmuSlave:
         else:
             self.fmu.instantiate(callbacks=self._callbacks(), loggingOn=True)
             self._get_real, self._set_real, self._do_step = dll.fmi2GetReal, dll.fmi2SetReal, dll.fmi2DoStep
+        if (self.md.generationTool or "").startswith(NATIVE_TOOL):
+            self.fmu.setDebugLogging(False, [])     # no event (a callback into Python) per step
         self.vars = {v.name: v for v in self.md.modelVariables}
         self._by_vr = {v.valueReference: v for v in self.md.modelVariables}
         self._vr, self._len = {}, {}
