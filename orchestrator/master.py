@@ -30,6 +30,8 @@ import tempfile
 import threading
 import time as _time
 from pathlib import Path
+from types import SimpleNamespace
+from xml.etree import ElementTree
 
 import numpy as np
 from fmpy import extract, read_model_description
@@ -41,6 +43,7 @@ from fmus.schema import AG, ENERGY_TERMS, vector3
 from structure.results import RouteResult, RunNotes, Status
 
 SCHEDULES = ("gauss-seidel", "soil-first", "jacobi")
+FMI2_TYPES = ("Real", "Integer", "Boolean", "String", "Enumeration")
 #: the generation tool of the native FMUs (fmus/native_build.py), which log their errors whatever
 #: the debug logging and an event per step only with it on
 NATIVE_TOOL = "uplift native"
@@ -67,13 +70,11 @@ class FmuSlave:
 
     def __init__(self, path, name: str | None = None, parameters: dict | None = None):
         self.path = Path(path)
-        # not validated against the schema here (a third of the set-up): the export's tests run
-        # fmpy.validation.validate_fmu on every kind and version
-        self.md = read_model_description(str(self.path), validate=False)
+        self._tmp = tempfile.TemporaryDirectory(prefix=f"uplift_{name or self.path.stem}_")
+        self.dir = extract(str(self.path), self._tmp.name)
+        self.md = model_description(Path(self.dir) / "modelDescription.xml")
         self.version = 3 if self.md.fmiVersion.startswith("3") else 2
         self.name = name or self.md.modelName
-        self._tmp = tempfile.TemporaryDirectory(prefix=f"uplift_{self.name}_")
-        self.dir = extract(str(self.path), self._tmp.name)
         self.log: list[str] = []
         cls = FMU3Slave if self.version == 3 else FMU2Slave
         self.fmu = cls(guid=self.md.guid, unzipDirectory=self.dir,
@@ -271,6 +272,29 @@ class FmuSlave:
 
     def __exit__(self, *exc):
         self.close()
+
+
+def model_description(xml: Path):
+    """The model description in ``xml`` as the master uses it: fmiVersion, guid, modelName,
+    generationTool, coSimulation.modelIdentifier and modelVariables (name, valueReference, type,
+    causality; ``dimensions`` None). FMI 2.0 read here in one pass of ElementTree; FMI 3.0 (array
+    dimensions) by fmpy. Neither is checked against the schema (fmpy's reader builds a full
+    object per variable and validates: most of the set-up of a pair with a thousand variables);
+    the export's tests run fmpy.validation.validate_fmu on every kind and version."""
+    root = ElementTree.parse(xml).getroot()
+    if not root.get("fmiVersion", "").startswith("2"):
+        return read_model_description(str(xml), validate=False)
+    variables = []
+    for sv in root.iter("ScalarVariable"):
+        kind = next((child.tag for child in sv if child.tag in FMI2_TYPES), None)
+        variables.append(SimpleNamespace(name=sv.get("name"), valueReference=int(sv.get("valueReference")),
+                                         type=kind, causality=sv.get("causality", "local"), dimensions=None))
+    cs = root.find("CoSimulation")
+    if cs is None:
+        raise CosimError(f"{xml}: not a co-simulation FMU (no CoSimulation element)")
+    return SimpleNamespace(fmiVersion=root.get("fmiVersion"), guid=root.get("guid"), modelName=root.get("modelName"),
+                           generationTool=root.get("generationTool"), modelVariables=variables,
+                           coSimulation=SimpleNamespace(modelIdentifier=cs.get("modelIdentifier")))
 
 
 def output_nodes(structure: FmuSlave) -> list:

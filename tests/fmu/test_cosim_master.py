@@ -90,3 +90,19 @@ def test_parallel_jacobi_gives_the_same_bits(request, pair):
 def test_parallel_needs_the_jacobi_schedule(exported):
     with pytest.raises(ValueError, match="only the jacobi schedule"):
         cosimulate(exported.structure, exported.soil, MOTION.acc, MOTION.dt, parallel=True)
+
+
+@pytest.mark.parametrize("pair", ["exported", "exported_native"])
+def test_model_description_reads_as_fmpy_reads_it(request, pair):
+    """The master's one-pass read of an FMI 2.0 model description gives what fmpy's reader gives."""
+    from fmpy import read_model_description
+    exp = request.getfixturevalue(pair)
+    for path in (exp.structure, exp.soil):
+        ref = read_model_description(str(path))
+        with FmuSlave(path) as fmu:
+            md = fmu.md
+        assert (md.fmiVersion, md.guid, md.modelName, md.generationTool, md.coSimulation.modelIdentifier) == \
+            (ref.fmiVersion, ref.guid, ref.modelName, ref.generationTool, ref.coSimulation.modelIdentifier)
+        fields = ("name", "valueReference", "type", "causality")
+        got = [tuple(getattr(v, f) for f in fields) for v in md.modelVariables]
+        assert got == [tuple(getattr(v, f) for f in fields) for v in ref.modelVariables] and len(got) > 100
