@@ -409,10 +409,15 @@ def _run(S, G, ag, dt, schedule, route, progress, start, parallel):
         if get_g(u0 + k * us) > FMI2_WARNING:
             G.failed(get_g)
 
-    def structure_step(t, k):                    # S takes row k of U
+    def structure_inputs(k):                     # S takes row k of U
         if set_s(u0 + k * us) > FMI2_WARNING:
             S.failed(set_s)
+
+    def structure_step(t, k, soil=None):         # soil: the thread to start the soil's step on
+        structure_inputs(k)
         timer.add("transfers")
+        if soil is not None:                      # the main thread goes straight into doStep: the
+            soil.start(t)                         # interpreter lock is the soil thread's at once
         S.do_step(t, dt)
         timer.add("structure step")
         if get_y(y0 + k * ys) > FMI2_WARNING:
@@ -427,9 +432,8 @@ def _run(S, G, ag, dt, schedule, route, progress, start, parallel):
             if parallel:                            # jacobi, the soil's doStep on the other thread
                 take_g(k)
                 soil_inputs(k - 1)
-                soil.start(t)
                 try:
-                    structure_step(t, k)
+                    structure_step(t, k, soil)
                 finally:
                     timer.add("transfers")
                     soil.wait()
@@ -471,12 +475,12 @@ def _run(S, G, ag, dt, schedule, route, progress, start, parallel):
 
 class _StepThread:
     """An FMU's doStep on a thread of its own (a parallel Jacobi run): ``start(t)`` starts its
-    step from t, ``wait()`` returns when it is done and raises its error, ``close()`` ends the
-    thread and returns its Timer ("soil step"). The thread does nothing else: the FMU's inputs
-    and outputs are moved by the main thread while it is idle."""
+    step from t, ``wait()`` returns when it is done (at once if none was started) and raises its
+    error, ``close()`` ends the thread and returns its Timer ("soil step"). The thread does
+    nothing else: the FMU's inputs and outputs are moved by the main thread while it is idle."""
 
     def __init__(self, fmu: FmuSlave, dt: float):
-        self._fmu, self._dt, self._t, self._error = fmu, dt, None, None
+        self._fmu, self._dt, self._t, self._error, self._running = fmu, dt, None, None, False
         self._go, self._done = threading.Semaphore(0), threading.Semaphore(0)
         self.timer = Timer(_time.thread_time)
         self._thread = threading.Thread(target=self._loop, name=f"uplift-{fmu.name}-step", daemon=True)
@@ -496,10 +500,14 @@ class _StepThread:
             self._done.release()
 
     def start(self, t: float):
-        self._t = t
+        self._t, self._running = t, True
         self._go.release()
 
     def wait(self):
+        """Until the step started is done (at once when none is)."""
+        if not self._running:
+            return
+        self._running = False
         self._done.acquire()
         if self._error is not None:
             error, self._error = self._error, None
