@@ -160,13 +160,13 @@ class FmuSlave:
         proto = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t, ctypes.c_void_p,
                                  *extra)
         raw = proto(ctypes.cast(fn, ctypes.c_void_p).value)
-        comp, ptr = self.fmu.component, vr.ctypes.data
+        comp, ptr, nvr = self.fmu.component, vr.ctypes.data, vr.size
         if self.version == 3:
-            def move(address, _vr=vr):               # _vr: the references stay alive with the mover
-                return raw(comp, ptr, vr.size, address, nval)
+            def move(address, _vr=vr):               # _vr: the references live as long as the mover
+                return raw(comp, ptr, nvr, address, nval)
         else:
             def move(address, _vr=vr):
-                return raw(comp, ptr, vr.size, address)
+                return raw(comp, ptr, nvr, address)
         move.size = nval
         move.what = f"{'setting' if setting else 'getting'} {', '.join(names)}"
         move.function = fn.__name__
