@@ -19,6 +19,8 @@ Rows (one small function each, registered with ``@row``; add one the same way):
                              instantiate, 2000 steps of the bundled motion
   cosim, native pair         ``run_cosim``'s default: the native pair under the project's master
                              (wall_s, the FMU build apart)
+  cosim, native, parallel    the native pair, the Jacobi schedule with the two FMUs' steps on two
+                             threads (``schedule="jacobi", parallel=True``)
   cosim, python pair         ``run_cosim(kind="python")``
   ensemble, 2 workers        ``run_ensemble`` of 8 seeds x 2 PGAs on 2 local workers from an empty
                              output, runs per minute (cluster start, set-up, step check included)
@@ -187,9 +189,9 @@ def native_coupled(case: Case):
     return wall, f"max uplift {1e3 * up:.4f} mm, plain C host (whole process)"
 
 
-def _cosim(case: Case, kind: str):
+def _cosim(case: Case, kind: str, **options):
     from orchestrator.routes.cosim import run_cosim
-    res = run_cosim(case.scene, case.motion, case.fit.model, kind=kind)
+    res = run_cosim(case.scene, case.motion, case.fit.model, kind=kind, **options)
     return res.wall_s, (f"max uplift {1e3 * res.max_uplift():.4f} mm ({res.info['fmu_kind']} pair; FMU build "
                         f"{res.notes.timings['FMU build']:.2f} s apart)")
 
@@ -197,6 +199,11 @@ def _cosim(case: Case, kind: str):
 @row("cosim, native pair")
 def cosim_native(case: Case):
     return _cosim(case, "native")
+
+
+@row("cosim, native, parallel")
+def cosim_native_parallel(case: Case):
+    return _cosim(case, "native", schedule="jacobi", parallel=True)
 
 
 @row("cosim, python pair")

@@ -11,16 +11,27 @@ latest state, which the structure adds itself (fmus/coupling.py); both stamp wha
     G <- x, xdot, x_time at t_k;  G.doStep;  S <- g, g_time (new), a_g(t_{k+1});  S.doStep
 ``jacobi``
     both FMUs step from the outputs at t_k (what a parallel engine such as libcosim's
-    fixed-step algorithm or fmpy's SSP runner does)
+    fixed-step algorithm or fmpy's SSP runner does); with ``parallel=True`` the two steps run
+    at the same time on two threads (ctypes releases the GIL in an FMU's call): the same calls
+    on each FMU in the same order, so the same bits as on one thread
 
 ``cosimulate(structure_fmu, soil_fmu, ag, dt)`` returns the RouteResult every route returns.
+
+Per step the master makes six FMI calls and no copy: the structure's outputs go into one row
+of a preallocated (nt, m) array (unpacked at the end), the soil reads its inputs x, xdot,
+x_time from that row (they lead it), the soil's g and g_time go into one row of the structure's
+input array whose ag_x, ag_y, ag_z columns hold the motion already, and the structure reads
+that row (``FmuSlave.mover``: raw fmi2GetReal / fmi2SetReal on addresses).
 """
 from __future__ import annotations
 
 import ctypes
 import tempfile
+import threading
 import time as _time
 from pathlib import Path
+from types import SimpleNamespace
+from xml.etree import ElementTree
 
 import numpy as np
 from fmpy import extract, read_model_description
@@ -32,6 +43,10 @@ from fmus.schema import AG, ENERGY_TERMS, vector3
 from structure.results import RouteResult, RunNotes, Status
 
 SCHEDULES = ("gauss-seidel", "soil-first", "jacobi")
+FMI2_TYPES = ("Real", "Integer", "Boolean", "String", "Enumeration")
+#: the generation tool of the native FMUs (fmus/native_build.py), which log their errors whatever
+#: the debug logging and an event per step only with it on
+NATIVE_TOOL = "uplift native"
 FMI2_WARNING = 1                    # fmi2Status (fmi3Status) above which a call failed (discard, error, fatal)
 
 
@@ -55,11 +70,11 @@ class FmuSlave:
 
     def __init__(self, path, name: str | None = None, parameters: dict | None = None):
         self.path = Path(path)
-        self.md = read_model_description(str(self.path))
+        self._tmp = tempfile.TemporaryDirectory(prefix=f"uplift_{name or self.path.stem}_")
+        self.dir = extract(str(self.path), self._tmp.name)
+        self.md = model_description(Path(self.dir) / "modelDescription.xml")
         self.version = 3 if self.md.fmiVersion.startswith("3") else 2
         self.name = name or self.md.modelName
-        self._tmp = tempfile.TemporaryDirectory(prefix=f"uplift_{self.name}_")
-        self.dir = extract(str(self.path), self._tmp.name)
         self.log: list[str] = []
         cls = FMU3Slave if self.version == 3 else FMU2Slave
         self.fmu = cls(guid=self.md.guid, unzipDirectory=self.dir,
@@ -73,6 +88,8 @@ class FmuSlave:
         else:
             self.fmu.instantiate(callbacks=self._callbacks(), loggingOn=True)
             self._get_real, self._set_real, self._do_step = dll.fmi2GetReal, dll.fmi2SetReal, dll.fmi2DoStep
+        if (self.md.generationTool or "").startswith(NATIVE_TOOL):
+            self.fmu.setDebugLogging(False, [])     # no event (a callback into Python) per step
         self.vars = {v.name: v for v in self.md.modelVariables}
         self._by_vr = {v.valueReference: v for v in self.md.modelVariables}
         self._vr, self._len = {}, {}
@@ -129,6 +146,35 @@ class FmuSlave:
             self._arrays[key] = (vr, val, (vr.ctypes.data_as(ctypes.POINTER(ctypes.c_uint)), vr.size,
                                            val.ctypes.data_as(ctypes.POINTER(ctypes.c_double))) + extra)
         return self._arrays[key]
+
+    def mover(self, names, setting: bool = False):
+        """``move(address)`` -> FMI status: one raw fmi2GetReal (setting: fmi2SetReal; FMI 3.0:
+        fmi3GetFloat64 / fmi3SetFloat64) of the named vectors, concatenated, from or to the float64
+        values at ``address`` (an int: a row of the caller's array, ``size`` values). The
+        value-reference array is built once; the call takes plain integers (no ctypes object per
+        call). The caller checks the status (``failed`` when above FMI2_WARNING)."""
+        vr = np.concatenate([np.asarray(self.vrs(nm), np.uint32) for nm in names])
+        nval = sum(self.size(nm) for nm in names)
+        fn = self._set_real if setting else self._get_real
+        extra = (ctypes.c_size_t,) if self.version == 3 else ()
+        proto = ctypes.CFUNCTYPE(ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t, ctypes.c_void_p,
+                                 *extra)
+        raw = proto(ctypes.cast(fn, ctypes.c_void_p).value)
+        comp, ptr, nvr = self.fmu.component, vr.ctypes.data, vr.size
+        if self.version == 3:
+            def move(address, _vr=vr):               # _vr: the references live as long as the mover
+                return raw(comp, ptr, nvr, address, nval)
+        else:
+            def move(address, _vr=vr):
+                return raw(comp, ptr, nvr, address)
+        move.size = nval
+        move.what = f"{'setting' if setting else 'getting'} {', '.join(names)}"
+        move.function = fn.__name__
+        return move
+
+    def failed(self, move) -> None:
+        """Raise the CosimError of a failed ``mover`` call."""
+        self._failed(move.what, move.function)
 
     def get(self, *names) -> np.ndarray:
         """Real values of the named vectors, concatenated (the FMU's buffer for this list of
@@ -228,48 +274,80 @@ class FmuSlave:
         self.close()
 
 
+def model_description(xml: Path):
+    """The model description in ``xml`` as the master uses it: fmiVersion, guid, modelName,
+    generationTool, coSimulation.modelIdentifier and modelVariables (name, valueReference, type,
+    causality; ``dimensions`` None). FMI 2.0 read here in one pass of ElementTree; FMI 3.0 (array
+    dimensions) by fmpy. Neither is checked against the schema (fmpy's reader builds a full
+    object per variable and validates: most of the set-up of a pair with a thousand variables);
+    the export's tests run fmpy.validation.validate_fmu on every kind and version."""
+    root = ElementTree.parse(xml).getroot()
+    if not root.get("fmiVersion", "").startswith("2"):
+        return read_model_description(str(xml), validate=False)
+    variables = []
+    for sv in root.iter("ScalarVariable"):
+        kind = next((child.tag for child in sv if child.tag in FMI2_TYPES), None)
+        variables.append(SimpleNamespace(name=sv.get("name"), valueReference=int(sv.get("valueReference")),
+                                         type=kind, causality=sv.get("causality", "local"), dimensions=None))
+    cs = root.find("CoSimulation")
+    if cs is None:
+        raise CosimError(f"{xml}: not a co-simulation FMU (no CoSimulation element)")
+    return SimpleNamespace(fmiVersion=root.get("fmiVersion"), guid=root.get("guid"), modelName=root.get("modelName"),
+                           generationTool=root.get("generationTool"), modelVariables=variables,
+                           coSimulation=SimpleNamespace(modelIdentifier=cs.get("modelIdentifier")))
+
+
 def output_nodes(structure: FmuSlave) -> list:
     return sorted(n[4:] for n in structure._vr if n.startswith("acc_"))
 
 
 class Timer:
-    """Wall and CPU (process) time per part of a co-simulation step, s: ``add(part)`` books
-    the time since the previous ``add`` or ``mark`` to ``part``."""
+    """Wall and CPU time per part of a co-simulation step, s: ``add(part)`` books the time since
+    the previous ``add`` or ``mark`` to ``part``. CPU time of the process, or of the calling
+    thread (``cpu=time.thread_time``: one Timer per thread of a parallel schedule)."""
 
-    def __init__(self):
+    def __init__(self, cpu=_time.process_time):
         self.parts = {"structure step": 0.0, "soil step": 0.0, "transfers": 0.0}
         self.cpu = dict(self.parts)
+        self._clock = cpu
         self.mark()
 
     def mark(self):
-        self._wall, self._cpu = _time.perf_counter(), _time.process_time()
+        self._wall, self._cpu = _time.perf_counter(), self._clock()
+
+    def merge(self, other: Timer) -> None:
+        for mine, theirs in ((self.parts, other.parts), (self.cpu, other.cpu)):
+            for part, v in theirs.items():
+                mine[part] = mine.get(part, 0.0) + v
 
     def add(self, part):
-        wall, cpu = _time.perf_counter(), _time.process_time()
+        wall, cpu = _time.perf_counter(), self._clock()
         self.parts[part] = self.parts.get(part, 0.0) + wall - self._wall
         self.cpu[part] = self.cpu.get(part, 0.0) + cpu - self._cpu
         self._wall, self._cpu = wall, cpu
 
 
 def cosimulate(structure_fmu, soil_fmu, ag, dt: float, schedule: str = "gauss-seidel",
-               route: str = "cosim", progress=None, parameters: dict | None = None):
+               route: str = "cosim", progress=None, parameters: dict | None = None, parallel: bool = False):
     """Co-simulate the exported pair over the ground acceleration ``ag`` (nt, 3) m/s^2 at
     step ``dt`` (the FMUs' fixed step) with ``schedule`` in SCHEDULES. The motion goes in
     through the structure's inputs ``ag_x``, ``ag_y``, ``ag_z`` (``internal_motion = false``).
 
     structure_fmu, soil_fmu : paths of .fmu files (or open FmuSlaves, left open)
-    Returns a RouteResult (route name ``route``; ``info["schedule"]``; ``notes.timings`` and
-    ``info["timing_cpu"]`` the wall and CPU time per part: initialisation (FMU extraction,
-    instantiation, initialisation), structure step, soil step, transfers (FMI get/set and
-    recording)). A failed FMU call ends the run: ``converged = False``, the results up to the
-    last completed step and ``message`` with the FMU's log.
-
-    Per step the master moves what the schedule needs (h to the structure, x and xdot to the
-    soil) and reads every structure output once, into one row of a (nt, m) array unpacked at
-    the end: six FMI calls a step, each on preallocated ctypes arrays.
+    parallel : the two FMUs' steps on two threads (``schedule="jacobi"`` only: the one schedule
+        whose two steps of a macro step are independent); the same bits as on one thread
+    Returns a RouteResult (route name ``route``; ``info["schedule"]``, ``info["parallel"]``;
+    ``notes.timings`` and ``info["timing_cpu"]`` the wall and CPU time per part:
+    initialisation (FMU extraction, instantiation, initialisation), structure step, soil step,
+    transfers (FMI get/set and recording); in parallel, each thread's own, the soil step's
+    overlapping the structure step's). A failed FMU call ends the run: ``converged = False``,
+    the results up to the last completed step and ``message`` with the FMU's log.
     """
     if schedule not in SCHEDULES:
         raise ValueError(f"schedule = {schedule!r}: use one of {', '.join(SCHEDULES)}")
+    if parallel and schedule != "jacobi":
+        raise ValueError(f"parallel = True with schedule = {schedule!r}: only the jacobi schedule steps both "
+                         "FMUs at once (use schedule='jacobi', or parallel=False)")
     start = _time.perf_counter(), _time.process_time()
     ag = np.asarray(ag, float)
     if ag.ndim != 2 or ag.shape[1] != 3 or ag.shape[0] < 1:
@@ -293,52 +371,83 @@ def cosimulate(structure_fmu, soil_fmu, ag, dt: float, schedule: str = "gauss-se
         S.set(*AG, ag[0])
         S.initialize()
         G.initialize()
-        return _run(S, G, ag, dt, schedule, route, progress, start)
+        return _run(S, G, ag, dt, schedule, route, progress, start, parallel)
     finally:
         for f in own:
             f.close()
 
 
-def _run(S, G, ag, dt, schedule, route, progress, start):
+def _run(S, G, ag, dt, schedule, route, progress, start, parallel):
     nodes = output_nodes(S)
     nt = ag.shape[0]
-    n = S.size("x")
     names = ("x", "xdot", "x_time", "P", "gap") + tuple(f"{k}_{nm}" for nm in nodes for k in ("acc", "disp")) + \
         tuple(f"energy.{e}" for e in ENERGY_TERMS) + ("newton_iters",)
-    # every structure output at every step in one get, stored as one row: unpacked at the end
-    y = S.get(*names)
-    Y = np.empty((nt, y.size))
-    Y[0] = y
-    timer = Timer()
+    # every structure output at every step, one row each (x, xdot, x_time lead: the soil's inputs)
+    get_y, set_x = S.mover(names), G.mover(("x", "xdot", "x_time"), setting=True)
+    get_g, set_s = G.mover(("g", "g_time")), S.mover(("g", "g_time", *AG), setting=True)
+    Y = np.empty((nt, get_y.size))
+    U = np.empty((nt, set_s.size))               # row k: the structure's inputs of the step to t_k
+    U[:, get_g.size:] = ag
+    y0, ys, u0, us = Y.ctypes.data, Y.strides[0], U.ctypes.data, U.strides[0]
+    if get_y(y0) > FMI2_WARNING:
+        S.failed(get_y)
+    timer = Timer(_time.thread_time if parallel else _time.process_time)
     timer.parts["initialisation"] = _time.perf_counter() - start[0]
     timer.cpu["initialisation"] = _time.process_time() - start[1]
-    xs = slice(0, 2 * n + 1)                    # x, xdot and x_time lead `names`
 
-    def soil_step(t, row):                       # G takes the structure's outputs of row `row`
-        G.set("x", "xdot", "x_time", Y[row, xs])
+    def soil_inputs(row):                        # G takes the structure's outputs of row `row`
+        if set_x(y0 + row * ys) > FMI2_WARNING:
+            G.failed(set_x)
+
+    def soil_step(t, row):
+        soil_inputs(row)
         timer.add("transfers")
         G.do_step(t, dt)
         timer.add("soil step")
 
-    def structure_step(t, k):
-        S.set("g", "g_time", *AG, np.concatenate([G.get("g", "g_time"), ag[k]]))
+    def take_g(k):                               # the soil's g, g_time into row k of U
+        if get_g(u0 + k * us) > FMI2_WARNING:
+            G.failed(get_g)
+
+    def structure_inputs(k):                     # S takes row k of U
+        if set_s(u0 + k * us) > FMI2_WARNING:
+            S.failed(set_s)
+
+    def structure_step(t, k, soil=None):         # soil: the thread to start the soil's step on
+        structure_inputs(k)
         timer.add("transfers")
+        if soil is not None:                      # the main thread goes straight into doStep: the
+            soil.start(t)                         # interpreter lock is the soil thread's at once
         S.do_step(t, dt)
         timer.add("structure step")
-        Y[k] = S.get(*names)
+        if get_y(y0 + k * ys) > FMI2_WARNING:
+            S.failed(get_y)
 
     done, message = 1, ""                       # rows of Y filled
+    soil = _StepThread(G, dt) if parallel else None
     try:
         for k in range(1, nt):
             t = (k - 1) * dt
             timer.mark()
-            if schedule == "jacobi":                # each from the other's outputs at t
+            if parallel:                            # jacobi, the soil's doStep on the other thread
+                take_g(k)
+                soil_inputs(k - 1)
+                try:
+                    structure_step(t, k, soil)
+                finally:
+                    timer.add("transfers")
+                    soil.wait()
+                    timer.add("waiting for the soil")
+            elif schedule == "jacobi":              # each from the other's outputs at t
+                take_g(k)
                 structure_step(t, k)
                 soil_step(t, k - 1)
             elif schedule == "soil-first":
                 soil_step(t, k - 1)
+                take_g(k)
                 structure_step(t, k)
             else:
+                take_g(k)
                 structure_step(t, k)
                 soil_step(t, k)
             timer.add("transfers")
@@ -347,6 +456,9 @@ def _run(S, G, ag, dt, schedule, route, progress, start):
                 progress(done, nt)
     except CosimError as exc:
         message = str(exc)
+    finally:
+        if soil is not None:
+            timer.merge(soil.close())
     cols = _columns(Y[:done], names, [S.size(nm) for nm in names])
     x = cols["x"]
     headline = S.get("max_uplift", "max_raft_rotation")
@@ -357,8 +469,55 @@ def _run(S, G, ag, dt, schedule, route, progress, start):
         status=Status.STOPPED if message else Status.CONVERGED, message=message,
         wall_s=_time.perf_counter() - start[0],
         notes=RunNotes(timings=timer.parts),
-        info=dict(dt=dt, schedule=schedule, P0=cols["P"][0], timing_cpu=dict(timer.cpu),
+        info=dict(dt=dt, schedule=schedule, parallel=parallel, P0=cols["P"][0], timing_cpu=dict(timer.cpu),
                   fmu_max_uplift=float(headline[0]), fmu_max_raft_rotation=float(headline[1])))
+
+
+class _StepThread:
+    """An FMU's doStep on a thread of its own (a parallel Jacobi run): ``start(t)`` starts its
+    step from t, ``wait()`` returns when it is done (at once if none was started) and raises its
+    error, ``close()`` ends the thread and returns its Timer ("soil step"). The thread does
+    nothing else: the FMU's inputs and outputs are moved by the main thread while it is idle."""
+
+    def __init__(self, fmu: FmuSlave, dt: float):
+        self._fmu, self._dt, self._t, self._error, self._running = fmu, dt, None, None, False
+        self._go, self._done = threading.Semaphore(0), threading.Semaphore(0)
+        self.timer = Timer(_time.thread_time)
+        self._thread = threading.Thread(target=self._loop, name=f"uplift-{fmu.name}-step", daemon=True)
+        self._thread.start()
+
+    def _loop(self):
+        while True:
+            self._go.acquire()
+            if self._t is None:
+                return
+            try:
+                self.timer.mark()
+                self._fmu.do_step(self._t, self._dt)
+                self.timer.add("soil step")
+            except BaseException as exc:                # raised in the main thread by wait()
+                self._error = exc
+            self._done.release()
+
+    def start(self, t: float):
+        self._t, self._running = t, True
+        self._go.release()
+
+    def wait(self):
+        """Until the step started is done (at once when none is)."""
+        if not self._running:
+            return
+        self._running = False
+        self._done.acquire()
+        if self._error is not None:
+            error, self._error = self._error, None
+            raise error
+
+    def close(self) -> Timer:
+        self._t = None
+        self._go.release()
+        self._thread.join()
+        return self.timer
 
 
 def _columns(Y, names, sizes) -> dict:

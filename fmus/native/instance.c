@@ -297,7 +297,8 @@ static int setup(UpInstance *I, const char *guid, const char *location, int uri)
     int64_t levels = 0;                         /* the soil's matrices at each halving level */
     if (read_layout(I) || (I->has_stepper && int_scalar(I, "contact_max_subdiv", 0, UP_MAXLEV - 1, &levels)))
         return -1;
-    if (up_soil_init(&I->soil, &I->res, I->n, (int)levels + 1, I->role != ROLE_STRUCTURE, I->err))
+    if (up_soil_init(&I->soil, &I->res, I->n, (int)levels + 1, I->role == ROLE_SOIL ? 2 : I->role != ROLE_STRUCTURE,
+                     I->err))
         return -1;
     if (I->has_stepper) {
         if (up_stepper_init(&I->st, &I->res, &I->soil, I->role == ROLE_STRUCTURE, I->err))

@@ -353,39 +353,6 @@ UP_BODY void up_gemv_t_k(const double *restrict At, int rows, int cols, const do
 UP_KERNEL(up_gemv_t, (const double *restrict At, int rows, int cols, const double *restrict x, double *restrict y),
           (At, rows, cols, x, y))
 
-UP_BODY void up_gemv_t2_k(const double *restrict At, int rows, int cols, const double *restrict x1,
-                        const double *restrict x2, double *restrict y1, double *restrict y2)
-{
-    for (int i = 0; i < cols; i++)
-        y1[i] = y2[i] = 0.0;
-    int j = 0;
-    for (; j + 2 <= rows; j += 2) {
-        const double *restrict r0 = At + (size_t)j * cols, *restrict r1 = r0 + cols;
-        double a0 = x1[j], a1 = x1[j + 1], b0 = x2[j], b1 = x2[j + 1];
-        for (int i = 0; i < cols; i++) {
-            double t = y1[i], u = y2[i];
-            t += a0 * r0[i];
-            u += b0 * r0[i];
-            t += a1 * r1[i];
-            u += b1 * r1[i];
-            y1[i] = t;
-            y2[i] = u;
-        }
-    }
-    for (; j < rows; j++) {
-        const double *restrict r = At + (size_t)j * cols;
-        double a = x1[j], b = x2[j];
-        for (int i = 0; i < cols; i++) {
-            y1[i] += a * r[i];
-            y2[i] += b * r[i];
-        }
-    }
-}
-UP_KERNEL(up_gemv_t2,
-          (const double *restrict At, int rows, int cols, const double *restrict x1, const double *restrict x2,
-           double *restrict y1, double *restrict y2),
-          (At, rows, cols, x1, x2, y1, y2))
-
 /* y += P x for a symmetric (n, n) matrix held packed: its upper triangle row by row (row i:
    the n - i entries from the diagonal). Each entry is read once and used twice: in the dot
    product of its row (y_i) and in the update of the rows below (y_j += P_ij x_i, j > i), so
@@ -457,75 +424,6 @@ UP_BODY void up_spmv_add_k(const double *restrict P, int n, const double *restri
     }
 }
 UP_KERNEL(up_spmv_add, (const double *restrict P, int n, const double *restrict x, double *restrict y), (P, n, x, y))
-
-/* y1 += P x1 and y2 += P x2 in one pass over P: as up_spmv_add, two rows per pass (four dot
-   products in flight, each with its eight partial sums) */
-UP_BODY void up_spmv2_add_k(const double *restrict P, int n, const double *restrict x1, const double *restrict x2,
-                            double *restrict y1, double *restrict y2)
-{
-    int i = 0;
-    for (; i + 2 <= n; i += 2) {
-        int len = n - i;
-        const double *r0 = P, *r1 = r0 + len;                         /* r_a[0]: (i+a, i+a) */
-        double a0 = x1[i], a1 = x1[i + 1], b0 = x2[i], b1 = x2[i + 1];
-        double d0 = r0[0] * a0 + r0[1] * a1, e0 = r0[0] * b0 + r0[1] * b1;
-        double d1 = r1[0] * a1, e1 = r1[0] * b1;
-        double u1 = y1[i + 1] + a0 * r0[1], v1 = y2[i + 1] + b0 * r0[1];
-        const double *restrict p0 = r0 + 2, *restrict p1 = r1 + 1, *restrict xa = x1 + i + 2, *restrict xb = x2 + i + 2;
-        double *restrict ya = y1 + i + 2, *restrict yb = y2 + i + 2;
-        double s0[8] = {0.0}, s1[8] = {0.0}, t0[8] = {0.0}, t1[8] = {0.0};
-        int m = len - 2, j = 0;
-        for (; j + 8 <= m; j += 8)
-            for (int k = 0; k < 8; k++) {
-                double v0 = p0[j + k], v1 = p1[j + k], xj = xa[j + k], zj = xb[j + k];
-                s0[k] += v0 * xj;
-                s1[k] += v1 * xj;
-                t0[k] += v0 * zj;
-                t1[k] += v1 * zj;
-                double p = ya[j + k], q = yb[j + k];
-                p += a0 * v0;
-                p += a1 * v1;
-                q += b0 * v0;
-                q += b1 * v1;
-                ya[j + k] = p;
-                yb[j + k] = q;
-            }
-        for (; j < m; j++) {
-            double v0 = p0[j], v1 = p1[j], xj = xa[j], zj = xb[j];
-            s0[0] += v0 * xj;
-            s1[0] += v1 * xj;
-            t0[0] += v0 * zj;
-            t1[0] += v1 * zj;
-            double p = ya[j], q = yb[j];
-            p += a0 * v0;
-            p += a1 * v1;
-            q += b0 * v0;
-            q += b1 * v1;
-            ya[j] = p;
-            yb[j] = q;
-        }
-        y1[i] += d0 + fold8(s0);
-        y2[i] += e0 + fold8(t0);
-        y1[i + 1] = u1 + (d1 + fold8(s1));
-        y2[i + 1] = v1 + (e1 + fold8(t1));
-        P = r1 + len - 1;
-    }
-    for (; i < n; i++) {                                              /* the last row, n odd */
-        int len = n - i;
-        double a = x1[i], b = x2[i];
-        y1[i] += dot(P, x1 + i, len);
-        y2[i] += dot(P, x2 + i, len);
-        for (int j = 1; j < len; j++) {
-            y1[i + j] += a * P[j];
-            y2[i + j] += b * P[j];
-        }
-        P += len;
-    }
-}
-UP_KERNEL(up_spmv2_add,
-          (const double *restrict P, int n, const double *restrict x1, const double *restrict x2,
-           double *restrict y1, double *restrict y2),
-          (P, n, x1, x2, y1, y2))
 
 /* P <- the upper triangle of A (n, n) packed by rows; 1 when A is symmetric (bit for bit) */
 int up_pack_sym(const double *A, int n, double *P)

@@ -12,7 +12,12 @@
    memory traffic of the product, which is what bounds it); otherwise pole-major, as its
    transpose Ht (L, n), h accumulating g_j times row j of Ht (up_gemv_t). Either way the loops
    vectorise with no reassociation (the same sums in the same order at every width). The coefficients and D0 depend on dt:
-   one set per step-halving level, computed when first needed. */
+   one set per step-halving level, computed when first needed.
+
+   A soil stepped alone (the soil FMU, up_soil_step) publishes g_{n+2}, the history of the step after
+   next without the part driven by the state committed next (fmus/coupling.py). Its own history for
+   the commit of u_n is then what it published two steps before plus that part, h_n = g_n + Gx u_{n-1}
+   with the constant gain Gx = sum_k R_k b_k (a_k + 1): one product over H per step, as the stepper. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -74,29 +79,19 @@ static const double *block_input(const UpSoil *s, const double *g, int b, double
     return v;
 }
 
-/* h = H g (and h2 = H g2 in the same pass over H when g2 is not NULL) */
-static void history_product(UpSoil *s, const double *g, const double *g2, double *h, double *h2)
+/* h = H g */
+static void history_product(UpSoil *s, const double *g, double *h)
 {
     int n = s->n;
     if (!s->Hs) {
-        if (g2)
-            up_gemv_t2(s->H, (int)s->L, n, g, g2, h, h2);
-        else
-            up_gemv_t(s->H, (int)s->L, n, g, h);
+        up_gemv_t(s->H, (int)s->L, n, g, h);
         return;
     }
     size_t packed = (size_t)n * (n + 1) / 2;
-    double *v1 = s->fbuf + 3 * (size_t)n, *v2 = v1 + n;
+    double *v = s->fbuf + 3 * (size_t)n;
     memset(h, 0, (size_t)n * sizeof(double));
-    if (g2)
-        memset(h2, 0, (size_t)n * sizeof(double));
-    for (int b = 0; b < s->mr + 2 * s->mc; b++) {
-        const double *P = s->Hs + (size_t)b * packed, *x1 = block_input(s, g, b, v1);
-        if (g2)
-            up_spmv2_add(P, n, x1, block_input(s, g2, b, v2), h, h2);
-        else
-            up_spmv_add(P, n, x1, h);
-    }
+    for (int b = 0; b < s->mr + 2 * s->mc; b++)
+        up_spmv_add(s->Hs + (size_t)b * packed, n, block_input(s, g, b, v), h);
 }
 
 int up_soil_init(UpSoil *s, const UpRes *r, int n, int nlev, int stepped, char *err)
@@ -131,8 +126,12 @@ int up_soil_init(UpSoil *s, const UpRes *r, int n, int nlev, int stepped, char *
     int ok = s->fbuf != NULL;
     if (stepped && ok) {
         s->g = (double *)calloc(s->L + 1, sizeof(double));
-        s->g2 = (double *)calloc(s->L + 1, sizeof(double));
-        ok = s->g && s->g2 && history_matrix(s);
+        ok = s->g && history_matrix(s);
+    }
+    if (stepped == 2 && ok) {
+        s->Gx = (double *)malloc((size_t)n * n * sizeof(double) + 1);
+        s->Gxp = (double *)malloc(((size_t)n * (n + 1) / 2 + 1) * sizeof(double));
+        ok = s->Gx && s->Gxp;
     }
     for (int l = 0; ok && l < nlev; l++) {
         UpSoilLevel *lv = &s->lev[l];
@@ -165,7 +164,8 @@ void up_soil_free(UpSoil *s)
     free(s->Hs);
     free(s->Ep);
     free(s->g);
-    free(s->g2);
+    free(s->Gx);
+    free(s->Gxp);
     free(s->fbuf);
     for (int l = 0; l < UP_MAXLEV; l++) {
         free(s->lev[l].ar);
@@ -177,7 +177,7 @@ void up_soil_free(UpSoil *s)
 
 size_t up_soil_state_len(const UpSoil *s)
 {
-    return s->L + 3 * (size_t)s->n + 1;
+    return s->L + (s->Gx ? 5 : 3) * (size_t)s->n + 1;
 }
 
 void up_soil_bind(UpSoil *s, double *state)
@@ -188,11 +188,39 @@ void up_soil_bind(UpSoil *s, double *state)
     s->ud = s->u + s->n;
     s->f = s->ud + s->n;
     s->work = s->f + s->n;
+    s->gq = s->Gx ? s->work + 1 : NULL;
+    s->gp = s->Gx ? s->gq + s->n : NULL;
 }
 
 void up_soil_rest(UpSoil *s)
 {
     memset(s->yr, 0, up_soil_state_len(s) * sizeof(double));
+}
+
+/* s->Gx = sum_k R_k b_k (a_k + 1) at the level's dt (a pair: 2 Re), and packed when symmetric: the part
+   of the history of the step after next driven by the state committed next */
+static void history_gain(UpSoil *s, const UpSoilLevel *lv)
+{
+    size_t nn = (size_t)s->n * s->n;
+    double *G = s->Gx;
+    memset(G, 0, nn * sizeof(double));
+    for (int k = 0; k < s->mr; k++) {
+        const double *R = s->Rr + (size_t)k * nn;
+        double c = lv->br[k] * (lv->ar[k] + 1.0);
+        for (size_t i = 0; i < nn; i++)
+            G[i] += c * R[i];
+    }
+    for (int k = 0; k < s->mc; k++) {
+        const double *R = s->Rc + (size_t)k * nn * 2;
+        double are = lv->ac[2 * k] + 1.0, aim = lv->ac[2 * k + 1], bre = lv->bc[2 * k], bim = lv->bc[2 * k + 1];
+        double cre = bre * are - bim * aim, cim = bre * aim + bim * are;         /* c = b (a + 1) */
+        for (size_t i = 0; i < nn; i++)
+            G[i] += 2.0 * (cre * R[2 * i] - cim * R[2 * i + 1]);
+    }
+    if (!up_pack_sym(G, s->n, s->Gxp)) {
+        free(s->Gxp);                                     /* not symmetric: the dense product */
+        s->Gxp = NULL;
+    }
 }
 
 const UpSoilLevel *up_soil_level(UpSoil *s, int lev, double dt)
@@ -235,6 +263,8 @@ const UpSoilLevel *up_soil_level(UpSoil *s, int lev, double dt)
             D0[(size_t)i * n + j] = D0[(size_t)j * n + i] = m;
         }
     up_pack_sym(D0, n, lv->D0p);
+    if (lev == 0 && s->Gx)
+        history_gain(s, lv);
     lv->dt = dt;
     lv->ready = 1;
     return lv;
@@ -263,7 +293,7 @@ static void stack(const UpSoil *s, const UpSoilLevel *lv, const double *yr, cons
 void up_soil_history(UpSoil *s, int lev, double *h)
 {
     stack(s, &s->lev[lev], s->yr, s->yc, s->u, s->g);
-    history_product(s, s->g, NULL, h, NULL);
+    history_product(s, s->g, h);
 }
 
 void up_soil_force(UpSoil *s, int lev, const double *x, const double *xd, const double *h, double *f)
@@ -329,24 +359,21 @@ void up_soil_ahead(UpSoil *s, int lev, double *g)
     memcpy(s->g, s->yr, s->L * sizeof(double));
     advance_states(s, lv, zero, s->u, s->g, s->g + (size_t)s->mr * n);
     stack_ahead(s, lv, s->g);
-    history_product(s, s->g, NULL, g, NULL);
+    history_product(s, s->g, g);
 }
 
 void up_soil_step(UpSoil *s, int lev, const double *x, const double *xd, double *g)
 {
-    /* h for the commit of x and g of the step after next (up_soil_ahead after the commit), in
-       one pass over H */
-    const UpSoilLevel *lv = &s->lev[lev];
+    /* h_n = g_n + Gx u_{n-1} for the commit of x = u_n (gq: g_n, published two steps before), then
+       g_{n+2} (gp, published) */
     int n = s->n;
     double *h = s->fbuf + n, *f = s->fbuf + 2 * (size_t)n;
-    stack(s, lv, s->yr, s->yc, s->u, s->g);
-    memcpy(s->g2, s->yr, s->L * sizeof(double));
-    double *zero = s->fbuf;
-    memset(zero, 0, (size_t)n * sizeof(double));
-    advance_states(s, lv, x, s->u, s->g2, s->g2 + (size_t)s->mr * n);      /* after committing x */
-    advance_states(s, lv, zero, x, s->g2, s->g2 + (size_t)s->mr * n);      /* then a zero state */
-    stack_ahead(s, lv, s->g2);
-    history_product(s, s->g, s->g2, h, g);
+    up_symv(s->Gx, s->Gxp, n, s->u, h);
+    for (int i = 0; i < n; i++)
+        h[i] = s->gq[i] + h[i];
     up_soil_force(s, lev, x, xd, h, f);
     up_soil_commit(s, lev, x, xd, f);
+    memcpy(s->gq, s->gp, (size_t)n * sizeof(double));
+    up_soil_ahead(s, lev, s->gp);
+    memcpy(g, s->gp, (size_t)n * sizeof(double));
 }

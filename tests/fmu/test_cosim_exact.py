@@ -80,3 +80,4 @@ def test_history_gains_split_the_history_exactly():
         part = max(part, np.abs(Gx @ x).max() / np.abs(h).max())
     assert worst <= 1e-12
     assert part > 0.1
+    assert np.array_equal(Gx, Gx.T) and not Gv.any()        # reciprocal, no xdot: what the native FMU exploits

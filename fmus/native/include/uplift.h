@@ -64,8 +64,6 @@
 #define up_spmv_add UP_SYM(up_spmv_add)
 #define up_pack_sym UP_SYM(up_pack_sym)
 #define up_symv UP_SYM(up_symv)
-#define up_spmv2_add UP_SYM(up_spmv2_add)
-#define up_gemv_t2 UP_SYM(up_gemv_t2)
 #define up_matvec_add UP_SYM(up_matvec_add)
 #define up_matvec_ld UP_SYM(up_matvec_ld)
 #define up_sparse_init UP_SYM(up_sparse_init)
@@ -180,11 +178,8 @@ void up_sparse_free(UpSparse *S);
 void up_sparse_matvec(const UpSparse *S, const double *x, double *y);   /* y = S x */
 /* y = At^T x for At (rows, cols): y (cols) accumulates x_j times row j of At, in the order of j */
 void up_gemv_t(const double *At, int rows, int cols, const double *x, double *y);
-void up_gemv_t2(const double *At, int rows, int cols, const double *x1, const double *x2, double *y1,
-                double *y2);                                                 /* both in one pass over At */
 /* y += P x for a symmetric (n, n) P packed by rows of its upper triangle (n (n + 1) / 2 values) */
 void up_spmv_add(const double *P, int n, const double *x, double *y);
-void up_spmv2_add(const double *P, int n, const double *x1, const double *x2, double *y1, double *y2);
 int up_pack_sym(const double *A, int n, double *P);       /* P <- A packed; 1 when A is symmetric */
 void up_symv(const double *A, const double *P, int n, const double *x, double *y);  /* y = A x, P if not NULL */
 void up_axpy(double a, const double *x, int n, double *y);                      /* y += a x */
@@ -213,12 +208,16 @@ typedef struct {
     double *H;                /* (L, n): H transposed (pole-major), h = H g; NULL when the soil is not stepped */
     double *Hs;               /* the same when every residue is symmetric (reciprocity): the L / n blocks
                                  of H (R_k; 2 Re R_k, -2 Im R_k) packed (up_spmv_add); H is then NULL */
-    double *g, *g2, *fbuf;    /* (L), (L), (5 n) work */
+    double *g, *fbuf;         /* (L), (5 n) work */
+    double *Gx, *Gxp;         /* (n, n) history gain at level 0 and packed (NULL if not symmetric): a soil
+                                 stepped alone (up_soil_init's stepped = 2) only */
     UpSoilLevel lev[UP_MAXLEV];
-    /* state, inside the instance's state block */
-    double *yr, *yc, *u, *ud, *f, *work;
+    /* state, inside the instance's state block (gq, gp: a soil stepped alone) */
+    double *yr, *yc, *u, *ud, *f, *work, *gq, *gp;
 } UpSoil;
 
+/* stepped: 0 the history is given (a structure FMU), 1 stepped by the stepper, 2 stepped alone (a soil
+   FMU: up_soil_step) */
 int up_soil_init(UpSoil *s, const UpRes *r, int n, int nlev, int stepped, char *err);
 void up_soil_free(UpSoil *s);
 size_t up_soil_state_len(const UpSoil *s);
