@@ -79,7 +79,10 @@ static const double *block_input(const UpSoil *s, const double *g, int b, double
     return v;
 }
 
-/* h = H g */
+/* h = H g. Packed: each block's product into its own part of s->part, the parts summed in the
+   blocks' order, so the result does not depend on the order the blocks are read in; that order
+   alternates from one product to the next, so the blocks read last (still in cache) are read
+   first the next time (the packed blocks of the reactor, ~2 MB, do not fit in L2) */
 static void history_product(UpSoil *s, const double *g, double *h)
 {
     int n = s->n;
@@ -89,9 +92,16 @@ static void history_product(UpSoil *s, const double *g, double *h)
     }
     size_t packed = (size_t)n * (n + 1) / 2;
     double *v = s->fbuf + 3 * (size_t)n;
+    int nb = s->mr + 2 * s->mc;
+    s->flip = !s->flip;
+    memset(s->part, 0, s->L * sizeof(double));
+    for (int q = 0; q < nb; q++) {
+        int b = s->flip ? nb - 1 - q : q;
+        up_spmv_add(s->Hs + (size_t)b * packed, n, block_input(s, g, b, v), s->part + (size_t)b * n);
+    }
     memset(h, 0, (size_t)n * sizeof(double));
-    for (int b = 0; b < s->mr + 2 * s->mc; b++)
-        up_spmv_add(s->Hs + (size_t)b * packed, n, block_input(s, g, b, v), h);
+    for (int b = 0; b < nb; b++)
+        up_axpy(1.0, s->part + (size_t)b * n, n, h);
 }
 
 int up_soil_init(UpSoil *s, const UpRes *r, int n, int nlev, int stepped, char *err)
@@ -126,7 +136,8 @@ int up_soil_init(UpSoil *s, const UpRes *r, int n, int nlev, int stepped, char *
     int ok = s->fbuf != NULL;
     if (stepped && ok) {
         s->g = (double *)calloc(s->L + 1, sizeof(double));
-        ok = s->g && history_matrix(s);
+        s->part = (double *)calloc(s->L + 1, sizeof(double));
+        ok = s->g && s->part && history_matrix(s);
     }
     if (stepped == 2 && ok) {
         s->Gx = (double *)malloc((size_t)n * n * sizeof(double) + 1);
@@ -164,6 +175,7 @@ void up_soil_free(UpSoil *s)
     free(s->Hs);
     free(s->Ep);
     free(s->g);
+    free(s->part);
     free(s->Gx);
     free(s->Gxp);
     free(s->fbuf);

@@ -209,6 +209,8 @@ typedef struct {
     double *Hs;               /* the same when every residue is symmetric (reciprocity): the L / n blocks
                                  of H (R_k; 2 Re R_k, -2 Im R_k) packed (up_spmv_add); H is then NULL */
     double *g, *fbuf;         /* (L), (5 n) work */
+    double *part;             /* (L) work: the packed history product's parts, block by block */
+    int flip;                 /* the order the blocks were read in last (no effect on the product) */
     double *Gx, *Gxp;         /* (n, n) history gain at level 0 and packed (NULL if not symmetric): a soil
                                  stepped alone (up_soil_init's stepped = 2) only */
     UpSoilLevel lev[UP_MAXLEV];
