@@ -85,19 +85,33 @@ class AffineSplit:
     def _dense_part(op, band, A, B, upper=None, chunk=16):
         """S - (A + s B) on a dense band's frequencies: K_ww - Vr Zqq^-1 Vl - A - s B, (Fb, N, N)
         complex, or with ``upper`` (row and column indices of the upper triangle, column by
-        column) its packed upper triangles (Fb, N (N + 1) / 2); ``chunk`` frequencies at a time
-        (no band-sized temporaries)."""
-        K, idx, s = band.ww(), band.idx, op.s[band.idx]
-        N = K.shape[1]
-        D = np.empty((idx.size, N, N) if upper is None else (idx.size, upper[0].size), complex)
+        column) its packed upper triangles (Fb, N (N + 1) / 2), each term gathered on them
+        (flat ``take``s: half the entries, no 2-index fancy indexing); ``chunk`` frequencies at
+        a time (no band-sized temporaries)."""
+        idx, s = band.idx, op.s[band.idx]
+        N = A.shape[0]
+        if upper is None:
+            K = band.ww()
+            D = np.empty((idx.size, N, N), complex)
+        else:
+            n = band.K.shape[-1]                                     # 6 + N
+            K = band.K.reshape(idx.size, n * n)
+            at_K = (6 + upper[0]) * n + 6 + upper[1]                 # K_ww's upper triangle in K
+            at = upper[0] * N + upper[1]                             # the same in an (N, N) array
+            A, B = A.ravel()[at], B.ravel()[at]
+            D = np.empty((idx.size, at.size), complex)
         for j0 in range(0, idx.size, chunk):
             j = slice(j0, j0 + chunk)
             f = idx[j]
-            Dj = op.Vr[f] @ op.ZV[f]
-            np.subtract(K[j], Dj, out=Dj)
+            R = op.Vr[f] @ op.ZV[f]                                  # the rank-6 term (Fc, N, N)
+            if upper is None:
+                Dj = np.subtract(K[j], R, out=R)
+            else:
+                Dj = np.take(K[j], at_K, axis=1)
+                Dj -= np.take(R.reshape(R.shape[0], N * N), at, axis=1)
             Dj -= A
-            Dj -= s[j, None, None] * B
-            D[j] = Dj if upper is None else Dj[:, upper[0], upper[1]]
+            Dj -= s[j].reshape((-1,) + (1,) * (Dj.ndim - 1)) * B
+            D[j] = Dj
         return D
 
     def kernel(self, n_lags: int, n_ahead: int = 0):
@@ -121,15 +135,13 @@ class AffineSplit:
         sig = np.real(E.T @ op.s)                                           # s's kernel (L,)
         out += sig[:, None, None] * dense(self.Bw)[None]
         out += np.real(E.sum(axis=0))[:, None, None] * dense(self.Aw)[None]   # delta_0, to round-off
+        if self.packed:                                   # each (i, j)'s place in the packed triangle
+            i, j = self.upper
+            pos = np.empty((N, N), np.intp)
+            pos[i, j] = pos[j, i] = np.arange(i.size)
         for idx, D in self.dense:
             h = np.real(np.tensordot(E[idx], D, axes=(0, 0)))
-            if self.packed:
-                i, j = self.upper
-                out[:, i, j] += h
-                off = i != j
-                out[:, j[off], i[off]] += h[:, off]
-            else:
-                out += h
+            out += np.take(h, pos.ravel(), axis=1).reshape(L, N, N) if self.packed else h
         Eh, sh = E[self.hi], self.s_hi
         Z = [np.real(np.tensordot(Eh, self.Zinv_hi * sh[:, None, None] ** j, axes=(0, 0))) for j in range(3)]
         M = np.block([[Z[0], Z[1]], [Z[1], Z[2]]])                          # (L, 12, 12)
