@@ -292,37 +292,13 @@ class CausalSweep:
         N, nt = c0.shape
         nf = g.nfft
         B = self.B
-        xT = np.zeros((nt, N))                 # x^T: one step's displacements per row
-        near = np.zeros((nt, N))               # the near field, transposed the same way
-        H = np.array(c0, float)                # the source and the far field (N, nt)
-        state = [np.zeros(N), 0]               # the last step's x, the linear solves
-
-        def steps(a, b):                       # the innermost sub-block, step by step
-            hflat = self.hflat
-            for n in range(a, b):
-                c = H[:, n] + near[n]
-                if n > a:                      # h_1..h_m on x_{n-1}..x_a
-                    c += hflat[:, :(n - a) * N] @ xT[a:n][::-1].ravel()
-                xn, it = self.step.solve(state[0], c)
-                xT[n] = xn
-                state[0] = xn
-                state[1] += it
-
-        def level(a, b, lev):                  # [a, b) in sub-blocks of sizes[lev]
-            while lev < len(self.sizes) and self.sizes[lev] >= b - a:
-                lev += 1                       # (a level that does not split [a, b))
-            if lev == len(self.sizes):
-                return steps(a, b)
-            q = self.sizes[lev]
-            for s0 in range(a, b, q):
-                s1 = min(s0 + q, b)
-                level(s0, s1, lev + 1)
-                if s1 < b:
-                    self._cross(xT, near, s0, s1, b)
-
+        # (the nested sub-blocks are methods, not closures: a recursive closure is a reference
+        # cycle that would hold this sweep's head and far field until the garbage collector runs)
+        m = _MarchState(xT=np.zeros((nt, N)), near=np.zeros((nt, N)), H=np.array(c0, float), x=np.zeros(N))
+        xT, H = m.xT, m.H
         for a in range(0, nt, B):
             b = min(a + B, nt)
-            level(a, b, 0)
+            self._level(m, a, b, 0)
             if b < nt and not self.fold:      # far field of this block, on the grid
                 self.far(np.ascontiguousarray(xT[a:b].T), a, b, H)
             elif b < nt:     # folded: sum_m (h_{n-m} - h_{m-n}) x_m, the second term from a
@@ -336,8 +312,32 @@ class CausalSweep:
             if not np.abs(xT[b - 1]).max() < DIVERGED_M:          # NaN included
                 raise MarchDiverged((b - 1) * g.dt, int(np.sum(xT[b - 1] > self.step.delta0)))
             if deadline is not None and time.perf_counter() > deadline and b < nt:
-                return np.ascontiguousarray(xT.T), b, state[1]
-        return np.ascontiguousarray(xT.T), nt, state[1]
+                return np.ascontiguousarray(xT.T), b, m.solves
+        return np.ascontiguousarray(xT.T), nt, m.solves
+
+    def _level(self, m, a, b, lev):
+        """Steps [a, b) of a march (m: _MarchState) in sub-blocks of sizes[lev]."""
+        while lev < len(self.sizes) and self.sizes[lev] >= b - a:
+            lev += 1                           # (a level that does not split [a, b))
+        if lev == len(self.sizes):
+            return self._steps(m, a, b)
+        q = self.sizes[lev]
+        for s0 in range(a, b, q):
+            s1 = min(s0 + q, b)
+            self._level(m, s0, s1, lev + 1)
+            if s1 < b:
+                self._cross(m.xT, m.near, s0, s1, b)
+
+    def _steps(self, m, a, b):
+        """The innermost sub-block [a, b), step by step: h_1..h_{n-a} on x_{n-1}..x_a."""
+        N, hflat = m.x.size, self.hflat
+        for n in range(a, b):
+            c = m.H[:, n] + m.near[n]
+            if n > a:
+                c += hflat[:, :(n - a) * N] @ m.xT[a:n][::-1].ravel()
+            m.x, it = self.step.solve(m.x, c)
+            m.xT[n] = m.x
+            m.solves += it
 
     def _cross(self, xT, near, s0, s1, b):
         """near[t] += sum_{s0 <= s < s1} (h_{t-s} x_s)^T for the later steps t in [s1, b): one
@@ -376,6 +376,18 @@ def y_from_d(prob, d):
     e = prob.static.delta0[:, None] - d
     z = np.where(e > 0, e / prob.eps[:, None], e)
     return z - prob.z0[:, None]
+
+
+@dataclass
+class _MarchState:
+    """A march in progress: xT (nt, N) the contact history so far, one step per row; near
+    (nt, N) the near field, the same layout; H (N, nt) the source and the far field; x (N,) the
+    last step's solution; solves, the linear solves so far."""
+    xT: np.ndarray
+    near: np.ndarray
+    H: np.ndarray
+    x: np.ndarray
+    solves: int = 0
 
 
 @dataclass(frozen=True)
