@@ -35,8 +35,8 @@ Rows:
             frequency instead of its springs and dashpots.
 
   --parts   where a march solve's CPU goes on the reactor (one thread): the far-field split and
-            the kernel head, per sweep the far field, the step solves and the rest (near field,
-            residual); the look-ahead (march.AHEAD) against none ("march-causal"): sweeps,
+            the kernel head, per sweep the far field, the near field's products from finished
+            sub-blocks, the step solves and the rest (the step-by-step near field, residual); the look-ahead (march.AHEAD) against none ("march-causal"): sweeps,
             residuals, max uplift.
 
     python benchmarks/timefreq.py [--pga 0.25] [--map] [--map-reactor] [--ladder] [--contention] [--stand-in]
@@ -377,8 +377,9 @@ def stand_in(pga, sweeps=30, tol=1e-6):
 
 def parts(pga, tol=1e-6):
     """Where a march solve's CPU goes on the reactor (one BLAS thread, one worker thread):
-    the far-field split and the kernel head (once), per sweep the near field, the step solves
-    and the far field (each timed by thread CPU time), the whole-range residual; for the
+    the far-field split and the kernel head (once), per sweep the far field, the near field's
+    products from finished sub-blocks and the step solves (each timed by thread CPU time), the
+    rest (the step-by-step near field, the whole-range residual); for the
     default look-ahead (march.AHEAD) and without it (method "march-causal"): sweeps, residuals,
     max uplift and their difference, and the far field per application against one
     application of S on the grid."""
@@ -425,13 +426,14 @@ def parts(pga, tol=1e-6):
                 return out
             return run
 
-        class TimedSweep(plain_sweep):               # the sweep's step solves and far field timed
+        class TimedSweep(plain_sweep):      # the sweep's step solves, far field, near-field products timed
             def __init__(self, *args, **kw):
                 super().__init__(*args, **kw)
                 self.step.solve, self.far = timed("steps", self.step.solve), timed("far", self.far)
+                self._cross = timed("cross", self._cross)
 
         for ahead in (march.AHEAD, 0):
-            spent.update(steps=0.0, far=0.0)
+            spent.update(steps=0.0, far=0.0, cross=0.0)
             march.CausalSweep = TimedSweep
             try:
                 c0 = clock()
@@ -442,11 +444,12 @@ def parts(pga, tol=1e-6):
             res = [h.residual for h in out.history]
             uplift = float(np.maximum(0.0, -(prob.z0[:, None] + out.y)).max())
             n = len(res)
-            near = total - spent["steps"] - spent["far"]
+            rest = total - spent["steps"] - spent["far"] - spent["cross"]
             rows[ahead] = dict(sweeps=n, residuals=res, cpu_s=total, far_s=spent["far"], steps_s=spent["steps"],
-                               rest_s=near, max_uplift_m=uplift)
-            print(f"look-ahead {ahead}: {n} sweeps, {total:.2f} CPU s: far field {spent['far']:.2f}, step solves "
-                  f"{spent['steps']:.2f}, the rest (split, head, near field, residuals) {near:.2f}; max uplift {1e3 * uplift:.7f} mm; "
+                               cross_s=spent["cross"], rest_s=rest, max_uplift_m=uplift)
+            print(f"look-ahead {ahead}: {n} sweeps, {total:.2f} CPU s: far field {spent['far']:.2f}, near-field "
+                  f"products from finished sub-blocks {spent['cross']:.2f}, step solves {spent['steps']:.2f}, the rest "
+                  f"(split, head, the step-by-step near field, residuals) {rest:.2f}; max uplift {1e3 * uplift:.7f} mm; "
                   "residuals " + " ".join(f"{r:.1e}" for r in res))
         a, b = rows[march.AHEAD]["max_uplift_m"], rows[0]["max_uplift_m"]
         print(f"max uplift, look-ahead {march.AHEAD} against none: {abs(a - b) / b:.1e} relative")

@@ -151,6 +151,13 @@ class Grid:
     def _weights(self, n):
         return np.exp(-self.eta * self.dt * np.arange(n))
 
+    def plans(self, rows: int):
+        """(forward, inverse): the cached pyfftw plans of to_freq and to_time for (rows, nfft)
+        real <-> (rows, F) complex (one pair per thread), for callers that fill input_array in
+        place and read the call's output_array (valid until the plan's next call in the thread):
+        no window, no padding, no copies."""
+        return _plan("r", (rows, self.nfft), self.nfft), _plan("c", (rows, self.n_freq), self.nfft)
+
     def to_freq(self, x, start: int = 0) -> np.ndarray:
         """x (..., nt) real -> X (..., F) complex (padded, windowed rfft). start: x stands for
         the samples start .. start + x.shape[-1] - 1, zero elsewhere (a block of a record)."""

@@ -17,9 +17,9 @@ with a semi-smooth Newton on the N contact conditions of step n (full steps, the
 h_0 + kp I^+ cached per active set; damped on the step's convex energy if an active set comes
 back), so no global iteration has to cross thousands of contact switches at once. The history
 H_n is split at blocks of B steps: the near field (the same block) directly with the kernel
-head h_1..h_{B-1} (formed per frequency, one column chunk at a time; step by step inside
-sub-blocks of SUB steps, by one matrix product from a finished sub-block to the rest of the
-block), the far field (earlier blocks) with one application of S per block, on the grid. Cost of a march: (nt / B) S
+head h_1..h_{B-1} (step by step inside the innermost of nested sub-blocks (SUB), by one
+matrix product from each finished sub-block to the rest of its parent), the far field
+(earlier blocks) with one application of S per block, on the grid. Cost of a march: (nt / B) S
 applications + nt B N^2 / 2 multiply-adds + one (N x N) LU per new active set.
 
 ``defect_correction`` feeds what the periodic grid adds back as a source, march after march,
@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg as sla
+from numpy.lib.stride_tricks import as_strided
 
 from structure.contact import contact_force
 
@@ -46,12 +47,13 @@ from orchestrator.timefreq.soil import AffineBand, dense
 DIVERGED_M = 100.0
 
 #: steps per block: the near field costs nt B N^2 / 2 multiply-adds, the far field nt / B
-#: applications of S (on the reactor, N = 241, 64 gives the shortest sweep of 32, 64 and 128)
-BLOCK = 64
-#: steps per sub-block of the near field (CausalSweep.run): step by step inside, one matrix
-#: product from a finished sub-block to the rest of its block; SUB = BLOCK is the plain
-#: step-by-step near field (the same sums in another order)
-SUB = 16
+#: applications of S (on the reactor, N = 241, per sweep in CPU s: 64 with (16, 4) 1.50, 80
+#: with (20, 5) 1.51, 96 with (24, 6) 1.28 to 1.41, 112 with (28, 7) 1.37, 128 with (32, 8) 1.35)
+BLOCK = 96
+#: the near field's nested sub-blocks, outermost first (CausalSweep.run): step by step inside
+#: the innermost, one matrix product from each finished sub-block to the rest of its parent;
+#: SUB = (BLOCK,) is the plain step-by-step near field (the same sums in another order)
+SUB = (24, 6)
 #: the march's look-ahead (CausalSweep): the kernel's first negative lags held at the step's d;
 #: on the reactor's table at 0.25 g the sweeps to a residual of 1e-6 go from 5 to 4 with 2
 #: (residual after sweep 1: 1.3e-2 without, 4.8e-3 with 2, 3.8e-3 with 3 or more)
@@ -247,12 +249,11 @@ class CausalSweep:
     fixed point (the whole-range residual's) is the same. Skipped (self.ahead 0) if h_0 +
     sum h_{-k} is not symmetric positive definite like h_0."""
 
-    def __init__(self, prob, block: int = BLOCK, fold: bool = False, sub: int = SUB, ahead: int = AHEAD):
+    def __init__(self, prob, block: int = BLOCK, fold: bool = False, sub=SUB, ahead: int = AHEAD):
         t0 = time.perf_counter()
         self.prob, self.fold = prob, fold
         N, nt = prob.f.shape
         self.B = B = int(max(2, min(block, nt)))
-        self.b = int(max(1, min(sub, B)))
         n_ahead = 0 if fold else int(max(0, min(ahead, prob.grid.nfft - nt)))
         split = None if fold else AffineSplit(prob.op, prob.grid)
         if split is not None and split.usable:
@@ -267,8 +268,14 @@ class CausalSweep:
             h0a = h0 + lags_ahead.sum(axis=0)
             if _spd(h0a) or not _spd(h0):
                 h0, self.ahead = h0a, n_ahead
-        self.hflat = np.ascontiguousarray(head[1:].transpose(1, 0, 2).reshape(N, (B - 1) * N))   # [h_1 .. h_B-1]
-        self.hstack = np.ascontiguousarray(head[1:].reshape((B - 1) * N, N))                    # the same, stacked
+        # the near field's nested sub-blocks (outermost first), each within [1, B]
+        self.sizes = tuple(int(max(1, min(q, B))) for q in (sub if isinstance(sub, (tuple, list)) else (sub,)))
+        leaf = self.sizes[-1] if self.sizes else B
+        # [h_1^T .. h_{B-1}^T] side by side (N, (B - 1) N): a finished sub-block's steps (rows of
+        # x^T) times it give every later lag's contribution as rows (the cross products)
+        self.hT = np.ascontiguousarray(head[1:].transpose(2, 0, 1).reshape(N, (B - 1) * N))
+        # [h_1 .. h_{leaf-1}] side by side: the step-by-step products inside the innermost sub-block
+        self.hflat = np.ascontiguousarray(head[1:leaf].transpose(1, 0, 2).reshape(N, (leaf - 1) * N))
         self.step = StepSolver(h0, prob.kp, prob.static.delta0, prob.P0)
         self.head_s = time.perf_counter() - t0
 
@@ -276,50 +283,73 @@ class CausalSweep:
         """The contact history x (N, nt): step n solves its contact conditions with
         c_n = c0_n + sum_{k>=1} h_k x_{n-k}, the near field (same block of B steps) from the
         kernel head, the far field (earlier blocks) by one S application per block on the
-        grid. The near field in two levels: within a sub-block of ``b`` steps step by step
-        (h_1..h_{b-1}, small enough to stay in cache), and from a finished sub-block to the rest
-        of its block at once, one matrix product for all its steps (the stacked head read once
-        per sub-block, not once per step). Returns (x, steps done, linear solves)."""
+        grid. The near field in nested sub-blocks (``sizes``, outermost first): inside the
+        innermost one step by step (h_1 .. h_{leaf-1}, small enough to stay in cache), and from
+        each finished sub-block to the rest of its parent at once (``_cross``: one matrix
+        product, the head read once per sub-block, not once per step). Returns (x, steps done,
+        linear solves)."""
         g, op = self.prob.grid, self.prob.op
         N, nt = c0.shape
         nf = g.nfft
-        B, sb, hflat, hstack = self.B, self.b, self.hflat, self.hstack
-        x = np.zeros((N, nt))
-        H = np.array(c0, float)
-        xn = np.zeros(N)
-        solves = 0
+        B = self.B
+        # (the nested sub-blocks are methods, not closures: a recursive closure is a reference
+        # cycle that would hold this sweep's head and far field until the garbage collector runs)
+        m = _MarchState(xT=np.zeros((nt, N)), near=np.zeros((nt, N)), H=np.array(c0, float), x=np.zeros(N))
+        xT, H = m.xT, m.H
         for a in range(0, nt, B):
             b = min(a + B, nt)
-            for s0 in range(a, b, sb):
-                s1 = min(s0 + sb, b)
-                for n in range(s0, s1):
-                    m = n - s0
-                    c = H[:, n]
-                    if m:                            # h_1..h_m on x_{n-1}..x_{s0}
-                        c = c + hflat[:, :m * N] @ x[:, n - 1:s0 - 1 if s0 else None:-1].T.ravel()
-                    xn, it = self.step.solve(xn, c)
-                    x[:, n] = xn
-                    solves += it
-                if s1 < b:                           # this sub-block's steps -> the block's later steps
-                    L = b - 1 - s0                   # lags up to the block's last step
-                    Y = (hstack[:L * N] @ x[:, s0:s1]).reshape(L, N, s1 - s0)
-                    for i, s in enumerate(range(s0, s1)):
-                        H[:, s1:b] += Y[s1 - s - 1:b - 1 - s, :, i].T
+            self._level(m, a, b, 0)
             if b < nt and not self.fold:      # far field of this block, on the grid
-                self.far(x[:, a:b], a, b, H)
+                self.far(np.ascontiguousarray(xT[a:b].T), a, b, H)
             elif b < nt:     # folded: sum_m (h_{n-m} - h_{m-n}) x_m, the second term from a
                 X = np.zeros((2, N, nf))            # time-reversed copy at the period's end
-                X[0, :, a:b] = x[:, a:b]
-                X[1][:, (nf - np.arange(a, b)) % nf] = x[:, a:b]
+                X[0, :, a:b] = xT[a:b].T
+                X[1][:, (nf - np.arange(a, b)) % nf] = xT[a:b].T
                 Y = g.to_time(op.apply_S(g.to_freq(X)), n=nf)
                 H[:, b:] += Y[0][:, b:nt] - Y[1][:, nf - np.arange(b, nt)]
             if progress is not None:
                 progress(b, nt)
-            if not np.abs(x[:, b - 1]).max() < DIVERGED_M:          # NaN included
-                raise MarchDiverged((b - 1) * g.dt, int(np.sum(x[:, b - 1] > self.step.delta0)))
+            if not np.abs(xT[b - 1]).max() < DIVERGED_M:          # NaN included
+                raise MarchDiverged((b - 1) * g.dt, int(np.sum(xT[b - 1] > self.step.delta0)))
             if deadline is not None and time.perf_counter() > deadline and b < nt:
-                return x, b, solves
-        return x, nt, solves
+                return np.ascontiguousarray(xT.T), b, m.solves
+        return np.ascontiguousarray(xT.T), nt, m.solves
+
+    def _level(self, m, a, b, lev):
+        """Steps [a, b) of a march (m: _MarchState) in sub-blocks of sizes[lev]."""
+        while lev < len(self.sizes) and self.sizes[lev] >= b - a:
+            lev += 1                           # (a level that does not split [a, b))
+        if lev == len(self.sizes):
+            return self._steps(m, a, b)
+        q = self.sizes[lev]
+        for s0 in range(a, b, q):
+            s1 = min(s0 + q, b)
+            self._level(m, s0, s1, lev + 1)
+            if s1 < b:
+                self._cross(m.xT, m.near, s0, s1, b)
+
+    def _steps(self, m, a, b):
+        """The innermost sub-block [a, b), step by step: h_1..h_{n-a} on x_{n-1}..x_a."""
+        N, hflat = m.x.size, self.hflat
+        for n in range(a, b):
+            c = m.H[:, n] + m.near[n]
+            if n > a:
+                c += hflat[:, :(n - a) * N] @ m.xT[a:n][::-1].ravel()
+            m.x, it = self.step.solve(m.x, c)
+            m.xT[n] = m.x
+            m.solves += it
+
+    def _cross(self, xT, near, s0, s1, b):
+        """near[t] += sum_{s0 <= s < s1} (h_{t-s} x_s)^T for the later steps t in [s1, b): one
+        product of the finished steps with the head up to lag L = b - 1 - s0, Y (q, L N), row i
+        (step s0 + i) holding every lag's contribution; target t takes lag t - s0 - i of row i,
+        a diagonal of Y's blocks read as one strided view and summed over the q rows."""
+        N, q, L = xT.shape[1], s1 - s0, b - 1 - s0
+        Y = xT[s0:s1] @ self.hT[:, :L * N]
+        # row i, target s1 + j: lag q + j - i at columns (q - 1 + j - i) N
+        V = as_strided(Y[:, (q - 1) * N:], shape=(q, b - s1, N), strides=(Y.strides[0] - N * Y.itemsize,
+                                                                            N * Y.itemsize, Y.itemsize))
+        near[s1:b] += V.sum(axis=0)
 
 
 def march(prob, lam: float = 1.0, block: int = BLOCK, progress=None, deadline: float | None = None,
@@ -346,6 +376,18 @@ def y_from_d(prob, d):
     e = prob.static.delta0[:, None] - d
     z = np.where(e > 0, e / prob.eps[:, None], e)
     return z - prob.z0[:, None]
+
+
+@dataclass
+class _MarchState:
+    """A march in progress: xT (nt, N) the contact history so far, one step per row; near
+    (nt, N) the near field, the same layout; H (N, nt) the source and the far field; x (N,) the
+    last step's solution; solves, the linear solves so far."""
+    xT: np.ndarray
+    near: np.ndarray
+    H: np.ndarray
+    x: np.ndarray
+    solves: int = 0
 
 
 @dataclass(frozen=True)
@@ -391,7 +433,8 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
     Measured (benchmarks/timefreq.py --map, --map-reactor): the 21-node Winkler raft (causal
     soil, no fold) from 0.1 to 1.0 g in <= 6 sweeps to 1e-10 (the wrap-around only).
     monitor : callable(sweep, residual) after each sweep; deadline : perf_counter time past which the best
-    iterate is returned, STOPPED; block, sub : CausalSweep's blocks and near-field sub-blocks.
+    iterate is returned, STOPPED; block, sub : CausalSweep's blocks and near-field sub-blocks
+    (an int or nested sizes, outermost first).
     stand_in : a ContactProblem on the same grid and static state whose causal kernel the march
     steps instead of prob's (a causal soil standing in for the table, e.g. its rational fit);
     the residual, and so the fixed point, stay prob's.
