@@ -99,6 +99,33 @@ UP_BODY double fold8(const double *s)
     return ((s[0] + s[1]) + (s[2] + s[3])) + ((s[4] + s[5]) + (s[6] + s[7]));
 }
 
+/* bi[j] -= sum_p coef[p] B[p ld + j] (j < k) for p0 <= p < p1, the rows of B four at a time and
+   in their order along the k entries (no reduction): an entry stays in a register through four
+   updates. The LU's trailing update and the substitutions of many right-hand sides. */
+UP_BODY void rows_update(double *restrict bi, const double *B, int ld, const double *coef, int p0, int p1, int k)
+{
+    int p = p0;
+    for (; p + 4 <= p1; p += 4) {
+        const double *restrict b0 = B + (size_t)p * ld, *restrict b1 = b0 + ld, *restrict b2 = b1 + ld,
+                     *restrict b3 = b2 + ld;
+        double l0 = coef[p], l1 = coef[p + 1], l2 = coef[p + 2], l3 = coef[p + 3];
+        for (int j = 0; j < k; j++) {
+            double t = bi[j];
+            t -= l0 * b0[j];
+            t -= l1 * b1[j];
+            t -= l2 * b2[j];
+            t -= l3 * b3[j];
+            bi[j] = t;
+        }
+    }
+    for (; p < p1; p++) {
+        const double *restrict bp = B + (size_t)p * ld;
+        double l = coef[p];
+        for (int j = 0; j < k; j++)
+            bi[j] -= l * bp[j];
+    }
+}
+
 /* a . b with eight partial sums: independent chains in vector registers (two of four, or one of
    eight lanes), the same sums at every width; inlined into the loops that call it */
 UP_BODY double dot(const double *restrict a, const double *restrict b, int n)
@@ -153,26 +180,7 @@ UP_BODY int up_lu_k(double *A, int *piv, int n)
            at a time: an entry stays in a register through four updates, in their order) */
         for (int i = k0 + 1; i < n; i++) {
             double *restrict ri = A + (size_t)i * n;
-            int last = i < k1 ? i : k1, p = k0;
-            for (; p + 4 <= last; p += 4) {
-                const double *restrict r0 = A + (size_t)p * n, *restrict r1 = r0 + n, *restrict r2 = r1 + n,
-                             *restrict r3 = r2 + n;
-                double l0 = ri[p], l1 = ri[p + 1], l2 = ri[p + 2], l3 = ri[p + 3];
-                for (int j = k1; j < n; j++) {
-                    double r = ri[j];
-                    r -= l0 * r0[j];
-                    r -= l1 * r1[j];
-                    r -= l2 * r2[j];
-                    r -= l3 * r3[j];
-                    ri[j] = r;
-                }
-            }
-            for (; p < last; p++) {
-                double l = ri[p];
-                const double *rp = A + (size_t)p * n;
-                for (int j = k1; j < n; j++)
-                    ri[j] -= l * rp[j];
-            }
+            rows_update(ri + k1, A + k1, n, ri, k0, i < k1 ? i : k1, n - k1);
         }
     }
     return 0;
@@ -196,33 +204,6 @@ UP_BODY void up_lu_solve_k(const double *LU, const int *piv, int n, double *b)
 }
 UP_KERNEL(up_lu_solve, (const double *LU, const int *piv, int n, double *b), (LU, piv, n, b))
 
-/* B <- A^-1 B for B (n, k) row-major, from the LU of A (up_lu): the substitutions row by row of B,
-   each row of B updated by the rows above (below) it, four at a time and in their order, along
-   its k entries (no reduction) */
-UP_BODY void rows_update(double *restrict bi, const double *B, const double *coef, int p0, int p1, int k)
-{
-    int p = p0;
-    for (; p + 4 <= p1; p += 4) {
-        const double *restrict b0 = B + (size_t)p * k, *restrict b1 = b0 + k, *restrict b2 = b1 + k,
-                     *restrict b3 = b2 + k;
-        double l0 = coef[p], l1 = coef[p + 1], l2 = coef[p + 2], l3 = coef[p + 3];
-        for (int j = 0; j < k; j++) {
-            double t = bi[j];
-            t -= l0 * b0[j];
-            t -= l1 * b1[j];
-            t -= l2 * b2[j];
-            t -= l3 * b3[j];
-            bi[j] = t;
-        }
-    }
-    for (; p < p1; p++) {
-        const double *restrict bp = B + (size_t)p * k;
-        double l = coef[p];
-        for (int j = 0; j < k; j++)
-            bi[j] -= l * bp[j];
-    }
-}
-
 UP_BODY void up_lu_solve_many_k(const double *LU, const int *piv, int n, double *B, int k)
 {
     for (int i = 0; i < n; i++)
@@ -235,10 +216,10 @@ UP_BODY void up_lu_solve_many_k(const double *LU, const int *piv, int n, double 
             }
         }
     for (int i = 1; i < n; i++)
-        rows_update(B + (size_t)i * k, B, LU + (size_t)i * n, 0, i, k);
+        rows_update(B + (size_t)i * k, B, k, LU + (size_t)i * n, 0, i, k);
     for (int i = n - 1; i >= 0; i--) {
         double *bi = B + (size_t)i * k, d = LU[(size_t)i * n + i];
-        rows_update(bi, B, LU + (size_t)i * n, i + 1, n, k);
+        rows_update(bi, B, k, LU + (size_t)i * n, i + 1, n, k);
         for (int j = 0; j < k; j++)
             bi[j] /= d;
     }
