@@ -19,8 +19,6 @@ Rows (one small function each, registered with ``@row``; add one the same way):
                              instantiate, 2000 steps of the bundled motion
   cosim, native pair         ``run_cosim``'s default: the native pair under the project's master
                              (wall_s, the FMU build apart)
-  cosim, native, parallel    the native pair, the Jacobi schedule with the two FMUs' steps on two
-                             threads (``schedule="jacobi", parallel=True``)
   cosim, python pair         ``run_cosim(kind="python")``
   ensemble, 2 workers        ``run_ensemble`` of 8 seeds x 2 PGAs on 2 local workers from an empty
                              output, runs per minute (cluster start, set-up, step check included)
@@ -200,11 +198,6 @@ def _cosim(case: Case, kind: str, **options):
 @row("cosim, native pair")
 def cosim_native(case: Case):
     return _cosim(case, "native")
-
-
-@row("cosim, native, parallel")
-def cosim_native_parallel(case: Case):
-    return _cosim(case, "native", schedule="jacobi", parallel=True)
 
 
 @row("cosim, python pair")

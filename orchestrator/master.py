@@ -11,9 +11,7 @@ latest state, which the structure adds itself (fmus/coupling.py); both stamp wha
     G <- x, xdot, x_time at t_k;  G.doStep;  S <- g, g_time (new), a_g(t_{k+1});  S.doStep
 ``jacobi``
     both FMUs step from the outputs at t_k (what a parallel engine such as libcosim's
-    fixed-step algorithm or fmpy's SSP runner does); with ``parallel=True`` the two steps run
-    at the same time on two threads (ctypes releases the GIL in an FMU's call): the same calls
-    on each FMU in the same order, so the same bits as on one thread
+    fixed-step algorithm or fmpy's SSP runner does)
 
 ``cosimulate(structure_fmu, soil_fmu, ag, dt)`` returns the RouteResult every route returns.
 
@@ -27,7 +25,6 @@ from __future__ import annotations
 
 import ctypes
 import tempfile
-import threading
 import time as _time
 from pathlib import Path
 from types import SimpleNamespace
@@ -302,52 +299,39 @@ def output_nodes(structure: FmuSlave) -> list:
 
 
 class Timer:
-    """Wall and CPU time per part of a co-simulation step, s: ``add(part)`` books the time since
-    the previous ``add`` or ``mark`` to ``part``. CPU time of the process, or of the calling
-    thread (``cpu=time.thread_time``: one Timer per thread of a parallel schedule)."""
+    """Wall and CPU (process) time per part of a co-simulation step, s: ``add(part)`` books
+    the time since the previous ``add`` or ``mark`` to ``part``."""
 
-    def __init__(self, cpu=_time.process_time):
+    def __init__(self):
         self.parts = {"structure step": 0.0, "soil step": 0.0, "transfers": 0.0}
         self.cpu = dict(self.parts)
-        self._clock = cpu
         self.mark()
 
     def mark(self):
-        self._wall, self._cpu = _time.perf_counter(), self._clock()
-
-    def merge(self, other: Timer) -> None:
-        for mine, theirs in ((self.parts, other.parts), (self.cpu, other.cpu)):
-            for part, v in theirs.items():
-                mine[part] = mine.get(part, 0.0) + v
+        self._wall, self._cpu = _time.perf_counter(), _time.process_time()
 
     def add(self, part):
-        wall, cpu = _time.perf_counter(), self._clock()
+        wall, cpu = _time.perf_counter(), _time.process_time()
         self.parts[part] = self.parts.get(part, 0.0) + wall - self._wall
         self.cpu[part] = self.cpu.get(part, 0.0) + cpu - self._cpu
         self._wall, self._cpu = wall, cpu
 
 
 def cosimulate(structure_fmu, soil_fmu, ag, dt: float, schedule: str = "gauss-seidel",
-               route: str = "cosim", progress=None, parameters: dict | None = None, parallel: bool = False):
+               route: str = "cosim", progress=None, parameters: dict | None = None):
     """Co-simulate the exported pair over the ground acceleration ``ag`` (nt, 3) m/s^2 at
     step ``dt`` (the FMUs' fixed step) with ``schedule`` in SCHEDULES. The motion goes in
     through the structure's inputs ``ag_x``, ``ag_y``, ``ag_z`` (``internal_motion = false``).
 
     structure_fmu, soil_fmu : paths of .fmu files (or open FmuSlaves, left open)
-    parallel : the two FMUs' steps on two threads (``schedule="jacobi"`` only: the one schedule
-        whose two steps of a macro step are independent); the same bits as on one thread
-    Returns a RouteResult (route name ``route``; ``info["schedule"]``, ``info["parallel"]``;
-    ``notes.timings`` and ``info["timing_cpu"]`` the wall and CPU time per part:
-    initialisation (FMU extraction, instantiation, initialisation), structure step, soil step,
-    transfers (FMI get/set and recording); in parallel, each thread's own, the soil step's
-    overlapping the structure step's). A failed FMU call ends the run: ``converged = False``,
-    the results up to the last completed step and ``message`` with the FMU's log.
+    Returns a RouteResult (route name ``route``; ``info["schedule"]``; ``notes.timings`` and
+    ``info["timing_cpu"]`` the wall and CPU time per part: initialisation (FMU extraction,
+    instantiation, initialisation), structure step, soil step, transfers (FMI get/set and
+    recording)). A failed FMU call ends the run: ``converged = False``, the results up to the
+    last completed step and ``message`` with the FMU's log.
     """
     if schedule not in SCHEDULES:
         raise ValueError(f"schedule = {schedule!r}: use one of {', '.join(SCHEDULES)}")
-    if parallel and schedule != "jacobi":
-        raise ValueError(f"parallel = True with schedule = {schedule!r}: only the jacobi schedule steps both "
-                         "FMUs at once (use schedule='jacobi', or parallel=False)")
     start = _time.perf_counter(), _time.process_time()
     ag = np.asarray(ag, float)
     if ag.ndim != 2 or ag.shape[1] != 3 or ag.shape[0] < 1:
@@ -371,13 +355,13 @@ def cosimulate(structure_fmu, soil_fmu, ag, dt: float, schedule: str = "gauss-se
         S.set(*AG, ag[0])
         S.initialize()
         G.initialize()
-        return _run(S, G, ag, dt, schedule, route, progress, start, parallel)
+        return _run(S, G, ag, dt, schedule, route, progress, start)
     finally:
         for f in own:
             f.close()
 
 
-def _run(S, G, ag, dt, schedule, route, progress, start, parallel):
+def _run(S, G, ag, dt, schedule, route, progress, start):
     nodes = output_nodes(S)
     nt = ag.shape[0]
     names = ("x", "xdot", "x_time", "P", "gap") + tuple(f"{k}_{nm}" for nm in nodes for k in ("acc", "disp")) + \
@@ -391,16 +375,13 @@ def _run(S, G, ag, dt, schedule, route, progress, start, parallel):
     y0, ys, u0, us = Y.ctypes.data, Y.strides[0], U.ctypes.data, U.strides[0]
     if get_y(y0) > FMI2_WARNING:
         S.failed(get_y)
-    timer = Timer(_time.thread_time if parallel else _time.process_time)
+    timer = Timer()
     timer.parts["initialisation"] = _time.perf_counter() - start[0]
     timer.cpu["initialisation"] = _time.process_time() - start[1]
 
-    def soil_inputs(row):                        # G takes the structure's outputs of row `row`
+    def soil_step(t, row):                       # G takes the structure's outputs of row `row`
         if set_x(y0 + row * ys) > FMI2_WARNING:
             G.failed(set_x)
-
-    def soil_step(t, row):
-        soil_inputs(row)
         timer.add("transfers")
         G.do_step(t, dt)
         timer.add("soil step")
@@ -413,32 +394,20 @@ def _run(S, G, ag, dt, schedule, route, progress, start, parallel):
         if set_s(u0 + k * us) > FMI2_WARNING:
             S.failed(set_s)
 
-    def structure_step(t, k, soil=None):         # soil: the thread to start the soil's step on
+    def structure_step(t, k):
         structure_inputs(k)
         timer.add("transfers")
-        if soil is not None:                      # the main thread goes straight into doStep: the
-            soil.start(t)                         # interpreter lock is the soil thread's at once
         S.do_step(t, dt)
         timer.add("structure step")
         if get_y(y0 + k * ys) > FMI2_WARNING:
             S.failed(get_y)
 
     done, message = 1, ""                       # rows of Y filled
-    soil = _StepThread(G, dt) if parallel else None
     try:
         for k in range(1, nt):
             t = (k - 1) * dt
             timer.mark()
-            if parallel:                            # jacobi, the soil's doStep on the other thread
-                take_g(k)
-                soil_inputs(k - 1)
-                try:
-                    structure_step(t, k, soil)
-                finally:
-                    timer.add("transfers")
-                    soil.wait()
-                    timer.add("waiting for the soil")
-            elif schedule == "jacobi":              # each from the other's outputs at t
+            if schedule == "jacobi":              # each from the other's outputs at t
                 take_g(k)
                 structure_step(t, k)
                 soil_step(t, k - 1)
@@ -456,9 +425,6 @@ def _run(S, G, ag, dt, schedule, route, progress, start, parallel):
                 progress(done, nt)
     except CosimError as exc:
         message = str(exc)
-    finally:
-        if soil is not None:
-            timer.merge(soil.close())
     cols = _columns(Y[:done], names, [S.size(nm) for nm in names])
     x = cols["x"]
     headline = S.get("max_uplift", "max_raft_rotation")
@@ -469,55 +435,8 @@ def _run(S, G, ag, dt, schedule, route, progress, start, parallel):
         status=Status.STOPPED if message else Status.CONVERGED, message=message,
         wall_s=_time.perf_counter() - start[0],
         notes=RunNotes(timings=timer.parts),
-        info=dict(dt=dt, schedule=schedule, parallel=parallel, P0=cols["P"][0], timing_cpu=dict(timer.cpu),
+        info=dict(dt=dt, schedule=schedule, P0=cols["P"][0], timing_cpu=dict(timer.cpu),
                   fmu_max_uplift=float(headline[0]), fmu_max_raft_rotation=float(headline[1])))
-
-
-class _StepThread:
-    """An FMU's doStep on a thread of its own (a parallel Jacobi run): ``start(t)`` starts its
-    step from t, ``wait()`` returns when it is done (at once if none was started) and raises its
-    error, ``close()`` ends the thread and returns its Timer ("soil step"). The thread does
-    nothing else: the FMU's inputs and outputs are moved by the main thread while it is idle."""
-
-    def __init__(self, fmu: FmuSlave, dt: float):
-        self._fmu, self._dt, self._t, self._error, self._running = fmu, dt, None, None, False
-        self._go, self._done = threading.Semaphore(0), threading.Semaphore(0)
-        self.timer = Timer(_time.thread_time)
-        self._thread = threading.Thread(target=self._loop, name=f"uplift-{fmu.name}-step", daemon=True)
-        self._thread.start()
-
-    def _loop(self):
-        while True:
-            self._go.acquire()
-            if self._t is None:
-                return
-            try:
-                self.timer.mark()
-                self._fmu.do_step(self._t, self._dt)
-                self.timer.add("soil step")
-            except BaseException as exc:                # raised in the main thread by wait()
-                self._error = exc
-            self._done.release()
-
-    def start(self, t: float):
-        self._t, self._running = t, True
-        self._go.release()
-
-    def wait(self):
-        """Until the step started is done (at once when none is)."""
-        if not self._running:
-            return
-        self._running = False
-        self._done.acquire()
-        if self._error is not None:
-            error, self._error = self._error, None
-            raise error
-
-    def close(self) -> Timer:
-        self._t = None
-        self._go.release()
-        self._thread.join()
-        return self.timer
 
 
 def _columns(Y, names, sizes) -> dict:

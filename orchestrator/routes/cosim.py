@@ -34,13 +34,11 @@ KINDS = ("native", "python")
 
 def run_cosim(scene, motion=None, soil_model=None, *, schedule: str = "gauss-seidel",
               soil_factory: str | None = None, soil_kwargs: dict | None = None, dt: float | None = None,
-              workdir=None, progress=None, cache_dir=None, route: str = "cosim", kind: str = "native",
-              parallel: bool = False):
+              workdir=None, progress=None, cache_dir=None, route: str = "cosim", kind: str = "native"):
     """Export the two FMUs (into ``workdir``, a temporary folder by default) and run them with
     ``orchestrator.master.cosimulate``.
 
     schedule : "gauss-seidel" (default), "soil-first" or "jacobi": all exact (see master.py).
-    parallel : with "jacobi", the two FMUs step at the same time on two threads (the same bits).
     kind : "native" (default; "python" with a warning where it cannot run) or "python".
     Other arguments as ``run_monolithic``. Returns a RouteResult with ``notes.timings`` (wall
     time per part: FMU build, initialisation, structure step, soil step, transfers; the build
@@ -66,8 +64,7 @@ def run_cosim(scene, motion=None, soil_model=None, *, schedule: str = "gauss-sei
             warnings += [why] if why else []
             fmus = build_fmus(data, out)
         build_s = time.perf_counter() - t0
-        res = cosimulate(fmus["structure"], fmus["soil"], motion.acc, dt, schedule=schedule, route=route,
-                         progress=progress, parallel=parallel)
+        res = cosimulate(fmus["structure"], fmus["soil"], motion.acc, dt, schedule=schedule, route=route, progress=progress)
     precheck = PRECHECK_COSIM if scene.contact.enabled else "not needed: contact disabled (bonded raft, linear)"
     skipped = [] if scene.contact.enabled else ["contact disabled: one linear solve per step, no Newton"]
     return res.replace(xy=scene.mesh.xy).with_notes(

@@ -57,47 +57,6 @@ def test_bank_index_is_exact():
 
 
 @pytest.mark.parametrize("pair", ["exported", "exported_native"])
-def test_parallel_jacobi_gives_the_same_bits(request, pair):
-    """The Jacobi schedule with the soil's steps on a thread of their own makes the same calls
-    on each FMU in the same order as on one thread: the same bits, also when the soil or the
-    structure fails (the run ends, nothing hangs)."""
-    exp, dt, fail_at = request.getfixturevalue(pair), MOTION.dt, 30
-    runs = []
-    for parallel in (False, True):
-        with FmuSlave(exp.structure, "structure") as S, FmuSlave(exp.soil, "soil") as G:
-            full = cosimulate(S, G, MOTION.acc, dt, schedule="jacobi", parallel=parallel)
-        cuts = []
-        for who in ("soil", "structure"):
-            with FmuSlave(exp.structure, "structure") as S, FmuSlave(exp.soil, "soil") as G:
-                fmu = G if who == "soil" else S
-                step = fmu.do_step
-
-                def failing(t, h, step=step, who=who):
-                    if t >= fail_at * dt - 1e-12:
-                        raise CosimError(f"FMU {who!r}: step failed (injected)")
-                    step(t, h)
-
-                fmu.do_step = failing
-                cuts.append(cosimulate(S, G, MOTION.acc, dt, schedule="jacobi", parallel=parallel))
-        runs.append((full, *cuts))
-    (seq, seq_cut, seq_cut_s), (par, par_cut, par_cut_s) = runs
-    assert par.converged and par.info["parallel"] and par.nt == MOTION.acc.shape[0] and par.max_uplift() > 1e-3
-    assert not par_cut.converged and "injected" in par_cut.message and par_cut.nt == seq_cut.nt == fail_at + 1
-    assert not par_cut_s.converged and "'structure'" in par_cut_s.message and par_cut_s.nt == seq_cut_s.nt == fail_at + 1
-    for a, b in ((seq, par), (seq_cut, par_cut), (seq_cut_s, par_cut_s)):
-        for field in ("raft", "gap", "contact_force", "soil_w", "newton_iters"):
-            assert np.array_equal(getattr(a, field), getattr(b, field)), field
-        for term in a.energy:
-            assert np.array_equal(a.energy[term], b.energy[term]), term
-    assert par.notes.timings["soil step"] > 0 and par.notes.timings["waiting for the soil"] >= 0
-
-
-def test_parallel_needs_the_jacobi_schedule(exported):
-    with pytest.raises(ValueError, match="only the jacobi schedule"):
-        cosimulate(exported.structure, exported.soil, MOTION.acc, MOTION.dt, parallel=True)
-
-
-@pytest.mark.parametrize("pair", ["exported", "exported_native"])
 def test_model_description_reads_as_fmpy_reads_it(request, pair):
     """The master's one-pass read of an FMI 2.0 model description gives what fmpy's reader gives."""
     from fmpy import read_model_description
