@@ -48,16 +48,16 @@ import xml.etree.ElementTree as ET
 import zipfile
 import zlib
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from fmus.build import FmuData
-from fmus.coupled_fmu import UpliftCoupled
 from fmus.coupling import history_gains
 from fmus.resources import DEFAULT_SOIL_FACTORY, soil_from_model
 from fmus.schema import UNITS, slot_table, variables, variables3
-from fmus.soil_fmu import UpliftSoil
-from fmus.structure_fmu import UpliftStructure
+
+if TYPE_CHECKING:
+    from fmus.build import FmuData
 
 NATIVE = Path(__file__).resolve().parent / "native"
 #: the runtime's C files (fmus/native/) and its headers (fmus/native/include/, shipped beside the
@@ -78,10 +78,17 @@ PLATFORMS3 = {"x86_64-linux": ("x86_64-linux-gnu.2.17", "so"), "x86_64-windows":
 FMI_VERSIONS = (2, 3)
 CFLAGS = ("-std=c99", "-O3", "-ffp-contract=off", "-fvisibility=hidden", "-fPIC", "-shared")
 COMPILERS = ("zig", "cc")
-#: the Python FMU class of each role: its model name, identifier, description and author are reused
-ROLES = {"soil": UpliftSoil, "structure": UpliftStructure, "coupled": UpliftCoupled}
 #: the contact settings of the Newton iteration (structure.ContactSettings) a caller may override
 NEWTON_KEYS = ("tol", "max_iter", "max_subdiv")
+
+
+def role_class(role: str):
+    """The Python FMU class of ``role``: its model name, identifier, description and author are
+    reused. Imported on use (pythonfmu): stepping the runtime in process does not need it."""
+    from fmus.coupled_fmu import UpliftCoupled
+    from fmus.soil_fmu import UpliftSoil
+    from fmus.structure_fmu import UpliftStructure
+    return {"soil": UpliftSoil, "structure": UpliftStructure, "coupled": UpliftCoupled}[role]
 MAGIC = b"UPLIFTNB"
 VERSION = 1
 KINDS = {"f8": 1, "i8": 2, "text": 3}
@@ -338,7 +345,7 @@ def model_description(role: str, guid: str, vars_: list, dt: float, stop_time) -
     """modelDescription.xml of a native FMI 2.0 FMU: the Python FMU's variables, units, model
     structure (outputs without direct feedthrough) and default experiment, CoSimulation with
     SourceFiles."""
-    cls = ROLES[role]
+    cls = role_class(role)
     root = ET.Element("fmiModelDescription", {
         "fmiVersion": "2.0", "modelName": cls.__name__, "guid": guid, "description": cls.description,
         "author": cls.author, "generationTool": "uplift native (fmus/native_build.py)",
@@ -385,7 +392,7 @@ def model_description3(role: str, token: str, vars3: list, dt: float, stop_time)
     (arrays with a <Dimension>: a fixed length, or the structural parameter N), the units and
     the default experiment of the FMI 2.0 FMU, co-simulation only (no event mode, no early
     return, no intermediate update), outputs without direct feedthrough."""
-    cls = ROLES[role]
+    cls = role_class(role)
     root = ET.Element("fmiModelDescription", {
         "fmiVersion": "3.0", "modelName": cls.__name__, "instantiationToken": token,
         "description": cls.description, "author": cls.author,
@@ -483,7 +490,7 @@ def build_native_fmus(data: FmuData, outdir, coupled: bool = False, *, platforms
         guid = str(uuid.UUID(bytes=hashlib.sha256(payload + describe("")).digest()[:16], version=4))
         if version == 3:
             guid = "{" + guid + "}"
-        out[role] = _zip(outdir / f"{role}.fmu", ROLES[role].__name__, describe(guid),
+        out[role] = _zip(outdir / f"{role}.fmu", role_class(role).__name__, describe(guid),
                          encode_resources({"guid": guid, **recs}), binaries, version)
     return out
 
