@@ -187,9 +187,9 @@ def native_coupled(case: Case):
     return wall, f"max uplift {1e3 * up:.4f} mm, plain C host (whole process)"
 
 
-def _cosim(case: Case, kind: str, **options):
+def _cosim(case: Case, kind: str):
     from orchestrator.routes.cosim import run_cosim
-    res = run_cosim(case.scene, case.motion, case.fit.model, kind=kind, **options)
+    res = run_cosim(case.scene, case.motion, case.fit.model, kind=kind)
     cpu = sum(res.info["timing_cpu"].values())                  # the run's parts: the FMU build apart
     return res.wall_s, (f"max uplift {1e3 * res.max_uplift():.4f} mm ({res.info['fmu_kind']} pair; FMU build "
                         f"{res.notes.timings['FMU build']:.2f} s apart)"), cpu

@@ -287,7 +287,7 @@ MESSAGES = {
 }
 
 #: the serialised FMU state: format version, magic of each kind
-STATE_VERSION = 1
+STATE_VERSION = 2
 
 
 #: the names of each FMI version in the messages (the Python FMUs are FMI 2.0)

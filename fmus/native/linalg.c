@@ -44,12 +44,18 @@ static int cpu_detect(void)
     return (b & (1u << 16)) && (lo & 0xE6u) == 0xE6u ? 2 : 1;     /* AVX-512F, opmask and ZMM state */
 }
 
+#ifndef UP_MAX_LEVEL
+#define UP_MAX_LEVEL 2      /* -DUP_MAX_LEVEL=1: at most AVX2 (the tests compare every width) */
+#endif
+
 /* detected on first use; threads that race here write the same value */
 static int cpu_level(void)
 {
     static int level = -1;
-    if (level < 0)
-        level = cpu_detect();
+    if (level < 0) {
+        int l = cpu_detect();
+        level = l < UP_MAX_LEVEL ? l : UP_MAX_LEVEL;
+    }
     return level;
 }
 

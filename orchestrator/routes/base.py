@@ -108,7 +108,8 @@ class RunContext:
     tables swept for the run, and the shared, lazily built structure model and soil fit.
 
     scene : the validated Scene; motion : orchestrator.motion.Motion at scene.analysis.dt
-    tables : {"rigid"|"gap": ImpedanceTable} (those the run's routes declared)
+    tables : {"rigid"|"gap": ImpedanceTable} (those the run's routes declared; a Mapping swept
+        on first access when the routes need only the fit and it was found in the cache)
     cache_dir : impedance/fit cache folder or None
     options : {option: value} for this route (bench knobs such as pad_s)
     fit_builder : callable() -> FitResult of the scene's gap table, called once on demand

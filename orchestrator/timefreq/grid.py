@@ -158,27 +158,25 @@ class Grid:
         no window, no padding, no copies."""
         return _plan("r", (rows, self.nfft), self.nfft), _plan("c", (rows, self.n_freq), self.nfft)
 
-    def to_freq(self, x, start: int = 0) -> np.ndarray:
-        """x (..., nt) real -> X (..., F) complex (padded, windowed rfft). start: x stands for
-        the samples start .. start + x.shape[-1] - 1, zero elsewhere (a block of a record)."""
+    def to_freq(self, x) -> np.ndarray:
+        """x (..., nt) real -> X (..., F) complex (padded, windowed rfft)."""
         x = np.asarray(x, float)
         shape = x.shape[:-1] + (self.nfft,)
         plan = _plan("r", shape, self.nfft)
         buf = plan.input_array
         buf[...] = 0.0
-        n = min(x.shape[-1], self.nfft - start)
-        buf[..., start:start + n] = x[..., :n] * np.exp(-self.eta * self.dt * np.arange(start, start + n))
+        n = min(x.shape[-1], self.nfft)
+        buf[..., :n] = x[..., :n] * self._weights(n)
         return plan().copy()
 
-    def to_time(self, X, n: int | None = None, start: int = 0) -> np.ndarray:
-        """X (..., F) complex -> x (..., n - start) real, the samples start .. n - 1 (default n =
-        nt), window undone."""
+    def to_time(self, X, n: int | None = None) -> np.ndarray:
+        """X (..., F) complex -> x (..., n) real (default n = nt), window undone."""
         n = self.nt if n is None else n
         X = np.asarray(X, complex)
         plan = _plan("c", X.shape, self.nfft)
         plan.input_array[...] = X
         out = plan()
-        return out[..., start:n] * np.exp(self.eta * self.dt * np.arange(start, n))
+        return out[..., :n] * np.exp(self.eta * self.dt * np.arange(n))
 
 
 def pad_rule_s(decay_rates, minimum: float = 1.0, n_tau: float = 3.0) -> float:

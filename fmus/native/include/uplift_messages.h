@@ -28,6 +28,6 @@
 #define UP_STEP_RTOL 1e-09
 #define UP_TIME_TOL 1e-06
 #define UP_MAX_STEPS_PER_CALL 100000
-#define UP_STATE_VERSION 1
+#define UP_STATE_VERSION 2
 
 #endif
