@@ -25,16 +25,15 @@ import re
 import shutil
 import struct
 import subprocess
-import sys
 import xml.etree.ElementTree as ET
 import zipfile
-from pathlib import Path
 
 import numpy as np
 import pytest
 from fmpy import read_model_description
 
 from helpers import assert_pair_rolls_back, pulse_motion, rel, rocks_about_both_axes, small_scene, soil_model
+from helpers.c_host import compile_host, unpack_fmu
 from fmus.native_build import PLATFORMS3, SOURCES3, fmi_headers
 from fmus.schema import vector3
 from orchestrator.export import export_scene
@@ -180,22 +179,11 @@ def test_pair_rolls_back_through_serialised_states(case):
 @pytest.fixture(scope="module")
 def host3(tmp_path_factory):
     """The plain C FMI 3.0 host, compiled by the system compiler."""
-    cc = shutil.which("cc") or shutil.which("gcc")
-    if sys.platform != "linux" or cc is None:
-        pytest.skip("the C host test needs Linux and a C compiler")
-    exe = tmp_path_factory.mktemp("host3") / "host3"
-    subprocess.run([cc, "-O1", "-rdynamic", f"-I{fmi_headers()}", str(Path(__file__).parent / "native" / "host3.c"),
-                    "-o", str(exe), "-ldl", "-lm"], check=True, capture_output=True, text=True)
-    return exe
+    return compile_host("host3.c", tmp_path_factory.mktemp("host3"))
 
 
 def unpack(fmu, dest):
-    """Unzip an FMU; returns (folder, x86_64-linux library, token, {name: value reference})."""
-    with zipfile.ZipFile(fmu) as z:
-        z.extractall(dest)
-    md = read_model_description(str(fmu))
-    lib = dest / "binaries" / "x86_64-linux" / f"{md.coSimulation.modelIdentifier}.so"
-    return dest, lib, md.guid, {v.name: v.valueReference for v in md.modelVariables}
+    return unpack_fmu(fmu, dest, "x86_64-linux")
 
 
 @pytest.mark.parametrize("binary", ["shipped", "from sources"])

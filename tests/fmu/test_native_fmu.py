@@ -33,6 +33,7 @@ import pytest
 from fmpy import read_model_description
 
 from helpers import assert_pair_rolls_back, pulse_motion, rel, rocks_about_both_axes, small_scene, soil_model
+from helpers.c_host import compile_host, unpack_fmu
 from fmus.schema import AG
 from fmus.native_build import (PLATFORMS, SOURCES, build_native_fmus, decode_resources,
                                encode_resources, fmi_headers)
@@ -123,22 +124,11 @@ def python_runs(case, tmp_path_factory):
 @pytest.fixture(scope="module")
 def host(tmp_path_factory):
     """The plain C host, compiled by the system compiler."""
-    cc = shutil.which("cc") or shutil.which("gcc")
-    if sys.platform != "linux" or cc is None:
-        pytest.skip("the C host test needs Linux and a C compiler")
-    exe = tmp_path_factory.mktemp("host") / "host"
-    subprocess.run([cc, "-O1", "-rdynamic", f"-I{fmi_headers()}", str(Path(__file__).parent / "native" / "host.c"), "-o", str(exe), "-ldl",
-                    "-lm"], check=True, capture_output=True, text=True)
-    return exe
+    return compile_host("host.c", tmp_path_factory.mktemp("host"))
 
 
 def unpack(fmu, dest):
-    """Unzip an FMU; returns (folder, linux64 library, GUID, {variable name: value reference})."""
-    with zipfile.ZipFile(fmu) as z:
-        z.extractall(dest)
-    md = read_model_description(str(fmu))
-    lib = dest / "binaries" / "linux64" / f"{md.coSimulation.modelIdentifier}.so"
-    return dest, lib, md.guid, {v.name: v.valueReference for v in md.modelVariables}
+    return unpack_fmu(fmu, dest, "linux64")
 
 
 # ---- what the FMUs are ----------------------------------------------------------------------

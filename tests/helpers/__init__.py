@@ -5,6 +5,8 @@
                  changed section by section, written as TOML (``write_scene``) for the command line
   results        ``route_result``: a made-up RouteResult
   fmu_host       a Python host of an FMU in a subprocess (``from helpers.fmu_host import ...``)
+  c_host         the plain C hosts of the native FMUs compiled, an FMU unpacked for them
+                 (``from helpers.c_host import ...``)
   checks         ``rel``: the error of an array relative to a reference; ``assert_pair_rolls_back``
   winkler        the shared Winkler case: the reactor on a rock disk (``FINE_RAFT``,
                  ``COARSE_RAFT``, ``rock_winkler``)
