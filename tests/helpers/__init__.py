@@ -2,7 +2,8 @@
 (``tests/`` is on the path: ``pythonpath`` in pyproject.toml's [tool.pytest.ini_options]).
 
   scenes         scenes as dicts (the small tower ``tower``, ``small_reactor``, ``export_tower``),
-                 changed section by section, written as TOML (``write_scene``) for the command line
+                 changed section by section (``changed``) or entry by entry (``edited``), written
+                 as TOML (``write_scene``) for the command line
   results        ``route_result``: a made-up RouteResult
   fmu_host       a Python host of an FMU in a subprocess (``from helpers.fmu_host import ...``)
   c_host         the plain C hosts of the native FMUs compiled, an FMU unpacked for them
@@ -22,7 +23,7 @@ from .checks import assert_pair_rolls_back, rel
 from .motions import broadband, smooth_pulse, stepper_pulse
 from .passive_models import oscillator_model, random_passive_model
 from .results import route_result
-from .scenes import SMALL_REACTOR, TOWER, changed, export_tower, small_reactor, toml_text, tower, write_scene
+from .scenes import SMALL_REACTOR, TOWER, changed, edited, export_tower, small_reactor, toml_text, tower, write_scene
 from .soil_double import TrapezoidRationalSoil, winkler_rational
 from .winkler import COARSE_RAFT, FINE_RAFT, RockCase, hysteretic_table, rock_winkler
 
@@ -32,6 +33,6 @@ DATA = ROOT / "tests" / "data"
 
 __all__ = ["COARSE_RAFT", "DATA", "EXPORT_MOTION", "FINE_RAFT", "ROOT", "SMALL_REACTOR", "TOWER", "RockCase", "TrapezoidRationalSoil",
            "assert_pair_rolls_back",
-           "broadband", "changed", "export_tower", "hysteretic_table", "oscillator_model", "pulse_motion", "random_passive_model", "rel",
+           "broadband", "changed", "edited", "export_tower", "hysteretic_table", "oscillator_model", "pulse_motion", "random_passive_model", "rel",
            "rock_winkler", "rocks_about_both_axes", "route_result", "small_reactor", "small_scene", "smooth_pulse", "soil_model", "stepper_pulse",
            "toml_text", "tower", "winkler", "winkler_rational", "write_scene"]

@@ -49,6 +49,20 @@ def changed(scene: dict, **sections) -> dict:
     return out
 
 
+def edited(data: dict, path, value) -> dict:
+    """A deep copy of the nested dicts and lists ``data`` with the entry at ``path`` (keys and
+    indices) set to ``value``, or removed when ``value`` is KeyError."""
+    out = copy.deepcopy(data)
+    node = out
+    for key in path[:-1]:
+        node = node[key]
+    if value is KeyError:
+        del node[path[-1]]
+    else:
+        node[path[-1]] = value
+    return out
+
+
 def _value(v) -> str:
     if isinstance(v, bool):
         return "true" if v else "false"

@@ -6,6 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from helpers import edited
 from orchestrator.scene import (AnalysisConfig, MotionConfig, OutputConfig, SceneError, WinklerConfig, builtin_scenes,
                                 load_scene, scene_from_dict)
 from structure.contact import ContactSettings
@@ -120,15 +121,7 @@ def test_relative_node_file(tmp_path):
 
 
 def _with(path, value):
-    d = copy.deepcopy(BASE)
-    node = d
-    for key in path[:-1]:
-        node = node[key]
-    if value is KeyError:
-        del node[path[-1]]
-    else:
-        node[path[-1]] = value
-    return d
+    return edited(BASE, path, value)
 
 
 @pytest.mark.parametrize("path, value, expected", [

@@ -5,6 +5,7 @@ import copy
 import numpy as np
 import pytest
 
+from helpers import edited
 from soil_impedance.mesh import circle_mesh
 from structure import StructureError
 from structure.spec import (StructureSpec, build_model, contact_from_spec, contact_table, model_from_spec,
@@ -22,15 +23,7 @@ BASE = {
 
 
 def edit(path, value):
-    s = copy.deepcopy(BASE)
-    obj = s
-    for k in path[:-1]:
-        obj = obj[k]
-    if value is KeyError:
-        del obj[path[-1]]
-    else:
-        obj[path[-1]] = value
-    return s
+    return edited(BASE, path, value)
 
 
 def test_valid_inline_and_reactor():
