@@ -24,21 +24,17 @@
 #include "fmi2FunctionTypes.h"
 #include "host_common.h"
 
-/* ---- the FMI functions --------------------------------------------------------------------- */
-FN(fmi2Instantiate); FN(fmi2FreeInstance); FN(fmi2SetupExperiment); FN(fmi2EnterInitializationMode);
-FN(fmi2ExitInitializationMode); FN(fmi2Terminate); FN(fmi2DoStep); FN(fmi2GetReal); FN(fmi2SetReal);
-FN(fmi2SetBoolean); FN(fmi2GetFMUstate); FN(fmi2SetFMUstate); FN(fmi2FreeFMUstate);
-FN(fmi2SerializedFMUstateSize); FN(fmi2SerializeFMUstate); FN(fmi2DeSerializeFMUstate);
-FN(fmi2GetRealStatus); FN(fmi2Reset);
+/* ---- the FMI functions: declared (FN) and loaded (LOAD) from the one list ------------------- */
+#define FUNCTIONS(X) X(fmi2Instantiate) X(fmi2FreeInstance) X(fmi2SetupExperiment) X(fmi2EnterInitializationMode) \
+    X(fmi2ExitInitializationMode) X(fmi2Terminate) X(fmi2DoStep) X(fmi2GetReal) X(fmi2SetReal) X(fmi2SetBoolean) \
+    X(fmi2GetFMUstate) X(fmi2SetFMUstate) X(fmi2FreeFMUstate) X(fmi2SerializedFMUstateSize) \
+    X(fmi2SerializeFMUstate) X(fmi2DeSerializeFMUstate) X(fmi2GetRealStatus) X(fmi2Reset)
+FUNCTIONS(FN)
 
 static void load(const char *path)
 {
     open_library(path);
-    LOAD(fmi2Instantiate); LOAD(fmi2FreeInstance); LOAD(fmi2SetupExperiment); LOAD(fmi2EnterInitializationMode);
-    LOAD(fmi2ExitInitializationMode); LOAD(fmi2Terminate); LOAD(fmi2DoStep); LOAD(fmi2GetReal); LOAD(fmi2SetReal);
-    LOAD(fmi2SetBoolean); LOAD(fmi2GetFMUstate); LOAD(fmi2SetFMUstate); LOAD(fmi2FreeFMUstate);
-    LOAD(fmi2SerializedFMUstateSize); LOAD(fmi2SerializeFMUstate); LOAD(fmi2DeSerializeFMUstate);
-    LOAD(fmi2GetRealStatus); LOAD(fmi2Reset);
+    FUNCTIONS(LOAD)
 }
 
 static void logger(fmi2ComponentEnvironment env, fmi2String name, fmi2Status status, fmi2String category,

@@ -25,23 +25,18 @@
 #include "fmi3FunctionTypes.h"
 #include "host_common.h"
 
-/* ---- the FMI functions --------------------------------------------------------------------- */
-FN(fmi3InstantiateCoSimulation); FN(fmi3InstantiateModelExchange); FN(fmi3FreeInstance);
-FN(fmi3EnterInitializationMode); FN(fmi3ExitInitializationMode); FN(fmi3Terminate); FN(fmi3DoStep);
-FN(fmi3GetFloat64); FN(fmi3SetFloat64); FN(fmi3GetUInt64); FN(fmi3SetUInt64); FN(fmi3SetBoolean);
-FN(fmi3GetFMUState); FN(fmi3SetFMUState); FN(fmi3FreeFMUState); FN(fmi3SerializedFMUStateSize);
-FN(fmi3SerializeFMUState); FN(fmi3DeserializeFMUState); FN(fmi3Reset); FN(fmi3EnterEventMode);
-FN(fmi3EnterConfigurationMode);
+/* ---- the FMI functions: declared (FN) and loaded (LOAD) from the one list ------------------- */
+#define FUNCTIONS(X) X(fmi3InstantiateCoSimulation) X(fmi3InstantiateModelExchange) X(fmi3FreeInstance) \
+    X(fmi3EnterInitializationMode) X(fmi3ExitInitializationMode) X(fmi3Terminate) X(fmi3DoStep) X(fmi3GetFloat64) \
+    X(fmi3SetFloat64) X(fmi3GetUInt64) X(fmi3SetUInt64) X(fmi3SetBoolean) X(fmi3GetFMUState) X(fmi3SetFMUState) \
+    X(fmi3FreeFMUState) X(fmi3SerializedFMUStateSize) X(fmi3SerializeFMUState) X(fmi3DeserializeFMUState) \
+    X(fmi3Reset) X(fmi3EnterEventMode) X(fmi3EnterConfigurationMode)
+FUNCTIONS(FN)
 
 static void load(const char *path)
 {
     open_library(path);
-    LOAD(fmi3InstantiateCoSimulation); LOAD(fmi3InstantiateModelExchange); LOAD(fmi3FreeInstance);
-    LOAD(fmi3EnterInitializationMode); LOAD(fmi3ExitInitializationMode); LOAD(fmi3Terminate); LOAD(fmi3DoStep);
-    LOAD(fmi3GetFloat64); LOAD(fmi3SetFloat64); LOAD(fmi3GetUInt64); LOAD(fmi3SetUInt64); LOAD(fmi3SetBoolean);
-    LOAD(fmi3GetFMUState); LOAD(fmi3SetFMUState); LOAD(fmi3FreeFMUState); LOAD(fmi3SerializedFMUStateSize);
-    LOAD(fmi3SerializeFMUState); LOAD(fmi3DeserializeFMUState); LOAD(fmi3Reset); LOAD(fmi3EnterEventMode);
-    LOAD(fmi3EnterConfigurationMode);
+    FUNCTIONS(LOAD)
 }
 
 static void logger(fmi3InstanceEnvironment env, fmi3Status status, fmi3String category, fmi3String message)

@@ -34,7 +34,7 @@ void *realloc(void *p, size_t n)
 
 /* ---- the FMU's library and its functions ----------------------------------------------------- */
 static void *lib;
-#define FN(name) static name##TYPE *name
+#define FN(name) static name##TYPE *name;
 
 static void *sym(const char *name)
 {
@@ -46,7 +46,7 @@ static void *sym(const char *name)
     return f;
 }
 
-#define LOAD(name) name = (name##TYPE *)sym(#name)
+#define LOAD(name) name = (name##TYPE *)sym(#name);
 
 static void open_library(const char *path)
 {
