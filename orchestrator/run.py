@@ -13,14 +13,13 @@ that ``run_scene(..., shared=...)`` takes instead of recomputing it.
 from __future__ import annotations
 
 import hashlib
-import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 import h5py
 import numpy as np
-from soil_impedance.cache import CacheWarning, read_entry
+from soil_impedance.cache import read_entry, write_entry
 from soil_impedance.storage import atomic_output, stamp_checksum
 
 from structure import ConvergenceError, simulate
@@ -138,15 +137,12 @@ def _native_run_key(lib, st, acc) -> str:
 
 
 def _keep(path, value: float) -> None:
-    """Store a check's answer (atomic, checksummed); a failure (read-only folder, disk full) only warns."""
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with atomic_output(path) as tmp, h5py.File(tmp, "w") as h:
+    """Store a check's answer (atomic, checksummed; a failure only warns: ``write_entry``)."""
+    def writer(p):
+        with atomic_output(p) as tmp, h5py.File(tmp, "w") as h:
             h.attrs["max_uplift_m"] = value
             stamp_checksum(h)
-    except OSError as exc:
-        warnings.warn(CacheWarning(f"could not write cache entry {path} ({exc}); continuing without it"),
-                      stacklevel=3)
+    write_entry(path, writer)
 
 
 def step_doubling_warning(check: dict) -> str | None:

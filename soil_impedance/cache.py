@@ -9,6 +9,7 @@ error (``storage.require_checksum``).
 Usage::
 
     value = read_entry(path, reader)         # reader(f: h5py.File) -> value; None: recompute
+    write_entry(path, writer)                # writer(path) writes it; a failure only warns
 """
 from __future__ import annotations
 
@@ -70,3 +71,16 @@ def read_entry(path, reader, keep: bool = False):
     warnings.warn(CacheWarning(f"damaged cache entry {path} ({cause}); {where}; recomputing"),
                   stacklevel=2)
     return None
+
+
+def write_entry(path, writer) -> None:
+    """Store a cache entry: ``writer(path)`` writes it (atomically, with its checksum), its
+    folder made first. A failure (disk full, read-only folder) only warns (CacheWarning): the
+    run goes on without the entry."""
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        writer(path)
+    except OSError as exc:
+        warnings.warn(CacheWarning(f"could not write cache entry {path} ({exc}); continuing without it"),
+                      stacklevel=3)

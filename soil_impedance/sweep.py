@@ -11,14 +11,13 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
-import warnings
 from pathlib import Path
 
 import numpy as np
 import scipy.linalg as sla
 
 from .bem import CONTACTS, BemError, SurfaceBem, nodal_dofs
-from .cache import CacheWarning, read_entry
+from .cache import read_entry, write_entry
 from .greens_rule import GreenRule
 from .profile import CAUSAL_CUTOFF_HZ, CAUSAL_REFERENCE_HZ
 from .reduction import RIGID_DOFS, gap_dofs, gap_transform, rigid_transform
@@ -100,17 +99,6 @@ def _read_cached(path, key):
     return read_entry(path, reader, keep=True)
 
 
-def _write_cached(cache_dir, output, table) -> None:
-    """Store ``table`` in the cache; a failure (disk full, read-only folder) only warns."""
-    path = _cache_path(cache_dir, output, table.hash)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        table.save(path)
-    except OSError as exc:
-        warnings.warn(CacheWarning(f"could not write cache entry {path} ({exc}); continuing "
-                                   "without it"), stacklevel=3)
-
-
 def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("rigid", "gap"),
                     cache_dir=None, progress=None, rule=None) -> dict[str, ImpedanceTable]:
     """Impedance of ``mesh`` on ``profile`` at each frequency, reduced as asked.
@@ -161,7 +149,7 @@ def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("r
         for o in todo:
             tables[o] = ImpedanceTable(f, computed[o], dofs[o], provs[o])
             if cache_dir is not None:
-                _write_cached(cache_dir, o, tables[o])
+                write_entry(_cache_path(cache_dir, o, tables[o].hash), tables[o].save)
     return {o: tables[o] for o in outputs}
 
 
