@@ -61,8 +61,9 @@ def fit_table(table, tol=None, *, cache_dir=None, node_xy=None, progress=None, o
         if hit is not None:
             return hit
     result = fit(table, options, progress)
-    if cache_dir is not None:
-        save_fit(result, _cache_path(table.hash, options, cache_dir))
+    if cache_dir is not None:                # a cache that cannot be written only warns
+        from ..cache import write_entry
+        write_entry(_cache_path(table.hash, options, cache_dir), lambda p: save_fit(result, p))
     return result
 
 

@@ -330,6 +330,15 @@ def test_damaged_cache_entry_is_recomputed_with_a_warning(causal_gap_table, tmp_
         load_fit(entry)
 
 
+def test_unwritable_fit_cache_only_warns(causal_gap_table, tmp_path):
+    from soil_impedance.cache import CacheWarning
+    blocker = tmp_path / "not_a_folder"                      # a file where the cache folder should be
+    blocker.write_text("")
+    with pytest.warns(CacheWarning, match="could not write"):
+        fit = fit_table(causal_gap_table, tol=0.02, cache_dir=blocker)
+    assert not fit.report.cached and _same_model(fit.model, fit_table(causal_gap_table, tol=0.02).model)
+
+
 def test_progress_reports_the_order_search_and_the_enforcement(causal_gap_table):
     calls = []
     fit = fit_table(causal_gap_table, tol=0.02, progress=lambda done, total, stage: calls.append((stage, done, total)))
