@@ -69,25 +69,26 @@ def strongest_window(motion, length_s: float = DT_CHECK_WINDOW_S):
     return Motion(motion.dt, motion.acc[k:k + n], motion.label), k * motion.dt
 
 
-def step_doubling(scene, model, soil, motion, cache_dir=None) -> dict:
+def step_doubling(scene, model, soil, motion, cache_dir=None, keep: bool = True) -> dict:
     """Max uplift of the structure on the proxy springs ``soil`` (Newmark + the scene's contact)
     at the motion's step and at half of it, on the record's strongest window: the time-step
     error estimate of the uplift routes. Returns a JSON-able dict (relative_change None when
     neither run lifts off). cache_dir: the run's cache folder (where the native stepper's library
     is kept, and the two answers: a warm run does not step them again, ``_dt_check_run``; None:
-    a temporary folder of the process, nothing kept)."""
+    a temporary folder of the process, nothing kept); keep False: the answers are not kept (a
+    motion no other run steps, such as an ensemble cell's)."""
     window, t0 = strongest_window(motion)
-    coarse, fine = (_dt_check_run(scene, model, soil, m, cache_dir)
+    coarse, fine = (_dt_check_run(scene, model, soil, m, cache_dir, keep)
                     for m in (window, window.resampled(window.dt / 2)))
     change = None if max(coarse, fine) < UPLIFT_FLOOR else abs(coarse - fine) / max(fine, UPLIFT_FLOOR)
     return {"dt": motion.dt, "window_s": [t0, t0 + window.duration], "max_uplift_m": coarse,
             "max_uplift_half_dt_m": fine, "relative_change": change, "tolerance": DT_TOLERANCE}
 
 
-def _dt_check_run(scene, model, soil, motion, cache_dir=None) -> float:
+def _dt_check_run(scene, model, soil, motion, cache_dir=None, keep: bool = True) -> float:
     """Max uplift (m) of the structure on the proxy springs under ``motion``, NaN when Newton
     fails: through the native stepper where it is available (the monolithic route's C runtime:
-    the same answer to round-off, several times faster), else ``simulate``. With a cache folder
+    the same answer to round-off, several times faster), else ``simulate``. With a cache folder (and keep)
     the native answer is kept there (``dtcheck-<key>.h5``, checksummed, verified on read) under
     the key of everything the C runtime reads (``_native_run_key``): read back, never stepped
     again, by a run of the same structure, springs, contact, motion and step."""
@@ -101,7 +102,7 @@ def _dt_check_run(scene, model, soil, motion, cache_dir=None) -> float:
             return float("nan")
     st = NewmarkStepper(model, springs_soil(soil, motion.dt), motion.dt, contact=scene.contact,
                         external_soil=True, ag0=motion.acc[0])
-    path = None if cache_dir is None else Path(cache_dir) / f"dtcheck-{_native_run_key(lib, st, motion.acc)[:24]}.h5"
+    path = None if cache_dir is None or not keep else Path(cache_dir) / f"dtcheck-{_native_run_key(lib, st, motion.acc)[:24]}.h5"
     if path is not None:
         hit = read_entry(path, lambda h: float(h.attrs["max_uplift_m"]))
         if hit is not None:
@@ -265,7 +266,7 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
         dt_notes = {}
         if scene.contact.enabled and any(r.time_stepped for r in chosen):
             dt_check = shared.dt_check if shared is not None and shared.dt_check is not None else \
-                step_doubling(scene, ctx.model(), springs, motion, cache_dir)
+                step_doubling(scene, ctx.model(), springs, motion, cache_dir, keep=shared is None)
             warning = step_doubling_warning(dt_check)
             dt_notes = {"warnings": [warning] if warning else [], "info": {"dt_check": dt_check}}
         sweep = {}

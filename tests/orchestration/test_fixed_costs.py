@@ -137,6 +137,12 @@ def test_the_step_doubling_check_is_stepped_once_then_read(tmp_path, monkeypatch
         with pytest.warns(CacheWarning, match="damaged cache entry"):
             damaged, _ = check(_stiff_tower(dt))
         assert damaged == first and len(calls) == 2
+    scene = _stiff_tower(0.005)              # keep=False (an ensemble cell's motion): stepped, not kept
+    cells = tmp_path / "cells"
+    calls.clear()
+    out = step_doubling(scene, scene.model(), proxy_springs(scene, False), make_motion(scene.motion, 0.005),
+                        cells, keep=False)
+    assert out == first and len(calls) == 2 and not list(cells.glob("dtcheck-*"))
 
 
 @pytest.mark.parametrize("nt", [2, 256, 257, 700])
