@@ -20,6 +20,10 @@ Rows (one small function each, registered with ``@row``; add one the same way):
   cosim, native pair         ``run_cosim``'s default: the native pair under the project's master
                              (wall_s, the FMU build apart)
   cosim, python pair         ``run_cosim(kind="python")``
+  winkler route              the winkler route's stepping in ``run_scene`` (its wall_s; the
+                             cache warm)
+  step check (cold)          ``step_doubling`` (the time-step check every time-stepped run makes:
+                             the proxy springs at dt and dt/2), nothing cached
   ensemble, 2 workers        ``run_ensemble`` of 8 seeds x 2 PGAs on 2 local workers from an empty
                              output, runs per minute (cluster start, set-up, step check included)
   timefreq route             orchestrator.routes.timefreq.run_timefreq on the BEM table
@@ -203,6 +207,26 @@ def cosim_native(case: Case):
 @row("cosim, python pair")
 def cosim_python(case: Case):
     return _cosim(case, "python")
+
+
+@row("winkler route")
+def winkler_route(case: Case):
+    from orchestrator.run import run_scene
+    res = run_scene(case.scene, ["winkler"], cache_dir=case._cache(), motion=case.motion)[0]["winkler"]
+    return res.wall_s, f"max uplift {1e3 * res.max_uplift():.4f} mm ({res.info.get('stepper', 'python')} stepper)"
+
+
+@row("step check (cold)")
+def step_check_cold(case: Case):
+    from fmus.native_host import library
+    from orchestrator.run import proxy_springs, step_doubling
+    library()                                       # compiled untimed (a temporary folder of the process)
+    springs = proxy_springs(case.scene, True, case._cache())
+    t0 = time.perf_counter()
+    out = step_doubling(case.scene, case.model, springs, case.motion)      # no cache folder: stepped
+    wall = time.perf_counter() - t0
+    return wall, (f"dt and dt/2 on the springs, {out['window_s'][1] - out['window_s'][0]:.0f} s: "
+                  f"{1e3 * out['max_uplift_m']:.4f} / {1e3 * out['max_uplift_half_dt_m']:.4f} mm")
 
 
 @row("ensemble, 2 workers")
