@@ -15,7 +15,15 @@
    (ground motion interpolated, soil history of an external soil held) down to dt / 2**max_subdiv.
    A step writes the state only when it succeeds. When Ks, Cs (to round-off) and E are symmetric,
    the matrices a step multiplies are held symmetrised and packed (half the memory traffic, which
-   bounds a step). No allocation after up_stepper_init. */
+   bounds a step).
+
+   Springs (a soil without memory: no pole, D and E zero between q and w and off the diagonal on
+   w; the structure touches q only) make S0 a dense (6, 6) block on q plus a diagonal on w, and
+   the contact couples each w_i to q[2:5] alone: a "diagonal soil" (UpStepper.diag). Its products
+   with K0C and E take the two blocks, and a Newton solve eliminates the w_i node by node onto a
+   (6, 6) system on q (newton_diag): O(N) a step instead of O(nb^2), and no bases. The same
+   equations: the histories equal the dense path's to round-off. No allocation after
+   up_stepper_init. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -43,6 +51,30 @@ static int finite_all(const double *a, size_t n)
         if (!isfinite(a[i]))
             return 0;
     return 1;
+}
+
+/* 1 when the soil is springs: no pole, D and E zero (exactly) between q and w and off the diagonal
+   on w */
+static int diagonal_soil(const UpSoil *soil)
+{
+    int n = soil->n;
+    if (soil->mr || soil->mc)
+        return 0;
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < n; j++)
+            if (i != j && (i >= 6 || j >= 6) && (soil->D[(size_t)i * n + j] != 0.0 || soil->E[(size_t)i * n + j] != 0.0))
+                return 0;
+    return 1;
+}
+
+/* c (36 + nb - 6) <- the (6, 6) block of A (nb, nb) on q, then its diagonal on w */
+static void compact(const double *A, int nb, double *c)
+{
+    for (int i = 0; i < 6; i++)
+        for (int j = 0; j < 6; j++)
+            c[6 * i + j] = A[(size_t)i * nb + j];
+    for (int i = 6; i < nb; i++)
+        c[30 + i] = A[(size_t)i * nb + i];
 }
 
 /* A (n, n) symmetric to round-off: |A_ij - A_ji| <= 1e-13 max |A| (an assembled stiffness is
@@ -111,6 +143,7 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
             return -1;
         }
     s->sym = symmetric(s->Ks, ns_) && symmetric(s->Cs, ns_) && soil->Ep != NULL;
+    s->diag = diagonal_soil(soil);
     int ok = up_sparse_init(&s->Ks_sp, s->Ks, ns_, ns_) == 0 && up_sparse_init(&s->Cs_sp, s->Cs, ns_, ns_) == 0;
     for (int l = 0; ok && l < s->nlev; l++) {
         UpSystem *y = &s->sys[l];
@@ -122,7 +155,9 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
         y->Sq = (double *)malloc(((size_t)nb + 36) * sizeof(double));
         y->K0C = (double *)malloc((size_t)nb * nb * sizeof(double));
         y->K0Cp = (double *)malloc(((size_t)nb * (nb + 1) / 2 + 1) * sizeof(double));
-        ok = y->AII && y->AIIp && y->ABI && y->X && y->S0 && y->Sq && y->K0C && y->K0Cp;
+        y->K0Cd = (double *)malloc(((size_t)nb + 30) * sizeof(double));
+        y->S0d = (double *)malloc(((size_t)nb + 30) * sizeof(double));
+        ok = y->AII && y->AIIp && y->ABI && y->X && y->S0 && y->Sq && y->K0C && y->K0Cp && y->K0Cd && y->S0d;
         for (int c = 0; ok && c < 2; c++) {
             y->Jb[c] = (double *)malloc((size_t)nb * nb * sizeof(double));
             y->Jp[c] = (double *)malloc(((size_t)nb * (nb + 1) / 2 + 1) * sizeof(double));
@@ -158,8 +193,11 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
         s->hbuf = (double *)calloc((size_t)s->nlev * nb, sizeof(double));
         s->act = (unsigned char *)calloc((size_t)Ni + 1, 1);
         s->act_new = (unsigned char *)calloc((size_t)Ni + 1, 1);
-        ok = s->lu && s->rhs && s->lu_piv && s->hbuf && s->act && s->act_new;
+        s->Ed = (double *)malloc(((size_t)nb + 30) * sizeof(double));
+        ok = s->lu && s->rhs && s->lu_piv && s->hbuf && s->act && s->act_new && s->Ed;
     }
+    if (ok)
+        compact(soil->E, nb, s->Ed);
     if (!ok) {
         up_stepper_free(s);
         snprintf(err, UP_MSG, "out of memory for the structure (%d DOFs, %d step levels)", n, s->nlev);
@@ -180,6 +218,8 @@ void up_stepper_free(UpStepper *s)
         free(y->Sq);
         free(y->K0C);
         free(y->K0Cp);
+        free(y->K0Cd);
+        free(y->S0d);
         for (int c = 0; c < 2; c++) {
             free(y->Jb[c]);
             free(y->Jp[c]);
@@ -210,6 +250,7 @@ void up_stepper_free(UpStepper *s)
     free(s->hbuf);
     free(s->act);
     free(s->act_new);
+    free(s->Ed);
     memset(s, 0, sizeof *s);
 }
 
@@ -373,9 +414,26 @@ static const UpSystem *system_at(UpStepper *s, int lev)
     for (size_t i = 0; i < (size_t)nb * nb; i++)
         y->K0C[i] = sl->D0[i] + y->c1 * s->soil->E[i];
     up_pack_sym(y->K0C, nb, y->K0Cp);                     /* symmetric when E is (D0 is) */
+    compact(y->K0C, nb, y->K0Cd);
+    compact(S0, nb, y->S0d);
     y->base_ok[0] = y->base_ok[1] = 0;                    /* built when first needed (base) */
     y->ready = 1;
     return y;
+}
+
+/* y = A x for a soil matrix A (nb, nb) of the level (K0C, E) at x = [q, w]: dense (packed when P is not
+   NULL), or from c, A compact (compact), for a diagonal soil */
+static void soil_product(const UpStepper *s, const double *A, const double *P, const double *c, const double *x,
+                         double *y)
+{
+    if (!s->diag) {
+        up_symv(A, P, s->nb, x, y);
+        return;
+    }
+    for (int i = 0; i < 6; i++)
+        y[i] = up_dot(c + 6 * i, x, 6);
+    for (int i = 6; i < s->nb; i++)
+        y[i] = c[30 + i] * x[i];
 }
 
 /* ---- contact ------------------------------------------------------------------------------- */
@@ -548,9 +606,45 @@ static int capacitance(UpStepper *s, int lev, const unsigned char *act)
     return slot;
 }
 
+/* x <- J(act)^-1 x for a diagonal soil. Row w_i of J reads -s_i a_i Bq3_i . dq[2:5] + (S_i + s_i a_i) dw_i
+   = x_{w_i} (S_i the diagonal of S0 there, a_i = act_i, s_i = (1 + al) kp_i), so dw_i eliminates onto q:
+     (S0_qq + sum_active s_i S_i / d_i b_i b_i^T) dq = x_q + sum_active s_i / d_i b_i x_{w_i},  d_i = S_i + s_i,
+   b_i = Bq3_i on q[2:5]; then dw_i = (x_{w_i} + s_i a_i b_i . dq) / (S_i + s_i a_i). 0, or -1 when singular */
+static int newton_diag(UpStepper *s, int lev, const unsigned char *act, double *x)
+{
+    const double *S = s->sys[lev].S0d, *Sw = S + 36;
+    double *A = s->lu;
+    memcpy(A, S, 36 * sizeof(double));
+    for (int i = 0; i < s->N; i++) {
+        if (!act[i])
+            continue;
+        double si = (1 + s->alpha) * s->kp[i], d = Sw[i] + si, c = si * Sw[i] / d, e = si / d * x[6 + i];
+        const double *b = s->Bq3 + 3 * (size_t)i;
+        for (int r = 0; r < 3; r++) {
+            for (int q = 0; q < 3; q++)
+                A[6 * (2 + r) + 2 + q] += c * b[r] * b[q];
+            x[2 + r] += e * b[r];
+        }
+    }
+    s->n_factorisations++;
+    if (up_lu(A, s->lu_piv, 6))
+        return -1;
+    up_lu_solve(A, s->lu_piv, 6, x);
+    for (int i = 0; i < s->N; i++) {
+        double si = act[i] ? (1 + s->alpha) * s->kp[i] : 0.0, d = Sw[i] + si;
+        if (d == 0.0)
+            return -1;
+        const double *b = s->Bq3 + 3 * (size_t)i;
+        x[6 + i] = (x[6 + i] + si * ((b[0] * x[2] + b[1] * x[3]) + b[2] * x[4])) / d;
+    }
+    return 0;
+}
+
 /* x <- J(act)^-1 x at level lev; 0, or -1 when J is singular */
 static int newton_solve(UpStepper *s, int lev, const unsigned char *act, double *x)
 {
+    if (s->diag)
+        return newton_diag(s, lev, act, x);
     int slot = capacitance(s, lev, act);
     if (slot < 0)
         return -1;
@@ -642,7 +736,7 @@ static void damp(const UpStepper *s, const double *v, double *out, double *Ev)
     up_sparse_matvec(&s->Cs_sp, v, out);
     for (int i = s->ns; i < s->n; i++)
         out[i] = 0.0;
-    up_symv(s->soil->E, s->soil->Ep, s->nb, v + s->ni, Ev);          /* E v on x, kept for the soil force */
+    soil_product(s, s->soil->E, s->soil->Ep, s->Ed, v + s->ni, Ev);      /* E v on x, kept for the soil force */
     for (int i = 0; i < s->nb; i++)
         out[s->ni + i] += Ev[i];
 }
@@ -701,7 +795,7 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
            work, free until the iteration ends: the state is written only by a step that succeeds) */
         const double *Kx = s->Kx;
         if (*s->kx_lev != (double)lev) {
-            up_symv(y->K0C, s->soil->Ep ? y->K0Cp : NULL, nb, uB, s->w_nb[6]);
+            soil_product(s, y->K0C, s->soil->Ep ? y->K0Cp : NULL, y->K0Cd, uB, s->w_nb[6]);
             Kx = s->w_nb[6];
         }
         const double *Sq = y->Sq, *cM = y->Sq + 36;
@@ -784,7 +878,7 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
     const double *x_new = u_new + ni, *xd_new = v_new + ni;
     /* the soil force K0 x + C0 xdot + h = (D0 + c1 E) x + E v_hat + h (xdot = c1 x + v_hat) */
     double *Kx_new = s->w_nb[3];                          /* dx, free after the Newton iteration */
-    up_symv(y->K0C, s->soil->Ep ? y->K0Cp : NULL, nb, x_new, Kx_new);
+    soil_product(s, y->K0C, s->soil->Ep ? y->K0Cp : NULL, y->K0Cd, x_new, Kx_new);
     for (int i = 0; i < nb; i++)
         fs_new[i] = (Kx_new[i] + Ev[i]) + h[i];
     if (al != 0.0) {
