@@ -449,9 +449,8 @@ static void relative(const UpStepper *s, const double *x, double *d)
 /* P (N), active (N) and the contact internal force fc (nb) at x = [q, w] */
 static void contact(const UpStepper *s, const double *x, double *P, unsigned char *act, double *fc)
 {
-    double *d = s->w_N[5];
+    double *d = s->w_N[5], f2 = 0.0, f3 = 0.0, f4 = 0.0;    /* fc[2:5], summed in registers */
     relative(s, x, d);
-    memset(fc, 0, (size_t)s->nb * sizeof(double));
     for (int i = 0; i < s->N; i++) {
         if (s->enabled) {
             double pen = s->delta0[i] - d[i];
@@ -463,11 +462,15 @@ static void contact(const UpStepper *s, const double *x, double *P, unsigned cha
         }
         double dp = P[i] - s->P0[i];
         const double *b = s->Bq3 + 3 * (size_t)i;
-        fc[2] -= b[0] * dp;
-        fc[3] -= b[1] * dp;
-        fc[4] -= b[2] * dp;
+        f2 -= b[0] * dp;
+        f3 -= b[1] * dp;
+        f4 -= b[2] * dp;
         fc[6 + i] = dp;
     }
+    fc[0] = fc[1] = fc[5] = 0.0;
+    fc[2] = f2;
+    fc[3] = f3;
+    fc[4] = f4;
 }
 
 /* g = S0 x + (1 + al) fc(x) - r_hat, with the active set at x; Sx = S0 x given (S0 is linear: the
@@ -613,19 +616,37 @@ static int capacitance(UpStepper *s, int lev, const unsigned char *act)
 static int newton_diag(UpStepper *s, int lev, const unsigned char *act, double *x)
 {
     const double *S = s->sys[lev].S0d, *Sw = S + 36;
-    double *A = s->lu;
-    memcpy(A, S, 36 * sizeof(double));
+    double a00 = 0.0, a01 = 0.0, a02 = 0.0, a11 = 0.0, a12 = 0.0, a22 = 0.0, r0 = 0.0, r1 = 0.0, r2 = 0.0;
     for (int i = 0; i < s->N; i++) {
         if (!act[i])
             continue;
         double si = (1 + s->alpha) * s->kp[i], d = Sw[i] + si, c = si * Sw[i] / d, e = si / d * x[6 + i];
         const double *b = s->Bq3 + 3 * (size_t)i;
-        for (int r = 0; r < 3; r++) {
-            for (int q = 0; q < 3; q++)
-                A[6 * (2 + r) + 2 + q] += c * b[r] * b[q];
-            x[2 + r] += e * b[r];
-        }
+        double c0 = c * b[0], c1 = c * b[1], c2 = c * b[2];
+        a00 += c0 * b[0];
+        a01 += c0 * b[1];
+        a02 += c0 * b[2];
+        a11 += c1 * b[1];
+        a12 += c1 * b[2];
+        a22 += c2 * b[2];
+        r0 += e * b[0];
+        r1 += e * b[1];
+        r2 += e * b[2];
     }
+    double *A = s->lu;                                    /* S0 on q plus the sums on q[2:5] */
+    memcpy(A, S, 36 * sizeof(double));
+    A[14] += a00;
+    A[15] += a01;
+    A[16] += a02;
+    A[21] += a11;
+    A[22] += a12;
+    A[28] += a22;
+    A[20] += a01;
+    A[26] += a02;
+    A[27] += a12;
+    x[2] += r0;
+    x[3] += r1;
+    x[4] += r2;
     s->n_factorisations++;
     if (up_lu(A, s->lu_piv, 6))
         return -1;
