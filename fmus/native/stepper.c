@@ -837,15 +837,19 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
             /* S0 dx = J dx - sum_active s_i b_i (b_i . dx), J dx = -g: no product with S0 */
             for (int i = 0; i < nb; i++)
                 Sdx[i] = -gv[i];
+            double S2 = Sdx[2], S3 = Sdx[3], S4 = Sdx[4];   /* summed in registers */
             for (int i = 0; i < N; i++)
                 if (s->act[i]) {
                     double c = ((1 + al) * s->kp[i]) * along(s, i, dx);
                     const double *b = s->Bq3 + 3 * (size_t)i;
-                    Sdx[2] -= c * b[0];
-                    Sdx[3] -= c * b[1];
-                    Sdx[4] -= c * b[2];
+                    S2 -= c * b[0];
+                    S3 -= c * b[1];
+                    S4 -= c * b[2];
                     Sdx[6 + i] += c;
                 }
+            Sdx[2] = S2;
+            Sdx[3] = S3;
+            Sdx[4] = S4;
             double t = line_search(s, uB, dx, gv, Sdx);
             for (int i = 0; i < nb; i++) {
                 xn[i] = uB[i] + t * dx[i];
