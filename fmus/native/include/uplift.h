@@ -245,8 +245,8 @@ typedef struct {
     double *Sq;               /* (6, 6) then (nb): S0 - (1 + al) K0C - diag(c0 M_B) (on q only), then c0 M_B */
     double *K0C;              /* (nb, nb) D0 + c1 E: the soil force's part in x at this step size */
     double *K0Cp;             /* the same packed (used when E is symmetric: then K0C is) */
-    double *K0Cd, *S0d;       /* (36 + N) a diagonal soil (UpStepper.diag): K0C and S0 compact (up to the
-                                 blocks of the pattern: their (6, 6) block on q, then their diagonal on w) */
+    double *K0Cd, *S0d;       /* (36 + N) K0C and S0 compact, for a diagonal soil (UpStepper.diag): their
+                                 (6, 6) block on q, then their diagonal on w */
     /* the Newton matrix's two bases (stepper.c): every contact closed [0], every one open [1] */
     double *Jd[2];            /* (nb) their scaling, powers of two: d_r ~ |J_rr|^-1/2 */
     double *Jb[2];            /* (nb, nb) the inverses of the scaled bases, D J D (symmetrised when sym) */
