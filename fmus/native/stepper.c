@@ -15,7 +15,15 @@
    (ground motion interpolated, soil history of an external soil held) down to dt / 2**max_subdiv.
    A step writes the state only when it succeeds. When Ks, Cs (to round-off) and E are symmetric,
    the matrices a step multiplies are held symmetrised and packed (half the memory traffic, which
-   bounds a step). No allocation after up_stepper_init. */
+   bounds a step).
+
+   Springs (a soil without memory: no pole, D and E zero between q and w and off the diagonal on
+   w; the structure touches q only) make S0 a dense (6, 6) block on q plus a diagonal on w, and
+   the contact couples each w_i to q[2:5] alone: a "diagonal soil" (UpStepper.diag). Its products
+   with K0C and E take the two blocks, and a Newton solve eliminates the w_i node by node onto a
+   (6, 6) system on q (newton_diag): O(N) a step instead of O(nb^2), and no bases. The same
+   equations: the histories equal the dense path's to round-off. No allocation after
+   up_stepper_init. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -43,6 +51,30 @@ static int finite_all(const double *a, size_t n)
         if (!isfinite(a[i]))
             return 0;
     return 1;
+}
+
+/* 1 when the soil is springs: no pole, D and E zero (exactly) between q and w and off the diagonal
+   on w */
+static int diagonal_soil(const UpSoil *soil)
+{
+    int n = soil->n;
+    if (soil->mr || soil->mc)
+        return 0;
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < n; j++)
+            if (i != j && (i >= 6 || j >= 6) && (soil->D[(size_t)i * n + j] != 0.0 || soil->E[(size_t)i * n + j] != 0.0))
+                return 0;
+    return 1;
+}
+
+/* c (36 + nb - 6) <- the (6, 6) block of A (nb, nb) on q, then its diagonal on w */
+static void compact(const double *A, int nb, double *c)
+{
+    for (int i = 0; i < 6; i++)
+        for (int j = 0; j < 6; j++)
+            c[6 * i + j] = A[(size_t)i * nb + j];
+    for (int i = 6; i < nb; i++)
+        c[30 + i] = A[(size_t)i * nb + i];
 }
 
 /* A (n, n) symmetric to round-off: |A_ij - A_ji| <= 1e-13 max |A| (an assembled stiffness is
@@ -111,6 +143,7 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
             return -1;
         }
     s->sym = symmetric(s->Ks, ns_) && symmetric(s->Cs, ns_) && soil->Ep != NULL;
+    s->diag = diagonal_soil(soil);
     int ok = up_sparse_init(&s->Ks_sp, s->Ks, ns_, ns_) == 0 && up_sparse_init(&s->Cs_sp, s->Cs, ns_, ns_) == 0;
     for (int l = 0; ok && l < s->nlev; l++) {
         UpSystem *y = &s->sys[l];
@@ -122,7 +155,9 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
         y->Sq = (double *)malloc(((size_t)nb + 36) * sizeof(double));
         y->K0C = (double *)malloc((size_t)nb * nb * sizeof(double));
         y->K0Cp = (double *)malloc(((size_t)nb * (nb + 1) / 2 + 1) * sizeof(double));
-        ok = y->AII && y->AIIp && y->ABI && y->X && y->S0 && y->Sq && y->K0C && y->K0Cp;
+        y->K0Cd = (double *)malloc(((size_t)nb + 30) * sizeof(double));
+        y->S0d = (double *)malloc(((size_t)nb + 30) * sizeof(double));
+        ok = y->AII && y->AIIp && y->ABI && y->X && y->S0 && y->Sq && y->K0C && y->K0Cp && y->K0Cd && y->S0d;
         for (int c = 0; ok && c < 2; c++) {
             y->Jb[c] = (double *)malloc((size_t)nb * nb * sizeof(double));
             y->Jp[c] = (double *)malloc(((size_t)nb * (nb + 1) / 2 + 1) * sizeof(double));
@@ -158,8 +193,11 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
         s->hbuf = (double *)calloc((size_t)s->nlev * nb, sizeof(double));
         s->act = (unsigned char *)calloc((size_t)Ni + 1, 1);
         s->act_new = (unsigned char *)calloc((size_t)Ni + 1, 1);
-        ok = s->lu && s->rhs && s->lu_piv && s->hbuf && s->act && s->act_new;
+        s->Ed = (double *)malloc(((size_t)nb + 30) * sizeof(double));
+        ok = s->lu && s->rhs && s->lu_piv && s->hbuf && s->act && s->act_new && s->Ed;
     }
+    if (ok)
+        compact(soil->E, nb, s->Ed);
     if (!ok) {
         up_stepper_free(s);
         snprintf(err, UP_MSG, "out of memory for the structure (%d DOFs, %d step levels)", n, s->nlev);
@@ -180,6 +218,8 @@ void up_stepper_free(UpStepper *s)
         free(y->Sq);
         free(y->K0C);
         free(y->K0Cp);
+        free(y->K0Cd);
+        free(y->S0d);
         for (int c = 0; c < 2; c++) {
             free(y->Jb[c]);
             free(y->Jp[c]);
@@ -210,6 +250,7 @@ void up_stepper_free(UpStepper *s)
     free(s->hbuf);
     free(s->act);
     free(s->act_new);
+    free(s->Ed);
     memset(s, 0, sizeof *s);
 }
 
@@ -373,9 +414,26 @@ static const UpSystem *system_at(UpStepper *s, int lev)
     for (size_t i = 0; i < (size_t)nb * nb; i++)
         y->K0C[i] = sl->D0[i] + y->c1 * s->soil->E[i];
     up_pack_sym(y->K0C, nb, y->K0Cp);                     /* symmetric when E is (D0 is) */
+    compact(y->K0C, nb, y->K0Cd);
+    compact(S0, nb, y->S0d);
     y->base_ok[0] = y->base_ok[1] = 0;                    /* built when first needed (base) */
     y->ready = 1;
     return y;
+}
+
+/* y = A x for a soil matrix A (nb, nb) of the level (K0C, E) at x = [q, w]: dense (packed when P is not
+   NULL), or from c, A compact (compact), for a diagonal soil */
+static void soil_product(const UpStepper *s, const double *A, const double *P, const double *c, const double *x,
+                         double *y)
+{
+    if (!s->diag) {
+        up_symv(A, P, s->nb, x, y);
+        return;
+    }
+    for (int i = 0; i < 6; i++)
+        y[i] = up_dot(c + 6 * i, x, 6);
+    for (int i = 6; i < s->nb; i++)
+        y[i] = c[30 + i] * x[i];
 }
 
 /* ---- contact ------------------------------------------------------------------------------- */
@@ -391,9 +449,8 @@ static void relative(const UpStepper *s, const double *x, double *d)
 /* P (N), active (N) and the contact internal force fc (nb) at x = [q, w] */
 static void contact(const UpStepper *s, const double *x, double *P, unsigned char *act, double *fc)
 {
-    double *d = s->w_N[5];
+    double *d = s->w_N[5], f2 = 0.0, f3 = 0.0, f4 = 0.0;    /* fc[2:5], summed in registers */
     relative(s, x, d);
-    memset(fc, 0, (size_t)s->nb * sizeof(double));
     for (int i = 0; i < s->N; i++) {
         if (s->enabled) {
             double pen = s->delta0[i] - d[i];
@@ -405,11 +462,15 @@ static void contact(const UpStepper *s, const double *x, double *P, unsigned cha
         }
         double dp = P[i] - s->P0[i];
         const double *b = s->Bq3 + 3 * (size_t)i;
-        fc[2] -= b[0] * dp;
-        fc[3] -= b[1] * dp;
-        fc[4] -= b[2] * dp;
+        f2 -= b[0] * dp;
+        f3 -= b[1] * dp;
+        f4 -= b[2] * dp;
         fc[6 + i] = dp;
     }
+    fc[0] = fc[1] = fc[5] = 0.0;
+    fc[2] = f2;
+    fc[3] = f3;
+    fc[4] = f4;
 }
 
 /* g = S0 x + (1 + al) fc(x) - r_hat, with the active set at x; Sx = S0 x given (S0 is linear: the
@@ -548,9 +609,63 @@ static int capacitance(UpStepper *s, int lev, const unsigned char *act)
     return slot;
 }
 
+/* x <- J(act)^-1 x for a diagonal soil. Row w_i of J reads -s_i a_i Bq3_i . dq[2:5] + (S_i + s_i a_i) dw_i
+   = x_{w_i} (S_i the diagonal of S0 there, a_i = act_i, s_i = (1 + al) kp_i), so dw_i eliminates onto q:
+     (S0_qq + sum_active s_i S_i / d_i b_i b_i^T) dq = x_q + sum_active s_i / d_i b_i x_{w_i},  d_i = S_i + s_i,
+   b_i = Bq3_i on q[2:5]; then dw_i = (x_{w_i} + s_i a_i b_i . dq) / (S_i + s_i a_i). 0, or -1 when singular */
+static int newton_diag(UpStepper *s, int lev, const unsigned char *act, double *x)
+{
+    const double *S = s->sys[lev].S0d, *Sw = S + 36;
+    double a00 = 0.0, a01 = 0.0, a02 = 0.0, a11 = 0.0, a12 = 0.0, a22 = 0.0, r0 = 0.0, r1 = 0.0, r2 = 0.0;
+    for (int i = 0; i < s->N; i++) {
+        if (!act[i])
+            continue;
+        double si = (1 + s->alpha) * s->kp[i], d = Sw[i] + si, c = si * Sw[i] / d, e = si / d * x[6 + i];
+        const double *b = s->Bq3 + 3 * (size_t)i;
+        double c0 = c * b[0], c1 = c * b[1], c2 = c * b[2];
+        a00 += c0 * b[0];
+        a01 += c0 * b[1];
+        a02 += c0 * b[2];
+        a11 += c1 * b[1];
+        a12 += c1 * b[2];
+        a22 += c2 * b[2];
+        r0 += e * b[0];
+        r1 += e * b[1];
+        r2 += e * b[2];
+    }
+    double *A = s->lu;                                    /* S0 on q plus the sums on q[2:5] */
+    memcpy(A, S, 36 * sizeof(double));
+    A[14] += a00;
+    A[15] += a01;
+    A[16] += a02;
+    A[21] += a11;
+    A[22] += a12;
+    A[28] += a22;
+    A[20] += a01;
+    A[26] += a02;
+    A[27] += a12;
+    x[2] += r0;
+    x[3] += r1;
+    x[4] += r2;
+    s->n_factorisations++;
+    if (up_lu(A, s->lu_piv, 6))
+        return -1;
+    up_lu_solve(A, s->lu_piv, 6, x);
+    for (int i = 0; i < s->N; i++) {
+        double si = act[i] ? (1 + s->alpha) * s->kp[i] : 0.0, d = Sw[i] + si;
+        if (d == 0.0)
+            return -1;
+        const double *b = s->Bq3 + 3 * (size_t)i;
+        x[6 + i] = (x[6 + i] + si * ((b[0] * x[2] + b[1] * x[3]) + b[2] * x[4])) / d;
+    }
+    return 0;
+}
+
 /* x <- J(act)^-1 x at level lev; 0, or -1 when J is singular */
 static int newton_solve(UpStepper *s, int lev, const unsigned char *act, double *x)
 {
+    if (s->diag)
+        return newton_diag(s, lev, act, x);
     int slot = capacitance(s, lev, act);
     if (slot < 0)
         return -1;
@@ -642,7 +757,7 @@ static void damp(const UpStepper *s, const double *v, double *out, double *Ev)
     up_sparse_matvec(&s->Cs_sp, v, out);
     for (int i = s->ns; i < s->n; i++)
         out[i] = 0.0;
-    up_symv(s->soil->E, s->soil->Ep, s->nb, v + s->ni, Ev);          /* E v on x, kept for the soil force */
+    soil_product(s, s->soil->E, s->soil->Ep, s->Ed, v + s->ni, Ev);      /* E v on x, kept for the soil force */
     for (int i = 0; i < s->nb; i++)
         out[s->ni + i] += Ev[i];
 }
@@ -701,7 +816,7 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
            work, free until the iteration ends: the state is written only by a step that succeeds) */
         const double *Kx = s->Kx;
         if (*s->kx_lev != (double)lev) {
-            up_symv(y->K0C, s->soil->Ep ? y->K0Cp : NULL, nb, uB, s->w_nb[6]);
+            soil_product(s, y->K0C, s->soil->Ep ? y->K0Cp : NULL, y->K0Cd, uB, s->w_nb[6]);
             Kx = s->w_nb[6];
         }
         const double *Sq = y->Sq, *cM = y->Sq + 36;
@@ -722,15 +837,19 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
             /* S0 dx = J dx - sum_active s_i b_i (b_i . dx), J dx = -g: no product with S0 */
             for (int i = 0; i < nb; i++)
                 Sdx[i] = -gv[i];
+            double S2 = Sdx[2], S3 = Sdx[3], S4 = Sdx[4];   /* summed in registers */
             for (int i = 0; i < N; i++)
                 if (s->act[i]) {
                     double c = ((1 + al) * s->kp[i]) * along(s, i, dx);
                     const double *b = s->Bq3 + 3 * (size_t)i;
-                    Sdx[2] -= c * b[0];
-                    Sdx[3] -= c * b[1];
-                    Sdx[4] -= c * b[2];
+                    S2 -= c * b[0];
+                    S3 -= c * b[1];
+                    S4 -= c * b[2];
                     Sdx[6 + i] += c;
                 }
+            Sdx[2] = S2;
+            Sdx[3] = S3;
+            Sdx[4] = S4;
             double t = line_search(s, uB, dx, gv, Sdx);
             for (int i = 0; i < nb; i++) {
                 xn[i] = uB[i] + t * dx[i];
@@ -784,7 +903,7 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
     const double *x_new = u_new + ni, *xd_new = v_new + ni;
     /* the soil force K0 x + C0 xdot + h = (D0 + c1 E) x + E v_hat + h (xdot = c1 x + v_hat) */
     double *Kx_new = s->w_nb[3];                          /* dx, free after the Newton iteration */
-    up_symv(y->K0C, s->soil->Ep ? y->K0Cp : NULL, nb, x_new, Kx_new);
+    soil_product(s, y->K0C, s->soil->Ep ? y->K0Cp : NULL, y->K0Cd, x_new, Kx_new);
     for (int i = 0; i < nb; i++)
         fs_new[i] = (Kx_new[i] + Ev[i]) + h[i];
     if (al != 0.0) {

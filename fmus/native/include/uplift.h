@@ -245,6 +245,8 @@ typedef struct {
     double *Sq;               /* (6, 6) then (nb): S0 - (1 + al) K0C - diag(c0 M_B) (on q only), then c0 M_B */
     double *K0C;              /* (nb, nb) D0 + c1 E: the soil force's part in x at this step size */
     double *K0Cp;             /* the same packed (used when E is symmetric: then K0C is) */
+    double *K0Cd, *S0d;       /* (36 + N) K0C and S0 compact, for a diagonal soil (UpStepper.diag): their
+                                 (6, 6) block on q, then their diagonal on w */
     /* the Newton matrix's two bases (stepper.c): every contact closed [0], every one open [1] */
     double *Jd[2];            /* (nb) their scaling, powers of two: d_r ~ |J_rr|^-1/2 */
     double *Jb[2];            /* (nb, nb) the inverses of the scaled bases, D J D (symmetrised when sym) */
@@ -260,6 +262,10 @@ typedef struct {
     int enabled, max_iter, max_subdiv;
     int sym;                  /* 1: Ks, Cs (to round-off) and the soil's E symmetric: the system's matrices
                                  are held symmetrised and packed (half the memory traffic) */
+    int diag;                 /* 1: the soil is springs (no pole, D and E zero between q and w and off the
+                                 diagonal on w): S0 is a (6, 6) block on q and a diagonal on w, the products
+                                 with K0C and E take the two blocks, Newton eliminates w node by node */
+    double *Ed;               /* (36 + N) E compact (UpSystem.K0Cd), when diag */
     const double *M, *Ks, *Cs, *Mr, *Bq3, *kp, *P0, *delta0;   /* (n), (ns, ns) x2, (ns, 3), (N, 3), (N) x3 */
     UpSparse Ks_sp, Cs_sp;    /* Ks, Cs compressed (their products per step) */
     UpSoil *soil;             /* dt-dependent soil matrices; stepped unless external */
