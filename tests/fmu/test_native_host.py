@@ -136,9 +136,7 @@ def test_the_vector_width_does_not_change_the_answer(tmp_path, narrow):
     subprocess.run(["cc", "-std=c99", "-O3", "-ffp-contract=off", "-fvisibility=hidden", "-fPIC", "-shared",
                     narrow, f"-I{NATIVE / 'include'}", "-o", str(lib),
                     *(str(NATIVE / s) for s in native_host.HOST_SOURCES), "-lm"], check=True)
-    other = ctypes.CDLL(str(lib))
-    other.up_simulate.restype = ctypes.c_int
-    other.up_simulate.argtypes = native_host.library().up_simulate.argtypes
+    other = native_host.declare(ctypes.CDLL(str(lib)))
     wide, _ = both(contact)
     base, _ = both(contact, lib=other)
     assert np.array_equal(wide.raft, base.raft) and np.array_equal(wide.gap, base.gap)
