@@ -40,7 +40,8 @@ def _stick(n):
     nodes = [{"id": i + 1, "xyz": [0.0, 0.0, 20.0 * i / n]} for i in range(n + 1)]
     nodes[-1]["name"] = "top"
     beam = SCENE["structure"]["beams"][0]
-    return {"nodes": nodes, "beams": [dict(beam, nodes=[i + 1, i + 2]) for i in range(n)]}
+    return {"nodes": nodes, "beams": [dict(beam, nodes=[i + 1, i + 2]) for i in range(n)],
+            "masses": [{"node": n + 1, "m": 2.0e6}]}
 
 
 INTERRUPTED = "uplift: interrupted"
