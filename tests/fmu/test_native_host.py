@@ -15,7 +15,8 @@ Python stepper (structure.simulate), its readable reference.
 - the winkler route on the native stepper (the springs as a rational model without pole) for
   every calibration (rigid or nodal springs, RCC-G or dashpots, explicit moduli) against its
   Python stepper: 1e-10 with uplift;
-- without a compiler the route runs the Python stepper and says so (a warning, not an error);
+- without a compiler the monolithic and winkler routes run the Python stepper and say so (a
+  warning, not an error);
 - the library's vector width does not change a bit of the answer (baseline SSE2 build against
   the one with AVX2/AVX-512 kernels); the widest kernels the CPU has are the ones that run, built
   by the system compiler and by zig's (whose runtime's CPU test reports no feature);
@@ -187,9 +188,13 @@ def test_without_a_compiler_the_python_stepper_runs_with_a_note(monkeypatch, tmp
 
     monkeypatch.setenv("UPLIFT_CACHE", str(tmp_path))
     monkeypatch.setattr(native_host, "_build", no_compiler)
-    res = run_monolithic(SCENE, MOTION, MODEL, cache_dir=tmp_path)
-    assert res.converged and res.info["stepper"] == "python"
-    assert any("native stepper is not available" in w and "Python stepper ran" in w for w in res.notes.warnings)
+    mono = run_monolithic(SCENE, MOTION, MODEL, cache_dir=tmp_path)
+    scene = scene_from_dict(small_reactor(soil={"winkler": {"kv": 2.0e9, "kh": 1.5e9}}, impedance=None,
+                                          analysis={"routes": ["winkler"]}), name="wk")
+    wink = run_scene(scene, cache_dir=tmp_path, motion=MOTION)[0]["winkler"]
+    for res in (mono, wink):
+        assert res.converged and res.info["stepper"] == "python"
+        assert any("native stepper is not available" in w and "Python stepper ran" in w for w in res.notes.warnings)
 
 
 @pytest.mark.skipif(shutil.which("cc") is None, reason="needs the system compiler")
