@@ -25,7 +25,7 @@ Python stepper (structure.simulate), its readable reference.
 - the run's step-doubling check on the proxy springs (the native stepper where available):
   its two max uplifts equal the Python stepper's to 1e-10.
 
-About 10 s (the library is compiled once per content hash into the cache folder).
+About 20 s (the library is compiled once per content hash into the cache folder).
 """
 import ctypes
 import dataclasses
