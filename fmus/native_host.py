@@ -181,7 +181,7 @@ def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None, 
     progress : callable(done, total) or None, called after every ``chunk`` samples (done of
     total = nt samples computed, as ``simulate``); the run is stepped ``chunk`` samples per call
     of the C runtime, the same bits whatever ``chunk``; an exception raised between two calls
-    (KeyboardInterrupt, or one raised by ``progress``) propagates, the run's memory freed
+    (KeyboardInterrupt, or one raised by ``progress``) propagates, the run's memory freed.
     Returns a RouteResult (notes: the precheck is not run: every step is a Newton step, one
     product with a cached inverse while the active set holds); a Newton failure raises
     ConvergenceError with ``.result`` holding the samples so far, as ``simulate`` does.
