@@ -12,8 +12,8 @@ Rows (one small function each, registered with ``@row``; add one the same way):
   bare dense kernel          the reference (the ratio 1)
   monolithic stepping        structure.simulate (the Python stepper) on the fit's recursive
                              convolution
-  monolithic route           ``run_monolithic``'s default: the C runtime in process, one call for
-                             the whole motion (its wall_s: the stepper's set-up included)
+  monolithic route           ``run_monolithic``'s default: the C runtime in process, 200 steps
+                             per call (its wall_s: the stepper's set-up included)
   native coupled.fmu         the exported native coupled FMU under a plain C program (the
                              project's test host, tests/fmu/native/host.c), the whole process: load,
                              instantiate, 2000 steps of the bundled motion

@@ -1,14 +1,16 @@
 """The native C runtime run in process: the monolithic route's fast path.
 
 The stepper and the soil of the native FMUs (fmus/native/: stepper.c, soil.c, linalg.c,
-resources.c) with ``simulate.c``'s one entry point, ``up_simulate``, which runs a whole motion
-and returns the histories (no call per step). The library is compiled for this machine by the
-FMUs' builder (``fmus.native_build.compile_runtime``: the system compiler, else ziglang's),
-once per content hash of its sources, the compiler and the flags, into the cache folder
-(``<cache>/native/``; a temporary folder of the process for a run without cache), and loaded
-with ctypes. ``structure.simulate`` (the Python stepper)
-stays the readable reference; the two agree to round-off (tests/fmu/test_native_host.py: 1e-10
-on the raft and top histories, with uplift and step halving).
+resources.c) with ``simulate.c``'s entry points: ``up_sim_open`` sets a run up, ``up_sim_steps``
+steps it a chunk of samples at a time (``CHUNK``, a fixed count: the host reports progress and
+takes Ctrl-C between two chunks; the same bits whatever the chunks), ``up_sim_close`` frees it.
+The library is compiled for this machine by the FMUs' builder
+(``fmus.native_build.compile_runtime``: the system compiler, else ziglang's), once per content
+hash of its sources, the compiler and the flags, into the cache folder (``<cache>/native/``; a
+temporary folder of the process for a run without cache), and loaded with ctypes.
+``structure.simulate`` (the Python stepper) stays the readable reference; the two agree to
+round-off (tests/fmu/test_native_host.py: 1e-10 on the raft and top histories, with uplift and
+step halving).
 
 API::
 
@@ -77,13 +79,22 @@ def _compiled(folder: Path, stem: str, sources, headers) -> Path:
     return path
 
 
-def _build(folder: Path) -> ctypes.CDLL:
-    lib = ctypes.CDLL(str(_compiled(folder, "uplift-host", HOST_SOURCES, HOST_HEADERS)))
-    f = lib.up_simulate
-    f.restype = ctypes.c_int
-    f.argtypes = [ctypes.c_char_p, ctypes.c_uint64, ctypes.c_void_p, ctypes.c_int64, ctypes.c_void_p,
-                  ctypes.c_void_p, ctypes.c_void_p, ctypes.c_char_p]
+def declare(lib: ctypes.CDLL) -> ctypes.CDLL:
+    """``lib`` (a host library of simulate.c) with the signatures of its entry points set."""
+    p, i64 = ctypes.c_void_p, ctypes.c_int64
+    for name, restype, argtypes in (
+            ("up_sim_open", p, [ctypes.c_char_p, ctypes.c_uint64, p, ctypes.c_char_p]),
+            ("up_sim_width", i64, [p]),
+            ("up_sim_steps", ctypes.c_int, [p, p, i64, i64, p, p, p, ctypes.c_char_p]),
+            ("up_sim_close", None, [p]),
+            ("up_simulate", ctypes.c_int, [ctypes.c_char_p, ctypes.c_uint64, p, i64, p, p, p, ctypes.c_char_p])):
+        f = getattr(lib, name)
+        f.restype, f.argtypes = restype, argtypes
     return lib
+
+
+def _build(folder: Path) -> ctypes.CDLL:
+    return declare(ctypes.CDLL(str(_compiled(folder, "uplift-host", HOST_SOURCES, HOST_HEADERS))))
 
 
 _private: list = []                # the process's temporary folder, when no folder is given
@@ -152,7 +163,13 @@ def springs_soil(soil, dt: float):
     return RecursiveConvolutionSoil(model, dt, checked=True)
 
 
-def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None):
+#: samples per call of the C runtime (progress is reported and an interrupt taken between two):
+#: a fixed count, so that the answer does not depend on time (it does not depend on the count)
+CHUNK = 200
+
+
+def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None, progress=None,
+                    chunk: int = CHUNK):
     """``structure.simulate`` through the C runtime: the same histories to round-off.
 
     st : structure.NewmarkStepper at rest (external_soil=True), built on the soil and the model
@@ -161,6 +178,10 @@ def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None):
     ag : (nt, 3) m/s^2 at k dt; output_nodes : node names with acc/disp histories (None: every
     named node, as ``simulate``)
     lib : the library (default ``library()``: a temporary folder of the process; it must be available)
+    progress : callable(done, total) or None, called after every ``chunk`` samples (done of
+    total = nt samples computed, as ``simulate``); the run is stepped ``chunk`` samples per call
+    of the C runtime, the same bits whatever ``chunk``; an exception raised between two calls
+    (KeyboardInterrupt, or one raised by ``progress``) propagates, the run's memory freed.
     Returns a RouteResult (notes: the precheck is not run: every step is a Newton step, one
     product with a cached inverse while the active set holds); a Newton failure raises
     ConvergenceError with ``.result`` holding the samples so far, as ``simulate`` does.
@@ -169,6 +190,8 @@ def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None):
     from structure.results import RouteResult, RunNotes, Status
 
     t0 = time.perf_counter()
+    if chunk < 1:
+        raise ValueError(f"chunk = {chunk}: the samples per call must be at least 1")
     lib = lib or library()
     if lib is None:
         raise NativeBuildError(library_note())
@@ -186,10 +209,24 @@ def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None):
     iters = np.zeros(nt, np.int64)
     stats = np.zeros(3, np.int64)
     err = ctypes.create_string_buffer(1024)
-    rc = lib.up_simulate(blob, len(blob), ag.ctypes.data, nt, rows.ctypes.data, iters.ctypes.data,
-                         stats.ctypes.data, err)
-    if rc < 0:
+    handle = lib.up_sim_open(blob, len(blob), ag.ctypes.data, err)
+    if not handle:
         raise NativeBuildError(f"the native stepper refused the model: {err.value.decode(errors='replace')}")
+    try:
+        if lib.up_sim_width(handle) != width:
+            raise NativeBuildError(f"the native stepper's rows have {lib.up_sim_width(handle)} values, not {width}")
+        rc, k = 0, 0
+        while rc == 0 and k < nt:
+            k1 = min(k + chunk, nt)
+            rc = lib.up_sim_steps(handle, ag.ctypes.data, k, k1, rows.ctypes.data, iters.ctypes.data,
+                                  stats.ctypes.data, err)
+            k = k1
+            if rc == 0 and progress is not None:
+                progress(k, nt)
+    finally:
+        lib.up_sim_close(handle)
+    if rc < 0:
+        raise NativeBuildError(f"the native stepper stopped: {err.value.decode(errors='replace')}")
     node = rows[:, 6 + 3 * N:6 + 3 * N + 6 * m].reshape(nt, m, 6)
     energy = rows[:, 6 + 3 * N + 6 * m:]
     enabled = st.contact.enabled

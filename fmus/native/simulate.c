@@ -1,23 +1,48 @@
-/* The in-process run: the stepper and the soil of the coupled FMU over a whole motion, in one
-   call (no FMI layer, no call per step). The in-process routes load it with ctypes from a
-   library compiled for the host (fmus/native_host.py); the native FMUs do not ship it.
+/* The in-process run: the stepper and the soil of the coupled FMU over a motion, in chunks of
+   steps (no FMI layer, no call per step): the host reports progress and takes an interrupt
+   between two chunks. The in-process routes load it with ctypes from a library compiled for
+   the host (fmus/native_host.py); the native FMUs do not ship it.
 
-   up_simulate(res, size, ag, nt, rows, iters, stats, err)
+   up_sim_open(res, size, ag0, err) -> handle
      res, size  the coupled FMU's resource records (fmus/native/README.md) in memory
-     ag         (nt, 3) ground acceleration at k dt, m/s^2
-     rows       (nt, 6 + 3 N + 6 nodes + 7) out, per step: raft q (6), gap (N), total contact
-                force P (N), soil w (N), per output node its absolute acceleration (3) and
-                displacement (3), the energies (input, kinetic, strain, damping, soil, contact,
-                contact_potential)
-     iters      (nt) out: Newton solves per step
-     stats      (3) out: steps computed (nt unless a step failed), Jacobian factorisations,
-                steps that were halved
-   Returns 0; 1 when a step's Newton iteration failed after its halvings (rows up to stats[0],
-   the stepper's message in err); -1 when the records cannot be used (message in err). */
+     ag0        (3) ground acceleration at t = 0, m/s^2 (the state at rest)
+     Parses the records, sets up the soil and the stepper at rest and prepares the system at dt:
+     everything a run allocates. NULL when the records cannot be used (message in err).
+   up_sim_width(handle) -> the length of a row: 6 + 3 N + 6 nodes + 7
+   up_sim_steps(handle, ag, k0, k1, rows, iters, stats, err)
+     computes samples k0 .. k1 - 1 (k0 the first sample not computed yet: 0, then the previous
+     call's k1; sample 0 is the state at rest, sample k > 0 one step under ag[k])
+     ag         (nt, 3) ground acceleration at k dt, m/s^2 (rows k0 .. k1 - 1 read)
+     rows       (nt, width) out, rows k0 .. k1 - 1 written, per sample: raft q (6), gap (N), total
+                contact force P (N), soil w (N), per output node its absolute acceleration (3)
+                and displacement (3), the energies (input, kinetic, strain, damping, soil,
+                contact, contact_potential)
+     iters      (nt) out, entries k0 .. k1 - 1: Newton solves per step
+     stats      (3) out: samples computed so far (k1 unless a step failed), Jacobian
+                factorisations, steps that were halved (over the whole run)
+     Returns 0; 1 when a step's Newton iteration failed after its halvings (samples up to
+     stats[0], the stepper's message in err; the run cannot go on); -1 when k0 is not the next
+     sample (message in err). The samples are the same bits whatever the chunks.
+   up_sim_close(handle)  frees the handle (NULL: nothing)
+   up_simulate(res, size, ag, nt, rows, iters, stats, err)
+     the whole motion in one call (open, the nt samples, close); returns 0, 1 or -1 as above. */
 #include <stdlib.h>
 #include <string.h>
 
 #include "uplift.h"
+
+struct UpSim {
+    UpRes r;
+    UpSoil soil;
+    UpStepper st;
+    double *block, *saves;
+    const int64_t *node_dofs;
+    int nnodes;
+    int64_t next;               /* the first sample not computed yet */
+    int64_t halved;             /* steps halved so far */
+    int failed;
+    char err[UP_MSG];           /* the stepper's message */
+};
 
 static void record(const UpStepper *st, const int64_t *node_dofs, int nnodes, double *row)
 {
@@ -36,74 +61,114 @@ static void record(const UpStepper *st, const int64_t *node_dofs, int nnodes, do
     up_stepper_energies(st, node + 6 * (size_t)nnodes);
 }
 
+UP_API void up_sim_close(UpSim *h)
+{
+    if (!h)
+        return;
+    free(h->block);
+    free(h->saves);
+    up_stepper_free(&h->st);
+    up_soil_free(&h->soil);
+    up_res_free(&h->r);
+    free(h);
+}
+
+UP_API UpSim *up_sim_open(const unsigned char *res, uint64_t size, const double *ag0, char *err)
+{
+    UpSim *h = (UpSim *)calloc(1, sizeof *h);
+    if (!h) {
+        strcpy(err, "out of memory for the run");
+        return NULL;
+    }
+    if (up_res_parse(&h->r, res, (size_t)size, "(in memory)", err)) {
+        free(h);
+        return NULL;
+    }
+    UpStepper *st = &h->st;
+    double levels, n_dof;
+    int64_t dims[2] = {-1, 3};
+    h->node_dofs = up_res_i64(&h->r, "node_dofs", 2, dims, err);
+    h->nnodes = (int)dims[0];
+    if (!h->node_dofs || up_res_scalar(&h->r, "contact_max_subdiv", &levels, err)
+        || up_res_scalar(&h->r, "n_dof", &n_dof, err))
+        goto fail;
+    if (!(levels >= 0 && levels < UP_MAXLEV) || !(n_dof >= 6 && n_dof <= 1e6)) {
+        strcpy(err, "contact_max_subdiv or n_dof out of range");
+        goto fail;
+    }
+    if (up_soil_init(&h->soil, &h->r, (int)n_dof, (int)levels + 1, 1, err))
+        goto fail;
+    if (up_stepper_init(st, &h->r, &h->soil, 0, err))
+        goto fail;
+    for (int k = 0; k < 3 * h->nnodes; k++)
+        if (h->node_dofs[k] < 0 || h->node_dofs[k] >= st->n) {
+            strcpy(err, "node_dofs out of range");
+            goto fail;
+        }
+    st->err = h->err;
+    size_t len = up_stepper_state_len(st) + up_soil_state_len(&h->soil);
+    h->block = (double *)calloc(len, sizeof(double));
+    h->saves = (double *)calloc((size_t)st->nlev * len, sizeof(double));
+    if (!h->block || !h->saves) {
+        strcpy(err, "out of memory for the stepper's state");
+        goto fail;
+    }
+    up_stepper_bind(st, h->block, h->block, len, h->saves);
+    up_soil_bind(&h->soil, h->block + up_stepper_state_len(st));
+    up_stepper_rest(st, ag0);
+    if (up_stepper_prepare(st, err))
+        goto fail;
+    return h;
+fail:
+    up_sim_close(h);
+    return NULL;
+}
+
+UP_API int64_t up_sim_width(const UpSim *h)
+{
+    return 6 + 3 * (int64_t)h->st.N + 6 * (int64_t)h->nnodes + 7;
+}
+
+UP_API int up_sim_steps(UpSim *h, const double *ag, int64_t k0, int64_t k1, double *rows, int64_t *iters,
+                        int64_t *stats, char *err)
+{
+    UpStepper *st = &h->st;
+    size_t width = (size_t)up_sim_width(h);
+    if (h->failed || k0 != h->next || k1 < k0) {
+        strcpy(err, h->failed ? "the run stopped at a failed step" : "up_sim_steps: k0 is not the next sample");
+        return -1;
+    }
+    int rc = 0;
+    int64_t k = k0;
+    for (; k < k1; k++) {
+        if (k > 0) {
+            memcpy(st->ag_next, ag + 3 * k, 3 * sizeof(double));
+            if (up_stepper_step(st)) {
+                memcpy(err, h->err, UP_MSG);
+                h->failed = 1;
+                rc = 1;
+                break;
+            }
+            h->halved += st->last_halved;
+        }
+        iters[k] = k > 0 ? st->last_iters : 0;
+        record(st, h->node_dofs, h->nnodes, rows + (size_t)k * width);
+    }
+    h->next = k;
+    stats[0] = k;
+    stats[1] = st->n_factorisations;
+    stats[2] = h->halved;
+    return rc;
+}
+
 UP_API int up_simulate(const unsigned char *res, uint64_t size, const double *ag, int64_t nt, double *rows,
                        int64_t *iters, int64_t *stats, char *err)
 {
-    UpRes r;
-    UpSoil soil;
-    UpStepper st;
-    double *block = NULL, *saves = NULL;
-    int rc = -1;
-    memset(&soil, 0, sizeof soil);
-    memset(&st, 0, sizeof st);
     stats[0] = stats[1] = stats[2] = 0;
-    if (up_res_parse(&r, res, (size_t)size, "(in memory)", err))
+    UpSim *h = up_sim_open(res, size, ag, err);
+    if (!h)
         return -1;
-    double levels;
-    int64_t dims[2] = {-1, 3};
-    const int64_t *node_dofs = up_res_i64(&r, "node_dofs", 2, dims, err);
-    int nnodes = (int)dims[0];
-    double n_dof;
-    if (!node_dofs || up_res_scalar(&r, "contact_max_subdiv", &levels, err) || up_res_scalar(&r, "n_dof", &n_dof, err))
-        goto out;
-    if (!(levels >= 0 && levels < UP_MAXLEV) || !(n_dof >= 6 && n_dof <= 1e6)) {
-        strcpy(err, "contact_max_subdiv or n_dof out of range");
-        goto out;
-    }
-    if (up_soil_init(&soil, &r, (int)n_dof, (int)levels + 1, 1, err))
-        goto out;
-    if (up_stepper_init(&st, &r, &soil, 0, err))
-        goto out;
-    for (int k = 0; k < 3 * nnodes; k++)
-        if (node_dofs[k] < 0 || node_dofs[k] >= st.n) {
-            strcpy(err, "node_dofs out of range");
-            goto out;
-        }
-    st.err = err;
-    size_t len = up_stepper_state_len(&st) + up_soil_state_len(&soil);
-    block = (double *)calloc(len, sizeof(double));
-    saves = (double *)calloc((size_t)st.nlev * len, sizeof(double));
-    if (!block || !saves) {
-        strcpy(err, "out of memory for the stepper's state");
-        goto out;
-    }
-    up_stepper_bind(&st, block, block, len, saves);
-    up_soil_bind(&soil, block + up_stepper_state_len(&st));
-    up_stepper_rest(&st, ag);
-    if (up_stepper_prepare(&st, err))
-        goto out;
-    size_t width = 6 + 3 * (size_t)st.N + 6 * (size_t)nnodes + 7;
-    record(&st, node_dofs, nnodes, rows);
-    iters[0] = 0;
-    int64_t k = 1;
-    rc = 0;
-    for (; k < nt; k++) {
-        memcpy(st.ag_next, ag + 3 * k, 3 * sizeof(double));
-        if (up_stepper_step(&st)) {
-            rc = 1;
-            break;
-        }
-        iters[k] = st.last_iters;
-        stats[2] += st.last_halved;
-        record(&st, node_dofs, nnodes, rows + (size_t)k * width);
-    }
-    stats[0] = k;
-    stats[1] = st.n_factorisations;
-out:
-    free(block);
-    free(saves);
-    up_stepper_free(&st);
-    up_soil_free(&soil);
-    up_res_free(&r);
+    int rc = up_sim_steps(h, ag, 0, nt, rows, iters, stats, err);
+    up_sim_close(h);
     return rc;
 }

@@ -3,7 +3,8 @@ Newmark + penalty contact, in process (no FMU layer): the fast path and the co-s
 reference (``cosim`` equals it to round-off).
 
 Two steppers compute the same discrete equations (to round-off): ``"native"`` (default), the C
-runtime of the native FMUs run in process over the whole motion (fmus/native_host.py), and
+runtime of the native FMUs run in process, a chunk of steps per call (progress reported and
+Ctrl-C taken between two; fmus/native_host.py), and
 ``"python"``, ``structure.simulate`` (the readable reference). The native stepper runs the
 default soil (the recursive convolution of the rational model); with another soil factory, or
 where no C compiler is available, the Python stepper runs and ``notes.warnings`` says why.
@@ -55,50 +56,66 @@ def run_monolithic(scene, motion=None, soil_model=None, *, soil_factory: str | N
     Returns a RouteResult (``info["stepper"]``: the one that ran); a Newton failure returns the
     samples so far with status STOPPED.
     """
-    if stepper not in STEPPERS:
-        raise ValueError(f"stepper = {stepper!r}: use one of {', '.join(STEPPERS)}")
     motion, soil_model, dt = route_inputs(scene, motion, soil_model, dt, cache_dir)
     factory = soil_factory or DEFAULT_SOIL_FACTORY
     soil = soil_from_model(soil_model, dt, factory, soil_kwargs)
     model = model or scene.model()
-    why = ""
-    if stepper == "native":
+    why = (f"the soil factory {factory} has no native runtime: the Python stepper ran"
+           if stepper == "native" and factory != DEFAULT_SOIL_FACTORY else "")
+    res = step_scene(scene, model, soil, motion, route=route, progress=progress, cache_dir=cache_dir,
+                     stepper=stepper, why=why)
+    return res.with_notes(info={"soil_model": soil_model.provenance})
+
+
+def step_scene(scene, model, soil, motion, *, route: str, progress=None, cache_dir=None, stepper: str = "native",
+               damping=None, as_native=None, why: str = ""):
+    """The structure ``model`` on ``soil`` under ``motion`` (the scene's contact and output
+    nodes), stepped by the C runtime (``stepper="native"``, where its library is available and
+    ``why`` is "") or by ``structure.simulate`` (``"python"``, or the fallback: ``notes.warnings``
+    says why). damping : the structural damping as ``simulate`` takes it (None: the model's);
+    as_native : callable(soil, dt) -> the soil the C runtime steps, a RecursiveConvolutionSoil
+    (None: ``soil`` is one). Returns a RouteResult (``info["stepper"]``: the one that ran); a
+    Newton failure returns the samples so far with status STOPPED."""
+    if stepper not in STEPPERS:
+        raise ValueError(f"stepper = {stepper!r}: use one of {', '.join(STEPPERS)}")
+    folder = None
+    if stepper == "native" and not why:
         from fmus.native_host import cache_folder, library_note   # the FMU stack: only when it steps
         folder = cache_folder(cache_dir)
-        why = (f"the soil factory {factory} has no native runtime: the Python stepper ran"
-               if factory != DEFAULT_SOIL_FACTORY else library_note(folder))
+        why = library_note(folder)
     try:
         if stepper == "native" and not why:
-            res = _native(model, soil, motion, scene, route, progress, folder)
+            res = _native(model, as_native(soil, motion.dt) if as_native else soil, motion, scene, route, progress,
+                          folder, damping)
         else:
-            res = simulate(model, soil, motion.acc, dt, contact=scene.contact, output_nodes=scene.output.nodes,
-                           progress=progress, route=route)
+            res = simulate(model, soil, motion.acc, motion.dt, contact=scene.contact, damping=damping,
+                           output_nodes=scene.output.nodes, progress=progress, route=route)
     except ConvergenceError as exc:
         res = exc.result
     if res.info.get("stepper") != "native":
         res = res.with_notes(info={"stepper": "python"}, warnings=[why] if why else [])
-    return res.with_notes(info={"soil_model": soil_model.provenance})
+    return res
 
 
-def _native(model, soil, motion, scene, route, progress, folder):
+def _native(model, soil, motion, scene, route, progress, folder, damping):
     """The run through the C runtime (fmus.native_host, the library in ``folder``); wall_s
     includes the stepper's set-up."""
     from fmus.native_host import library, simulate_native   # the same: only when it steps
     t0 = time.perf_counter()
-    st = NewmarkStepper(model, soil, motion.dt, contact=scene.contact, external_soil=True, ag0=motion.acc[0])
+    st = NewmarkStepper(model, soil, motion.dt, contact=scene.contact, damping=damping, external_soil=True,
+                        ag0=motion.acc[0])
     try:
-        res = simulate_native(st, motion.acc, scene.output.nodes, route=route, lib=library(folder))
+        res = simulate_native(st, motion.acc, scene.output.nodes, route=route, lib=library(folder),
+                              progress=progress)
     except ConvergenceError as exc:
         exc.result = dataclasses.replace(exc.result, wall_s=time.perf_counter() - t0)
         raise
-    if progress is not None:
-        progress(motion.acc.shape[0], motion.acc.shape[0])
     return dataclasses.replace(res, wall_s=time.perf_counter() - t0)
 
 
 def run(ctx, progress=None):
     return run_monolithic(ctx.scene, ctx.motion, ctx.fit().model, progress=progress, model=ctx.model(),
-                          cache_dir=ctx.cache_dir)
+                          cache_dir=ctx.cache_dir, stepper=ctx.options.get("stepper", "native"))
 
 
 ROUTE = register(Route(
@@ -107,6 +124,7 @@ ROUTE = register(Route(
             "Newmark + penalty contact, in process",
     run=run,
     needs_fit=True,
+    options=("stepper",),
     bench={"disk-halfspace": {"dt": (0.01, 0.005, 0.0025, 0.00125), "fit_tol": (0.05, 0.03, 0.02),
                               "element_size": (3.0, 2.0, 1.5), "penalty": (0.1, 1.0, 10.0)},
            "reactor": {"dt": (0.01, 0.005, 0.0025, 0.00125), "fit_tol": (0.1, 0.06, 0.04),

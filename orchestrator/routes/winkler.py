@@ -17,18 +17,25 @@ damping  "rccg": composite modal damping (structural ratio on the structure's st
          plus the BEM's directional radiation ratios Im K(f)/(2 K(0)) on the soil's);
          "dashpots": the rigid impedance's dashpots Im K(f1)/ω1 at the first soil-structure
          frequency f1, shared like the springs, with the structure's own damping.
+
+Stepped by the monolithic route's C runtime in process (the springs and dashpots as a rational
+model without pole, ``fmus.native_host.springs_soil``; the structural damping, RCC-G's included,
+passed through), a chunk of steps per call; the Python stepper (``structure.simulate``, the
+reference the native one equals to round-off) where no C compiler is available, with a warning
+(``info["stepper"]`` says which ran; the route option ``stepper = "python"`` runs it, e.g.
+``run_scene(scene, ["winkler"], options={"winkler": {"stepper": "python"}})``).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from structure import ConvergenceError, simulate
 from structure.spec import winkler_from_moduli
 from structure.winkler import (modes_on_soil, radiation_ratios, rccg_modal_damping, springs_from_nodal_diagonal,
                                springs_from_rigid_impedance)
 
 from orchestrator.impedance import scene_static
 from orchestrator.routes.base import Route, RouteInputError, register
+from orchestrator.routes.monolithic import step_scene
 
 #: RCC-G composite modal damping acts on the whole building's motion relative to the free field,
 #: rocking included, and keeps acting once the raft lifts (soil dashpots that pull): it holds the
@@ -87,14 +94,16 @@ def _nodal_dashpots(C6, area):
     return np.column_stack([C6[0, 0] * w, C6[1, 1] * w, C6[2, 2] * w]).ravel()
 
 
+def _springs_soil(soil, dt):
+    from fmus.native_host import springs_soil    # the FMU stack: only when the native stepper runs
+    return springs_soil(soil, dt)
+
+
 def run(ctx, progress=None):
     scene, model = ctx.scene, ctx.model()
     soil, damping, info = winkler_soil(scene, model, ctx.tables.get("rigid"), ctx.cache_dir)
-    try:
-        res = simulate(model, soil, ctx.motion.acc, ctx.motion.dt, contact=scene.contact, damping=damping,
-                       output_nodes=scene.output.nodes, progress=progress, route="winkler")
-    except ConvergenceError as exc:
-        res = exc.result
+    res = step_scene(scene, model, soil, ctx.motion, route="winkler", progress=progress, cache_dir=ctx.cache_dir,
+                     stepper=ctx.options.get("stepper", "native"), damping=damping, as_native=_springs_soil)
     warnings = []
     if damping is not None and res.gap.size and res.uplift_fraction().max() > RCCG_UPLIFT_LIMIT:
         warnings.append(RCCG_WARNING.format(100 * res.uplift_fraction().max()))
@@ -108,6 +117,7 @@ ROUTE = register(Route(
             "Newmark + penalty contact (paper §4, the industrial route)",
     run=run,
     tables=lambda scene: () if scene.winkler.explicit else ("rigid",),
+    options=("stepper",),
     bench={"disk-halfspace": {"dt": (0.01, 0.005, 0.0025, 0.00125), "penalty": (0.1, 1.0, 10.0),
                               "element_size": (3.0, 2.0, 1.5)},
            "reactor": {"dt": (0.01, 0.005, 0.0025, 0.00125), "penalty": (0.1, 1.0, 10.0),

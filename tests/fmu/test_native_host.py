@@ -10,7 +10,13 @@ Python stepper (structure.simulate), its readable reference.
 - a soil model whose E is not symmetric (the dense products, not the packed ones): 1e-10;
 - a step that cannot converge: the same step and message as the Python stepper, the samples
   before it returned with status STOPPED;
-- without a compiler the route runs the Python stepper and says so (a warning, not an error);
+- the run stepped in chunks of 1, 7 and nt samples: the same bits as ``up_simulate``'s one
+  call (with step halving, and up to a step that fails);
+- the winkler route on the native stepper (the springs as a rational model without pole) for
+  every calibration (rigid or nodal springs, RCC-G or dashpots, explicit moduli) against its
+  Python stepper: 1e-10 with uplift;
+- without a compiler the monolithic and winkler routes run the Python stepper and say so (a
+  warning, not an error);
 - the library's vector width does not change a bit of the answer (baseline SSE2 build against
   the one with AVX2/AVX-512 kernels); the widest kernels the CPU has are the ones that run, built
   by the system compiler and by zig's (whose runtime's CPU test reports no feature);
@@ -19,7 +25,7 @@ Python stepper (structure.simulate), its readable reference.
 - the run's step-doubling check on the proxy springs (the native stepper where available):
   its two max uplifts equal the Python stepper's to 1e-10.
 
-About 10 s (the library is compiled once per content hash into the cache folder).
+About 20 s (the library is compiled once per content hash into the cache folder).
 """
 import ctypes
 import dataclasses
@@ -30,11 +36,13 @@ import sys
 import numpy as np
 import pytest
 
-from helpers import pulse_motion, rel, small_scene, soil_model
+from helpers import pulse_motion, rel, small_reactor, small_scene, soil_model
 from fmus import native_host
-from fmus.native_build import NATIVE, NativeBuildError
+from fmus.native_build import NATIVE, NativeBuildError, encode_resources, soil_records, stepper_records
 from fmus.resources import soil_from_model
-from orchestrator.routes.monolithic import run_monolithic
+from orchestrator.routes.monolithic import STEPPERS, run_monolithic
+from orchestrator.run import run_scene
+from orchestrator.scene import scene_from_dict
 from structure import ConvergenceError, NewmarkStepper, simulate
 from structure.results import Status
 
@@ -115,15 +123,78 @@ def test_a_step_that_cannot_converge_stops_where_the_python_stepper_stops():
     assert_same_histories(f, r)
 
 
+def one_call(st, ag, nodes):
+    """(rows, iters, stats, rc) of ``up_simulate``: the whole run in one call of the C runtime."""
+    model = st.model
+    dofs = [model.dofs(model.node_by_name(nm).id)[:3] for nm in nodes]
+    blob = encode_resources({**soil_records(st.soil.model, st.dt), **stepper_records(st, dofs)})
+    nt = ag.shape[0]
+    rows, iters, stats = np.zeros((nt, 6 + 3 * st.N + 6 * len(dofs) + 7)), np.zeros(nt, np.int64), np.zeros(3, np.int64)
+    ag = np.ascontiguousarray(ag)
+    rc = native_host.library().up_simulate(blob, len(blob), ag.ctypes.data, nt, rows.ctypes.data, iters.ctypes.data,
+                                           stats.ctypes.data, ctypes.create_string_buffer(1024))
+    return rows, iters, stats, rc
+
+
+@pytest.mark.parametrize("max_iter, max_subdiv", [(2, 20), (1, 2)])      # halved steps; a step that fails
+def test_chunks_give_the_same_bits_as_one_call(max_iter, max_subdiv):
+    contact = dataclasses.replace(SCENE.contact, max_iter=max_iter, max_subdiv=max_subdiv, precheck=False)
+    nodes = SCENE.output.nodes
+
+    def stepper():
+        return NewmarkStepper(SCENE.model(), soil_from_model(MODEL, DT), DT, contact=contact, external_soil=True,
+                              ag0=MOTION.acc[0])
+    rows, iters, stats, rc = one_call(stepper(), MOTION.acc, nodes)
+    nt, N = MOTION.acc.shape[0], stepper().N
+    assert rc == (0 if max_subdiv == 20 else 1) and (stats[2] > 0 if rc == 0 else 1 < stats[0] < nt)
+    k = int(stats[0])
+    for chunk in (1, 7, nt):
+        try:
+            res = native_host.simulate_native(stepper(), MOTION.acc, nodes, chunk=chunk)
+        except ConvergenceError as exc:
+            res = exc.result
+        assert res.nt == k and res.info["subdivided_steps"] == stats[2]
+        assert np.array_equal(res.raft, rows[:k, :6]) and np.array_equal(res.gap, rows[:k, 6:6 + N])
+        assert np.array_equal(res.contact_force, rows[:k, 6 + N:6 + 2 * N])
+        assert np.array_equal(res.soil_w, rows[:k, 6 + 2 * N:6 + 3 * N])
+        for j, nm in enumerate(nodes):
+            node = rows[:k, 6 + 3 * N + 6 * j:6 + 3 * N + 6 * j + 6]
+            assert np.array_equal(res.acc[nm], node[:, :3]) and np.array_equal(res.disp[nm], node[:, 3:])
+        assert np.array_equal(np.column_stack(list(res.energy.values())), rows[:k, -7:])
+        assert np.array_equal(res.newton_iters, iters[:k])
+
+
+@pytest.mark.parametrize("winkler", [
+    {"springs": "rigid"},                                              # rocking matched, RCC-G damping
+    {"springs": "rigid", "match": "vertical", "damping": "dashpots"},
+    {"springs": "nodal"},
+    {"springs": "nodal", "damping": "dashpots"},
+    {"kv": 2.0e9, "kh": 1.5e9, "cv": 5.0e6, "ch": 4.0e6},                 # explicit moduli: the model's damping
+])
+def test_winkler_route_native_equals_python(winkler):
+    scene = scene_from_dict(small_reactor(soil={"winkler": winkler}, impedance={"range_hz": [0.0, 20.0, 5]},
+                                          analysis={"routes": ["winkler"]}), name="wk")
+    fast, ref = (run_scene(scene, motion=MOTION,
+                           options={"winkler": {"stepper": stepper}})[0]["winkler"] for stepper in STEPPERS)
+    assert fast.info["stepper"] == "native" and ref.info["stepper"] == "python"
+    assert fast.converged and ref.converged and ref.max_uplift() > 1e-3 and ref.route == fast.route == "winkler"
+    assert_same_histories(fast, ref)
+    assert fast.notes.warnings == ref.notes.warnings
+
+
 def test_without_a_compiler_the_python_stepper_runs_with_a_note(monkeypatch, tmp_path):
     def no_compiler(folder):
         raise NativeBuildError("no C compiler: neither $CC / cc nor the ziglang package")
 
     monkeypatch.setenv("UPLIFT_CACHE", str(tmp_path))
     monkeypatch.setattr(native_host, "_build", no_compiler)
-    res = run_monolithic(SCENE, MOTION, MODEL, cache_dir=tmp_path)
-    assert res.converged and res.info["stepper"] == "python"
-    assert any("native stepper is not available" in w and "Python stepper ran" in w for w in res.notes.warnings)
+    mono = run_monolithic(SCENE, MOTION, MODEL, cache_dir=tmp_path)
+    scene = scene_from_dict(small_reactor(soil={"winkler": {"kv": 2.0e9, "kh": 1.5e9}}, impedance=None,
+                                          analysis={"routes": ["winkler"]}), name="wk")
+    wink = run_scene(scene, cache_dir=tmp_path, motion=MOTION)[0]["winkler"]
+    for res in (mono, wink):
+        assert res.converged and res.info["stepper"] == "python"
+        assert any("native stepper is not available" in w and "Python stepper ran" in w for w in res.notes.warnings)
 
 
 @pytest.mark.skipif(shutil.which("cc") is None, reason="needs the system compiler")
@@ -136,9 +207,7 @@ def test_the_vector_width_does_not_change_the_answer(tmp_path, narrow):
     subprocess.run(["cc", "-std=c99", "-O3", "-ffp-contract=off", "-fvisibility=hidden", "-fPIC", "-shared",
                     narrow, f"-I{NATIVE / 'include'}", "-o", str(lib),
                     *(str(NATIVE / s) for s in native_host.HOST_SOURCES), "-lm"], check=True)
-    other = ctypes.CDLL(str(lib))
-    other.up_simulate.restype = ctypes.c_int
-    other.up_simulate.argtypes = native_host.library().up_simulate.argtypes
+    other = native_host.declare(ctypes.CDLL(str(lib)))
     wide, _ = both(contact)
     base, _ = both(contact, lib=other)
     assert np.array_equal(wide.raft, base.raft) and np.array_equal(wide.gap, base.gap)

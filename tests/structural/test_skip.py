@@ -145,9 +145,16 @@ BEM_SCENE = tower(soil={"winkler": None}, foundation={"element_size": 5.0},
 def test_skipped_in_run_summary_and_true(tmp_path, capsys, monkeypatch):
     """uplift run --json: a first run computes the BEM sweep (a homogeneous half-space: K(0) from
     the closed-form static kernels), the second reads it from the cache and says so; the
-    winkler route at 0.02 g skips its Newton iterations unless the scene forces them."""
+    winkler route at 0.02 g on the Python stepper (the native one, without a compiler here, has
+    no pre-check) skips its Newton iterations unless the scene forces them."""
+    from fmus import native_host
+    from fmus.native_build import NativeBuildError
     from orchestrator.cli import main
 
+    def no_compiler(folder):
+        raise NativeBuildError("no C compiler")
+
+    monkeypatch.setattr(native_host, "_build", no_compiler)
     monkeypatch.setenv("UPLIFT_CACHE", str(tmp_path / "cache"))
     scene = tmp_path / "tiny.toml"
     write_scene(scene, BEM_SCENE)

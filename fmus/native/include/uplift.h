@@ -84,6 +84,10 @@
 #define up_set_logging UP_SYM(up_set_logging)
 #define up_set_reals UP_SYM(up_set_reals)
 #define up_setup_experiment UP_SYM(up_setup_experiment)
+#define up_sim_close UP_SYM(up_sim_close)
+#define up_sim_open UP_SYM(up_sim_open)
+#define up_sim_steps UP_SYM(up_sim_steps)
+#define up_sim_width UP_SYM(up_sim_width)
 #define up_simulate UP_SYM(up_simulate)
 #define up_slot_names UP_SYM(up_slot_names)
 #define up_soil_ahead UP_SYM(up_soil_ahead)
@@ -305,7 +309,13 @@ int up_stepper_step(UpStepper *s);                       /* 0, or -1 with s->err
 void up_stepper_gap(const UpStepper *s, double *gap);
 void up_stepper_energies(const UpStepper *s, double *e); /* input, kinetic, strain, damping, soil, contact, contact_potential */
 
-/* ---- simulate.c: a whole run in one call, for in-process hosts ------------------------------- */
+/* ---- simulate.c: a run in chunks of steps, or in one call, for in-process hosts ------------- */
+typedef struct UpSim UpSim;                              /* a run: records, soil, stepper, state */
+UP_API UpSim *up_sim_open(const unsigned char *res, uint64_t size, const double *ag0, char *err);
+UP_API int64_t up_sim_width(const UpSim *h);
+UP_API int up_sim_steps(UpSim *h, const double *ag, int64_t k0, int64_t k1, double *rows, int64_t *iters,
+                        int64_t *stats, char *err);
+UP_API void up_sim_close(UpSim *h);
 UP_API int up_simulate(const unsigned char *res, uint64_t size, const double *ag, int64_t nt, double *rows,
                        int64_t *iters, int64_t *stats, char *err);
 
