@@ -168,6 +168,76 @@ def springs_soil(soil, dt: float):
 CHUNK = 200
 
 
+def encode_run(st, output_nodes=()) -> bytes:
+    """The resource records of a run of the stepper ``st`` (its matrices, static state, contact
+    settings, soil model, step) with acc/disp histories of the nodes ``output_nodes``: what the
+    C runtime reads (``simulate_native``, ``native_max_uplift``; also a cache key of its answer)."""
+    model = st.model
+    dofs = [model.dofs(model.node_by_name(nm).id)[:3] for nm in output_nodes]
+    return encode_resources({**soil_records(st.soil.model, st.dt), **stepper_records(st, dofs)})
+
+
+def _stepped(lib, blob: bytes, ag, take, chunk: int = CHUNK, progress=None):
+    """Run the encoded model ``blob`` (``encode_run``) over ``ag`` (nt, 3), ``chunk`` samples per
+    call of the C runtime; after each call ``take(k0, rows, iters)`` with the rows and Newton
+    counts of samples k0 .. k0 + len(rows) - 1 (a buffer the next call overwrites), then
+    ``progress(done, nt)``. Returns (stats (3): samples computed, factorisations, halved steps;
+    the stepper's message, "" when every sample was computed). An exception between two calls
+    propagates, the run freed."""
+    if chunk < 1:
+        raise ValueError(f"chunk = {chunk}: the samples per call must be at least 1")
+    nt = ag.shape[0]
+    stats = np.zeros(3, np.int64)
+    err = ctypes.create_string_buffer(1024)
+    handle = lib.up_sim_open(blob, len(blob), ag.ctypes.data, err)
+    if not handle:
+        raise NativeBuildError(f"the native stepper refused the model: {err.value.decode(errors='replace')}")
+    try:
+        rows = np.empty((min(chunk, nt), lib.up_sim_width(handle)))
+        iters = np.empty(rows.shape[0], np.int64)
+        rc, k = 0, 0
+        while rc == 0 and k < nt:
+            k1 = min(k + chunk, nt)
+            rc = lib.up_sim_steps(handle, ag.ctypes.data, k, k1, rows.ctypes.data, iters.ctypes.data,
+                                  stats.ctypes.data, err)
+            if rc < 0:
+                raise NativeBuildError(f"the native stepper stopped: {err.value.decode(errors='replace')}")
+            done = int(stats[0])
+            take(k, rows[:done - k], iters[:done - k])
+            k = k1
+            if rc == 0 and progress is not None:
+                progress(k, nt)
+    finally:
+        lib.up_sim_close(handle)
+    return stats, err.value.decode(errors="replace") if rc else ""
+
+
+def _checked(ag, lib):
+    """(ag as a contiguous float array, the library), or the error of a run that cannot start."""
+    lib = lib or library()
+    if lib is None:
+        raise NativeBuildError(library_note())
+    ag = np.ascontiguousarray(ag, float)
+    if ag.ndim != 2 or ag.shape[1] != 3 or not np.all(np.isfinite(ag)):
+        from structure import StructureError
+        raise StructureError(f"ground acceleration must be a finite (nt, 3) array, got shape {ag.shape}")
+    return ag, lib
+
+
+def native_max_uplift(st, ag, lib=None, blob: bytes | None = None) -> float:
+    """Max gap (m) of ``simulate_native(st, ag, [])``, NaN when a step's Newton iteration fails:
+    only the gaps are read, a chunk at a time (the time-step check's run). blob: ``encode_run(st)``
+    when the caller has it already."""
+    ag, lib = _checked(ag, lib)
+    top = [0.0]
+
+    def take(k0, rows, iters):
+        if rows.size:
+            top[0] = max(top[0], float(rows[:, 6:6 + st.N].max()))
+    _, message = _stepped(lib, encode_run(st) if blob is None else blob, ag, take)
+    return float("nan") if message else top[0]
+
+
 def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None, progress=None,
                     chunk: int = CHUNK):
     """``structure.simulate`` through the C runtime: the same histories to round-off.
@@ -190,43 +260,19 @@ def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None, 
     from structure.results import RouteResult, RunNotes, Status
 
     t0 = time.perf_counter()
-    if chunk < 1:
-        raise ValueError(f"chunk = {chunk}: the samples per call must be at least 1")
-    lib = lib or library()
-    if lib is None:
-        raise NativeBuildError(library_note())
-    ag = np.ascontiguousarray(ag, float)
-    if ag.ndim != 2 or ag.shape[1] != 3 or not np.all(np.isfinite(ag)):
-        from structure import StructureError
-        raise StructureError(f"ground acceleration must be a finite (nt, 3) array, got shape {ag.shape}")
+    ag, lib = _checked(ag, lib)
     model = st.model
     names = [n.name for n in model.nodes if n.name] if output_nodes is None else list(output_nodes)
-    dofs = [model.dofs(model.node_by_name(nm).id)[:3] for nm in names]
-    blob = encode_resources({**soil_records(st.soil.model, st.dt), **stepper_records(st, dofs)})
     nt, N, m = ag.shape[0], st.N, len(names)
-    width = 6 + 3 * N + 6 * m + 7
-    rows = np.zeros((nt, width))
-    iters = np.zeros(nt, np.int64)
-    stats = np.zeros(3, np.int64)
-    err = ctypes.create_string_buffer(1024)
-    handle = lib.up_sim_open(blob, len(blob), ag.ctypes.data, err)
-    if not handle:
-        raise NativeBuildError(f"the native stepper refused the model: {err.value.decode(errors='replace')}")
-    try:
-        if lib.up_sim_width(handle) != width:
-            raise NativeBuildError(f"the native stepper's rows have {lib.up_sim_width(handle)} values, not {width}")
-        rc, k = 0, 0
-        while rc == 0 and k < nt:
-            k1 = min(k + chunk, nt)
-            rc = lib.up_sim_steps(handle, ag.ctypes.data, k, k1, rows.ctypes.data, iters.ctypes.data,
-                                  stats.ctypes.data, err)
-            k = k1
-            if rc == 0 and progress is not None:
-                progress(k, nt)
-    finally:
-        lib.up_sim_close(handle)
-    if rc < 0:
-        raise NativeBuildError(f"the native stepper stopped: {err.value.decode(errors='replace')}")
+    rows = np.empty((nt, 6 + 3 * N + 6 * m + 7))
+    iters = np.empty(nt, np.int64)
+
+    def take(k0, chunk_rows, chunk_iters):
+        rows[k0:k0 + len(chunk_rows)] = chunk_rows
+        iters[k0:k0 + len(chunk_iters)] = chunk_iters
+    stats, message = _stepped(lib, encode_run(st, names), ag, take, chunk, progress)
+    rows, iters = rows[:int(stats[0])], iters[:int(stats[0])]
+    nt = rows.shape[0]
     node = rows[:, 6 + 3 * N:6 + 3 * N + 6 * m].reshape(nt, m, 6)
     energy = rows[:, 6 + 3 * N + 6 * m:]
     enabled = st.contact.enabled
@@ -243,10 +289,8 @@ def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None, 
                       energy={k: energy[:, j].copy() for j, k in enumerate(ENERGY_TERMS)},
                       newton_iters=iters.astype(int), wall_s=time.perf_counter() - t0, xy=np.array(model.raft.xy),
                       notes=RunNotes(precheck=precheck), info=info)
-    if rc == 1:
-        k = int(stats[0])
-        msg = err.value.decode(errors="replace")
-        exc = ConvergenceError(msg, k * st.dt, -1, float("nan"))
-        exc.result = res.truncated(k, Status.STOPPED, msg)
+    if message:
+        exc = ConvergenceError(message, nt * st.dt, -1, float("nan"))
+        exc.result = res.truncated(nt, Status.STOPPED, message)
         raise exc
     return res

@@ -92,7 +92,7 @@ def _dt_check_run(scene, model, soil, motion, cache_dir=None, keep: bool = True)
     the native answer is kept there (``dtcheck-<key>.h5``, checksummed, verified on read) under
     the key of everything the C runtime reads (``_native_run_key``): read back, never stepped
     again, by a run of the same structure, springs, contact, motion and step."""
-    from fmus.native_host import cache_folder, library, simulate_native, springs_soil   # the FMU stack: when it checks
+    from fmus.native_host import cache_folder, encode_run, library, native_max_uplift, springs_soil   # when it checks
     from structure import NewmarkStepper
     lib = library(cache_folder(cache_dir))
     if lib is None:
@@ -102,15 +102,14 @@ def _dt_check_run(scene, model, soil, motion, cache_dir=None, keep: bool = True)
             return float("nan")
     st = NewmarkStepper(model, springs_soil(soil, motion.dt), motion.dt, contact=scene.contact,
                         external_soil=True, ag0=motion.acc[0])
-    path = None if cache_dir is None or not keep else Path(cache_dir) / f"dtcheck-{_native_run_key(lib, st, motion.acc)[:24]}.h5"
+    blob = encode_run(st)
+    path = None if cache_dir is None or not keep else \
+        Path(cache_dir) / f"dtcheck-{_native_run_key(lib, blob, motion.acc)[:24]}.h5"
     if path is not None:
         hit = read_entry(path, lambda h: float(h.attrs["max_uplift_m"]))
         if hit is not None:
             return hit
-    try:
-        value = simulate_native(st, motion.acc, [], route="dt-check", lib=lib).max_uplift()
-    except ConvergenceError:
-        value = float("nan")
+    value = native_max_uplift(st, motion.acc, lib, blob)
     if path is not None:
         _keep(path, value)
     return value
@@ -118,20 +117,19 @@ def _dt_check_run(scene, model, soil, motion, cache_dir=None, keep: bool = True)
 
 #: what the native answer of a check also depends on besides its inputs: the Python side that
 #: encodes them for the C runtime and the measure taken of its histories
-_CHECK_SOURCES = ("fmus/native_host.py", "fmus/native_build.py", "structure/results.py", "orchestrator/run.py")
+_CHECK_SOURCES = ("fmus/native_host.py", "fmus/native_build.py", "orchestrator/run.py")
 
 
-def _native_run_key(lib, st, acc) -> str:
+def _native_run_key(lib, blob: bytes, acc) -> str:
     """SHA-256 of what a native run reads: the compiled library (its file name is the digest of
-    its C sources, compiler, flags and platform), the encoded model (``st``: the structure's
-    matrices, static state, soil springs, penalty and contact settings, the step), the ground
+    its C sources, compiler, flags and platform), the encoded model (``blob``, ``encode_run``: the
+    structure's matrices, static state, soil springs, penalty and contact settings, the step), the ground
     acceleration, and the sources of the Python side (``_CHECK_SOURCES``)."""
-    from fmus.native_build import encode_resources, soil_records, stepper_records   # the FMU stack: when it checks
     h = hashlib.sha256(Path(lib._name).name.encode() + b"\0")
     root = Path(__file__).resolve().parents[1]
     for name in _CHECK_SOURCES:
         h.update(name.encode() + b"\0" + (root / name).read_bytes())
-    h.update(encode_resources({**soil_records(st.soil.model, st.dt), **stepper_records(st, [])}))
+    h.update(blob)
     a = np.ascontiguousarray(acc, "<f8")
     h.update(f"{a.shape}".encode() + memoryview(a).cast("B"))
     return h.hexdigest()

@@ -13,11 +13,11 @@
      computes samples k0 .. k1 - 1 (k0 the first sample not computed yet: 0, then the previous
      call's k1; sample 0 is the state at rest, sample k > 0 one step under ag[k])
      ag         (nt, 3) ground acceleration at k dt, m/s^2 (rows k0 .. k1 - 1 read)
-     rows       (nt, width) out, rows k0 .. k1 - 1 written, per sample: raft q (6), gap (N), total
+     rows       (k1 - k0, width) out, row k - k0 for sample k, per sample: raft q (6), gap (N), total
                 contact force P (N), soil w (N), per output node its absolute acceleration (3)
                 and displacement (3), the energies (input, kinetic, strain, damping, soil,
                 contact, contact_potential)
-     iters      (nt) out, entries k0 .. k1 - 1: Newton solves per step
+     iters      (k1 - k0) out, entry k - k0: Newton solves of the step to sample k
      stats      (3) out: samples computed so far (k1 unless a step failed), Jacobian
                 factorisations, steps that were halved (over the whole run)
      Returns 0; 1 when a step's Newton iteration failed after its halvings (samples up to
@@ -151,8 +151,8 @@ UP_API int up_sim_steps(UpSim *h, const double *ag, int64_t k0, int64_t k1, doub
             }
             h->halved += st->last_halved;
         }
-        iters[k] = k > 0 ? st->last_iters : 0;
-        record(st, h->node_dofs, h->nnodes, rows + (size_t)k * width);
+        iters[k - k0] = k > 0 ? st->last_iters : 0;
+        record(st, h->node_dofs, h->nnodes, rows + (size_t)(k - k0) * width);
     }
     h->next = k;
     stats[0] = k;

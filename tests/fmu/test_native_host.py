@@ -11,7 +11,7 @@ Python stepper (structure.simulate), its readable reference.
 - a step that cannot converge: the same step and message as the Python stepper, the samples
   before it returned with status STOPPED;
 - the run stepped in chunks of 1, 7 and nt samples: the same bits as ``up_simulate``'s one
-  call (with step halving, and up to a step that fails);
+  call (with step halving, and up to a step that fails); the gaps-only run of the time-step check;
 - the winkler route on the native stepper (the springs as a rational model without pole) for
   every calibration (rigid or nodal springs, RCC-G or dashpots, explicit moduli) against its
   Python stepper: 1e-10 with uplift;
@@ -162,6 +162,8 @@ def test_chunks_give_the_same_bits_as_one_call(max_iter, max_subdiv):
             assert np.array_equal(res.acc[nm], node[:, :3]) and np.array_equal(res.disp[nm], node[:, 3:])
         assert np.array_equal(np.column_stack(list(res.energy.values())), rows[:k, -7:])
         assert np.array_equal(res.newton_iters, iters[:k])
+    top = native_host.native_max_uplift(stepper(), MOTION.acc)       # the gaps only: NaN after a failed step
+    assert (np.isnan(top) if rc else top == rows[:, 6:6 + N].max())
 
 
 @pytest.mark.parametrize("winkler", [

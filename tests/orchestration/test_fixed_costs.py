@@ -105,13 +105,13 @@ def test_the_step_doubling_check_is_stepped_once_then_read(tmp_path, monkeypatch
     stepped again with a CacheWarning."""
     import fmus.native_host as native_host
     calls = []
-    real = native_host.simulate_native
+    real = native_host.native_max_uplift
 
     def counted(*args, **kwargs):
-        calls.append(kwargs.get("route"))
+        calls.append("dt-check")
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(native_host, "simulate_native", counted)
+    monkeypatch.setattr(native_host, "native_max_uplift", counted)
 
     def check(scene):
         motion = make_motion(scene.motion, scene.analysis.dt)
