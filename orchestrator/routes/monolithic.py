@@ -24,7 +24,7 @@ from structure import ConvergenceError, NewmarkStepper, simulate
 
 from orchestrator.impedance import scene_fit
 from orchestrator.motion import make_motion
-from orchestrator.routes.base import Route, register
+from orchestrator.routes.base import Route, RouteInputError, register
 
 
 def route_inputs(scene, motion=None, soil_model=None, dt=None, cache_dir=None):
@@ -77,7 +77,7 @@ def step_scene(scene, model, soil, motion, *, route: str, progress=None, cache_d
     (None: ``soil`` is one). Returns a RouteResult (``info["stepper"]``: the one that ran); a
     Newton failure returns the samples so far with status STOPPED."""
     if stepper not in STEPPERS:
-        raise ValueError(f"stepper = {stepper!r}: use one of {', '.join(STEPPERS)}")
+        raise RouteInputError(f"stepper = {stepper!r}: use one of {', '.join(STEPPERS)}")
     folder = None
     if stepper == "native" and not why:
         from fmus.native_host import cache_folder, library_note   # the FMU stack: only when it steps

@@ -199,6 +199,13 @@ def test_without_a_compiler_the_python_stepper_runs_with_a_note(monkeypatch, tmp
         assert any("native stepper is not available" in w and "Python stepper ran" in w for w in res.notes.warnings)
 
 
+def test_an_unknown_stepper_is_refused_with_the_choices(tmp_path):
+    scene = scene_from_dict(small_reactor(soil={"winkler": {"kv": 2.0e9, "kh": 1.5e9}}, impedance=None,
+                                          analysis={"routes": ["winkler"]}), name="wk")
+    res = run_scene(scene, cache_dir=tmp_path, motion=MOTION, options={"winkler": {"stepper": "fast"}})[0]["winkler"]
+    assert res.status is Status.REFUSED and "stepper = 'fast'" in res.message and "native, python" in res.message
+
+
 @pytest.mark.skipif(shutil.which("cc") is None, reason="needs the system compiler")
 @pytest.mark.parametrize("narrow", ["-DUP_BASELINE_ONLY", "-DUP_MAX_LEVEL=1"])   # the baseline, at most AVX2
 def test_the_vector_width_does_not_change_the_answer(tmp_path, narrow):
