@@ -26,6 +26,7 @@ result does not depend on the thread count.
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
+from functools import cached_property
 from itertools import pairwise
 
 import numpy as np
@@ -175,12 +176,20 @@ class InterfaceOperator:
         Zqq = A.copy()
         for band in soil.bands:
             i = _span(band.idx)
-            self.Vr[i], self.Vl[i], KPP = band.rows_P(s[i], Bq)
+            out = (self.Vr[i], self.Vl[i]) if isinstance(i, slice) else None   # views: written in place
+            Vr, Vl, KPP = band.rows_P(s[i], Bq, out)
+            if out is None:
+                self.Vr[i], self.Vl[i] = Vr, Vl
             Zqq[i] += KPP
         self.Zqq = Zqq
         self.Zinv = np.linalg.inv(Zqq)
-        self.ZV = self.Zinv @ self.Vl                                       # (F, 6, N)
         self.n_apply = 0
+
+    @cached_property
+    def ZV(self):
+        """Zqq^-1 Vl (F, 6, N), for the users of S's rank-6 term as a product of two (formed when
+        first asked for: applying S does not need it)."""
+        return self.Zinv @ self.Vl
 
     # ---- the interface stiffness -----------------------------------------------------------
     def apply_S(self, X):
@@ -210,7 +219,7 @@ class InterfaceOperator:
     def _apply(self, band, i, X, sel=None):
         """S X on the frequencies i (a slice or indices) of ``band`` (its part sel; None: all of it) for X (m, N, r)."""
         Y = band.apply_ww(X, self.s[i]) if sel is None else band.apply_ww(X, self.s[i], sel)
-        Y -= self.Vr[i] @ (self.ZV[i] @ X)
+        Y -= self.Vr[i] @ (self.Zinv[i] @ (self.Vl[i] @ X))
         return Y
 
     def groups(self, size: int) -> list:
@@ -233,7 +242,7 @@ class InterfaceOperator:
             def matrix(j, piece=piece, i=i):
                 k = np.arange(self.s.size)[i][j]
                 S = piece.sub_ww(allN, allN, self.s[i], j)
-                S -= self.Vr[k] @ self.ZV[k]
+                S -= self.Vr[k] @ (self.Zinv[k] @ self.Vl[k])
                 return S
             yield i, (lambda X, piece=piece, i=i: self._apply(piece, i, X)), matrix
 

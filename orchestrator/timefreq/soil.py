@@ -61,9 +61,10 @@ class MatrixBand:
         """K_ww[rows, cols] (Fb, m_r, m_c) at the band's frequencies sel (s unused)."""
         return self.K[sel][:, 6 + rows[:, None], 6 + cols[None, :]]
 
-    def rows_P(self, s, Bq):
-        """(K[w, :] P (Fb, N, 6), P^T K[:, w] (Fb, 6, N), P^T K P (Fb, 6, 6)), P = [I; Bq]."""
-        return rows_P(self.K, Bq)
+    def rows_P(self, s, Bq, out=None):
+        """(K[w, :] P (Fb, N, 6), P^T K[:, w] (Fb, 6, N), P^T K P (Fb, 6, 6)), P = [I; Bq]; out:
+        two arrays to write the first two in (None: new ones)."""
+        return _written(rows_P(self.K, Bq), out)
 
     def groups(self, size: int) -> list:
         """The band's frequencies as slices of at most ``size`` (see ``piece``)."""
@@ -122,18 +123,18 @@ class SplineBand(MatrixBand):
         m = len(range(*sel.indices(self.idx.size)))
         return DenseBand(self.idx[sel], self.block(sel, scratch.array((m,) + self.T.shape[1:], complex)))
 
-    def rows_P(self, s, Bq):
+    def rows_P(self, s, Bq, out=None):
         """As MatrixBand.rows_P, on the table's matrices and combined with the weights (s unused)."""
         F_tab = self.T.shape[0]
         Fb = self.idx.size
-        out = []
+        res = []
         parts = zip(rows_P(self.T, Bq), rows_P(self.H[None], Bq) if self.c is not None else (None,) * 3)
         for part, hpart in parts:
             M = (self.W @ part.reshape(F_tab, -1)).reshape((Fb,) + part.shape[1:])
             if hpart is not None:
                 M += self.c[:, None, None] * hpart
-            out.append(M)
-        return tuple(out)
+            res.append(M)
+        return _written(tuple(res), out)
 
 
 class Scratch:
@@ -148,6 +149,14 @@ class Scratch:
         if self._a is None or self._a.size < size or self._a.dtype != dtype:
             self._a = np.empty(size, dtype)
         return self._a[:size].reshape(shape)
+
+
+def _written(parts, out):
+    """parts = (Vr, Vl, KPP), Vr and Vl copied into out = (Vr, Vl) when given."""
+    if out is None:
+        return parts
+    out[0][...], out[1][...] = parts[0], parts[1]
+    return out[0], out[1], parts[2]
 
 
 def rows_P(K, Bq):
@@ -192,10 +201,16 @@ class AffineBand:
         b = dense(Bw[rows][:, cols]) if hasattr(Bw, "tocsr") else Bw[np.ix_(rows, cols)]
         return a[None] + s[sel][:, None, None] * b[None]
 
-    def rows_P(self, s, Bq):
-        (a1, a2, a3), (b1, b2, b3) = self.rows_P_parts(Bq)
+    def rows_P(self, s, Bq, out=None):
+        """As MatrixBand.rows_P at the Laplace variables s (Fb,): A's parts + s B's, written in
+        out (two arrays, the first two parts) when given (no band-sized temporaries)."""
         ss = s[:, None, None]
-        return a1 + ss * b1, a2 + ss * b2, a3 + ss * b3
+        res = []
+        for k, (a, b) in enumerate(zip(*self.rows_P_parts(Bq))):
+            M = np.multiply(ss, b, out=None if out is None or k >= len(out) else out[k])
+            M += a
+            res.append(M)
+        return tuple(res)
 
     def groups(self, size: int) -> list:
         """One group: the whole band (it is applied to all its frequencies at once)."""
