@@ -209,6 +209,7 @@ class InterfaceOperator:
         tasks = []
         for band in self.soil.bands:
             if isinstance(band, MatrixBand) and len(self.soil.bands) == 1:
+                band.form()                 # here, once, if formed on demand (not by every thread)
                 tasks += [band_task(band, h) for h in self.pool.chunks(band.idx.size)]
             else:
                 tasks.append(band_task(band, None))

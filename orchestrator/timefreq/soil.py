@@ -1,7 +1,11 @@
 """Soil impedance K(s) on x = [q, w] (6 + N DOFs) at the grid's complex frequencies.
 
-A soil is held as frequency bands, each either dense (one (n, n) matrix per frequency) or
-affine (K = A + s B with constant A, B): a band is applied to many frequencies at once.
+A soil is held as frequency bands, each either dense (one (n, n) matrix per frequency:
+``MatrixBand``) or affine (K = A + s B with constant A, B): a band is applied to many
+frequencies at once. A table's dense band (``SplineBand``) is formed on demand: whole for a
+solver that applies it again and again, or a group of frequencies at a time (``piece``) for
+one that takes the frequencies group by group (the linear route's bonded solve), never
+holding the whole band (Fb (6 + N)^2 complex numbers).
 
 Sources (``soil_bands``):
 
@@ -66,6 +70,10 @@ class MatrixBand:
         two arrays to write the first two in (None: new ones)."""
         return _written(rows_P(self.K, Bq), out)
 
+    def form(self) -> np.ndarray:
+        """K, formed now if it is formed on demand (SplineBand)."""
+        return self.K
+
     def groups(self, size: int) -> list:
         """The band's frequencies as slices of at most ``size`` (see ``piece``)."""
         n = self.idx.size
@@ -90,7 +98,8 @@ class SplineBand(MatrixBand):
     with the Taylor terms of a complex frequency; c (Fb,) and H (n, n) real: a rank-one
     correction in frequency, the causal fade, or None). K is formed when first asked for
     (the whole band: Fb n^2 complex, 260 MB on the reactor); ``piece`` forms a few
-    frequencies only, and ``rows_P`` none (it is linear in K: formed on the table's matrices)."""
+    frequencies only, and ``rows_P`` none (it is linear in K: formed on the table's matrices,
+    F_tab of them, and combined with the weights)."""
     idx: np.ndarray
     W: np.ndarray
     T: np.ndarray
@@ -99,6 +108,7 @@ class SplineBand(MatrixBand):
 
     @cached_property
     def K(self):
+        """(Fb, n, n) complex, formed on first use and kept."""
         return self.block(slice(None), np.empty((self.idx.size,) + self.T.shape[1:], complex))
 
     def block(self, sel: slice, out):
