@@ -33,6 +33,8 @@ from orchestrator.timefreq.problem import prepare, route_result
 #: frequencies per group of the bonded solve (a table's band formed a group at a time: a
 #: group of 32 reactor matrices is 31 MB; fewer make the table's product slower)
 GROUP = 32
+#: frequencies per dense solve of the fallback (an (m, N, N) system each)
+DENSE_CHUNK = 32
 
 
 def solve_bonded(op, f_hat, kp, tol=1e-15, max_sweeps=60, group=GROUP):
@@ -84,10 +86,6 @@ def _solve_piece(apply, matrix, f, kpc, tol, max_sweeps):
         S[:, idx, idx] += kpc[:, 0]
         out[j] = np.linalg.solve(S, f[j])
     return out, it, True
-
-
-#: frequencies per dense solve of the fallback (an (m, N, N) system each)
-DENSE_CHUNK = 32
 
 
 def linear_fd(model, soil, ag, dt, *, contact=None, damping=None, output_nodes=None,

@@ -218,7 +218,8 @@ class InterfaceOperator:
         return Y if X.ndim == 3 else Y[0]
 
     def _apply(self, band, i, X, sel=None):
-        """S X on the frequencies i (a slice or indices) of ``band`` (its part sel; None: all of it) for X (m, N, r)."""
+        """S X for X (m, N, r) on the frequencies i (a slice or indices) of ``band`` (its part
+        sel; None: all of it)."""
         Y = band.apply_ww(X, self.s[i]) if sel is None else band.apply_ww(X, self.s[i], sel)
         Y -= self.Vr[i] @ (self.Zinv[i] @ (self.Vl[i] @ X))
         return Y
