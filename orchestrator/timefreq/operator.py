@@ -327,10 +327,12 @@ class SubInverse:
                     self.parts.append(("eig", idx, (V, d, Y6, Minv @ Vl)))
                     continue
             G = np.empty((idx.size, m, m), complex)
+            band.form()                     # here, once, if formed on demand (not by every thread)
+            ZV = op.ZV
 
             def inv(sel, band=band, idx=idx, s=s, G=G):
                 i = idx[sel]
-                Gs = band.sub_ww(O, O, s, sel) - op.Vr[i][:, O] @ (op.ZV[i][:, :, O])
+                Gs = band.sub_ww(O, O, s, sel) - op.Vr[i][:, O] @ (ZV[i][:, :, O])
                 G[sel] = np.linalg.inv(Gs)
             self.pool.run([lambda h=h: inv(h) for h in self.pool.chunks(idx.size)])
             self.parts.append(("dense", idx, G))

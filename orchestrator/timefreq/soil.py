@@ -222,6 +222,9 @@ class AffineBand:
             res.append(M)
         return tuple(res)
 
+    def form(self) -> None:
+        """Nothing is formed on demand."""
+
     def groups(self, size: int) -> list:
         """One group: the whole band (it is applied to all its frequencies at once)."""
         return [slice(None)]
