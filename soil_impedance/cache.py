@@ -19,7 +19,7 @@ from pathlib import Path
 
 import h5py
 
-from .storage import verify_checksum
+from .storage import ComplexPairs, verify_checksum
 
 
 def default_cache_dir() -> Path:
@@ -36,7 +36,9 @@ class CacheWarning(UserWarning):
 def read_entry(path, reader, keep: bool = False):
     """Read the cache entry at ``path`` with ``reader(f: h5py.File)``; None means recompute.
     keep: call ``reader(f, data)`` instead, ``data`` the entry's datasets as the checksum
-    verification read them (``{"/name": ndarray}``): a large entry is read and hashed once.
+    verification read them (``{"/name": ndarray}``): a large entry is read and hashed once,
+    a complex array stored as ``<name>_real`` and ``<name>_imag`` straight into one complex
+    array, kept as its two parts (``storage.ComplexPairs``).
 
     None if the file is absent (or its folder is not one). If it cannot be opened, fails checksum verification, or
     ``reader`` raises (any Exception, including the user-input error types: ``reader`` may
@@ -52,7 +54,7 @@ def read_entry(path, reader, keep: bool = False):
     try:
         with h5py.File(path, "r") as f:
             data = {} if keep else None
-            if not verify_checksum(f, data):
+            if not verify_checksum(f, data, ComplexPairs() if keep else None):
                 raise ValueError("checksum attribute 'sha256' missing or not matching the content")
             return reader(f) if data is None else reader(f, data)
     except Exception as exc:

@@ -43,6 +43,7 @@ import numpy as np
 
 CHECKSUM_ATTR = "sha256"
 _CHUNK_BYTES = 1 << 26          # datasets are hashed in slabs of about 64 MiB along axis 0
+_READ_BYTES = 1 << 22           # a dataset read in place (``into``) is read about 4 MiB at a time
 _UMASK = os.umask(0o022)
 os.umask(_UMASK)
 
@@ -184,11 +185,22 @@ def _update_value(h, value, f=None) -> None:
         h.update(np.ascontiguousarray(a).reshape(-1).view(np.uint8))     # the bytes, not a copy of them
 
 
-def _update_dataset(h, ds, f, keep=None) -> None:
+def _update_dataset(h, ds, f, keep=None, into=None) -> None:
     """Feed dataset ``ds`` into ``h`` in slabs along axis 0; with ``keep`` (a dict) it is read
-    whole, once, hashed slab by slab from memory (the same digest) and kept as ``keep[ds.name]``."""
+    whole, once, hashed slab by slab from memory (the same digest) and kept as ``keep[ds.name]``;
+    with ``into`` as well, a numeric dataset for which ``into(ds)`` gives an array (ds's shape,
+    any dtype and strides: a view) is read into it a few rows at a time through a small buffer
+    (the same digest; no copy of the dataset made) and that array is kept."""
     h.update(f"dataset {ds.dtype.str} {ds.shape}".encode())
     if ds.shape is None:                        # null dataspace
+        return
+    numeric = ds.ndim > 0 and ds.size > 0 and ds.dtype.kind in "fiuc" and not ds.dtype.names
+    dest = into(ds) if keep is not None and into is not None and numeric else None
+    if dest is not None:
+        if dest.shape != ds.shape:
+            raise ValueError(f"into gave an array of shape {dest.shape} for the dataset {ds.name} {ds.shape}")
+        _read_into(h, ds, dest)
+        keep[ds.name] = dest
         return
     whole = ds[()] if keep is not None else None
     if keep is not None:
@@ -202,6 +214,43 @@ def _update_dataset(h, ds, f, keep=None) -> None:
         _update_value(h, ds[i:i + step] if whole is None else whole[i:i + step], f)
 
 
+def _read_into(h, ds, dest) -> None:
+    """Hash the numeric dataset ``ds`` as ``_update_dataset`` does (its slabs: shape, dtype,
+    bytes) while reading it into ``dest``, _READ_BYTES at a time through one buffer."""
+    row = max(1, ds.dtype.itemsize * ds.size // ds.shape[0])
+    step = max(1, _CHUNK_BYTES // row)
+    sub = max(1, min(step, _READ_BYTES // row))
+    buf = np.empty((min(sub, ds.shape[0]),) + ds.shape[1:], ds.dtype)
+    for i in range(0, ds.shape[0], step):
+        rows = min(step, ds.shape[0] - i)
+        h.update(f"{(rows,) + ds.shape[1:]}".encode())         # as _update_value on the slab
+        h.update(buf.dtype.str.encode())
+        for j in range(i, i + rows, sub):
+            b = buf[:min(sub, i + rows - j)]
+            ds.read_direct(b, np.s_[j:j + b.shape[0]])
+            h.update(b.reshape(-1).view(np.uint8))
+            dest[j:j + b.shape[0]] = b
+
+
+class ComplexPairs:
+    """``into`` for ``checksum``: a complex array stored as two float datasets ``<name>_real``
+    and ``<name>_imag`` (the same shape, in one group) is read straight into one complex array,
+    kept as its two parts (views: ``keep["/<name>_real"].base`` is the array): no float copy
+    of the data is made, nor a complex one by the caller."""
+
+    def __init__(self):
+        self._arrays = {}
+
+    def __call__(self, ds):
+        stem, _, part = ds.name.rpartition("_")
+        if part not in ("real", "imag") or ds.dtype.kind != "f":
+            return None
+        K = self._arrays.get(stem)
+        if K is None:
+            K = self._arrays[stem] = np.empty(ds.shape, complex)
+        return getattr(K, part) if K.shape == ds.shape else None
+
+
 def _update_attrs(h, obj, f, skip=()) -> None:
     for key in sorted(obj.attrs):
         if key not in skip:
@@ -209,10 +258,12 @@ def _update_attrs(h, obj, f, skip=()) -> None:
             _update_value(h, obj.attrs[key], f)
 
 
-def checksum(f: h5py.File, keep: dict | None = None) -> str:
+def checksum(f: h5py.File, keep: dict | None = None, into=None) -> str:
     """SHA-256 (hex) of every group, dataset and attribute of ``f`` in name order, except the
     root checksum attribute. keep: a dict filled with every dataset's value as it was read and
-    hashed (``{"/name": ndarray}``), for a caller that would otherwise read it again."""
+    hashed (``{"/name": ndarray}``), for a caller that would otherwise read it again; into
+    (with keep): ``into(ds)`` -> an array to read the numeric dataset ``ds`` into (a view of
+    the caller's own, of ds's shape), or None (read it as usual); the digest is the same."""
     h = hashlib.sha256()
     _update_attrs(h, f, f, skip=(CHECKSUM_ATTR,))
     names = []
@@ -221,7 +272,7 @@ def checksum(f: h5py.File, keep: dict | None = None) -> str:
         obj = f[name]
         h.update(b"\0object " + name.encode() + b"\0")
         if isinstance(obj, h5py.Dataset):
-            _update_dataset(h, obj, f, keep)
+            _update_dataset(h, obj, f, keep, into)
         else:
             h.update(b"group")
         _update_attrs(h, obj, f)
@@ -245,26 +296,27 @@ def stamp_file(path) -> str:
         return stamp_checksum(f)
 
 
-def verify_checksum(f: h5py.File, keep: dict | None = None) -> bool:
+def verify_checksum(f: h5py.File, keep: dict | None = None, into=None) -> bool:
     """True if the root ``"sha256"`` attribute matches the content of ``f``; False when it is
-    missing, different, or part of the file cannot be read. keep: as ``checksum``."""
+    missing, different, or part of the file cannot be read. keep, into: as ``checksum``."""
     stored = f.attrs.get(CHECKSUM_ATTR)
     if stored is None:
         return False
     if isinstance(stored, bytes):
         stored = stored.decode(errors="replace")
     try:
-        return str(stored) == checksum(f, keep)
+        return str(stored) == checksum(f, keep, into)
     except (OSError, KeyError, RuntimeError, ValueError, TypeError):
         return False
 
 
-def require_checksum(f: h5py.File, path, remedy: str = "write it again") -> None:
+def require_checksum(f: h5py.File, path, remedy: str = "write it again", keep: dict | None = None,
+                     into=None) -> None:
     """Raise ChangedFileError naming ``path`` unless ``f`` carries a checksum that matches its
-    content; ``remedy`` says how to get a good file again."""
+    content; ``remedy`` says how to get a good file again. keep, into: as ``checksum``."""
     if CHECKSUM_ATTR not in f.attrs:
         raise ChangedFileError(f"{path} carries no checksum of its data (root attribute {CHECKSUM_ATTR!r}): "
                                f"it was not written by this version, or changed since it was written; {remedy}")
-    if not verify_checksum(f):
+    if not verify_checksum(f, keep, into):
         raise ChangedFileError(f"{path} changed since it was written (its data no longer match its "
                                f"checksum): nothing is read from it; {remedy}")

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .storage import ChangedFileError, atomic_output, require_checksum, stamp_checksum
+from .storage import ChangedFileError, ComplexPairs, atomic_output, require_checksum, stamp_checksum
 
 FORMAT = "uplift.ImpedanceTable"
 FORMAT_VERSION = 1
@@ -36,6 +36,19 @@ def content_hash(provenance: dict, frequencies_hz) -> str:
     h = hashlib.sha256(json.dumps(provenance, sort_keys=True, default=str).encode())
     h.update(np.ascontiguousarray(frequencies_hz, dtype="<f8").tobytes())
     return h.hexdigest()
+
+
+def _complex(re, im) -> np.ndarray:
+    """The complex matrices of the parts re and im: the array they are the parts of when they
+    were read in place (``storage.ComplexPairs``), else a copy (bit-exact, signed zeros kept)."""
+    base = re.base
+    if isinstance(base, np.ndarray) and base is im.base and base.dtype == complex and base.shape == re.shape \
+            and re.strides == im.strides == base.strides \
+            and re.ctypes.data == base.ctypes.data and im.ctypes.data == base.ctypes.data + 8:
+        return base
+    K = np.empty(re.shape, dtype=complex)
+    K.real, K.imag = re, im
+    return K
 
 
 def _data_digest(table) -> str:
@@ -173,27 +186,28 @@ class ImpedanceTable:
         """Read the table in the open h5py file ``h`` (``path`` names it in errors); checks the
         format, the whole-file checksum and the hash and data digest. data: the file's datasets as
         the caller's checksum verification read them (``cache.read_entry(..., keep=True)``): the
-        checksum is not computed again and nothing is read twice."""
+        checksum is not computed again. Either way the file is read once, the matrices straight
+        into the table's complex array when read with ``into=storage.ComplexPairs()`` (as
+        ``cache.read_entry`` does)."""
         if h.attrs.get("format") != FORMAT:
             raise TableError(f"{path}: not an {FORMAT} file (attribute 'format' missing or wrong)")
         version = int(h.attrs.get("format_version", -1))
         if version != FORMAT_VERSION:
             raise TableError(f"{path}: format_version {version}, this code reads {FORMAT_VERSION}")
+        if data is None:
+            data = {}
+            try:
+                require_checksum(h, path, "delete it and recompute", keep=data, into=ComplexPairs())
+            except ChangedFileError as exc:
+                raise TableError(str(exc)) from None
         try:
-            if data is None:
-                require_checksum(h, path, "delete it and recompute")
-        except ChangedFileError as exc:
-            raise TableError(str(exc)) from None
-        read = (lambda name: h[name][()]) if data is None else (lambda name: data["/" + name])
-        try:
-            f = read("frequencies_hz")
-            re, im = read("matrices_real"), read("matrices_imag")
+            f = data["/frequencies_hz"]
+            re, im = data["/matrices_real"], data["/matrices_imag"]
             if re.ndim != 3 or re.shape != im.shape:
                 raise TableError(f"{path}: matrices_real/imag must have the same shape (F, n, n), "
                                  f"got {re.shape} and {im.shape}")
-            K = np.empty(re.shape, dtype=complex)
-            K.real, K.imag = re, im                     # copies: bit-exact, signed zeros kept
-            dofs = [d.decode() if isinstance(d, bytes) else str(d) for d in read("dofs")]
+            K = _complex(re, im)
+            dofs = [d.decode() if isinstance(d, bytes) else str(d) for d in data["/dofs"]]
             prov = json.loads(h.attrs["provenance"])
             stored = str(h.attrs["hash"])
             digest = str(h.attrs["data_sha256"])

@@ -25,7 +25,7 @@ import numpy as np
 from scipy.linalg.blas import zspmv
 
 from orchestrator.timefreq.operator import _span
-from orchestrator.timefreq.soil import AffineBand, DenseBand, dense
+from orchestrator.timefreq.soil import AffineBand, MatrixBand, dense
 
 #: |h_k - c (-1)^k| <= ALTERNATING_RTOL |c| over the lags 1 .. nt-1 for the closed form to be used
 ALTERNATING_RTOL = 1e-10
@@ -53,7 +53,7 @@ class AffineSplit:
         bands = op.soil.bands
         affine = [b for b in bands if isinstance(b, AffineBand)]
         self.usable = grid.bilinear and len(affine) == 1 and \
-            all(isinstance(b, (AffineBand, DenseBand)) for b in bands)
+            all(isinstance(b, (AffineBand, MatrixBand)) for b in bands)
         if not self.usable:
             return
         nt = grid.nt
@@ -79,7 +79,7 @@ class AffineSplit:
         self.packed = op.symmetric()
         self.upper = (np.concatenate([np.arange(j + 1) for j in range(N)]),
                       np.repeat(np.arange(N), np.arange(1, N + 1))) if self.packed else None
-        self.dense = [(b.idx, self._dense_part(op, b, Ad, Bd, self.upper)) for b in bands if isinstance(b, DenseBand)]
+        self.dense = [(b.idx, self._dense_part(op, b, Ad, Bd, self.upper)) for b in bands if isinstance(b, MatrixBand)]
 
     @staticmethod
     def _dense_part(op, band, A, B, upper=None, chunk=16):

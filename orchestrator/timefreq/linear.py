@@ -4,7 +4,9 @@ The raft is bonded to the soil through the stepper's penalty springs (contact di
 P = P0 - kp d, the same linear model ``structure.simulate`` runs with ``enabled = False``), so
 per frequency (S + kp) d = f (operator), solved by the Richardson iteration
 d <- (f - S d) / kp (||S|| / kp ~ 1e-4 with the auto penalty: converges to round-off in a
-few sweeps; a dense per-frequency solve is the fallback). The structure is condensed
+few sweeps; a dense per-frequency solve is the fallback), a group of frequencies at a time:
+a table's band is formed for one group, used for its sweeps and dropped (the whole band is
+never held: 260 MB of fresh memory on the reactor). The structure is condensed
 exactly on the raft with all its fixed-base modes; the soil is the BEM table interpolated at
 the FFT frequencies (spring-dashpot continuation above the table, see soil); FFTs through
 pyfftw. Wrap-around: by default no exponential window (eta = 0) and the padding the physics
@@ -28,45 +30,62 @@ from orchestrator.timefreq.options import THREADS, GridOptions
 from orchestrator.timefreq.problem import prepare, route_result
 
 
-def solve_bonded(op, f_hat, kp, tol=1e-15, max_sweeps=60):
-    """d (N, F) with (S + diag kp) d = f_hat (N, F). Returns (d, sweeps, method)."""
+#: frequencies per group of the bonded solve (a table's band formed a group at a time: a
+#: group of 32 reactor matrices is 31 MB; fewer make the table's product slower)
+GROUP = 32
+#: frequencies per dense solve of the fallback (an (m, N, N) system each)
+DENSE_CHUNK = 32
+
+
+def solve_bonded(op, f_hat, kp, tol=1e-15, max_sweeps=60, group=GROUP):
+    """d (N, F) with (S + diag kp) d = f_hat (N, F). Returns (d, sweeps, method).
+
+    A group of frequencies at a time (op.pieces: a table's band is never formed whole), each
+    by the Richardson iteration d <- (f - S d) / kp to a relative change <= tol, or, when it
+    stalls, by a dense solve per frequency. The groups are fixed (not the threads'), each
+    frequency's answer depends on its group alone. sweeps: the most any group took; method:
+    "richardson", "dense" or "richardson, dense in k of G groups"."""
+    ft = np.ascontiguousarray(f_hat.T)[:, :, None]                      # (F, N, 1)
+    d = np.empty_like(ft)
     kpc = kp[:, None]
-    d = f_hat / kpc
+    groups = op.groups(group)
+    parts = min(op.pool.threads, len(groups))
+    shares = [groups[k::parts] for k in range(parts)]                 # dealt round-robin
+    stats = []
+
+    def solve(share):
+        for i, apply, matrix in op.pieces(share):
+            d[i], it, dense = _solve_piece(apply, matrix, ft[i], kpc, tol, max_sweeps)
+            stats.append((it, dense))
+    op.pool.run([lambda share=share: solve(share) for share in shares])
+    sweeps = max(it for it, _ in stats)
+    k = sum(dense for _, dense in stats)
+    how = "richardson" if k == 0 else "dense" if k == len(stats) else \
+        f"richardson, dense in {k} of {len(stats)} groups"
+    return d[:, :, 0].T, sweeps, how
+
+
+def _solve_piece(apply, matrix, f, kpc, tol, max_sweeps):
+    """(d (m, N, 1), sweeps, dense?) on one group's frequencies, f (m, N, 1)."""
+    d = f / kpc
     prev = np.inf
     for it in range(1, max_sweeps + 1):
-        dn = (f_hat - op.apply_S(d)) / kpc
+        dn = (f - apply(d)) / kpc
         ch = np.linalg.norm(dn - d) / max(np.linalg.norm(dn), 1e-300)
         d = dn
         if ch <= tol:
-            return d, it, "richardson"
+            return d, it, False
         if it > 3 and ch > 0.5 * prev:
             break
         prev = ch
-    # fallback: dense solve per frequency
-    N = kp.size
-    idx = np.arange(N)
-    out = np.empty_like(d)
-    for c in range(0, f_hat.shape[1], 32):
-        sl = slice(c, min(c + 32, f_hat.shape[1]))
-        S = _S_chunk(op, idx, sl)
-        S[:, idx, idx] += kp
-        out[:, sl] = np.linalg.solve(S, f_hat[:, sl].T[:, :, None])[:, :, 0].T
-    return out, it, "dense"
-
-
-def _S_chunk(op, idx, sl):
-    """S[idx, idx] (F_chunk, m, m) at the frequencies sl."""
-    F = op.s.size
-    full = op.S_sub(idx, idx) if F <= 64 else None
-    if full is not None:
-        return full[sl]
-    sub = np.empty((sl.stop - sl.start, idx.size, idx.size), complex)
-    for band in op.soil.bands:
-        sel = (band.idx >= sl.start) & (band.idx < sl.stop)
-        if sel.any():
-            sub[band.idx[sel] - sl.start] = band.sub_ww(idx, idx, op.s[band.idx], sel)
-    sub -= op.Vr[sl] @ (op.Zinv[sl] @ op.Vl[sl])
-    return sub
+    out = np.empty_like(d)                               # the fallback: dense, per frequency
+    idx = np.arange(kpc.size)
+    for c in range(0, f.shape[0], DENSE_CHUNK):
+        j = slice(c, min(c + DENSE_CHUNK, f.shape[0]))
+        S = matrix(j)
+        S[:, idx, idx] += kpc[:, 0]
+        out[j] = np.linalg.solve(S, f[j])
+    return out, it, True
 
 
 def linear_fd(model, soil, ag, dt, *, contact=None, damping=None, output_nodes=None,

@@ -26,6 +26,7 @@ result does not depend on the thread count.
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
+from functools import cached_property
 from itertools import pairwise
 
 import numpy as np
@@ -33,7 +34,7 @@ from scipy.linalg import LinAlgError, eigh
 
 from structure import damping_matrix, fixed_base_modes
 
-from orchestrator.timefreq.soil import AffineBand, DenseBand, dense
+from orchestrator.timefreq.soil import AffineBand, MatrixBand, Scratch, dense
 
 #: frequencies per chunk below which a band is not split between threads
 MIN_CHUNK = 8
@@ -174,13 +175,21 @@ class InterfaceOperator:
         self.Vl = np.empty((F, 6, self.N), complex)
         Zqq = A.copy()
         for band in soil.bands:
-            Vr, Vl, KPP = band.rows_P(s[band.idx], Bq)
-            self.Vr[band.idx], self.Vl[band.idx] = Vr, Vl
-            Zqq[band.idx] += KPP
+            i = _span(band.idx)
+            out = (self.Vr[i], self.Vl[i]) if isinstance(i, slice) else None   # views: written in place
+            Vr, Vl, KPP = band.rows_P(s[i], Bq, out)
+            if out is None:
+                self.Vr[i], self.Vl[i] = Vr, Vl
+            Zqq[i] += KPP
         self.Zqq = Zqq
         self.Zinv = np.linalg.inv(Zqq)
-        self.ZV = self.Zinv @ self.Vl                                       # (F, 6, N)
         self.n_apply = 0
+
+    @cached_property
+    def ZV(self):
+        """Zqq^-1 Vl (F, 6, N), for the users of S's rank-6 term as a product of two (formed when
+        first asked for: applying S does not need it)."""
+        return self.Zinv @ self.Vl
 
     # ---- the interface stiffness -----------------------------------------------------------
     def apply_S(self, X):
@@ -194,20 +203,50 @@ class InterfaceOperator:
         def band_task(band, sel):
             def run():
                 i = _span(band.idx if sel is None else band.idx[sel])     # a slice: views, no copies
-                Y[i] = band.apply_ww(Xf[i], self.s[i]) if sel is None else \
-                    band.apply_ww(Xf[i], self.s[i], sel)
-                Y[i] -= self.Vr[i] @ (self.ZV[i] @ Xf[i])
+                Y[i] = self._apply(band, i, Xf[i], sel)
             return run
 
         tasks = []
         for band in self.soil.bands:
-            if isinstance(band, DenseBand) and len(self.soil.bands) == 1:
+            if isinstance(band, MatrixBand) and len(self.soil.bands) == 1:
+                band.form()                 # here, once, if formed on demand (not by every thread)
                 tasks += [band_task(band, h) for h in self.pool.chunks(band.idx.size)]
             else:
                 tasks.append(band_task(band, None))
         self.pool.run(tasks)
         Y = np.transpose(Y, (2, 1, 0))
         return Y if X.ndim == 3 else Y[0]
+
+    def _apply(self, band, i, X, sel=None):
+        """S X for X (m, N, r) on the frequencies i (a slice or indices) of ``band`` (its part
+        sel; None: all of it)."""
+        Y = band.apply_ww(X, self.s[i]) if sel is None else band.apply_ww(X, self.s[i], sel)
+        Y -= self.Vr[i] @ (self.Zinv[i] @ (self.Vl[i] @ X))
+        return Y
+
+    def groups(self, size: int) -> list:
+        """[(band, sel)]: every band's frequencies in groups of at most ``size`` (an affine band:
+        one group), for a solve that takes the frequencies a group at a time (``pieces``)."""
+        return [(band, sel) for band in self.soil.bands for sel in band.groups(size)]
+
+    def pieces(self, groups):
+        """For each (band, sel) of ``groups``: (i, apply, matrix) on its frequencies i (a slice
+        or indices, m of them), apply(X (m, N, r)) = S X and matrix(j) = S (m_j, N, N) on the
+        group's frequencies j (a slice), the band's matrices formed once per group (a table's
+        spline band: into one work array, reused by the next group: use a piece before asking
+        for the next). A generator: one per thread."""
+        scratch = Scratch()
+        allN = np.arange(self.N)
+        for band, sel in groups:
+            piece = band.piece(sel, scratch)
+            i = _span(piece.idx)
+
+            def matrix(j, piece=piece, i=i):
+                k = np.arange(self.s.size)[i][j]
+                S = piece.sub_ww(allN, allN, self.s[i], j)
+                S -= self.Vr[k] @ (self.Zinv[k] @ self.Vl[k])
+                return S
+            yield i, (lambda X, piece=piece, i=i: self._apply(piece, i, X)), matrix
 
     def symmetric(self, rtol: float = 1e-12) -> bool:
         """S(s) = S(s)^T at every frequency to rtol of its largest entry (a reciprocal soil:
@@ -220,7 +259,7 @@ class InterfaceOperator:
                     return True
                 tol = rtol * np.abs(M3).max(initial=0.0)
                 return all(np.abs(m - m.T).max(initial=0.0) <= tol for m in M3)
-            bands = all(sym(band.ww()) if isinstance(band, DenseBand) else all(sym(M) for M in band.ww())
+            bands = all(sym(band.ww()) if isinstance(band, MatrixBand) else all(sym(M) for M in band.ww())
                         for band in self.soil.bands)
             rank6 = np.abs(self.Vr - self.Vl.swapaxes(1, 2)).max() <= rtol * np.abs(self.Vr).max(initial=0.0)
             self._symmetric = bool(bands and rank6 and sym(self.Zqq))
@@ -288,10 +327,12 @@ class SubInverse:
                     self.parts.append(("eig", idx, (V, d, Y6, Minv @ Vl)))
                     continue
             G = np.empty((idx.size, m, m), complex)
+            band.form()                     # here, once, if formed on demand (not by every thread)
+            ZV = op.ZV
 
             def inv(sel, band=band, idx=idx, s=s, G=G):
                 i = idx[sel]
-                Gs = band.sub_ww(O, O, s, sel) - op.Vr[i][:, O] @ (op.ZV[i][:, :, O])
+                Gs = band.sub_ww(O, O, s, sel) - op.Vr[i][:, O] @ (ZV[i][:, :, O])
                 G[sel] = np.linalg.inv(Gs)
             self.pool.run([lambda h=h: inv(h) for h in self.pool.chunks(idx.size)])
             self.parts.append(("dense", idx, G))

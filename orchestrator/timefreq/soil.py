@@ -1,7 +1,11 @@
 """Soil impedance K(s) on x = [q, w] (6 + N DOFs) at the grid's complex frequencies.
 
-A soil is held as frequency bands, each either dense (one (n, n) matrix per frequency) or
-affine (K = A + s B with constant A, B): a band is applied to many frequencies at once.
+A soil is held as frequency bands, each either dense (one (n, n) matrix per frequency:
+``MatrixBand``) or affine (K = A + s B with constant A, B): a band is applied to many
+frequencies at once. A table's dense band (``SplineBand``) is formed on demand: whole for a
+solver that applies it again and again, or a group of frequencies at a time (``piece``) for
+one that takes the frequencies group by group (the linear route's bonded solve), never
+holding the whole band (Fb (6 + N)^2 complex numbers).
 
 Sources (``soil_bands``):
 
@@ -28,6 +32,7 @@ Sources (``soil_bands``):
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from functools import cached_property
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -39,11 +44,9 @@ from soil_impedance.table import ImpedanceTable
 from structure.soil_interface import WinklerSoil
 
 
-@dataclass(frozen=True, eq=False)
-class DenseBand:
-    """K (Fb, n, n) complex at the grid frequencies idx (Fb,)."""
-    idx: np.ndarray
-    K: np.ndarray
+class MatrixBand:
+    """A band held as one matrix per frequency, K (Fb, n, n) at the grid frequencies idx (Fb,):
+    given (DenseBand) or formed from a table's spline (SplineBand). Subclasses provide idx, K."""
 
     def full(self, s):
         return self.K
@@ -62,13 +65,116 @@ class DenseBand:
         """K_ww[rows, cols] (Fb, m_r, m_c) at the band's frequencies sel (s unused)."""
         return self.K[sel][:, 6 + rows[:, None], 6 + cols[None, :]]
 
-    def rows_P(self, s, Bq):
-        """(K[w, :] P (Fb, N, 6), P^T K[:, w] (Fb, 6, N), P^T K P (Fb, 6, 6)), P = [I; Bq]."""
-        K = self.K
-        Vr = K[:, 6:, :6] + K[:, 6:, 6:] @ Bq
-        Vl = K[:, :6, 6:] + np.swapaxes(Bq, 0, 1) @ K[:, 6:, 6:]
-        KPP = K[:, :6, :6] + K[:, :6, 6:] @ Bq + np.swapaxes(Bq, 0, 1) @ Vr
-        return Vr, Vl, KPP
+    def rows_P(self, s, Bq, out=None):
+        """(K[w, :] P (Fb, N, 6), P^T K[:, w] (Fb, 6, N), P^T K P (Fb, 6, 6)), P = [I; Bq]; out:
+        two arrays to write the first two in (None: new ones)."""
+        return _written(rows_P(self.K, Bq), out)
+
+    def form(self) -> np.ndarray:
+        """K, formed now if it is formed on demand (SplineBand)."""
+        return self.K
+
+    def groups(self, size: int) -> list:
+        """The band's frequencies as slices of at most ``size`` (see ``piece``)."""
+        n = self.idx.size
+        return [slice(a, min(a + size, n)) for a in range(0, n, size)]
+
+    def piece(self, sel: slice, scratch=None):
+        """The band on its frequencies sel (a slice): a DenseBand of views (scratch unused)."""
+        return DenseBand(self.idx[sel], self.K[sel])
+
+
+@dataclass(frozen=True, eq=False)
+class DenseBand(MatrixBand):
+    """K (Fb, n, n) complex at the grid frequencies idx (Fb,)."""
+    idx: np.ndarray
+    K: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class SplineBand(MatrixBand):
+    """A table's spline at the grid frequencies idx (Fb,), K = sum_j W[:, j] T_j + c H (T (F_tab,
+    n, n) the table's matrices, not copied; W (Fb, F_tab) the spline's weights, real, or complex
+    with the Taylor terms of a complex frequency; c (Fb,) and H (n, n) real: a rank-one
+    correction in frequency, the causal fade, or None). K is formed when first asked for
+    (the whole band: Fb n^2 complex, 260 MB on the reactor); ``piece`` forms a few
+    frequencies only, and ``rows_P`` none (it is linear in K: formed on the table's matrices,
+    F_tab of them, and combined with the weights)."""
+    idx: np.ndarray
+    W: np.ndarray
+    T: np.ndarray
+    c: np.ndarray | None = None
+    H: np.ndarray | None = None
+
+    @cached_property
+    def K(self):
+        """(Fb, n, n) complex, formed on first use and kept."""
+        return self.block(slice(None), np.empty((self.idx.size,) + self.T.shape[1:], complex))
+
+    def block(self, sel: slice, out):
+        """K at the band's frequencies sel (a slice), written into out (m, n, n) complex."""
+        F_tab = self.T.shape[0]
+        W = self.W[sel]
+        m = W.shape[0]
+        if np.isrealobj(W):         # a real product on the complex data's floats: half the work
+            np.matmul(W, self.T.reshape(F_tab, -1).view(float), out=out.reshape(m, -1).view(float))
+        else:
+            np.matmul(W, self.T.reshape(F_tab, -1), out=out.reshape(m, -1))
+        if self.c is not None:
+            for k, ck in enumerate(self.c[sel]):    # one matrix at a time: no (m, n, n) temporary
+                out[k] += ck * self.H
+        return out
+
+    def piece(self, sel: slice, scratch=None):
+        """The band on its frequencies sel (a slice) as a DenseBand: views of K once formed,
+        else its matrices formed alone, in ``scratch`` (a Scratch: reused by the next piece)."""
+        if "K" in self.__dict__ or scratch is None:
+            return super().piece(sel)
+        m = len(range(*sel.indices(self.idx.size)))
+        return DenseBand(self.idx[sel], self.block(sel, scratch.array((m,) + self.T.shape[1:], complex)))
+
+    def rows_P(self, s, Bq, out=None):
+        """As MatrixBand.rows_P, on the table's matrices and combined with the weights (s unused)."""
+        F_tab = self.T.shape[0]
+        Fb = self.idx.size
+        res = []
+        parts = zip(rows_P(self.T, Bq), rows_P(self.H[None], Bq) if self.c is not None else (None,) * 3)
+        for part, hpart in parts:
+            M = (self.W @ part.reshape(F_tab, -1)).reshape((Fb,) + part.shape[1:])
+            if hpart is not None:
+                M += self.c[:, None, None] * hpart
+            res.append(M)
+        return _written(tuple(res), out)
+
+
+class Scratch:
+    """One work array, reused (grown when too small): the pieces a thread forms one after
+    another share it."""
+
+    def __init__(self):
+        self._a = None
+
+    def array(self, shape, dtype):
+        size = int(np.prod(shape))
+        if self._a is None or self._a.size < size or self._a.dtype != dtype:
+            self._a = np.empty(size, dtype)
+        return self._a[:size].reshape(shape)
+
+
+def _written(parts, out):
+    """parts = (Vr, Vl, KPP), Vr and Vl copied into out = (Vr, Vl) when given."""
+    if out is None:
+        return parts
+    out[0][...], out[1][...] = parts[0], parts[1]
+    return out[0], out[1], parts[2]
+
+
+def rows_P(K, Bq):
+    """(K[w, :] P (F, N, 6), P^T K[:, w] (F, 6, N), P^T K P (F, 6, 6)) of K (F, n, n), P = [I; Bq]."""
+    Vr = K[:, 6:, :6] + K[:, 6:, 6:] @ Bq
+    Vl = K[:, :6, 6:] + np.swapaxes(Bq, 0, 1) @ K[:, 6:, 6:]
+    KPP = K[:, :6, :6] + K[:, :6, 6:] @ Bq + np.swapaxes(Bq, 0, 1) @ Vr
+    return Vr, Vl, KPP
 
 
 @dataclass(frozen=True, eq=False)
@@ -105,10 +211,27 @@ class AffineBand:
         b = dense(Bw[rows][:, cols]) if hasattr(Bw, "tocsr") else Bw[np.ix_(rows, cols)]
         return a[None] + s[sel][:, None, None] * b[None]
 
-    def rows_P(self, s, Bq):
-        (a1, a2, a3), (b1, b2, b3) = self.rows_P_parts(Bq)
+    def rows_P(self, s, Bq, out=None):
+        """As MatrixBand.rows_P at the Laplace variables s (Fb,): A's parts + s B's, written in
+        out (two arrays, the first two parts) when given (no band-sized temporaries)."""
         ss = s[:, None, None]
-        return a1 + ss * b1, a2 + ss * b2, a3 + ss * b3
+        res = []
+        for k, (a, b) in enumerate(zip(*self.rows_P_parts(Bq))):
+            M = np.multiply(ss, b, out=None if out is None or k >= len(out) else out[k])
+            M += a
+            res.append(M)
+        return tuple(res)
+
+    def form(self) -> None:
+        """Nothing is formed on demand."""
+
+    def groups(self, size: int) -> list:
+        """One group: the whole band (it is applied to all its frequencies at once)."""
+        return [slice(None)]
+
+    def piece(self, sel: slice, scratch=None):
+        """The band itself (its one group)."""
+        return self
 
     def rows_P_parts(self, Bq):
         """rows_P's three blocks as A's and B's parts, real: ((K[w, :] P, P^T K[:, w], P^T K P)
@@ -204,30 +327,44 @@ def _table_bands(table, grid) -> SoilBands:
     fmax = f_tab[-1]
     lo = np.flatnonzero(grid.warped_hz <= fmax * (1 + 1e-12))
     hi = np.flatnonzero(grid.warped_hz > fmax * (1 + 1e-12))
-    Kt, f_causal = causal_table(table)
-    n = Kt.shape[1]
-    K = np.empty((lo.size, n, n), complex)
+    K = np.ascontiguousarray(table.matrices)
+    n = K.shape[1]
+    f_causal = causal_cutoff(table, K)
+    # the causal fade is K - 1j g H0 (H0 = Im K(0), real): linear in the data, the spline of
+    # the faded table is the table's spline plus the spline of g times H0 (no faded copy)
+    g = _causal_fade(f_tab, f_causal) if f_causal > 0 else None
+    H0 = np.ascontiguousarray(K[0].imag) if g is not None else None
     if f_tab.size >= 4:
         # the spline is linear in the data: its weights (lo, F_tab) at Re f_c, combined with
-        # the Taylor terms, times the table in one product (the spline of all n^2 entries
-        # would build 4 x F_tab x n^2 coefficients), written in place: a temporary product
-        # and its copy into K cost 4x the product itself (page faults on ~300 MB, reactor)
+        # the Taylor terms (real on the imaginary axis: no window), times the table: the
+        # spline of all n^2 entries would build 4 x F_tab x n^2 coefficients
         sp = CubicSpline(f_tab, np.eye(f_tab.size), axis=0)
         fc = fq[lo]
+        W = sp(fc)
         dz = (1j * fcx[lo].imag)[:, None]
-        Wt = sp(fc) + dz * sp(fc, 1) + 0.5 * dz * dz * sp(fc, 2)
-        np.matmul(Wt, np.ascontiguousarray(Kt).reshape(f_tab.size, -1), out=K.reshape(lo.size, -1))
+        if np.any(dz):
+            W = W + dz * sp(fc, 1) + 0.5 * dz * dz * sp(fc, 2)
+        band = SplineBand(lo, W, K, None if g is None else -1j * (W @ g), H0)
     else:
-        K[:] = replace(table, matrices=Kt).at(fq[lo])
-    bands = [DenseBand(lo, K)]
+        Kt = K if g is None else K - 1j * g[:, None, None] * H0
+        band = DenseBand(lo, replace(table, matrices=Kt).at(fq[lo]))
+    bands = [band]
     if hi.size:
         wmax = 2 * np.pi * fmax
-        bands.append(AffineBand(hi, np.ascontiguousarray(Kt[-1].real),
-                                np.ascontiguousarray(Kt[-1].imag / wmax)))
-    K0 = Kt[0].real
+        top = K[-1] if g is None or g[-1] == 0 else K[-1] - 1j * g[-1] * H0
+        bands.append(AffineBand(hi, np.ascontiguousarray(top.real), np.ascontiguousarray(top.imag / wmax)))
+    K0 = K[0].real
     causal = f", hysteretic offset faded below {f_causal:g} Hz" if f_causal > 0 else ""
     return SoilBands(tuple(bands), 0.5 * (K0 + K0.T), n,
                      f"BEM table to {fmax:g} Hz (spline at f - i eta/2pi{causal}), spring-dashpot above")
+
+
+def _causal_fade(f, f_causal):
+    """g (F,): ``causal_target``'s fade as weights, causal_target(f, K, f_causal) = K - 1j g Im
+    K(0) for a table from 0 Hz (its rule is linear in the data: read on a 1 x 1 table)."""
+    probe = np.zeros((f.size, 1, 1), complex)
+    probe[0] = 1j
+    return (probe - causal_target(f, probe, f_causal))[:, 0, 0].imag
 
 
 def causal_table(table):

@@ -165,7 +165,8 @@ def test_response_spectra_are_the_step_by_step_recurrence_to_the_bit(nt):
 
 def test_a_cached_table_is_read_and_hashed_once(tmp_path, monkeypatch):
     """The verification of a cached table reads each dataset once and hands it to the reader
-    (the same digest as the slab-by-slab one); a changed value is still refused."""
+    (the same digest as the slab-by-slab one), the matrices a few rows at a time straight into
+    the table's complex array (each row once); a changed value is still refused."""
     from soil_impedance.storage import checksum
     from soil_impedance.sweep import _cache_path, _read_cached
     scene = scene_from_dict(SCENE, name="small")
@@ -175,12 +176,21 @@ def test_a_cached_table_is_read_and_hashed_once(tmp_path, monkeypatch):
         kept = {}
         assert checksum(f, kept) == checksum(f) == f.attrs["sha256"]
         assert np.array_equal(kept["/matrices_real"], table.matrices.real)
-    reads = []
-    real = h5py.Dataset.__getitem__
+    reads, rows = [], []
+    real, direct = h5py.Dataset.__getitem__, h5py.Dataset.read_direct
     monkeypatch.setattr(h5py.Dataset, "__getitem__", lambda ds, key: reads.append(ds.name) or real(ds, key))
+
+    def read_direct(ds, dest, source_sel=None, dest_sel=None):
+        first = source_sel if isinstance(source_sel, slice) else source_sel[0]
+        rows.extend((ds.name, r) for r in range(*first.indices(ds.shape[0])))
+        return direct(ds, dest, source_sel, dest_sel)
+    monkeypatch.setattr(h5py.Dataset, "read_direct", read_direct)
     again = _read_cached(path, table.hash)
     assert np.array_equal(again.matrices, table.matrices) and again.dofs == table.dofs
-    assert sorted(reads) == sorted(set(reads)) and "/matrices_real" in reads     # each dataset read once
+    assert sorted(reads) == sorted(set(reads)) and "/dofs" in reads              # each dataset read once
+    F = table.frequencies_hz.size
+    assert sorted(rows) == sorted((f"/matrices_{p}", r) for p in ("imag", "real") for r in range(F))
+    assert not {name for name, _ in rows} & set(reads)
     monkeypatch.undo()
     with h5py.File(path, "r+") as f:
         f["matrices_imag"][0, 0, 0] += 1.0

@@ -1,6 +1,8 @@
 """Frequency-domain routes with a hysteretic impedance table (material damping as complex
 moduli, Im K(0+) = 2 xi K_0: not causal), on the coarse raft of the shared Winkler case (helpers.COARSE_RAFT)
 turned into a table K(f) = K (1 + 2 i xi) + i w C."""
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -167,3 +169,42 @@ def test_kernel_head_forms_the_affine_bands_from_two_scalar_series(fold):
         head = kernel_head(prob.op, prob.grid, 20, fold, chunk=7)
         ref = _reference_head(prob.op, prob.grid, 20, fold)
         assert np.abs(head - ref).max() <= 1e-12 * np.abs(ref).max()
+
+
+@pytest.mark.parametrize("window", (False, True))
+def test_table_band_is_the_faded_tables_spline_formed_on_demand(window):
+    """The table's band (SplineBand: the table's spline plus the spline of the causal fade times
+    Im K(0), never a faded copy) against the spline of causal_table's matrices fitted entry by
+    entry (scipy's CubicSpline on the data, continued by its Taylor terms at f - i eta/2pi):
+    to 1e-13 of its largest entry. The set-up does not form it; its pieces (a few
+    frequencies formed into a work array) and the whole band agree with it, and rows_P formed
+    on the table's matrices equals rows_P of the formed band to 1e-13."""
+    from scipy.interpolate import CubicSpline
+
+    from orchestrator.timefreq import prepare
+    from orchestrator.timefreq.soil import Scratch, SplineBand, rows_P
+
+    base = hysteretic_table()
+    f = base.frequencies_hz
+    tab = replace(base, matrices=base.matrices * (1 + 0.2 * np.sin(0.7 * f))[:, None, None])   # not a cubic in f
+    prob = prepare(MODEL, tab, motion(0.5), 0.005, contact=BONDED,
+                   grid=GridOptions(window=window).resolved(bilinear=False))
+    band = prob.op.soil.bands[0]
+    assert isinstance(band, SplineBand) and "K" not in band.__dict__
+    Kt, f_c = causal_table(tab)
+    assert f_c > 0
+    fc = prob.grid.s[band.idx] / (2j * np.pi)
+    dz = (1j * fc.imag)[:, None, None]
+    sp = CubicSpline(f, Kt, axis=0)
+    ref = sp(fc.real) + dz * sp(fc.real, 1) + 0.5 * dz * dz * sp(fc.real, 2)
+    tol = 1e-13 * np.abs(ref).max()
+    scratch = Scratch()
+    groups = band.groups(7)
+    assert len(groups) > 2
+    for sel in groups:
+        assert np.abs(band.piece(sel, scratch).K - ref[sel]).max() <= tol
+    assert "K" not in band.__dict__
+    parts = band.rows_P(None, prob.op.Bq)
+    assert np.abs(band.K - ref).max() <= tol
+    for part, direct in zip(parts, rows_P(band.K, prob.op.Bq)):
+        assert np.abs(part - direct).max() <= 1e-13 * np.abs(direct).max()

@@ -300,3 +300,36 @@ def test_each_output_is_bit_identical_whatever_else_is_requested():
     for outputs in (("rigid", "gap"), ("rigid", "nodal"), ("gap", "nodal", "rigid")):
         both = _sweep(None, outputs)
         assert all(both[o].matrices.tobytes() == alone[o] for o in outputs)
+
+
+def test_in_place_read_has_the_same_digest_and_copies_nothing(tmp_path, monkeypatch):
+    """The verified read that puts matrices_real/imag straight into one complex array
+    (storage.ComplexPairs, what read_entry(keep=True) and ImpedanceTable.load do), with slabs
+    of 5 rows read 2 rows at a time (reads crossing the hashed slabs): the digest of the plain
+    slab-by-slab hash, the two parts views of one array that the table takes as its matrices
+    (no copy), bit for bit (signed zeros kept); a flipped bit in either part still fails."""
+    import soil_impedance.storage as storage
+    from soil_impedance.storage import ComplexPairs, checksum
+
+    n = 4
+    monkeypatch.setattr(storage, "_CHUNK_BYTES", 5 * n * n * 8)
+    monkeypatch.setattr(storage, "_READ_BYTES", 2 * n * n * 8)
+    rng = np.random.default_rng(3)
+    K = rng.standard_normal((12, n, n)) + 1j * rng.standard_normal((12, n, n))
+    K[3, 1, 2] = complex(-0.0, -0.0)
+    table = ImpedanceTable(np.arange(12.0), K, [f"d{i}" for i in range(n)], {"test": "in place"})
+    path = tmp_path / "t.h5"
+    table.save(path)
+    with h5py.File(path, "r") as h:
+        data, pairs = {}, ComplexPairs()
+        assert checksum(h, data, pairs) == checksum(h) == h.attrs["sha256"]
+        re, im = data["/matrices_real"], data["/matrices_imag"]
+        assert re.base is im.base and re.base.shape == K.shape
+        read = ImpedanceTable.from_hdf5(h, path, data)
+    assert read.matrices is re.base and read.matrices.tobytes() == K.tobytes()
+    assert ImpedanceTable.load(path).matrices.tobytes() == K.tobytes()
+    for part in ("matrices_real", "matrices_imag"):
+        table.save(path)
+        _flip_bit(path, part, byte=8 * (7 * n * n) + 3)                # in the second slab
+        with h5py.File(path, "r") as h:
+            assert not verify_checksum(h, {}, ComplexPairs())
