@@ -42,6 +42,11 @@ def route_inputs(scene, motion=None, soil_model=None, dt=None, cache_dir=None):
 STEPPERS = ("native", "python")
 
 
+def _check_stepper(stepper: str) -> None:
+    if stepper not in STEPPERS:
+        raise RouteInputError(f"stepper = {stepper!r}: use one of {', '.join(STEPPERS)}")
+
+
 def run_monolithic(scene, motion=None, soil_model=None, *, soil_factory: str | None = None,
                    soil_kwargs: dict | None = None, dt: float | None = None, progress=None,
                    cache_dir=None, model=None, route: str = "monolithic", stepper: str = "native"):
@@ -56,6 +61,7 @@ def run_monolithic(scene, motion=None, soil_model=None, *, soil_factory: str | N
     Returns a RouteResult (``info["stepper"]``: the one that ran); a Newton failure returns the
     samples so far with status STOPPED.
     """
+    _check_stepper(stepper)                                 # before the fit is read or computed
     motion, soil_model, dt = route_inputs(scene, motion, soil_model, dt, cache_dir)
     factory = soil_factory or DEFAULT_SOIL_FACTORY
     soil = soil_from_model(soil_model, dt, factory, soil_kwargs)
@@ -76,8 +82,7 @@ def step_scene(scene, model, soil, motion, *, route: str, progress=None, cache_d
     as_native : callable(soil, dt) -> the soil the C runtime steps, a RecursiveConvolutionSoil
     (None: ``soil`` is one). Returns a RouteResult (``info["stepper"]``: the one that ran); a
     Newton failure returns the samples so far with status STOPPED."""
-    if stepper not in STEPPERS:
-        raise RouteInputError(f"stepper = {stepper!r}: use one of {', '.join(STEPPERS)}")
+    _check_stepper(stepper)
     folder = None
     if stepper == "native" and not why:
         from fmus.native_host import cache_folder, library_note   # the FMU stack: only when it steps
