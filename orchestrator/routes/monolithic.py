@@ -61,7 +61,7 @@ def run_monolithic(scene, motion=None, soil_model=None, *, soil_factory: str | N
     Returns a RouteResult (``info["stepper"]``: the one that ran); a Newton failure returns the
     samples so far with status STOPPED.
     """
-    _check_stepper(stepper)                                 # before the fit is read or computed
+    _check_stepper(stepper)                 # before the fit is read or computed
     motion, soil_model, dt = route_inputs(scene, motion, soil_model, dt, cache_dir)
     factory = soil_factory or DEFAULT_SOIL_FACTORY
     soil = soil_from_model(soil_model, dt, factory, soil_kwargs)
