@@ -229,13 +229,13 @@ def native_max_uplift(st, ag, lib=None, blob: bytes | None = None) -> float:
     only the gaps are read, a chunk at a time (the time-step check's run). blob: ``encode_run(st)``
     when the caller has it already."""
     ag, lib = _checked(ag, lib)
-    top = [0.0]
+    tops = []                                      # each chunk's largest gap
 
     def take(k0, rows, iters):
-        if rows.size:
-            top[0] = max(top[0], float(rows[:, 6:6 + st.N].max()))
+        if rows.size and st.N:
+            tops.append(float(rows[:, 6:6 + st.N].max()))
     _, message = _stepped(lib, encode_run(st) if blob is None else blob, ag, take)
-    return float("nan") if message else top[0]
+    return float("nan") if message else max(tops, default=0.0)    # as RouteResult.max_uplift
 
 
 def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None, progress=None,
