@@ -616,37 +616,26 @@ static int capacitance(UpStepper *s, int lev, const unsigned char *act)
 static int newton_diag(UpStepper *s, int lev, const unsigned char *act, double *x)
 {
     const double *S = s->sys[lev].S0d, *Sw = S + 36;
-    double a00 = 0.0, a01 = 0.0, a02 = 0.0, a11 = 0.0, a12 = 0.0, a22 = 0.0, r0 = 0.0, r1 = 0.0, r2 = 0.0;
+    double a[3][3] = {{0.0}}, r[3] = {0.0};              /* the sums on q[2:5] (upper triangle of a) */
     for (int i = 0; i < s->N; i++) {
         if (!act[i])
             continue;
         double si = (1 + s->alpha) * s->kp[i], d = Sw[i] + si, c = si * Sw[i] / d, e = si / d * x[6 + i];
         const double *b = s->Bq3 + 3 * (size_t)i;
-        double c0 = c * b[0], c1 = c * b[1], c2 = c * b[2];
-        a00 += c0 * b[0];
-        a01 += c0 * b[1];
-        a02 += c0 * b[2];
-        a11 += c1 * b[1];
-        a12 += c1 * b[2];
-        a22 += c2 * b[2];
-        r0 += e * b[0];
-        r1 += e * b[1];
-        r2 += e * b[2];
+        for (int p = 0; p < 3; p++) {
+            double cp = c * b[p];
+            for (int q = p; q < 3; q++)
+                a[p][q] += cp * b[q];
+            r[p] += e * b[p];
+        }
     }
     double *A = s->lu;                                    /* S0 on q plus the sums on q[2:5] */
     memcpy(A, S, 36 * sizeof(double));
-    A[14] += a00;
-    A[15] += a01;
-    A[16] += a02;
-    A[21] += a11;
-    A[22] += a12;
-    A[28] += a22;
-    A[20] += a01;
-    A[26] += a02;
-    A[27] += a12;
-    x[2] += r0;
-    x[3] += r1;
-    x[4] += r2;
+    for (int p = 0; p < 3; p++) {
+        for (int q = 0; q < 3; q++)
+            A[6 * (2 + p) + 2 + q] += p <= q ? a[p][q] : a[q][p];
+        x[2 + p] += r[p];
+    }
     s->n_factorisations++;
     if (up_lu(A, s->lu_piv, 6))
         return -1;
