@@ -35,7 +35,9 @@ from __future__ import annotations
 import copy
 import importlib.util
 import math
+import multiprocessing
 import time
+from concurrent.futures import ProcessPoolExecutor
 from importlib import resources
 from pathlib import Path
 
@@ -213,50 +215,70 @@ def route_rows(data, scene, route, knob_values, cache_dir=None, log=None, keep=N
     return [_row(scene, route, kind, knobs, res, ref, label) for kind, knobs, res in results] + failed
 
 
+#: the peer's module (optional dependency: the [bench] extra), imported in the peer's process only
+PEER_MODULE = "openseespy.opensees"
+
+
+def _peer_loads(module: str) -> None:
+    """In the peer's process: import ``module``; ImportError when it is absent, RuntimeError
+    (openseespy) when it is installed but cannot load its BLAS/LAPACK."""
+    importlib.import_module(module)
+
+
+def _opensees_peer(path: str, *args):
+    """In the peer's process: benchmarks/structure_step.py's ``run_opensees(*args)``."""
+    spec = importlib.util.spec_from_file_location("_uplift_structure_step", path)
+    peer = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(peer)
+    return peer.run_opensees(*args)
+
+
 def opensees_rows(data, scene, dts, cache_dir=None, log=None):
     """The Winkler route in OpenSeesPy next to this code, on the scene's model and Winkler springs
     with dashpots (the damping both codes can express: C = a1 K_beams, 7 % at the first
     fixed-base mode, as benchmarks/structure_step.py). Rows: OpenSeesPy against its own finest
-    dt, and against this code's run at the same dt."""
+    dt, and against this code's run at the same dt.
+
+    OpenSeesPy runs in a child process of its own: it brings its own libgomp, libgfortran and
+    LAPACK, and its clean-up at exit has aborted a process that had numpy's, scipy's and the
+    FMUs' libraries loaded beside it (glibc: "corrupted double-linked list")."""
     def skipped(why):
         return [{"scene": scene, "route": "opensees", "kind": "peer", "knobs": {"dt": dt}, "reference": "-",
                  "wall_s": None, "total_s": None, "err_max_uplift": None, "err_rotation": None,
                  "err_spectra": None, "note": f"skipped: {why}"} for dt in dts]
 
-    try:
-        import openseespy.opensees  # noqa: F401  (optional dependency: the [bench] extra)
-    except (ImportError, RuntimeError) as exc:   # RuntimeError: installed, but its BLAS/LAPACK libraries are absent
-        return skipped(f"openseespy not installed or cannot load ({exc}): pip install -e \".[bench]\"; "
-                       "apt-get install libblas3 liblapack3")
     path = Path(__file__).resolve().parents[1] / "benchmarks" / "structure_step.py"
     if not path.is_file():
         return skipped(f"{path} not found (the peer runs from a source checkout)")
-    spec = importlib.util.spec_from_file_location("_uplift_structure_step", path)
-    peer = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(peer)
-
     data = copy.deepcopy(data)
     data["soil"]["winkler"] = {"springs": "rigid", "match": "rocking", "damping": "dashpots"}
     runs = []
-    for dt in dts:
-        sc = knob_scene(data, scene, {"dt": dt})
-        model = sc.model()
-        rigid = scene_impedance(sc, ("rigid",), cache_dir=cache_dir)["rigid"]
-        soil, _, _ = winkler_soil(sc, model, rigid, cache_dir)
-        a1 = 2 * 0.07 / (2 * np.pi * fixed_base_modes(model).freq[0])
-        ag = make_motion(sc.motion, dt).acc
-        ours = simulate(model, soil, ag, dt, contact=sc.contact, damping=Damping("rayleigh", a1=a1),
-                        route="winkler-dashpots")
-        wall, ry, gap = peer.run_opensees(model, soil, ours.info["penalty"], ag, dt, a1)
-        raft = np.zeros((ry.size, 6))
-        raft[:, 4] = ry
-        ops = RouteResult(route="opensees", time=ours.time, raft=raft, gap=gap, wall_s=wall, xy=ours.xy)
-        # the peer gives ry only: compare like with like
-        ours_ry = ours.replace(raft=np.where(np.arange(6) == 4, ours.raft, 0.0), acc={})
-        runs.append((dt, ops, ours_ry))
-        if log:
-            log(f"{scene} opensees [dt={dt:g}]: {wall:.2f} s (this code {ours.wall_s:.2f} s), "
-                f"max uplift {1e3 * gap.max():.4f} mm")
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as child:
+        try:
+            child.submit(_peer_loads, PEER_MODULE).result()
+        except (ImportError, RuntimeError) as exc:
+            return skipped(f"openseespy not installed or cannot load ({exc}): pip install -e \".[bench]\"; "
+                           "apt-get install libblas3 liblapack3")
+        for dt in dts:
+            sc = knob_scene(data, scene, {"dt": dt})
+            model = sc.model()
+            rigid = scene_impedance(sc, ("rigid",), cache_dir=cache_dir)["rigid"]
+            soil, _, _ = winkler_soil(sc, model, rigid, cache_dir)
+            a1 = 2 * 0.07 / (2 * np.pi * fixed_base_modes(model).freq[0])
+            ag = make_motion(sc.motion, dt).acc
+            ours = simulate(model, soil, ag, dt, contact=sc.contact, damping=Damping("rayleigh", a1=a1),
+                            route="winkler-dashpots")
+            wall, ry, gap = child.submit(_opensees_peer, str(path), model, soil, ours.info["penalty"],
+                                         ag, dt, a1).result()
+            raft = np.zeros((ry.size, 6))
+            raft[:, 4] = ry
+            ops = RouteResult(route="opensees", time=ours.time, raft=raft, gap=gap, wall_s=wall, xy=ours.xy)
+            # the peer gives ry only: compare like with like
+            ours_ry = ours.replace(raft=np.where(np.arange(6) == 4, ours.raft, 0.0), acc={})
+            runs.append((dt, ops, ours_ry))
+            if log:
+                log(f"{scene} opensees [dt={dt:g}]: {wall:.2f} s (this code {ours.wall_s:.2f} s), "
+                    f"max uplift {1e3 * gap.max():.4f} mm")
     rows = []
     label = f"opensees at its finest knobs (dt={dts[-1]:g})"
     for dt, ops, ours in runs:
