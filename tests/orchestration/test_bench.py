@@ -84,3 +84,15 @@ def test_plot_written(tmp_path):
                  err_rotation=e, err_spectra=None, best=False) for r, w, e in (("a", 1.0, 0.1), ("b", 2.0, 0.01))]
     out = bench.plot_rows(rows, tmp_path / "p.png")
     assert out.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_opensees_peer_process_that_dies_gives_skipped_rows(tiny, monkeypatch, tmp_path):
+    """A peer whose process ends (here its module exits on import) gives rows with the reason,
+    not a traceback, and the caller's process goes on."""
+    (tmp_path / "peer_that_exits.py").write_text("import os\nos._exit(3)\n")
+    monkeypatch.syspath_prepend(str(tmp_path))             # the child process gets the parent's sys.path
+    monkeypatch.setattr(bench, "PEER_MODULE", "peer_that_exits")
+    rows = bench.opensees_rows(bench.scene_data("disk-halfspace"), "disk-halfspace", [0.01], cache_dir=None)
+    assert [r["kind"] for r in rows] == ["peer"]
+    assert rows[0]["note"].startswith("skipped: openseespy not installed or cannot load")
+    assert "terminated abruptly" in rows[0]["note"]
