@@ -25,7 +25,7 @@ import numpy as np
 from scipy.linalg.blas import zspmv
 
 from orchestrator.timefreq.operator import _span
-from orchestrator.timefreq.soil import AffineBand, MatrixBand, dense
+from orchestrator.timefreq.soil import AffineBand, MatrixBand, dense, upper_pairs
 
 #: |h_k - c (-1)^k| <= ALTERNATING_RTOL |c| over the lags 1 .. nt-1 for the closed form to be used
 ALTERNATING_RTOL = 1e-10
@@ -77,8 +77,7 @@ class AffineSplit:
         # a symmetric S: D's upper triangles packed column by column (BLAS 'U' packed storage:
         # half the bytes per application, read by zspmv; the head's DFT on half the entries)
         self.packed = op.symmetric()
-        self.upper = (np.concatenate([np.arange(j + 1) for j in range(N)]),
-                      np.repeat(np.arange(N), np.arange(1, N + 1))) if self.packed else None
+        self.upper = upper_pairs(N) if self.packed else None
         self.dense = [(b.idx, self._dense_part(op, b, Ad, Bd, self.upper)) for b in bands if isinstance(b, MatrixBand)]
 
     @staticmethod
@@ -94,10 +93,7 @@ class AffineSplit:
             K = band.ww()
             D = np.empty((idx.size, N, N), complex)
         else:
-            n = band.K.shape[-1]                                     # 6 + N
-            K = band.K.reshape(idx.size, n * n)
-            at_K = (6 + upper[0]) * n + 6 + upper[1]                 # K_ww's upper triangle in K
-            at = upper[0] * N + upper[1]                             # the same in an (N, N) array
+            at = upper[0] * N + upper[1]                             # the upper triangle in an (N, N) array
             A, B = A.ravel()[at], B.ravel()[at]
             D = np.empty((idx.size, at.size), complex)
         # the chunk's temporaries allocated once (fresh band-sized memory per chunk is paged in
@@ -113,7 +109,7 @@ class AffineSplit:
             if upper is None:
                 np.subtract(K[j], Rj, out=Dj)
             else:
-                np.take(K[j], at_K, axis=1, out=Dj)
+                band.packed_ww(j, Dj)                                # K_ww's (a table's: K not formed)
                 np.take(Rj.reshape(m, N * N), at, axis=1, out=tj)
                 Dj -= tj
             Dj -= A
@@ -168,18 +164,21 @@ class AffineSplit:
             o -= VM[lag] @ self.VlAB
         return out[:n_lags], out[n_lags:]
 
-    def __call__(self, xb, a, b, H):
-        """H[:, b:] += (S * x_block)[:, b:] for the block x[:, a:b] (N, b - a)."""
-        op, g = self.op, self.grid
-        op.n_apply += 1
-        N, nt = xb.shape[0], g.nt
-        # to_freq and to_time on the plans' own buffers: no band-sized copies or fresh arrays
-        fwd, inv = g.plans(N)
-        x = fwd.input_array
-        x[:] = 0.0
-        np.multiply(xb, np.exp(-g.eta * g.dt * np.arange(a, b)), out=x[:, a:b])
-        X = fwd()                                                            # (N, F)
-        Y = inv.input_array
+    def apply(self, X):
+        """S X for X (N, F) complex, through the split: K_inf X + (S - K_inf) X (the same sums as
+        the far field's; op.apply_S's to round-off, without the dense band's K, which a table's
+        band then never forms)."""
+        self.op.n_apply += 1
+        Y = np.empty_like(X)
+        self._beyond_inf(X, Y)
+        Y += self.Aw @ X
+        Y += self.op.s * (self.Bw @ X)
+        return Y
+
+    def _beyond_inf(self, X, Y):
+        """Y (N, F) = (S - K_inf) X for X (N, F): D X on the dense bands' frequencies, minus the
+        rank-6 term above the table."""
+        op = self.op
         # above the table: the rank-6 term from its affine parts, S + R6 = A + s B there
         Xh = _real_view(X[:, self.hi])                                       # (N, 2 F_hi)
         U = (self.VlAB @ Xh).view(complex)                                   # [VlA; VlB] X: (12, F_hi)
@@ -203,6 +202,19 @@ class AffineSplit:
             tasks += [dense_task(idx, D, h) for h in op.pool.chunks(idx.size)]
         if tasks:
             op.pool.run(tasks)
+
+    def __call__(self, xb, a, b, H):
+        """H[:, b:] += (S * x_block)[:, b:] for the block x[:, a:b] (N, b - a)."""
+        op, g = self.op, self.grid
+        op.n_apply += 1
+        N, nt = xb.shape[0], g.nt
+        # to_freq and to_time on the plans' own buffers: no band-sized copies or fresh arrays
+        fwd, inv = g.plans(N)
+        x = fwd.input_array
+        x[:] = 0.0
+        np.multiply(xb, np.exp(-g.eta * g.dt * np.arange(a, b)), out=x[:, a:b])
+        X = fwd()                                                            # (N, F)
+        self._beyond_inf(X, inv.input_array)
         y = inv()[:, b:nt]                                                   # (N, nt - b)
         y *= np.exp(g.eta * g.dt * np.arange(b, nt))                         # the window undone
         gamma = xb @ self.alt[a:b]                                           # sum_m (-1)^m d_m

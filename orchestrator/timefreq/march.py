@@ -442,11 +442,13 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
     changes the sweeps, not the fixed point.
 
     Returns an Outcome (history: one MarchSweep per sweep)."""
-    eq = ContactEquation(prob, lam)
-    scale = eq.scale
-    hist = []
     marched = prob if stand_in is None else stand_in
     sweep = CausalSweep(marched, block, fold is True, sub, ahead)
+    # the residual's S through the march's split when it is prob's (a table's K then not formed)
+    eq = ContactEquation(prob, lam, sweep.far.apply if stand_in is None and isinstance(sweep.far, AffineSplit)
+                         else None)
+    scale = eq.scale
+    hist = []
     W = np.zeros_like(prob.f)
     Gs, Fs = [], []                       # Anderson: past maps G(W) = W + g and residuals g
     best = None
@@ -456,7 +458,8 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
         return "folded" if sweep.fold else "truncated"
 
     def ended(status, reason=""):
-        return Outcome(best[1] if best else y, status, tuple(hist), reason)
+        return Outcome(best[1] if best else y, status, tuple(hist), reason,
+                       residual=best[0] if best else None)
 
     for k in range(1, max_sweeps + 1):
         t0 = time.perf_counter()
@@ -485,7 +488,7 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
         elif r > 2 * best[0]:
             Gs, Fs = [], []                # the mixing went astray: restart from this iterate
         if r <= tol:
-            return Outcome(y, SolverStatus.CONVERGED, tuple(hist))
+            return Outcome(y, SolverStatus.CONVERGED, tuple(hist), residual=r)
         if deadline is not None and time.perf_counter() > deadline:
             return ended(SolverStatus.STOPPED, "time budget")
         Gs.append((W + g).ravel())

@@ -250,7 +250,8 @@ class InterfaceOperator:
 
     def symmetric(self, rtol: float = 1e-12) -> bool:
         """S(s) = S(s)^T at every frequency to rtol of its largest entry (a reciprocal soil:
-        symmetric bands, Vr = Vl^T, Zqq symmetric), checked once."""
+        symmetric bands, Vr = Vl^T, Zqq symmetric), checked once; a table's band on its own
+        matrices when they are exactly symmetric (its matrices at the grid are not formed)."""
         if not hasattr(self, "_symmetric"):
             def sym(M):              # (..., n, n): one matrix at a time (in cache), exact first
                 M = dense(M) if hasattr(M, "toarray") else M
@@ -259,8 +260,8 @@ class InterfaceOperator:
                     return True
                 tol = rtol * np.abs(M3).max(initial=0.0)
                 return all(np.abs(m - m.T).max(initial=0.0) <= tol for m in M3)
-            bands = all(sym(band.ww()) if isinstance(band, MatrixBand) else all(sym(M) for M in band.ww())
-                        for band in self.soil.bands)
+            bands = all((band.symmetric_by_construction() or sym(band.ww())) if isinstance(band, MatrixBand)
+                        else all(sym(M) for M in band.ww()) for band in self.soil.bands)
             rank6 = np.abs(self.Vr - self.Vl.swapaxes(1, 2)).max() <= rtol * np.abs(self.Vr).max(initial=0.0)
             self._symmetric = bool(bands and rank6 and sym(self.Zqq))
         return self._symmetric

@@ -59,12 +59,14 @@ class Outcome:
               each with ``residual`` and ``wall_s``)
     reason : why it diverged or stopped ("" otherwise)
     extra : solver-specific, JSON-able (Newton-Krylov's continuation ladder, ...)
+    residual : |g(y)| / |lam f| of y as the solver measured it (None: not measured)
     """
     y: np.ndarray
     status: SolverStatus
     history: tuple = ()
     reason: str = ""
     extra: Mapping = field(default_factory=dict)
+    residual: float | None = None
 
     @property
     def converged(self) -> bool:
@@ -147,8 +149,11 @@ def prepare(model, soil, ag, dt, *, grid, contact=None, damping=None, static=Non
 class ContactEquation:
     """g(y) and J v of one ContactProblem at motion scale lam (module notes)."""
 
-    def __init__(self, prob, lam: float = 1.0):
+    def __init__(self, prob, lam: float = 1.0, apply=None):
+        """apply: S X for X (N, F) complex, another route to op.apply_S (the march's split,
+        AffineSplit.apply), or None (op.apply_S)."""
         self.p, self.lam = prob, float(lam)
+        self.apply = apply or prob.op.apply_S
         self.g = prob.grid
         self.z0 = prob.z0
         self.phi0 = prob.phi(self.z0[:, None])
@@ -164,7 +169,7 @@ class ContactEquation:
 
     def S(self, x):
         """S * x for x (N, nt) causal."""
-        return self.g.to_time(self.p.op.apply_S(self.g.to_freq(x)))
+        return self.g.to_time(self.apply(self.g.to_freq(x)))
 
     def residual(self, y):
         self.n_res += 1

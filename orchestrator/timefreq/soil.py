@@ -70,6 +70,17 @@ class MatrixBand:
         two arrays to write the first two in (None: new ones)."""
         return _written(rows_P(self.K, Bq), out)
 
+    def packed_ww(self, sel: slice, out):
+        """K_ww's upper triangles (``upper_pairs``: BLAS 'U' packed storage) at the band's
+        frequencies sel (a slice), written into out (m, N (N + 1) / 2) complex."""
+        m, n = out.shape[0], self.K.shape[-1]
+        return np.take(self.K[sel].reshape(m, n * n), _upper_in(n), axis=1, out=out)
+
+    def symmetric_by_construction(self) -> bool:
+        """K_ww symmetric at every frequency because the band's data are, exactly (False: not
+        known without forming K)."""
+        return False
+
     def form(self) -> np.ndarray:
         """K, formed now if it is formed on demand (SplineBand)."""
         return self.K
@@ -98,8 +109,8 @@ class SplineBand(MatrixBand):
     with the Taylor terms of a complex frequency; c (Fb,) and H (n, n) real: a rank-one
     correction in frequency, the causal fade, or None). K is formed when first asked for
     (the whole band: Fb n^2 complex, 260 MB on the reactor); ``piece`` forms a few
-    frequencies only, and ``rows_P`` none (it is linear in K: formed on the table's matrices,
-    F_tab of them, and combined with the weights)."""
+    frequencies only, and ``rows_P`` and ``packed_ww`` none (they are linear in K: formed on
+    the table's matrices, F_tab of them, and combined with the weights)."""
     idx: np.ndarray
     W: np.ndarray
     T: np.ndarray
@@ -132,6 +143,32 @@ class SplineBand(MatrixBand):
             return super().piece(sel)
         m = len(range(*sel.indices(self.idx.size)))
         return DenseBand(self.idx[sel], self.block(sel, scratch.array((m,) + self.T.shape[1:], complex)))
+
+    @cached_property
+    def _T_upper(self):
+        """(T_ww's upper triangles (F_tab, P), H_ww's (P,) or None): ``packed_ww``'s data."""
+        n = self.T.shape[-1]
+        at = _upper_in(n)
+        return self.T.reshape(-1, n * n)[:, at], None if self.c is None else self.H.reshape(-1)[at]
+
+    def packed_ww(self, sel: slice, out):
+        """As MatrixBand.packed_ww, from the table's packed matrices and the weights: K is not
+        formed (the same sums over the table's matrices, half the entries)."""
+        Tu, Hu = self._T_upper
+        W = self.W[sel]
+        if np.isrealobj(W):          # a real product on the complex data's floats, as ``block``
+            np.matmul(W, Tu.view(float), out=out.view(float))
+        else:
+            np.matmul(W, Tu, out=out)
+        if Hu is not None:
+            out += self.c[sel][:, None] * Hu
+        return out
+
+    def symmetric_by_construction(self) -> bool:
+        """K = sum_j W[:, j] T_j + c H is symmetric when every T_j and H is (their soil blocks
+        K_ww, exactly): checked on the table's F_tab matrices, K not formed."""
+        sym = lambda M: np.array_equal(M, M.T)
+        return all(sym(T[6:, 6:]) for T in self.T) and (self.c is None or sym(self.H[6:, 6:]))
 
     def rows_P(self, s, Bq, out=None):
         """As MatrixBand.rows_P, on the table's matrices and combined with the weights (s unused)."""
@@ -167,6 +204,19 @@ def _written(parts, out):
         return parts
     out[0][...], out[1][...] = parts[0], parts[1]
     return out[0], out[1], parts[2]
+
+
+def upper_pairs(N: int):
+    """(rows, columns) of an (N, N) matrix's upper triangle, column by column: the order of BLAS
+    'U' packed storage (N (N + 1) / 2 entries)."""
+    return (np.concatenate([np.arange(j + 1) for j in range(N)]), np.repeat(np.arange(N), np.arange(1, N + 1)))
+
+
+def _upper_in(n: int):
+    """Flat indices in an (n, n) K of its soil block K_ww's (K[6:, 6:]) upper triangle, in
+    ``upper_pairs(n - 6)``'s order."""
+    i, j = upper_pairs(n - 6)
+    return (6 + i) * n + 6 + j
 
 
 def rows_P(K, Bq):
