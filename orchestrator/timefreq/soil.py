@@ -124,16 +124,22 @@ class SplineBand(MatrixBand):
 
     def block(self, sel: slice, out):
         """K at the band's frequencies sel (a slice), written into out (m, n, n) complex."""
-        F_tab = self.T.shape[0]
+        self._combine(sel, self.T.reshape(self.T.shape[0], -1), self.H.reshape(-1) if self.c is not None else None,
+                      out.reshape(out.shape[0], -1))
+        return out
+
+    def _combine(self, sel: slice, T, H, out):
+        """out (m, p) = W[sel] T + c[sel] H for entries of the table's matrices T (F_tab, p)
+        complex and of H (p,) (None without c): ``block`` on whole matrices, ``packed_ww`` on
+        their upper triangles."""
         W = self.W[sel]
-        m = W.shape[0]
         if np.isrealobj(W):         # a real product on the complex data's floats: half the work
-            np.matmul(W, self.T.reshape(F_tab, -1).view(float), out=out.reshape(m, -1).view(float))
+            np.matmul(W, T.view(float), out=out.view(float))
         else:
-            np.matmul(W, self.T.reshape(F_tab, -1), out=out.reshape(m, -1))
-        if self.c is not None:
-            for k, ck in enumerate(self.c[sel]):    # one matrix at a time: no (m, n, n) temporary
-                out[k] += ck * self.H
+            np.matmul(W, T, out=out)
+        if H is not None:
+            for k, ck in enumerate(self.c[sel]):    # one frequency at a time: no (m, p) temporary
+                out[k] += ck * H
         return out
 
     def piece(self, sel: slice, scratch=None):
@@ -154,15 +160,7 @@ class SplineBand(MatrixBand):
     def packed_ww(self, sel: slice, out):
         """As MatrixBand.packed_ww, from the table's packed matrices and the weights: K is not
         formed (the same sums over the table's matrices, half the entries)."""
-        Tu, Hu = self._T_upper
-        W = self.W[sel]
-        if np.isrealobj(W):          # a real product on the complex data's floats, as ``block``
-            np.matmul(W, Tu.view(float), out=out.view(float))
-        else:
-            np.matmul(W, Tu, out=out)
-        if Hu is not None:
-            out += self.c[sel][:, None] * Hu
-        return out
+        return self._combine(sel, *self._T_upper, out)
 
     def symmetric_by_construction(self) -> bool:
         """K = sum_j W[:, j] T_j + c H is symmetric when every T_j and H is (their soil blocks
