@@ -12,9 +12,9 @@ import pytest
 from structure import ContactSettings
 
 from orchestrator.timefreq import GridOptions, WorkerPool, prepare
-from orchestrator.timefreq.farfield import AffineSplit, generic_far_field
+from orchestrator.timefreq.farfield import AffineSplit, generic_far_field, packed_product
 from orchestrator.timefreq.march import AHEAD, defect_correction, kernel_lags
-from orchestrator.timefreq.soil import MatrixBand, SplineBand
+from orchestrator.timefreq.soil import MatrixBand, SplineBand, upper_pairs
 from helpers import COARSE_RAFT, hysteretic_table, rel
 from helpers import broadband as motion
 
@@ -144,3 +144,16 @@ def test_a_tables_packed_band_is_its_matrices_upper_triangles():
         assert "K" not in band.__dict__
         gathered = MatrixBand.packed_ww(band, sel, np.empty((m, P), complex))
         assert rel(packed, gathered) < 1e-14
+
+
+@pytest.mark.parametrize("N, width", [(1, 32), (7, 3), (70, 32), (64, 32)])
+def test_packed_product_is_the_upper_triangles_of_the_product(N, width):
+    """farfield.packed_product (the rank-6 term's upper triangles, column blocks from the rows
+    they need) against the upper triangles gathered from the formed product U V (upper_pairs'
+    order): 1e-15 of the largest entry, for N below, at, and not a multiple of the width."""
+    rng = np.random.default_rng(N)
+    c = lambda *shape: rng.standard_normal(shape) + 1j * rng.standard_normal(shape)
+    U, V = c(3, N, 6), c(3, 6, N)
+    i, j = upper_pairs(N)
+    out = packed_product(U, V, np.full((3, i.size), np.nan, complex), width)
+    assert rel(out, (U @ V)[:, i, j]) < 1e-15
