@@ -21,8 +21,10 @@ same split (``AffineSplit.kernel``).
 """
 from __future__ import annotations
 
+from functools import cached_property
+
 import numpy as np
-from scipy.linalg.blas import zspmv
+from scipy.linalg.blas import cspmv, zspmv
 
 from orchestrator.timefreq.operator import _span
 from orchestrator.timefreq.soil import AffineBand, MatrixBand, dense, upper_pairs
@@ -174,9 +176,16 @@ class AffineSplit:
         Y += self.op.s * (self.Bw @ X)
         return Y
 
-    def _beyond_inf(self, X, Y):
-        """Y (N, F) = (S - K_inf) X for X (N, F): D X on the dense bands' frequencies, minus the
-        rank-6 term above the table."""
+    @cached_property
+    def dense32(self):
+        """The dense bands' D in single precision (complex64), for the far field of a march's
+        change (CausalSweep.single): half the bytes read per application."""
+        return [(idx, D.astype(np.complex64)) for idx, D in self.dense]
+
+    def _beyond_inf(self, X, Y, single: bool = False):
+        """Y (N, F) = (S - K_inf) X for X (N, F): D X on the dense bands' frequencies (with
+        ``single``, in single precision: D's complex64 copy, cspmv), minus the rank-6 term
+        above the table."""
         op = self.op
         # above the table: the rank-6 term from its affine parts, S + R6 = A + s B there
         Xh = _real_view(X[:, self.hi])                                       # (N, 2 F_hi)
@@ -186,24 +195,27 @@ class AffineSplit:
         T = np.concatenate([t, t * self.s_hi])                               # (12, F_hi)
         Y[:, self.hi] = -(self.VrAB @ _real_view(T)).view(complex)
 
+        spmv = cspmv if single else zspmv
+
         def dense_task(idx, D, h):
             def run():
                 i = _span(idx[h])
-                Xl = np.ascontiguousarray(X[:, i].T)                         # (Fc, N)
+                Xl = np.ascontiguousarray(X[:, i].T, D.dtype)                # (Fc, N)
                 if self.packed:
                     n, Dh = Xl.shape[1], D[h]
-                    Y[:, i] = np.array([zspmv(n, 1.0, Dh[j], Xl[j]) for j in range(Xl.shape[0])]).T
+                    Y[:, i] = np.array([spmv(n, 1.0, Dh[j], Xl[j]) for j in range(Xl.shape[0])]).T
                 else:
                     Y[:, i] = (D[h] @ Xl[:, :, None])[:, :, 0].T
             return run
         tasks = []
-        for idx, D in self.dense:
+        for idx, D in self.dense32 if single else self.dense:
             tasks += [dense_task(idx, D, h) for h in op.pool.chunks(idx.size)]
         if tasks:
             op.pool.run(tasks)
 
-    def __call__(self, xb, a, b, H):
-        """H[:, b:] += (S * x_block)[:, b:] for the block x[:, a:b] (N, b - a)."""
+    def __call__(self, xb, a, b, H, single: bool = False):
+        """H[:, b:] += (S * x_block)[:, b:] for the block x[:, a:b] (N, b - a); ``single``: the
+        dense band's products in single precision (``_beyond_inf``)."""
         op, g = self.op, self.grid
         op.n_apply += 1
         N, nt = xb.shape[0], g.nt
@@ -213,7 +225,7 @@ class AffineSplit:
         x[:] = 0.0
         np.multiply(xb, np.exp(-g.eta * g.dt * np.arange(a, b)), out=x[:, a:b])
         X = fwd()                                                            # (N, F)
-        self._beyond_inf(X, inv.input_array)
+        self._beyond_inf(X, inv.input_array, single)
         y = inv()[:, b:nt]                                                   # (N, nt - b)
         y *= np.exp(g.eta * g.dt * np.arange(b, nt))                         # the window undone
         gamma = xb @ self.alt[a:b]                                           # sum_m (-1)^m d_m
