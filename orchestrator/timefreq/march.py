@@ -47,13 +47,16 @@ from orchestrator.timefreq.soil import AffineBand, dense
 DIVERGED_M = 100.0
 
 #: steps per block: the near field costs nt B N^2 / 2 multiply-adds, the far field nt / B
-#: applications of S (on the reactor, N = 241, per sweep in CPU s: 64 with (16, 4) 1.50, 80
-#: with (20, 5) 1.51, 96 with (24, 6) 1.28 to 1.41, 112 with (28, 7) 1.37, 128 with (32, 8) 1.35)
-BLOCK = 96
+#: applications of S (on the reactor, N = 241, per sweep in CPU s with float64 marches: 64 with
+#: (16, 4) 1.50, 80 with (20, 5) 1.51, 96 with (24, 6) 1.28 to 1.41, 112 with (28, 7) 1.37, 128
+#: with (32, 8) 1.35; with single-precision corrections, whose near field costs half: 96 with
+#: (24, 6) 0.79 to 0.84, with (24, 8) 0.77 to 0.87, 120 with (40, 8) 0.81 to 0.84, 128 with
+#: (32, 8) 0.72 to 0.81, with (32, 8, 4) 0.78 to 0.82, 144 with (36, 9) 0.78 to 0.81)
+BLOCK = 128
 #: the near field's nested sub-blocks, outermost first (CausalSweep.run): step by step inside
 #: the innermost, one matrix product from each finished sub-block to the rest of its parent;
 #: SUB = (BLOCK,) is the plain step-by-step near field (the same sums in another order)
-SUB = (24, 6)
+SUB = (32, 8)
 #: the march's look-ahead (CausalSweep): the kernel's first negative lags held at the step's d;
 #: on the reactor's table at 0.25 g the sweeps to a residual of 1e-6 go from 5 to 4 with 2
 #: (residual after sweep 1: 1.3e-2 without, 4.8e-3 with 2, 3.8e-3 with 3 or more)
