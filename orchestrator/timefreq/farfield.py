@@ -118,12 +118,14 @@ class AffineSplit:
             Dj -= tj
         return D
 
-    def kernel(self, n_lags: int, n_ahead: int = 0):
+    def kernel(self, n_lags: int, n_ahead: int = 0, dtype=float):
         """S's grid kernel (kernel_lags without fold, to round-off) from the split: (head
         (n_lags, N, N), ahead (n_ahead, N, N)), h_0 .. h_{n_lags-1} and h_{-1} .. h_{-n_ahead}.
         A at lag 0 and B times s's scalar kernel; D by a direct inverse DFT restricted to the
         dense bands' frequencies (one GEMM over all N^2 entries); the rank-6 term above the
-        table from its affine parts and three 6 x 6 kernels of Zqq^-1, s Zqq^-1, s^2 Zqq^-1."""
+        table from its affine parts and three 6 x 6 kernels of Zqq^-1, s Zqq^-1, s^2 Zqq^-1.
+        dtype np.float32: the products and the result in single precision (D's complex64 copy:
+        the head of a march in correction form, CausalSweep.single)."""
         op, g = self.op, self.grid
         nf, F = g.nfft, op.s.size
         k = np.arange(n_lags)
@@ -133,6 +135,8 @@ class AffineSplit:
         f = np.arange(F)
         c = np.where((f == 0) | (2 * f == nf), 1.0, 2.0) / nf                # irfft's weights
         E = c[:, None] * np.exp(2j * np.pi * np.outer(f, n) / nf) * w       # (F, L): h = Re(E^T X)
+        single = np.dtype(dtype) == np.float32
+        cast = (lambda a: np.asarray(a, np.float32)) if single else (lambda a: a)
         L = n.size
         N = op.N
         if self.packed:                                   # each (i, j)'s place in the packed triangle
@@ -142,8 +146,8 @@ class AffineSplit:
         # every term added in place, lag by lag (no (L, N, N) temporaries: fresh memory is paged
         # in by the kernel, ~0.2 s of system time for each on the reactor)
         out = None
-        for idx, D in self.dense:
-            h = np.real(np.tensordot(E[idx], D, axes=(0, 0)))
+        for idx, D in self.dense32 if single else self.dense:
+            h = np.real(np.tensordot(E[idx].astype(D.dtype), D, axes=(0, 0)))
             if self.packed:
                 h = np.take(h, pos.ravel(), axis=1).reshape(L, N, N)      # a new array
             if out is None:
@@ -151,18 +155,18 @@ class AffineSplit:
             else:
                 out += h
         if out is None:
-            out = np.zeros((L, N, N))
-        sig = np.real(E.T @ op.s)                                           # s's kernel (L,)
-        e0 = np.real(E.sum(axis=0))                                         # delta_0, to round-off
+            out = np.zeros((L, N, N), dtype)
+        sig = cast(np.real(E.T @ op.s))                                     # s's kernel (L,)
+        e0 = cast(np.real(E.sum(axis=0)))                                   # delta_0, to round-off
         Eh, sh = E[self.hi], self.s_hi
         Z = [np.real(np.tensordot(Eh, self.Zinv_hi * sh[:, None, None] ** j, axes=(0, 0))) for j in range(3)]
-        VM = self.VrAB @ np.block([[Z[0], Z[1]], [Z[1], Z[2]]])            # (L, N, 12)
-        Ad, Bd = dense(self.Aw), dense(self.Bw)
+        VM = cast(self.VrAB @ np.block([[Z[0], Z[1]], [Z[1], Z[2]]]))      # (L, N, 12)
+        Ad, Bd, Vl = cast(dense(self.Aw)), cast(dense(self.Bw)), cast(self.VlAB)
         for lag in range(L):
             o = out[lag]
             o += sig[lag] * Bd
             o += e0[lag] * Ad
-            o -= VM[lag] @ self.VlAB
+            o -= VM[lag] @ Vl
         return out[:n_lags], out[n_lags:]
 
     def apply(self, X):

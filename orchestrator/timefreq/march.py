@@ -275,13 +275,19 @@ class CausalSweep:
         self.B = B = int(max(2, min(block, nt)))
         n_ahead = 0 if fold else int(max(0, min(ahead, prob.grid.nfft - nt)))
         split = None if fold else AffineSplit(prob.op, prob.grid)
-        if split is not None and split.usable:
-            self.far = split
+        # correction form in single precision: the split far field (AffineSplit) only
+        self.single = bool(single) and split is not None and split.usable
+        self.dtype = np.float32 if self.single else float
+        if self.single:                   # h_0 and the look-ahead in float64, the rest in float32
+            (h0,), lags_ahead = split.kernel(1, n_ahead)
+            head = split.kernel(B, 0, np.float32)[0]
+        elif split is not None and split.usable:
             head, lags_ahead = split.kernel(B, n_ahead)
+            h0 = head[0]
         else:
-            self.far = generic_far_field(prob.op, prob.grid)
             head, lags_ahead = kernel_lags(prob.op, prob.grid, B, n_ahead, fold)
-        h0 = head[0]
+            h0 = head[0]
+        self.far = split if split is not None and split.usable else generic_far_field(prob.op, prob.grid)
         self.ahead = 0
         if n_ahead:
             h0a = h0 + lags_ahead.sum(axis=0)
@@ -290,9 +296,6 @@ class CausalSweep:
         # the near field's nested sub-blocks (outermost first), each within [1, B]
         self.sizes = tuple(int(max(1, min(q, B))) for q in (sub if isinstance(sub, (tuple, list)) else (sub,)))
         leaf = self.sizes[-1] if self.sizes else B
-        # correction form in single precision: the split far field (AffineSplit) only
-        self.single = bool(single) and isinstance(self.far, AffineSplit)
-        self.dtype = np.float32 if self.single else float
         self.prev = None                   # (X, Hc) of the last march finished (single)
         # [h_1^T .. h_{B-1}^T] side by side (N, (B - 1) N): a finished sub-block's steps (rows of
         # x^T) times it give every later lag's contribution as rows (the cross products)

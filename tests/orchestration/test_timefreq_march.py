@@ -51,7 +51,8 @@ def test_kernel_lags_and_the_split_kernel_are_the_inverse_fft_of_s(name):
     """kernel_lags (one triangle when S is symmetric) and AffineSplit.kernel (A and B times
     s's scalar kernel, a DFT restricted to the dense band, the rank-6 term from its affine
     parts) against the inverse FFT of every entry of S: 1e-12 of the largest entry, the first
-    negative lags too."""
+    negative lags too; the split's kernel in single precision (a march in correction form) to
+    1e-6."""
     s = {"table": hysteretic_table, "winkler": soil, "asymmetric table": asymmetric_table}[name]()
     prob = problem(s)
     op, g = prob.op, prob.grid
@@ -64,6 +65,9 @@ def test_kernel_lags_and_the_split_kernel_are_the_inverse_fft_of_s(name):
     assert split.usable
     head, ahead = split.kernel(20, 3)
     assert rel(head, ref_head) < 1e-12 and np.abs(ahead - ref_ahead).max() < 1e-12 * scale
+    head32, ahead32 = split.kernel(20, 3, np.float32)          # a march's head in correction form
+    assert head32.dtype == ahead32.dtype == np.float32
+    assert rel(head32, ref_head) < 1e-6 and np.abs(ahead32 - ref_ahead).max() < 1e-6 * scale
 
 
 @pytest.mark.parametrize("name", ["table", "winkler", "asymmetric table"])
