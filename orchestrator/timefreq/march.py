@@ -275,19 +275,18 @@ class CausalSweep:
         self.B = B = int(max(2, min(block, nt)))
         n_ahead = 0 if fold else int(max(0, min(ahead, prob.grid.nfft - nt)))
         split = None if fold else AffineSplit(prob.op, prob.grid)
+        split = split if split is not None and split.usable else None
         # correction form in single precision: the split far field (AffineSplit) only
-        self.single = bool(single) and split is not None and split.usable
+        self.single = bool(single) and split is not None
         self.dtype = np.float32 if self.single else float
         if self.single:                   # h_0 and the look-ahead in float64, the rest in float32
             (h0,), lags_ahead = split.kernel(1, n_ahead)
             head = split.kernel(B, 0, np.float32)[0]
-        elif split is not None and split.usable:
-            head, lags_ahead = split.kernel(B, n_ahead)
-            h0 = head[0]
         else:
-            head, lags_ahead = kernel_lags(prob.op, prob.grid, B, n_ahead, fold)
+            head, lags_ahead = split.kernel(B, n_ahead) if split is not None else \
+                kernel_lags(prob.op, prob.grid, B, n_ahead, fold)
             h0 = head[0]
-        self.far = split if split is not None and split.usable else generic_far_field(prob.op, prob.grid)
+        self.far = split if split is not None else generic_far_field(prob.op, prob.grid)
         self.ahead = 0
         if n_ahead:
             h0a = h0 + lags_ahead.sum(axis=0)
@@ -323,10 +322,10 @@ class CausalSweep:
         m = _MarchState(xT=np.zeros((nt, N)), near=np.zeros((nt, N), self.dtype), H=np.array(c0, float),
                         x=np.zeros(N))
         if self.single:                  # the products on the change from the last march
-            m.base, prev, self.prev = np.zeros((nt, N)), self.prev, None
+            prev, self.prev = self.prev, None
             m.src, m.C = np.zeros((nt, N), np.float32), np.empty((nt, N))
+            m.base = np.zeros((nt, N)) if prev is None else prev[0]
             if prev is not None:
-                m.base[:] = prev[0]
                 m.H += prev[1].T
         else:
             m.src = m.xT
