@@ -23,11 +23,25 @@ SYMMETRY_RTOL = 1e-14
 def history_gains(soil, dt: float) -> tuple[np.ndarray, np.ndarray]:
     """(Gx, Gv), each (n, n): how the history force of the step after next depends on the next
     committed state, h_{k+2} = g_{k+2} + Gx x_{k+1} + Gv xdot_{k+1}. Constant for a linear soil
-    at a fixed dt; measured on a soil at rest (where g = 0) by committing unit states, 2n
-    commits, once at export. The soil is left at rest. Gx is made exactly symmetric when it is
-    to round-off (SYMMETRY_RTOL; the residues of a reciprocal soil are symmetric): the native
-    structure FMU then reads half of it per step (and skips Gv when it is zero, as for the
-    recursive convolution, whose history does not depend on xdot)."""
+    at a fixed dt: from the soil's own ``history_gains()`` when it has one (the recursive
+    convolution's closed form), else measured (``measured_gains``), once at export. Gx is made
+    exactly symmetric when it is to round-off (SYMMETRY_RTOL; the residues of a reciprocal
+    soil are symmetric): the native structure FMU then reads half of it per step (and skips Gv
+    when it is zero, as for the recursive convolution, whose history does not depend on
+    xdot)."""
+    if hasattr(soil, "history_gains"):
+        soil.instantaneous(dt)
+        Gx, Gv = soil.history_gains()
+    else:
+        Gx, Gv = measured_gains(soil, dt)
+    if np.abs(Gx - Gx.T).max() <= SYMMETRY_RTOL * np.abs(Gx).max():
+        Gx = 0.5 * (Gx + Gx.T)          # a reciprocal soil's gain, symmetric to round-off: exactly so
+    return Gx, Gv
+
+
+def measured_gains(soil, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """history_gains' (Gx, Gv) measured on a soil at rest (where g = 0) by committing unit
+    states: 2n commits. The soil is left at rest."""
     n = soil.n_dof
     soil.instantaneous(dt)
     rest = soil.get_state()
@@ -41,8 +55,6 @@ def history_gains(soil, dt: float) -> tuple[np.ndarray, np.ndarray]:
             G[:, i] = soil.history()
         e[i] = 0.0
     soil.set_state(rest)
-    if np.abs(Gx - Gx.T).max() <= SYMMETRY_RTOL * np.abs(Gx).max():
-        Gx = 0.5 * (Gx + Gx.T)          # a reciprocal soil's gain, symmetric to round-off: exactly so
     return Gx, Gv
 
 

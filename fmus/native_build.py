@@ -481,16 +481,19 @@ def build_native_fmus(data: FmuData, outdir, coupled: bool = False, *, platforms
         vars_ = variables(role, n, N, data.output_nodes, data.motion is not None)
         if version == 2:
             recs = {**records[role], **layout(vars_)}
-            describe = lambda token, vars_=vars_, role=role: model_description(role, token, vars_, data.dt, stop)
+            md, key = model_description(role, "", vars_, data.dt, stop), "guid"
         else:
             vars3 = variables3(role, n, N, data.output_nodes, data.motion is not None)
             recs = {**records[role], **layout3(vars_, vars3)}
-            describe = lambda token, vars3=vars3, role=role: model_description3(role, token, vars3, data.dt, stop)
+            md, key = model_description3(role, "", vars3, data.dt, stop), "instantiationToken"
         payload = encode_resources(recs)
-        guid = str(uuid.UUID(bytes=hashlib.sha256(payload + describe("")).digest()[:16], version=4))
+        guid = str(uuid.UUID(bytes=hashlib.sha256(payload + md).digest()[:16], version=4))
         if version == 3:
             guid = "{" + guid + "}"
-        out[role] = _zip(outdir / f"{role}.fmu", role_class(role).__name__, describe(guid),
+        # the token into the description hashed without it: the root element's attribute, written
+        # first (an attribute value cannot hold the quotes: they are escaped)
+        md = md.replace(f'{key}=""'.encode(), f'{key}="{guid}"'.encode(), 1)
+        out[role] = _zip(outdir / f"{role}.fmu", role_class(role).__name__, md,
                          encode_resources({"guid": guid, **recs}), binaries, version)
     return out
 

@@ -179,6 +179,17 @@ class RecursiveConvolutionSoil:
         self.commit(x, xdot)
         return self._f.copy()
 
+    def history_gains(self):
+        """(Gx, Gv) (n, n) at the current dt, in closed form: how the history of the step after
+        next depends on the state committed next (fmus.coupling.history_gains measures them on
+        any soil). Committing x from rest puts the pole states at b x, whose history is then
+        H [b (a + 1) x]: Gx = Σ R_k b_k (a_k + 1) (a pair: 2 Re), and Gv = 0 (the recursion's
+        history does not depend on xdot)."""
+        cr = self._br * (self._ar + 1.0)
+        cc = self._bc * (self._ac + 1.0)
+        Gx = np.tensordot(cr, self._Rr, 1) + 2 * np.tensordot(cc, self._Rc, 1).real
+        return Gx, np.zeros_like(Gx)
+
     def static_stiffness(self) -> np.ndarray:
         """K(0) = D − Σ R_k / p_k, real (n, n)."""
         return self.model.static

@@ -12,7 +12,7 @@ channel matters, so the equality is not trivial.
 import numpy as np
 import pytest
 
-from helpers import pulse_motion, rel, rocks_about_both_axes, small_scene, soil_model
+from helpers import pulse_motion, random_passive_model, rel, rocks_about_both_axes, small_scene, soil_model
 from orchestrator.routes.cosim import run_cosim
 from orchestrator.routes.monolithic import run_monolithic
 
@@ -59,6 +59,21 @@ def test_every_schedule_equals_monolithic(mono, factory, schedule):
     assert cos.info["fmu_max_uplift"] == pytest.approx(ref.max_uplift(), rel=1e-10)
     rot = np.hypot(ref.raft[:, 3], ref.raft[:, 4]).max()
     assert cos.info["fmu_max_raft_rotation"] == pytest.approx(rot, rel=1e-10)
+
+
+def test_closed_form_gains_equal_the_measured_ones():
+    """The recursive convolution's history gains in closed form (RecursiveConvolutionSoil.
+    history_gains, what export uses) against the gains measured by 2n unit commits
+    (coupling.measured_gains): 1e-13 of the largest entry, real poles and pairs alike."""
+    from fmus.coupling import history_gains, measured_gains
+    from soil_impedance.convolution import RecursiveConvolutionSoil
+    model = random_passive_model(9, n_pairs=3, n_real=2, seed=4)
+    assert model.pole_split[0].size and model.pole_split[2].size
+    soil = RecursiveConvolutionSoil(model, MOTION.dt)
+    Gx, Gv = history_gains(soil, MOTION.dt)
+    Mx, Mv = measured_gains(soil, MOTION.dt)
+    assert np.abs(Gx - Mx).max() <= 1e-13 * np.abs(Mx).max() and not Mv.any() and not Gv.any()
+    assert np.array_equal(Gx, Gx.T)
 
 
 def test_history_gains_split_the_history_exactly():
