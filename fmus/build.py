@@ -71,7 +71,7 @@ def build_fmus(data: FmuData, outdir, coupled: bool = False) -> dict:
 
     The soil object is built once here: its passivity is verified (the FMUs then skip the
     test at instantiation: the verdict is part of the exported model) and its instantaneous
-    matrices and history gains are measured for the structure FMU."""
+    matrices and history gains are computed for the structure FMU."""
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
     n = data.soil_model.n

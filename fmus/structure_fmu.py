@@ -9,7 +9,7 @@ Variables: the outputs and the inputs ag_x, ag_y, ag_z of fmus/stepper.py, and (
   outputs  x_time      s   time of x (= t): connect to the soil FMU's input x_time
 
 A step from t takes g of t (now, or held from the previous step: fmus.coupling.StampedInput)
-and the history force h = g + Gx x(t) + Gv xdot(t) with the soil's gains measured at export,
+and the history force h = g + Gx x(t) + Gv xdot(t) with the soil's gains computed at export,
 folds the soil's (K0, C0) into the implicit matrix and solves the step. This is the monolithic
 route's step to round-off, under Jacobi and under Gauss-Seidel in either order.
 """
