@@ -399,14 +399,14 @@ def continuation_model(table, fit, A, B):
     by 1 / |K(f)|_F, every entry a right-hand side), symmetrised. Its interface stiffness then
     tends to the route's springs and dashpots above the table's last frequency, as the table's
     does."""
-    from orchestrator.timefreq.soil import causal_table
+    from orchestrator.timefreq.soil import causal_table, dense
     from soil_impedance.rational import RationalModel
     from soil_impedance.vectfit import coefficients_to_residues, real_basis
 
     K, _ = causal_table(table)
     f = np.asarray(table.frequencies_hz, float)
     s = 2j * np.pi * f
-    A, B = (np.asarray(M.toarray() if hasattr(M, "toarray") else M, float) for M in (A, B))
+    A, B = dense(A), dense(B)
     w = 1.0 / np.linalg.norm(K.reshape(f.size, -1), axis=1)
     Phi = w[:, None] * real_basis(s, fit.poles, const=False, linear=False)
     Y = w[:, None] * (K - A[None] - s[:, None, None] * B[None]).reshape(f.size, -1)

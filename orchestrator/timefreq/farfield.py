@@ -135,8 +135,7 @@ class AffineSplit:
         f = np.arange(F)
         c = np.where((f == 0) | (2 * f == nf), 1.0, 2.0) / nf                # irfft's weights
         E = c[:, None] * np.exp(2j * np.pi * np.outer(f, n) / nf) * w       # (F, L): h = Re(E^T X)
-        single = np.dtype(dtype) == np.float32
-        cast = (lambda a: np.asarray(a, np.float32)) if single else (lambda a: a)
+        cast = lambda a: np.asarray(a, dtype)                               # (float64: no copy)
         L = n.size
         N = op.N
         if self.packed:                                   # each (i, j)'s place in the packed triangle
@@ -146,7 +145,7 @@ class AffineSplit:
         # every term added in place, lag by lag (no (L, N, N) temporaries: fresh memory is paged
         # in by the kernel, ~0.2 s of system time for each on the reactor)
         out = None
-        for idx, D in self.dense32 if single else self.dense:
+        for idx, D in self.dense32 if np.dtype(dtype) == np.float32 else self.dense:
             h = np.real(np.tensordot(E[idx].astype(D.dtype), D, axes=(0, 0)))
             if self.packed:
                 h = np.take(h, pos.ravel(), axis=1).reshape(L, N, N)      # a new array
