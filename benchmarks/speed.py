@@ -115,7 +115,7 @@ class Case:
         from fmpy import read_model_description
 
         from fmus.native_build import build_native_fmus
-        from fmus.native_host import fmu_binaries
+        from fmus.native_stepper import fmu_binaries
         from orchestrator.export import fmu_data
         tmp = Path(tempfile.mkdtemp(prefix="speed_coupled_"))
         bins = fmu_binaries()
@@ -221,7 +221,7 @@ def winkler_route(case: Case):
 
 @row("step check (cold)")
 def step_check_cold(case: Case):
-    from fmus.native_host import library
+    from fmus.native_stepper import library
     from orchestrator.run import proxy_springs, step_doubling
     library()                                       # compiled untimed (a temporary folder of the process)
     springs = proxy_springs(case.scene, True, case._cache())

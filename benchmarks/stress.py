@@ -230,7 +230,7 @@ def _penalty(scene, tables) -> float:
 
 def _run(scene, routes, cache_dir=None, soil_model=None, soil_kwargs=None):
     """{route: RouteResult or refusal str} for a scene (the soil model given or fitted)."""
-    from orchestrator.errors import UserInputError
+    from orchestrator.exit_codes import USER_INPUT
     from orchestrator.routes.monolithic import run_monolithic
     from orchestrator.run import run_scene
     out = {}
@@ -243,7 +243,7 @@ def _run(scene, routes, cache_dir=None, soil_model=None, soil_kwargs=None):
                 else:
                     res = run_scene(scene, [route], cache_dir=cache_dir)[0][route]
             out[route] = f"refused: {res.message}" if res.status.value == "refused" else res
-        except UserInputError as exc:
+        except USER_INPUT as exc:
             out[route] = f"refused: {type(exc).__name__}: {exc}"
     return out
 

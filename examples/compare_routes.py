@@ -8,7 +8,7 @@ the co-simulation route through the two FMUs. They agree to round-off (the imped
 """
 from orchestrator.compare import history_differences
 from orchestrator.impedance import scene_fit
-from orchestrator.results import summary, write_results
+from orchestrator.results_file import summary, write_results
 from orchestrator.routes.cosim import run_cosim
 from orchestrator.routes.monolithic import run_monolithic
 from orchestrator.scene import scene_from_dict

@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
-PACKAGES = ("structure", "soil_impedance", "fmus")
+PACKAGES = ("structure", "soil_impedance", "fmus", "uplift_common")
 #: project modules a bundled module names but an FMU never runs
 NEVER_RUN = ("soil_impedance.fit_plot",)
 #: third-party module -> the requirement written to requirements.txt (pip format)
@@ -128,7 +128,7 @@ def adopt(resources):
 '''
 
 #: the project's packages as imported by the bundled code (rewritten to the private package)
-IMPORT = re.compile(r"^(\s*)(from|import) (structure|soil_impedance|fmus)\b", re.M)
+IMPORT = re.compile(r"^(\s*)(from|import) (structure|soil_impedance|fmus|uplift_common)\b", re.M)
 
 
 def bundle(folder: Path, extra, entry_modules) -> tuple[Path, object]:

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from pythonfmu import Fmi2Slave
 
-from fmus.bank import RealBank, register_schema
+from fmus.real_variables import RealBank, register_schema
 from fmus.resources import make_soil, read_settings
 from fmus.slave import BankedSlave
 from fmus.stepper import StepperOutputs

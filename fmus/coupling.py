@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from fmus.schema import TIME_TOL, message
+from uplift_common.errors import UserInputError
 
 
 #: relative asymmetry (to the largest entry) up to which a measured gain is round-off of a symmetric one
@@ -70,7 +71,7 @@ def history_ahead(soil) -> np.ndarray:
     return g
 
 
-class StepRefused(ValueError):
+class StepRefused(UserInputError):
     """A call the FMU refuses (wrong time, step size or state, non-finite input, a wrong stamp):
     the call fails with this message, the instance is left as it was."""
 

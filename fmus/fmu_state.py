@@ -17,12 +17,13 @@ import zlib
 import numpy as np
 
 from fmus.schema import STATE_VERSION, message
+from uplift_common.errors import UserInputError
 
 MAGIC = b"UPLIFTPS"
 HEADER = struct.Struct("<8sIIQQ")
 
 
-class StateRefused(ValueError):
+class StateRefused(UserInputError):
     """A serialised state this FMU does not take (the message says why); nothing was changed."""
 
 

@@ -55,6 +55,7 @@ import numpy as np
 from fmus.coupling import history_gains
 from fmus.resources import DEFAULT_SOIL_FACTORY, soil_from_model
 from fmus.schema import UNITS, slot_table, variables, variables3
+from uplift_common.errors import ComputationError
 
 if TYPE_CHECKING:
     from fmus.build import FmuData
@@ -94,7 +95,7 @@ VERSION = 1
 KINDS = {"f8": 1, "i8": 2, "text": 3}
 
 
-class NativeBuildError(RuntimeError):
+class NativeBuildError(ComputationError):
     """The C runtime could not be compiled (the message has the compiler's output)."""
 
 
@@ -465,7 +466,7 @@ def build_native_fmus(data: FmuData, outdir, coupled: bool = False, *, platforms
              tables leave them at structure.ContactSettings' defaults, as the Python FMUs do)
     fmi_version : 2 (FMI 2.0, scalar variables) or 3 (FMI 3.0, arrays): the same runtime and
                   answers
-    binaries : {platform: bytes} the runtime already compiled (e.g. fmus.native_host.fmu_binaries,
+    binaries : {platform: bytes} the runtime already compiled (e.g. fmus.native_stepper.fmu_binaries,
                cached per content hash), instead of compiling it here
     """
     version = _version(fmi_version)

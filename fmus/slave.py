@@ -8,7 +8,7 @@ import traceback
 
 import numpy as np
 
-from fmus.bank import add_units
+from fmus.real_variables import add_units
 from fmus.coupling import StepRefused
 from fmus.fmu_state import StateRefused, copy_state, identity, state_from_bytes, state_to_bytes
 from fmus.resources import PREFIX, REQUIREMENTS_FILE, adopt_resources

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 from pythonfmu import Fmi2Slave
 
-from fmus.bank import RealBank, register_schema
+from fmus.real_variables import RealBank, register_schema
 from fmus.coupling import StampedInput, history_ahead
 from fmus.resources import make_soil, read_settings
 from fmus.slave import BankedSlave

@@ -37,7 +37,7 @@ class StepperOutputs:
     engine = "stepper"
 
     def _register_stepper(self, settings):
-        """After the schema's Real variables (fmus.bank.register_schema): the Boolean parameter."""
+        """After the schema's Real variables (fmus.real_variables.register_schema): the Boolean parameter."""
         self.nodes = list(settings["output_nodes"])
         self.internal_motion = bool(settings.get("motion"))
         self.register_variable(Boolean("internal_motion", causality=Fmi2Causality.parameter,

@@ -1,8 +1,8 @@
 """The ``uplift`` command line: parsing, printing, exit codes.
 
-Exit codes (orchestrator.settings): 0 success; 1 a computation stopped (results written so
+Exit codes (orchestrator.exit_codes): 0 success; 1 a computation stopped (results written so
 far, reason printed); 2 bad input (scene, file, option, a tool the machine lacks:
-orchestrator.errors); 130 interrupted (Ctrl-C: one line on stderr, no output half-written, a
+orchestrator.exit_codes); 130 interrupted (Ctrl-C: one line on stderr, no output half-written, a
 previous file at -o left as it was). Every output path is checked before any computation.
 Machine-readable output (``--json``) goes to stdout as exactly one JSON object; progress and
 messages go to stderr. This is the only module that prints.
@@ -25,16 +25,25 @@ from structure.results import Status
 # what a command alone uses (bench, compare, ensembles, plots, reports, fits) is imported by it:
 # every command pays the imports at the top
 from orchestrator.ensemble import CONNECT_TIMEOUT_S, DT_CHECKS
-from orchestrator.errors import ComputationError, OptionError, SetupError, UserInputError
+from orchestrator.exit_codes import EXIT_FAILED, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, STOPPED, USER_INPUT
 from orchestrator.motion import G
 from orchestrator.progress import Progress, labelled_bars
-from orchestrator.results import (ResultsFileError, check_output_folder, check_output_path, read_results, summary,
+from orchestrator.results_file import (ResultsFileError, check_output_folder, check_output_path, read_results, summary,
                                   write_results)
 from orchestrator.routes import route_names
 from orchestrator.run import run_scene
 from orchestrator.scene import MAX_PGA_G, SceneError, builtin_scenes, load_scene
-from orchestrator.settings import (EXIT_FAILED, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, FMU_KINDS, compute_threads,
-                                   default_cache_dir)
+from orchestrator.settings import FMU_KINDS, compute_threads, default_cache_dir
+from uplift_common.errors import UserInputError
+
+class OptionError(UserInputError):
+    """Command-line options that cannot go together; the message says which to drop."""
+
+
+class SetupError(UserInputError):
+    """The machine lacks something a command needs (e.g. the C compiler of a native export);
+    the message names it and how to get it."""
+
 
 #: the files ``uplift export`` writes into its folder
 EXPORT_FILES = ("structure.fmu", "soil.fmu", "coupled.fmu", "system.ssd", "system.ssp")
@@ -235,10 +244,10 @@ def main(argv=None) -> int:
         print("uplift: interrupted (no output was half-written; an ensemble keeps its finished runs)",
               file=sys.stderr)
         return EXIT_INTERRUPTED
-    except UserInputError as exc:
+    except USER_INPUT as exc:
         print(f"uplift: error: {exc}", file=sys.stderr)
         return EXIT_INPUT
-    except ComputationError as exc:
+    except STOPPED as exc:
         print(f"uplift: stopped: {exc}", file=sys.stderr)
         return EXIT_FAILED
     except BrokenPipeError:

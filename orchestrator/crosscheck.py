@@ -51,7 +51,7 @@ from fmpy.util import read_ref_opt_file
 from fmus.resources import MOTION_FILE
 from fmus.schema import AG, vector3
 from fmus.native_build import RESOURCE_FILE, decode_resources
-from soil_impedance.storage import atomic_output
+from uplift_common.files import atomic_output
 
 from orchestrator.export import HEADLINE, Export
 from orchestrator.master import FmuSlave

@@ -38,7 +38,7 @@ from fmus.bundle import PACKAGES
 from fmus.resources import DEFAULT_SOIL_FACTORY
 from fmus.schema import AG
 from fmus.native_build import FMI_VERSIONS, build_native_fmus
-from soil_impedance.storage import atomic_output
+from uplift_common.files import atomic_output
 from structure.spec import contact_table
 
 from orchestrator.impedance import scene_fit

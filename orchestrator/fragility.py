@@ -38,9 +38,9 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.special import gammaln, log_ndtr, ndtr
 
-from soil_impedance.storage import atomic_update, require_checksum
+from uplift_common.files import atomic_update, require_checksum
 
-from orchestrator.errors import FragilityError
+from uplift_common.errors import UserInputError
 from orchestrator.motion import G
 
 #: the fitted median lies within [lowest PGA / MEDIAN_FACTOR, highest PGA * MEDIAN_FACTOR]
@@ -68,6 +68,10 @@ LEFT_OUT = ("failed", "stopped", "refused", "undefined")
 GROUP = "fragility"
 _LIMIT = re.compile(r"^\s*(?P<var>[A-Za-z_]\w*)\s*(?:\[(?P<sel>[^\]]*)\])?\s*(?P<op><=|>=|<|>)\s*"
                     r"(?P<value>[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*(?P<unit>\S*)\s*$")
+
+
+class FragilityError(UserInputError):
+    """Bad input to a fragility fit (a limit, a route, a file); the message names it and the fix."""
 
 
 @dataclass(frozen=True)
@@ -399,7 +403,7 @@ def fragility_json(frag) -> dict:
 def store_fragility(path, frag) -> Path:
     """Write ``frag`` as the group ``fragility`` of the ensemble file ``path`` (replacing an
     earlier one), atomically: the file is verified and copied, the group written into the copy,
-    the copy re-stamped with its checksum and renamed onto ``path`` (``storage.atomic_update``)."""
+    the copy re-stamped with its checksum and renamed onto ``path`` (``uplift_common.files.atomic_update``)."""
     path = Path(path)
     with atomic_update(path) as tmp:
         with h5py.File(tmp, "a") as f:

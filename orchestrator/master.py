@@ -38,6 +38,7 @@ from fmpy.fmi3 import FMU3Slave, fmi3Boolean
 
 from fmus.schema import AG, ENERGY_TERMS, vector3
 from structure.results import RouteResult, RunNotes, Status
+from uplift_common.errors import ComputationError
 
 SCHEDULES = ("gauss-seidel", "soil-first", "jacobi")
 FMI2_TYPES = ("Real", "Integer", "Boolean", "String", "Enumeration")
@@ -47,7 +48,7 @@ NATIVE_TOOL = "uplift native"
 FMI2_WARNING = 1                    # fmi2Status (fmi3Status) above which a call failed (discard, error, fatal)
 
 
-class CosimError(RuntimeError):
+class CosimError(ComputationError):
     """A co-simulation that cannot go on; the message names the FMU, the time and its log."""
 
 

@@ -32,6 +32,7 @@ import numpy as np
 from structure import G_ACC as G  # m/s^2 per g
 
 from orchestrator.spectra import response_spectrum
+from uplift_common.errors import UserInputError
 
 _IN = 0.0254
 #: the choices of the [motion] keys (and of the readers' arguments)
@@ -43,7 +44,7 @@ FORMATS = ("two-column", "peer-at2")
 UNITS = ("g", "m/s2")
 
 
-class MotionError(ValueError):
+class MotionError(UserInputError):
     """An invalid motion input; the message names the input and how to fix it."""
 
 

@@ -23,14 +23,14 @@ from pathlib import Path
 
 import numpy as np
 
-from soil_impedance.storage import atomic_output
+from uplift_common.files import atomic_output
 from structure.results import Status
 
 from orchestrator.compare import compare
 from orchestrator.ensemble import ensemble_components, read_ensemble
 from orchestrator.motion import G
 from orchestrator.plots import pyplot, run_figures
-from orchestrator.results import ResultsFileError, read_motion, read_results, summary
+from orchestrator.results_file import ResultsFileError, read_motion, read_results, summary
 from orchestrator.routes import get_route, route_names
 
 
@@ -41,7 +41,7 @@ def route_note(name: str) -> str:
 
 def load(path):
     """(scene name, created, {route: RouteResult}, Motion or None) of a results file
-    (orchestrator.results.ResultsFileError when it is missing or not one)."""
+    (orchestrator.results_file.ResultsFileError when it is missing or not one)."""
     results = read_results(path)
     scene, created, motion = read_motion(path)
     return scene or Path(path).stem, created, results, motion

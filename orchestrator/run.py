@@ -20,14 +20,15 @@ from pathlib import Path
 import h5py
 import numpy as np
 from soil_impedance.cache import read_entry, write_entry
-from soil_impedance.storage import atomic_output, stamp_checksum
+from uplift_common.code import code_digest
+from uplift_common.files import atomic_output, stamp_checksum
 
 from structure import ConvergenceError, simulate
 from structure.results import RouteResult, Status
 from structure.spec import winkler_from_moduli
 from structure.winkler import modes_on_soil, springs_from_rigid_impedance
 
-from orchestrator.errors import ComputationError, UserInputError
+from orchestrator.exit_codes import STOPPED, USER_INPUT
 from orchestrator.impedance import cached_scene_fit, scene_fit, scene_impedance, scene_static
 from orchestrator.motion import Motion, make_motion
 from orchestrator.routes import RunContext, get_route
@@ -92,7 +93,7 @@ def _dt_check_run(scene, model, soil, motion, cache_dir=None, keep: bool = True)
     the native answer is kept there (``dtcheck-<key>.h5``, checksummed, verified on read) under
     the key of everything the C runtime reads (``_native_run_key``): read back, never stepped
     again, by a run of the same structure, springs, contact, motion and step."""
-    from fmus.native_host import cache_folder, encode_run, library, native_max_uplift, springs_soil   # when it checks
+    from fmus.native_stepper import cache_folder, encode_run, library, native_max_uplift, springs_soil   # when it checks
     from structure import NewmarkStepper
     lib = library(cache_folder(cache_dir))
     if lib is None:
@@ -117,18 +118,16 @@ def _dt_check_run(scene, model, soil, motion, cache_dir=None, keep: bool = True)
 
 #: what the native answer of a check also depends on besides its inputs: the Python side that
 #: encodes them for the C runtime and the measure taken of its histories
-_CHECK_SOURCES = ("fmus/native_host.py", "fmus/native_build.py", "orchestrator/run.py")
+DT_CHECK_CODE = ("fmus.native_stepper", "fmus.native_build", "orchestrator.run")
 
 
 def _native_run_key(lib, blob: bytes, acc) -> str:
     """SHA-256 of what a native run reads: the compiled library (its file name is the digest of
     its C sources, compiler, flags and platform), the encoded model (``blob``, ``encode_run``: the
     structure's matrices, static state, soil springs, penalty and contact settings, the step), the ground
-    acceleration, and the sources of the Python side (``_CHECK_SOURCES``)."""
+    acceleration, and the sources of the Python side (``DT_CHECK_CODE``)."""
     h = hashlib.sha256(Path(lib._name).name.encode() + b"\0")
-    root = Path(__file__).resolve().parents[1]
-    for name in _CHECK_SOURCES:
-        h.update(name.encode() + b"\0" + (root / name).read_bytes())
+    h.update(code_digest(*DT_CHECK_CODE).encode())
     h.update(blob)
     a = np.ascontiguousarray(acc, "<f8")
     h.update(f"{a.shape}".encode() + memoryview(a).cast("B"))
@@ -328,9 +327,9 @@ def _run_route(route, ctx, bar) -> RouteResult:
     """The route's result; a stop or a refusal becomes a result with the reason."""
     try:
         return route.run(ctx, bar)
-    except UserInputError as exc:
+    except USER_INPUT as exc:
         return RouteResult.refused(route.name, str(exc))
-    except ComputationError as exc:
+    except STOPPED as exc:
         result = getattr(exc, "result", None)      # ConvergenceError carries the histories so far
         return result if result is not None else RouteResult(
             route=route.name, time=np.zeros(0), status=Status.STOPPED, message=f"{type(exc).__name__}: {exc}")

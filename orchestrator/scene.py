@@ -41,9 +41,10 @@ from structure.errors import StructureError
 from structure.model import StructureModel
 from structure.spec import (WINKLER_MODULI, StructureSpec, build_model, check_choice, check_keys, check_number,
                             contact_from_spec, parse_structure, show, winkler_moduli)
+from uplift_common.errors import UserInputError
 
 
-class SceneError(ValueError):
+class SceneError(UserInputError):
     """An invalid scene; the message names the scene, the key at fault and how to fix it."""
 
 

@@ -1,8 +1,5 @@
-"""What the command line and the routes share: exit codes, the cache folder, thread control.
-
-Exit codes: 0 success; 1 a computation stopped (results so far are written, with the
-reason); 2 bad input (the message names the key or file and what would fix it); 130 interrupted
-(Ctrl-C).
+"""What the command line and the routes share: the cache folder, thread control (the exit codes
+are in ``orchestrator.exit_codes``).
 
 Threads. The project's dense matrices are small (a few hundred wide: Newton matrices, the
 TF operator's bands, the fit's least squares) and a 2-core machine is often shared:
@@ -19,12 +16,9 @@ from contextlib import contextmanager
 from soil_impedance.cache import default_cache_dir  # noqa: F401  (the cache folder, re-exported)
 from threadpoolctl import threadpool_limits
 
-EXIT_OK, EXIT_FAILED, EXIT_INPUT = 0, 1, 2
 #: the kinds of FMU ``uplift export`` writes (orchestrator.export; named here so the command line
 #: lists them without loading the FMU stack)
 FMU_KINDS = ("python", "native")
-#: interrupted by the user (Ctrl-C, SIGINT): 128 + 2, as shells report it
-EXIT_INTERRUPTED = 130
 
 
 def thread_count() -> int:

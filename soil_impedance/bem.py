@@ -30,11 +30,12 @@ import numpy as np
 import scipy.linalg as sla
 
 from .patch import radial_to_cartesian, static_patch_kernel
+from uplift_common.errors import UserInputError
 
 CONTACTS = ("welded", "relaxed")
 
 
-class BemError(ValueError):
+class BemError(UserInputError):
     """An invalid BEM input (contact keyword, frequency, missing Green's functions)."""
 
 

@@ -1,10 +1,10 @@
 """Verified HDF5 cache entries (impedance tables, fits, ensemble cells).
 
 A cache entry is an HDF5 file written atomically with a checksum of its content
-(``soil_impedance.storage``: ``atomic_output``, ``stamp_checksum``). A damaged entry (a flipped
+(``uplift_common.files``: ``atomic_output``, ``stamp_checksum``). A damaged entry (a flipped
 bit, a half-written file, a stale layout) is discarded with a ``CacheWarning`` and recomputed
 by the caller (``read_entry``); a damaged file the user gave is the caller's to report as an
-error (``storage.require_checksum``).
+error (``uplift_common.files.require_checksum``).
 
 Usage::
 
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import h5py
 
-from .storage import ComplexPairs, verify_checksum
+from uplift_common.files import ComplexPairs, verify_checksum
 
 
 def default_cache_dir() -> Path:
@@ -38,7 +38,7 @@ def read_entry(path, reader, keep: bool = False):
     keep: call ``reader(f, data)`` instead, ``data`` the entry's datasets as the checksum
     verification read them (``{"/name": ndarray}``): a large entry is read and hashed once,
     a complex array stored as ``<name>_real`` and ``<name>_imag`` straight into one complex
-    array, kept as its two parts (``storage.ComplexPairs``).
+    array, kept as its two parts (``uplift_common.files.ComplexPairs``).
 
     None if the file is absent (or its folder is not one). If it cannot be opened, fails checksum verification, or
     ``reader`` raises (any Exception, including the user-input error types: ``reader`` may

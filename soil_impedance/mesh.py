@@ -14,9 +14,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from uplift_common.errors import UserInputError
 
 
-class MeshError(ValueError):
+class MeshError(UserInputError):
     """An invalid interface mesh input; the message names the input and how to fix it."""
 
 

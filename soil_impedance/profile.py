@@ -35,13 +35,14 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from uplift_common.errors import UserInputError
 
 DAMPING_MODELS = ("hysteretic", "causal")
 CAUSAL_REFERENCE_HZ = 1.0   # the given vs holds at this frequency (causal model)
 CAUSAL_CUTOFF_HZ = 0.05     # ω1 / 2π: below it the causal material loses its damping
 
 
-class SoilError(ValueError):
+class SoilError(UserInputError):
     """An invalid soil profile; the message names the input and how to fix it."""
 
 

@@ -21,9 +21,10 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
+from uplift_common.errors import UserInputError
 
 
-class FitError(ValueError):
+class FitError(UserInputError):
     """A rational model that cannot be used as asked (unstable, non-real, non-passive...)."""
 
 

@@ -17,6 +17,8 @@ import numpy as np
 import scipy.linalg as sla
 
 from .bem import CONTACTS, BemError, SurfaceBem, nodal_dofs
+from uplift_common.code import code_digest
+
 from .cache import read_entry, write_entry
 from .greens_rule import GreenRule
 from .profile import CAUSAL_CUTOFF_HZ, CAUSAL_REFERENCE_HZ
@@ -24,24 +26,14 @@ from .reduction import RIGID_DOFS, gap_dofs, gap_transform, rigid_transform
 from .table import ImpedanceTable, TableError, content_hash
 
 OUTPUTS = ("rigid", "gap", "nodal")
-_CODE_FILES = ("profile.py", "patch.py", "bem.py", "greens.py", "greens_layers.py", "greens_rule.py",
-               "reduction.py", "sweep.py")
+#: the code a table depends on: its digest is one of the table's inputs (a changed kernel misses the cache)
+CODE = ("soil_impedance.profile", "soil_impedance.patch", "soil_impedance.bem", "soil_impedance.greens",
+        "soil_impedance.greens_layers", "soil_impedance.greens_rule", "soil_impedance.reduction", "soil_impedance.sweep")
 
 
 def code_version() -> str:
-    """Package version + a digest of the numerical sources (a changed kernel misses the cache)."""
-    try:
-        from importlib.metadata import version
-        pkg = version("uplift")
-    except Exception:  # pragma: no cover - not installed
-        pkg = "unknown"
-    h = hashlib.sha256()
-    here = Path(__file__).parent
-    for name in _CODE_FILES:
-        p = here / name
-        if p.is_file():
-            h.update(name.encode() + p.read_bytes())
-    return f"{pkg}+{h.hexdigest()[:12]}"
+    """The digest (12 hex digits) of the sweep's code (``CODE``)."""
+    return code_digest(*CODE)[:12]
 
 
 def _material_dict(m) -> dict:

@@ -7,10 +7,10 @@ HDF5 layout (open it with h5py, HDFView, MATLAB ``h5read``...):
   /dofs             utf-8 strings (n,)
   attrs: format = "uplift.ImpedanceTable", format_version = 1, hash (of the inputs: provenance
          + frequencies), data_sha256 (of matrices + dofs, checked on load), provenance (JSON),
-         sha256 (of the whole file, ``storage.stamp_checksum``; checked on load: a file that
+         sha256 (of the whole file, ``uplift_common.files.stamp_checksum``; checked on load: a file that
          changed since it was written, or carries none, is refused)
 
-Files are written atomically (``storage.atomic_output``): a reader sees the old file or the
+Files are written atomically (``uplift_common.files.atomic_output``): a reader sees the old file or the
 complete new one, never a half-written one.
 """
 from __future__ import annotations
@@ -21,13 +21,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .storage import ChangedFileError, ComplexPairs, atomic_output, require_checksum, stamp_checksum
+from uplift_common.files import ChangedFileError, ComplexPairs, atomic_output, require_checksum, stamp_checksum
+from uplift_common.errors import UserInputError
 
 FORMAT = "uplift.ImpedanceTable"
 FORMAT_VERSION = 1
 
 
-class TableError(ValueError):
+class TableError(UserInputError):
     """An invalid impedance table, file or interpolation request."""
 
 
@@ -40,7 +41,7 @@ def content_hash(provenance: dict, frequencies_hz) -> str:
 
 def _complex(re, im) -> np.ndarray:
     """The complex matrices of the parts re and im: the array they are the parts of when they
-    were read in place (``storage.ComplexPairs``), else a copy (bit-exact, signed zeros kept)."""
+    were read in place (``uplift_common.files.ComplexPairs``), else a copy (bit-exact, signed zeros kept)."""
     base = re.base
     if isinstance(base, np.ndarray) and base is im.base and base.dtype == complex and base.shape == re.shape \
             and re.strides == im.strides == base.strides \
@@ -153,7 +154,7 @@ class ImpedanceTable:
 
     def save(self, path) -> None:
         """Write the table to an HDF5 file, atomically (replaces an existing file only once the
-        new one is complete; the folder must exist: ``storage.OutputFolderError`` otherwise)."""
+        new one is complete; the folder must exist: ``uplift_common.files.OutputFolderError`` otherwise)."""
         import h5py
         with atomic_output(path) as tmp, h5py.File(tmp, "w") as h:
             h.attrs["format"] = FORMAT
@@ -187,7 +188,7 @@ class ImpedanceTable:
         format, the whole-file checksum and the hash and data digest. data: the file's datasets as
         the caller's checksum verification read them (``cache.read_entry(..., keep=True)``): the
         checksum is not computed again. Either way the file is read once, the matrices straight
-        into the table's complex array when read with ``into=storage.ComplexPairs()`` (as
+        into the table's complex array when read with ``into=uplift_common.files.ComplexPairs()`` (as
         ``cache.read_entry`` does)."""
         if h.attrs.get("format") != FORMAT:
             raise TableError(f"{path}: not an {FORMAT} file (attribute 'format' missing or wrong)")

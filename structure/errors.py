@@ -1,13 +1,15 @@
 """Domain exceptions of the structure package."""
 from __future__ import annotations
 
+from uplift_common.errors import ComputationError, UserInputError
 
-class StructureError(ValueError):
+
+class StructureError(UserInputError):
     """An invalid structure, soil-spring or contact input; the message names the input at
     fault and what would fix it (e.g. ``structure.beams[0].E = -3 must be > 0``)."""
 
 
-class ConvergenceError(RuntimeError):
+class ConvergenceError(ComputationError):
     """The Newton contact iteration failed even at the smallest allowed sub-step.
 
     Attributes

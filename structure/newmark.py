@@ -36,7 +36,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from ._blas import single_threaded_blas
-from .closed import ClosedSolver, MatVec, quad, work
+from .closed_contact import ClosedSolver, MatVec, quad, work
 from .contact import ContactSettings, contact_force, gap, penalty_stiffness
 from .damping import damping_matrix
 from .errors import ConvergenceError, StructureError

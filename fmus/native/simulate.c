@@ -1,7 +1,7 @@
 /* The in-process run: the stepper and the soil of the coupled FMU over a motion, in chunks of
    steps (no FMI layer, no call per step): the host reports progress and takes an interrupt
    between two chunks. The in-process routes load it with ctypes from a library compiled for
-   the host (fmus/native_host.py); the native FMUs do not ship it.
+   the host (fmus/native_stepper.py); the native FMUs do not ship it.
 
    up_sim_open(res, size, ag0, err) -> handle
      res, size  the coupled FMU's resource records (fmus/native/README.md) in memory

@@ -10,7 +10,7 @@ at the PGA; ``[motion]`` kind = "record", components = its files, scale = that f
 record file, one component on the scene's direction, scaled so that its peak is the PGA; or,
 without records, the scene's synthetic motion (each of its components) at that PGA and seed.
 Every record of an ensemble runs the same components. A cell keeps what the
-run's summary gives (``orchestrator.results.summary``: max uplift, max raft rotation, minimum
+run's summary gives (``orchestrator.results_file.summary``: max uplift, max raft rotation, minimum
 contact ratio, wall time, status) and the floor response spectra of the scene's output nodes.
 
 What the cells share is computed once per ensemble, on the calling process, and scattered to
@@ -58,7 +58,7 @@ file, summary), ``runner`` (``run_ensemble``).
 from .cluster import CONNECT_TIMEOUT_S, LOCAL_WORKER_CONFIG, default_workers
 from .dataset import (FRACTILE_VARIABLES, KIND, QUANTILES, assemble, ensemble_components, ensemble_summary,
                       is_ensemble_file, read_ensemble, write_ensemble)
-from .plan import (DT_CHECKS, RECORD_SUFFIXES, Cell, EnsembleError, Plan, Record, cell_key, code_digest,
+from .plan import (DT_CHECKS, RECORD_SUFFIXES, Cell, EnsembleError, Plan, Record, cell_key, code_version,
                    plan_ensemble, record_sources)
 from .runner import run_ensemble, strongest_check
 from .store import (CELL_VARIABLES, DAMPING, DIRECTIONS, FAILED, FREQUENCIES_HZ, ROUNDOFF, TEXT_VARIABLES,
@@ -68,6 +68,6 @@ from .triplets import COMPONENTS_FILE, folder_components, peer_component
 __all__ = ["CELL_VARIABLES", "COMPONENTS_FILE", "CONNECT_TIMEOUT_S", "DAMPING", "DIRECTIONS", "DT_CHECKS", "FAILED",
            "FRACTILE_VARIABLES", "FREQUENCIES_HZ", "KIND", "LOCAL_WORKER_CONFIG", "QUANTILES", "RECORD_SUFFIXES",
            "ROUNDOFF", "TEXT_VARIABLES", "Cell", "CellStore", "EnsembleError", "Plan", "Record", "assemble",
-           "cell_key", "cell_values", "code_digest", "default_workers", "ensemble_components", "ensemble_summary",
+           "cell_key", "cell_values", "code_version", "default_workers", "ensemble_components", "ensemble_summary",
            "folder_components", "is_ensemble_file", "peer_component", "plan_ensemble", "read_ensemble",
            "record_sources", "run_cell", "run_ensemble", "strongest_check", "write_ensemble"]

@@ -10,11 +10,11 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from soil_impedance.storage import CHECKSUM_ATTR, atomic_output, require_checksum, stamp_file
+from uplift_common.files import CHECKSUM_ATTR, atomic_output, require_checksum, stamp_file
 from structure.results import Status
 
 from orchestrator.motion import G
-from orchestrator.results import ResultsFileError, check_output_path
+from orchestrator.results_file import ResultsFileError, check_output_path
 
 from .plan import Plan
 from .store import CELL_VARIABLES, DAMPING, DIRECTIONS, FAILED, FREQUENCIES_HZ, TEXT_VARIABLES
@@ -104,8 +104,8 @@ def ensemble_components(ds) -> tuple:
 
 def write_ensemble(ds, path) -> Path:
     """Write the dataset to ``path`` (netCDF4 through h5netcdf), atomically, with the checksum of
-    its content (``soil_impedance.storage``; a later append re-stamps it with
-    ``storage.atomic_update``)."""
+    its content (``uplift_common.files``; a later append re-stamps it with
+    ``uplift_common.files.atomic_update``)."""
     path = check_output_path(path)
     with atomic_output(path) as tmp:
         ds.to_netcdf(tmp, engine="h5netcdf")

@@ -3,19 +3,18 @@ PGA x route) and the hash of each cell's inputs (its key in the cell store)."""
 from __future__ import annotations
 
 import dataclasses
-import functools
 import hashlib
 import json
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from uplift_common.code import PACKAGES, code_digest
 
-from orchestrator.errors import EnsembleError
 from orchestrator.motion import DIRECTIONS, G, MotionError, read_components
 from orchestrator.scene import MotionConfig, Scene, SceneError
 
-from .triplets import folder_components
+from .triplets import EnsembleError, folder_components
 
 #: record files taken from a folder, by suffix (case-insensitive): their format (None: the
 #: scene's [motion].format when it is a record, else two-column)
@@ -293,16 +292,10 @@ def _canonical(obj):
     return repr(obj) if not isinstance(obj, Path) else str(obj)
 
 
-@functools.lru_cache(maxsize=1)
-def code_digest() -> str:
-    """SHA-256 of the package's Python sources (soil_impedance, structure, fmus, orchestrator),
-    read once per process: changed code does not reuse the cells of the old one."""
-    root = Path(__file__).resolve().parents[2]
-    h = hashlib.sha256()
-    for package in ("soil_impedance", "structure", "fmus", "orchestrator"):
-        for path in sorted((root / package).rglob("*.py")):
-            h.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes())
-    return h.hexdigest()
+def code_version() -> str:
+    """SHA-256 of every package's sources, Python and the C runtime's (``uplift_common.code``):
+    changed code, the C stepper's included, does not reuse the cells of the old one."""
+    return code_digest(*PACKAGES)
 
 
 def cell_key(scene: Scene, route: str, pga_g: float, record_sha256: str = "", dt_check: str = "strongest") -> str:
@@ -315,6 +308,6 @@ def cell_key(scene: Scene, route: str, pga_g: float, record_sha256: str = "", dt
     image["analysis"].pop("routes")
     components = list(scene.motion.axes) if scene.motion.components is not None else None
     image["motion"].update(file=record_sha256, components=components, record=None)
-    text = json.dumps({"scene": image, "route": route, "pga_g": pga_g, "dt_check": dt_check, "code": code_digest()},
+    text = json.dumps({"scene": image, "route": route, "pga_g": pga_g, "dt_check": dt_check, "code": code_version()},
                       sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()

@@ -9,7 +9,7 @@ import time
 import numpy as np
 
 from orchestrator.motion import make_motion
-from orchestrator.results import check_output_path
+from orchestrator.results_file import check_output_path
 from orchestrator.routes import get_route
 from orchestrator.run import prepare_run, step_doubling, strongest_window
 from orchestrator.scene import Scene, load_scene

@@ -9,10 +9,10 @@ import h5py
 import numpy as np
 
 from soil_impedance.cache import read_entry
-from soil_impedance.storage import atomic_output, stamp_checksum
+from uplift_common.files import atomic_output, stamp_checksum
 from structure.results import Status
 
-from orchestrator.results import ResultsFileError, summary
+from orchestrator.results_file import ResultsFileError, summary
 from orchestrator.run import run_scene
 from orchestrator.scene import Scene
 from orchestrator.spectra import response_spectra

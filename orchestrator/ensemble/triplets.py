@@ -39,7 +39,7 @@ try:
 except ModuleNotFoundError:  # Python < 3.11
     import tomli as tomllib
 
-from orchestrator.errors import EnsembleError
+from uplift_common.errors import UserInputError
 from orchestrator.motion import DIRECTIONS
 
 #: the file of a record folder that tells its components (it wins over the file names)
@@ -54,6 +54,10 @@ PEER_CODES = (
 )
 _AZIMUTH = re.compile(r"(\d{3})$")
 _BEARING = re.compile(r"([NS])(\d{1,2})([EW])$")
+
+
+class EnsembleError(UserInputError):
+    """Bad input to an ensemble (a record, a PGA, a seed, the cluster); the message names it."""
 
 
 def peer_component(name: str):

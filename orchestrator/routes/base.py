@@ -17,13 +17,14 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from uplift_common.errors import UserInputError
 
 
 #: scene-level knobs ``uplift bench`` knows how to apply (see orchestrator.bench.knob_scene)
 SCENE_KNOBS = ("dt", "fit_tol", "element_size", "penalty")
 
 
-class RouteInputError(ValueError):
+class RouteInputError(UserInputError):
     """A route cannot run on this scene; the message says what to change (exit 2)."""
 
 

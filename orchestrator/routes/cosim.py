@@ -3,7 +3,7 @@ the project's master (orchestrator.master): with the split coupling every schedu
 in either order, Jacobi) equals the monolithic route to round-off.
 
 The pair is native by default (the C runtime, compiled for this machine once per content hash
-into the cache folder: fmus.native_host.fmu_binaries); ``kind="python"`` runs the pythonfmu
+into the cache folder: fmus.native_stepper.fmu_binaries); ``kind="python"`` runs the pythonfmu
 pair. With a soil factory other than the default, or where no C compiler is available, the
 Python pair runs and ``notes.warnings`` says why.
 
@@ -75,7 +75,7 @@ def run_cosim(scene, motion=None, soil_model=None, *, schedule: str = "gauss-sei
 def _native_runtime(data, cache_dir):
     """({platform: bytes} of the native runtime for this machine, "") or (None, why not)."""
     from fmus.native_build import NativeBuildError      # the FMU stack (fmpy, pythonfmu): only when the route runs
-    from fmus.native_host import cache_folder, fmu_binaries   # the same
+    from fmus.native_stepper import cache_folder, fmu_binaries   # the same
     if data.soil_factory != DEFAULT_SOIL_FACTORY:
         return None, f"the soil factory {data.soil_factory} has no native runtime: the Python FMUs ran"
     try:

@@ -4,7 +4,7 @@ reference (``cosim`` equals it to round-off).
 
 Two steppers compute the same discrete equations (to round-off): ``"native"`` (default), the C
 runtime of the native FMUs run in process, a chunk of steps per call (progress reported and
-Ctrl-C taken between two; fmus/native_host.py), and
+Ctrl-C taken between two; fmus/native_stepper.py), and
 ``"python"``, ``structure.simulate`` (the readable reference). The native stepper runs the
 default soil (the recursive convolution of the rational model); with another soil factory, or
 where no C compiler is available, the Python stepper runs and ``notes.warnings`` says why.
@@ -85,7 +85,7 @@ def step_scene(scene, model, soil, motion, *, route: str, progress=None, cache_d
     _check_stepper(stepper)
     folder = None
     if stepper == "native" and not why:
-        from fmus.native_host import cache_folder, library_note   # the FMU stack: only when it steps
+        from fmus.native_stepper import cache_folder, library_note   # the FMU stack: only when it steps
         folder = cache_folder(cache_dir)
         why = library_note(folder)
     try:
@@ -103,9 +103,9 @@ def step_scene(scene, model, soil, motion, *, route: str, progress=None, cache_d
 
 
 def _native(model, soil, motion, scene, route, progress, folder, damping):
-    """The run through the C runtime (fmus.native_host, the library in ``folder``); wall_s
+    """The run through the C runtime (fmus.native_stepper, the library in ``folder``); wall_s
     includes the stepper's set-up."""
-    from fmus.native_host import library, simulate_native   # the same: only when it steps
+    from fmus.native_stepper import library, simulate_native   # the same: only when it steps
     t0 = time.perf_counter()
     st = NewmarkStepper(model, soil, motion.dt, contact=scene.contact, damping=damping, external_soil=True,
                         ag0=motion.acc[0])

@@ -19,7 +19,7 @@ damping  "rccg": composite modal damping (structural ratio on the structure's st
          frequency f1, shared like the springs, with the structure's own damping.
 
 Stepped by the monolithic route's C runtime in process (the springs and dashpots as a rational
-model without pole, ``fmus.native_host.springs_soil``; the structural damping, RCC-G's included,
+model without pole, ``fmus.native_stepper.springs_soil``; the structural damping, RCC-G's included,
 passed through), a chunk of steps per call; the Python stepper (``structure.simulate``, the
 reference the native one equals to round-off) where no C compiler is available, with a warning
 (``info["stepper"]`` says which ran; the route option ``stepper = "python"`` runs it, e.g.
@@ -95,7 +95,7 @@ def _nodal_dashpots(C6, area):
 
 
 def _springs_soil(soil, dt):
-    from fmus.native_host import springs_soil    # the FMU stack: only when the native stepper runs
+    from fmus.native_stepper import springs_soil    # the FMU stack: only when the native stepper runs
     return springs_soil(soil, dt)
 
 

@@ -32,16 +32,16 @@ The scene-level glue (the scene's table, motion, contact and output nodes) is in
 ``orchestrator/routes/timefreq.py`` and ``orchestrator/routes/linear.py``.
 """
 from orchestrator.timefreq.grid import Grid, pad_rule_s
-from orchestrator.timefreq.linear import linear_fd, solve_bonded
+from orchestrator.timefreq.bonded import linear_fd, solve_bonded
 from orchestrator.timefreq.march import DIVERGED_M, MarchDiverged, MarchSweep, defect_correction, kernel_head, march
 from orchestrator.timefreq.methods import DEFAULT, METHODS, ExperimentalMethodWarning, Method
 from orchestrator.timefreq.operator import InterfaceOperator, ModalStructure, WorkerPool
-from orchestrator.timefreq.options import (THREADS, GridOptions, NewtonKrylovOptions, PaperOptions,
+from orchestrator.timefreq.solver_options import (THREADS, GridOptions, NewtonKrylovOptions, PaperOptions,
                                            SolveOptions, with_overrides)
 from orchestrator.timefreq.problem import (ContactEquation, ContactProblem, Outcome, SolverStatus, prepare,
                                            route_result)
 from orchestrator.timefreq.soil import SoilBands, causal_table, soil_bands
-from orchestrator.timefreq.uplift import solve
+from orchestrator.timefreq.solver import solve
 
 __all__ = ["DEFAULT", "DIVERGED_M", "METHODS", "THREADS", "ContactEquation", "ContactProblem",
            "ExperimentalMethodWarning", "Grid", "GridOptions", "InterfaceOperator", "MarchDiverged", "MarchSweep",

@@ -38,6 +38,7 @@ import scipy.linalg as sla
 from numpy.lib.stride_tricks import as_strided
 
 from structure.contact import contact_force
+from uplift_common.errors import ComputationError
 
 from orchestrator.timefreq.farfield import AffineSplit, generic_far_field
 from orchestrator.timefreq.problem import ContactEquation, Outcome, SolverStatus
@@ -141,7 +142,7 @@ def _spd(M) -> bool:
     return True
 
 
-class MarchDiverged(FloatingPointError):
+class MarchDiverged(ComputationError, FloatingPointError):
     """A march whose contact displacements pass DIVERGED_M: the causal part of the soil on
     the grid is not passive (the kernel of a table that is not causal, truncated to its
     positive lags), and once the raft lifts off widely nothing holds it back."""

@@ -11,10 +11,10 @@ from .result import FitReport, FitResult
 
 def save_fit(result: FitResult, path) -> None:
     """Model (``rational.write_model`` layout) + the report as JSON attribute ``fit_report`` + the
-    content checksum (``storage.stamp_checksum``), written atomically (``storage.atomic_output``)."""
+    content checksum (``uplift_common.files.stamp_checksum``), written atomically (``uplift_common.files.atomic_output``)."""
     import h5py
 
-    from ..storage import atomic_output, stamp_checksum
+    from uplift_common.files import atomic_output, stamp_checksum
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_output(path) as tmp, h5py.File(tmp, "w") as h:
@@ -28,7 +28,7 @@ def load_fit(path) -> FitResult:
     naming the file when it is not one, or when it changed since it was written (its checksum)."""
     import h5py
 
-    from ..storage import ChangedFileError, require_checksum
+    from uplift_common.files import ChangedFileError, require_checksum
     try:
         h = h5py.File(path, "r")
     except OSError as exc:

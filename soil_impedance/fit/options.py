@@ -5,9 +5,8 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import asdict, dataclass
-from pathlib import Path
-
 import numpy as np
+from uplift_common.code import code_digest
 
 from ..rational import FitError
 
@@ -15,8 +14,8 @@ WEIGHTINGS = ("relative", "uniform", "entry")
 RIGID = ("ux", "uy", "uz", "rx", "ry", "rz")
 POLE_CAP = 30.0           # normalised |p| above which a pole only mimics a constant: dropped
 RIGID_IM_FLOOR = 0.01     # rigid_errors: Im K_dd errors relative to max(|Im K_dd|, this · |K_dd|)
-#: the kernels the fit runs, beside the fit package itself: their digest is in the cache key
-CODE_FILES = ("vectfit.py", "passivity.py", "rational.py")
+#: the code a fit depends on (the fit package and the kernels it runs): its digest is in the cache key
+CODE = ("soil_impedance.fit", "soil_impedance.vectfit", "soil_impedance.passivity", "soil_impedance.rational")
 
 
 @dataclass(frozen=True)
@@ -109,15 +108,10 @@ class FitOptions:
         option (``settings``) and the fit code's digest."""
         h = hashlib.sha256(table_hash.encode())
         h.update(json.dumps(self.settings(), sort_keys=True, default=str).encode())
-        h.update(code_digest().encode())
+        h.update(code_version().encode())
         return h.hexdigest()
 
 
-def code_digest() -> str:
-    """SHA-256 (12 hex digits) of the fit's source files (the fit package and ``CODE_FILES``):
-    part of the cache key."""
-    here = Path(__file__).resolve().parent
-    h = hashlib.sha256()
-    for path in [here.parent / name for name in CODE_FILES] + sorted(here.glob("*.py")):
-        h.update(path.read_bytes())
-    return h.hexdigest()[:12]
+def code_version() -> str:
+    """The digest (12 hex digits) of the fit's code (``CODE``): part of the cache key."""
+    return code_digest(*CODE)[:12]

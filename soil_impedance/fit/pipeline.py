@@ -12,7 +12,7 @@ import numpy as np
 from ..passivity import PassivityReport, check_passive, with_verified_passivity
 from ..rational import FitError
 from .io import read_fit, save_fit
-from .options import RIGID, FitOptions, code_digest
+from .options import RIGID, FitOptions, code_version
 from .result import FitReport, FitResult
 from .rigid import rigid_errors, rigid_projection
 from .search import OrderSearch, candidates, enforce_candidates, miss_message
@@ -89,7 +89,7 @@ def fit(table, options: FitOptions, progress=None) -> FitResult:
     floor = hysteretic_floor(prob)
     settings = dict(options.settings(), rigid_corrected=P is not None)
     prov = {"source_table_hash": table.hash, "f_max_hz": float(table.frequencies_hz[-1]),
-            "f_causal_hz": prob.f_c, "fit_settings": settings, "code": code_digest()}
+            "f_causal_hz": prob.f_c, "fit_settings": settings, "code": code_version()}
     search = OrderSearch(prob, options, P, prov, progress)
     stop = search.run()
     if options.enforce:

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from helpers import EXPORT_MOTION
-from fmus.bank import RealBank
+from fmus.real_variables import RealBank
 from orchestrator.master import CosimError, FmuSlave, cosimulate
 
 MOTION = EXPORT_MOTION                 # the motion of the shared ``exported`` pair (conftest)

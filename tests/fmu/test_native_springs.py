@@ -23,7 +23,7 @@ import pytest
 
 from helpers import pulse_motion, rel, small_scene
 from helpers.cases import winkler
-from fmus import native_host
+from fmus import native_stepper
 from soil_impedance.convolution import RecursiveConvolutionSoil
 from structure import NewmarkStepper, simulate
 
@@ -32,7 +32,7 @@ MOTION = pulse_motion(T=1.0, y=0.5)                # the raft rocks about both a
 DT = MOTION.dt
 NODES = SCENE.output.nodes
 
-pytestmark = pytest.mark.skipif(native_host.library() is None, reason="no C compiler for the native stepper")
+pytestmark = pytest.mark.skipif(native_stepper.library() is None, reason="no C compiler for the native stepper")
 
 CASES = {                                       # name: (contact settings, HHT alpha)
     "uplift": (dict(precheck=False), 0.0),
@@ -45,7 +45,7 @@ CASES = {                                       # name: (contact settings, HHT a
 def native(model, contact, alpha):
     st = NewmarkStepper(SCENE.model(), RecursiveConvolutionSoil(model, DT, checked=True), DT, contact=contact,
                         alpha=alpha, external_soil=True, ag0=MOTION.acc[0])
-    return native_host.simulate_native(st, MOTION.acc, NODES)
+    return native_stepper.simulate_native(st, MOTION.acc, NODES)
 
 
 def assert_same_histories(res, ref, tight=1e-10, loose=1e-8):
@@ -63,7 +63,7 @@ def test_springs_equal_the_dense_path_and_the_python_stepper(case):
     settings, alpha = CASES[case]
     contact = dataclasses.replace(SCENE.contact, **settings)
     springs = winkler(SCENE)                                   # springs and dashpots: D and E diagonal on w
-    model = native_host.springs_soil(springs, DT).model
+    model = native_stepper.springs_soil(springs, DT).model
     assert model.poles.size == 0 and np.abs(model.E).max() > 0
     D = model.D.copy()
     D[6, 7] = D[7, 6] = 1e-30 * np.abs(D).max()
@@ -92,7 +92,7 @@ def test_the_step_doubling_check_runs_the_diagonal_path():
     from orchestrator.run import proxy_springs
     springs = proxy_springs(SCENE, True)
     contact = dataclasses.replace(SCENE.contact, precheck=False)
-    fast = native(native_host.springs_soil(springs, DT).model, contact, 0.0)
+    fast = native(native_stepper.springs_soil(springs, DT).model, contact, 0.0)
     ref = simulate(SCENE.model(), springs, MOTION.acc, DT, contact=contact, output_nodes=NODES)
     assert ref.max_uplift() > 1e-3
     assert fast.max_uplift() == pytest.approx(ref.max_uplift(), rel=1e-10, abs=0.0)

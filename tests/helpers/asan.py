@@ -16,7 +16,7 @@ and some of them fail for it (the plain C host, built without the sanitizer): th
 ("CHECK failed ... tsd_key_inited") and test failures are not findings.
 """
 import fmus.native_build as native_build
-import fmus.native_host as native_host
+import fmus.native_stepper as native_stepper
 
 PLAIN = native_build.CFLAGS
 SANITIZED = tuple(f for f in PLAIN if f != "-O3") + ("-O1", "-g", "-fsanitize=address", "-fno-omit-frame-pointer")
@@ -32,5 +32,5 @@ def compile_runtime(platforms=None, compiler="zig", *args, **kwargs):
         native_build.CFLAGS = PLAIN
 
 
-native_build.compile_runtime = native_host.compile_runtime = compile_runtime
-native_host.CFLAGS = SANITIZED          # in the host library's content hash: a library of its own
+native_build.compile_runtime = native_stepper.compile_runtime = compile_runtime
+native_stepper.CFLAGS = SANITIZED          # in the host library's content hash: a library of its own

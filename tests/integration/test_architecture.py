@@ -13,11 +13,12 @@ from orchestrator.routes import Route, register, route_names, unregister
 from structure.results import RouteResult
 from helpers import ROOT, tower, write_scene
 
-PACKAGES = ("soil_impedance", "structure", "fmus", "orchestrator")
+PACKAGES = ("uplift_common", "soil_impedance", "structure", "fmus", "orchestrator")
 #: what each package may import from the project (the dependency rule)
-ALLOWED = {"soil_impedance": {"soil_impedance"}, "structure": {"structure"},
-           "fmus": {"fmus", "soil_impedance", "structure"}, "orchestrator": set(PACKAGES),
-           "orchestrator.timefreq": {"orchestrator.timefreq", "soil_impedance", "structure"}}
+ALLOWED = {"uplift_common": {"uplift_common"},
+           "soil_impedance": {"soil_impedance", "uplift_common"}, "structure": {"structure", "uplift_common"},
+           "fmus": {"fmus", "soil_impedance", "structure", "uplift_common"}, "orchestrator": set(PACKAGES),
+           "orchestrator.timefreq": {"orchestrator.timefreq", "soil_impedance", "structure", "uplift_common"}}
 #: modules (and the names under them) that only some modules may import: module prefix ->
 #: importer prefixes. The stepper does not know its driver and the FMUs run the stepper, not
 #: ``simulate``; only the commands above an ensemble know ensembles; the experimental timefreq
@@ -29,7 +30,7 @@ IMPORTERS = {"structure.driver": {"structure"},
                                        "orchestrator.fragility"},
              "orchestrator.timefreq.experimental": {"orchestrator.timefreq.experimental",
                                                     "orchestrator.timefreq.methods"},
-             "fmus.native_host": {"fmus.native_host", "orchestrator"}}
+             "fmus.native_stepper": {"fmus.native_stepper", "orchestrator"}}
 
 
 def _module_name(path: Path) -> str:

@@ -56,7 +56,7 @@ def test_every_example_is_tested():
 @pytest.mark.slow
 def test_compare_routes(tmp_path):
     """Monolithic and cosim agree to round-off, and the printed max uplift is the file's."""
-    from orchestrator.results import read_results, summary
+    from orchestrator.results_file import read_results, summary
     out = run_example("compare_routes.py", cwd=tmp_path)
     printed = {m[1]: float(m[2]) for m in re.finditer(rf"^(\w+)\s+max uplift {MM}", out, re.M)}
     assert set(printed) == {"monolithic", "cosim"}

@@ -11,7 +11,7 @@ import pytest
 from orchestrator.cli import main
 from orchestrator.motion import (G, VERTICAL_RATIO, Motion, MotionError, read_components, synthetic_components,
                                  synthetic_motion)
-from orchestrator.results import read_motion, read_results, summary
+from orchestrator.results_file import read_motion, read_results, summary
 from orchestrator.run import run_scene
 from orchestrator.scene import SceneError, scene_from_dict
 from structure import ContactSettings, simulate
@@ -255,7 +255,7 @@ def test_timefreq_load_takes_three_components_exactly():
 def test_report_names_the_components_and_rocking_axes(tmp_path, capsys):
     """The report says which components ran and gives both rocking peaks; a refused route is
     listed without figures (it has no histories)."""
-    from orchestrator.results import write_results
+    from orchestrator.results_file import write_results
     from structure.results import RouteResult
     from helpers import route_result
 

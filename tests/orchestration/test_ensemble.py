@@ -18,7 +18,7 @@ from distributed import Client, LocalCluster
 
 from orchestrator import ensemble as ens
 from orchestrator.cli import main
-from orchestrator.results import read_results
+from orchestrator.results_file import read_results
 from orchestrator.scene import load_scene
 from orchestrator.spectra import response_spectrum
 from helpers import ROOT, changed, small_reactor, write_scene
@@ -237,7 +237,7 @@ def test_cell_key_depends_on_the_inputs_only(case, monkeypatch):
     assert ens.plan_ensemble(scene, [0.41], records=[case["tmp"] / "records" / "rec0.txt"]).cells[0].key != key
     assert ens.plan_ensemble(scene.with_routes(["winkler"]), [0.4],
                              records=[case["tmp"] / "records" / "rec0.txt"]).cells[0].key != key
-    monkeypatch.setattr(ens.plan, "code_digest", lambda: "changed code")
+    monkeypatch.setattr(ens.plan, "code_version", lambda: "changed code")
     assert ens.plan_ensemble(scene, [0.4], records=[case["tmp"] / "records" / "rec0.txt"]).cells[0].key != key
 
 

@@ -16,7 +16,7 @@ from helpers import changed, small_reactor, toml_text, write_scene
 from orchestrator import ensemble as ens
 from orchestrator.cli import main
 from orchestrator.motion import G, make_motion
-from orchestrator.results import read_results
+from orchestrator.results_file import read_results
 from orchestrator.scene import load_scene
 from orchestrator.spectra import response_spectrum
 

@@ -1,5 +1,6 @@
-"""Exit codes by one rule (orchestrator.errors): every error class of the project belongs to
-exactly one family, the user's input (exit 2) or a computation that stopped (exit 1)."""
+"""Exit codes by one rule (orchestrator.exit_codes): every error class of the project belongs to
+exactly one family of uplift_common.errors, the user's input (exit 2) or a computation that
+stopped (exit 1)."""
 import importlib
 import inspect
 import pkgutil
@@ -7,9 +8,9 @@ import warnings
 
 import pytest
 
-from orchestrator.errors import ComputationError, UserInputError
+from uplift_common.errors import ComputationError, UserInputError
 
-PACKAGES = ("soil_impedance", "structure", "fmus", "orchestrator")
+PACKAGES = ("uplift_common", "soil_impedance", "structure", "fmus", "orchestrator")
 
 
 def _project_errors():
@@ -46,4 +47,4 @@ def test_every_error_class_is_in_one_family(name):
     user, computation = issubclass(cls, UserInputError), issubclass(cls, ComputationError)
     assert user != computation, (f"{name} ({', '.join(b.__name__ for b in cls.__mro__[1:-2])}) is in "
                                  f"{'both families' if user else 'no family'}: make it a subclass of one of "
-                                 "orchestrator.errors.UserInputError or ComputationError")
+                                 "uplift_common.errors.UserInputError or ComputationError")

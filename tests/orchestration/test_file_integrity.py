@@ -1,4 +1,4 @@
-"""Files the project reads back are verified (soil_impedance.storage): a results file or an ensemble
+"""Files the project reads back are verified (uplift_common.files): a results file or an ensemble
 file with any single byte of a history changed is refused ("changed since it was written", exit 2),
 never read; the unmodified files give back the values written. Output paths that are not regular
 files are refused, symlinks followed (the link survives), and an append re-stamps the checksum.
@@ -16,9 +16,9 @@ import xarray as xr
 
 from orchestrator.cli import main
 from orchestrator.ensemble import assemble, plan_ensemble, read_ensemble, write_ensemble
-from orchestrator.results import ResultsFileError, check_output_path, read_results, write_results
+from orchestrator.results_file import ResultsFileError, check_output_path, read_results, write_results
 from orchestrator.scene import scene_from_dict
-from soil_impedance.storage import (ChangedFileError, OutputPathError, atomic_output, atomic_update,
+from uplift_common.files import (ChangedFileError, OutputPathError, atomic_output, atomic_update,
                                     output_target, require_checksum, stamp_checksum)
 from structure.results import RouteResult
 

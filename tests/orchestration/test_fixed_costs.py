@@ -103,15 +103,15 @@ def test_the_step_doubling_check_is_stepped_once_then_read(tmp_path, monkeypatch
     answers from the cache (the native stepper is not called) and carries the same check; any
     change of what the stepper reads (motion, contact penalty, step) is a miss; a damaged entry is
     stepped again with a CacheWarning."""
-    import fmus.native_host as native_host
+    import fmus.native_stepper as native_stepper
     calls = []
-    real = native_host.native_max_uplift
+    real = native_stepper.native_max_uplift
 
     def counted(*args, **kwargs):
         calls.append("dt-check")
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(native_host, "native_max_uplift", counted)
+    monkeypatch.setattr(native_stepper, "native_max_uplift", counted)
 
     def check(scene):
         motion = make_motion(scene.motion, scene.analysis.dt)
@@ -167,7 +167,7 @@ def test_a_cached_table_is_read_and_hashed_once(tmp_path, monkeypatch):
     """The verification of a cached table reads each dataset once and hands it to the reader
     (the same digest as the slab-by-slab one), the matrices a few rows at a time straight into
     the table's complex array (each row once); a changed value is still refused."""
-    from soil_impedance.storage import checksum
+    from uplift_common.files import checksum
     from soil_impedance.sweep import _cache_path, _read_cached
     scene = scene_from_dict(SCENE, name="small")
     table = scene_impedance(scene, ("gap",), cache_dir=tmp_path)["gap"]

@@ -16,7 +16,7 @@ import numpy as np
 import psutil
 import pytest
 
-from fmus import native_host
+from fmus import native_stepper
 from orchestrator.ensemble import CellStore, plan_ensemble
 from orchestrator.routes.monolithic import run_monolithic
 from orchestrator.scene import load_scene
@@ -127,7 +127,7 @@ def test_ensemble_interrupted_keeps_finished_runs(tmp_path):
     assert len(list((tmp_path / "e.h5.cells").iterdir())) == len(kept)           # whole cells only
 
 
-NATIVE = pytest.mark.skipif(native_host.library() is None, reason="no C compiler for the native stepper")
+NATIVE = pytest.mark.skipif(native_stepper.library() is None, reason="no C compiler for the native stepper")
 SMALL = small_scene()
 LONG = pulse_motion(T=2.5)            # 501 samples: chunks of 200, 200 and 101
 
@@ -165,12 +165,12 @@ def test_keyboard_interrupt_between_chunks_propagates_and_frees_the_run(monkeypa
     from structure import NewmarkStepper
     from fmus.resources import soil_from_model
     model, dt = soil_model(SMALL), LONG.dt
-    counted = Counted(native_host.library())
+    counted = Counted(native_stepper.library())
 
     def run(progress=None):
         st = NewmarkStepper(SMALL.model(), soil_from_model(model, dt), dt, contact=SMALL.contact, external_soil=True,
                             ag0=LONG.acc[0])
-        return native_host.simulate_native(st, LONG.acc, SMALL.output.nodes, lib=counted, progress=progress)
+        return native_stepper.simulate_native(st, LONG.acc, SMALL.output.nodes, lib=counted, progress=progress)
 
     seen = []
 
@@ -184,7 +184,7 @@ def test_keyboard_interrupt_between_chunks_propagates_and_frees_the_run(monkeypa
     after, fresh = run(), run()
     assert counted.opened == counted.closed == 3
     assert after.nt == LONG.acc.shape[0] and np.array_equal(after.raft, fresh.raft)
-    monkeypatch.setattr(native_host, "library", lambda folder=None: counted)
+    monkeypatch.setattr(native_stepper, "library", lambda folder=None: counted)
     def at_once(done, total):
         raise KeyboardInterrupt
     with pytest.raises(KeyboardInterrupt):                 # through the route: not caught on the way

@@ -8,7 +8,7 @@ import pytest
 
 from orchestrator.cli import main
 from orchestrator.motion import Motion
-from orchestrator.results import summary, write_results
+from orchestrator.results_file import summary, write_results
 from helpers import route_result
 
 

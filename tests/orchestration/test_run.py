@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from orchestrator.cli import main
-from orchestrator.results import read_results
+from orchestrator.results_file import read_results
 from helpers import changed, toml_text, tower, write_scene
 
 SCENE = tower()

@@ -15,7 +15,7 @@ import pytest
 import soil_impedance.sweep as sweep_mod
 from soil_impedance import ImpedanceTable, SoilProfile, TableError, circle_mesh, impedance_sweep
 from soil_impedance.cache import CacheWarning, read_entry
-from soil_impedance.storage import OutputFolderError, atomic_output, stamp_checksum, verify_checksum
+from uplift_common.files import OutputFolderError, atomic_output, stamp_checksum, verify_checksum
 from soil_impedance.greens_rule import GreenRule
 from soil_impedance.sweep import provenance
 from soil_impedance.table import content_hash
@@ -304,12 +304,12 @@ def test_each_output_is_bit_identical_whatever_else_is_requested():
 
 def test_in_place_read_has_the_same_digest_and_copies_nothing(tmp_path, monkeypatch):
     """The verified read that puts matrices_real/imag straight into one complex array
-    (storage.ComplexPairs, what read_entry(keep=True) and ImpedanceTable.load do), with slabs
+    (uplift_common.files.ComplexPairs, what read_entry(keep=True) and ImpedanceTable.load do), with slabs
     of 5 rows read 2 rows at a time (reads crossing the hashed slabs): the digest of the plain
     slab-by-slab hash, the two parts views of one array that the table takes as its matrices
     (no copy), bit for bit (signed zeros kept); a flipped bit in either part still fails."""
-    import soil_impedance.storage as storage
-    from soil_impedance.storage import ComplexPairs, checksum
+    import uplift_common.files as storage
+    from uplift_common.files import ComplexPairs, checksum
 
     n = 4
     monkeypatch.setattr(storage, "_CHUNK_BYTES", 5 * n * n * 8)

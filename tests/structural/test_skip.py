@@ -147,14 +147,14 @@ def test_skipped_in_run_summary_and_true(tmp_path, capsys, monkeypatch):
     the closed-form static kernels), the second reads it from the cache and says so; the
     winkler route at 0.02 g on the Python stepper (the native one, without a compiler here, has
     no pre-check) skips its Newton iterations unless the scene forces them."""
-    from fmus import native_host
+    from fmus import native_stepper
     from fmus.native_build import NativeBuildError
     from orchestrator.cli import main
 
     def no_compiler(folder):
         raise NativeBuildError("no C compiler")
 
-    monkeypatch.setattr(native_host, "_build", no_compiler)
+    monkeypatch.setattr(native_stepper, "_build", no_compiler)
     monkeypatch.setenv("UPLIFT_CACHE", str(tmp_path / "cache"))
     scene = tmp_path / "tiny.toml"
     write_scene(scene, BEM_SCENE)
@@ -174,7 +174,7 @@ def test_skipped_in_run_summary_and_true(tmp_path, capsys, monkeypatch):
     assert "no tension in the linear pre-check: nonlinear contact iterations skipped" in second["winkler"]["skipped"]
     assert second["winkler"]["precheck"].startswith("no tension")
     assert second["winkler"]["max_uplift_m"] == 0.0
-    from orchestrator.results import read_results
+    from orchestrator.results_file import read_results
     assert list(read_results(tmp_path / "r.h5")["winkler"].notes.skipped) == second["winkler"]["skipped"]
 
     write_scene(scene, changed(BEM_SCENE, contact={"enabled": None, "precheck": False}))

@@ -26,7 +26,7 @@ from structure.contact import ContactSettings
 from structure.results import RouteResult
 
 from orchestrator.timefreq.operator import WorkerPool
-from orchestrator.timefreq.options import THREADS, GridOptions
+from orchestrator.timefreq.solver_options import THREADS, GridOptions
 from orchestrator.timefreq.problem import prepare, route_result
 
 

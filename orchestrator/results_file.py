@@ -24,17 +24,18 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from soil_impedance.storage import ChangedFileError, OutputPathError, atomic_output, output_target, require_checksum, stamp_checksum
+from uplift_common.files import ChangedFileError, OutputPathError, atomic_output, output_target, require_checksum, stamp_checksum
 from structure.results import RouteResult, RunNotes, Status
 
 from orchestrator.motion import G, Motion
+from uplift_common.errors import UserInputError
 
 ARRAYS = ("time", "raft", "gap", "contact_force", "soil_w", "newton_iters", "xy")
 GROUPS = ("acc", "disp", "energy")
 REMEDY = "run `uplift run SCENE -o FILE` again to make a good one"
 
 
-class ResultsFileError(ValueError):
+class ResultsFileError(UserInputError):
     """A results file that is missing, unreadable or not of this layout, or an output path that
     cannot be written (exit 2 in the CLI)."""
 
@@ -145,7 +146,7 @@ def read_results(path) -> dict:
                                "run `uplift run SCENE -o FILE` to make one") from None
     except (KeyError, TypeError, ValueError) as exc:
         raise ResultsFileError(f"{path} does not have the results layout of `uplift run` ({exc}); "
-                               "see orchestrator/results.py") from None
+                               "see orchestrator/results_file.py") from None
 
 
 def _read_route(route, g) -> RouteResult:

@@ -40,6 +40,7 @@ from pathlib import Path
 
 import h5py
 import numpy as np
+from uplift_common.errors import UserInputError
 
 CHECKSUM_ATTR = "sha256"
 _CHUNK_BYTES = 1 << 26          # datasets are hashed in slabs of about 64 MiB along axis 0
@@ -48,7 +49,7 @@ _UMASK = os.umask(0o022)
 os.umask(_UMASK)
 
 
-class OutputPathError(ValueError):
+class OutputPathError(UserInputError):
     """An output path that cannot be written as a file: it exists and is not a regular file
     (a device, a FIFO, a socket, a folder), or it lies under a file."""
 
@@ -57,7 +58,7 @@ class OutputFolderError(FileNotFoundError, OutputPathError):
     """The folder of an output file does not exist (the caller decides whether to create it)."""
 
 
-class ChangedFileError(ValueError):
+class ChangedFileError(UserInputError):
     """A file the project wrote whose content no longer matches its checksum (or that has
     none): it changed since it was written, and nothing is read from it."""
 

@@ -1,4 +1,4 @@
-"""The monolithic route's fast path: the C runtime in process (fmus/native_host.py) against the
+"""The monolithic route's fast path: the C runtime in process (fmus/native_stepper.py) against the
 Python stepper (structure.simulate), its readable reference.
 
 - a run with uplift, forced through Newton at every step (precheck off): raft, gap, contact
@@ -37,7 +37,7 @@ import numpy as np
 import pytest
 
 from helpers import pulse_motion, rel, small_reactor, small_scene, soil_model
-from fmus import native_host
+from fmus import native_stepper
 from fmus.native_build import NATIVE, NativeBuildError, encode_resources, soil_records, stepper_records
 from fmus.resources import soil_from_model
 from orchestrator.routes.monolithic import STEPPERS, run_monolithic
@@ -51,7 +51,7 @@ MODEL = soil_model(SCENE)
 MOTION = pulse_motion(T=1.0)
 DT = MOTION.dt
 
-pytestmark = pytest.mark.skipif(native_host.library() is None, reason="no C compiler for the native stepper")
+pytestmark = pytest.mark.skipif(native_stepper.library() is None, reason="no C compiler for the native stepper")
 
 
 def assert_same_histories(res, ref, tol=1e-10):
@@ -68,7 +68,7 @@ def both(contact, lib=None):
     """(native, python) results of SCENE on MODEL under MOTION with these contact settings."""
     st = NewmarkStepper(SCENE.model(), soil_from_model(MODEL, DT), DT, contact=contact, external_soil=True,
                         ag0=MOTION.acc[0])
-    fast = native_host.simulate_native(st, MOTION.acc, SCENE.output.nodes, lib=lib)
+    fast = native_stepper.simulate_native(st, MOTION.acc, SCENE.output.nodes, lib=lib)
     ref = simulate(SCENE.model(), soil_from_model(MODEL, DT), MOTION.acc, DT, contact=contact,
                    output_nodes=SCENE.output.nodes)
     return fast, ref
@@ -103,7 +103,7 @@ def test_a_soil_model_without_symmetry_runs_the_dense_products():
     contact = dataclasses.replace(SCENE.contact, precheck=False)
     st = NewmarkStepper(SCENE.model(), soil_from_model(model, DT), DT, contact=contact, external_soil=True,
                         ag0=MOTION.acc[0])
-    fast = native_host.simulate_native(st, MOTION.acc, SCENE.output.nodes)
+    fast = native_stepper.simulate_native(st, MOTION.acc, SCENE.output.nodes)
     ref = simulate(SCENE.model(), soil_from_model(model, DT), MOTION.acc, DT, contact=contact,
                    output_nodes=SCENE.output.nodes)
     assert ref.max_uplift() > 1e-3
@@ -114,7 +114,7 @@ def test_a_step_that_cannot_converge_stops_where_the_python_stepper_stops():
     st = NewmarkStepper(SCENE.model(), soil_from_model(MODEL, DT), DT, contact=contact, external_soil=True,
                         ag0=MOTION.acc[0])
     with pytest.raises(ConvergenceError) as fast:
-        native_host.simulate_native(st, MOTION.acc, SCENE.output.nodes)
+        native_stepper.simulate_native(st, MOTION.acc, SCENE.output.nodes)
     with pytest.raises(ConvergenceError) as ref:
         simulate(SCENE.model(), soil_from_model(MODEL, DT), MOTION.acc, DT, contact=contact,
                  output_nodes=SCENE.output.nodes)
@@ -131,7 +131,7 @@ def one_call(st, ag, nodes):
     nt = ag.shape[0]
     rows, iters, stats = np.zeros((nt, 6 + 3 * st.N + 6 * len(dofs) + 7)), np.zeros(nt, np.int64), np.zeros(3, np.int64)
     ag = np.ascontiguousarray(ag)
-    rc = native_host.library().up_simulate(blob, len(blob), ag.ctypes.data, nt, rows.ctypes.data, iters.ctypes.data,
+    rc = native_stepper.library().up_simulate(blob, len(blob), ag.ctypes.data, nt, rows.ctypes.data, iters.ctypes.data,
                                            stats.ctypes.data, ctypes.create_string_buffer(1024))
     return rows, iters, stats, rc
 
@@ -150,7 +150,7 @@ def test_chunks_give_the_same_bits_as_one_call(max_iter, max_subdiv):
     k = int(stats[0])
     for chunk in (1, 7, nt):
         try:
-            res = native_host.simulate_native(stepper(), MOTION.acc, nodes, chunk=chunk)
+            res = native_stepper.simulate_native(stepper(), MOTION.acc, nodes, chunk=chunk)
         except ConvergenceError as exc:
             res = exc.result
         assert res.nt == k and res.info["subdivided_steps"] == stats[2]
@@ -162,7 +162,7 @@ def test_chunks_give_the_same_bits_as_one_call(max_iter, max_subdiv):
             assert np.array_equal(res.acc[nm], node[:, :3]) and np.array_equal(res.disp[nm], node[:, 3:])
         assert np.array_equal(np.column_stack(list(res.energy.values())), rows[:k, -7:])
         assert np.array_equal(res.newton_iters, iters[:k])
-    top = native_host.native_max_uplift(stepper(), MOTION.acc)       # the gaps only: NaN after a failed step
+    top = native_stepper.native_max_uplift(stepper(), MOTION.acc)       # the gaps only: NaN after a failed step
     assert (np.isnan(top) if rc else top == rows[:, 6:6 + N].max())
 
 
@@ -189,7 +189,7 @@ def test_without_a_compiler_the_python_stepper_runs_with_a_note(monkeypatch, tmp
         raise NativeBuildError("no C compiler: neither $CC / cc nor the ziglang package")
 
     monkeypatch.setenv("UPLIFT_CACHE", str(tmp_path))
-    monkeypatch.setattr(native_host, "_build", no_compiler)
+    monkeypatch.setattr(native_stepper, "_build", no_compiler)
     mono = run_monolithic(SCENE, MOTION, MODEL, cache_dir=tmp_path)
     scene = scene_from_dict(small_reactor(soil={"winkler": {"kv": 2.0e9, "kh": 1.5e9}}, impedance=None,
                                           analysis={"routes": ["winkler"]}), name="wk")
@@ -215,8 +215,8 @@ def test_the_vector_width_does_not_change_the_answer(tmp_path, narrow):
     lib = tmp_path / "narrow.so"
     subprocess.run(["cc", "-std=c99", "-O3", "-ffp-contract=off", "-fvisibility=hidden", "-fPIC", "-shared",
                     narrow, f"-I{NATIVE / 'include'}", "-o", str(lib),
-                    *(str(NATIVE / s) for s in native_host.HOST_SOURCES), "-lm"], check=True)
-    other = native_host.declare(ctypes.CDLL(str(lib)))
+                    *(str(NATIVE / s) for s in native_stepper.HOST_SOURCES), "-lm"], check=True)
+    other = native_stepper.declare(ctypes.CDLL(str(lib)))
     wide, _ = both(contact)
     base, _ = both(contact, lib=other)
     assert np.array_equal(wide.raft, base.raft) and np.array_equal(wide.gap, base.gap)
@@ -267,7 +267,7 @@ def test_step_doubling_check_on_the_native_stepper_equals_the_python_one(monkeyp
     from orchestrator.run import proxy_springs, step_doubling
     model, springs = SCENE.model(), proxy_springs(SCENE, True)
     fast = step_doubling(SCENE, model, springs, MOTION)
-    monkeypatch.setattr(native_host, "library", lambda folder=None: None)     # no compiler: simulate runs
+    monkeypatch.setattr(native_stepper, "library", lambda folder=None: None)     # no compiler: simulate runs
     ref = step_doubling(SCENE, model, springs, MOTION)
     assert ref["max_uplift_m"] > 1e-3
     for key in ("max_uplift_m", "max_uplift_half_dt_m"):

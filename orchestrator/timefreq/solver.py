@@ -43,7 +43,7 @@ from structure.results import RouteResult, Status
 
 from orchestrator.timefreq.methods import DEFAULT, METHODS, ExperimentalMethodWarning
 from orchestrator.timefreq.operator import WorkerPool
-from orchestrator.timefreq.options import GridOptions, SolveOptions
+from orchestrator.timefreq.solver_options import GridOptions, SolveOptions
 from orchestrator.timefreq.problem import ContactEquation, SolverStatus, prepare, route_result
 
 

@@ -14,7 +14,7 @@ step halving).
 
 API::
 
-    from fmus.native_host import library, simulate_native
+    from fmus.native_stepper import library, simulate_native
     if library() is not None:                       # None: no compiler here (library_note() says why)
         res = simulate_native(stepper, ag, output_nodes=["top"])
 """

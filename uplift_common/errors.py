@@ -1,0 +1,17 @@
+"""The two families every error class of the project belongs to (one rule for the exit codes).
+
+``UserInputError``: a problem the user can fix (a scene, a file, an option, the machine lacking
+something a command needs); its message names the key, file or tool and the fix. The command
+line exits 2. ``ComputationError``: a computation that could not finish (Newton failing, a
+diverging march, a failed reference run); results so far are written by the caller, the command
+line exits 1. Each error class is defined where it is raised, as a subclass of one family
+(tests/orchestration/test_error_families.py checks every class of every package).
+"""
+
+
+class UserInputError(ValueError):
+    """Bad input: a scene, a file, an option, the environment; the message says what to fix."""
+
+
+class ComputationError(RuntimeError):
+    """A computation that stopped before its end; the message says where and why."""
