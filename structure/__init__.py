@@ -11,7 +11,7 @@ Modules (one concept each):
   contact        ContactSettings, penalty "auto" rule, contact force / gap kernels
   preload        static equilibrium under self-weight: settlement, P0
   newmark        NewmarkStepper (one step at a time; FMU-ready; a linear run at once)
-  closed         the closed-contact (linear) solver and the vectorised energy kernels
+  closed_contact the closed-contact (linear) solver and the vectorised energy kernels
   driver         simulate(): the driver that runs a stepper over a record into a RouteResult
   results        RouteResult, the one result type of every route
   winkler        Winkler mattress: springs, dashpots, RCC-G composite modal damping
@@ -25,19 +25,18 @@ Typical use::
     soil = winkler_from_spec({"kv": 2e8, "kh": 1.5e8}, mesh.xy, mesh.area)
     res = simulate(model, soil, ag, 0.005, contact=contact_from_spec({"enabled": True}))
 """
-from .contact import ContactSettings
-from .damping import damping_matrix, fixed_base_modes
-from .errors import ConvergenceError, StructureError
-from .model import G_ACC, Beam, Damping, Mass, Node, Raft, Spring, StructureModel
-from .newmark import NewmarkStepper
-from .preload import StaticState, solve_static
-from .results import RouteResult
-from .driver import simulate
-from .soil_interface import SoilInterface, WinklerSoil
-from .spec import contact_from_spec, model_from_spec, winkler_from_spec
+from uplift_common.lazy import lazy_exports
 
-__all__ = ["G_ACC", "Beam", "ContactSettings", "ConvergenceError", "Damping", "Mass", "NewmarkStepper",
-           "Node", "Raft", "RouteResult", "SoilInterface", "Spring", "StaticState",
-           "StructureError", "StructureModel", "WinklerSoil", "damping_matrix",
-           "contact_from_spec", "fixed_base_modes", "model_from_spec", "simulate",
-           "solve_static", "winkler_from_spec"]
+#: the public names, imported from their submodule on first use (``uplift_common.lazy``)
+__getattr__, __dir__, __all__ = lazy_exports(__name__, {
+    "contact": ("ContactSettings",),
+    "damping": ("damping_matrix", "fixed_base_modes"),
+    "errors": ("ConvergenceError", "StructureError"),
+    "model": ("G_ACC", "Beam", "Damping", "Mass", "Node", "Raft", "Spring", "StructureModel"),
+    "newmark": ("NewmarkStepper",),
+    "preload": ("StaticState", "solve_static"),
+    "results": ("RouteResult",),
+    "driver": ("simulate",),
+    "soil_interface": ("SoilInterface", "WinklerSoil"),
+    "spec": ("contact_from_spec", "model_from_spec", "winkler_from_spec"),
+})

@@ -55,19 +55,14 @@ folder), ``store`` (one cell's run and values, the
 cell store), ``cluster`` (the dask cluster and the cells run on it), ``dataset`` (assembly,
 file, summary), ``runner`` (``run_ensemble``).
 """
-from .cluster import CONNECT_TIMEOUT_S, LOCAL_WORKER_CONFIG, default_workers
-from .dataset import (FRACTILE_VARIABLES, KIND, QUANTILES, assemble, ensemble_components, ensemble_summary,
-                      is_ensemble_file, read_ensemble, write_ensemble)
-from .plan import (DT_CHECKS, RECORD_SUFFIXES, Cell, EnsembleError, Plan, Record, cell_key, code_version,
-                   plan_ensemble, record_sources)
-from .runner import run_ensemble, strongest_check
-from .store import (CELL_VARIABLES, DAMPING, DIRECTIONS, FAILED, FREQUENCIES_HZ, ROUNDOFF, TEXT_VARIABLES,
-                    CellStore, cell_values, run_cell)
-from .triplets import COMPONENTS_FILE, folder_components, peer_component
+from uplift_common.lazy import lazy_exports
 
-__all__ = ["CELL_VARIABLES", "COMPONENTS_FILE", "CONNECT_TIMEOUT_S", "DAMPING", "DIRECTIONS", "DT_CHECKS", "FAILED",
-           "FRACTILE_VARIABLES", "FREQUENCIES_HZ", "KIND", "LOCAL_WORKER_CONFIG", "QUANTILES", "RECORD_SUFFIXES",
-           "ROUNDOFF", "TEXT_VARIABLES", "Cell", "CellStore", "EnsembleError", "Plan", "Record", "assemble",
-           "cell_key", "cell_values", "code_version", "default_workers", "ensemble_components", "ensemble_summary",
-           "folder_components", "is_ensemble_file", "peer_component", "plan_ensemble", "read_ensemble",
-           "record_sources", "run_cell", "run_ensemble", "strongest_check", "write_ensemble"]
+#: the public names, imported from their submodule on first use (``uplift_common.lazy``)
+__getattr__, __dir__, __all__ = lazy_exports(__name__, {
+    "cluster": ("CONNECT_TIMEOUT_S", "LOCAL_WORKER_CONFIG", "default_workers"),
+    "dataset": ("FRACTILE_VARIABLES", "KIND", "QUANTILES", "assemble", "ensemble_components", "ensemble_summary", "is_ensemble_file", "read_ensemble", "write_ensemble"),
+    "plan": ("DT_CHECKS", "RECORD_SUFFIXES", "Cell", "EnsembleError", "Plan", "Record", "cell_key", "code_version", "plan_ensemble", "record_sources"),
+    "runner": ("run_ensemble", "strongest_check"),
+    "store": ("CELL_VARIABLES", "DAMPING", "DIRECTIONS", "FAILED", "FREQUENCIES_HZ", "ROUNDOFF", "TEXT_VARIABLES", "CellStore", "cell_values", "run_cell"),
+    "triplets": ("COMPONENTS_FILE", "folder_components", "peer_component"),
+})

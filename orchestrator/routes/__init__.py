@@ -8,10 +8,10 @@ linear     the BEM table per frequency, raft bonded (no uplift): the exact linea
 timefreq   the paper's time-frequency method with uplift on the BEM table (the reference)
 ========== ==================================================================================
 
-Adding a route: a module here that calls ``register(Route(...))``, imported below (or
-``register`` from user code). Everything that lists routes reads ``route_names()``.
+Adding a route: a module here that calls ``register(Route(...))``, named in ``base.BUILTIN``
+(imported when the registry is first read), or ``register`` from user code. Everything that
+lists routes reads ``route_names()``.
 """
-from orchestrator.routes import cosim, linear, monolithic, timefreq, winkler  # noqa: F401  (they register)
 from orchestrator.routes.base import (Route, RouteInputError, RunContext, default_reference, get_route, register,
                                       route_names, unregister)
 

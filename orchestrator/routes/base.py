@@ -5,16 +5,18 @@ linear, timefreq). Each lives in its own module of ``orchestrator/routes/`` and 
 ``Route``: its name, a one-line summary, the impedance tables and soil fit it needs, its bench
 knobs, and ``run(context, progress) -> RouteResult``. ``run_scene``, ``uplift run --route``,
 ``uplift compare``, ``uplift report`` and ``uplift bench`` all read the registry: adding a
-route is adding one module (and one import line in ``orchestrator/routes/__init__.py``), or
-calling ``register`` from user code.
+route is adding one module (and its name to ``BUILTIN``), or calling ``register`` from user code.
 
+The built-in routes' modules are imported when the registry is first read (xarray's backend
+registry does the same): importing the registry costs nothing, so the scene can validate route
+names against it without depending on what the routes import (the BEM, the fit, the FMUs).
 Route modules import the leaves (soil_impedance, structure, fmus), the motion, the
-time-frequency package and this module, never the scene, run or CLI modules: the scene
-validates route names against the registry, so the registry cannot depend on it.
+time-frequency package and this module, never the scene, run or CLI modules.
 """
 from __future__ import annotations
 
 import dataclasses
+import importlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from uplift_common.errors import UserInputError
@@ -69,27 +71,42 @@ class Route:
                              f"{SCENE_KNOBS} nor route options {self.options}")
 
 
+#: the built-in routes, in the registry's order: each is the module ``orchestrator.routes.<name>``,
+#: which registers it when imported
+BUILTIN = ("monolithic", "cosim", "linear", "timefreq", "winkler")
 _REGISTRY: dict[str, Route] = {}
+_BUILTIN_LOADED = []
+
+
+def _registry() -> dict[str, Route]:
+    """The registry, the built-in routes' modules imported (they register) on first use."""
+    if not _BUILTIN_LOADED:
+        _BUILTIN_LOADED.append(True)
+        for name in BUILTIN:
+            importlib.import_module(f"orchestrator.routes.{name}")
+    return _REGISTRY
 
 
 def register(route: Route) -> Route:
     """Add ``route`` to the registry (replacing a route of the same name); returns it."""
+    if route.name not in BUILTIN:
+        _registry()                 # the built-in routes first: the registry's order is fixed
     _REGISTRY[route.name] = route
     return route
 
 
 def unregister(name: str) -> None:
-    _REGISTRY.pop(name, None)
+    _registry().pop(name, None)
 
 
 def route_names() -> tuple[str, ...]:
     """Names of the registered routes, in registration order."""
-    return tuple(_REGISTRY)
+    return tuple(_registry())
 
 
 def get_route(name: str) -> Route:
     try:
-        return _REGISTRY[name]
+        return _registry()[name]
     except KeyError:
         raise RouteInputError(f"unknown route {name!r}; available: {', '.join(_REGISTRY)}") from None
 
@@ -98,7 +115,7 @@ def default_reference(names) -> str:
     """The reference route among ``names``: the registered one of highest reference_rank,
     else the first."""
     names = list(names)
-    ranked = [(_REGISTRY[n].reference_rank, -i) for i, n in enumerate(names) if n in _REGISTRY]
+    ranked = [(_registry()[n].reference_rank, -i) for i, n in enumerate(names) if n in _REGISTRY]
     best = max(ranked, default=(0, 0))
     return names[-best[1]] if best[0] > 0 else names[0]
 

@@ -6,7 +6,7 @@ and structure only: no scene, no command line.
 The pieces, in the order a solve uses them:
 
 ============== ===============================================================================
-options        GridOptions, SolveOptions, PaperOptions, NewtonKrylovOptions (frozen, checked)
+solver_options GridOptions, SolveOptions, PaperOptions, NewtonKrylovOptions (frozen, checked)
 grid           Grid: zero padding, exponential window, (bilinear) Laplace variable, pyfftw FFTs
 soil           soil_bands: K(s) of an ImpedanceTable, WinklerSoil, RationalModel or its recursion
 operator       ModalStructure, InterfaceOperator (interface stiffness S, blocked force f, raft
@@ -18,8 +18,8 @@ farfield       the march's far field: one application of S, or the springs and d
                closed form (AffineSplit, also the kernel head)
 methods        METHODS: the solvers by name (SolveOptions.method), DEFAULT "march"
 experimental/  newton_krylov, paper: EXPERIMENTAL solvers, by name only, warned when used
-uplift         solve(): options -> prepare -> solver -> RouteResult (the ``timefreq`` route's core)
-linear         linear_fd(), solve_bonded(): the raft bonded, no uplift (the ``linear`` route's core)
+solver         solve(): options -> prepare -> solver -> RouteResult (the ``timefreq`` route's core)
+bonded         linear_fd(), solve_bonded(): the raft bonded, no uplift (the ``linear`` route's core)
 ============== ===============================================================================
 
 Usage::
@@ -31,21 +31,17 @@ Usage::
 The scene-level glue (the scene's table, motion, contact and output nodes) is in
 ``orchestrator/routes/timefreq.py`` and ``orchestrator/routes/linear.py``.
 """
-from orchestrator.timefreq.grid import Grid, pad_rule_s
-from orchestrator.timefreq.bonded import linear_fd, solve_bonded
-from orchestrator.timefreq.march import DIVERGED_M, MarchDiverged, MarchSweep, defect_correction, kernel_head, march
-from orchestrator.timefreq.methods import DEFAULT, METHODS, ExperimentalMethodWarning, Method
-from orchestrator.timefreq.operator import InterfaceOperator, ModalStructure, WorkerPool
-from orchestrator.timefreq.solver_options import (THREADS, GridOptions, NewtonKrylovOptions, PaperOptions,
-                                           SolveOptions, with_overrides)
-from orchestrator.timefreq.problem import (ContactEquation, ContactProblem, Outcome, SolverStatus, prepare,
-                                           route_result)
-from orchestrator.timefreq.soil import SoilBands, causal_table, soil_bands
-from orchestrator.timefreq.solver import solve
+from uplift_common.lazy import lazy_exports
 
-__all__ = ["DEFAULT", "DIVERGED_M", "METHODS", "THREADS", "ContactEquation", "ContactProblem",
-           "ExperimentalMethodWarning", "Grid", "GridOptions", "InterfaceOperator", "MarchDiverged", "MarchSweep",
-           "Method", "ModalStructure", "NewtonKrylovOptions", "Outcome", "PaperOptions", "SoilBands",
-           "SolveOptions", "SolverStatus", "WorkerPool", "causal_table", "defect_correction", "kernel_head",
-           "linear_fd", "march", "pad_rule_s", "prepare", "route_result", "soil_bands", "solve", "solve_bonded",
-           "with_overrides"]
+#: the public names, imported from their submodule on first use (``uplift_common.lazy``)
+__getattr__, __dir__, __all__ = lazy_exports(__name__, {
+    "grid": ("Grid", "pad_rule_s"),
+    "bonded": ("linear_fd", "solve_bonded"),
+    "march": ("DIVERGED_M", "MarchDiverged", "MarchSweep", "defect_correction", "kernel_head", "march"),
+    "methods": ("DEFAULT", "METHODS", "ExperimentalMethodWarning", "Method"),
+    "operator": ("InterfaceOperator", "ModalStructure", "WorkerPool"),
+    "solver_options": ("THREADS", "GridOptions", "NewtonKrylovOptions", "PaperOptions", "SolveOptions", "with_overrides"),
+    "problem": ("ContactEquation", "ContactProblem", "Outcome", "SolverStatus", "prepare", "route_result"),
+    "soil": ("SoilBands", "causal_table", "soil_bands"),
+    "solver": ("solve",),
+})

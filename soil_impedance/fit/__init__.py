@@ -12,17 +12,15 @@ A fit is a function of the table and its ``FitOptions`` only (every bound counts
 seconds); the options, the table hash, the node coordinates and the code digest are the cache
 key. A tol that cannot be met is reported (``tol_reached`` False, ``message``), never hidden.
 """
-from .io import load_fit, read_fit, save_fit
-from .options import CODE, POLE_CAP, RIGID, RIGID_IM_FLOOR, WEIGHTINGS, FitOptions, code_version
-from .pipeline import cached_fit, fit, fit_table
-from .result import FitReport, FitResult
-from .rigid import rigid_correct, rigid_error, rigid_errors, rigid_model, rigid_projection, rigid_protection
-from .search import max_pairs
-from .target import (Problem, causal_cutoff, causal_materials, causal_target, fit_order, hysteretic_floor,
-                     hysteretic_part, table_scaling)
+from uplift_common.lazy import lazy_exports
 
-__all__ = ["CODE", "POLE_CAP", "RIGID", "RIGID_IM_FLOOR", "WEIGHTINGS", "FitOptions", "FitReport",
-           "FitResult", "Problem", "cached_fit", "causal_cutoff", "causal_materials", "causal_target", "code_version", "fit",
-           "fit_order", "fit_table", "hysteretic_floor", "hysteretic_part", "load_fit", "max_pairs", "read_fit",
-           "rigid_correct", "rigid_error", "rigid_errors", "rigid_model", "rigid_projection", "rigid_protection",
-           "save_fit", "table_scaling"]
+#: the public names, imported from their submodule on first use (``uplift_common.lazy``)
+__getattr__, __dir__, __all__ = lazy_exports(__name__, {
+    "io": ("load_fit", "read_fit", "save_fit"),
+    "options": ("CODE", "POLE_CAP", "RIGID", "RIGID_IM_FLOOR", "WEIGHTINGS", "FitOptions", "code_version"),
+    "pipeline": ("cached_fit", "fit", "fit_table"),
+    "result": ("FitReport", "FitResult"),
+    "rigid": ("rigid_correct", "rigid_error", "rigid_errors", "rigid_model", "rigid_projection", "rigid_protection"),
+    "search": ("max_pairs",),
+    "target": ("Problem", "causal_cutoff", "causal_materials", "causal_target", "fit_order", "hysteretic_floor", "hysteretic_part", "table_scaling"),
+})

@@ -13,19 +13,18 @@ from orchestrator.routes import Route, register, route_names, unregister
 from structure.results import RouteResult
 from helpers import ROOT, tower, write_scene
 
-PACKAGES = ("uplift_common", "soil_impedance", "structure", "fmus", "orchestrator")
+from uplift_common.code import PACKAGES
 #: what each package may import from the project (the dependency rule)
 ALLOWED = {"uplift_common": {"uplift_common"},
            "soil_impedance": {"soil_impedance", "uplift_common"}, "structure": {"structure", "uplift_common"},
            "fmus": {"fmus", "soil_impedance", "structure", "uplift_common"}, "orchestrator": set(PACKAGES),
            "orchestrator.timefreq": {"orchestrator.timefreq", "soil_impedance", "structure", "uplift_common"}}
 #: modules (and the names under them) that only some modules may import: module prefix ->
-#: importer prefixes. The stepper does not know its driver and the FMUs run the stepper, not
-#: ``simulate``; only the commands above an ensemble know ensembles; the experimental timefreq
+#: importer prefixes. The stepper does not know its driver (``simulate``): only the orchestrator
+#: runs it, the FMUs run the stepper; only the commands above an ensemble know ensembles; the experimental timefreq
 #: solvers are reached through the registry only; the in-process native host serves the
 #: orchestrator's routes, not the FMUs.
-IMPORTERS = {"structure.driver": {"structure"},
-             "structure.simulate": {"structure", "orchestrator"},
+IMPORTERS = {"structure.driver": {"structure.driver", "orchestrator"},
              "orchestrator.ensemble": {"orchestrator.ensemble", "orchestrator.cli", "orchestrator.report",
                                        "orchestrator.fragility"},
              "orchestrator.timefreq.experimental": {"orchestrator.timefreq.experimental",
@@ -70,14 +69,30 @@ def _sources(package):
     return sorted((ROOT / package).rglob("*.py"))
 
 
-def _project_module(name: str, known: set) -> str | None:
-    """The project module ``name`` refers to (a module or a name inside one), or None."""
-    while name and name not in known:
-        name = name.rpartition(".")[0]
-    return name or None
+def _lazy_names(path: Path) -> dict:
+    """{name: submodule} of a package ``__init__`` that declares its names with
+    ``uplift_common.lazy.lazy_exports`` (a literal mapping), else {}."""
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Call) and getattr(node.func, "id", "") == "lazy_exports":
+            return {n: sub for sub, names in ast.literal_eval(node.args[1]).items() for n in names}
+    return {}
 
 
 KNOWN = {_module_name(p) for pkg in PACKAGES for p in _sources(pkg)}
+#: {package: {name: submodule}} of the packages whose names load on first use
+LAZY = {_module_name(p): names for pkg in PACKAGES for p in _sources(pkg)
+        if p.name == "__init__.py" and (names := _lazy_names(p))}
+
+
+def _project_module(name: str, known: set) -> str | None:
+    """The project module ``name`` refers to (a module or a name inside one: a name a lazy
+    package exports is its submodule's), or None."""
+    package, _, attr = name.rpartition(".")
+    if attr in LAZY.get(package, {}):
+        return f"{package}.{LAZY[package][attr]}"
+    while name and name not in known:
+        name = name.rpartition(".")[0]
+    return name or None
 
 
 @pytest.mark.parametrize("package", PACKAGES)
@@ -115,9 +130,8 @@ def test_who_imports_what_inside_the_packages(restricted):
 
 def test_the_rules_name_modules_that_exist():
     """A rule about a module that is not there any more checks nothing: every restricted
-    prefix names a project module (``structure.simulate`` is the function the package exports)."""
-    optional = {"structure.simulate"}
-    missing = [r for r in IMPORTERS if r not in optional and not any(_under(k, r) for k in KNOWN)]
+    prefix names a project module."""
+    missing = [r for r in IMPORTERS if not any(_under(k, r) for k in KNOWN)]
     assert not missing, f"IMPORTERS names modules that do not exist: {missing}"
 
 
@@ -145,6 +159,53 @@ def test_orchestrator_imports_form_no_cycle():
     for node in sorted(graph):
         if node not in state:
             walk(node)
+
+
+#: the longest chain of module-level imports a module of the packages may start (``import_chain``)
+MAX_IMPORT_CHAIN = 12
+
+
+def import_graph() -> dict:
+    """{module: the project modules importing it runs first}: its module-level imports (a name
+    resolved to the module defining it) and their parent packages (importing ``a.b.c`` runs ``a``
+    and ``a.b`` first), less its own parents (already imported before it)."""
+    graph = {}
+    for pkg in PACKAGES:
+        for path in _sources(pkg):
+            here = _module_name(path)
+            deps = {_project_module(n, KNOWN) for n, local, *_ in _imports(path) if not local} - {None, here}
+            deps |= {d.rsplit(".", k)[0] for d in deps for k in range(1, d.count(".") + 1)}
+            graph[here] = {d for d in deps if d != here and not here.startswith(d + ".")}
+    return graph
+
+
+def import_chain(graph: dict, start: str) -> list:
+    """The longest chain of imports from ``start`` in ``graph`` (module-level imports only: a
+    function-local import runs when its function does, not at import)."""
+    memo = {}
+
+    def walk(node, path):
+        if node in memo:
+            return memo[node]
+        best = [node]
+        for dep in sorted(graph.get(node, ())):
+            if dep not in path:
+                chain = walk(dep, path | {node})
+                if len(chain) + 1 > len(best):
+                    best = [node, *chain]
+        memo[node] = best
+        return best
+
+    return walk(start, frozenset())
+
+
+def test_import_chains_are_short():
+    """No module starts a chain of more than MAX_IMPORT_CHAIN module-level imports inside the
+    packages (package namespaces load lazily, ``uplift_common.lazy``; a layer imports the modules
+    it uses, not their packages' every sibling)."""
+    graph = import_graph()
+    longest = max((import_chain(graph, m) for m in sorted(graph)), key=len)
+    assert len(longest) <= MAX_IMPORT_CHAIN, f"{len(longest)} modules: " + " -> ".join(longest)
 
 
 def test_function_local_imports_say_why():

@@ -10,7 +10,7 @@ import pytest
 
 from helpers import ROOT
 
-PACKAGES = ("soil_impedance", "structure", "fmus", "orchestrator")
+from uplift_common.code import PACKAGES
 
 
 def tracked_files():

@@ -10,7 +10,7 @@ import pytest
 
 from uplift_common.errors import ComputationError, UserInputError
 
-PACKAGES = ("uplift_common", "soil_impedance", "structure", "fmus", "orchestrator")
+from uplift_common.code import PACKAGES
 
 
 def _project_errors():
