@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 from uplift_common.errors import UserInputError
+from uplift_common.interface import interface_points
 
 
 class MeshError(UserInputError):
@@ -52,17 +53,7 @@ class InterfaceMesh:
     size: tuple = ()
 
     def __post_init__(self):
-        xy = np.asarray(self.xy, dtype=float)
-        area = np.asarray(self.area, dtype=float)
-        if xy.ndim != 2 or xy.shape[1] != 2 or xy.shape[0] == 0:
-            raise MeshError(f"mesh nodes must be an (n, 2) array of x, y with n >= 1, got shape {xy.shape}")
-        if area.shape != (xy.shape[0],):
-            raise MeshError(f"mesh areas must have one value per node ({xy.shape[0]}), got shape {area.shape}")
-        if not np.all(np.isfinite(xy)):
-            raise MeshError("mesh node coordinates must be finite numbers")
-        bad = np.flatnonzero(~(area > 0) | ~np.isfinite(area))
-        if bad.size:
-            raise MeshError(f"mesh node {bad[0]} has area {float(area[bad[0]]):g}: every tributary area must be > 0")
+        xy, area = interface_points(self.xy, self.area, MeshError, "mesh")
         if xy.shape[0] > MAX_NODES:
             raise MeshError(f"the interface mesh has {xy.shape[0]} nodes; at most MAX_NODES = {MAX_NODES} "
                             "(the BEM stores (3N)^2 complex values per frequency): use fewer, larger patches")
@@ -73,8 +64,6 @@ class InterfaceMesh:
             if d[i, j] < 1e-9 * max(1.0, np.abs(xy).max()):
                 raise MeshError(f"mesh nodes {i} and {j} coincide at ({xy[i, 0]:g}, {xy[i, 1]:g}): "
                                 "remove the duplicate")
-        xy.setflags(write=False)
-        area.setflags(write=False)
         object.__setattr__(self, "xy", xy)
         object.__setattr__(self, "area", area)
 

@@ -17,6 +17,7 @@ from functools import cached_property
 
 import numpy as np
 import scipy.sparse as sp
+from uplift_common.interface import interface_points
 
 from .beams import global_stiffness
 from .errors import StructureError
@@ -75,14 +76,7 @@ class Raft:
     inertia: tuple = (0.0, 0.0, 0.0)
 
     def __post_init__(self):
-        xy = np.array(self.xy, float)
-        area = np.array(self.area, float)
-        if xy.ndim != 2 or xy.shape[1] != 2 or xy.shape[0] < 1:
-            raise StructureError(f"raft interface xy must have shape (N, 2), got {xy.shape}")
-        if area.shape != (xy.shape[0],) or not np.all(area > 0):
-            raise StructureError("raft interface areas must be (N,) positive values, one per interface point")
-        xy.setflags(write=False)
-        area.setflags(write=False)
+        xy, area = interface_points(self.xy, self.area, StructureError, "raft interface")
         object.__setattr__(self, "xy", xy)
         object.__setattr__(self, "area", area)
 
