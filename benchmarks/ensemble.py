@@ -66,7 +66,7 @@ def main():
     scene = load_scene("reactor").with_routes([ROUTE])
     seeds = None if args.records else list(range(1, args.seeds + 1))
     plan = plan_ensemble(scene, args.pga, records=args.records, seeds=seeds)
-    prepare_run(scene, cache_dir=cache)                     # the sweep and the fit in the cache
+    prepare_run(scene, cache_dir=cache).settle()            # the sweep and the fit in the cache
     single = single_runs(plan, args.single, cache)
     step_s = statistics.mean(v[0] for v in single.values())
     print(f"{len(single)} single runs (reactor, {ROUTE}): stepping mean {step_s:.2f} s, whole run "

@@ -5,15 +5,18 @@ then each route of the registry (orchestrator.routes), into one result per route
 result: converged, stopped (the histories so far and the reason) or refused (the reason).
 What the run reuses or skips (cache hits, interface reductions) is in each result's notes.
 
-Many runs of one scene under different motions (an ensemble of records,
-``orchestrator.ensemble``) share what does not depend on the motion: ``prepare_run(scene)``
-computes it once (the sweep, the fit, the time-step checks' proxy springs) as a ``SharedRun``
-that ``run_scene(..., shared=...)`` takes instead of recomputing it.
+One sequence, in two parts. ``prepare_run(scene)`` does what does not depend on the motion
+(the routes, the structure model, the proxy springs and the time-step check, the cached fit,
+the sweep) and returns a ``SharedRun``, which makes the fit when a route first needs it.
+``run_scene`` prepares its own run (or takes ``shared=``, a ``prepare_run`` made once for many
+runs of one scene under different motions: an ensemble of records, ``orchestrator.ensemble``,
+which ``settle``s it first, the fit made once for every cell) and runs the per-motion part: the
+motion, its step-doubling check, the routes.
 """
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,7 +34,7 @@ from structure.winkler import modes_on_soil, springs_from_rigid_impedance
 from orchestrator.exit_codes import STOPPED, USER_INPUT
 from orchestrator.impedance import cached_scene_fit, scene_fit, scene_impedance, scene_static
 from orchestrator.motion import Motion, make_motion
-from orchestrator.routes import RunContext, get_route
+from orchestrator.routes import RouteInputError, RunContext, get_route
 from orchestrator.scene import SceneError
 from orchestrator.settings import compute_threads
 
@@ -166,23 +169,66 @@ def check_time_step(model, soil, dt: float) -> float:
     return f1
 
 
-@dataclass(frozen=True)
+@dataclass(eq=False)
 class SharedRun:
-    """What the runs of one scene share whatever their motion, computed once by ``prepare_run``.
+    """What the runs of one scene share whatever their motion, made once by ``prepare_run``: by
+    ``run_scene`` for its own run, or once for many (an ensemble's cells, on other processes:
+    the object is pickled, without its progress callback).
 
-    routes : the route names it was prepared for; tables : {"rigid"|"gap": ImpedanceTable} (empty
-    when the routes need only the fit and it was found in the cache);
-    sweep : the sweep's stats (``computed``, ``from_cache``); springs : the proxy springs of the
-    time-step checks (``proxy_springs``); fit : the FitResult of the gap table, or None when no
-    route needs it; dt_check : a step-doubling check (``step_doubling``) standing for every run,
-    or None: each run checks its own motion (as a single run does).
+    scene : the scene with the routes it was prepared for (its motion is not read); routes :
+    their names; model : the structure model (``scene.model()``), shared by every route;
+    springs : the proxy springs of the time-step checks (``proxy_springs``); tables :
+    {"rigid"|"gap": ImpedanceTable}, the union of the routes' tables, swept (or read from the
+    cache) once; empty when the routes need only the rational fit and it was found in the cache
+    (the tables are then not read); sweep : the sweep's stats (``computed``, ``from_cache``;
+    empty without a sweep); fit : the FitResult of the gap table, found in the cache by
+    ``prepare_run`` or fitted by ``soil_fit`` when a route first needs it, else None; fit_error :
+    the error of that fit when it failed (kept: the fit is tried once, and every route that needs
+    it is refused or stopped with the reason); dt_check : a step-doubling check (``step_doubling``)
+    standing for every run, or None: each run checks its own motion (as a single run does).
     """
+    scene: object
     routes: tuple
+    model: object
+    springs: object
     tables: Mapping
     sweep: Mapping
-    springs: object
+    cache_dir: object = None
     fit: object = None
+    fit_error: Exception | None = None
     dt_check: Mapping | None = None
+    fit_progress: Callable | None = None
+
+    def soil_fit(self):
+        """The rational fit of the gap table (``fit``): made here on first need (``scene_fit`` on
+        the swept table, ``fit_progress`` following it), at most once, its error kept and raised
+        again at every call."""
+        if self.fit is None and self.fit_error is None:
+            if "gap" not in self.tables:
+                raise RouteInputError("this run has no rational soil fit: the route must declare needs_fit")
+            try:
+                with compute_threads():
+                    self.fit = scene_fit(self.scene, cache_dir=self.cache_dir, table=self.tables["gap"],
+                                         fit_progress=self.fit_progress)
+            except (*USER_INPUT, *STOPPED) as exc:
+                self.fit_error = exc
+        if self.fit_error is not None:
+            raise self.fit_error.with_traceback(None)
+        return self.fit
+
+    def settle(self) -> SharedRun:
+        """Make now what a route would make on first need (the fit, when a route needs it; its
+        error kept, not raised): before copies of this object are sent to other processes (an
+        ensemble's workers), so that it is made once for all of them. Returns self."""
+        if any(get_route(r).needs_fit for r in self.routes) and "gap" in self.tables:
+            try:
+                self.soil_fit()
+            except (*USER_INPUT, *STOPPED):
+                pass                                 # kept in fit_error, raised in each route that needs it
+        return self
+
+    def __getstate__(self):
+        return {**self.__dict__, "fit_progress": None}      # a callback of this process stays here
 
 
 def _chosen_routes(scene, routes):
@@ -197,41 +243,27 @@ def _chosen_routes(scene, routes):
     return scene, chosen
 
 
-def _tables_read(scene, chosen) -> tuple:
-    """The impedance tables the routes read (their union, in route order)."""
-    return tuple(dict.fromkeys(t for r in chosen for t in r.tables(scene)))
-
-
-def _cached_fit(scene, chosen, outputs, cache_dir):
-    """The run's rational fit read from the cache, found by its table's inputs (no table is
-    read), when a route needs it; else (or on a miss) None."""
-    return cached_scene_fit(scene, cache_dir) if outputs and any(r.needs_fit for r in chosen) else None
-
-
-def _reads_tables(scene, chosen) -> bool:
-    """Whether a route reads an impedance table itself (not only through the rational fit)."""
-    return any(r.tables(scene) and not r.needs_fit for r in chosen)
-
-
 def prepare_run(scene, routes=None, cache_dir=None, sweep_progress=None, fit_progress=None) -> SharedRun:
-    """The parts of ``run_scene`` that do not depend on the motion, for many runs of ``scene``
-    with ``routes`` (default: the scene's): the time-step check (raises as ``run_scene`` does),
-    one impedance sweep and, when a route needs it, one rational fit (built here, not on
-    demand: a fit that fails raises instead of refusing the route; a fit found in the cache
-    leaves the tables unread when no route reads them itself). Progress callbacks as in
-    ``run_scene``."""
+    """What the runs of ``scene`` with ``routes`` (default: the scene's) share whatever their
+    motion: the only place that chooses the routes (a scene without [structure] for routes that
+    need one raises), makes the proxy springs and checks the time step (raises), finds the
+    cached fit and sweeps: once for all routes, and not at all when the routes need only the
+    fit and it was found in the cache by the table's inputs (the sweep's errors raise here).
+    The fit itself is made on first need (``SharedRun.soil_fit``; ``settle`` makes it now).
+    ``sweep_progress`` follows the sweep, ``fit_progress`` the fit (progress protocol)."""
     scene, chosen = _chosen_routes(scene, routes)
-    outputs = _tables_read(scene, chosen)
+    outputs = tuple(dict.fromkeys(t for r in chosen for t in r.tables(scene)))    # their union, in route order
     with compute_threads():
         springs = proxy_springs(scene, bool(outputs), cache_dir)
-        check_time_step(scene.model(), springs, scene.analysis.dt)
+        model = scene.model()
+        check_time_step(model, springs, scene.analysis.dt)
+        fit = cached_scene_fit(scene, cache_dir) if outputs and any(r.needs_fit for r in chosen) else None
+        reads_tables = any(r.tables(scene) and not r.needs_fit for r in chosen)   # not only through the fit
         sweep, tables = {}, {}
-        fit = _cached_fit(scene, chosen, outputs, cache_dir)
-        if outputs and (fit is None or _reads_tables(scene, chosen)):
+        if outputs and (fit is None or reads_tables):
             tables = scene_impedance(scene, outputs, cache_dir=cache_dir, progress=sweep_progress, stats=sweep)
-        if fit is None and "gap" in tables and any(r.needs_fit for r in chosen):
-            fit = scene_fit(scene, cache_dir=cache_dir, table=tables["gap"], fit_progress=fit_progress)
-    return SharedRun(routes=tuple(scene.analysis.routes), tables=tables, sweep=sweep, springs=springs, fit=fit)
+    return SharedRun(scene=scene, routes=tuple(scene.analysis.routes), model=model, springs=springs, tables=tables,
+                     sweep=sweep, cache_dir=cache_dir, fit=fit, fit_progress=fit_progress)
 
 
 def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=None, options=None,
@@ -241,86 +273,45 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
     routes : names (default: the scene's ``[analysis].routes``); options : {route: {option:
     value}} (route options such as the TF padding, see ``Route.options``); motion : a Motion
     replacing the scene's (resampled to ``[analysis].dt``); shared : a ``prepare_run`` of this
-    scene for these routes (or more): its sweep, fit and proxy springs are used, not recomputed.
+    scene (whatever its motion) for these routes (or more), used instead of preparing the run
+    here: the run is then its per-motion part only (the motion, its step-doubling check, the routes).
     ``progress`` follows each route (label: the route's name), ``sweep_progress`` the BEM
     sweep, done once for all routes (one factorisation per frequency for every table),
     ``fit_progress`` the rational fit (label: its stage); all three follow the progress
     protocol ``progress(done, total, label)`` (orchestrator.progress). A route that stops keeps its results so far (status STOPPED,
     ``message`` says why) and the other routes still run; a route that cannot run on this
-    scene is REFUSED with the reason. Bad input found before any route runs raises.
+    scene is REFUSED with the reason (so is every route that needs a fit that failed, once). Bad input found before any route runs raises.
     """
     scene, chosen = _chosen_routes(scene, routes)
     if shared is not None and not set(scene.analysis.routes) <= set(shared.routes):
         raise ValueError(f"run_scene: shared was prepared for the routes {', '.join(shared.routes)}, "
                          f"not {', '.join(scene.analysis.routes)}: call prepare_run with every route")
+    if shared is not None and scene.analysis.dt != shared.scene.analysis.dt:
+        raise ValueError(f"run_scene: shared was prepared for analysis.dt = {shared.scene.analysis.dt:g} s, "
+                         f"not {scene.analysis.dt:g} s (its time-step check): call prepare_run on this scene")
     dt = scene.analysis.dt
-    motion = make_motion(scene.motion, dt) if motion is None else motion.resampled(dt)
+    motion = make_motion(scene.motion, dt) if motion is None else motion.resampled(dt)   # before any computation
+    run = shared if shared is not None else prepare_run(scene, cache_dir=cache_dir, sweep_progress=sweep_progress,
+                                                        fit_progress=fit_progress)
     with compute_threads():
-        ctx = RunContext(scene=scene, motion=motion, cache_dir=cache_dir)
-        outputs = _tables_read(scene, chosen)
-        springs = shared.springs if shared is not None else proxy_springs(scene, bool(outputs), cache_dir)
-        check_time_step(ctx.model(), springs, dt)
         dt_notes = {}
         if scene.contact.enabled and any(r.time_stepped for r in chosen):
-            dt_check = shared.dt_check if shared is not None and shared.dt_check is not None else \
-                step_doubling(scene, ctx.model(), springs, motion, cache_dir, keep=shared is None)
+            dt_check = run.dt_check if run.dt_check is not None else \
+                step_doubling(scene, run.model, run.springs, motion, cache_dir, keep=shared is None)
             warning = step_doubling_warning(dt_check)
             dt_notes = {"warnings": [warning] if warning else [], "info": {"dt_check": dt_check}}
-        sweep = {}
-        if shared is not None:
-            ctx.tables, sweep = shared.tables, shared.sweep
-            if shared.fit is not None:
-                ctx.shared["fit"] = shared.fit
-        elif outputs:
-            ctx.tables = SweptTables(outputs, lambda: scene_impedance(scene, outputs, cache_dir=cache_dir,
-                                                                      progress=sweep_progress, stats=sweep))
-            fit = _cached_fit(scene, chosen, outputs, cache_dir)
-            if fit is not None:
-                ctx.shared["fit"] = fit
-            if fit is None or _reads_tables(scene, chosen):
-                ctx.tables.load()           # before the routes (one sweep for all; its errors raise here)
-        if "gap" in ctx.tables and "fit" not in ctx.shared:
-            ctx.fit_builder = lambda: scene_fit(scene, cache_dir=cache_dir, table=ctx.tables["gap"],
-                                                fit_progress=fit_progress)
+        ctx = RunContext(scene=scene, motion=motion, prepared=run, cache_dir=cache_dir)
         results = {}
         for route in chosen:
             res = _run_route(route, ctx.for_route(route, (options or {}).get(route.name)),
                              _labelled(progress, route.name))
             if route.time_stepped:
                 res = res.with_notes(**dt_notes)
-            if route.needs_fit and "fit" in ctx.shared and not ctx.fit().report.tol_reached:
-                res = res.with_notes(warnings=[f"rational soil fit: {ctx.fit().report.message}"])
+            if route.needs_fit and run.fit is not None and not run.fit.report.tol_reached:
+                res = res.with_notes(warnings=[f"rational soil fit: {run.fit.report.message}"])
             ran = {} if res.status is Status.REFUSED else {"components": list(motion.components)}
-            results[route.name] = res.with_notes(skipped=_shared_skips(scene, route, sweep, ctx), info=ran)
+            results[route.name] = res.with_notes(skipped=_shared_skips(scene, route, run), info=ran)
     return results, motion
-
-
-class SweptTables(Mapping):
-    """The run's impedance tables ``{output: ImpedanceTable}``, swept (or read from the cache) all
-    at once by ``load()``: before the routes when one of them reads a table, else (its routes
-    need only the rational fit, found in the cache by the table's inputs) on first use, if any."""
-
-    def __init__(self, outputs, sweep):
-        self._outputs, self._sweep, self._tables = tuple(outputs), sweep, None
-
-    def load(self) -> dict:
-        if self._tables is None:
-            self._tables = self._sweep()
-        return self._tables
-
-    def __getitem__(self, output):
-        if output not in self._outputs:
-            raise KeyError(output)
-        return self.load()[output]
-
-    def __contains__(self, output):
-        return output in self._outputs
-
-    def __iter__(self):
-        return iter(self._outputs)
-
-    def __len__(self):
-        return len(self._outputs)
 
 
 def _run_route(route, ctx, bar) -> RouteResult:
@@ -335,14 +326,15 @@ def _run_route(route, ctx, bar) -> RouteResult:
             route=route.name, time=np.zeros(0), status=Status.STOPPED, message=f"{type(exc).__name__}: {exc}")
 
 
-def _shared_skips(scene, route, sweep, ctx) -> list:
-    """What the run's shared parts did not compute for this route (only what really happened:
+def _shared_skips(scene, route, run: SharedRun) -> list:
+    """What the run's prepared parts did not compute for this route (only what really happened:
     cache hits are those of this run)."""
     out = []
-    tables = route.tables(scene)
+    tables, sweep, fit = route.tables(scene), run.sweep, run.fit
+    cached_fit = route.needs_fit and fit is not None and fit.report.cached
     if tables and sweep.get("from_cache"):
         out.append("impedance sweep read from cache")
-    elif tables and not sweep and route.needs_fit and "fit" in ctx.shared and ctx.fit().report.cached:
+    elif tables and not sweep and cached_fit:
         out.append("impedance table not read: the route needs only the rational fit, found in the cache "
                    "by the table's inputs")
     elif tables and sweep.get("computed") and scene.profile.is_homogeneous and scene.frequencies_hz[0] == 0.0:
@@ -351,7 +343,7 @@ def _shared_skips(scene, route, sweep, ctx) -> list:
     if "gap" in tables:
         n = scene.mesh.n
         out.append(f"rigid raft: soil interface reduced from 3N = {3 * n} to 6 + N = {6 + n} DOFs")
-    if route.needs_fit and "fit" in ctx.shared and ctx.fit().report.cached:
+    if cached_fit:
         out.append("rational fit read from cache")
     return out
 

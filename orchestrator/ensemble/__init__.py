@@ -14,11 +14,12 @@ run's summary gives (``orchestrator.results_file.summary``: max uplift, max raft
 contact ratio, wall time, status) and the floor response spectra of the scene's output nodes.
 
 What the cells share is computed once per ensemble, on the calling process, and scattered to
-the workers once (``orchestrator.run.prepare_run``): the BEM sweep, the rational fit and the
-proxy springs of the time-step checks. The step-doubling check of the time step
-(``run.step_doubling``, a warning) runs by default once, on the ensemble's strongest motion
-(largest Arias intensity over its strongest window, at the largest PGA), and stands for every
-cell; ``dt_check="each"`` checks every cell's own motion as ``uplift run`` does (it costs about
+the workers once (``orchestrator.run.prepare_run``, then ``SharedRun.settle``): the structure
+model, the BEM sweep, the rational fit (or its error: every cell of a route that needs it is
+then refused or stopped with the reason) and the proxy springs of the time-step checks. The
+step-doubling check of the time step (``run.step_doubling``, a warning) runs by default once,
+on the ensemble's strongest motion (largest Arias intensity over its strongest window, at
+the largest PGA), and stands for every cell; ``dt_check="each"`` checks every cell's own motion as ``uplift run`` does (it costs about
 one monolithic run more per cell). A cell's numbers do not depend on it.
 
 Cells run on a dask.distributed cluster: a LocalCluster of N worker processes, one thread

@@ -72,7 +72,7 @@ def run_ensemble(scene, pgas, records=None, seeds=None, routes=None, output=None
             n_workers = len(client.scheduler_info()["workers"])
             t1 = time.perf_counter()
             shared = prepare_run(plan.scene, cache_dir=cache_dir, sweep_progress=sweep_progress,
-                                 fit_progress=fit_progress)
+                                 fit_progress=fit_progress).settle()     # the fit made once for every cell
             t2 = time.perf_counter()
             if dt_check == "strongest":
                 with compute_threads():
@@ -102,5 +102,5 @@ def strongest_check(plan: Plan, shared, cache_dir=None):
     motions = [make_motion(c.scene.motion, dt) for c in top]
     arias = [float((strongest_window(m)[0].acc ** 2).sum()) for m in motions]
     k = int(np.argmax(arias))
-    check = step_doubling(scene, scene.model(), shared.springs, motions[k], cache_dir)
+    check = step_doubling(scene, shared.model, shared.springs, motions[k], cache_dir)
     return {**check, "record": plan.records[top[k].index[0]].label, "pga_g": plan.pgas[-1]}

@@ -39,7 +39,8 @@ TEXT_VARIABLES = ("status", "message", "warnings")
 
 def run_cell(scene: Scene, route: str, shared, nodes, cache_dir=None) -> dict:
     """The values of one cell (``cell_values``): ``run_scene`` of the cell's scene on ``route``
-    with the ensemble's shared parts (a ``run.SharedRun``). Runs on a worker."""
+    with the ensemble's shared parts (a ``run.SharedRun``, settled: its fit, or the fit's error, made
+    on the calling process). Runs on a worker."""
     t0 = time.perf_counter()
     results, _ = run_scene(scene, [route], cache_dir=cache_dir, shared=shared)
     values = cell_values(results[route], nodes)

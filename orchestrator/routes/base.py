@@ -122,40 +122,40 @@ def default_reference(names) -> str:
 
 @dataclass
 class RunContext:
-    """What a route receives: the scene, its motion at the analysis step, the impedance
-    tables swept for the run, and the shared, lazily built structure model and soil fit.
+    """What a route receives: the scene, its motion at the analysis step, and what the run
+    prepared once for every route (and, in an ensemble, for every motion): the structure model,
+    the impedance tables and the soil fit.
 
     scene : the validated Scene; motion : orchestrator.motion.Motion at scene.analysis.dt
-    tables : {"rigid"|"gap": ImpedanceTable} (those the run's routes declared; a Mapping swept
-        on first access when the routes need only the fit and it was found in the cache)
+    prepared : the run's prepared parts (``orchestrator.run.SharedRun``): ``model``, ``tables``
+        and ``soil_fit()``
     cache_dir : impedance/fit cache folder or None
     options : {option: value} for this route (bench knobs such as pad_s)
-    fit_builder : callable() -> FitResult of the scene's gap table, called once on demand
     """
     scene: object
     motion: object
-    tables: Mapping = field(default_factory=dict)
+    prepared: object
     cache_dir: object = None
     options: Mapping = field(default_factory=dict)
-    fit_builder: Callable | None = None
-    shared: dict = field(default_factory=dict)     # model and fit, built once, shared by for_route copies
+
+    @property
+    def tables(self) -> Mapping:
+        """{"rigid"|"gap": ImpedanceTable}: those the run's routes declared, swept once for all
+        (none when the routes need only the fit and it was found in the cache: a route that
+        declares ``needs_fit`` reads its table through ``fit()`` only)."""
+        return self.prepared.tables
 
     def model(self):
         """The structure model (built once per run)."""
-        if "model" not in self.shared:
-            self.shared["model"] = self.scene.model()
-        return self.shared["model"]
+        return self.prepared.model
 
     def fit(self):
-        """The FitResult of the scene's gap table (fitted or read from the cache once per run)."""
-        if "fit" not in self.shared:
-            if self.fit_builder is None:
-                raise RouteInputError("this run has no rational soil fit: the route must declare needs_fit")
-            self.shared["fit"] = self.fit_builder()
-        return self.shared["fit"]
+        """The FitResult of the scene's gap table (read from the cache or fitted once per run; a
+        fit that failed raises its error again)."""
+        return self.prepared.soil_fit()
 
     def for_route(self, route: Route, options: Mapping | None = None) -> RunContext:
-        """The context a route's ``run`` receives: this run's shared parts and the route's options."""
+        """The context a route's ``run`` receives: this run's prepared parts and the route's options."""
         unknown = set(options or {}) - set(route.options)
         if unknown:
             raise RouteInputError(f"route {route.name!r} has no option {sorted(unknown)[0]!r}; "

@@ -196,3 +196,69 @@ def test_a_cached_table_is_read_and_hashed_once(tmp_path, monkeypatch):
         f["matrices_imag"][0, 0, 0] += 1.0
     with pytest.warns(CacheWarning, match="damaged cache entry"):
         assert _read_cached(path, table.hash) is None
+
+
+@pytest.mark.slow
+def test_the_fit_is_made_once_on_first_need_and_a_failed_fit_refuses_only_its_routes(tmp_path, monkeypatch):
+    """One run sequence for a single run and an ensemble's cells: prepare_run sweeps but does not
+    fit (a route's first need does, once); a fit that fails is tried once and every route that
+    needs it is refused (or stopped) with the reason while the others run, in a single run as in
+    an ensemble's cells (the error travels in the pickled SharedRun: no cell fits again, none
+    crashes); a fit that succeeds is made once by ``settle`` and read by every copy."""
+    import pickle
+
+    import orchestrator.run as run
+    from orchestrator.ensemble import run_cell, run_ensemble
+    from soil_impedance.rational import FitError
+    from uplift_common.errors import ComputationError
+    scene = scene_from_dict(small_reactor(analysis={"routes": ["winkler", "monolithic", "cosim"]},
+                                          motion={"duration_s": 0.5}), name="small")
+    real, calls = run.scene_fit, []
+
+    def failing(*args, **kwargs):
+        calls.append("fit")
+        raise FitError("no passive model for the test")
+
+    monkeypatch.setattr(run, "scene_fit", failing)
+    shared = prepare_run(scene, cache_dir=tmp_path)                          # lazy: swept, not fitted
+    assert calls == [] and shared.fit is None and set(shared.tables) == {"rigid", "gap"}
+    results, _ = run_scene(scene, cache_dir=tmp_path)
+    assert calls == ["fit"]                                                  # once for monolithic and cosim
+    assert results["winkler"].converged
+    for name in ("monolithic", "cosim"):
+        assert results[name].status.value == "refused" and results[name].message == "no passive model for the test"
+    settled = prepare_run(scene, cache_dir=tmp_path, fit_progress=lambda *a: None).settle()
+    assert calls == ["fit"] * 2 and isinstance(settled.fit_error, FitError)
+    cell = pickle.loads(pickle.dumps(settled))                               # as scattered to a worker
+    assert cell.fit_progress is None
+    values = {r: run_cell(scene, r, cell, (), tmp_path) for r in ("winkler", "monolithic")}
+    assert calls == ["fit"] * 2
+    assert values["winkler"]["status"] == "converged" and np.isfinite(values["winkler"]["max_uplift"])
+    assert values["monolithic"]["status"] == "refused" and values["monolithic"]["message"] == "no passive model for the test"
+    ds = run_ensemble(scene, [0.3], seeds=[1], routes=["winkler", "monolithic"], workers=1, cache_dir=tmp_path)
+    assert calls == ["fit"] * 3                                              # made once, on the calling process
+    assert list(ds["status"].values.ravel()) == ["converged", "refused"]
+    assert "no passive model" in str(ds["message"].sel(route="monolithic").values.ravel()[0])
+
+    def stopping(*args, **kwargs):
+        calls.append("fit")
+        raise ComputationError("the fit stopped")
+
+    monkeypatch.setattr(run, "scene_fit", stopping)
+    results, _ = run_scene(scene, routes=["monolithic", "winkler"], cache_dir=tmp_path)
+    assert results["monolithic"].status.value == "stopped" and "the fit stopped" in results["monolithic"].message
+    assert results["winkler"].converged and calls == ["fit"] * 4
+
+    def counted(*args, **kwargs):
+        calls.append("fit")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(run, "scene_fit", counted)
+    calls.clear()
+    settled = prepare_run(scene, routes=["monolithic"], cache_dir=tmp_path).settle()
+    assert calls == ["fit"] and settled.fit is not None and settled.fit_error is None
+    copy = pickle.loads(pickle.dumps(settled))
+    first = run_cell(scene, "monolithic", copy, (), tmp_path)
+    again = run_cell(scene, "monolithic", copy, (), tmp_path)
+    assert calls == ["fit"] and first["status"] == again["status"] == "converged"
+    assert first["max_uplift"] == again["max_uplift"]
