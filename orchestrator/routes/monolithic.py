@@ -1,10 +1,12 @@
 """``monolithic``: the BEM soil as a fitted rational model run by the recursive convolution,
-Newmark + penalty contact, in process (no FMU layer): the fast path and the co-simulation's
-reference (``cosim`` equals it to round-off).
+Newmark + penalty contact, structure and soil stepped together in one process (no master, no
+FMI calls, no exchange between two units): the fast path and the co-simulation's reference
+(``cosim`` equals it to round-off).
 
-Two steppers compute the same discrete equations (to round-off): ``"native"`` (default), the C
-runtime of the native FMUs run in process, a chunk of steps per call (progress reported and
-Ctrl-C taken between two; fmus/native_stepper.py), and
+Two steppers compute the same discrete equations (to round-off): ``"native"`` (default), the
+numerics of the native FMUs' C runtime (stepper.c, soil.c) called in process through ctypes,
+without their FMI layer, a chunk of steps per call (progress reported and Ctrl-C taken between
+two; fmus/native_stepper.py), and
 ``"python"``, ``structure.simulate`` (the readable reference). The native stepper runs the
 default soil (the recursive convolution of the rational model); with another soil factory, or
 where no C compiler is available, the Python stepper runs and ``notes.warnings`` says why.
