@@ -15,6 +15,8 @@ import re
 import sys
 from pathlib import Path
 
+from uplift_common.lazy import exported_names
+
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("structure", "soil_impedance", "fmus", "uplift_common")
 #: project modules a bundled module names but an FMU never runs
@@ -36,6 +38,16 @@ def data_files() -> list:
     """The files of DATA_PACKAGES (their __init__.py and .toml / .json data)."""
     return sorted(p for pkg in DATA_PACKAGES for p in ROOT.joinpath(*pkg.split(".")).iterdir()
                   if p.suffix in (".py", ".toml", ".json"))
+
+
+def lazy_target(name: str) -> str:
+    """The module ``name`` stands for: a name a lazy package exports (``uplift_common.lazy``) is
+    the submodule defining it; any other name is itself."""
+    package, _, attr = name.rpartition(".")
+    init = ROOT.joinpath(*package.split("."), "__init__.py")
+    if package.split(".")[0] in PACKAGES and init.is_file() and attr in (lazy := exported_names(init)):
+        return f"{package}.{lazy[attr]}"
+    return name
 
 
 def module_file(name: str):
@@ -77,7 +89,7 @@ def closure(entry_modules) -> dict:
     their parent packages), NEVER_RUN left out."""
     seen, todo = {}, list(entry_modules)
     while todo:
-        name = todo.pop()
+        name = lazy_target(todo.pop())
         path = module_file(name)
         if path is None or name in seen or name in NEVER_RUN:
             continue

@@ -12,13 +12,15 @@ submodule when one of its names is first asked for (``from soil_impedance import
         "profile": ("SoilProfile", "SoilError"),     # submodule: the names it exports
     })
 
-The mapping is a literal: tests/integration/test_architecture.py reads it to resolve such an
-import to the submodule that defines the name.
+The mapping is a literal: ``exported_names`` reads it from the source, without importing, for
+the tools that follow imports statically (the FMU bundler, the architecture tests).
 """
 from __future__ import annotations
 
+import ast
 import importlib
 import sys
+from pathlib import Path
 
 
 def lazy_exports(package: str, exports: dict[str, tuple[str, ...]]):
@@ -38,3 +40,12 @@ def lazy_exports(package: str, exports: dict[str, tuple[str, ...]]):
         return sorted(set(where) | set(vars(sys.modules[package])))
 
     return __getattr__, __dir__, list(where)
+
+
+def exported_names(init: Path) -> dict[str, str]:
+    """{name: submodule} a package ``__init__.py`` declares with ``lazy_exports`` (read from its
+    source), else {}."""
+    for node in ast.walk(ast.parse(Path(init).read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Call) and getattr(node.func, "id", "") == "lazy_exports":
+            return {n: sub for sub, names in ast.literal_eval(node.args[1]).items() for n in names}
+    return {}

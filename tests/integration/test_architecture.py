@@ -14,6 +14,7 @@ from structure.results import RouteResult
 from helpers import ROOT, tower, write_scene
 
 from uplift_common.code import PACKAGES
+from uplift_common.lazy import exported_names
 #: what each package may import from the project (the dependency rule)
 ALLOWED = {"uplift_common": {"uplift_common"},
            "soil_impedance": {"soil_impedance", "uplift_common"}, "structure": {"structure", "uplift_common"},
@@ -69,19 +70,10 @@ def _sources(package):
     return sorted((ROOT / package).rglob("*.py"))
 
 
-def _lazy_names(path: Path) -> dict:
-    """{name: submodule} of a package ``__init__`` that declares its names with
-    ``uplift_common.lazy.lazy_exports`` (a literal mapping), else {}."""
-    for node in ast.walk(ast.parse(path.read_text())):
-        if isinstance(node, ast.Call) and getattr(node.func, "id", "") == "lazy_exports":
-            return {n: sub for sub, names in ast.literal_eval(node.args[1]).items() for n in names}
-    return {}
-
-
 KNOWN = {_module_name(p) for pkg in PACKAGES for p in _sources(pkg)}
 #: {package: {name: submodule}} of the packages whose names load on first use
 LAZY = {_module_name(p): names for pkg in PACKAGES for p in _sources(pkg)
-        if p.name == "__init__.py" and (names := _lazy_names(p))}
+        if p.name == "__init__.py" and (names := exported_names(p))}
 
 
 def _project_module(name: str, known: set) -> str | None:
@@ -206,6 +198,24 @@ def test_import_chains_are_short():
     graph = import_graph()
     longest = max((import_chain(graph, m) for m in sorted(graph)), key=len)
     assert len(longest) <= MAX_IMPORT_CHAIN, f"{len(longest)} modules: " + " -> ".join(longest)
+
+
+#: module names that more than one package uses, each for the same concept in both
+SHARED_NAMES = {"__init__": "every package",
+                "errors": "error classes: the two families (uplift_common) and the structure's own",
+                "winkler": "the Winkler mattress (structure) and the route that runs it (orchestrator.routes)",
+                "linear": "the linear route (orchestrator.routes) and its solve, bonded.py, named after it "
+                          "in the route only"}
+
+
+def test_module_names_say_where_they_are():
+    """No two modules of the packages share a name unless SHARED_NAMES says why."""
+    seen = {}
+    for pkg in PACKAGES:
+        for path in _sources(pkg):
+            seen.setdefault(path.stem, []).append(str(path.relative_to(ROOT)))
+    repeated = {name: paths for name, paths in seen.items() if len(paths) > 1 and name not in SHARED_NAMES}
+    assert not repeated, f"module names used twice: {repeated}"
 
 
 def test_function_local_imports_say_why():
