@@ -425,47 +425,65 @@ def read_fragility(path):
 
 
 def fragility_figure(frag, title: str = ""):
-    """One panel per limit state: per route (one colour) the observed fraction z/n at each PGA
-    (labelled with z/n), the fitted curve, and the bootstrap band of the median at P = 0.5 when
-    present; a fit that is not identified is named with its reason, no curve. A Figure (the
-    caller closes it)."""
-    from orchestrator.plots import pyplot  # matplotlib: only drawing pays its import
+    """One panel per limit state (titled with the limit, and the file's units when the limit
+    gives none): per route (one colour, marker and line style:
+    ``orchestrator.plots.route_style``) the observed fraction z/n at each PGA (labelled with
+    z/n; the routes' points side by side about each PGA), the fitted curve, and the bootstrap
+    band of the median at P = 0.5 when present (the routes' bands a little apart); a fit that
+    is not identified is named with its reason, no curve. A Figure (the caller closes it)."""
+    from orchestrator.plots import dodged, pyplot, route_style  # matplotlib: only drawing pays its import
     plt = pyplot()
     limits = [str(v) for v in frag["limit"].values]
+    routes = [str(r) for r in frag["route"].values]
     fig, axes = plt.subplots(1, len(limits), figsize=(5.5 * len(limits), 4.5), squeeze=False,
                              constrained_layout=True)
     pga = frag["pga"].values
     x = np.linspace(0.0, 1.15 * pga.max(), 200)[1:]
     for ax, (a, lim) in zip(axes[0], enumerate(limits)):
         notes = []
-        for b, route in enumerate(frag["route"].values):
+        for b, route in enumerate(routes):
+            style = route_style(b)
             n, z = frag["cells"].values[a, b], frag["exceedances"].values[a, b]
             used = n > 0
-            ax.plot(pga[used], z[used] / n[used], "o", color=f"C{b}", label=f"{route}: observed z/n")
-            for p, zz, nn in zip(pga[used], z[used], n[used]):
+            at = dodged(pga, b, len(routes))[used]
+            ax.plot(at, z[used] / n[used], style["marker"], color=style["color"], linestyle="none",
+                    label=f"{route}: observed z/n")
+            for p, zz, nn in zip(at, z[used], n[used]):
                 ax.annotate(f"{zz}/{nn}", (p, zz / nn), textcoords="offset points",
-                            xytext=(4, 5 if zz / nn < 0.5 else -10),
-                            fontsize="x-small", color=f"C{b}")
+                            xytext=(4, (5 if zz / nn < 0.5 else -10) + 8 * b * (1 if zz / nn < 0.5 else -1)),
+                            fontsize="x-small", color=style["color"])
             reason = str(frag["reason"].values[a, b])
             if reason:
                 notes.append(f"{route}: not identifiable: {reason.split(':')[0]}")
                 continue
             fit = Fit(float(frag["median_g"].values[a, b]), float(frag["beta"].values[a, b]), None)
-            ax.plot(x, fit.probability(x), "-", color=f"C{b}",
+            ax.plot(x, fit.probability(x), linestyle=style["linestyle"], color=style["color"],
                     label=f"{route}: median {fit.median_g:.3g} g, beta {fit.beta:.2f}")
             if "median_g_band" in frag and np.isfinite(frag["median_g_band"].values[a, b]).all():
                 lo, hi = frag["median_g_band"].values[a, b]
-                ax.plot([lo, hi], [0.5, 0.5], "|-", color=f"C{b}", lw=3, alpha=0.5,
+                level = 0.5 + 0.03 * (b - (len(routes) - 1) / 2)
+                ax.plot([lo, hi], [level, level], "|-", color=style["color"], lw=3, alpha=0.5,
                         label=f"{route}: median, {100 * frag.attrs['confidence']:g} % bootstrap")
         if notes:
             ax.text(0.02, 0.98, "\n".join(notes), transform=ax.transAxes, va="top", fontsize="small")
         ax.set_ylim(-0.03, 1.03)
         ax.set_xlim(0, x[-1])
         ax.set_xlabel("PGA (g)")
-        ax.set_ylabel("P(exceed)")
-        ax.set_title(lim)
+        ax.set_ylabel("P(exceed | PGA) (-)")
+        ax.set_title(_limit_title(lim, str(frag["units"].values[a]) if "units" in frag else ""))
         ax.grid(True, alpha=0.3)
         ax.legend(loc="best", fontsize="small")
     if title:
         fig.suptitle(title)
     return fig
+
+
+def _limit_title(text: str, units: str) -> str:
+    """A panel's title: the limit ``text``, with the file's ``units`` when it names none."""
+    try:
+        named = parse_limit(text).unit
+    except FragilityError:
+        named = ""
+    if named or not units:
+        return text
+    return f"{text} ({'fraction' if units == '1' else units})"

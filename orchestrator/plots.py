@@ -6,9 +6,29 @@ from pathlib import Path
 import numpy as np
 
 from orchestrator.motion import G
-from orchestrator.spectra import response_spectrum
+from orchestrator.spectra import FLOOR_DAMPING, FLOOR_FREQUENCIES_HZ, excited, floor_spectra, response_spectrum
 
 RIGID_GROUPS = (("ux", "horizontal"), ("uz", "vertical"), ("rx", "rocking"), ("rz", "torsion"))
+#: units of the static stiffness K0 of each rigid DOF
+K0_UNITS = {"ux": "N/m", "uy": "N/m", "uz": "N/m", "rx": "N·m/rad", "ry": "N·m/rad", "rz": "N·m/rad"}
+#: what tells the routes (or series) of one panel apart besides colour: the k-th gets the k-th
+#: marker and line style (cycled), and DODGE x its index about the middle as a relative x offset
+MARKERS = ("o", "s", "^", "D", "v", "P", "X")
+LINESTYLES = ("-", "--", "-.", ":")
+DODGE = 0.012
+
+
+def route_style(k: int) -> dict:
+    """The colour, marker and line style of the k-th route of a figure (matplotlib keywords)."""
+    return {"color": f"C{k}", "marker": MARKERS[k % len(MARKERS)], "linestyle": LINESTYLES[k % len(LINESTYLES)]}
+
+
+def dodged(x, k: int, n: int):
+    """``x`` (>= 0, e.g. PGAs in g) moved by (k - (n - 1) / 2) DODGE x its span, so that the
+    points of n routes at the same x are side by side rather than on top of each other."""
+    x = np.asarray(x, float)
+    span = float(x.max() - x.min()) if x.size > 1 else float(abs(x).max(initial=1.0))
+    return x + (k - (n - 1) / 2) * DODGE * (span or 1.0)
 
 
 def pyplot():
@@ -38,7 +58,18 @@ def impedance_coefficients(table, static, radius: float, vs: float):
 
 
 def plot_impedance(table, scene, path: Path, static=None):
-    """k(a0) and c(a0) for each rigid DOF (horizontal, vertical, rocking, torsion)."""
+    """Write ``impedance_figure`` to ``path`` (PNG); returns ``path``."""
+    plt = pyplot()
+    fig = impedance_figure(table, scene, static)
+    fig.savefig(path, dpi=130)
+    plt.close(fig)
+    return path
+
+
+def impedance_figure(table, scene, static=None):
+    """k(a0) and c(a0) (dimensionless) for each rigid DOF (horizontal, vertical, rocking,
+    torsion), K0 = Re K(0) (N/m or N·m/rad) in each title. ``static``: K(0) (6, 6), default the
+    table's 0 Hz entry. A Figure (the caller closes it)."""
     plt = pyplot()
     if static is None:
         if table.frequencies_hz[0] != 0.0:
@@ -50,18 +81,16 @@ def plot_impedance(table, scene, path: Path, static=None):
     for col, (dof, label) in enumerate(RIGID_GROUPS):
         j = table.dofs.index(dof)
         axes[0, col].plot(a0, k[:, j], "o-", ms=3)
-        axes[0, col].set_title(f"{label} ({dof}), K0 = {np.real(static[j, j]):.3e}")
+        axes[0, col].set_title(f"{label} ({dof})\nK0 = {np.real(static[j, j]):.3e} {K0_UNITS[dof]}")
         axes[1, col].plot(a0, c[:, j], "o-", ms=3, color="C1")
-        axes[1, col].set_xlabel(r"$a_0 = \omega R / V_s$")
+        axes[1, col].set_xlabel(r"$a_0 = \omega R / V_s$ (-)")
         for ax in axes[:, col]:
             ax.grid(True, alpha=0.3)
-    axes[0, 0].set_ylabel(r"$k(a_0) = \mathrm{Re}\,K / K_0$")
-    axes[1, 0].set_ylabel(r"$c(a_0) = \mathrm{Im}\,K / (a_0 K_0)$")
+    axes[0, 0].set_ylabel(r"$k(a_0) = \mathrm{Re}\,K / K_0$ (-)")
+    axes[1, 0].set_ylabel(r"$c(a_0) = \mathrm{Im}\,K / (a_0 K_0)$ (-)")
     fig.suptitle(f"{scene.name}: rigid-raft impedance, R = {scene.mesh.radius:g} m, "
                  f"Vs = {vs:g} m/s, {scene.mesh.n} nodes, {scene.contact_kind}")
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
-    return path
+    return fig
 
 
 def _edges(xy, axis: int = 0):
@@ -83,11 +112,6 @@ def plot_run(results: dict, motion, scene, directory) -> list:
         fig.savefig(paths[-1], dpi=120)
         plt.close(fig)
     return paths
-
-
-#: a direction of a node whose floor acceleration stays below this share of the node's peak is
-#: round-off (no spectrum drawn)
-ROUNDOFF = 1e-6
 
 
 def _edge_nodes(xy):
@@ -126,38 +150,57 @@ def _raft_figure(plt, res, lin):
     return fig
 
 
+def excited_directions(res, motion) -> list:
+    """The directions ("x", "y", "z") with a floor spectrum to draw: an output node of ``res``
+    above round-off in it (``orchestrator.spectra.excited``), or a component of ``motion``."""
+    hit = np.zeros(3, bool)
+    for acc in res.acc.values():
+        hit |= excited(acc)
+    return [d for j, d in enumerate("xyz") if hit[j] or (motion is not None and d in motion.components)]
+
+
 def _spectra_figure(plt, res, lin, motion):
-    """5 %-damped floor response spectra at the output nodes in x, y and z (round-off directions
-    left out), the ground's spectrum per component of ``motion``; ``lin`` dashed."""
-    f = np.geomspace(0.5, 40.0, 120)
-    dt = res.time[1] - res.time[0]
-    fig, axes = plt.subplots(1, 3, figsize=(15, 5), sharey=True, constrained_layout=True)
-    for j, (ax, d) in enumerate(zip(axes, "xyz")):
-        for name, acc in res.acc.items():
-            if np.abs(acc[:, j]).max(initial=0.0) <= ROUNDOFF * np.abs(acc).max(initial=0.0):
+    """5 %-damped floor response spectra at the output nodes (``floor_spectra``: those of the
+    results file), one panel per excited direction (``excited_directions``; a direction with
+    round-off response only is left out, and named so in the figure's note), the ground's
+    spectrum per component of ``motion``; ``lin`` dashed. None when no direction is excited.
+    Returns (Figure, note)."""
+    directions = excited_directions(res, motion)
+    if not directions:
+        return None, ""
+    f = FLOOR_FREQUENCIES_HZ
+    spectra = floor_spectra(res.acc, float(res.time[1] - res.time[0]))
+    ref = floor_spectra(lin.acc, float(lin.time[1] - lin.time[0])) if lin is not None else None
+    names = list(res.acc)
+    fig, axes = plt.subplots(1, len(directions), figsize=(5 * len(directions), 5), sharey=True, squeeze=False,
+                             constrained_layout=True)
+    for ax, d in zip(axes[0], directions):
+        j = "xyz".index(d)
+        for i, name in enumerate(names):
+            if not np.isfinite(spectra[i, j]).any():
                 continue
-            s = response_spectrum(acc[:, j], dt, 1 / f, 0.05)
-            line, = ax.semilogx(f, s.psa / G, label=name)
-            if lin is not None and name in lin.acc:
-                s0 = response_spectrum(lin.acc[name][:, j], lin.time[1] - lin.time[0], 1 / f, 0.05)
-                ax.semilogx(f, s0.psa / G, "--", color=line.get_color(), lw=0.8, label=f"{name}, no uplift")
+            line, = ax.semilogx(f, spectra[i, j] / G, label=name)
+            if ref is not None and name in lin.acc and np.isfinite(ref[list(lin.acc).index(name), j]).any():
+                ax.semilogx(f, ref[list(lin.acc).index(name), j] / G, "--", color=line.get_color(), lw=0.8,
+                            label=f"{name}, no uplift")
         if motion is not None and d in motion.components:
-            ground = response_spectrum(motion.acc[: res.nt, j], motion.dt, 1 / f, 0.05)
+            ground = response_spectrum(motion.acc[: res.nt, j], motion.dt, 1 / f, FLOOR_DAMPING)
             ax.semilogx(f, ground.psa / G, "k--", label="ground")
         ax.set_title(f"{d} ({'vertical' if d == 'z' else 'horizontal'})")
         ax.set_xlabel("frequency (Hz)")
         ax.grid(True, which="both", alpha=0.3)
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize="small")
-    axes[0].set_ylabel("pseudo-acceleration, 5 % (g)")
-    return fig
+        ax.legend(fontsize="small")
+    axes[0, 0].set_ylabel(f"pseudo-acceleration, {100 * FLOOR_DAMPING:g} % (g)")
+    left = [d for d in "xyz" if d not in directions]
+    return fig, (f"; not drawn: {', '.join(left)} (no response above round-off)" if left else "")
 
 
 def run_figures(results: dict, motion, scene_name: str):
     """Figures of the paper's kind for each route, yielded as (name, matplotlib Figure): uplift
     at the raft edges along x and y (fig. 3-4), the raft's vertical response and its rocking
     about both axes (``<route>_raft``), floor response spectra at the output nodes in x, y and
-    z (fig. 5-6, ``<route>_floor_spectra``). When the ``linear`` route (no uplift) is among the
+    z (fig. 5-6, ``<route>_floor_spectra``: one panel per excited direction, the others named in
+    the title; no figure when none is excited). When the ``linear`` route (no uplift) is among the
     results, it is drawn dashed on the other routes' figures: the paper's "with and without
     uplift" comparison. ``motion`` (may be None) names the components and adds the ground
     spectra. Routes without histories (refused) have no figures. The caller closes each figure."""
@@ -173,7 +216,7 @@ def run_figures(results: dict, motion, scene_name: str):
         fig = _raft_figure(plt, res, lin)
         fig.suptitle(f"{scene_name} [{route}]: raft response, {label}")
         yield f"{route}_raft", fig
-        if res.acc:
-            fig = _spectra_figure(plt, res, lin, motion)
-            fig.suptitle(f"{scene_name} [{route}]: floor response spectra, {label}")
+        fig, note = _spectra_figure(plt, res, lin, motion) if res.acc else (None, "")
+        if fig is not None:
+            fig.suptitle(f"{scene_name} [{route}]: floor response spectra, {label}{note}")
             yield f"{route}_floor_spectra", fig

@@ -29,7 +29,7 @@ from structure.results import Status
 from orchestrator.compare import compare
 from orchestrator.ensemble import ensemble_components, read_ensemble
 from orchestrator.motion import G
-from orchestrator.plots import pyplot, run_figures
+from orchestrator.plots import dodged, pyplot, route_style, run_figures
 from orchestrator.results_file import ResultsFileError, read_motion, read_results, summary
 from orchestrator.routes import get_route, route_names
 
@@ -162,9 +162,11 @@ AGAINST_PGA = {"max_uplift": ("max uplift (mm)", 1e3), "max_raft_rotation": ("ma
 
 def ensemble_figures(ds):
     """Figures of an ensemble, yielded as (name, Figure): max uplift, raft rotation and contact
-    ratio against PGA (each record a dot, the median a line, the 16-84 % band shaded, one colour
-    per route), then per PGA the fractile floor spectra (median, 84th percentile, 16-84 % band)
-    at each output node in the motion's direction and vertically. The caller closes each figure."""
+    ratio against PGA (each record a dot, the median a line, the 16-84 % band shaded; per route
+    one colour, marker and line style, its dots and medians side by side about each PGA), then
+    per PGA the fractile floor spectra (median, 84th percentile, 16-84 % band) at each output
+    node in each direction with a spectrum (the motion's components and z; a direction that is
+    round-off in every cell is left out and named). The caller closes each figure."""
     plt = pyplot()
     pga = ds["pga"].values
     routes = [str(r) for r in ds["route"].values]
@@ -172,39 +174,50 @@ def ensemble_figures(ds):
     fig, axes = plt.subplots(1, len(AGAINST_PGA), figsize=(5 * len(AGAINST_PGA), 4.5), constrained_layout=True)
     for ax, (name, (label, factor)) in zip(axes, AGAINST_PGA.items()):
         for k, route in enumerate(routes):
+            style, x = route_style(k), dodged(pga, k, len(routes))
             cells = np.where(converged[:, :, k], ds[name].values[:, :, k], np.nan) * factor
-            ax.plot(np.broadcast_to(pga, cells.shape).ravel(), cells.ravel(), ".", color=f"C{k}", alpha=0.5)
+            ax.plot(np.broadcast_to(x, cells.shape).ravel(), cells.ravel(), style["marker"], color=style["color"],
+                    ms=3, alpha=0.5, linestyle="none")
             q = ds[f"{name}_fractile"].sel(route=route) * factor
-            ax.fill_between(pga, q.sel(quantile=0.16), q.sel(quantile=0.84), color=f"C{k}", alpha=0.2)
-            ax.plot(pga, q.sel(quantile=0.5), "o-", color=f"C{k}", label=f"{route}: median, 16-84 %")
+            ax.fill_between(pga, q.sel(quantile=0.16), q.sel(quantile=0.84), color=style["color"], alpha=0.15)
+            ax.plot(x, q.sel(quantile=0.5), **style, label=f"{route}: median, 16-84 %")
         ax.set_xlabel("PGA (g)")
         ax.set_ylabel(label)
         ax.grid(True, alpha=0.3)
     axes[0].legend()
-    fig.suptitle(f"{ds.attrs.get('scene', '')}: {ds.sizes['record']} records per PGA (dots: each record)")
+    fig.suptitle(f"{ds.attrs.get('scene', '')}: {ds.sizes['record']} records per PGA (dots: each record; "
+                 "routes side by side about each PGA)")
     yield "ensemble_against_pga", fig
-    directions = [d for d in "xyz" if d in ensemble_components(ds) or d == "z"]
+    spectra = ds["floor_spectrum_fractile"]
+    candidates = [d for d in "xyz" if d in ensemble_components(ds) or d == "z"]
+    directions = [d for d in candidates if np.isfinite(spectra.sel(direction=d).values).any()]
+    left = [d for d in "xyz" if d not in directions]
+    if not directions:
+        return
     nodes = [str(n) for n in ds["node"].values]
     f = ds["frequency"].values
     for p in pga:
-        fig, axes = plt.subplots(len(directions), max(1, len(nodes)), figsize=(4.5 * max(1, len(nodes)),
+        fig, axes = plt.subplots(len(directions), max(1, len(nodes)), figsize=(max(9.0, 4.5 * len(nodes)),
                                  3.5 * len(directions)), squeeze=False, sharex=True, constrained_layout=True)
         for row, d in enumerate(directions):
             for col, node in enumerate(nodes):
                 ax = axes[row, col]
                 for k, route in enumerate(routes):
-                    q = ds["floor_spectrum_fractile"].sel(pga=p, route=route, node=node, direction=d) / G
-                    ax.fill_between(f, q.sel(quantile=0.16), q.sel(quantile=0.84), color=f"C{k}", alpha=0.2)
-                    for quantile, (what, style) in FRACTILE_LINES.items():
-                        ax.semilogx(f, q.sel(quantile=quantile), style, color=f"C{k}", label=f"{route}: {what}")
-                ax.set_title(f"{node}, {d}")
+                    style = route_style(k)
+                    q = spectra.sel(pga=p, route=route, node=node, direction=d) / G
+                    ax.fill_between(f, q.sel(quantile=0.16), q.sel(quantile=0.84), color=style["color"], alpha=0.15)
+                    for quantile, (what, line) in FRACTILE_LINES.items():
+                        ax.semilogx(f, q.sel(quantile=quantile), line, color=style["color"], marker=style["marker"],
+                                    ms=4, markevery=(3 * k, 12), label=f"{route}: {what}")
+                ax.set_title(f"{node}, {d} ({'vertical' if d == 'z' else 'horizontal'})")
                 ax.grid(True, which="both", alpha=0.3)
             axes[row, 0].set_ylabel(f"pseudo-acceleration, {100 * ds.attrs.get('damping', 0.05):g} % (g)")
         for ax in axes[-1]:
             ax.set_xlabel("frequency (Hz)")
         axes[0, 0].legend(fontsize="small")
-        fig.suptitle(f"{ds.attrs.get('scene', '')}: floor response spectra at {p:g} g over "
-                     f"{ds.sizes['record']} records (band: 16-84 %)")
+        note = f"; not drawn: {', '.join(left)} (no response above round-off)" if left else ""
+        fig.suptitle(f"{ds.attrs.get('scene', '')}: floor response spectra at {p:g} g\nover "
+                     f"{ds.sizes['record']} records (band: 16-84 %){note}")
         yield f"ensemble_floor_spectra_{p:g}g", fig
 
 

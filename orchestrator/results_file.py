@@ -1,14 +1,37 @@
-"""One HDF5 layout for every route's results, and the per-route summary.
+"""One results file for every route (HDF5, readable as netCDF4 by xarray), and the per-route summary.
 
-Layout (open it with h5py; every array is in SI units)::
+Layout (``format_version`` 2; every array in SI units, every variable with CF ``units`` and
+``long_name`` attributes; the coordinates are HDF5 dimension scales, so that xarray names the
+dimensions)::
 
-    /                       attrs: scene, created, sha256 (checksum of the file's content)
-    /motion/acc (nt, 3)     ground acceleration, m/s²; attrs: dt, label, components ("x,y,z")
-    /routes/<route>/        attrs: status (converged | stopped | refused), message, wall_s,
-                                   notes (JSON: skipped, warnings, precheck, timings), info (JSON)
-        time (nt,)  raft (nt, 6)  gap (nt, N)  contact_force (nt, N)  soil_w (nt, N)
-        xy (N, 2)  newton_iters (nt,)
-        acc/<node> (nt, 3)  disp/<node> (nt, 3)  energy/<term> (nt,)
+    /                        attrs: uplift_file = "results", format_version = 2, Conventions,
+                                    scene, created, sha256 (checksum of the file's content)
+    /motion/                 attrs: dt (s), label, components ("x,y,z")
+        time (time) s   direction (direction)   acc (time, direction) m s-2: ground acceleration
+    /routes/<route>/         attrs: route, status (converged | stopped | refused), message, wall_s,
+                                    notes (JSON: skipped, warnings, precheck, timings), info (JSON),
+                                    and the summary numbers (SUMMARY_ATTRS: max_uplift_m, ...)
+        coordinates  time (time) s, node (node) interface node index, x (node) m, y (node) m,
+                     direction ("x", "y", "z"), output (output): structure output node names,
+                     energy_term (energy_term), frequency (frequency) Hz
+        raft_translation (time, direction) m     raft_rotation (time, direction) rad
+        gap, contact_force, soil_w (time, node) m, N, m     newton_iters (time)
+        acc (time, output, direction) m s-2      disp (time, output, direction) m
+        energy (time, energy_term) J
+        floor_spectrum (output, direction, frequency) m s-2: 5 % pseudo-acceleration (NaN where
+                     the direction is round-off), floor_spectrum_peak (output, direction) m s-2
+                     and its frequency floor_spectrum_peak_frequency (output, direction) Hz,
+        peak_acc (output) m s-2
+
+acc, disp, energy and the spectra are left out of a route that has none (a refused route keeps
+only its empty time and node coordinates). Open it with xarray::
+
+    xarray.open_datatree(path, engine="h5netcdf")                          # the whole file
+    xarray.open_dataset(path, group="routes/winkler", engine="h5netcdf")   # one route
+
+(``open_results`` does the same after verifying the checksum). ``read_results`` gives the
+RouteResults back, exactly, from this layout and from the layout before it (version 1, no
+``format_version``: raft (nt, 6), xy (N, 2), acc/<node>, disp/<node>, energy/<term>; no summary).
 
 A route that stopped early is written with what it computed, status "stopped" and its
 ``message`` (the reason). The file is written atomically: an existing file at the same path
@@ -28,11 +51,26 @@ from uplift_common.files import ChangedFileError, OutputPathError, atomic_output
 from structure.results import RouteResult, RunNotes, Status
 
 from orchestrator.motion import G, Motion
+from orchestrator.spectra import FLOOR_DAMPING, FLOOR_FREQUENCIES_HZ, floor_spectra
 from uplift_common.errors import UserInputError
 
+#: root attribute ``uplift_file`` of a results file, and the layout this code writes
+KIND = "results"
+FORMAT_VERSION = 2
 ARRAYS = ("time", "raft", "gap", "contact_force", "soil_w", "newton_iters", "xy")
 GROUPS = ("acc", "disp", "energy")
+DIRECTIONS = ("x", "y", "z")
 REMEDY = "run `uplift run SCENE -o FILE` again to make a good one"
+#: the summary numbers stored as route attributes: attribute -> (summary key, axis key or None)
+SUMMARY_ATTRS = {"max_uplift_m": ("max_uplift_m", None), "max_uplift_time_s": ("max_uplift_time_s", None),
+                 "max_raft_rotation_rad": ("max_raft_rotation_rad", None),
+                 "max_raft_rotation_x_rad": ("max_raft_rotation_axes_rad", "x"),
+                 "max_raft_rotation_y_rad": ("max_raft_rotation_axes_rad", "y"),
+                 "min_contact_fraction": ("min_contact_fraction", None)}
+#: per-node histories of version 2: name -> (units, long name)
+NODE_HISTORIES = {"gap": ("m", "uplift (gap) of the interface node, >= 0"),
+                  "contact_force": ("N", "total compressive contact force at the interface node"),
+                  "soil_w": ("m", "dynamic vertical soil displacement under the interface node")}
 
 
 class ResultsFileError(UserInputError):
@@ -85,35 +123,133 @@ def check_output_folder(path, names=(), option: str = "-o") -> Path:
 
 
 def write_results(path, results: dict, motion=None, scene_name: str = "") -> Path:
-    """Write ``{route: RouteResult}`` (and the motion) to one HDF5 file, atomically."""
+    """Write ``{route: RouteResult}`` (and the motion) to one HDF5 file of the layout of this
+    module (format_version 2: netCDF4 dimension scales, CF units, the per-route summary),
+    atomically, with the checksum of its whole content."""
     path = check_output_path(path)
     with atomic_output(path) as tmp, h5py.File(tmp, "w") as f:
-        f.attrs["scene"] = scene_name
-        f.attrs["created"] = time.strftime("%Y-%m-%dT%H:%M:%S")
+        f.attrs.update(uplift_file=KIND, format_version=FORMAT_VERSION, Conventions="CF-1.8", scene=scene_name,
+                       created=time.strftime("%Y-%m-%dT%H:%M:%S"))
         if motion is not None:
-            m = f.create_group("motion")
-            m.create_dataset("acc", data=motion.acc)
-            m.attrs["dt"], m.attrs["label"] = motion.dt, motion.label
-            m.attrs["components"] = ",".join(motion.components)
+            _write_motion(f.create_group("motion"), motion)
         routes = f.create_group("routes")
         for name, res in results.items():
-            g = routes.create_group(name)
-            for key in ARRAYS:
-                value = getattr(res, key)
-                if value is not None:
-                    g.create_dataset(key, data=value)
-            for key in GROUPS:
-                sub = g.create_group(key)
-                for item, arr in getattr(res, key).items():
-                    sub.create_dataset(item, data=arr)
-            g.attrs["route"] = res.route
-            g.attrs["status"] = res.status.value
-            g.attrs["message"] = res.message
-            g.attrs["wall_s"] = res.wall_s
-            g.attrs["notes"] = json.dumps(res.notes.as_dict())
-            g.attrs["info"] = json.dumps(dict(res.info), default=_jsonable)
+            _write_route(routes.create_group(name), res)
         stamp_checksum(f)
     return path
+
+
+def _describe(ds, units: str | None, long_name: str) -> None:
+    """The CF attributes of a variable: ``units`` (None: a label, no units) and ``long_name``."""
+    if units is not None:
+        ds.attrs["units"] = units
+    ds.attrs["long_name"] = long_name
+
+
+def _coordinate(g, name: str, values, units: str | None, long_name: str):
+    """The coordinate ``name`` (name,) of group ``g``, made an HDF5 dimension scale: netCDF4's
+    dimension ``name``, which xarray reads as a named dimension. Labels are UTF-8 strings."""
+    values = np.asarray(values)
+    if values.dtype.kind in "UO":
+        values = np.array([str(v) for v in values], dtype=h5py.string_dtype())
+    ds = g.create_dataset(name, data=values)
+    ds.make_scale(name)
+    _describe(ds, units, long_name)
+    return ds
+
+
+def _variable(g, name: str, data, dims: tuple, units: str | None, long_name: str, coordinates: str = ""):
+    """The variable ``name`` of group ``g`` over the coordinates ``dims`` of ``g`` (attached as
+    its dimension scales, one per axis of ``data``); ``coordinates``: its auxiliary coordinates
+    (CF, space separated)."""
+    ds = g.create_dataset(name, data=data)
+    for axis, dim in enumerate(dims):
+        ds.dims[axis].attach_scale(g[dim])
+    _describe(ds, units, long_name)
+    if coordinates:
+        ds.attrs["coordinates"] = coordinates
+    return ds
+
+
+def _write_motion(m, motion) -> None:
+    """The ground motion: time (nt,) s, direction, acc (nt, 3) m/s²; attrs dt, label, components."""
+    m.attrs["dt"], m.attrs["label"] = motion.dt, motion.label
+    m.attrs["components"] = ",".join(motion.components)
+    _coordinate(m, "time", motion.time, "s", "time from the start of the record")
+    _coordinate(m, "direction", DIRECTIONS[:motion.acc.shape[1]], None, "axis of the global frame (z up)")
+    _variable(m, "acc", motion.acc, ("time", "direction"), "m s-2", "ground acceleration")
+
+
+def _write_route(g, res) -> None:
+    """One route's group (the layout of this module): its attributes, histories, floor spectra
+    and summary numbers."""
+    g.attrs.update(route=res.route, status=res.status.value, message=res.message, wall_s=res.wall_s,
+                   notes=json.dumps(res.notes.as_dict()), info=json.dumps(dict(res.info), default=_jsonable))
+    s = summary(res)
+    g.attrs["components"] = ",".join(s["components"])
+    for attr, (key, axis) in SUMMARY_ATTRS.items():
+        g.attrs[attr] = s[key] if axis is None else s[key][axis]
+    N = res.gap.shape[1]
+    _coordinate(g, "time", res.time, "s", "time from the start of the record")
+    _coordinate(g, "direction", DIRECTIONS, None, "axis of the global frame (z up)")
+    _coordinate(g, "node", np.arange(N), None, "interface node (index in the foundation mesh)")
+    coordinates = ""
+    if res.xy is not None:
+        if res.xy.shape != (N, 2):
+            raise ValueError(f"RouteResult {res.route!r}: xy has shape {res.xy.shape}, the gap has {N} nodes")
+        for k, axis in enumerate("xy"):
+            _variable(g, axis, res.xy[:, k], ("node",), "m", f"{axis} of the interface node")
+        coordinates = "x y"
+    _variable(g, "raft_translation", res.raft[:, :3], ("time", "direction"), "m",
+              "raft displacement ux, uy, uz relative to the static state and to the free field")
+    _variable(g, "raft_rotation", res.raft[:, 3:], ("time", "direction"), "rad", "raft rotation rx, ry, rz about the axis")
+    for name, (units, long_name) in NODE_HISTORIES.items():
+        _variable(g, name, getattr(res, name), ("time", "node"), units, long_name, coordinates)
+    _variable(g, "newton_iters", res.newton_iters, ("time",), "1", "linear solves of the step (0 for linear routes)")
+    _write_outputs(g, res)
+    if res.energy:
+        _coordinate(g, "energy_term", list(res.energy), None, "term of the energy balance "
+                    "(input = kinetic + strain + damping + soil + contact)")
+        _variable(g, "energy", np.stack(list(res.energy.values()), axis=1), ("time", "energy_term"), "J",
+                  "cumulative work or stored energy")
+
+
+def _write_outputs(g, res) -> None:
+    """The structure's output nodes: acc, disp (time, output, direction), their floor spectra
+    and peaks, the peak acceleration; disp over its own ``disp_output`` coordinate when its
+    nodes are not those of acc."""
+    names = list(res.acc)
+    if names:
+        _coordinate(g, "output", names, None, "output node of the structure")
+        acc = np.stack([res.acc[n] for n in names], axis=1)
+        _variable(g, "acc", acc, ("time", "output", "direction"), "m s-2", "absolute acceleration of the output node")
+        peak = [float(np.abs(a).max()) if a.size else 0.0 for a in res.acc.values()]
+        _variable(g, "peak_acc", peak, ("output",), "m s-2", "peak absolute acceleration over time and directions")
+        if res.nt > 1:
+            _write_spectra(g, floor_spectra(res.acc, float(res.time[1] - res.time[0]), names))
+    if res.disp:
+        dim = "output" if set(res.disp) == set(names) else "disp_output"
+        disp_names = names if dim == "output" else list(res.disp)
+        if dim != "output":
+            _coordinate(g, dim, disp_names, None, "output node of the structure (displacements)")
+        _variable(g, "disp", np.stack([res.disp[n] for n in disp_names], axis=1), ("time", dim, "direction"), "m",
+                  "displacement of the output node relative to the free field")
+
+
+def _write_spectra(g, spectra) -> None:
+    """floor_spectrum (output, direction, frequency) m/s² (NaN: round-off direction) and its peak
+    and the peak's frequency per output node and direction."""
+    _coordinate(g, "frequency", FLOOR_FREQUENCIES_HZ, "Hz", "frequency of the oscillator")
+    long = f"{100 * FLOOR_DAMPING:g} % damped pseudo-acceleration response spectrum of the floor acceleration"
+    _variable(g, "floor_spectrum", spectra, ("output", "direction", "frequency"), "m s-2", long).attrs[
+        "damping"] = FLOOR_DAMPING
+    defined = np.isfinite(spectra).any(axis=2)
+    peak = np.fmax.reduce(spectra, axis=2)
+    at = np.where(defined, FLOOR_FREQUENCIES_HZ[np.argmax(np.where(np.isfinite(spectra), spectra, -np.inf), axis=2)],
+                  np.nan)
+    _variable(g, "floor_spectrum_peak", peak, ("output", "direction"), "m s-2", f"peak of the {long}")
+    _variable(g, "floor_spectrum_peak_frequency", at, ("output", "direction"), "Hz",
+              "frequency of the floor-spectrum peak")
 
 
 def _jsonable(obj):
@@ -127,42 +263,167 @@ def _jsonable(obj):
 
 
 def read_results(path) -> dict:
-    """Read a results file back as ``{route: RouteResult}``; a missing, unreadable or foreign
-    file raises ResultsFileError naming it."""
-    path = Path(path)
-    if not path.is_file():
-        raise ResultsFileError(f"results file {str(path)!r} does not exist: run `uplift run SCENE -o FILE` first")
-    try:
-        with h5py.File(path, "r") as f:
-            require_checksum(f, path, REMEDY)
-            if "routes" not in f or not len(f["routes"]):
+    """Read a results file back as ``{route: RouteResult}`` (format_version 2, or 1: the layout
+    before it); a missing, unreadable or foreign file raises ResultsFileError naming it, a
+    changed one ChangedFileError."""
+    with _opened(path) as (f, version):
+        read = _read_route if version >= 2 else _read_route_v1
+        return {route: read(route, g) for route, g in f["routes"].items()}
+
+
+def read_summary(path) -> dict:
+    """``{route: summary}`` as stored in a results file (format_version 2): the dict that
+    ``summary`` gives for each route, its numbers read from the file, not computed again."""
+    with _opened(path) as (f, version):
+        if version < 2:
+            raise ResultsFileError(f"{path} has no stored summary (format_version 1): "
+                                   "summary(read_results(path)[route]) computes it, or run `uplift run` again")
+        return {route: _stored_summary(g) for route, g in f["routes"].items()}
+
+
+def open_results(path, group: str | None = None):
+    """The results file in xarray, loaded (the file closed), after its checksum is verified: the
+    ``xarray.DataTree`` of the whole file, or with ``group`` (e.g. ``"routes/winkler"``) that
+    group's ``xarray.Dataset``. A file of format_version 1 (no dimension scales) is refused:
+    ``read_results`` reads it."""
+    import xarray as xr  # start-up cost (~0.5 s, pandas): only its users pay it
+    with _opened(path) as (f, version):
+        if version < 2:
+            raise ResultsFileError(f"{path} has format_version 1 (no named dimensions): read it with "
+                                   "read_results, or run `uplift run SCENE -o FILE` again for an xarray-ready file")
+        if group is not None and group.strip("/") not in f:
+            raise ResultsFileError(f"{path} has no group {group!r} (routes: {', '.join(f['routes'])}); "
+                                   "give group='routes/<route>' or 'motion'")
+    if group is None:
+        with xr.open_datatree(path, engine="h5netcdf") as tree:
+            return tree.load()
+    with xr.open_dataset(path, group=group, engine="h5netcdf") as ds:
+        return ds.load()
+
+
+class _opened:
+    """``with _opened(path) as (f, version)``: the results file open with h5py, its checksum
+    verified, its format_version (1 without one) checked, at least one route in it; the errors of
+    a bad file as ResultsFileError naming it (ChangedFileError for a changed one)."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self.f = None
+
+    def __enter__(self):
+        path = self.path
+        if not path.is_file():
+            raise ResultsFileError(f"results file {str(path)!r} does not exist: run `uplift run SCENE -o FILE` first")
+        try:
+            self.f = h5py.File(path, "r")
+        except OSError as exc:   # h5py: not an HDF5 file, truncated file
+            raise ResultsFileError(f"{path} is not a readable HDF5 results file ({exc}); "
+                                   "run `uplift run SCENE -o FILE` to make one") from None
+        try:
+            require_checksum(self.f, path, REMEDY)
+            version = _format_version(self.f, path)
+            if "routes" not in self.f or not len(self.f["routes"]):
                 raise ResultsFileError(f"{path} holds no routes (/routes/<route>): not a results file of "
                                        "`uplift run`; run `uplift run SCENE -o FILE` to make one")
-            return {route: _read_route(route, g) for route, g in f["routes"].items()}
-    except (ResultsFileError, ChangedFileError):
-        raise
-    except OSError as exc:   # h5py: not an HDF5 file, truncated file
-        raise ResultsFileError(f"{path} is not a readable HDF5 results file ({exc}); "
-                               "run `uplift run SCENE -o FILE` to make one") from None
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ResultsFileError(f"{path} does not have the results layout of `uplift run` ({exc}); "
-                               "see orchestrator/results_file.py") from None
+        except BaseException:
+            self.f.close()
+            raise
+        return self.f, version
+
+    def __exit__(self, kind, exc, tb):
+        self.f.close()
+        if isinstance(exc, (ResultsFileError, ChangedFileError)) or exc is None:
+            return False
+        if isinstance(exc, OSError):
+            raise ResultsFileError(f"{self.path} is not a readable HDF5 results file ({exc}); "
+                                   "run `uplift run SCENE -o FILE` to make one") from None
+        if isinstance(exc, (KeyError, TypeError, ValueError)):
+            raise ResultsFileError(f"{self.path} does not have the results layout of `uplift run` ({exc}); "
+                                   "see orchestrator/results_file.py") from None
+        return False
+
+
+def _format_version(f, path) -> int:
+    """The file's format_version: 1 without the attribute (the layout before it), this code's
+    FORMAT_VERSION or an older one; a newer or foreign one raises ResultsFileError."""
+    stored = f.attrs.get("format_version")
+    if stored is None:
+        return 1
+    try:
+        version = int(stored)
+    except (TypeError, ValueError):
+        version = None
+    if version is None or not 1 <= version <= FORMAT_VERSION:
+        shown = stored.decode(errors="replace") if isinstance(stored, bytes) else getattr(stored, "item", lambda: stored)()
+        raise ResultsFileError(f"{path} has format_version {shown!r}; this uplift reads results files of versions "
+                               f"1 to {FORMAT_VERSION}: update uplift to read it, or run `uplift run SCENE -o FILE` "
+                               "with this version")
+    return version
+
+
+def _labels(g, name) -> list:
+    """The string coordinate ``name`` of group ``g`` as a list of str."""
+    return [str(v) for v in g[name].asstr()[()]]
 
 
 def _read_route(route, g) -> RouteResult:
+    """A RouteResult from a route group of format_version 2."""
+    kw = {"time": g["time"][()], "newton_iters": g["newton_iters"][()],
+          "raft": np.concatenate([g["raft_translation"][()], g["raft_rotation"][()]], axis=1),
+          **{name: g[name][()] for name in NODE_HISTORIES}}
+    if "x" in g:
+        kw["xy"] = np.column_stack([g["x"][()], g["y"][()]])
+    for key, dim in (("acc", "output"), ("disp", "disp_output" if "disp_output" in g else "output")):
+        if key in g:
+            values = g[key][()]
+            kw[key] = {name: values[:, i] for i, name in enumerate(_labels(g, dim))}
+    if "energy" in g:
+        values = g["energy"][()]
+        kw["energy"] = {term: values[:, k] for k, term in enumerate(_labels(g, "energy_term"))}
+    return _route_result(route, g, kw)
+
+
+def _read_route_v1(route, g) -> RouteResult:
+    """A RouteResult from a route group of format_version 1 (raft (nt, 6), xy (N, 2), the
+    groups acc/<node>, disp/<node>, energy/<term>)."""
     kw = {key: g[key][()] for key in ARRAYS if key in g}
     kw.update({key: {k: v[()] for k, v in g[key].items()} for key in GROUPS if key in g})
+    return _route_result(route, g, kw)
+
+
+def _route_result(route, g, arrays: dict) -> RouteResult:
     a = g.attrs
     return RouteResult(route=str(a.get("route", route)), status=Status(str(a["status"])),
                        message=str(a.get("message", "")), wall_s=float(a.get("wall_s", 0.0)),
                        notes=RunNotes(**json.loads(a.get("notes", "{}"))), info=json.loads(a.get("info", "{}")),
-                       **kw)
+                       **arrays)
+
+
+def _stored_summary(g) -> dict:
+    """The ``summary`` dict of a route group of format_version 2, from its stored numbers."""
+    a = g.attrs
+    number = lambda attr: float(a[attr])
+    peaks = g["peak_acc"][()] if "peak_acc" in g else ()
+    return {
+        "status": str(a["status"]),
+        "message": str(a["message"]),
+        "components": [c for c in str(a["components"]).split(",") if c],
+        "max_uplift_m": number("max_uplift_m"),
+        "max_uplift_time_s": number("max_uplift_time_s"),
+        "max_raft_rotation_rad": number("max_raft_rotation_rad"),
+        "max_raft_rotation_axes_rad": {"x": number("max_raft_rotation_x_rad"), "y": number("max_raft_rotation_y_rad")},
+        "min_contact_fraction": number("min_contact_fraction"),
+        "peak_acc_g": {name: float(p / G) for name, p in zip(_labels(g, "output") if len(peaks) else (), peaks)},
+        "wall_s": number("wall_s"),
+        "converged": str(a["status"]) == Status.CONVERGED.value,
+        **json.loads(a["notes"]),
+    }
 
 
 def read_motion(path):
-    """(scene name, created, Motion or None) of a results file (its checksum verified)."""
-    with h5py.File(path, "r") as f:
-        require_checksum(f, path, REMEDY)
+    """(scene name, created, Motion or None) of a results file (its checksum verified; either
+    format_version)."""
+    with _opened(path) as (f, _):
         motion = None
         if "motion" in f:
             m = f["motion"]

@@ -103,6 +103,43 @@ def response_spectra(acc, dt: float, periods, damping: float = 0.05) -> list:
             for j in range(shape[0])]
 
 
+#: floor response spectra of a run (results file, report figures, ensemble cells): frequencies
+#: (Hz), ratio of critical damping, and the share of a node's peak acceleration below which a
+#: direction is round-off (e.g. y under an x motion of a symmetric structure: no spectrum)
+FLOOR_FREQUENCIES_HZ = np.geomspace(0.5, 40.0, 120)
+FLOOR_DAMPING = 0.05
+ROUNDOFF = 1e-6
+
+
+def excited(acc) -> np.ndarray:
+    """(3,) bool: the columns of ``acc`` (nt, 3) above round-off (``ROUNDOFF`` of its peak)."""
+    acc = np.asarray(acc, float)
+    return np.abs(acc).max(axis=0, initial=0.0) > ROUNDOFF * np.abs(acc).max(initial=0.0)
+
+
+def floor_spectra(acc: dict, dt: float, names=None, frequencies=FLOOR_FREQUENCIES_HZ,
+                  damping: float = FLOOR_DAMPING) -> np.ndarray:
+    """Pseudo-acceleration floor spectra (len(names), 3, F), m/s², of the histories
+    ``acc`` {name: (nt, 3) m/s²} sampled at ``dt`` (s), at ``frequencies`` (F,) Hz, in one pass
+    over time; NaN for a name missing from ``acc`` and in round-off directions (``excited``).
+    ``names``: default, those of ``acc`` in order."""
+    names = list(acc) if names is None else list(names)
+    frequencies = np.asarray(frequencies, float)
+    out = np.full((len(names), 3, frequencies.size), np.nan)
+    which, columns = [], []
+    for i, name in enumerate(names):
+        a = acc.get(name)
+        if a is None or np.shape(a)[0] < 2:
+            continue
+        for j in np.flatnonzero(excited(a)):
+            which.append((i, j))
+            columns.append(np.asarray(a)[:, j])
+    if columns:
+        for (i, j), sp in zip(which, response_spectra(np.stack(columns, axis=1), dt, 1 / frequencies, damping)):
+            out[i, j] = sp.psa
+    return out
+
+
 def broaden(freqs, values, ratio: float = 0.15):
     """Peak broadening of a floor spectrum by ±ratio in frequency (envelope of the shifted curves).
 

@@ -15,15 +15,12 @@ from structure.results import Status
 from orchestrator.results_file import ResultsFileError, summary
 from orchestrator.run import run_scene
 from orchestrator.scene import Scene
-from orchestrator.spectra import response_spectra
+from orchestrator.spectra import FLOOR_DAMPING, FLOOR_FREQUENCIES_HZ, ROUNDOFF, floor_spectra
 
-#: floor response spectra: frequencies (Hz) and damping ratio (those of a single run's figures)
-FREQUENCIES_HZ = np.geomspace(0.5, 40.0, 120)
-DAMPING = 0.05
-#: a direction whose floor acceleration stays below this share of the node's peak is round-off
-#: (e.g. y under an x motion of a symmetric structure): its spectrum is NaN, not computed (the
-#: rule of orchestrator.compare)
-ROUNDOFF = 1e-6
+#: floor response spectra: frequencies (Hz), damping ratio and round-off rule (a direction whose
+#: floor acceleration stays below ROUNDOFF of the node's peak has a NaN spectrum): those of a
+#: single run's results file and figures (orchestrator.spectra)
+FREQUENCIES_HZ, DAMPING, ROUNDOFF = FLOOR_FREQUENCIES_HZ, FLOOR_DAMPING, ROUNDOFF
 DIRECTIONS = ("x", "y", "z")
 FAILED = "failed"
 #: per-cell numbers: name -> (units, long name)
@@ -56,16 +53,7 @@ def cell_values(res, nodes) -> dict:
     s = summary(res)
     spectra = np.full((len(nodes), len(DIRECTIONS), FREQUENCIES_HZ.size), np.nan)
     if res.nt > 1:
-        dt = float(res.time[1] - res.time[0])
-        which, columns = [], []                  # every (node, direction) above round-off, in one pass
-        for i, node in enumerate(nodes):
-            acc = res.acc.get(node, np.zeros((0, 3)))
-            for j in np.flatnonzero(np.abs(acc).max(axis=0, initial=0.0) > ROUNDOFF * np.abs(acc).max(initial=0.0)):
-                which.append((i, j))
-                columns.append(acc[:, j])
-        if columns:
-            for (i, j), sp in zip(which, response_spectra(np.stack(columns, axis=1), dt, 1 / FREQUENCIES_HZ, DAMPING)):
-                spectra[i, j] = sp.psa
+        spectra = floor_spectra(res.acc, float(res.time[1] - res.time[0]), nodes)
     number = (lambda v: np.nan) if res.status is Status.REFUSED else float
     return {"status": s["status"], "message": s["message"], "warnings": "\n".join(s["warnings"]),
             "max_uplift": number(s["max_uplift_m"]), "max_raft_rotation": number(s["max_raft_rotation_rad"]),

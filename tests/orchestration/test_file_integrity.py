@@ -95,7 +95,8 @@ def test_results_file_round_trip(results_file):
     np.testing.assert_array_equal(back.acc["top"], ref.acc["top"])
 
 
-@pytest.mark.parametrize("name", ["routes/winkler/raft", "routes/winkler/gap", "routes/winkler/acc/top"])
+@pytest.mark.parametrize("name", ["routes/winkler/raft_rotation", "routes/winkler/gap", "routes/winkler/acc",
+                                  "routes/winkler/time", "routes/winkler/floor_spectrum"])
 def test_any_flipped_byte_of_a_results_history_is_refused(results_file, tmp_path, name):
     for copy in _flipped_copies(results_file, name, tmp_path):
         with pytest.raises(ChangedFileError, match="changed since it was written"):

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from orchestrator.cli import main
-from orchestrator.results_file import read_results
+from orchestrator.results_file import read_results, read_summary
 from helpers import changed, toml_text, tower, write_scene
 
 SCENE = tower()
@@ -26,6 +26,7 @@ def test_run_json_and_results_file(tmp_path, capsys):
     assert summary["components"] == ["x"]
     assert summary["status"] == "converged" and summary["message"] == ""
     res = read_results(out)["winkler"]
+    assert read_summary(out)["winkler"] == summary          # stored in the file as printed
     # the summary is what the file holds
     assert summary["max_uplift_m"] == pytest.approx(res.gap.max())
     assert summary["max_raft_rotation_rad"] == pytest.approx(np.hypot(res.raft[:, 3], res.raft[:, 4]).max())
