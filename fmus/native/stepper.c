@@ -1038,11 +1038,11 @@ void up_stepper_energies(const UpStepper *s, double *e)
             pot += 0.5 * s->kp[i] * d[i] * d[i];
         }
     }
-    e[0] = s->work[W_INPUT];
-    e[1] = 0.5 * kin;
-    e[2] = 0.5 * strain;
-    e[3] = s->work[W_DAMPING];
-    e[4] = s->work[W_SOIL];
-    e[5] = s->work[W_CONTACT];
-    e[6] = pot;
+    e[UP_E_INPUT] = s->work[W_INPUT];
+    e[UP_E_KINETIC] = 0.5 * kin;
+    e[UP_E_STRAIN] = 0.5 * strain;
+    e[UP_E_DAMPING] = s->work[W_DAMPING];
+    e[UP_E_SOIL] = s->work[W_SOIL];
+    e[UP_E_CONTACT] = s->work[W_CONTACT];
+    e[UP_E_CONTACT_POTENTIAL] = pot;
 }

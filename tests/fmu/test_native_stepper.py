@@ -40,6 +40,7 @@ from helpers import pulse_motion, rel, small_reactor, small_scene, soil_model
 from fmus import native_stepper
 from fmus.native_build import NATIVE, NativeBuildError, encode_resources, soil_records, stepper_records
 from fmus.resources import soil_from_model
+from fmus.schema import ENERGY_TERMS, row_slices, row_width
 from orchestrator.routes.monolithic import STEPPERS, run_monolithic
 from orchestrator.run import run_scene
 from orchestrator.scene import scene_from_dict
@@ -129,7 +130,7 @@ def one_call(st, ag, nodes):
     dofs = [model.dofs(model.node_by_name(nm).id)[:3] for nm in nodes]
     blob = encode_resources({**soil_records(st.soil.model, st.dt), **stepper_records(st, dofs)})
     nt = ag.shape[0]
-    rows, iters, stats = np.zeros((nt, 6 + 3 * st.N + 6 * len(dofs) + 7)), np.zeros(nt, np.int64), np.zeros(3, np.int64)
+    rows, iters, stats = np.zeros((nt, row_width(st.N, len(dofs)))), np.zeros(nt, np.int64), np.zeros(3, np.int64)
     ag = np.ascontiguousarray(ag)
     rc = native_stepper.library().up_simulate(blob, len(blob), ag.ctypes.data, nt, rows.ctypes.data, iters.ctypes.data,
                                            stats.ctypes.data, ctypes.create_string_buffer(1024))
@@ -160,10 +161,27 @@ def test_chunks_give_the_same_bits_as_one_call(max_iter, max_subdiv):
         for j, nm in enumerate(nodes):
             node = rows[:k, 6 + 3 * N + 6 * j:6 + 3 * N + 6 * j + 6]
             assert np.array_equal(res.acc[nm], node[:, :3]) and np.array_equal(res.disp[nm], node[:, 3:])
-        assert np.array_equal(np.column_stack(list(res.energy.values())), rows[:k, -7:])
+        assert list(res.energy) == list(ENERGY_TERMS)
+        assert np.array_equal(np.column_stack(list(res.energy.values())), rows[:k, row_slices(N, len(nodes))["energy"]])
         assert np.array_equal(res.newton_iters, iters[:k])
     top = native_stepper.native_max_uplift(stepper(), MOTION.acc)       # the gaps only: NaN after a failed step
     assert (np.isnan(top) if rc else top == rows[:, 6:6 + N].max())
+
+
+@pytest.mark.parametrize("nodes", [(), ("top_outer", "internals_37m")])
+def test_the_row_layout_is_the_schemas(nodes):
+    """The row width the C runtime writes (simulate.c: UP_ROW_WIDTH of uplift_schema.h) is the
+    schema's, read from the compiled library."""
+    st = NewmarkStepper(SCENE.model(), soil_from_model(MODEL, DT), DT, contact=SCENE.contact, external_soil=True,
+                        ag0=MOTION.acc[0])
+    blob, lib = native_stepper.encode_run(st, nodes), native_stepper.library()
+    handle = lib.up_sim_open(blob, len(blob), np.ascontiguousarray(MOTION.acc).ctypes.data,
+                             ctypes.create_string_buffer(1024))
+    assert handle
+    try:
+        assert lib.up_sim_width(handle) == row_width(st.N, len(nodes)) == 6 + 3 * st.N + 6 * len(nodes) + 7
+    finally:
+        lib.up_sim_close(handle)
 
 
 @pytest.mark.parametrize("winkler", [
