@@ -8,9 +8,10 @@ The library is compiled for this machine by the FMUs' builder
 (``fmus.native_build.compile_runtime``: the system compiler, else ziglang's), once per content
 hash of its sources, the compiler and the flags, into the cache folder (``<cache>/native/``; a
 temporary folder of the process for a run without cache), and loaded with ctypes.
-``structure.simulate`` (the Python stepper) stays the readable reference; the two agree to
-round-off (tests/fmu/test_native_host.py: 1e-10 on the raft and top histories, with uplift and
-step halving).
+``structure.simulate`` (the Python stepper, structure/newmark.py) stays the readable reference;
+the two agree to round-off (tests/fmu/test_native_stepper.py, test_native_springs.py: 1e-10 on a
+bonded raft, with uplift and step halving within max(1e-10, 100 x the scene's round-off spread),
+tests/helpers/roundoff.py).
 
 API::
 
