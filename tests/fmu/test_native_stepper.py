@@ -33,8 +33,8 @@ no amplification) is held to a fixed 1e-10.
 - the run's step-doubling check on the proxy springs (the native stepper where available):
   its two max uplifts equal the Python stepper's to 1e-10.
 
-About 25 s (the library is compiled once per content hash into the cache folder; the spreads'
-perturbed runs of the Python stepper add about 8 s).
+About 20 s on an idle machine (the library is compiled once per content hash into the cache
+folder); the spreads' 9 x 3 perturbed runs of the Python stepper add 14 s on 2 busy cores.
 """
 import ctypes
 import dataclasses
