@@ -54,7 +54,7 @@ import numpy as np
 
 from fmus.coupling import history_gains
 from fmus.resources import DEFAULT_SOIL_FACTORY, soil_from_model
-from fmus.schema import UNITS, slot_table, variables, variables3
+from fmus.schema import ROLES, UNITS, slot_table, variables, variables3
 from uplift_common.errors import ComputationError
 
 if TYPE_CHECKING:
@@ -68,7 +68,7 @@ CORE = ("instance.c", "model.c", "variables.c", "state.c", "stepper.c", "soil.c"
 SOURCES = ("fmi2.c",) + CORE
 #: the FMI 3.0 entry layer and the same files
 SOURCES3 = ("fmi3.c",) + CORE
-HEADERS = ("uplift.h", "fmu.h", "uplift_messages.h")
+HEADERS = ("uplift.h", "fmu.h", "uplift_messages.h", "uplift_schema.h")
 RESOURCE_FILE = "uplift.bin"
 #: FMI 2.0 platform -> (zig target, shared library suffix); glibc 2.17 for old Linux hosts
 PLATFORMS = {"linux64": ("x86_64-linux-gnu.2.17", "so"), "win64": ("x86_64-windows-gnu", "dll"),
@@ -294,8 +294,10 @@ def model_records(data: FmuData, newton: dict | None = None) -> dict:
     if data.motion is not None:
         stepper["motion"] = np.asarray(data.motion, float).reshape(-1, 3)
     Gx, Gv = history_gains(soil, dt)
-    return {"soil": {**common, "role": 0.0}, "structure": {**stepper, "role": 1.0, "Gx": Gx, "Gv": Gv},
-            "coupled": {**stepper, "role": 2.0}}
+    role = {r: float(ROLES.index(r)) for r in ROLES}                  # the runtime's ROLE_* (uplift_schema.h)
+    return {"soil": {**common, "role": role["soil"]}, "structure": {**stepper, "role": role["structure"], "Gx": Gx,
+                                                                    "Gv": Gv},
+            "coupled": {**stepper, "role": role["coupled"]}}
 
 
 def soil_records(soil_model, dt: float) -> dict:

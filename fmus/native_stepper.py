@@ -8,9 +8,10 @@ The library is compiled for this machine by the FMUs' builder
 (``fmus.native_build.compile_runtime``: the system compiler, else ziglang's), once per content
 hash of its sources, the compiler and the flags, into the cache folder (``<cache>/native/``; a
 temporary folder of the process for a run without cache), and loaded with ctypes.
-``structure.simulate`` (the Python stepper) stays the readable reference; the two agree to
-round-off (tests/fmu/test_native_host.py: 1e-10 on the raft and top histories, with uplift and
-step halving).
+``structure.simulate`` (the Python stepper, structure/newmark.py) stays the readable reference;
+the two agree to round-off (tests/fmu/test_native_stepper.py, test_native_springs.py: 1e-10 on a
+bonded raft, with uplift and step halving within max(1e-10, 100 x the scene's round-off spread),
+tests/helpers/roundoff.py).
 
 API::
 
@@ -34,11 +35,11 @@ import numpy as np
 
 from fmus.native_build import (CFLAGS, HEADERS, NATIVE, SOURCES, NativeBuildError, compile_runtime,
                                encode_resources, host_platform, soil_records, stepper_records)
-from fmus.schema import ENERGY_TERMS
+from fmus.schema import ENERGY_TERMS, row_slices, row_width
 
 #: the C files of the in-process library (the numerics and simulate.c; no FMI side)
 HOST_SOURCES = ("simulate.c", "stepper.c", "soil.c", "linalg.c", "resources.c")
-HOST_HEADERS = ("uplift.h",)
+HOST_HEADERS = ("uplift.h", "uplift_schema.h")
 
 _lock = threading.Lock()
 _loaded: dict = {}                  # folder -> (CDLL or None, note)
@@ -233,7 +234,7 @@ def native_max_uplift(st, ag, lib=None, blob: bytes | None = None) -> float:
 
     def take(k0, rows, iters):
         if rows.size and st.N:
-            tops.append(float(rows[:, 6:6 + st.N].max()))
+            tops.append(float(rows[:, row_slices(st.N, 0)["gap"]].max()))
     _, message = _stepped(lib, encode_run(st) if blob is None else blob, ag, take)
     return float("nan") if message else max(tops, default=0.0)    # as RouteResult.max_uplift
 
@@ -264,7 +265,8 @@ def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None, 
     model = st.model
     names = [n.name for n in model.nodes if n.name] if output_nodes is None else list(output_nodes)
     nt, N, m = ag.shape[0], st.N, len(names)
-    rows = np.empty((nt, 6 + 3 * N + 6 * m + 7))
+    at = row_slices(N, m)                          # the row layout of simulate.c (uplift_schema.h)
+    rows = np.empty((nt, row_width(N, m)))
     iters = np.empty(nt, np.int64)
 
     def take(k0, chunk_rows, chunk_iters):
@@ -273,17 +275,17 @@ def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None, 
     stats, message = _stepped(lib, encode_run(st, names), ag, take, chunk, progress)
     rows, iters = rows[:int(stats[0])], iters[:int(stats[0])]
     nt = rows.shape[0]
-    node = rows[:, 6 + 3 * N:6 + 3 * N + 6 * m].reshape(nt, m, 6)
-    energy = rows[:, 6 + 3 * N + 6 * m:]
+    node = rows[:, at["nodes"]].reshape(nt, m, 6)
+    energy = rows[:, at["energy"]]
     enabled = st.contact.enabled
     info = dict(settlement=st.static.settlement, P0=st.P0.copy(), penalty=st.kp.copy(), delta0=st.delta0.copy(),
                 dt=st.dt, alpha=st.alpha, contact_enabled=enabled, factorisations=int(stats[1]),
                 subdivided_steps=int(stats[2]), stepper="native")
     precheck = ("not run: the native stepper takes a Newton step at every step (one product with a cached "
                 "inverse while the active set holds)" if enabled else "not needed: contact disabled (bonded raft, linear)")
-    res = RouteResult(route=route, time=st.dt * np.arange(nt), raft=rows[:, :6].copy(),
-                      gap=rows[:, 6:6 + N].copy(), contact_force=rows[:, 6 + N:6 + 2 * N].copy(),
-                      soil_w=rows[:, 6 + 2 * N:6 + 3 * N].copy(),
+    res = RouteResult(route=route, time=st.dt * np.arange(nt), raft=rows[:, at["raft"]].copy(),
+                      gap=rows[:, at["gap"]].copy(), contact_force=rows[:, at["contact_force"]].copy(),
+                      soil_w=rows[:, at["soil_w"]].copy(),
                       acc={nm: node[:, j, :3].copy() for j, nm in enumerate(names)},
                       disp={nm: node[:, j, 3:].copy() for j, nm in enumerate(names)},
                       energy={k: energy[:, j].copy() for j, k in enumerate(ENERGY_TERMS)},

@@ -4,7 +4,11 @@ their variables from ``variables(role, ...)``, the native builder writes the sam
 model description and the first value reference of each vector into ``resources/uplift.bin``
 (records ``vr.<vector>``, looked up by name by the C runtime), and the C runtime's message
 table ``fmus/native/include/uplift_messages.h`` is generated from ``MESSAGES``
-(``c_messages_header``; a test keeps the file equal to it).
+(``c_messages_header``) and its positional tables ``fmus/native/include/uplift_schema.h`` from
+``ROLES``, ``ENERGY_TERMS``, ``SLOTS`` and the vectors (the slots' names, lengths and which role
+needs which) and ``ROW`` (the layout of a row of the in-process run) (``c_schema_header``);
+a test keeps both files equal to what these functions write (``python -m fmus.schema`` writes
+them).
 
 A *vector* is a named run of Real variables with consecutive value references: ``x[0..n-1]``
 over the interface DOFs [q, w] (n = 6 + N: raft ux, uy, uz, rx, ry, rz, then the soil's vertical
@@ -39,6 +43,28 @@ QUANTITIES = {"displacement": ("m", "rad"), "velocity": ("m/s", "rad/s"), "force
 ENERGY_TERMS = ("input", "kinetic", "strain", "damping", "soil", "contact", "contact_potential")
 #: the ground-motion inputs of the structure and the coupled FMU: a_g(t + dt) along x, y, z, m/s2
 AG = ("ag_x", "ag_y", "ag_z")
+
+#: one row of the in-process run (fmus/native/simulate.c, read by fmus/native_stepper.py), per
+#: sample: (part, length as {symbol: coefficient}) in order, the symbols "1", "N" (interface
+#: nodes), "m" (output nodes) and "E" (the energy terms); per output node its absolute
+#: acceleration (3) then its displacement (3)
+ROW = (("raft", {"1": 6}), ("gap", {"N": 1}), ("contact_force", {"N": 1}), ("soil_w", {"N": 1}),
+       ("nodes", {"m": 6}), ("energy", {"E": 1}))
+
+
+def row_slices(N: int, m: int) -> dict:
+    """{part of ROW: its slice of a row} for N interface nodes and m output nodes."""
+    value = {"1": 1, "N": N, "m": m, "E": len(ENERGY_TERMS)}
+    out, at = {}, 0
+    for part, length in ROW:
+        k = sum(c * value[sym] for sym, c in length.items())
+        out[part], at = slice(at, at + k), at + k
+    return out
+
+
+def row_width(N: int, m: int) -> int:
+    """The length of a row of the in-process run: 6 + 3 N + 6 m + len(ENERGY_TERMS)."""
+    return row_slices(N, m)[ROW[-1][0]].stop
 
 
 @dataclass(frozen=True)
@@ -232,6 +258,43 @@ def variables3(role: str, n: int, N: int, nodes=(), motion: bool = False) -> lis
     return out
 
 
+def slot_of(vec: Vector) -> str:
+    """The slot of a vector: its own ``slot``, else its name."""
+    return vec.slot or vec.name
+
+
+def slot_length(slot: str) -> dict:
+    """The length of a slot's run of variables, as {symbol: coefficient} over the symbols "1",
+    "n" (interface DOFs), "N" (interface nodes) and "nodes" (output nodes): the same in every
+    role that has the slot (x: {"n": 1}; nodes: {"nodes": 6}; energy: {"1": 7})."""
+    sizes = {"1": ("1", 1), "3": ("1", 3), "n": ("n", 1), "N": ("N", 1)}
+    found = set()
+    for role in ROLES:
+        base, one = vectors(role), vectors(role, ("a",))     # one output node: its vectors count per node
+        if not any(slot_of(v) == slot for v in one):
+            continue
+        terms = {}
+        for vec in one:
+            if slot_of(vec) == slot:
+                sym, k = sizes[vec.size]
+                if vec not in base:
+                    if sym != "1":
+                        raise ValueError(f"slot {slot}: a vector per output node must have a fixed size")
+                    sym = "nodes"
+                terms[sym] = terms.get(sym, 0) + k
+        found.add(tuple(sorted(terms.items())))
+    if len(found) != 1:
+        raise ValueError(f"slot {slot}: {'in no role' if not found else 'lengths differ between roles'}")
+    return dict(found.pop())
+
+
+def slot_needed(role: str) -> tuple:
+    """(len(SLOTS),) 1 where an FMU of ``role`` must have the slot (its vectors without output
+    nodes have it), else 0."""
+    have = {slot_of(v) for v in vectors(role)}
+    return tuple(int(s in have) for s in SLOTS)
+
+
 def slot_table(variables_) -> dict:
     """{slot: first value reference} of the Real variables (every slot of SLOTS; -1 when absent)."""
     first = {}
@@ -300,6 +363,57 @@ def message(key: str, **fields) -> str:
     return MESSAGES[key].format(**{**API_FIELDS[2], **fields})
 
 
+def _c_sum(terms: dict, names: dict) -> str:
+    """A C expression of {symbol: coefficient} with the symbols written as ``names`` gives them
+    ("1": the constant, first), in the order of ``names``; "0" when empty."""
+    const = terms.get("1", 0)
+    parts = [("" if terms[sym] == 1 else f"{terms[sym]} * ") + name for sym, name in names.items() if terms.get(sym)]
+    if const or not parts:
+        parts.insert(0, str(const))
+    return parts[0] if len(parts) == 1 else "(" + " + ".join(parts) + ")"
+
+
+def c_schema_header() -> str:
+    """The C runtime's copy of the positional tables of the schema (fmus/native/include/uplift_schema.h):
+    the roles, the energy terms, the slots (enum, names, lengths, needed per role) and the layout
+    of a row of the in-process run."""
+    ident = lambda s: re.sub(r"\W", "_", s).upper()
+    lines = ["/* Generated from fmus/schema.py by fmus.schema.c_schema_header(): do not edit.",
+             "   The positional tables the C runtime shares with the Python side: the roles (the",
+             "   resource record role), the energy terms in output order, the slots of the variables",
+             "   (records vr.<slot>: names, lengths, the slots each role must have) and the layout of",
+             "   a row of the in-process run (simulate.c). */",
+             "#ifndef UPLIFT_SCHEMA_H", "#define UPLIFT_SCHEMA_H", "",
+             "/* fmus.schema.ROLES */",
+             "enum { " + ", ".join(f"ROLE_{ident(r)}" for r in ROLES) + ", UP_N_ROLES };", "",
+             "/* fmus.schema.ENERGY_TERMS, in output order */",
+             "enum { " + ", ".join(f"UP_E_{ident(t)}" for t in ENERGY_TERMS) + ", UP_N_ENERGY };", "",
+             "/* fmus.schema.SLOTS: the named runs of Real variables */",
+             "enum { " + ", ".join(f"S_{ident(s)}" for s in SLOTS) + ", NSLOT };",
+             "#define UP_SLOT_NAMES { " + ", ".join(f'"{s}"' for s in SLOTS) + " }",
+             "/* the length of each slot's run: n interface DOFs, N interface nodes, nnodes output nodes */",
+             "#define UP_SLOT_LENGTHS(n, N, nnodes) { "
+             + ", ".join(_c_sum(slot_length(s), {"n": "(n)", "N": "(N)", "nodes": "(nnodes)"}) for s in SLOTS) + " }",
+             "/* 1 where a role must have the slot (a row per role, in the order of the roles) */",
+             "#define UP_SLOT_NEEDED { \\",
+             *(f"    {{{', '.join(map(str, slot_needed(r)))}}}, /* {r} */ \\" for r in ROLES),
+             "}", "",
+             "/* fmus.schema.ROW: the offset of each part of a row of the in-process run and its width,",
+             "   N interface nodes, m output nodes */"]
+    names = {"N": "(N)", "m": "(m)", "E": "UP_N_ENERGY"}
+    before = {}
+    for part, length in ROW:
+        lines.append(f"#define UP_ROW_{ident(part)}(N, m) {_c_sum(before, names)}")
+        before = {sym: before.get(sym, 0) + length.get(sym, 0) for sym in {**before, **length}}
+    lines += [f"#define UP_ROW_WIDTH(N, m) {_c_sum(before, names)}", "", "#endif", ""]
+    return "\n".join(lines)
+
+
+def c_headers() -> dict:
+    """{file name in fmus/native/include: its text} of the headers generated from the schema."""
+    return {"uplift_messages.h": c_messages_header(), "uplift_schema.h": c_schema_header()}
+
+
 def c_messages_header() -> str:
     """The C runtime's copy of MESSAGES, limits and state version (fmus/native/include/uplift_messages.h)."""
     lines = ["/* Generated from fmus/schema.py by fmus.schema.c_messages_header(): do not edit.",
@@ -313,3 +427,9 @@ def c_messages_header() -> str:
               f"#define UP_TIME_TOL {TIME_TOL!r}", f"#define UP_MAX_STEPS_PER_CALL {MAX_STEPS_PER_CALL}",
               f"#define UP_STATE_VERSION {STATE_VERSION}", "", "#endif", ""]
     return "\n".join(lines)
+
+
+if __name__ == "__main__":                 # python -m fmus.schema: write the generated C headers
+    from pathlib import Path
+    for name, text in c_headers().items():
+        (Path(__file__).resolve().parent / "native" / "include" / name).write_text(text)

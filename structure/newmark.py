@@ -25,6 +25,15 @@ one factorisation of the whole effective matrix with every penalty spring closed
 LU), one solve per step, no Newton. ``march_closed`` runs the whole record that way and
 ``closed_histories`` records its outputs and energies over the whole history at once; the
 driver ``simulate`` (driver.py) chooses between that and ``step()``.
+
+The reference stepper. ``fmus/native/stepper.c`` (with ``soil.c``) steps the same discrete
+equations in C and is what runs by default (the monolithic and winkler routes in process, the
+native FMUs); this module is the readable reference it follows step for step: a change to the
+physics is made here first, then there. The two are held equal by tests/fmu/test_native_stepper.py,
+test_native_springs.py and test_native_fmu.py: the same Newton counts and halved steps, every
+history to 1e-10 on a mild (bonded) scene and, where uplift amplifies round-off, to
+max(1e-10, 100 x its round-off spread) measured on this stepper (tests/helpers/roundoff.py,
+docs/verification.md "Two steppers of the same physics").
 """
 from __future__ import annotations
 

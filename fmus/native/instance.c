@@ -9,9 +9,7 @@
 
 #include "fmu.h"
 
-const char *const up_slot_names[NSLOT] = {"x", "xdot", "x_time", "g", "g_time", "f", "dissipated_energy", "ag",
-                                          "P", "gap", "nodes", "energy", "newton_iters", "max_uplift",
-                                          "max_raft_rotation"};
+const char *const up_slot_names[NSLOT] = UP_SLOT_NAMES;           /* uplift_schema.h */
 
 /* ---- messages -------------------------------------------------------------------------------- */
 static void emit(UpInstance *I, int status, const char *category, const char *fmt, va_list ap)
@@ -212,7 +210,7 @@ static int read_layout(UpInstance *I)
     if (!(I->causality = up_res_i64(&I->res, "causality", 1, dims, I->err)))
         return -1;
     int n = I->n, N = I->N;
-    const int len[NSLOT] = {n, n, 1, n, 1, n, 1, 3, N, N, 6 * I->nnodes, 7, 1, 1, 1};
+    const int len[NSLOT] = UP_SLOT_LENGTHS(n, N, I->nnodes);
     for (int k = 0; k < NSLOT; k++) {
         char rec[40];
         snprintf(rec, sizeof rec, "vr.%s", up_slot_names[k]);
@@ -225,10 +223,7 @@ static int read_layout(UpInstance *I)
             return -1;
         }
     }
-    static const int need[3][NSLOT] = {
-        {1, 1, 1, 1, 1, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0},
-        {1, 1, 1, 1, 1, 0, 0, 1, 1, 1, 0, 1, 1, 1, 1},
-        {1, 1, 0, 0, 0, 0, 0, 1, 1, 1, 0, 1, 1, 1, 1}};
+    static const int need[UP_N_ROLES][NSLOT] = UP_SLOT_NEEDED;
     for (int k = 0; k < NSLOT; k++)
         if (need[I->role][k] && I->slot[k] < 0) {
             snprintf(I->err, UP_MSG, "resource file %s: no variables %s: export the FMU again", I->res.path,

@@ -17,7 +17,7 @@ double *up_var(UpInstance *I, int slot) { return I->bank + I->slot[slot]; }
 static void track_maxima(UpInstance *I)
 {
     UpStepper *st = &I->st;
-    double *gap = up_var(I, S_GAP), gmax = 0.0, *up = up_var(I, S_MAX_UPLIFT), *rot = up_var(I, S_MAX_ROTATION);
+    double *gap = up_var(I, S_GAP), gmax = 0.0, *up = up_var(I, S_MAX_UPLIFT), *rot = up_var(I, S_MAX_RAFT_ROTATION);
     up_stepper_gap(st, gap);
     for (int i = 0; i < I->N; i++)
         gmax = i == 0 || gap[i] > gmax ? gap[i] : gmax;
@@ -54,7 +54,7 @@ static void publish_soil(UpInstance *I, double t_next)
 {
     *up_var(I, S_G_TIME) = t_next;
     memcpy(up_var(I, S_F), I->soil.f, (size_t)I->n * sizeof(double));
-    *up_var(I, S_DISS) = *I->soil.work;
+    *up_var(I, S_DISSIPATED_ENERGY) = *I->soil.work;
 }
 
 /* the model at rest at t = 0 with the current inputs and parameters; 0 or -1 with I->err */
@@ -91,7 +91,7 @@ int up_initial_state(UpInstance *I)
             }
     }
     up_stepper_rest(&I->st, ag0);
-    *up_var(I, S_MAX_UPLIFT) = *up_var(I, S_MAX_ROTATION) = 0.0;
+    *up_var(I, S_MAX_UPLIFT) = *up_var(I, S_MAX_RAFT_ROTATION) = 0.0;
     publish_stepper(I);
     return 0;
 }
@@ -170,7 +170,7 @@ int up_step(UpInstance *I, double t, int last)
     ag_next(I, t);
     if (up_stepper_step(st))
         return UP_FAILED;
-    *up_var(I, S_NEWTON) = st->last_iters;
+    *up_var(I, S_NEWTON_ITERS) = st->last_iters;
     if (last)
         publish_stepper(I);
     else

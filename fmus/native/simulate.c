@@ -8,15 +8,16 @@
      ag0        (3) ground acceleration at t = 0, m/s^2 (the state at rest)
      Parses the records, sets up the soil and the stepper at rest and prepares the system at dt:
      everything a run allocates. NULL when the records cannot be used (message in err).
-   up_sim_width(handle) -> the length of a row: 6 + 3 N + 6 nodes + 7
+   up_sim_width(handle) -> the length of a row: UP_ROW_WIDTH(N, nodes) = 6 + 3 N + 6 nodes + UP_N_ENERGY
    up_sim_steps(handle, ag, k0, k1, rows, iters, stats, err)
      computes samples k0 .. k1 - 1 (k0 the first sample not computed yet: 0, then the previous
      call's k1; sample 0 is the state at rest, sample k > 0 one step under ag[k])
      ag         (nt, 3) ground acceleration at k dt, m/s^2 (rows k0 .. k1 - 1 read)
-     rows       (k1 - k0, width) out, row k - k0 for sample k, per sample: raft q (6), gap (N), total
-                contact force P (N), soil w (N), per output node its absolute acceleration (3)
-                and displacement (3), the energies (input, kinetic, strain, damping, soil,
-                contact, contact_potential)
+     rows       (k1 - k0, width) out, row k - k0 for sample k, per sample (the parts of
+                fmus.schema.ROW, at the offsets UP_ROW_* of uplift_schema.h): raft q (6), gap (N),
+                total contact force P (N), soil w (N), per output node its absolute acceleration
+                (3) and displacement (3), the energies (UP_N_ENERGY, in the order of
+                fmus.schema.ENERGY_TERMS)
      iters      (k1 - k0) out, entry k - k0: Newton solves of the step to sample k
      stats      (3) out: samples computed so far (k1 unless a step failed), Jacobian
                 factorisations, steps that were halved (over the whole run)
@@ -46,19 +47,19 @@ struct UpSim {
 
 static void record(const UpStepper *st, const int64_t *node_dofs, int nnodes, double *row)
 {
-    int N = st->N;
-    memcpy(row, st->u + st->ni, 6 * sizeof(double));
-    up_stepper_gap(st, row + 6);
-    memcpy(row + 6 + N, st->P, (size_t)N * sizeof(double));
-    memcpy(row + 6 + 2 * (size_t)N, st->u + st->ns, (size_t)N * sizeof(double));
-    double *node = row + 6 + 3 * (size_t)N;
+    size_t N = (size_t)st->N, m = (size_t)nnodes;
+    memcpy(row + UP_ROW_RAFT(N, m), st->u + st->ni, 6 * sizeof(double));
+    up_stepper_gap(st, row + UP_ROW_GAP(N, m));
+    memcpy(row + UP_ROW_CONTACT_FORCE(N, m), st->P, N * sizeof(double));
+    memcpy(row + UP_ROW_SOIL_W(N, m), st->u + st->ns, N * sizeof(double));
+    double *node = row + UP_ROW_NODES(N, m);
     for (int k = 0; k < nnodes; k++)
         for (int c = 0; c < 3; c++) {
             int64_t d = node_dofs[3 * k + c];
             node[6 * k + c] = st->a[d] + st->ag[c];
             node[6 * k + 3 + c] = st->u[d];
         }
-    up_stepper_energies(st, node + 6 * (size_t)nnodes);
+    up_stepper_energies(st, row + UP_ROW_ENERGY(N, m));
 }
 
 UP_API void up_sim_close(UpSim *h)
@@ -126,7 +127,7 @@ fail:
 
 UP_API int64_t up_sim_width(const UpSim *h)
 {
-    return 6 + 3 * (int64_t)h->st.N + 6 * (int64_t)h->nnodes + 7;
+    return UP_ROW_WIDTH((int64_t)h->st.N, (int64_t)h->nnodes);
 }
 
 UP_API int up_sim_steps(UpSim *h, const double *ag, int64_t k0, int64_t k1, double *rows, int64_t *iters,

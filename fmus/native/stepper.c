@@ -23,7 +23,15 @@
    with K0C and E take the two blocks, and a Newton solve eliminates the w_i node by node onto a
    (6, 6) system on q (newton_diag): O(N) a step instead of O(nb^2), and no bases. The same
    equations: the histories equal the dense path's to round-off. No allocation after
-   up_stepper_init. */
+   up_stepper_init.
+
+   The reference is structure/newmark.py (NewmarkStepper: the readable Python stepper); this
+   file and soil.c are what runs by default. A change to the physics is made there first, then
+   here, step for step. The two are held equal by tests/fmu/test_native_stepper.py,
+   test_native_springs.py and test_native_fmu.py: the same Newton counts and halved steps, every
+   history to 1e-10 on a mild (bonded) scene and, where uplift amplifies round-off, to
+   max(1e-10, 100 x its round-off spread) measured on the Python stepper (tests/helpers/roundoff.py,
+   docs/verification.md). */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -1038,11 +1046,11 @@ void up_stepper_energies(const UpStepper *s, double *e)
             pot += 0.5 * s->kp[i] * d[i] * d[i];
         }
     }
-    e[0] = s->work[W_INPUT];
-    e[1] = 0.5 * kin;
-    e[2] = 0.5 * strain;
-    e[3] = s->work[W_DAMPING];
-    e[4] = s->work[W_SOIL];
-    e[5] = s->work[W_CONTACT];
-    e[6] = pot;
+    e[UP_E_INPUT] = s->work[W_INPUT];
+    e[UP_E_KINETIC] = 0.5 * kin;
+    e[UP_E_STRAIN] = 0.5 * strain;
+    e[UP_E_DAMPING] = s->work[W_DAMPING];
+    e[UP_E_SOIL] = s->work[W_SOIL];
+    e[UP_E_CONTACT] = s->work[W_CONTACT];
+    e[UP_E_CONTACT_POTENTIAL] = pot;
 }

@@ -2,7 +2,8 @@
 is the schema's (name, value reference, causality, unit, description, start); the two kinds'
 model descriptions are identical except for their implementation parts; the units of both
 ends of every connection of system.ssd / system.ssp and of the cross-check folders match;
-the C runtime's message table is generated from the schema; two runtimes compiled with
+the C runtime's message table and its positional tables (uplift_schema.h: roles, energy
+terms, slots, the in-process run's row layout) are generated from the schema; two runtimes compiled with
 different FMI2_FUNCTION_PREFIX link into one binary; the Python FMUs' requirements.txt lists
 exactly the third-party modules their bundled code imports at module level."""
 import shutil
@@ -146,6 +147,32 @@ def test_c_message_table_is_generated_from_the_schema():
     c = "".join((NATIVE / s).read_text() for s in sorted(set(SOURCES) | set(sources_of(3))))
     for key in schema.MESSAGES:                                    # every refusal used by the runtime
         assert f"UP_MSG_{key.upper()}" in c, key
+
+
+def test_c_positional_tables_are_generated_from_the_schema():
+    """uplift_schema.h (the roles, the energy terms, the slots' names, lengths and the slots each
+    role needs, the row layout of the in-process run) is what the schema writes; the C files use
+    its tables, not copies; the lengths and needs it writes are those of the schema's variables."""
+    header = NATIVE / "include" / "uplift_schema.h"
+    assert header.read_text() == schema.c_schema_header(), "regenerate: python -m fmus.schema"
+    c = {name: (NATIVE / name).read_text() for name in ("instance.c", "simulate.c", "stepper.c")}
+    for name, uses in (("instance.c", ("UP_SLOT_NAMES", "UP_SLOT_LENGTHS(", "UP_SLOT_NEEDED")),
+                       ("simulate.c", ("UP_ROW_WIDTH(", "UP_ROW_ENERGY(", "UP_ROW_GAP(")),
+                       ("stepper.c", tuple(f"e[UP_E_{t.upper()}]" for t in schema.ENERGY_TERMS))):
+        for use in uses:
+            assert use in c[name], (name, use)
+    assert "enum { S_" not in (NATIVE / "include" / "fmu.h").read_text()     # no second slot table
+    nodes = ("a", "b")
+    for role in schema.ROLES:
+        vars_ = [v for v in schema.variables(role, n=6 + N, N=N, nodes=nodes) if v.type == "Real"]
+        value = {"1": 1, "n": 6 + N, "N": N, "nodes": len(nodes)}
+        for slot, need in zip(schema.SLOTS, schema.slot_needed(role)):
+            count = sum(v.slot == slot for v in vars_)
+            assert count in (0, sum(c * value[sym] for sym, c in schema.slot_length(slot).items())), (role, slot)
+            assert need <= (count > 0), (role, slot)
+    at = schema.row_slices(N, 2)
+    assert [at[part] for part, _ in schema.ROW] == sorted(at.values(), key=lambda s: s.start)
+    assert schema.row_width(N, 2) == 6 + 3 * N + 12 + len(schema.ENERGY_TERMS) == at["energy"].stop
 
 
 @pytest.mark.parametrize("version", [2, 3])

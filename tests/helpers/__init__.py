@@ -15,6 +15,8 @@
   cases          the co-simulation tests' small scene, its soil and motions
   soil_double    a rational soil with a history (a test double of the recursive convolution)
   passive_models passive RationalModels from mechanical building blocks
+  roundoff       the round-off spread of a run (its input scaled by 1 + k 1e-14) and the
+                 comparison of two steppers within it (``from helpers.roundoff import ...``)
 """
 from pathlib import Path
 

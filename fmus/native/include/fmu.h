@@ -17,16 +17,13 @@
 
 enum { UP_OK = 0, UP_WARNING = 1, UP_DISCARD = 2, UP_ERROR = 3 };
 
-enum { ROLE_SOIL, ROLE_STRUCTURE, ROLE_COUPLED };
-
 /* the FMI states of an instance, one bit each (the masks are unions of them) */
 enum { UP_INSTANTIATED = 1 << 0, UP_INITIALISATION = 1 << 1, UP_STEPPING = 1 << 2, UP_TERMINATED = 1 << 3 };
 #define UP_ANY_STATE (UP_INSTANTIATED | UP_INITIALISATION | UP_STEPPING | UP_TERMINATED)
 
-/* the named vectors of Real variables: first value reference in the resource records vr.<name>
-   (fmus.schema.SLOTS, looked up by name at instantiation) */
-enum { S_X, S_XDOT, S_X_TIME, S_G, S_G_TIME, S_F, S_DISS, S_AG, S_P, S_GAP, S_NODES, S_ENERGY, S_NEWTON,
-       S_MAX_UPLIFT, S_MAX_ROTATION, NSLOT };
+/* the named vectors of Real variables (the roles ROLE_*, the slots S_* and NSLOT are in
+   uplift_schema.h, generated from fmus.schema.SLOTS): first value reference in the resource
+   records vr.<name>, looked up by name at instantiation */
 extern const char *const up_slot_names[NSLOT];
 
 typedef struct UpInstance UpInstance;

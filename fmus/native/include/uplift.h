@@ -24,6 +24,8 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "uplift_schema.h"   /* the roles, energy terms, slots and row layout of fmus/schema.py */
+
 /* Symbols. Everything the runtime's files share is named up_*; entry points are the FMI 2.0
    (fmi2.c) or the FMI 3.0 (fmi3.c) functions. A tool that compiles several FMUs' sources into
    one binary defines FMI2_FUNCTION_PREFIX or FMI3_FUNCTION_PREFIX (as the FMI headers ask of
@@ -307,7 +309,7 @@ void up_stepper_rest(UpStepper *s, const double *ag0);
 int up_stepper_prepare(UpStepper *s, char *err);        /* the system at dt, before the first step */
 int up_stepper_step(UpStepper *s);                       /* 0, or -1 with s->err */
 void up_stepper_gap(const UpStepper *s, double *gap);
-void up_stepper_energies(const UpStepper *s, double *e); /* input, kinetic, strain, damping, soil, contact, contact_potential */
+void up_stepper_energies(const UpStepper *s, double *e); /* (UP_N_ENERGY): e[UP_E_INPUT], ... */
 
 /* ---- simulate.c: a run in chunks of steps, or in one call, for in-process hosts ------------- */
 typedef struct UpSim UpSim;                              /* a run: records, soil, stepper, state */
