@@ -10,6 +10,7 @@ messages go to stderr. This is the only module that prints.
 from __future__ import annotations
 
 import argparse
+import importlib.metadata
 import importlib.util
 import json
 import math
@@ -73,11 +74,36 @@ def _positive(text: str) -> float:
     return v
 
 
+#: the distribution whose version ``uplift --version`` prints (``uplift`` on the package index is another project)
+DISTRIBUTION = "uplift-ssi"
+
+
+def version() -> str:
+    """The installed distribution's version (its metadata); not installed (a checkout on
+    PYTHONPATH): the version of the checkout's pyproject.toml, marked so, else "unknown"."""
+    try:
+        return importlib.metadata.version(DISTRIBUTION)
+    except importlib.metadata.PackageNotFoundError:
+        pass
+    pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
+    try:
+        from orchestrator.scene import tomllib
+        project = tomllib.loads(pyproject.read_text()).get("project", {})
+        if project.get("name") == DISTRIBUTION and project.get("version"):
+            return f"{project['version']} (not installed: the version of {pyproject})"
+    except (OSError, ValueError):
+        pass
+    return "unknown (not installed: pip install -e . in the project's folder)"
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="uplift",
         description="Foundation uplift under earthquake: soil-structure interaction with BEM impedances.",
-        epilog=f"built-in scenes: {', '.join(builtin_scenes())}; routes: {', '.join(route_names())}")
+        epilog=f"built-in scenes: {', '.join(builtin_scenes())}; routes: {', '.join(route_names())}; "
+               "`uplift COMMAND --help` for a command's options")
+    p.add_argument("--version", action="version", version=f"uplift ({DISTRIBUTION}) {version()}",
+                   help="print the version of the installed uplift-ssi and exit")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     def scene_arg(cmd):
@@ -232,9 +258,24 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def command_list(parser: argparse.ArgumentParser) -> str:
+    """The commands of ``parser``, one line each: name and its one-line help."""
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    actions = sub._choices_actions          # what argparse's own help lists: one per command, in order
+    width = max(len(a.dest) for a in actions)
+    return "\n".join(f"  {a.dest:<{width}}  {a.help}" for a in actions)
+
+
 def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = _parser()
+    if not argv:        # no command: the commands, one line each (a missing command is bad input: exit 2)
+        print(f"{parser.format_usage()}\ncommands:\n{command_list(parser)}\n\n"
+              "`uplift COMMAND --help` for a command's options, `uplift --help` for more\n"
+              "uplift: error: give a COMMAND, e.g. uplift run reactor", file=sys.stderr)
+        return EXIT_INPUT
     try:
-        args = _parser().parse_args(argv)
+        args = parser.parse_args(argv)
     except SystemExit as exc:        # argparse: --help (0) or a bad argument (2, message printed)
         return int(exc.code or 0)
     try:

@@ -80,3 +80,41 @@ def test_fit_json_contract(tmp_path, monkeypatch, capsys):
     assert out["max_rel_error"] <= 0.01 and out["passive"] and out["order"] <= 24
     from soil_impedance.fit import load_fit
     assert load_fit(model).report.max_rel_error == pytest.approx(out["max_rel_error"])
+
+
+def _shell(*args, cwd=None, env=None):
+    """``uplift ARGS`` as a user's shell runs it: a child process, stdout and stderr apart."""
+    import os
+    import subprocess
+    import sys
+    from helpers import ROOT
+    env = {**os.environ, "PYTHONPATH": str(ROOT), **(env or {})}
+    return subprocess.run([sys.executable, "-m", "orchestrator.cli", *args], capture_output=True, text=True,
+                          cwd=cwd, env=env, timeout=600)
+
+
+def test_no_command_lists_the_commands_and_version_prints_the_distributions():
+    import importlib.metadata
+    from orchestrator.cli import _parser, command_list
+    proc = _shell()
+    assert proc.returncode == 2 and proc.stdout == ""          # a missing command is bad input, as before
+    listed = [line.split()[0] for line in proc.stderr.split("commands:\n")[1].split("\n\n")[0].splitlines()]
+    assert listed == ["run", "impedance", "fit", "export", "compare", "report", "ensemble", "fragility", "bench"]
+    assert all(len(line.split(maxsplit=1)) == 2 for line in command_list(_parser()).splitlines())  # one line each
+    assert "give a COMMAND" in proc.stderr.splitlines()[-1]
+    proc = _shell("--version")
+    assert proc.returncode == 0
+    assert proc.stdout.strip() == f"uplift (uplift-ssi) {importlib.metadata.version('uplift-ssi')}"
+
+
+def test_version_without_installed_metadata_reads_the_checkouts_pyproject(monkeypatch):
+    import importlib.metadata
+    from helpers import ROOT
+    from orchestrator import cli
+    from orchestrator.scene import tomllib
+
+    def absent(name):
+        raise importlib.metadata.PackageNotFoundError(name)
+    monkeypatch.setattr(importlib.metadata, "version", absent)
+    expected = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
+    assert cli.version().startswith(f"{expected} (not installed")
