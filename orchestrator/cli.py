@@ -4,8 +4,9 @@ Exit codes (orchestrator.exit_codes): 0 success; 1 a computation stopped (result
 far, reason printed); 2 bad input (scene, file, option, a tool the machine lacks:
 orchestrator.exit_codes); 130 interrupted (Ctrl-C: one line on stderr, no output half-written, a
 previous file at -o left as it was). Every output path is checked before any computation.
-Machine-readable output (``--json``) goes to stdout as exactly one JSON object; progress and
-messages go to stderr. This is the only module that prints.
+A command's answer (a summary, a table) goes to stdout; machine-readable output (``--json``)
+goes to stdout as exactly one strict JSON object (no NaN or Infinity: ``strict_json``); progress,
+``wrote ...`` lines and messages go to stderr. This is the only module that prints.
 """
 from __future__ import annotations
 
@@ -302,8 +303,53 @@ def _cache(args):
 
 
 def _say(*lines):
+    """Messages (what was written, warnings, progress notes): stderr."""
     for line in lines:
         print(line, file=sys.stderr)
+
+
+def _out(*lines):
+    """A command's answer (a summary, a table): stdout, what ``uplift CMD > file`` keeps."""
+    for line in lines:
+        print(line)
+
+
+def strict_json(value):
+    """``value`` with every non-finite number (NaN, ±inf: strict JSON has no word for them)
+    replaced by None, and a dict holding one (directly or in a list) given a ``missing`` dict
+    that says why under the same key (reasons already there are kept). numpy scalars become
+    Python numbers."""
+    return _strict(value)[0]
+
+
+def _strict(value):
+    """(strict value, reason it is missing or None)."""
+    if isinstance(value, dict):
+        out, why = {}, {}
+        for k, v in value.items():
+            out[k], reason = _strict(v)
+            if reason:
+                why[k] = reason
+        if why:
+            given = out.get("missing")
+            out["missing"] = {**why, **(given if isinstance(given, dict) else {})}
+        return out, None
+    if isinstance(value, (list, tuple)):
+        items = [_strict(v) for v in value]
+        reasons = [r for _, r in items if r]
+        return [v for v, _ in items], (f"null entries: {reasons[0]}" if reasons else None)
+    if isinstance(value, (float, np.floating)):
+        if math.isfinite(value):
+            return float(value), None
+        return None, f"not a finite number ({float(value)}): the computation gave none"
+    if isinstance(value, (np.integer, np.bool_)):
+        return value.item(), None
+    return value, None
+
+
+def _print_json(value):
+    """One strict JSON object on stdout (no NaN or Infinity, see strict_json)."""
+    print(json.dumps(strict_json(value), allow_nan=False))
 
 
 def cmd_run(args) -> int:
@@ -324,23 +370,25 @@ def cmd_run(args) -> int:
         from orchestrator.plots import plot_run                  # start-up cost: only with --plot-dir
         _say(*(f"wrote {path}" for path in plot_run(results, motion, scene, args.plot_dir)))
     if args.json:
-        print(json.dumps(summ))
-    else:
-        _say(f"motion: {motion.label} (components {', '.join(motion.components)})")
+        _print_json(summ)
+    else:      # the summary is the answer: stdout (`uplift run reactor > summary.txt` keeps it)
+        _out(f"motion: {motion.label} (components {', '.join(motion.components)})")
         for r, s in summ["routes"].items():
             if s["status"] == Status.REFUSED.value:
-                _say(f"{r}: REFUSED: {s['message']}")
+                _out(f"{r}: REFUSED: {s['message']}")
                 continue
             axes = s["max_raft_rotation_axes_rad"]
-            _say(f"{r} [{', '.join(s['components'])}]: max uplift {1e3 * s['max_uplift_m']:.3f} mm at "
+            _out(f"{r} [{', '.join(s['components'])}]: max uplift {1e3 * s['max_uplift_m']:.3f} mm at "
                  f"{s['max_uplift_time_s']:.3f} s, raft rotation {s['max_raft_rotation_rad']:.3e} rad "
                  f"(rx {axes['x']:.3e}, ry {axes['y']:.3e}), min contact "
                  f"{100 * s['min_contact_fraction']:.1f} %, wall {s['wall_s']:.2f} s"
                  + ("" if s["converged"] else f"  STOPPED: {s['message']}"))
             if s["precheck"]:
-                _say(f"  linear pre-check: {s['precheck']}")
-            _say(*(f"  skipped: {item}" for item in s["skipped"]))
-            _say(*(f"  WARNING: {item}" for item in s["warnings"]))
+                _out(f"  linear pre-check: {s['precheck']}")
+            _out(*(f"  skipped: {item}" for item in s["skipped"]))
+            _out(*(f"  WARNING: {item}" for item in s["warnings"]))
+            if not sys.stdout.isatty():     # stdout kept in a file: the warnings reach the terminal too
+                _say(*(f"WARNING [{r}]: {item}" for item in s["warnings"]))
     statuses = {res.status for res in results.values()}
     if Status.REFUSED in statuses:
         return EXIT_INPUT
@@ -374,11 +422,11 @@ def cmd_impedance(args) -> int:
         plot_impedance(tables["rigid"], scene, args.plot, static=scene_static(scene, cache_dir=cache))
         _say(f"wrote {args.plot}")
     if args.json:
-        print(json.dumps(rigid_json(tables["rigid"], wall)))
+        _print_json(rigid_json(tables["rigid"], wall))
     else:
         table = tables["rigid"]
         diag = np.diagonal(table.matrices, axis1=1, axis2=2)
-        _say(f"rigid impedance, {len(table.frequencies_hz)} frequencies, {wall:.2f} s",
+        _out(f"rigid impedance, {len(table.frequencies_hz)} frequencies, {wall:.2f} s",
              "   f (Hz) " + "".join(f"{d:>24s}" for d in table.dofs),
              *(f"{f:9.3f} " + "".join(f"{z.real:12.4e}{z.imag:+12.4e}" for z in row)
                for f, row in zip(table.frequencies_hz, diag)))
@@ -409,9 +457,9 @@ def cmd_fit(args) -> int:
         _say(f"wrote {args.plot}")
     out = dict(result.report.summary(), wall_s=time.perf_counter() - t0)
     if args.json:
-        print(json.dumps(out))
+        _print_json(out)
     else:
-        _say(f"{args.table} table of {scene.name}: {out['order']} poles, max relative error "
+        _out(f"{args.table} table of {scene.name}: {out['order']} poles, max relative error "
              f"{100 * out['max_rel_error']:.2f} % (tol {100 * tol:g} %), passive: {out['passive']} "
              f"(margin {out['passivity_margin']:.3g}), {out['wall_s']:.1f} s")
     if not result.report.tol_reached:
@@ -463,7 +511,10 @@ def cmd_compare(args) -> int:
         raise ResultsFileError(f"--reference {args.reference!r} is not in {args.results} "
                                f"(routes: {', '.join(results)})")
     table = compare(results, reference=args.reference)
-    print(json.dumps(table) if args.json else format_table(table))
+    if args.json:
+        _print_json(table)
+    else:
+        _out(format_table(table))
     return EXIT_OK
 
 
@@ -498,17 +549,17 @@ def cmd_ensemble(args) -> int:
     summ = ensemble_summary(ds)
     mm = lambda v: "-" if v is None else f"{1e3 * v:.3f} mm"
     if args.json:
-        print(json.dumps(summ))
+        _print_json(summ)
     else:
-        _say(f"components {', '.join(summ['components'])}: {summ['runs']} runs ({summ['computed']} computed, {summ['reused']} kept from {out}.cells) on "
+        _out(f"components {', '.join(summ['components'])}: {summ['runs']} runs ({summ['computed']} computed, {summ['reused']} kept from {out}.cells) on "
              f"{summ['workers']} workers in {summ['wall_s']:.1f} s (cluster {summ['cluster_s']:.1f} s, "
              f"sweep and fit {summ['setup_s']:.1f} s, time-step check {summ['dt_check_s']:.1f} s)"
              + (f"; {summ['workers_note']}" if summ["workers_note"] else ""))
         for pga, routes in summ["pga"].items():
             for route, v in routes.items():
-                _say(f"{pga} g [{route}]: max uplift median {mm(v['median_max_uplift_m'])}, 84th percentile "
+                _out(f"{pga} g [{route}]: max uplift median {mm(v['median_max_uplift_m'])}, 84th percentile "
                      f"{mm(v['p84_max_uplift_m'])} ({v['converged_records']}/{ds.sizes['record']} records converged)")
-        _say(*(f"{c['status'].upper()}: {c['record']} at {c['pga_g']:g} g [{c['route']}]: {c['message']}"
+        _out(*(f"{c['status'].upper()}: {c['record']} at {c['pga_g']:g} g [{c['route']}]: {c['message']}"
                for c in summ["not_converged"]))
         notes = [line for text in ds["warnings"].values.ravel() for line in text.split("\n") if line]
         _say(*(f"WARNING ({notes.count(w)} runs): {w}" for w in dict.fromkeys(notes)))
@@ -564,7 +615,7 @@ def cmd_fragility(args) -> int:
         _say(f"wrote {args.plot}")
     out = frag.fragility_json(fits)
     if args.json:
-        print(json.dumps(out))
+        _print_json(out)
         return EXIT_OK
     for e in out["fragility"]:
         counts = ", ".join(f"{p:g} g {z}/{n}" for p, z, n in zip(e["pga_g"], e["exceedances"], e["cells"]))
@@ -576,7 +627,7 @@ def cmd_fragility(args) -> int:
             fit += (f"; {100 * bs['confidence']:g} % band (bootstrap, {bs['identified']}/{bs['samples']} "
                     f"resamples fitted): median {bs['median_g'][0]:.4g}-{bs['median_g'][1]:.4g} g, "
                     f"beta {bs['beta'][0]:.3f}-{bs['beta'][1]:.3f}")
-        _say(f"{e['limit']} [{e['route']}]: {fit}", f"  exceedances per PGA: {counts}"
+        _out(f"{e['limit']} [{e['route']}]: {fit}", f"  exceedances per PGA: {counts}"
              + (f"; left out: {left}" if left else ""))
     return EXIT_OK
 
@@ -588,7 +639,10 @@ def cmd_bench(args) -> int:
     rows = bench(bench_config(args.quick), cache_dir=_cache(args), log=lambda msg: _say(msg))
     if args.plot:
         _say(f"wrote {plot_rows(rows, args.plot)}")
-    print(json.dumps(json_safe(rows)) if args.json else format_rows(rows))
+    if args.json:
+        _print_json(json_safe(rows))
+    else:
+        print(format_rows(rows))
     return EXIT_OK if all(r.get("converged", True) for r in rows) else EXIT_FAILED
 
 

@@ -118,3 +118,39 @@ def test_version_without_installed_metadata_reads_the_checkouts_pyproject(monkey
     monkeypatch.setattr(importlib.metadata, "version", absent)
     expected = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
     assert cli.version().startswith(f"{expected} (not installed")
+
+
+def strict_loads(text):
+    """json.loads refusing NaN and Infinity (what a strict JSON reader does)."""
+    return json.loads(text, parse_constant=lambda c: (_ for _ in ()).throw(ValueError(f"not strict JSON: {c}")))
+
+
+def test_run_summary_on_stdout_progress_on_stderr_json_strict(tmp_path):
+    from helpers import tower, write_scene
+    scene = write_scene(tmp_path / "tower.toml", tower())
+    env = {"UPLIFT_CACHE": str(tmp_path / "cache")}
+    proc = _shell("run", scene, "-o", str(tmp_path / "r.h5"), cwd=tmp_path, env=env)
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout.splitlines()          # what `uplift run SCENE > out.txt` keeps: the summary
+    assert out[0].startswith("motion: ") and out[1].startswith("winkler [x]: max uplift ")
+    assert "wrote" not in proc.stdout and "max uplift" not in proc.stderr
+    assert f"wrote {tmp_path / 'r.h5'}" in proc.stderr and "run tower [winkler]" in proc.stderr   # progress
+    proc = _shell("run", scene, "-o", str(tmp_path / "r.h5"), "--json", cwd=tmp_path, env=env)
+    assert proc.returncode == 0, proc.stderr
+    summ = strict_loads(proc.stdout)        # exactly one object, strict
+    assert summ["routes"]["winkler"]["max_uplift_m"] > 0 and "winkler" in proc.stderr
+
+
+def test_run_json_with_a_non_finite_value_says_null_and_why(tmp_path, capsys, monkeypatch):
+    """A route whose numbers are not finite (a diverged run) is written null with the reason."""
+    from helpers import tower, write_scene
+    from orchestrator import cli
+    from orchestrator.results_file import summary
+    monkeypatch.setenv("UPLIFT_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(cli, "summary", lambda res: dict(summary(res), max_uplift_m=float("nan"),
+                                                         peak_acc_g={"top": float("inf")}))
+    scene = write_scene(tmp_path / "tower.toml", tower())
+    assert main(["run", scene, "-o", str(tmp_path / "r.h5"), "--json"]) == 0
+    s = strict_loads(capsys.readouterr().out)["routes"]["winkler"]
+    assert s["max_uplift_m"] is None and "not a finite number (nan)" in s["missing"]["max_uplift_m"]
+    assert s["peak_acc_g"] == {"top": None, "missing": {"top": s["peak_acc_g"]["missing"]["top"]}}
