@@ -34,7 +34,7 @@ from orchestrator.results_file import (ResultsFileError, check_output_folder, ch
                                   write_results)
 from orchestrator.routes import route_names
 from orchestrator.run import run_scene
-from orchestrator.scene import MAX_PGA_G, SceneError, builtin_scenes, load_scene
+from orchestrator.scene import MAX_PGA_G, SceneError, builtin_scenes, load_scene, tomllib
 from orchestrator.settings import FMU_KINDS, compute_threads, default_cache_dir
 from uplift_common.errors import UserInputError
 
@@ -88,7 +88,6 @@ def version() -> str:
         pass
     pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
     try:
-        from orchestrator.scene import tomllib
         project = tomllib.loads(pyproject.read_text()).get("project", {})
         if project.get("name") == DISTRIBUTION and project.get("version"):
             return f"{project['version']} (not installed: the version of {pyproject})"
@@ -189,7 +188,9 @@ def _parser() -> argparse.ArgumentParser:
                          description="Compare the routes of a results file (max uplift, raft rotation, "
                                      "floor-spectrum peaks, run times) against a reference route.")
     cmp.add_argument("results", type=Path, help="results HDF5 file written by `uplift run`")
-    cmp.add_argument("--reference", default=None, help="reference route (default: timefreq, else the first)")
+    cmp.add_argument("--reference", default=None,
+                     help="reference route (default: the most exact present: timefreq, else monolithic, else cosim, "
+                          "else the first with uplift; never linear, which lets nothing lift)")
     json_flag(cmp)
     cmp.set_defaults(func=cmd_compare)
 
@@ -201,8 +202,8 @@ def _parser() -> argparse.ArgumentParser:
                                      "fractile floor spectra per PGA.")
     rep.add_argument("results", type=Path, help="results HDF5 file written by `uplift run` (or `uplift ensemble`)")
     rep.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output directory")
-    rep.add_argument("--reference", default=None, help="reference route of the comparison "
-                                                       "(default: timefreq, else the first)")
+    rep.add_argument("--reference", default=None, help="reference route of the comparison (default: as "
+                                                       "`uplift compare`: timefreq, else monolithic, else cosim)")
     rep.set_defaults(func=cmd_report)
 
     ens = sub.add_parser("ensemble", help="the scene under many records and PGAs (dask), fractiles over records",
