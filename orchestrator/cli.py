@@ -495,14 +495,39 @@ def cmd_export(args) -> int:
         raise OptionError("--fmi-version 3 writes native FMUs only (pythonfmu writes FMI 2.0): drop --kind python")
     from orchestrator.impedance import scene_fit                 # start-up cost (as above)
     soil = scene_fit(scene, cache_dir=_cache(args), fit_progress=labelled_bars(f"fit {scene.name}: {{label}}")).model
+    compiled = _announce_native_build(args.fmi_version) if args.kind == "native" else None
     exported = export_scene(scene, args.output, soil, cache_dir=_cache(args), kind=args.kind,
-                            fmi_version=args.fmi_version)
+                            fmi_version=args.fmi_version, progress=compiled)
     _say(*(f"wrote {path}" for path in exported.files))
     if args.cross_check is not None:
         xc = write_cross_check(exported, args.cross_check, scene.name)
         _say(*(f"wrote {folder}/" for folder in xc.models.values()))
         _say(*(f"WARNING: {problem}" for problem in xc.problems))
     return EXIT_OK
+
+
+#: what the native export's compile costs on this kind of machine (2 cores, measured with an empty
+#: zig cache and then a filled one): the first build compiles each platform's C library
+NATIVE_FIRST_BUILD = "65-95 s"
+NATIVE_CACHED_BUILD = "about 1.5 s"
+
+
+def _announce_native_build(fmi_version: int):
+    """Say what a native export compiles and how long it takes, before it starts; return the
+    ``progress(done, total, platform)`` that reports each platform as it is done."""
+    from fmus.native_build import platforms_of, sources_of       # start-up cost: only a native export
+    names = list(platforms_of(fmi_version))
+    _say(f"compiling the FMUs' C runtime (fmus/native: {len(sources_of(fmi_version))} C files, FMI "
+         f"{fmi_version}.0) with zig for {len(names)} platforms ({', '.join(names)}): the first time on a machine "
+         f"this takes {NATIVE_FIRST_BUILD} (zig builds each platform's C library once), {NATIVE_CACHED_BUILD} "
+         "once zig has cached them")
+    last = [time.perf_counter()]
+
+    def progress(done, total, platform=""):
+        now = time.perf_counter()
+        _say(f"  compiled {platform} ({done}/{total}) in {now - last[0]:.1f} s")
+        last[0] = now
+    return progress
 
 
 def cmd_compare(args) -> int:

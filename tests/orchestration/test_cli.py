@@ -154,3 +154,21 @@ def test_run_json_with_a_non_finite_value_says_null_and_why(tmp_path, capsys, mo
     s = strict_loads(capsys.readouterr().out)["routes"]["winkler"]
     assert s["max_uplift_m"] is None and "not a finite number (nan)" in s["missing"]["max_uplift_m"]
     assert s["peak_acc_g"] == {"top": None, "missing": {"top": s["peak_acc_g"]["missing"]["top"]}}
+
+
+@pytest.mark.slow
+def test_native_export_says_what_it_compiles_and_reports_each_platform(tmp_path, capsys, monkeypatch):
+    from fmus.native_build import PLATFORMS
+    from helpers import export_tower, write_scene
+    monkeypatch.setenv("UPLIFT_CACHE", str(tmp_path / "cache"))
+    scene = write_scene(tmp_path / "tower.toml", export_tower())
+    assert main(["export", scene, "-o", str(tmp_path / "fmus")]) == 0
+    captured = capsys.readouterr()
+    err = captured.err.splitlines()
+    notice = next(i for i, line in enumerate(err) if line.startswith("compiling the FMUs' C runtime"))
+    assert "with zig for 3 platforms (linux64, win64, darwin64)" in err[notice]
+    assert "65-95 s" in err[notice] and "once zig has cached them" in err[notice]   # the one-time cost, said first
+    done = [line.split()[1:3] for line in err[notice + 1:] if line.startswith("  compiled ")]
+    assert done == [[p, f"({k}/3)"] for k, p in enumerate(PLATFORMS, 1)]          # each platform as it finishes
+    assert err.index(next(line for line in err if line.startswith("wrote "))) > notice + 3
+    assert (tmp_path / "fmus" / "coupled.fmu").is_file() and captured.out == ""
