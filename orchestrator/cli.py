@@ -96,6 +96,17 @@ def version() -> str:
     return "unknown (not installed: pip install -e . in the project's folder)"
 
 
+def _count(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} must be an integer >= 1")
+    return v
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="uplift",
@@ -218,9 +229,14 @@ def _parser() -> argparse.ArgumentParser:
                           "its file names, or by a components.toml in the folder), or record files, each one "
                           "component on the scene's [motion].direction (*.AT2: PEER; *.txt, *.dat: two-column, "
                           "or the scene's [motion] format); default: the scene's motion")
-    ens.add_argument("--seeds", nargs="+", type=int, metavar="N",
-                     help="without --records: seeds of the scene's synthetic motion, each all its components "
-                          "(default: its seed)")
+    seeds = ens.add_mutually_exclusive_group()
+    seeds.add_argument("--n-seeds", type=_count, default=None, metavar="N",
+                       help="without --records: N synthetic motions of the scene, seeds 0, 1, ..., N-1 "
+                            "(--n-seeds 8: seeds 0 to 7)")
+    seeds.add_argument("--seeds", nargs="+", type=int, metavar="S",
+                       help="without --records: these seeds of the scene's synthetic motion, each all its "
+                            "components (--seeds 3 runs one motion, seed 3; --seeds 3 5 9 three); default: the "
+                            "scene's [motion].seed")
     ens.add_argument("--pga", nargs="+", type=float, required=True, metavar="G",
                      help="peak ground accelerations (g) each record is scaled to")
     ens.add_argument("--route", action="append", dest="routes", metavar="R", choices=route_names(),
@@ -566,7 +582,13 @@ def cmd_ensemble(args) -> int:
     from orchestrator.ensemble import ensemble_summary, run_ensemble   # start-up cost: only this command
     scene = load_scene(args.scene, max_pga_g=args.max_pga)
     out = args.output or Path(f"{scene.name}_ensemble.h5")
-    ds = run_ensemble(scene, args.pga, records=args.records, seeds=args.seeds, routes=args.routes, output=out,
+    if args.n_seeds is not None and args.records is not None:
+        raise OptionError("--n-seeds varies the scene's synthetic motion; --records gives the motions: drop one")
+    seeds = list(range(args.n_seeds)) if args.n_seeds is not None else args.seeds
+    if args.seeds is not None and len(args.seeds) == 1 and args.seeds[0] > 1 and args.records is None:
+        n = args.seeds[0]     # `--seeds 3` read as "three seeds" would run one: say which it runs
+        _say(f"--seeds {n}: one motion, seed {n} (for {n} motions, seeds 0 to {n - 1}: --n-seeds {n})")
+    ds = run_ensemble(scene, args.pga, records=args.records, seeds=seeds, routes=args.routes, output=out,
                       workers=args.workers, scheduler=args.scheduler, cache_dir=_cache(args),
                       dt_check=args.dt_check, progress=Progress(f"ensemble {scene.name}"),
                       sweep_progress=Progress(f"impedance {scene.name}"),

@@ -172,3 +172,33 @@ def test_native_export_says_what_it_compiles_and_reports_each_platform(tmp_path,
     assert done == [[p, f"({k}/3)"] for k, p in enumerate(PLATFORMS, 1)]          # each platform as it finishes
     assert err.index(next(line for line in err if line.startswith("wrote "))) > notice + 3
     assert (tmp_path / "fmus" / "coupled.fmu").is_file() and captured.out == ""
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--n-seeds", "3", "--seeds", "1"], "argument --seeds: not allowed with argument --n-seeds"),
+    (["--n-seeds", "0"], "argument --n-seeds: '0' must be an integer >= 1"),
+    (["--n-seeds", "2", "--records", "rec.txt"], "--n-seeds varies the scene's synthetic motion; --records gives"),
+])
+def test_n_seeds_bad_input_exits_2_with_one_line(tmp_path, capsys, args, message):
+    from helpers import tower, write_scene
+    scene = write_scene(tmp_path / "tower.toml", tower())
+    assert main(["ensemble", scene, "--pga", "0.1", "-o", str(tmp_path / "e.h5"), *args]) == 2
+    assert message in capsys.readouterr().err and not (tmp_path / "e.h5").exists()
+
+
+def test_a_single_seed_says_it_is_one_motion(tmp_path, capsys, monkeypatch):
+    """`--seeds 3` runs seed 3 alone, and says so (the seeds run are what run_ensemble gets)."""
+    from orchestrator import ensemble
+    from helpers import tower, write_scene
+    seen = {}
+
+    def stop(scene, pgas, **kw):
+        seen.update(kw)
+        raise KeyboardInterrupt
+    monkeypatch.setattr(ensemble, "run_ensemble", stop)
+    scene = write_scene(tmp_path / "tower.toml", tower())
+    assert main(["ensemble", scene, "--pga", "0.1", "--seeds", "3"]) == 130
+    assert seen["seeds"] == [3] and "--seeds 3: one motion, seed 3 (for 3 motions, seeds 0 to 2: --n-seeds 3)" \
+        in capsys.readouterr().err
+    assert main(["ensemble", scene, "--pga", "0.1", "--n-seeds", "3"]) == 130
+    assert seen["seeds"] == [0, 1, 2] and "one motion" not in capsys.readouterr().err
