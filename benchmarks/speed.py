@@ -287,7 +287,7 @@ def _uplift_run(case: Case, route: str):
         wall = time.perf_counter() - t0
     if done.returncode:
         raise RuntimeError(f"uplift run failed ({done.returncode}): {done.stderr[-2000:]}")
-    stepped = re.search(rf"^{route} .*wall ([0-9.]+) s", done.stderr, re.M)          # the summary: stderr
+    stepped = re.search(rf"^{route} .*wall ([0-9.]+) s", done.stdout, re.M)          # the summary: stdout
     return wall, ("whole process: imports, cache reads, checks, the route"
                   + (f" ({stepped.group(1)} s)" if stepped else "") + ", the results file")
 

@@ -221,10 +221,12 @@ def host_platform(fmi_version: int = 2) -> str:
     return name
 
 
-def compile_runtime(platforms=None, compiler: str = "zig", fmi_version: int = 2, sources=None) -> dict:
+def compile_runtime(platforms=None, compiler: str = "zig", fmi_version: int = 2, sources=None,
+                    progress=None) -> dict:
     """{platform: bytes of the shared library} of the C runtime of ``fmi_version`` for
     ``platforms`` (names of that version, default: all of platforms_of(fmi_version));
-    ``sources``: its C files in fmus/native/ (default: those of the FMUs, sources_of).
+    ``sources``: its C files in fmus/native/ (default: those of the FMUs, sources_of);
+    ``progress(done, total, platform)`` (orchestrator.progress's protocol) after each platform.
 
     compiler "zig": the C compiler of the ``ziglang`` package (cross-compiles to every platform;
     its cache makes a repeated build ~0.3 s, the first one per platform takes seconds to a
@@ -262,6 +264,8 @@ def compile_runtime(platforms=None, compiler: str = "zig", fmi_version: int = 2,
                 raise NativeBuildError(f"compiling the native FMU runtime for {platform} failed{hint}:\n"
                                        f"{' '.join(cmd)}\n{proc.stderr[-4000:]}")
             out[platform] = lib.read_bytes()
+            if progress is not None:
+                progress(len(out), len(platforms), platform)
     return out
 
 
@@ -455,7 +459,7 @@ def build_description(identifier: str) -> bytes:
 # ---- the FMUs -------------------------------------------------------------------------------------
 def build_native_fmus(data: FmuData, outdir, coupled: bool = False, *, platforms=None,
                       compiler: str = "zig", newton: dict | None = None, fmi_version: int = 2,
-                      binaries: dict | None = None) -> dict:
+                      binaries: dict | None = None, progress=None) -> dict:
     """Write ``outdir/structure.fmu`` and ``outdir/soil.fmu`` (and ``coupled.fmu`` if ``coupled``)
     as native FMUs; returns ``{"structure": path, "soil": path[, "coupled": path]}`` as
     fmus.build.build_fmus does.
@@ -470,11 +474,12 @@ def build_native_fmus(data: FmuData, outdir, coupled: bool = False, *, platforms
                   answers
     binaries : {platform: bytes} the runtime already compiled (e.g. fmus.native_stepper.fmu_binaries,
                cached per content hash), instead of compiling it here
+    progress : ``progress(done, total, platform)`` after each platform compiled (compile_runtime)
     """
     version = _version(fmi_version)
     outdir = Path(outdir)
     records = model_records(data, newton)
-    binaries = binaries or compile_runtime(platforms, compiler, version)
+    binaries = binaries or compile_runtime(platforms, compiler, version, progress=progress)
     n, N = data.soil_model.n, np.asarray(data.xy).shape[0]
     stop = None if data.motion is None else (np.asarray(data.motion).shape[0] - 1) * float(data.dt)
     roles = ("structure", "soil") + (("coupled",) if coupled else ())

@@ -4,12 +4,14 @@ Exit codes (orchestrator.exit_codes): 0 success; 1 a computation stopped (result
 far, reason printed); 2 bad input (scene, file, option, a tool the machine lacks:
 orchestrator.exit_codes); 130 interrupted (Ctrl-C: one line on stderr, no output half-written, a
 previous file at -o left as it was). Every output path is checked before any computation.
-Machine-readable output (``--json``) goes to stdout as exactly one JSON object; progress and
-messages go to stderr. This is the only module that prints.
+A command's answer (a summary, a table) goes to stdout; machine-readable output (``--json``)
+goes to stdout as exactly one strict JSON object (no NaN or Infinity: ``strict_json``); progress,
+``wrote ...`` lines and messages go to stderr. This is the only module that prints.
 """
 from __future__ import annotations
 
 import argparse
+import importlib.metadata
 import importlib.util
 import json
 import math
@@ -32,7 +34,7 @@ from orchestrator.results_file import (ResultsFileError, check_output_folder, ch
                                   write_results)
 from orchestrator.routes import route_names
 from orchestrator.run import run_scene
-from orchestrator.scene import MAX_PGA_G, SceneError, builtin_scenes, load_scene
+from orchestrator.scene import MAX_PGA_G, SceneError, builtin_scenes, load_scene, tomllib
 from orchestrator.settings import FMU_KINDS, compute_threads, default_cache_dir
 from uplift_common.errors import UserInputError
 
@@ -73,11 +75,46 @@ def _positive(text: str) -> float:
     return v
 
 
+#: the distribution whose version ``uplift --version`` prints (``uplift`` on the package index is another project)
+DISTRIBUTION = "uplift-ssi"
+
+
+def version() -> str:
+    """The installed distribution's version (its metadata); not installed (a checkout on
+    PYTHONPATH): the version of the checkout's pyproject.toml, marked so, else "unknown"."""
+    try:
+        return importlib.metadata.version(DISTRIBUTION)
+    except importlib.metadata.PackageNotFoundError:
+        pass
+    pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
+    try:
+        project = tomllib.loads(pyproject.read_text()).get("project", {})
+        if project.get("name") == DISTRIBUTION and project.get("version"):
+            return f"{project['version']} (not installed: the version of {pyproject})"
+    except (OSError, ValueError):
+        pass
+    return "unknown (not installed: pip install -e . in the project's folder)"
+
+
+def _count(text: str) -> int:
+    """argparse type: an integer >= 1."""
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"{text!r} must be an integer >= 1")
+    return v
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="uplift",
         description="Foundation uplift under earthquake: soil-structure interaction with BEM impedances.",
-        epilog=f"built-in scenes: {', '.join(builtin_scenes())}; routes: {', '.join(route_names())}")
+        epilog=f"built-in scenes: {', '.join(builtin_scenes())}; routes: {', '.join(route_names())}; "
+               "`uplift COMMAND --help` for a command's options")
+    p.add_argument("--version", action="version", version=f"uplift ({DISTRIBUTION}) {version()}",
+                   help="print the version of the installed uplift-ssi and exit")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     def scene_arg(cmd):
@@ -162,7 +199,9 @@ def _parser() -> argparse.ArgumentParser:
                          description="Compare the routes of a results file (max uplift, raft rotation, "
                                      "floor-spectrum peaks, run times) against a reference route.")
     cmp.add_argument("results", type=Path, help="results HDF5 file written by `uplift run`")
-    cmp.add_argument("--reference", default=None, help="reference route (default: timefreq, else the first)")
+    cmp.add_argument("--reference", default=None,
+                     help="reference route (default: the most exact present: timefreq, else monolithic, else cosim, "
+                          "else the first with uplift; never linear, which lets nothing lift)")
     json_flag(cmp)
     cmp.set_defaults(func=cmd_compare)
 
@@ -174,8 +213,8 @@ def _parser() -> argparse.ArgumentParser:
                                      "fractile floor spectra per PGA.")
     rep.add_argument("results", type=Path, help="results HDF5 file written by `uplift run` (or `uplift ensemble`)")
     rep.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output directory")
-    rep.add_argument("--reference", default=None, help="reference route of the comparison "
-                                                       "(default: timefreq, else the first)")
+    rep.add_argument("--reference", default=None, help="reference route of the comparison (default: as "
+                                                       "`uplift compare`: timefreq, else monolithic, else cosim)")
     rep.set_defaults(func=cmd_report)
 
     ens = sub.add_parser("ensemble", help="the scene under many records and PGAs (dask), fractiles over records",
@@ -190,9 +229,14 @@ def _parser() -> argparse.ArgumentParser:
                           "its file names, or by a components.toml in the folder), or record files, each one "
                           "component on the scene's [motion].direction (*.AT2: PEER; *.txt, *.dat: two-column, "
                           "or the scene's [motion] format); default: the scene's motion")
-    ens.add_argument("--seeds", nargs="+", type=int, metavar="N",
-                     help="without --records: seeds of the scene's synthetic motion, each all its components "
-                          "(default: its seed)")
+    seeds = ens.add_mutually_exclusive_group()
+    seeds.add_argument("--n-seeds", type=_count, default=None, metavar="N",
+                       help="without --records: N synthetic motions of the scene, seeds 0, 1, ..., N-1 "
+                            "(--n-seeds 8: seeds 0 to 7)")
+    seeds.add_argument("--seeds", nargs="+", type=int, metavar="S",
+                       help="without --records: these seeds of the scene's synthetic motion, each all its "
+                            "components (--seeds 3 runs one motion, seed 3; --seeds 3 5 9 three); default: the "
+                            "scene's [motion].seed")
     ens.add_argument("--pga", nargs="+", type=float, required=True, metavar="G",
                      help="peak ground accelerations (g) each record is scaled to")
     ens.add_argument("--route", action="append", dest="routes", metavar="R", choices=route_names(),
@@ -232,9 +276,24 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def command_list(parser: argparse.ArgumentParser) -> str:
+    """The commands of ``parser``, one line each: name and its one-line help."""
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    actions = sub._choices_actions          # what argparse's own help lists: one per command, in order
+    width = max(len(a.dest) for a in actions)
+    return "\n".join(f"  {a.dest:<{width}}  {a.help}" for a in actions)
+
+
 def main(argv=None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = _parser()
+    if not argv:        # no command: the commands, one line each (a missing command is bad input: exit 2)
+        print(f"{parser.format_usage()}\ncommands:\n{command_list(parser)}\n\n"
+              "`uplift COMMAND --help` for a command's options, `uplift --help` for more\n"
+              "uplift: error: give a COMMAND, e.g. uplift run reactor", file=sys.stderr)
+        return EXIT_INPUT
     try:
-        args = _parser().parse_args(argv)
+        args = parser.parse_args(argv)
     except SystemExit as exc:        # argparse: --help (0) or a bad argument (2, message printed)
         return int(exc.code or 0)
     try:
@@ -261,8 +320,53 @@ def _cache(args):
 
 
 def _say(*lines):
+    """Messages (what was written, warnings, progress notes): stderr."""
     for line in lines:
         print(line, file=sys.stderr)
+
+
+def _out(*lines):
+    """A command's answer (a summary, a table): stdout, what ``uplift CMD > file`` keeps."""
+    for line in lines:
+        print(line)
+
+
+def strict_json(value):
+    """``value`` with every non-finite number (NaN, ±inf: strict JSON has no word for them)
+    replaced by None, and a dict holding one (directly or in a list) given a ``missing`` dict
+    that says why under the same key (reasons already there are kept). numpy scalars become
+    Python numbers."""
+    return _strict(value)[0]
+
+
+def _strict(value):
+    """(strict value, reason it is missing or None)."""
+    if isinstance(value, dict):
+        out, why = {}, {}
+        for k, v in value.items():
+            out[k], reason = _strict(v)
+            if reason:
+                why[k] = reason
+        if why:
+            given = out.get("missing")
+            out["missing"] = {**why, **(given if isinstance(given, dict) else {})}
+        return out, None
+    if isinstance(value, (list, tuple)):
+        items = [_strict(v) for v in value]
+        reasons = [r for _, r in items if r]
+        return [v for v, _ in items], (f"null entries: {reasons[0]}" if reasons else None)
+    if isinstance(value, (float, np.floating)):
+        if math.isfinite(value):
+            return float(value), None
+        return None, f"not a finite number ({float(value)}): the computation gave none"
+    if isinstance(value, (np.integer, np.bool_)):
+        return value.item(), None
+    return value, None
+
+
+def _print_json(value):
+    """One strict JSON object on stdout (no NaN or Infinity, see strict_json)."""
+    print(json.dumps(strict_json(value), allow_nan=False))
 
 
 def cmd_run(args) -> int:
@@ -283,23 +387,25 @@ def cmd_run(args) -> int:
         from orchestrator.plots import plot_run                  # start-up cost: only with --plot-dir
         _say(*(f"wrote {path}" for path in plot_run(results, motion, scene, args.plot_dir)))
     if args.json:
-        print(json.dumps(summ))
-    else:
-        _say(f"motion: {motion.label} (components {', '.join(motion.components)})")
+        _print_json(summ)
+    else:      # the summary is the answer: stdout (`uplift run reactor > summary.txt` keeps it)
+        _out(f"motion: {motion.label} (components {', '.join(motion.components)})")
         for r, s in summ["routes"].items():
             if s["status"] == Status.REFUSED.value:
-                _say(f"{r}: REFUSED: {s['message']}")
+                _out(f"{r}: REFUSED: {s['message']}")
                 continue
             axes = s["max_raft_rotation_axes_rad"]
-            _say(f"{r} [{', '.join(s['components'])}]: max uplift {1e3 * s['max_uplift_m']:.3f} mm at "
+            _out(f"{r} [{', '.join(s['components'])}]: max uplift {1e3 * s['max_uplift_m']:.3f} mm at "
                  f"{s['max_uplift_time_s']:.3f} s, raft rotation {s['max_raft_rotation_rad']:.3e} rad "
                  f"(rx {axes['x']:.3e}, ry {axes['y']:.3e}), min contact "
                  f"{100 * s['min_contact_fraction']:.1f} %, wall {s['wall_s']:.2f} s"
                  + ("" if s["converged"] else f"  STOPPED: {s['message']}"))
             if s["precheck"]:
-                _say(f"  linear pre-check: {s['precheck']}")
-            _say(*(f"  skipped: {item}" for item in s["skipped"]))
-            _say(*(f"  WARNING: {item}" for item in s["warnings"]))
+                _out(f"  linear pre-check: {s['precheck']}")
+            _out(*(f"  skipped: {item}" for item in s["skipped"]))
+            _out(*(f"  WARNING: {item}" for item in s["warnings"]))
+            if not sys.stdout.isatty():     # stdout kept in a file: the warnings reach the terminal too
+                _say(*(f"WARNING [{r}]: {item}" for item in s["warnings"]))
     statuses = {res.status for res in results.values()}
     if Status.REFUSED in statuses:
         return EXIT_INPUT
@@ -333,11 +439,11 @@ def cmd_impedance(args) -> int:
         plot_impedance(tables["rigid"], scene, args.plot, static=scene_static(scene, cache_dir=cache))
         _say(f"wrote {args.plot}")
     if args.json:
-        print(json.dumps(rigid_json(tables["rigid"], wall)))
+        _print_json(rigid_json(tables["rigid"], wall))
     else:
         table = tables["rigid"]
         diag = np.diagonal(table.matrices, axis1=1, axis2=2)
-        _say(f"rigid impedance, {len(table.frequencies_hz)} frequencies, {wall:.2f} s",
+        _out(f"rigid impedance, {len(table.frequencies_hz)} frequencies, {wall:.2f} s",
              "   f (Hz) " + "".join(f"{d:>24s}" for d in table.dofs),
              *(f"{f:9.3f} " + "".join(f"{z.real:12.4e}{z.imag:+12.4e}" for z in row)
                for f, row in zip(table.frequencies_hz, diag)))
@@ -368,9 +474,9 @@ def cmd_fit(args) -> int:
         _say(f"wrote {args.plot}")
     out = dict(result.report.summary(), wall_s=time.perf_counter() - t0)
     if args.json:
-        print(json.dumps(out))
+        _print_json(out)
     else:
-        _say(f"{args.table} table of {scene.name}: {out['order']} poles, max relative error "
+        _out(f"{args.table} table of {scene.name}: {out['order']} poles, max relative error "
              f"{100 * out['max_rel_error']:.2f} % (tol {100 * tol:g} %), passive: {out['passive']} "
              f"(margin {out['passivity_margin']:.3g}), {out['wall_s']:.1f} s")
     if not result.report.tol_reached:
@@ -405,14 +511,40 @@ def cmd_export(args) -> int:
         raise OptionError("--fmi-version 3 writes native FMUs only (pythonfmu writes FMI 2.0): drop --kind python")
     from orchestrator.impedance import scene_fit                 # start-up cost (as above)
     soil = scene_fit(scene, cache_dir=_cache(args), fit_progress=labelled_bars(f"fit {scene.name}: {{label}}")).model
+    compiled = _announce_native_build(args.fmi_version) if args.kind == "native" else None
     exported = export_scene(scene, args.output, soil, cache_dir=_cache(args), kind=args.kind,
-                            fmi_version=args.fmi_version)
+                            fmi_version=args.fmi_version, progress=compiled)
     _say(*(f"wrote {path}" for path in exported.files))
     if args.cross_check is not None:
         xc = write_cross_check(exported, args.cross_check, scene.name)
         _say(*(f"wrote {folder}/" for folder in xc.models.values()))
         _say(*(f"WARNING: {problem}" for problem in xc.problems))
     return EXIT_OK
+
+
+#: what the native export's compile costs on a 2-core machine: the first build on a machine compiles
+#: each platform's C library (65-95 s for FMI 2.0's three platforms, about 20-30 s a platform),
+#: later builds find it in zig's cache (about 1.5 s for the three)
+NATIVE_FIRST_BUILD = {2: "65-95 s", 3: "about 20-30 s a platform"}
+NATIVE_CACHED_BUILD = "about 1.5 s"
+
+
+def _announce_native_build(fmi_version: int):
+    """Say what a native export compiles and how long it takes, before it starts; return the
+    ``progress(done, total, platform)`` that reports each platform as it is done."""
+    from fmus.native_build import platforms_of, sources_of       # start-up cost: only a native export
+    names = list(platforms_of(fmi_version))
+    _say(f"compiling the FMUs' C runtime (fmus/native: {len(sources_of(fmi_version))} C files, FMI "
+         f"{fmi_version}.0) with zig for {len(names)} platforms ({', '.join(names)}): the first time on a machine "
+         f"this takes {NATIVE_FIRST_BUILD[fmi_version]} (zig builds each platform's C library once), {NATIVE_CACHED_BUILD} "
+         "once zig has cached them")
+    last = [time.perf_counter()]
+
+    def progress(done, total, platform=""):
+        now = time.perf_counter()
+        _say(f"  compiled {platform} ({done}/{total}) in {now - last[0]:.1f} s")
+        last[0] = now
+    return progress
 
 
 def cmd_compare(args) -> int:
@@ -422,7 +554,10 @@ def cmd_compare(args) -> int:
         raise ResultsFileError(f"--reference {args.reference!r} is not in {args.results} "
                                f"(routes: {', '.join(results)})")
     table = compare(results, reference=args.reference)
-    print(json.dumps(table) if args.json else format_table(table))
+    if args.json:
+        _print_json(table)
+    else:
+        _out(format_table(table))
     return EXIT_OK
 
 
@@ -448,7 +583,13 @@ def cmd_ensemble(args) -> int:
     from orchestrator.ensemble import ensemble_summary, run_ensemble   # start-up cost: only this command
     scene = load_scene(args.scene, max_pga_g=args.max_pga)
     out = args.output or Path(f"{scene.name}_ensemble.h5")
-    ds = run_ensemble(scene, args.pga, records=args.records, seeds=args.seeds, routes=args.routes, output=out,
+    if args.n_seeds is not None and args.records is not None:
+        raise OptionError("--n-seeds varies the scene's synthetic motion; --records gives the motions: drop one")
+    seeds = list(range(args.n_seeds)) if args.n_seeds is not None else args.seeds
+    if args.seeds is not None and len(args.seeds) == 1 and args.seeds[0] > 1 and args.records is None:
+        n = args.seeds[0]     # `--seeds 3` read as "three seeds" would run one: say which it runs
+        _say(f"--seeds {n}: one motion, seed {n} (for {n} motions, seeds 0 to {n - 1}: --n-seeds {n})")
+    ds = run_ensemble(scene, args.pga, records=args.records, seeds=seeds, routes=args.routes, output=out,
                       workers=args.workers, scheduler=args.scheduler, cache_dir=_cache(args),
                       dt_check=args.dt_check, progress=Progress(f"ensemble {scene.name}"),
                       sweep_progress=Progress(f"impedance {scene.name}"),
@@ -457,17 +598,17 @@ def cmd_ensemble(args) -> int:
     summ = ensemble_summary(ds)
     mm = lambda v: "-" if v is None else f"{1e3 * v:.3f} mm"
     if args.json:
-        print(json.dumps(summ))
+        _print_json(summ)
     else:
-        _say(f"components {', '.join(summ['components'])}: {summ['runs']} runs ({summ['computed']} computed, {summ['reused']} kept from {out}.cells) on "
+        _out(f"components {', '.join(summ['components'])}: {summ['runs']} runs ({summ['computed']} computed, {summ['reused']} kept from {out}.cells) on "
              f"{summ['workers']} workers in {summ['wall_s']:.1f} s (cluster {summ['cluster_s']:.1f} s, "
              f"sweep and fit {summ['setup_s']:.1f} s, time-step check {summ['dt_check_s']:.1f} s)"
              + (f"; {summ['workers_note']}" if summ["workers_note"] else ""))
         for pga, routes in summ["pga"].items():
             for route, v in routes.items():
-                _say(f"{pga} g [{route}]: max uplift median {mm(v['median_max_uplift_m'])}, 84th percentile "
+                _out(f"{pga} g [{route}]: max uplift median {mm(v['median_max_uplift_m'])}, 84th percentile "
                      f"{mm(v['p84_max_uplift_m'])} ({v['converged_records']}/{ds.sizes['record']} records converged)")
-        _say(*(f"{c['status'].upper()}: {c['record']} at {c['pga_g']:g} g [{c['route']}]: {c['message']}"
+        _out(*(f"{c['status'].upper()}: {c['record']} at {c['pga_g']:g} g [{c['route']}]: {c['message']}"
                for c in summ["not_converged"]))
         notes = [line for text in ds["warnings"].values.ravel() for line in text.split("\n") if line]
         _say(*(f"WARNING ({notes.count(w)} runs): {w}" for w in dict.fromkeys(notes)))
@@ -523,7 +664,7 @@ def cmd_fragility(args) -> int:
         _say(f"wrote {args.plot}")
     out = frag.fragility_json(fits)
     if args.json:
-        print(json.dumps(out))
+        _print_json(out)
         return EXIT_OK
     for e in out["fragility"]:
         counts = ", ".join(f"{p:g} g {z}/{n}" for p, z, n in zip(e["pga_g"], e["exceedances"], e["cells"]))
@@ -535,7 +676,7 @@ def cmd_fragility(args) -> int:
             fit += (f"; {100 * bs['confidence']:g} % band (bootstrap, {bs['identified']}/{bs['samples']} "
                     f"resamples fitted): median {bs['median_g'][0]:.4g}-{bs['median_g'][1]:.4g} g, "
                     f"beta {bs['beta'][0]:.3f}-{bs['beta'][1]:.3f}")
-        _say(f"{e['limit']} [{e['route']}]: {fit}", f"  exceedances per PGA: {counts}"
+        _out(f"{e['limit']} [{e['route']}]: {fit}", f"  exceedances per PGA: {counts}"
              + (f"; left out: {left}" if left else ""))
     return EXIT_OK
 
@@ -547,7 +688,10 @@ def cmd_bench(args) -> int:
     rows = bench(bench_config(args.quick), cache_dir=_cache(args), log=lambda msg: _say(msg))
     if args.plot:
         _say(f"wrote {plot_rows(rows, args.plot)}")
-    print(json.dumps(json_safe(rows)) if args.json else format_rows(rows))
+    if args.json:
+        _print_json(json_safe(rows))
+    else:
+        print(format_rows(rows))
     return EXIT_OK if all(r.get("converged", True) for r in rows) else EXIT_FAILED
 
 

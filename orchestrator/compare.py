@@ -3,17 +3,26 @@
 ``compare(results, reference=None)`` measures, per route, max uplift (m), max raft rotation
 sqrt(rx^2 + ry^2) (rad), the floor-spectrum peaks (5 % damping, pseudo-acceleration, 0.1 to
 50 Hz) of every output node and horizontal/vertical direction, and the wall time; and the
-relative differences (route - reference) / reference of each. The result is JSON-able;
+relative differences (route - reference) / reference of each, with the absolute ones
+(route - reference, in the quantity's unit). The default reference is the most exact route
+present (timefreq, else monolithic, else cosim, else the first with uplift: never a route
+without uplift, linear, for uplift quantities). A difference that cannot be relative (a zero
+reference) or is not defined (max uplift of a route without uplift) is None, with the reason
+in ``missing`` under the same key; the result is strict JSON (no NaN, no infinity).
 ``format_table`` prints it.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from orchestrator.routes import default_reference
+from orchestrator.routes import default_reference, has_uplift
 from orchestrator.spectra import response_spectrum
 
 DIRECTIONS = ("x", "y", "z")
+#: the quantities compared (key of the differences, of the metrics, unit of the absolute difference)
+QUANTITIES = (("max_uplift", "max_uplift_m", "m"), ("max_rotation", "max_rotation_rad", "rad"))
 
 
 def route_metrics(res, damping=0.05, n_periods=120) -> dict:
@@ -33,53 +42,113 @@ def route_metrics(res, damping=0.05, n_periods=120) -> dict:
                 spectrum_peaks=peaks, wall_s=float(res.wall_s), converged=bool(res.converged))
 
 
-def _rel(a, b):
-    return float((a - b) / b) if b else (0.0 if a == b else float("inf"))
+def _difference(a: float, b: float, what: str) -> tuple:
+    """(relative (a - b) / b or None, absolute a - b or None, reason when the relative one is None)."""
+    if not (math.isfinite(a) and math.isfinite(b)):
+        return None, None, f"{what}: not a finite number (route {a}, reference {b}): a run that stopped?"
+    if b == 0:
+        return None, a - b, f"{what}: the reference is 0, the difference is absolute"
+    return (a - b) / b, a - b, None
 
 
 def compare(results: dict, reference: str | None = None, damping=0.05) -> dict:
     """Differences of every route in ``results`` ({route: RouteResult}) to ``reference``
-    (default: the registry's reference route if present, e.g. "timefreq", else the first route). Returns a JSON-able dict:
-    {reference, damping, routes: {route: metrics}, differences: {route: {max_uplift,
-    max_rotation, spectrum_peaks {node: {dir: rel}}, max_spectrum_peak}, wall_ratio}}."""
+    (default: the most exact route present, ``orchestrator.routes.default_reference``:
+    timefreq, else monolithic, else cosim, else the first with uplift). Returns strict-JSON-able
+    {reference, reference_note, damping, routes: {route: metrics}, differences: {route:
+    {max_uplift, max_rotation (relative), spectrum_peaks {node: {dir: relative}},
+    max_spectrum_peak, wall_ratio, absolute {max_uplift_m, max_rotation_rad}, missing {key: why
+    the value of key is None}}}}. Max uplift is not compared when the route or the reference
+    lets no uplift happen (linear: raft bonded)."""
     if not results:
         raise ValueError("compare needs at least one route")
     ref = reference or default_reference(results)
     if ref not in results:
         raise ValueError(f"reference route {ref!r} is not among the results ({', '.join(results)})")
+    note = ("given" if reference else
+            "the most exact route present: timefreq, else monolithic, else cosim, else the first with uplift")
+    if not has_uplift(ref):
+        note += f"; {ref} lets no uplift happen: max uplift is not compared against it"
     metrics = {r: route_metrics(res, damping) for r, res in results.items()}
     m0 = metrics[ref]
     diffs = {}
     for r, m in metrics.items():
         if r == ref:
             continue
+        d, absolute, missing = {}, {}, {}
+        for key, metric, unit in QUANTITIES:
+            d[key], absolute[metric], why = _difference(m[metric], m0[metric], f"{metric} ({unit})")
+            if why:
+                missing[key] = why
+        for who in (r, ref):
+            if not has_uplift(who):          # a bonded route's "uplift" is no uplift: nothing to compare
+                d["max_uplift"] = absolute["max_uplift_m"] = None
+                missing["max_uplift"] = f"{who} lets no uplift happen (raft bonded): its max uplift is not compared"
+                break
         sp = {}
         for node, dirs in m["spectrum_peaks"].items():
             ref_dirs = m0["spectrum_peaks"].get(node, {})
-            sp[node] = {ax: _rel(v, ref_dirs[ax]) for ax, v in dirs.items() if ax in ref_dirs}
-        flat = [abs(v) for d in sp.values() for v in d.values()]
-        diffs[r] = dict(max_uplift=_rel(m["max_uplift_m"], m0["max_uplift_m"]),
-                        max_rotation=_rel(m["max_rotation_rad"], m0["max_rotation_rad"]),
-                        spectrum_peaks=sp, max_spectrum_peak=max(flat) if flat else 0.0,
-                        wall_ratio=_rel(m["wall_s"], m0["wall_s"]) + 1.0 if m0["wall_s"] else None)
-    return dict(reference=ref, damping=damping, routes=metrics, differences=diffs)
+            sp[node], why = {}, {}
+            for ax, v in dirs.items():
+                if ax in ref_dirs:
+                    sp[node][ax], _, reason = _difference(v, ref_dirs[ax], f"spectrum peak {node} {ax} (m/s2)")
+                    if reason:
+                        why[ax] = reason
+            if why:
+                missing[f"spectrum_peaks.{node}"] = "; ".join(why.values())
+        flat = [abs(v) for dd in sp.values() for v in dd.values() if v is not None]
+        d["spectrum_peaks"] = sp
+        d["max_spectrum_peak"] = max(flat) if flat else None
+        if not flat:
+            missing["max_spectrum_peak"] = "no floor-spectrum peak both routes have (and that is relative)"
+        ratio = _difference(m["wall_s"], m0["wall_s"], "wall (s)")[0]
+        d["wall_ratio"] = None if ratio is None else ratio + 1.0
+        if ratio is None:
+            missing["wall_ratio"] = "the reference's wall time is 0 or not finite"
+        d["absolute"] = absolute
+        if missing:
+            d["missing"] = missing
+        diffs[r] = d
+    return dict(reference=ref, reference_note=note, damping=damping, routes=metrics, differences=diffs)
+
+
+#: how format_table writes an absolute difference: unit, factor from SI, format
+ABSOLUTE_FORMAT = {"max_uplift_m": ("mm", 1e3, "{:+.4f} {}"), "max_rotation_rad": ("rad", 1.0, "{:+.2e} {}")}
+
+
+def format_difference(d: dict | None, key: str, metric: str, percent: str = "%") -> str:
+    """One difference of ``compare``'s output as printed: "+1.23%" (``percent`` after the
+    number), or the absolute value with its unit where the relative one is missing (a zero
+    reference: "+0.1234 mm"), "-" where neither; "reference" for the reference (``d`` None)."""
+    if d is None:
+        return "reference"
+    if d.get(key) is not None:
+        return f"{100 * d[key]:+.2f}{percent}"
+    value = d.get("absolute", {}).get(metric)
+    if value is None:
+        return "-"
+    unit, factor, fmt = ABSOLUTE_FORMAT[metric]
+    return fmt.format(factor * value, unit)
 
 
 def format_table(cmp: dict) -> str:
-    """A printed table of ``compare``'s output: one line per route."""
+    """A printed table of ``compare``'s output: one line per route, then why a difference is
+    missing or absolute."""
     ref = cmp["reference"]
-    lines = [f"reference: {ref}   (differences relative to it; floor spectra at "
-             f"{100 * cmp['damping']:.0f} % damping)",
-             f"{'route':<16}{'max uplift mm':>14}{'d uplift':>10}{'rotation rad':>14}{'d rot':>9}"
+    lines = [f"reference: {ref} ({cmp.get('reference_note', 'given')}); differences relative to it (absolute, "
+             f"with the unit, where its value is 0); floor spectra at {100 * cmp['damping']:.0f} % damping",
+             f"{'route':<16}{'max uplift mm':>14}{'d uplift':>13}{'rotation rad':>14}{'d rot':>13}"
              f"{'max |d SA|':>11}{'wall s':>9}{'conv':>6}"]
+    notes = []
     for r, m in cmp["routes"].items():
         d = cmp["differences"].get(r)
-        du = f"{100 * d['max_uplift']:+.2f}%" if d else "-"
-        dr = f"{100 * d['max_rotation']:+.2f}%" if d else "-"
-        ds = f"{100 * d['max_spectrum_peak']:.2f}%" if d else "-"
-        lines.append(f"{r:<16}{1e3 * m['max_uplift_m']:>14.4f}{du:>10}{m['max_rotation_rad']:>14.4e}"
-                     f"{dr:>9}{ds:>11}{m['wall_s']:>9.2f}{'yes' if m['converged'] else 'NO':>6}")
-    return "\n".join(lines)
+        du = format_difference(d, "max_uplift", "max_uplift_m") if d else "-"
+        dr = format_difference(d, "max_rotation", "max_rotation_rad") if d else "-"
+        ds = "-" if not d or d["max_spectrum_peak"] is None else f"{100 * d['max_spectrum_peak']:.2f}%"
+        lines.append(f"{r:<16}{1e3 * m['max_uplift_m']:>14.4f}{du:>13}{m['max_rotation_rad']:>14.4e}"
+                     f"{dr:>13}{ds:>11}{m['wall_s']:>9.2f}{'yes' if m['converged'] else 'NO':>6}")
+        notes += [f"  {r}: {why}" for key, why in (d or {}).get("missing", {}).items() if key != "wall_ratio"]
+    return "\n".join(lines + notes)
 
 
 def history_differences(a, b) -> dict:

@@ -97,7 +97,8 @@ def fmu_data(scene, soil_model, dt: float, motion=None, soil_factory: str | None
 
 def export_scene(scene, outdir, soil_model=None, *, dt: float | None = None, motion=None,
                  soil_factory: str | None = None, soil_kwargs: dict | None = None,
-                 extra_modules=(), cache_dir=None, kind: str = "native", fmi_version: int = 2) -> Export:
+                 extra_modules=(), cache_dir=None, kind: str = "native", fmi_version: int = 2,
+                 progress=None) -> Export:
     """Write structure.fmu, soil.fmu, coupled.fmu, system.ssd and system.ssp for ``scene``
     into ``outdir``.
 
@@ -113,6 +114,8 @@ def export_scene(scene, outdir, soil_model=None, *, dt: float | None = None, mot
                   interface vectors as arrays, binaries for x86_64-linux, x86_64-windows,
                   x86_64-darwin and aarch64-darwin), the same answers; the pair's system.ssd
                   connects the arrays, one connection each
+    progress : native kind: ``progress(done, total, platform)`` as each platform's runtime is
+               compiled (orchestrator.progress's protocol; fmus.native_build.compile_runtime)
     """
     if kind not in KINDS:
         raise ValueError(f"kind = {kind!r}: use one of {', '.join(KINDS)}")
@@ -130,7 +133,7 @@ def export_scene(scene, outdir, soil_model=None, *, dt: float | None = None, mot
     data = fmu_data(scene, soil_model, dt, motion, soil_factory, soil_kwargs, extra_modules)
     outdir = Path(outdir)
     if kind == "native":
-        fmus = build_native_fmus(data, outdir, coupled=True, fmi_version=fmi_version)
+        fmus = build_native_fmus(data, outdir, coupled=True, fmi_version=fmi_version, progress=progress)
     else:
         fmus = build_fmus(data, outdir, coupled=True)
     stop = (motion.acc.shape[0] - 1) * dt

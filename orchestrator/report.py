@@ -26,7 +26,7 @@ import numpy as np
 from uplift_common.files import atomic_output
 from structure.results import Status
 
-from orchestrator.compare import compare
+from orchestrator.compare import compare, format_difference
 from orchestrator.ensemble import ensemble_components, read_ensemble
 from orchestrator.motion import G
 from orchestrator.plots import dodged, pyplot, route_style, run_figures
@@ -76,15 +76,16 @@ def comparison_rows(cmp: dict) -> list:
     rows = []
     for route, m in cmp["routes"].items():
         d = cmp["differences"].get(route)
-        pct = lambda key: f"{100 * d[key]:+.2f}" if d else "reference"
-        rows.append([route, f"{1e3 * m['max_uplift_m']:.4f}", pct("max_uplift"),
-                     f"{m['max_rotation_rad']:.4e}", pct("max_rotation"),
-                     f"{100 * d['max_spectrum_peak']:.2f}" if d else "reference",
+        rows.append([route, f"{1e3 * m['max_uplift_m']:.4f}", format_difference(d, "max_uplift", "max_uplift_m", ""),
+                     f"{m['max_rotation_rad']:.4e}", format_difference(d, "max_rotation", "max_rotation_rad", ""),
+                     "reference" if not d else "-" if d["max_spectrum_peak"] is None
+                     else f"{100 * d['max_spectrum_peak']:.2f}",
                      f"{d['wall_ratio']:.2f}" if d and d["wall_ratio"] is not None else "-"])
     return rows
 
 
-COMPARISON_HEADER = ["route", "max uplift (mm)", "d uplift (%)", "max rotation (rad)", "d rotation (%)",
+COMPARISON_HEADER = ["route", "max uplift (mm)", "d uplift (%, or absolute)", "max rotation (rad)",
+                     "d rotation (%, or absolute)",
                      "max |d floor-spectrum peak| (%)", "wall / reference wall"]
 
 STYLE = """body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}

@@ -12,8 +12,8 @@ Adding a route: a module here that calls ``register(Route(...))``, named in ``ba
 (imported when the registry is first read), or ``register`` from user code. Everything that
 lists routes reads ``route_names()``.
 """
-from orchestrator.routes.base import (Route, RouteInputError, RunContext, default_reference, get_route, register,
-                                      route_names, unregister)
+from orchestrator.routes.base import (Route, RouteInputError, RunContext, default_reference, get_route, has_uplift,
+                                      register, route_names, unregister)
 
-__all__ = ["Route", "RouteInputError", "RunContext", "default_reference", "get_route", "register", "route_names",
-           "unregister"]
+__all__ = ["Route", "RouteInputError", "RunContext", "default_reference", "get_route", "has_uplift", "register",
+           "route_names", "unregister"]

@@ -48,8 +48,11 @@ class Route:
     options : route options ``run`` reads from ``ctx.options`` (e.g. "pad_s"), settable by the bench
     bench, quick : {scene: {knob: values, coarse to fine}} swept by ``uplift bench`` (quick: --quick);
                    knobs are SCENE_KNOBS or ``options``
-    reference_rank : ``uplift compare`` takes the present route of highest rank as its default
-                     reference (the time-frequency route, built on the BEM table itself)
+    reference_rank : ``uplift compare`` takes the present route of highest rank among those with
+                     uplift as its default reference: the most exact present (timefreq 3, built on
+                     the BEM table itself; monolithic 2; cosim 1, equal to it to round-off)
+    uplift : the raft may lift off (False: bonded, e.g. linear; never a reference of uplift
+             quantities, and its own max uplift is not compared)
     """
     name: str
     summary: str
@@ -62,6 +65,7 @@ class Route:
     bench: Mapping[str, Mapping[str, tuple]] = field(default_factory=dict)
     quick: Mapping[str, Mapping[str, tuple]] = field(default_factory=dict)
     reference_rank: int = 0
+    uplift: bool = True
 
     def __post_init__(self):
         unknown = {k for knobs in (*self.bench.values(), *self.quick.values()) for k in knobs} \
@@ -111,13 +115,23 @@ def get_route(name: str) -> Route:
         raise RouteInputError(f"unknown route {name!r}; available: {', '.join(_REGISTRY)}") from None
 
 
+def has_uplift(name: str) -> bool:
+    """Whether route ``name`` lets the raft lift off (a name not registered: assumed so)."""
+    return name not in _registry() or _REGISTRY[name].uplift
+
+
 def default_reference(names) -> str:
-    """The reference route among ``names``: the registered one of highest reference_rank,
-    else the first."""
+    """The reference route among ``names``: the most exact one present, i.e. of the routes with
+    uplift the registered one of highest reference_rank (timefreq, else monolithic, else
+    cosim), else the first with uplift; a route without uplift (linear) only when no other is
+    there."""
     names = list(names)
-    ranked = [(_registry()[n].reference_rank, -i) for i, n in enumerate(names) if n in _REGISTRY]
+    if not names:
+        raise ValueError("no routes to choose a reference among")
+    lifting = [n for n in names if has_uplift(n)]
+    ranked = [(_registry()[n].reference_rank, -i) for i, n in enumerate(lifting) if n in _REGISTRY]
     best = max(ranked, default=(0, 0))
-    return names[-best[1]] if best[0] > 0 else names[0]
+    return lifting[-best[1]] if best[0] > 0 else (lifting or names)[0]
 
 
 @dataclass

@@ -96,4 +96,5 @@ ROUTE = register(Route(
     needs_fit=True,
     bench={"disk-halfspace": {"dt": (0.01, 0.005, 0.0025)}, "reactor": {"dt": (0.01, 0.005, 0.0025)}},
     quick={"disk-halfspace": {"dt": (0.01, 0.005)}},
+    reference_rank=1,
 ))

@@ -49,5 +49,5 @@ ROUTE = register(Route(
     bench={"disk-halfspace": {"pad_s": (0.25, 1.0, 4.0), "element_size": (3.0, 2.0, 1.5)},
            "reactor": {"pad_s": (0.25, 1.0, 4.0), "element_size": (4.0, 3.0, 2.28)}},
     quick={"disk-halfspace": {"pad_s": (0.25, 1.0)}},
-    reference_rank=1,
+    uplift=False,
 ))

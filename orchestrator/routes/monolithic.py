@@ -137,4 +137,5 @@ ROUTE = register(Route(
            "reactor": {"dt": (0.01, 0.005, 0.0025, 0.00125), "fit_tol": (0.1, 0.06, 0.04),
                        "element_size": (4.0, 3.0, 2.28), "penalty": (0.1, 1.0, 10.0)}},
     quick={"disk-halfspace": {"dt": (0.01, 0.005, 0.0025), "fit_tol": (0.05, 0.02)}},
+    reference_rank=2,
 ))

@@ -75,5 +75,5 @@ ROUTE = register(Route(
                               "element_size": (3.0, 2.0, 1.5)},
            "reactor": {"dt": (0.01, 0.005), "pad_s": (0.25, 2.0), "element_size": (4.0, 2.28)}},
     quick={"disk-halfspace": {"dt": (0.01, 0.005)}},
-    reference_rank=2,
+    reference_rank=3,
 ))

@@ -80,3 +80,125 @@ def test_fit_json_contract(tmp_path, monkeypatch, capsys):
     assert out["max_rel_error"] <= 0.01 and out["passive"] and out["order"] <= 24
     from soil_impedance.fit import load_fit
     assert load_fit(model).report.max_rel_error == pytest.approx(out["max_rel_error"])
+
+
+def _shell(*args, cwd=None, env=None):
+    """``uplift ARGS`` as a user's shell runs it: a child process, stdout and stderr apart."""
+    import os
+    import subprocess
+    import sys
+    from helpers import ROOT
+    env = {**os.environ, "PYTHONPATH": str(ROOT), **(env or {})}
+    return subprocess.run([sys.executable, "-m", "orchestrator.cli", *args], capture_output=True, text=True,
+                          cwd=cwd, env=env, timeout=600)
+
+
+def test_no_command_lists_the_commands_and_version_prints_the_distributions():
+    import importlib.metadata
+    from orchestrator.cli import _parser, command_list
+    proc = _shell()
+    assert proc.returncode == 2 and proc.stdout == ""          # a missing command is bad input, as before
+    listed = [line.split()[0] for line in proc.stderr.split("commands:\n")[1].split("\n\n")[0].splitlines()]
+    assert listed == ["run", "impedance", "fit", "export", "compare", "report", "ensemble", "fragility", "bench"]
+    assert all(len(line.split(maxsplit=1)) == 2 for line in command_list(_parser()).splitlines())  # one line each
+    assert "give a COMMAND" in proc.stderr.splitlines()[-1]
+    proc = _shell("--version")
+    assert proc.returncode == 0
+    assert proc.stdout.strip() == f"uplift (uplift-ssi) {importlib.metadata.version('uplift-ssi')}"
+
+
+def test_version_without_installed_metadata_reads_the_checkouts_pyproject(monkeypatch):
+    import importlib.metadata
+    from helpers import ROOT
+    from orchestrator import cli
+    from orchestrator.scene import tomllib
+
+    def absent(name):
+        raise importlib.metadata.PackageNotFoundError(name)
+    monkeypatch.setattr(importlib.metadata, "version", absent)
+    expected = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["version"]
+    assert cli.version().startswith(f"{expected} (not installed")
+
+
+def strict_loads(text):
+    """json.loads refusing NaN and Infinity (what a strict JSON reader does)."""
+    return json.loads(text, parse_constant=lambda c: (_ for _ in ()).throw(ValueError(f"not strict JSON: {c}")))
+
+
+def test_run_summary_on_stdout_progress_on_stderr_json_strict(tmp_path):
+    from helpers import tower, write_scene
+    scene = write_scene(tmp_path / "tower.toml", tower())
+    env = {"UPLIFT_CACHE": str(tmp_path / "cache")}
+    proc = _shell("run", scene, "-o", str(tmp_path / "r.h5"), cwd=tmp_path, env=env)
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout.splitlines()          # what `uplift run SCENE > out.txt` keeps: the summary
+    assert out[0].startswith("motion: ") and out[1].startswith("winkler [x]: max uplift ")
+    assert "wrote" not in proc.stdout and "max uplift" not in proc.stderr
+    assert f"wrote {tmp_path / 'r.h5'}" in proc.stderr and "run tower [winkler]" in proc.stderr   # progress
+    proc = _shell("run", scene, "-o", str(tmp_path / "r.h5"), "--json", cwd=tmp_path, env=env)
+    assert proc.returncode == 0, proc.stderr
+    summ = strict_loads(proc.stdout)        # exactly one object, strict
+    assert summ["routes"]["winkler"]["max_uplift_m"] > 0 and "winkler" in proc.stderr
+
+
+def test_run_json_with_a_non_finite_value_says_null_and_why(tmp_path, capsys, monkeypatch):
+    """A route whose numbers are not finite (a diverged run) is written null with the reason."""
+    from helpers import tower, write_scene
+    from orchestrator import cli
+    from orchestrator.results_file import summary
+    monkeypatch.setenv("UPLIFT_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(cli, "summary", lambda res: dict(summary(res), max_uplift_m=float("nan"),
+                                                         peak_acc_g={"top": float("inf")}))
+    scene = write_scene(tmp_path / "tower.toml", tower())
+    assert main(["run", scene, "-o", str(tmp_path / "r.h5"), "--json"]) == 0
+    s = strict_loads(capsys.readouterr().out)["routes"]["winkler"]
+    assert s["max_uplift_m"] is None and "not a finite number (nan)" in s["missing"]["max_uplift_m"]
+    assert s["peak_acc_g"] == {"top": None, "missing": {"top": s["peak_acc_g"]["missing"]["top"]}}
+
+
+@pytest.mark.slow
+def test_native_export_says_what_it_compiles_and_reports_each_platform(tmp_path, capsys, monkeypatch):
+    from fmus.native_build import PLATFORMS
+    from helpers import export_tower, write_scene
+    monkeypatch.setenv("UPLIFT_CACHE", str(tmp_path / "cache"))
+    scene = write_scene(tmp_path / "tower.toml", export_tower())
+    assert main(["export", scene, "-o", str(tmp_path / "fmus")]) == 0
+    captured = capsys.readouterr()
+    err = captured.err.splitlines()
+    notice = next(i for i, line in enumerate(err) if line.startswith("compiling the FMUs' C runtime"))
+    assert "with zig for 3 platforms (linux64, win64, darwin64)" in err[notice]
+    assert "65-95 s" in err[notice] and "once zig has cached them" in err[notice]   # the one-time cost, said first
+    done = [line.split()[1:3] for line in err[notice + 1:] if line.startswith("  compiled ")]
+    assert done == [[p, f"({k}/3)"] for k, p in enumerate(PLATFORMS, 1)]          # each platform as it finishes
+    assert err.index(next(line for line in err if line.startswith("wrote "))) > notice + 3
+    assert (tmp_path / "fmus" / "coupled.fmu").is_file() and captured.out == ""
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--n-seeds", "3", "--seeds", "1"], "argument --seeds: not allowed with argument --n-seeds"),
+    (["--n-seeds", "0"], "argument --n-seeds: '0' must be an integer >= 1"),
+    (["--n-seeds", "2", "--records", "rec.txt"], "--n-seeds varies the scene's synthetic motion; --records gives"),
+])
+def test_n_seeds_bad_input_exits_2_with_one_line(tmp_path, capsys, args, message):
+    from helpers import tower, write_scene
+    scene = write_scene(tmp_path / "tower.toml", tower())
+    assert main(["ensemble", scene, "--pga", "0.1", "-o", str(tmp_path / "e.h5"), *args]) == 2
+    assert message in capsys.readouterr().err and not (tmp_path / "e.h5").exists()
+
+
+def test_a_single_seed_says_it_is_one_motion(tmp_path, capsys, monkeypatch):
+    """`--seeds 3` runs seed 3 alone, and says so (the seeds run are what run_ensemble gets)."""
+    from orchestrator import ensemble
+    from helpers import tower, write_scene
+    seen = {}
+
+    def stop(scene, pgas, **kw):
+        seen.update(kw)
+        raise KeyboardInterrupt
+    monkeypatch.setattr(ensemble, "run_ensemble", stop)
+    scene = write_scene(tmp_path / "tower.toml", tower())
+    assert main(["ensemble", scene, "--pga", "0.1", "--seeds", "3"]) == 130
+    assert seen["seeds"] == [3] and "--seeds 3: one motion, seed 3 (for 3 motions, seeds 0 to 2: --n-seeds 3)" \
+        in capsys.readouterr().err
+    assert main(["ensemble", scene, "--pga", "0.1", "--n-seeds", "3"]) == 130
+    assert seen["seeds"] == [0, 1, 2] and "one motion" not in capsys.readouterr().err
