@@ -381,9 +381,11 @@ def test_undamped_gap_fit_is_made_passive_sparing_the_rigid_raft(undamped_gap_ta
 def test_a_fit_passive_as_fitted_is_returned_unchanged(causal_gap_table):
     """No enforcement iteration when the fit is passive: the model is the unenforced one bit for bit,
     and the numbers are those measured before the enforcement was rewritten (the reactor's 8-pole fit
-    likewise: same poles and residues, benchmarks/soil_fit.py)."""
+    likewise: same poles and residues, benchmarks/soil_fit.py). The numbers come from least squares
+    and eigenvalue solves: another numpy/scipy build moves them by round-off (2.6e-10 relative
+    measured between numpy 2.4 / scipy 1.17 and the build they were first measured on), hence 1e-8."""
     on, off = fit_table(causal_gap_table, tol=0.02), fit_table(causal_gap_table, tol=0.02, enforce=False)
     assert _same_model(on.model, off.model) and on.model.order == 6
-    assert on.report.enforcement_attempts == [[6, True, pytest.approx(0.01378750460252626, rel=1e-12), 0]]
-    assert on.report.max_rel_error == pytest.approx(0.002752077150803308, rel=1e-12)
-    assert on.report.passivity_margin == pytest.approx(0.03595056476480526, rel=1e-12)
+    assert on.report.enforcement_attempts == [[6, True, pytest.approx(0.01378750460252626, rel=1e-8), 0]]
+    assert on.report.max_rel_error == pytest.approx(0.002752077150803308, rel=1e-8)
+    assert on.report.passivity_margin == pytest.approx(0.03595056476480526, rel=1e-8)
