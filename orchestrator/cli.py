@@ -260,6 +260,7 @@ def _parser() -> argparse.ArgumentParser:
     no_cache(ens)
     ens.set_defaults(func=cmd_ensemble)
     _fragility_parser(sub, json_flag)
+    _pushover_parser(sub, json_flag, scene_arg, no_cache)
 
     bch = sub.add_parser("bench", help="run time against error of every route and its accuracy knobs",
                          description="For the disk-halfspace and reactor scenes, sweep each route's "
@@ -693,6 +694,65 @@ def cmd_bench(args) -> int:
     else:
         print(format_rows(rows))
     return EXIT_OK if all(r.get("converged", True) for r in rows) else EXIT_FAILED
+
+
+def _pushover_parser(sub, json_flag, scene_arg, no_cache):
+    psh = sub.add_parser("pushover", help="static pushover of the raft on its soil: moment-rotation, contact ratio, "
+                                          "lift-off onset",
+                         description="Rock the raft, under the structure's weight, by a prescribed rotation in equal "
+                                     "steps (displacement control) and solve the exact unilateral static contact on "
+                                     "the BEM static gap table or the winkler springs: moment, settlement, contact "
+                                     "ratio, edge gap and contact pressures per step, and the lift-off onset solved "
+                                     "exactly (moment and eccentricity e = M/N). See docs/pushover.md.")
+    scene_arg(psh)
+    psh.add_argument("-o", "--output", type=Path, default=None,
+                     help="pushover HDF5 file (default: <scene>_pushover.h5 in the current directory)")
+    psh.add_argument("--soil", choices=("bem", "winkler"), default=None,
+                     help="bem: the static BEM gap table (default when the scene has a half-space); winkler: the "
+                          "scene's winkler springs")
+    psh.add_argument("--direction", default="x", metavar="x|y|ANGLE",
+                     help="rocking direction: x (rotation about y, default), y, or degrees from x towards y")
+    psh.add_argument("--steps", type=_count, default=50, help="rotation steps (default 50)")
+    psh.add_argument("--max-rotation", type=_positive, default=None, metavar="RAD",
+                     help="largest rotation, rad (default: 20 times the lift-off onset rotation)")
+    psh.add_argument("--vertical-load", type=float, default=0.0, metavar="N",
+                     help="extra downward force on the raft, N, added to the structure's weight (default 0)")
+    psh.add_argument("--plot", type=Path, default=None, metavar="FILE",
+                     help="draw moment-rotation and contact ratio-moment to this image")
+    json_flag(psh, "print the onset and the curve as one JSON object on stdout")
+    no_cache(psh)
+    psh.set_defaults(func=cmd_pushover)
+
+
+def cmd_pushover(args) -> int:
+    from orchestrator.pushover import plot_pushover, pushover_json, scene_pushover, write_pushover  # start-up cost
+    scene = load_scene(args.scene)
+    out = check_output_path(args.output or Path(f"{scene.name}_pushover.h5"))
+    if args.plot is not None:
+        check_output_path(args.plot)
+    run = scene_pushover(scene, soil=args.soil, direction=args.direction, steps=args.steps,
+                         max_rotation=args.max_rotation, vertical_load=args.vertical_load, cache_dir=_cache(args),
+                         progress=Progress(f"pushover {scene.name}"))
+    write_pushover(out, run)
+    _say(f"wrote {out}")
+    if args.plot is not None:
+        _say(f"wrote {plot_pushover(run, args.plot)}")
+    summ = pushover_json(run)
+    if args.json:
+        _print_json(summ)
+        return EXIT_OK
+    on, st = summ["onset"], summ["steps"]
+    _out(f"{scene.name}: static pushover on the {run.soil_label}, direction {run.direction_deg:g} deg, "
+         f"{summ['nodes']} nodes, vertical load {summ['vertical_N']:.6g} N, {len(st['rotation_rad'])} points, "
+         f"wall {run.wall_s:.2f} s",
+         "lift-off at rest (a node is open under the weight alone)" if on["at_rest"] else
+         f"lift-off onset: rotation {on['rotation_rad']:.6g} rad, moment {on['moment_Nm']:.6g} N m, "
+         f"eccentricity e = M/N = {on['eccentricity_m']:.6g} m (node {on['node']}, {len(on['nodes'])} at once)",
+         "  rotation (rad)    moment (N m)  e (m)   settlement (m)  contact  max gap (m)")
+    _out(*(f"  {r:13.6e}  {m:14.6e}  {e:6.3f}  {s:14.6e}  {100 * c:6.1f} %  {g:11.4e}" for r, m, e, s, c, g in
+           zip(st["rotation_rad"], st["moment_Nm"], st["eccentricity_m"], st["settlement_m"], st["contact_ratio"],
+               st["max_gap_m"])))
+    return EXIT_OK
 
 
 if __name__ == "__main__":

@@ -88,6 +88,24 @@ def winkler_soil(scene, model, table=None, cache_dir=None):
     return soil, C, info
 
 
+def static_springs(scene, cache_dir=None):
+    """(WinklerSoil, label): the springs of the scene's ``[soil].winkler`` as ``winkler_soil``
+    calibrates them, without dashpots (what a static analysis needs): the subgrade moduli, or
+    the BEM's static rigid impedance K(0) (``scene_static``) shared by area ("rigid") or the
+    diagonal of its nodal static impedance ("nodal"), at the moduli rho vs^2 like the route."""
+    cfg = scene.winkler
+    xy, area = scene.mesh.xy, scene.mesh.area
+    if cfg.explicit:
+        return winkler_from_moduli(cfg.moduli, xy, area), "soil.winkler subgrade moduli"
+    k_ref = scene.profile.static_to_reference
+    if cfg.springs == "rigid":
+        K6 = k_ref * np.real(scene_static(scene, "rigid", cache_dir))
+        return (springs_from_rigid_impedance(K6, xy, area, match=cfg.match),
+                f"rigid static impedance, {cfg.match} matched")
+    kdiag = k_ref * np.real(np.diag(scene_static(scene, "nodal", cache_dir)))
+    return springs_from_nodal_diagonal(kdiag, xy), "nodal static impedance diagonal"
+
+
 def _nodal_dashpots(C6, area):
     """(3N,) nodal dashpots: the rigid translational dashpots shared by area (ux, uy, uz per node)."""
     w = np.asarray(area) / np.sum(area)
