@@ -40,6 +40,7 @@ from uplift_common.files import atomic_output, require_checksum, stamp_checksum
 
 from orchestrator.impedance import scene_static
 from orchestrator.routes.winkler import static_springs
+from orchestrator.settings import compute_threads
 
 KIND = "pushover"
 FORMAT_VERSION = 1
@@ -135,6 +136,11 @@ def scene_pushover(scene, soil: str | None = None, direction="x", steps: int = 5
     rotation steps (steps + 1 points from 0, and the onset rotation inserted when it lies
     between them); max_rotation rad (default: DEFAULT_ONSET_MULTIPLE
     times the lift-off onset rotation); vertical_load N, downward, added to the weight."""
+    with compute_threads():          # small dense solves: threaded BLAS only slows them (orchestrator.settings)
+        return _pushover(scene, soil, direction, steps, max_rotation, vertical_load, cache_dir, progress)
+
+
+def _pushover(scene, soil, direction, steps, max_rotation, vertical_load, cache_dir, progress) -> PushoverRun:
     t0 = time.perf_counter()
     soil = soil or ("bem" if scene.profile is not None else "winkler")
     angle = parse_direction(direction)
