@@ -217,16 +217,16 @@ class PushoverCurve:
     onset: Onset
 
 
-def pushover(K, xy, area, load, rocking, rotations, progress=None) -> PushoverCurve:
+def pushover(K, xy, area, load, rocking, rotations, progress=None, onset: Onset | None = None) -> PushoverCurve:
     """The rotation-controlled static pushover: for each rotation theta of ``rotations`` (rad,
     in order) the exact unilateral equilibrium with a . q = theta prescribed (a = ``rocking``,
     e.g. ``rocking_vector(angle)``), the other raft DOFs and the soil free, under ``load``
     (6,) on the raft. Each step starts from the previous step's contact set. progress(done, total,
-    label) after each step, if given."""
+    label) after each step, if given; onset: ``liftoff_onset`` of the same problem, if known."""
     prob = _Problem(K, xy, load, rocking)
     area = np.asarray(area, float)
     rotations = np.asarray(rotations, float)
-    onset = _onset(prob)
+    onset = _onset(prob) if onset is None else onset
     states, closed = [], None
     for k, th in enumerate(rotations):
         s = prob.solve(float(th), closed)
