@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 from scipy.optimize import brentq
+from threadpoolctl import threadpool_limits
 
 from soil_impedance.mesh import circle_mesh, rectangle_mesh
 from structure.static_contact import liftoff_onset, pushover, rocking_vector, solve_contact
@@ -15,6 +16,14 @@ from structure.winkler import springs_from_moduli
 K_SUB, W = 5.0e7, 1.0e7            # subgrade modulus N/m^3, vertical load N
 LOAD = np.array([0.0, 0.0, -W, 0.0, 0.0, 0.0])
 B, L, R = 10.0, 6.0, 10.0
+
+
+@pytest.fixture(autouse=True)
+def _one_blas_thread():
+    """Small dense solves: one BLAS thread, as the orchestrator runs them (orchestrator.settings);
+    two threads beside a busy process made these tests 4-10 times slower (measured)."""
+    with threadpool_limits(limits=1):
+        yield
 
 
 def _springs(mesh):
