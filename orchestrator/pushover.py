@@ -15,7 +15,9 @@ File layout (HDF5, netCDF4-like: dimension scales, CF units; atomic, checksummed
                soil_label, direction_deg, weight_N, extra_vertical_N, vertical_N,
                stiffness_factor, contact, onset_* (rotation_rad, moment_Nm, eccentricity_m,
                node, nodes, at_rest), rocking_stiffness_Nm_per_rad, wall_s,
-               provenance (JSON: scene sections, soil inputs, code digest), sha256
+               provenance (JSON: scene sections, soil inputs, code digest), scene_key (what
+               the curve depends on: orchestrator.oncurve.scene_key), raft_load (6,) N, N m: the
+               loads on the raft, sha256
         step (step), node (node), dof (dof) coordinates; x, y, area (node)
         rotation, moment, eccentricity, settlement, contact_ratio, max_gap, iterations (step)
         force, pressure, gap (step, node)        raft_q (step, dof)
@@ -39,6 +41,7 @@ from uplift_common.errors import UserInputError
 from uplift_common.files import atomic_output, require_checksum, stamp_checksum
 
 from orchestrator.impedance import scene_static
+from orchestrator.oncurve import raft_load, scene_key
 from orchestrator.routes.winkler import static_springs
 from orchestrator.settings import compute_threads
 
@@ -86,6 +89,8 @@ class PushoverRun:
     xy: np.ndarray
     area: np.ndarray
     provenance: dict = field(default_factory=dict)
+    load: np.ndarray | None = None          # (6,) N, N m: the loads on the raft (raft_load + the extra force)
+    scene_key: str = ""                     # orchestrator.oncurve.scene_key: what the curve depends on
 
     @property
     def eccentricity(self) -> np.ndarray:
@@ -107,11 +112,6 @@ def parse_direction(text) -> float:
     if not math.isfinite(value):
         raise PushoverError(f"--direction {text!r} must be a finite angle in degrees")
     return value
-
-
-def raft_load(model) -> np.ndarray:
-    """(6,) N and N m: the structure's weight brought to the raft centre (T^T f_gravity)."""
-    return model.rigid_transform.T @ model.gravity_load()
 
 
 def soil_stiffness(scene, soil: str, cache_dir=None):
@@ -181,7 +181,8 @@ def _pushover(scene, soil, direction, steps, max_rotation, vertical_load, cache_
                                                                        None, "gap"),
             "code_digest": code_digest(*CODE)[:12]}
     return PushoverRun(scene.name, soil, label, angle, curve, weight, float(vertical_load), factor,
-                       time.perf_counter() - t0, np.asarray(xy, float), np.asarray(area, float), prov)
+                       time.perf_counter() - t0, np.asarray(xy, float), np.asarray(area, float), prov,
+                       load=load.copy(), scene_key=scene_key(scene))
 
 
 # ---- file ---------------------------------------------------------------------------------------
@@ -217,7 +218,8 @@ def write_pushover(path, run: PushoverRun) -> Path:
                        onset_rotation_rad=on.rotation, onset_moment_Nm=on.moment,
                        onset_eccentricity_m=on.eccentricity, onset_node=on.node, onset_nodes=np.array(on.nodes),
                        onset_at_rest=on.at_rest, rocking_stiffness_Nm_per_rad=on.stiffness, wall_s=run.wall_s,
-                       provenance=json.dumps(run.provenance))
+                       provenance=json.dumps(run.provenance), scene_key=run.scene_key,
+                       raft_load=np.zeros(6) if run.load is None else run.load)
         _coordinate(f, "step", np.arange(c.rotation.size), None, "pushover step")
         _coordinate(f, "node", np.arange(run.xy.shape[0]), None, "interface node index")
         _coordinate(f, "dof", ["ux", "uy", "uz", "rx", "ry", "rz"], None, "raft rigid-body DOF")

@@ -34,6 +34,7 @@ from structure.winkler import modes_on_soil, springs_from_rigid_impedance
 from orchestrator.exit_codes import STOPPED, USER_INPUT
 from orchestrator.impedance import cached_scene_fit, scene_fit, scene_impedance, scene_static
 from orchestrator.motion import Motion, make_motion
+from orchestrator.oncurve import scene_key
 from orchestrator.routes import RouteInputError, RunContext, get_route
 from orchestrator.scene import SceneError
 from orchestrator.settings import compute_threads
@@ -301,6 +302,7 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
             warning = step_doubling_warning(dt_check)
             dt_notes = {"warnings": [warning] if warning else [], "info": {"dt_check": dt_check}}
         ctx = RunContext(scene=scene, motion=motion, prepared=run, cache_dir=cache_dir)
+        key = scene_key(scene)        # what a pushover of the scene depends on (uplift report draws the run on it)
         results = {}
         for route in chosen:
             res = _run_route(route, ctx.for_route(route, (options or {}).get(route.name)),
@@ -309,7 +311,8 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
                 res = res.with_notes(**dt_notes)
             if route.needs_fit and run.fit is not None and not run.fit.report.tol_reached:
                 res = res.with_notes(warnings=[f"rational soil fit: {run.fit.report.message}"])
-            ran = {} if res.status is Status.REFUSED else {"components": list(motion.components)}
+            ran = {} if res.status is Status.REFUSED else {"components": list(motion.components),
+                                                           "scene_key": key}
             results[route.name] = res.with_notes(skipped=_shared_skips(scene, route, run), info=ran)
     return results, motion
 
