@@ -215,6 +215,10 @@ def _parser() -> argparse.ArgumentParser:
     rep.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="output directory")
     rep.add_argument("--reference", default=None, help="reference route of the comparison (default: as "
                                                        "`uplift compare`: timefreq, else monolithic, else cosim)")
+    rep.add_argument("--pushover", action="append", default=[], metavar="FILE|SCENE",
+                     help="draw the runs on this static pushover curve: a file of `uplift pushover` (of the same "
+                          "scene, else refused) or the scene to push over; repeat for both soils (default: the "
+                          "built-in scene of the file's scene name, when it is the same scene)")
     rep.set_defaults(func=cmd_report)
 
     ens = sub.add_parser("ensemble", help="the scene under many records and PGAs (dask), fractiles over records",
@@ -574,9 +578,9 @@ def cmd_report(args) -> int:
     if is_ensemble_file(args.results):
         if args.reference is not None:
             raise ResultsFileError(f"--reference compares the routes of one run; {args.results} is an ensemble file")
-        _say(f"wrote {write_ensemble_report(args.results, args.output)}")
+        _say(f"wrote {write_ensemble_report(args.results, args.output, pushover=args.pushover)}")
         return EXIT_OK
-    _say(f"wrote {write_report(args.results, args.output, reference=args.reference)}")
+    _say(f"wrote {write_report(args.results, args.output, reference=args.reference, pushover=args.pushover)}")
     return EXIT_OK
 
 

@@ -13,6 +13,10 @@ ensemble's page instead: the fractiles over the records per PGA and route, the r
 not converge and why, max uplift (raft rotation, contact ratio) against PGA and the fractile
 floor spectra per PGA, and the fragility curves stored by ``uplift fragility`` (one panel per
 limit state).
+
+Both pages place the runs (an ensemble: every converged cell) on the static pushover curve of
+the same scene (``oncurve_parts``, ``orchestrator.oncurve``): computed, or read from
+``--pushover FILE``, refused when of another scene.
 """
 from __future__ import annotations
 
@@ -26,6 +30,7 @@ import numpy as np
 from uplift_common.files import atomic_output
 from structure.results import Status
 
+from orchestrator import oncurve
 from orchestrator.compare import compare, format_difference
 from orchestrator.ensemble import ensemble_components, read_ensemble
 from orchestrator.motion import G
@@ -93,11 +98,14 @@ table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #bbb;padding:
 td:first-child,th:first-child{text-align:left}img{max-width:100%;border:1px solid #ddd;margin:.5em 0}"""
 
 
-def write_report(results_path, directory, reference: str | None = None) -> Path:
-    """Write ``directory/report.html`` (self-contained) and the figures as PNG next to it."""
+def write_report(results_path, directory, reference: str | None = None, pushover=()) -> Path:
+    """Write ``directory/report.html`` (self-contained) and the figures as PNG next to it;
+    ``pushover``: pushover files or scenes whose static curve the runs are drawn on
+    (``pushover_curves``; without: the built-in scene of the results file's name, if it is one)."""
     scene, created, results, motion = load(results_path)
     if reference is not None and reference not in results:
         raise ResultsFileError(f"--reference {reference!r} is not in {results_path} (routes: {', '.join(results)})")
+    curves, notes = results_curves(results, scene, motion, pushover, f"results file {results_path}")  # refusals first
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     cmp = compare(results, reference=reference)
@@ -122,6 +130,7 @@ def write_report(results_path, directory, reference: str | None = None) -> Path:
              "sqrt(rx² + ry²) (paper fig. 3-4), floor response spectra in x, y and z (fig. 5-6); dashed: "
              "the <code>linear</code> route (no uplift) when present.</p>"]
     parts += _images(figures)
+    parts += oncurve_parts(results, scene, curves, notes, directory)
     return _write_page(directory, parts)
 
 
@@ -271,11 +280,13 @@ def fragility_parts(path, directory: Path) -> list:
             _table(FRAGILITY_HEADER, rows)] + _images(figure)
 
 
-def write_ensemble_report(path, directory) -> Path:
+def write_ensemble_report(path, directory, pushover=()) -> Path:
     """Write ``directory/report.html`` (self-contained) for an ensemble file of ``uplift
     ensemble``: the fractiles per PGA and route, the runs that did not converge and why, the
-    figures of ``ensemble_figures`` (also as PNG next to it)."""
+    figures of ``ensemble_figures`` (also as PNG next to it), every cell on the static pushover
+    curve (``pushover`` as ``write_report``'s)."""
     ds = read_ensemble(path)
+    curves, notes = ensemble_curves(ds, pushover, f"ensemble file {path}")      # refusals first
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     figures = _save_figures(ensemble_figures(ds), directory)
@@ -301,4 +312,195 @@ def write_ensemble_report(path, directory) -> Path:
              + (_table(["record", "PGA (g)", "route", "status", "why"], others) if others else "<p>None.</p>"),
              "<h2>Figures</h2>"]
     parts += _images(figures)
+    parts += ensemble_oncurve_parts(ds, curves, notes, directory)
     return _write_page(directory, parts + fragility_parts(path, directory))
+
+
+# ---- runs on the static pushover curve (orchestrator.oncurve) -----------------------------------
+
+ONCURVE_HEADER = ["route", "soil of the curve", "max |M| (MN m)", "at t (s)", "ΣP / N then", "max rotation (mrad)",
+                  "min contact (% area)", "curve's M at that rotation (MN m)", "max |M| / curve's M", "note"]
+
+
+def _is_hdf5(path: Path) -> bool:
+    try:
+        with open(path, "rb") as f:
+            return f.read(8) == b"\x89HDF\r\n\x1a\n"
+    except OSError:
+        return False
+
+
+def pushover_curves(key, scene_name: str, soils, components, sources, what: str, max_rotation: float = 0.0):
+    """({soil: oncurve.Curve}, notes) for runs of scene key ``key`` on the ``soils`` ("bem",
+    "winkler"): read from the pushover files among ``sources`` (checked by their scene key: one of
+    another scene is refused, OnCurveError), computed for the scenes among them (TOML files or
+    built-in names, checked the same way), or, without sources, computed for the built-in scene
+    named ``scene_name`` when its key is ``key``. A computed curve rocks in the motion's
+    direction (``oncurve.rocking_direction`` of ``components``) past ``max_rotation`` (rad, the
+    runs' largest). ``notes``: why a curve is not there."""
+    from orchestrator.pushover import read_pushover, scene_pushover  # only reports with a curve pay it
+    from orchestrator.scene import builtin_scenes, load_scene  # (same)
+    from orchestrator.settings import default_cache_dir  # (same)
+    curves, notes, scenes = {}, [], []
+    for src in sources:
+        path = Path(src)
+        if path.is_file() and _is_hdf5(path):
+            c = oncurve.Curve.from_file(read_pushover(path), str(path))
+            c.check_key(key, what)
+            curves[c.soil] = c
+        else:
+            scenes.append((load_scene(src), f"scene {src}"))
+    if not sources:
+        if not key:
+            notes.append(f"{what} holds no scene key (written before it was stored, or by hand): run `uplift run` "
+                         "again, or draw a pushover file of the same scene with --pushover")
+        elif scene_name in builtin_scenes() and oncurve.scene_key(load_scene(scene_name)) == key:
+            scenes.append((load_scene(scene_name), f"built-in scene {scene_name}"))
+        else:
+            notes.append(f"the scene {scene_name!r} of {what} is not a built-in scene of the same key: give "
+                         "--pushover FILE (made by `uplift pushover SCENE -o FILE`) or --pushover SCENE")
+    angle, why = oncurve.rocking_direction(components)
+    for scene, label in scenes:
+        if oncurve.scene_key(scene) != key:
+            raise oncurve.OnCurveError(f"--pushover {label}: not the scene of {what} (scene key "
+                                       f"{oncurve.scene_key(scene)} against {key or 'none stored'}): its mesh, soil, "
+                                       "structure or springs differ")
+        if scene.structure is None:
+            notes.append(f"{label} has no [structure]: no weight to push over")
+            continue
+        for soil in sorted(set(soils) - set(curves)):
+            if soil == "bem" and scene.profile is None:
+                notes.append(f"{label} has no half-space: no pushover on the BEM soil")
+                continue
+            run = scene_pushover(scene, soil=soil, direction=angle, cache_dir=default_cache_dir())
+            if max_rotation > run.curve.rotation[-1]:
+                run = scene_pushover(scene, soil=soil, direction=angle, max_rotation=1.25 * max_rotation,
+                                     cache_dir=default_cache_dir())
+            curves[soil] = oncurve.Curve.from_run(run, f"computed from {label}, direction {why}")
+    for c in curves.values():
+        if abs(c.direction_deg - angle) > 1e-9:
+            notes.append(f"the {c.soil} curve rocks in direction {c.direction_deg:g}°, the runs' is {why}")
+        if abs(c.moment[0]) > 1e-6 * max(abs(c.moment).max(), 1e-300):
+            notes.append(f"the {c.soil} curve's moment at θ = 0 is {c.moment[0]:.4g} N m: the weight acts off the "
+                         "raft centre, and the runs' rotations are about their tilted static state, not the level raft")
+    return curves, notes
+
+
+def _uplift(route: str, res=None) -> bool:
+    """False for a route whose raft is bonded (the registry's ``uplift``, or the contact disabled)."""
+    registered = get_route(route).uplift if route in route_names() else True
+    return registered and (res is None or res.info.get("contact_enabled", True) is not False)
+
+
+def _curve_list(curves) -> str:
+    esc = html.escape
+    return "".join(f"<li>{esc(c.soil_label)}, direction {c.direction_deg:g}°, vertical load "
+                   f"{1e-6 * c.vertical:.4g} MN, full-contact rocking stiffness {c.stiffness:.4g} N m/rad, lift-off "
+                   f"onset {1e-6 * c.onset_moment:.4g} MN m at {1e3 * c.onset_rotation:.4g} mrad ({esc(c.source)})</li>"
+                   for c in curves.values())
+
+
+ONCURVE_TEXT = ("<p>Each run's largest overturning moment |M| (about the raft centre, of the total contact "
+                "forces, static preload included, beyond the weight's own: the pushover's moment), its largest "
+                "raft rotation sqrt(rx² + ry²) and its smallest contact ratio (area of the nodes in contact / "
+                "raft area), drawn on the static pushover curve of the same scene (<code>uplift pushover</code>, "
+                "docs/pushover.md): the winkler route on its own springs, the other routes on the BEM's static "
+                "gap table. The three extremes are each over the whole record, not at one instant. The curve "
+                "holds the vertical load N at the static weight; in a run the total contact force ΣP varies "
+                "(vertical inertia of the rocking raft), and with it the moment the contact can carry "
+                "(ΣP times the distance to the edge): a run's moment may pass the curve's plateau. A hollow "
+                "marker: a bonded route (no uplift), whose contact forces may pull.</p>")
+
+
+def results_curves(results, scene_name: str, motion, sources, what: str):
+    """``pushover_curves`` for the routes of a results file (their scene key, soils, motion
+    components and largest rotation): ({soil: Curve}, notes). Refuses a pushover of another scene."""
+    ran = [res for res in results.values() if res.nt > 0]
+    key = next((res.info.get("scene_key") for res in ran if res.info.get("scene_key")), None)
+    components = motion.components if motion is not None else next(
+        (tuple(res.info.get("components", ())) for res in ran), ("x",))
+    max_rot = max((float(np.hypot(res.raft[:, 3], res.raft[:, 4]).max()) for res in ran), default=0.0)
+    if not ran and not sources:
+        return {}, ["no route ran"]
+    return pushover_curves(key, scene_name, {oncurve.route_soil(r.route) for r in ran}, components, sources, what,
+                           max_rot)
+
+
+def oncurve_parts(results, scene_name: str, curves: dict, notes: list, directory: Path) -> list:
+    """The report's section "On the static pushover curve" for a results file's routes on
+    ``curves`` (``results_curves``)."""
+    head = ["<h2>On the static pushover curve</h2>"]
+    esc = html.escape
+    if not curves:
+        return head + [f"<p>Not drawn: {esc('; '.join(notes))}.</p>"]
+    points, rows, left = [], [], []
+    for route, res in results.items():
+        c = curves.get(oncurve.route_soil(route))
+        why = oncurve.unplaced(res, c)
+        if why:
+            left.append(f"{route}: {why}")
+            continue
+        p = oncurve.route_point(res, c, uplift=_uplift(route, res))
+        points.append(p)
+        rows.append([route, p["soil"], f"{1e-6 * p['max_moment_Nm']:.4g}", f"{p['max_moment_time_s']:.3f}",
+                     f"{p['vertical_ratio_at_max_moment']:.3f}",
+                     f"{1e3 * p['max_rotation_rad']:.4g}", f"{100 * p['min_contact_ratio']:.1f}",
+                     f"{1e-6 * p['static_moment_at_rotation_Nm']:.4g}", f"{p['moment_over_static']:.3f}",
+                     "; ".join(([] if p["uplift"] else ["no uplift (bonded)"])
+                               + ([] if res.converged else [f"{res.status.value}: up to its stop"]))])
+    figure = _save_figures([("on_the_curve", oncurve.oncurve_figure(
+        curves, points, f"{scene_name}: runs on the static pushover curve"))], directory)
+    return (head + [ONCURVE_TEXT, "<p>Curves:</p><ul>" + _curve_list(curves) + "</ul>",
+                    _table(ONCURVE_HEADER, rows)]
+            + [f"<p>Not drawn: {esc(x)}.</p>" for x in left] + [f"<p>Note: {esc(x)}.</p>" for x in notes]
+            + _images(figure))
+
+
+def ensemble_curves(ds, sources, what: str):
+    """``pushover_curves`` for the cells of an ensemble: ({soil: Curve}, notes)."""
+    if "max_overturning_moment" not in ds:
+        return {}, [f"{what} stores no overturning moment (written before it was stored): run `uplift ensemble` again"]
+    routes = [str(r) for r in ds["route"].values]
+    converged = ds["status"].values == Status.CONVERGED.value
+    max_rot = float(np.nanmax(np.where(converged, ds["max_raft_rotation"].values, np.nan), initial=0.0))
+    return pushover_curves(ds.attrs.get("scene_key"), str(ds.attrs.get("scene", "")),
+                           {oncurve.route_soil(r) for r in routes}, ensemble_components(ds), sources, what, max_rot)
+
+
+def ensemble_oncurve_parts(ds, curves: dict, notes: list, directory: Path) -> list:
+    """The ensemble page's section "On the static pushover curve": every converged cell's point
+    on ``curves`` (``ensemble_curves``)."""
+    head = ["<h2>On the static pushover curve</h2>"]
+    esc = html.escape
+    if not curves:
+        return head + [f"<p>Not drawn: {esc('; '.join(notes))}.</p>"]
+    routes = [str(r) for r in ds["route"].values]
+    converged = ds["status"].values == Status.CONVERGED.value
+    points, rows, left = [], [], []
+    for k, route in enumerate(routes):
+        soil = oncurve.route_soil(route)
+        if soil not in curves:
+            left.append(f"{route}: no pushover on the {soil} soil")
+            continue
+        onset = curves[soil].onset_moment
+        for j, pga in enumerate(ds["pga"].values):
+            cells = [{"route": route, "soil": soil, "uplift": _uplift(route),
+                      "max_moment_Nm": float(ds["max_overturning_moment"].values[i, j, k]),
+                      "max_rotation_rad": float(ds["max_raft_rotation"].values[i, j, k]),
+                      "min_contact_ratio": float(ds["min_contact_area_ratio"].values[i, j, k])}
+                     for i in range(ds.sizes["record"]) if converged[i, j, k]]
+            cells = [c for c in cells if np.isfinite(c["max_moment_Nm"])]
+            points += cells
+            m = np.array([c["max_moment_Nm"] for c in cells])
+            rows.append([f"{pga:g}", route, soil, str(len(cells)),
+                         f"{1e-6 * np.median(m):.4g}" if m.size else "-",
+                         f"{int((m > onset).sum())}/{m.size}" if np.isfinite(onset) else "-"])
+    figure = _save_figures([("on_the_curve", oncurve.oncurve_figure(
+        curves, points, f"{ds.attrs.get('scene', '')}: every converged cell on the static pushover curve"))],
+        directory)
+    header = ["PGA (g)", "route", "soil of the curve", "cells drawn", "median max |M| (MN m)",
+              "cells past the lift-off onset moment"]
+    return (head + [ONCURVE_TEXT.replace("Each run's", "Each cell's"), "<p>Curves:</p><ul>" + _curve_list(curves)
+                    + "</ul>", _table(header, rows)]
+            + [f"<p>Not drawn: {esc(x)}.</p>" for x in left] + [f"<p>Note: {esc(x)}.</p>" for x in notes]
+            + _images(figure))
