@@ -42,14 +42,17 @@ The dataset (``write_ensemble``: netCDF4 through h5netcdf, ``xarray.open_dataset
 engine="h5netcdf")``) has the dimensions record, pga (g), route, node, direction (x, y, z),
 frequency (Hz) and quantile (0.16, 0.5, 0.84). Per cell: ``max_uplift`` (m),
 ``max_raft_rotation`` (rad, sqrt(rx² + ry²)), ``min_contact_ratio`` (share of the interface
-nodes in contact, gap = 0, its minimum over time), ``floor_spectrum`` (5 % damped
+nodes in contact, gap = 0, its minimum over time), ``max_overturning_moment`` (N m) and
+``min_contact_area_ratio`` (area in contact / raft area): the cell on the static pushover curve
+(``orchestrator.oncurve``; NaN in a cell made without them), ``floor_spectrum`` (5 % damped
 pseudo-acceleration, m/s², at FREQUENCIES_HZ; NaN in a direction of round-off response),
 ``wall_time`` (the route's, s), ``cell_time`` (the whole cell on its worker, s), ``status``
 (converged | stopped | refused | failed), ``message``, ``warnings``. Per PGA and route: ``<name>_fractile`` over the records, from the
 converged cells only (numpy's linear quantiles), and ``converged_records``. Per record and
 direction: the file, its SHA-256 and its peak (g, unscaled); per record the scale factor of
 each PGA, or the seed. The attribute ``components`` ("x y z") says which components ran
-(``ensemble_components``).
+(``ensemble_components``); ``scene_key`` what a pushover of the scene depends on
+(``orchestrator.oncurve.scene_key``).
 
 The package: ``plan`` (inputs checked, cells, keys), ``triplets`` (the components of a record
 folder), ``store`` (one cell's run and values, the
@@ -64,6 +67,6 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "dataset": ("FRACTILE_VARIABLES", "KIND", "QUANTILES", "assemble", "ensemble_components", "ensemble_summary", "is_ensemble_file", "read_ensemble", "write_ensemble"),
     "plan": ("DT_CHECKS", "RECORD_SUFFIXES", "Cell", "EnsembleError", "Plan", "Record", "cell_key", "code_version", "plan_ensemble", "record_sources"),
     "runner": ("run_ensemble", "strongest_check"),
-    "store": ("CELL_VARIABLES", "DAMPING", "DIRECTIONS", "FAILED", "FREQUENCIES_HZ", "ROUNDOFF", "TEXT_VARIABLES", "CellStore", "cell_values", "run_cell"),
+    "store": ("CELL_VARIABLES", "DAMPING", "DIRECTIONS", "FAILED", "FREQUENCIES_HZ", "ONCURVE_VARIABLES", "ROUNDOFF", "TEXT_VARIABLES", "CellStore", "cell_values", "run_cell"),
     "triplets": ("COMPONENTS_FILE", "folder_components", "peer_component"),
 })

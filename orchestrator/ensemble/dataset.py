@@ -14,10 +14,11 @@ from uplift_common.files import CHECKSUM_ATTR, atomic_output, require_checksum, 
 from structure.results import Status
 
 from orchestrator.motion import G
+from orchestrator.oncurve import scene_key
 from orchestrator.results_file import ResultsFileError, check_output_path
 
 from .plan import Plan
-from .store import CELL_VARIABLES, DAMPING, DIRECTIONS, FAILED, FREQUENCIES_HZ, TEXT_VARIABLES
+from .store import CELL_VARIABLES, DAMPING, DIRECTIONS, FAILED, FREQUENCIES_HZ, ONCURVE_VARIABLES, TEXT_VARIABLES
 
 #: fractiles over the records of each PGA: 16th percentile, median, 84th percentile
 QUANTILES = (0.16, 0.5, 0.84)
@@ -42,7 +43,7 @@ def assemble(plan: Plan, values: dict, failures: dict, attrs: dict):
             text["message"][cell.index] = failures.get(cell.key, "not run")
             continue
         for name in CELL_VARIABLES:
-            numbers[name][cell.index] = v[name]
+            numbers[name][cell.index] = v.get(name, np.nan) if name in ONCURVE_VARIABLES else v[name]
         for name in TEXT_VARIABLES:
             text[name][cell.index] = v[name]
         spectra[cell.index] = v["floor_spectrum"]
@@ -88,7 +89,7 @@ def assemble(plan: Plan, values: dict, failures: dict, attrs: dict):
     else:
         ds["seed"] = ("record", np.array([r.seed for r in plan.records]))
     s = plan.scene
-    ds.attrs.update(uplift_file=KIND, scene=s.name, created=time.strftime("%Y-%m-%dT%H:%M:%S"),
+    ds.attrs.update(uplift_file=KIND, scene=s.name, scene_key=scene_key(s), created=time.strftime("%Y-%m-%dT%H:%M:%S"),
                     dt=s.analysis.dt, components=" ".join(plan.components), damping=DAMPING, **attrs)
     if not plan.records[0].files and "z" in plan.components and s.motion.vertical_ratio is not None:
         ds.attrs["vertical_ratio"] = s.motion.vertical_ratio
