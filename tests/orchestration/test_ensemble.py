@@ -18,6 +18,7 @@ from distributed import Client, LocalCluster
 
 from orchestrator import ensemble as ens
 from orchestrator.cli import main
+from orchestrator.oncurve import raft_load, run_extremes
 from orchestrator.results_file import read_results
 from orchestrator.scene import load_scene
 from orchestrator.spectra import response_spectrum
@@ -109,6 +110,11 @@ def test_each_cell_equals_uplift_run(case, tmp_path, monkeypatch):
             # contact ratio: the share of nodes with gap == 0, its minimum over time
             contact = (res.gap <= 0).mean(axis=1).min()
             assert float(cell["min_contact_ratio"]) == pytest.approx(contact, rel=1e-10, abs=1e-12)
+            # on the pushover curve: the moment and contact ratio of orchestrator.oncurve, as for a results file
+            scene = load_scene(case["scene"])
+            ext = run_extremes(res, scene.mesh.xy, scene.mesh.area, raft_load(scene.model()))
+            assert rel(float(cell["max_overturning_moment"]), ext["max_moment_Nm"]) < 1e-10
+            assert float(cell["min_contact_area_ratio"]) == pytest.approx(ext["min_contact_ratio"], abs=1e-12)
             assert float(cell["wall_time"]) > 0
             for node in ("top_outer", "internals_37m"):
                 acc = res.acc[node]
@@ -297,5 +303,11 @@ def test_report_of_an_ensemble(case, tmp_path, capsys):
     assert len(images) == 1 + n_pga
     assert sorted(p.name for p in out.glob("*.png")) == sorted(
         ["ensemble_against_pga.png"] + [f"ensemble_floor_spectra_{p:g}g.png" for p in ds["pga"].values])
+    assert "On the static pushover curve" in page and "not a built-in scene" in page    # small.toml: no curve
     assert main(["report", str(case["out"]), "-o", str(out), "--reference", "monolithic"]) == 2
     assert "is an ensemble file" in capsys.readouterr().err
+    # with the scene: every converged cell on its BEM curve
+    assert main(["report", str(case["out"]), "-o", str(tmp_path / "curve"), "--pushover", str(case["scene"])]) == 0
+    page = (tmp_path / "curve" / "report.html").read_text()
+    assert (tmp_path / "curve" / "on_the_curve.png").is_file() and "Each cell's largest overturning moment" in page
+    assert f"<td>{ds.sizes['record']}</td>" in page and "cells past the lift-off onset moment" in page
