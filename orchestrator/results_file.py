@@ -2,7 +2,10 @@
 
 Layout (open it with h5py; every array is in SI units)::
 
-    /                       attrs: scene, created, sha256 (checksum of the file's content)
+    /                       attrs: scene, created, sha256 (checksum of the file's content),
+                                   scene_toml (the scene as it ran, TOML: ``load_scene`` reads it),
+                                   overrides (JSON: the command line's --pga, --dt, --duration,
+                                   --max-pga, each {option, value, key, was, now})
     /motion/acc (nt, 3)     ground acceleration, m/s²; attrs: dt, label, components ("x,y,z")
     /routes/<route>/        attrs: status (converged | stopped | refused), message, wall_s,
                                    notes (JSON: skipped, warnings, precheck, timings), info (JSON)
@@ -84,11 +87,15 @@ def check_output_folder(path, names=(), option: str = "-o") -> Path:
     return path
 
 
-def write_results(path, results: dict, motion=None, scene_name: str = "") -> Path:
-    """Write ``{route: RouteResult}`` (and the motion) to one HDF5 file, atomically."""
+def write_results(path, results: dict, motion=None, scene_name: str = "", scene_toml: str = "",
+                  overrides=()) -> Path:
+    """Write ``{route: RouteResult}`` (and the motion, the scene as TOML, the overrides of the
+    command line) to one HDF5 file, atomically."""
     path = check_output_path(path)
     with atomic_output(path) as tmp, h5py.File(tmp, "w") as f:
         f.attrs["scene"] = scene_name
+        f.attrs["scene_toml"] = scene_toml
+        f.attrs["overrides"] = json.dumps(list(overrides))
         f.attrs["created"] = time.strftime("%Y-%m-%dT%H:%M:%S")
         if motion is not None:
             m = f.create_group("motion")
@@ -169,6 +176,15 @@ def read_motion(path):
             axes = tuple(a for a in str(m.attrs.get("components", "")).split(",") if a)
             motion = Motion(float(m.attrs["dt"]), m["acc"][()], str(m.attrs.get("label", "motion")), axes)
         return str(f.attrs.get("scene", "")), str(f.attrs.get("created", "")), motion
+
+
+def read_scene_record(path) -> dict:
+    """{"scene": name, "scene_toml": the scene as it ran ("" in a file written without it),
+    "overrides": [the command line's overrides]} of a results file (its checksum verified)."""
+    with h5py.File(path, "r") as f:
+        require_checksum(f, path, REMEDY)
+        return {"scene": str(f.attrs.get("scene", "")), "scene_toml": str(f.attrs.get("scene_toml", "")),
+                "overrides": json.loads(f.attrs.get("overrides", "[]"))}
 
 
 def summary(res) -> dict:
