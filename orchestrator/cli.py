@@ -33,7 +33,7 @@ from orchestrator.results_file import (ResultsFileError, check_output_folder, ch
 from orchestrator.routes import route_names
 from orchestrator.run import run_scene
 from orchestrator.scene import MAX_PGA_G, SceneError, builtin_scenes, load_scene
-from orchestrator.scene_file import scene_toml
+from orchestrator.scene_file import builtin_scene_text, scene_toml
 from orchestrator.settings import FMU_KINDS, compute_threads, default_cache_dir
 from uplift_common.errors import UserInputError
 from uplift_common.files import atomic_output
@@ -339,7 +339,6 @@ def _pngs(folder: Path) -> list:
 
 
 def cmd_scene(args) -> int:
-    from orchestrator.scene_file import builtin_scene_text      # start-up cost: only this command
     if args.output is None:
         text, _ = builtin_scene_text(args.name)
         sys.stdout.write(text)
