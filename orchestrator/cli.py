@@ -35,8 +35,10 @@ from orchestrator.results_file import (ResultsFileError, check_output_folder, ch
 from orchestrator.routes import route_names
 from orchestrator.run import run_scene
 from orchestrator.scene import MAX_PGA_G, SceneError, builtin_scenes, load_scene, tomllib
+from orchestrator.scene_file import builtin_scene_text, scene_toml
 from orchestrator.settings import FMU_KINDS, compute_threads, default_cache_dir
 from uplift_common.errors import UserInputError
+from uplift_common.files import atomic_output
 
 class OptionError(UserInputError):
     """Command-line options that cannot go together; the message says which to drop."""
@@ -47,6 +49,8 @@ class SetupError(UserInputError):
     the message names it and how to get it."""
 
 
+#: where the terms of the help texts are explained (every --help ends with it)
+GLOSSARY = "terms (route, a0, precheck, PEER triplet, HHT, SSP, ...): docs/glossary.md"
 #: the files ``uplift export`` writes into its folder
 EXPORT_FILES = ("structure.fmu", "soil.fmu", "coupled.fmu", "system.ssd", "system.ssp")
 #: the files of a cross-check folder of model M
@@ -143,8 +147,24 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--plot-dir", type=Path, default=None, help="write figures to this directory")
     json_flag(run, "print one JSON summary object on stdout")
     max_pga(run)
+    run.add_argument("--pga", type=_positive, default=None, metavar="G",
+                     help="peak ground acceleration, g: replaces [motion].pga_g (a record: scales it so that its "
+                          "stronger horizontal peaks at G); recorded in the results file and the summary")
+    run.add_argument("--dt", type=_positive, default=None, metavar="S",
+                     help="time step, s: replaces [analysis].dt (recorded likewise)")
+    run.add_argument("--duration", type=_positive, default=None, metavar="S",
+                     help="length of the synthetic motion, s: replaces [motion].duration_s (recorded likewise)")
     no_cache(run)
     run.set_defaults(func=cmd_run)
+
+    scn = sub.add_parser("scene", help="write a built-in scene as a commented TOML file",
+                         description="Write the built-in scene NAME as TOML, every key explained with its unit; "
+                                     "the file runs as it is (`uplift run FILE` equals `uplift run NAME`): the "
+                                     "files it names are copied beside it.")
+    scn.add_argument("name", metavar="NAME", help=f"built-in scene ({', '.join(builtin_scenes())})")
+    scn.add_argument("-o", "--output", type=Path, default=None, metavar="FILE",
+                     help="write the scene to FILE (default: print it on stdout)")
+    scn.set_defaults(func=cmd_scene)
 
     imp = sub.add_parser("impedance", help="soil impedance of the scene's foundation (BEM sweep)",
                          description="Compute the rigid-raft (6x6) and rigid+gap (6+N) impedance tables of "
@@ -278,6 +298,10 @@ def _parser() -> argparse.ArgumentParser:
                      help="plot wall time against error (log-log) per route to this image")
     no_cache(bch)
     bch.set_defaults(func=cmd_bench)
+    # every --help names the glossary of the terms it uses
+    p.epilog = f"{p.epilog}; {GLOSSARY}" if p.epilog else GLOSSARY
+    for cmd in sub.choices.values():
+        cmd.epilog = f"{cmd.epilog}; {GLOSSARY}" if cmd.epilog else GLOSSARY
     return p
 
 
@@ -375,7 +399,7 @@ def _print_json(value):
 
 
 def cmd_run(args) -> int:
-    scene = load_scene(args.scene, max_pga_g=args.max_pga)
+    scene = load_scene(args.scene, max_pga_g=args.max_pga, pga_g=args.pga, dt=args.dt, duration_s=args.duration)
     out = check_output_path(args.output or Path(f"{scene.name}_results.h5"))
     if args.plot_dir is not None:
         check_output_folder(args.plot_dir, _pngs(args.plot_dir), "--plot-dir")
@@ -383,10 +407,11 @@ def cmd_run(args) -> int:
                                 progress=labelled_bars(f"run {scene.name} [{{label}}]"),
                                 sweep_progress=Progress(f"impedance {scene.name}"),
                                 fit_progress=labelled_bars(f"fit {scene.name}: {{label}}"))
-    write_results(out, results, motion, scene.name)
+    write_results(out, results, motion, scene.name, scene_toml(scene), scene.overrides)
     _say(f"wrote {out}")
     summ = {"motion": {"label": motion.label, "components": list(motion.components),
                        "pga_g": {a: float(p) / G for a, p in zip("xyz", motion.pga) if a in motion.components}},
+            "overrides": list(scene.overrides),
             "routes": {r: summary(res) for r, res in results.items()}}
     if args.plot_dir:
         from orchestrator.plots import plot_run                  # start-up cost: only with --plot-dir
@@ -395,6 +420,8 @@ def cmd_run(args) -> int:
         _print_json(summ)
     else:      # the summary is the answer: stdout (`uplift run reactor > summary.txt` keeps it)
         _out(f"motion: {motion.label} (components {', '.join(motion.components)})")
+        _out(*(f"override: {o['option']} {o['value']:g}: {o['key']} = {o['now']:.6g} (the scene's: {o['was']:.6g})"
+               for o in scene.overrides))
         for r, s in summ["routes"].items():
             if s["status"] == Status.REFUSED.value:
                 _out(f"{r}: REFUSED: {s['message']}")
@@ -420,6 +447,26 @@ def cmd_run(args) -> int:
 def _pngs(folder: Path) -> list:
     """The PNG names already in ``folder`` (figures a command may replace)."""
     return sorted(p.name for p in folder.glob("*.png")) if folder.is_dir() else []
+
+
+def cmd_scene(args) -> int:
+    if args.output is None:
+        text, _ = builtin_scene_text(args.name)
+        sys.stdout.write(text)
+        return EXIT_OK
+    text, companions = builtin_scene_text(args.name, args.output.parent)
+    check_output_path(args.output)
+    for name in companions:
+        check_output_path(args.output.parent / name)
+    for name, source in companions.items():
+        if (args.output.parent / name).resolve() != source:
+            with atomic_output(args.output.parent / name) as tmp:
+                tmp.write_bytes(source.read_bytes())
+            _say(f"wrote {args.output.parent / name}")
+    with atomic_output(args.output) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    _say(f"wrote {args.output}")
+    return EXIT_OK
 
 
 def cmd_impedance(args) -> int:

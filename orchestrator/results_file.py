@@ -5,7 +5,10 @@ Layout (``format_version`` 2; every array in SI units, every variable with CF ``
 dimensions)::
 
     /                        attrs: uplift_file = "results", format_version = 2, Conventions,
-                                    scene, created, sha256 (checksum of the file's content)
+                                    scene, created, sha256 (checksum of the file's content),
+                                    scene_toml (the scene as it ran, TOML: ``load_scene`` reads it),
+                                    overrides (JSON: the command line's --pga, --dt, --duration,
+                                    --max-pga, each {option, value, key, was, now})
     /motion/                 attrs: dt (s), label, components ("x,y,z")
         time (time) s   direction (direction)   acc (time, direction) m s-2: ground acceleration
     /routes/<route>/         attrs: route, status (converged | stopped | refused), message, wall_s,
@@ -122,13 +125,16 @@ def check_output_folder(path, names=(), option: str = "-o") -> Path:
     return path
 
 
-def write_results(path, results: dict, motion=None, scene_name: str = "") -> Path:
-    """Write ``{route: RouteResult}`` (and the motion) to one HDF5 file of the layout of this
-    module (format_version 2: netCDF4 dimension scales, CF units, the per-route summary),
-    atomically, with the checksum of its whole content."""
+def write_results(path, results: dict, motion=None, scene_name: str = "", scene_toml: str = "",
+                  overrides=()) -> Path:
+    """Write ``{route: RouteResult}`` (and the motion, the scene as TOML, the overrides of the
+    command line) to one HDF5 file of the layout of this module (format_version 2: netCDF4
+    dimension scales, CF units, the per-route summary), atomically, with the checksum of its
+    whole content."""
     path = check_output_path(path)
     with atomic_output(path) as tmp, h5py.File(tmp, "w") as f:
         f.attrs.update(uplift_file=KIND, format_version=FORMAT_VERSION, Conventions="CF-1.8", scene=scene_name,
+                       scene_toml=scene_toml, overrides=json.dumps(list(overrides)),
                        created=time.strftime("%Y-%m-%dT%H:%M:%S"))
         if motion is not None:
             _write_motion(f.create_group("motion"), motion)
@@ -430,6 +436,15 @@ def read_motion(path):
             axes = tuple(a for a in str(m.attrs.get("components", "")).split(",") if a)
             motion = Motion(float(m.attrs["dt"]), m["acc"][()], str(m.attrs.get("label", "motion")), axes)
         return str(f.attrs.get("scene", "")), str(f.attrs.get("created", "")), motion
+
+
+def read_scene_record(path) -> dict:
+    """{"scene": name, "scene_toml": the scene as it ran ("" in a file written without it),
+    "overrides": [the command line's overrides]} of a results file (its checksum verified)."""
+    with h5py.File(path, "r") as f:
+        require_checksum(f, path, REMEDY)
+        return {"scene": str(f.attrs.get("scene", "")), "scene_toml": str(f.attrs.get("scene_toml", "")),
+                "overrides": json.loads(f.attrs.get("overrides", "[]"))}
 
 
 def summary(res) -> dict:

@@ -18,6 +18,7 @@ and are loaded by name: ``load_scene("reactor")``.
 """
 from __future__ import annotations
 
+import copy
 import csv
 from dataclasses import dataclass, field, fields, replace
 from functools import partial
@@ -326,6 +327,13 @@ class Scene:
     analysis: AnalysisConfig = field(default_factory=AnalysisConfig)
     output: OutputConfig = field(default_factory=OutputConfig)
     winkler: WinklerConfig = field(default_factory=WinklerConfig)
+    #: the parsed TOML the scene was built from, the command line's overrides applied (see
+    #: ``orchestrator.scene_file.scene_toml``); ``with_routes`` keeps it in step, a plain
+    #: ``dataclasses.replace`` does not
+    source: dict | None = field(default=None, repr=False)
+    #: the command line's overrides, in the order applied: ({"option": "--pga", "value": 0.5,
+    #: "key": "motion.pga_g", "was": 0.25, "now": 0.5}, ...); for a record, --pga sets motion.scale
+    overrides: tuple = ()
 
     def __post_init__(self):
         f = np.array(self.frequencies_hz, float)
@@ -391,7 +399,9 @@ class Scene:
     def with_routes(self, routes, where: str = "--route") -> Scene:
         """The scene with other routes (e.g. the command line's, named ``where`` in messages),
         checked like [analysis].routes and against the soil the scene has."""
-        return replace(self, analysis=replace(self.analysis, routes=check_routes(routes, where)))
+        source = None if self.source is None else \
+            {**self.source, "analysis": {**self.source.get("analysis", {}), "routes": list(routes)}}
+        return replace(self, analysis=replace(self.analysis, routes=check_routes(routes, where)), source=source)
 
 
 def builtin_scenes() -> list[str]:
@@ -399,9 +409,15 @@ def builtin_scenes() -> list[str]:
                   if p.name.endswith(".toml"))
 
 
-def load_scene(spec: str | Path, max_pga_g: float | None = None) -> Scene:
-    """Load a scene from a TOML path or a built-in name (see ``builtin_scenes()``); ``max_pga_g``
-    (g), when given, replaces its [analysis].max_pga_g (the command line's --max-pga)."""
+def load_scene(spec: str | Path, max_pga_g: float | None = None, pga_g: float | None = None,
+               dt: float | None = None, duration_s: float | None = None) -> Scene:
+    """Load a scene from a TOML path or a built-in name (see ``builtin_scenes()``). The command
+    line's overrides, when given, replace keys of the scene (recorded in ``Scene.overrides``,
+    checked like the keys, a refusal naming the option): ``max_pga_g`` (g) its
+    [analysis].max_pga_g (--max-pga), ``dt`` (s) its [analysis].dt (--dt), ``duration_s`` (s) the
+    [motion].duration_s of a synthetic motion (--duration; a record is refused: it lasts as long
+    as its file), ``pga_g`` (g) the [motion].pga_g of a synthetic motion, or the [motion].scale
+    that makes a record's stronger horizontal (its vertical, without one) peak at ``pga_g`` (--pga)."""
     path = Path(spec)
     builtins = ", ".join(builtin_scenes())
     if path.is_file():
@@ -432,11 +448,52 @@ def load_scene(spec: str | Path, max_pga_g: float | None = None) -> Scene:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(f"{origin} is not valid TOML: {exc}") from None
+    overrides = []
     if max_pga_g is not None:
         if not isinstance(data.get("analysis", {}), dict):
             raise SceneError(f"{origin}: [analysis] must be a table of keys (a section)")
+        was = data.get("analysis", {}).get("max_pga_g", MAX_PGA_G)
         data["analysis"] = {**data.get("analysis", {}), "max_pga_g": max_pga_g}
-    return _scene(data, base, name, origin)
+        overrides.append({"option": "--max-pga", "value": max_pga_g, "key": "analysis.max_pga_g", "was": was, "now": max_pga_g})
+    scene = _scene(data, base, name, origin)
+    for option, value in (("--dt", dt), ("--duration", duration_s), ("--pga", pga_g)):
+        if value is not None:
+            scene = _override(scene, option, value, origin, overrides)
+    return replace(scene, overrides=tuple(overrides)) if overrides else scene
+
+
+#: the command line's overrides of ``uplift run``: option -> (section, key) of the scene
+OVERRIDES = {"--dt": ("analysis", "dt"), "--duration": ("motion", "duration_s"), "--pga": ("motion", "pga_g")}
+
+
+def _override(scene: Scene, option: str, value: float, origin: str, done: list) -> Scene:
+    """``scene`` with the key of ``option`` (OVERRIDES) set to ``value``, rebuilt from its
+    source and checked; appends the record of the change to ``done``."""
+    section, key = OVERRIDES[option]
+    config, given = getattr(scene, section), value
+    if section == "motion" and config.kind == "record":
+        if option == "--duration":
+            raise SceneError(f"{origin}: --duration {value:g} sets [motion].duration_s of a synthetic motion; this "
+                             f"scene's motion is a record, which lasts as long as its file ({config.length_s:g} s): "
+                             "drop --duration (or cut the record file)")
+        peaks = dict(zip("xyz", config.record.pga))
+        horizontal = [peaks[a] for a in ("x", "y") if a in config.axes]
+        peak = max(horizontal) if horizontal else peaks["z"]          # m/s², already scaled
+        if not peak > 0:
+            raise SceneError(f"{origin}: --pga {value:g}: the record is zero everywhere and cannot be scaled "
+                             "to a peak; check [motion] file, or drop --pga")
+        key, value = "scale", config.scale * value * G / peak
+    data = copy.deepcopy(scene.source)
+    table = data.get(section, {})
+    was = table.get(key, getattr(config, key))
+    data[section] = {**table, key: value}
+    try:
+        new = _scene(data, scene.base_dir, scene.name, origin)
+    except SceneError as exc:
+        text = str(exc).removeprefix(f"{origin}: ")
+        raise SceneError(f"{origin}: {option} {given:g}: {text}") from None
+    done.append({"option": option, "value": given, "key": f"{section}.{key}", "was": was, "now": value})
+    return new
 
 
 def scene_from_dict(data: dict, base_dir: Path | str = ".", name: str = "scene") -> Scene:
@@ -466,7 +523,7 @@ def _scene(data, base_dir: Path, name: str, origin: str) -> Scene:
         output = _config(OutputConfig, _table(data, "output"), "output")
         return Scene(name=name, base_dir=base_dir, profile=profile, mesh=mesh, contact_kind=contact_kind,
                      frequencies_hz=freqs, structure=structure, contact=contact, motion=motion,
-                     analysis=analysis, output=output, winkler=winkler)
+                     analysis=analysis, output=output, winkler=winkler, source=copy.deepcopy(data))
     except (SceneError, StructureError, MotionError, SoilError, MeshError) as exc:
         raise SceneError(f"{origin}: {exc}") from None
 

@@ -299,12 +299,13 @@ def code_version() -> str:
 
 
 def cell_key(scene: Scene, route: str, pga_g: float, record_sha256: str = "", dt_check: str = "strongest") -> str:
-    """SHA-256 of a cell's inputs: the scene's content (not its name or folder; the record by
-    its files' checksum ``Record.sha256`` and its components, not its paths), the route, the
-    PGA, the dt check and the code."""
+    """SHA-256 of a cell's inputs: the scene's content (not its name or folder, nor the TOML it
+    was read from and the command line's overrides, which its configurations already hold; the
+    record by its files' checksum ``Record.sha256`` and its components, not its paths), the route,
+    the PGA, the dt check and the code."""
     image = _canonical(scene)
-    for key in ("name", "base_dir"):
-        image.pop(key)
+    for key in ("name", "base_dir", "source", "overrides"):
+        image.pop(key, None)
     image["analysis"].pop("routes")
     components = list(scene.motion.axes) if scene.motion.components is not None else None
     image["motion"].update(file=record_sha256, components=components, record=None)
