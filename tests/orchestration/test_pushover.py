@@ -11,9 +11,10 @@ from orchestrator.cli import main
 from orchestrator.pushover import read_pushover, scene_pushover
 from orchestrator.routes.winkler import static_springs, winkler_soil
 from orchestrator.scene import scene_from_dict
-from orchestrator.impedance import scene_impedance
+from orchestrator.impedance import scene_impedance, scene_static
 from structure.contact import penalty_stiffness
 from structure.preload import solve_static
+from structure.static_contact import vertical_trace
 
 DISK = {"soil": {"layers": [], "halfspace": {"vs": 500.0, "nu": 1 / 3, "rho": 2000.0}},
         "foundation": {"shape": "circle", "radius": 10.0, "element_size": 1.25}}
@@ -96,3 +97,29 @@ def test_a_scene_without_structure_needs_a_vertical_load(tmp_path, capsys):
     write_scene(scene, {**DISK, "foundation": {**DISK["foundation"], "element_size": 5.0}})
     assert main(["pushover", str(scene), "-o", str(tmp_path / "p.h5"), "--no-cache"]) == 2
     assert "--vertical-load" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("soil", ["bem", "winkler"])
+def test_slope_before_liftoff_is_the_static_rocking_stiffness(soil):
+    """Before lift-off the raft is bonded: M / theta is the static rocking stiffness of the same
+    soil with the other five rigid-raft DOFs free, 1 / (K_rigid^-1)_yy about y, where K_rigid is
+    the rigid 6 x 6 static table (BEM; scaled as the pushover scales it) or the springs' rigid
+    stiffness (Winkler: sum k_i T_i^T T_i): to 1e-6."""
+    scene = scene_from_dict(tower(soil={"winkler": {"springs": "rigid"}}, impedance={"range_hz": [0.0, 5.0, 2]}),
+                            name="tower")
+    run = scene_pushover(scene, soil=soil, steps=40)        # 20 x the onset rotation: two steps before it
+    c = run.curve
+    bonded = (c.rotation > 0) & (c.rotation <= c.onset.rotation * (1 + 1e-12))
+    assert bonded.sum() >= 2
+    if soil == "bem":
+        K6 = run.stiffness_factor * np.real(scene_static(scene, "rigid"))
+    else:
+        springs, _ = static_springs(scene)
+        K = springs.static_stiffness().toarray()             # (6 + N): raft DOFs, then the soil under each node
+        n = scene.mesh.n
+        T = np.vstack([np.eye(6), vertical_trace(scene.mesh.xy)])         # w = B q: bonded
+        K6 = T.T @ K @ T
+        assert K.shape == (6 + n, 6 + n)
+    k_rocking = 1.0 / np.linalg.inv(K6)[4, 4]                  # about y: --direction x
+    np.testing.assert_allclose(c.moment[bonded] / c.rotation[bonded], k_rocking, rtol=1e-6)
+    assert c.onset.stiffness == pytest.approx(k_rocking, rel=1e-6)
