@@ -107,6 +107,7 @@ def test_written_reactor_runs_as_the_builtin(tmp_path, cache, monkeypatch, capsy
     assert main(["scene", "reactor", "-o", "s.toml"]) == 0
     common = ["--route", "winkler", "--duration", "1"]
     assert main(["run", "s.toml", *common, "-o", str(tmp_path / "copy.h5")]) == 0
+    capsys.readouterr()                                     # its summary (stdout) aside
     assert main(["run", "reactor", *common, "-o", str(tmp_path / "builtin.h5"), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["overrides"] == [{"option": "--duration", "value": 1.0, "key": "motion.duration_s",
@@ -156,7 +157,7 @@ def test_overrides_change_what_they_say(small, tmp_path, capsys):
     assert main(["run", small, "-o", str(base)]) == 0
     capsys.readouterr()
     assert main(["run", small, "--pga", "0.6", "--dt", "0.005", "--duration", "1.5", "-o", str(over)]) == 0
-    text = capsys.readouterr().err
+    text = capsys.readouterr().out                          # the summary, with the overrides: stdout
     assert "override: --pga 0.6: motion.pga_g = 0.6 (the scene's: 0.3)" in text
     assert "override: --dt 0.005: analysis.dt = 0.005 (the scene's: 0.01)" in text
     r0, r1 = read_results(base)["winkler"], read_results(over)["winkler"]
