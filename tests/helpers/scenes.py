@@ -3,9 +3,9 @@ written as TOML (``write_scene``) for the command line."""
 from __future__ import annotations
 
 import copy
-import json
-import math
 from pathlib import Path
+
+from orchestrator.scene_file import dumps
 
 #: a 20 m stick (one beam, a 2000 t top mass) on a 10 m square raft over Winkler springs (or the
 #: half-space), a 3 s synthetic motion at 0.3 g, the winkler route at 10 ms: runs in about a second
@@ -63,29 +63,10 @@ def edited(data: dict, path, value) -> dict:
     return out
 
 
-def _value(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, float):
-        return repr(v) if math.isfinite(v) else ("nan" if math.isnan(v) else ("inf" if v > 0 else "-inf"))
-    if isinstance(v, str):
-        return json.dumps(v)
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_value(x) for x in v) + "]"
-    if isinstance(v, dict):
-        return "{ " + ", ".join(f"{k} = {_value(x)}" for k, x in v.items()) + " }"
-    raise TypeError(f"cannot write {v!r} as TOML")
-
-
 def toml_text(scene: dict) -> str:
-    """``scene`` ({section: {key: value}}) as TOML: one [section] table each, values inline."""
-    lines = []
-    for name, section in scene.items():
-        lines.append(f"[{name}]")
-        lines += [f"{k} = {_value(v)}" for k, v in section.items()]
-    return "\n".join(lines) + "\n"
+    """``scene`` ({section: {key: value}}) as TOML, as ``uplift scene`` writes it (one [section]
+    table each, values inline, floats exact)."""
+    return dumps(scene)
 
 
 def write_scene(path, scene: dict, extra: str = "") -> str:
