@@ -35,7 +35,7 @@ from orchestrator.compare import compare, format_difference
 from orchestrator.ensemble import ensemble_components, read_ensemble
 from orchestrator.motion import G
 from orchestrator.plots import dodged, pyplot, route_style, run_figures
-from orchestrator.results_file import ResultsFileError, read_motion, read_results, summary
+from orchestrator.results_file import ResultsFileError, read_motion, read_results, read_scene_record, summary
 from orchestrator.routes import get_route, route_names
 
 
@@ -101,11 +101,13 @@ td:first-child,th:first-child{text-align:left}img{max-width:100%;border:1px soli
 def write_report(results_path, directory, reference: str | None = None, pushover=()) -> Path:
     """Write ``directory/report.html`` (self-contained) and the figures as PNG next to it;
     ``pushover``: pushover files or scenes whose static curve the runs are drawn on
-    (``pushover_curves``; without: the built-in scene of the results file's name, if it is one)."""
+    (``pushover_curves``; without: the scene the results file stores, else the built-in scene of its
+    name, whichever is the scene that ran)."""
     scene, created, results, motion = load(results_path)
     if reference is not None and reference not in results:
         raise ResultsFileError(f"--reference {reference!r} is not in {results_path} (routes: {', '.join(results)})")
-    curves, notes = results_curves(results, scene, motion, pushover, f"results file {results_path}")  # refusals first
+    curves, notes = results_curves(results, scene, motion, pushover, f"results file {results_path}",  # refusals first
+                                   read_scene_record(results_path)["scene_toml"])
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     cmp = compare(results, reference=reference)
@@ -330,16 +332,18 @@ def _is_hdf5(path: Path) -> bool:
         return False
 
 
-def pushover_curves(key, scene_name: str, soils, components, sources, what: str, max_rotation: float = 0.0):
+def pushover_curves(key, scene_name: str, soils, components, sources, what: str, max_rotation: float = 0.0,
+                    scene_toml: str = ""):
     """({soil: oncurve.Curve}, notes) for runs of scene key ``key`` on the ``soils`` ("bem",
     "winkler"): read from the pushover files among ``sources`` (checked by their scene key: one of
     another scene is refused, OnCurveError), computed for the scenes among them (TOML files or
-    built-in names, checked the same way), or, without sources, computed for the built-in scene
-    named ``scene_name`` when its key is ``key``. A computed curve rocks in the motion's
+    built-in names, checked the same way), or, without sources, computed for the scene the file
+    stores (``scene_toml``, the scene as it ran) or the built-in scene named ``scene_name``, the
+    first whose key is ``key``. A computed curve rocks in the motion's
     direction (``oncurve.rocking_direction`` of ``components``) past ``max_rotation`` (rad, the
     runs' largest). ``notes``: why a curve is not there."""
     from orchestrator.pushover import read_pushover, scene_pushover  # only reports with a curve pay it
-    from orchestrator.scene import builtin_scenes, load_scene  # (same)
+    from orchestrator.scene import builtin_scenes, load_scene, scene_from_dict, tomllib  # (same)
     from orchestrator.settings import default_cache_dir  # (same)
     curves, notes, scenes = {}, [], []
     for src in sources:
@@ -354,6 +358,9 @@ def pushover_curves(key, scene_name: str, soils, components, sources, what: str,
         if not key:
             notes.append(f"{what} holds no scene key (written before it was stored, or by hand): run `uplift run` "
                          "again, or draw a pushover file of the same scene with --pushover")
+        elif scene_toml and oncurve.scene_key(stored := scene_from_dict(tomllib.loads(scene_toml),
+                                                                        name=scene_name)) == key:
+            scenes.append((stored, f"the scene stored in {what}"))
         elif scene_name in builtin_scenes() and oncurve.scene_key(load_scene(scene_name)) == key:
             scenes.append((load_scene(scene_name), f"built-in scene {scene_name}"))
         else:
@@ -412,9 +419,10 @@ ONCURVE_TEXT = ("<p>Each run's largest overturning moment |M| (about the raft ce
                 "marker: a bonded route (no uplift), whose contact forces may pull.</p>")
 
 
-def results_curves(results, scene_name: str, motion, sources, what: str):
+def results_curves(results, scene_name: str, motion, sources, what: str, scene_toml: str = ""):
     """``pushover_curves`` for the routes of a results file (their scene key, soils, motion
-    components and largest rotation): ({soil: Curve}, notes). Refuses a pushover of another scene."""
+    components and largest rotation; ``scene_toml``: the scene the file stores): ({soil: Curve},
+    notes). Refuses a pushover of another scene."""
     ran = [res for res in results.values() if res.nt > 0]
     key = next((res.info.get("scene_key") for res in ran if res.info.get("scene_key")), None)
     components = motion.components if motion is not None else next(
@@ -423,7 +431,7 @@ def results_curves(results, scene_name: str, motion, sources, what: str):
     if not ran and not sources:
         return {}, ["no route ran"]
     return pushover_curves(key, scene_name, {oncurve.route_soil(r.route) for r in ran}, components, sources, what,
-                           max_rot)
+                           max_rot, scene_toml)
 
 
 def oncurve_parts(results, scene_name: str, curves: dict, notes: list, directory: Path) -> list:

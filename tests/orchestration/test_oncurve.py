@@ -13,7 +13,7 @@ from orchestrator.oncurve import Curve, oncurve_figure, overturning_moment, rout
 from orchestrator.plots import pyplot
 from orchestrator.pushover import scene_pushover
 from orchestrator.report import results_curves
-from orchestrator.results_file import read_results, write_results
+from orchestrator.results_file import read_results, read_scene_record, write_results
 from orchestrator.run import run_scene
 from orchestrator.scene import scene_from_dict
 
@@ -137,3 +137,20 @@ def test_figure_has_units_and_marks_the_bonded_route(strong):
         assert len(markers) == len(results)                               # told apart by more than colour
     finally:
         pyplot().close(fig)
+
+
+def test_report_without_pushover_uses_the_scene_the_file_stores(strong):
+    """A results file stores the scene as it ran (``scene_toml``): without --pushover, the report
+    pushes that scene over (the tower is no built-in scene), the curve equal to the one of the
+    scene's own TOML file."""
+    tmp, scene = strong
+    out = tmp / "rep_stored"
+    assert main(["report", str(tmp / "run.h5"), "-o", str(out)]) == 0
+    page = (out / "report.html").read_text()
+    assert (out / "on_the_curve.png").is_file() and "Not drawn" not in page
+    results = read_results(tmp / "run.h5")
+    what = f"results file {tmp / 'run.h5'}"
+    stored, _ = results_curves(results, "tower", None, [], what, read_scene_record(tmp / "run.h5")["scene_toml"])
+    given, _ = results_curves(results, "tower", None, [scene], what)
+    for soil in ("winkler", "bem"):
+        np.testing.assert_array_equal(stored[soil].moment, given[soil].moment)
