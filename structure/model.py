@@ -86,11 +86,18 @@ class Raft:
 
     def vertical_trace(self) -> np.ndarray:
         """Bq (N, 6): vertical displacement of each interface point, uz + rx y - ry x."""
-        B = np.zeros((self.n, 6))
-        B[:, 2] = 1.0
-        B[:, 3] = self.xy[:, 1]
-        B[:, 4] = -self.xy[:, 0]
-        return B
+        return vertical_trace(self.xy)
+
+
+def vertical_trace(xy) -> np.ndarray:
+    """Bq (N, 6): the rigid raft's vertical displacement at the points ``xy`` (N, 2) m about its
+    centre, t = Bq q = uz + rx y - ry x."""
+    xy = np.asarray(xy, float)
+    B = np.zeros((xy.shape[0], 6))
+    B[:, 2] = 1.0
+    B[:, 3] = xy[:, 1]
+    B[:, 4] = -xy[:, 0]
+    return B
 
 
 @dataclass(frozen=True)

@@ -28,16 +28,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from .errors import ConvergenceError, StructureError
-
-
-def vertical_trace(xy) -> np.ndarray:
-    """Bq (N, 6): the raft's vertical trace at the nodes, t = Bq q (uz + rx y - ry x)."""
-    xy = np.asarray(xy, float)
-    B = np.zeros((xy.shape[0], 6))
-    B[:, 2] = 1.0
-    B[:, 3] = xy[:, 1]
-    B[:, 4] = -xy[:, 0]
-    return B
+from .model import vertical_trace
 
 
 def rocking_vector(angle_rad: float) -> np.ndarray:

@@ -14,7 +14,7 @@ from orchestrator.scene import scene_from_dict
 from orchestrator.impedance import scene_impedance, scene_static
 from structure.contact import penalty_stiffness
 from structure.preload import solve_static
-from structure.static_contact import vertical_trace
+from structure.model import vertical_trace
 
 DISK = {"soil": {"layers": [], "halfspace": {"vs": 500.0, "nu": 1 / 3, "rho": 2000.0}},
         "foundation": {"shape": "circle", "radius": 10.0, "element_size": 1.25}}
