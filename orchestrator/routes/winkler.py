@@ -60,16 +60,10 @@ def winkler_soil(scene, model, table=None, cache_dir=None):
     if table is None or table.frequencies_hz[0] != 0.0:
         raise RouteInputError("the winkler route calibrates its springs on K(0): include 0 Hz in "
                               "[impedance] (range_hz = [0.0, fmax, count])")
-    k_ref = scene.profile.static_to_reference     # causal soil: K(0) is relaxed, springs use rho vs^2
-    K6 = k_ref * np.real(table.matrices[0])
-    if cfg.springs == "rigid":
-        soil = springs_from_rigid_impedance(K6, xy, area, match=cfg.match)
-    else:
-        kdiag = k_ref * np.diag(scene_static(scene, "nodal", cache_dir))
-        soil = springs_from_nodal_diagonal(kdiag, xy)
+    K6 = scene.profile.static_to_reference * np.real(table.matrices[0])
+    soil, label, kdiag = calibrated_springs(scene, K6, cache_dir)
     f1 = float(modes_on_soil(model, soil).freq[0])
-    info = {"springs": f"{cfg.springs} static impedance"
-                       + (f", {cfg.match} matched" if cfg.springs == "rigid" else " diagonal"),
+    info = {"springs": label,
             "winkler_over_bem_static": (np.diag(soil.rigid_stiffness()) / np.diag(K6)).tolist(),
             "first_soil_structure_hz": f1}
     if cfg.damping == "dashpots":
@@ -88,22 +82,30 @@ def winkler_soil(scene, model, table=None, cache_dir=None):
     return soil, C, info
 
 
+def calibrated_springs(scene, K6, cache_dir=None):
+    """(WinklerSoil without dashpots, label, the nodal diagonal (3N,) or None) of the scene's
+    ``[soil].winkler`` calibrated on the BEM at the moduli rho vs^2 (a causal soil's K(0) is
+    relaxed): the static rigid impedance ``K6`` (6, 6), already at those moduli, shared by area
+    ("rigid"), or the diagonal of the nodal static impedance (``scene_static``; "nodal")."""
+    cfg = scene.winkler
+    if cfg.springs == "rigid":
+        return (springs_from_rigid_impedance(K6, scene.mesh.xy, scene.mesh.area, match=cfg.match),
+                f"rigid static impedance, {cfg.match} matched", None)
+    kdiag = scene.profile.static_to_reference * np.diag(scene_static(scene, "nodal", cache_dir))
+    return springs_from_nodal_diagonal(kdiag, scene.mesh.xy), "nodal static impedance diagonal", kdiag
+
+
 def static_springs(scene, cache_dir=None):
     """(WinklerSoil, label): the springs of the scene's ``[soil].winkler`` as ``winkler_soil``
     calibrates them, without dashpots (what a static analysis needs): the subgrade moduli, or
-    the BEM's static rigid impedance K(0) (``scene_static``) shared by area ("rigid") or the
-    diagonal of its nodal static impedance ("nodal"), at the moduli rho vs^2 like the route."""
+    ``calibrated_springs`` on the static rigid impedance K(0) (``scene_static``)."""
     cfg = scene.winkler
-    xy, area = scene.mesh.xy, scene.mesh.area
     if cfg.explicit:
-        return winkler_from_moduli(cfg.moduli, xy, area), "soil.winkler subgrade moduli"
-    k_ref = scene.profile.static_to_reference
-    if cfg.springs == "rigid":
-        K6 = k_ref * np.real(scene_static(scene, "rigid", cache_dir))
-        return (springs_from_rigid_impedance(K6, xy, area, match=cfg.match),
-                f"rigid static impedance, {cfg.match} matched")
-    kdiag = k_ref * np.real(np.diag(scene_static(scene, "nodal", cache_dir)))
-    return springs_from_nodal_diagonal(kdiag, xy), "nodal static impedance diagonal"
+        return winkler_from_moduli(cfg.moduli, scene.mesh.xy, scene.mesh.area), "soil.winkler subgrade moduli"
+    K6 = None if cfg.springs != "rigid" else \
+        scene.profile.static_to_reference * np.real(scene_static(scene, "rigid", cache_dir))
+    soil, label, _ = calibrated_springs(scene, K6, cache_dir)
+    return soil, label
 
 
 def _nodal_dashpots(C6, area):
