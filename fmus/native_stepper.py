@@ -33,13 +33,13 @@ from pathlib import Path
 
 import numpy as np
 
-from fmus.native_build import (CFLAGS, HEADERS, NATIVE, SOURCES, NativeBuildError, compile_runtime,
+from fmus.native_build import (CFLAGS, SOURCES, NativeBuildError, compile_runtime,
                                encode_resources, host_platform, soil_records, stepper_records)
 from fmus.schema import ENERGY_TERMS, row_slices, row_width
+from uplift_common.code import code_digest
 
 #: the C files of the in-process library (the numerics and simulate.c; no FMI side)
 HOST_SOURCES = ("simulate.c", "stepper.c", "soil.c", "linalg.c", "resources.c")
-HOST_HEADERS = ("uplift.h", "uplift_schema.h")
 
 _lock = threading.Lock()
 _loaded: dict = {}                  # folder -> (CDLL or None, note)
@@ -58,19 +58,19 @@ def _compiler() -> tuple[str, str]:
     return "zig", f"zig {out.stdout.strip()}"
 
 
-def _digest(compiler_id: str, sources, headers) -> str:
-    h = hashlib.sha256()
-    for name in (*sources, *(f"include/{x}" for x in headers)):
-        h.update(name.encode() + b"\0" + (NATIVE / name).read_bytes() + b"\0")
-    h.update(f"{compiler_id}\0{' '.join(CFLAGS)}\0{host_platform()}".encode())
+def _digest(compiler_id: str) -> str:
+    """The content hash of a library: the C runtime's sources and headers (``code_digest`` of
+    fmus/native, as every cache of the project), the compiler, the flags and the platform."""
+    h = hashlib.sha256(code_digest("fmus.native").encode())
+    h.update(f"\0{compiler_id}\0{' '.join(CFLAGS)}\0{host_platform()}".encode())
     return h.hexdigest()[:24]
 
 
-def _compiled(folder: Path, stem: str, sources, headers) -> Path:
+def _compiled(folder: Path, stem: str, sources) -> Path:
     """The shared library of ``sources`` for this machine in ``folder``, compiled when its
-    content hash (sources, headers, compiler, flags, platform) is not there yet."""
+    content hash (``_digest``) is not there yet."""
     compiler, ident = _compiler()
-    path = folder / f"{stem}-{_digest(ident, sources, headers)}.{'dll' if sys.platform == 'win32' else 'so'}"
+    path = folder / f"{stem}-{_digest(ident)}.{'dll' if sys.platform == 'win32' else 'so'}"
     if not path.is_file():
         blob = compile_runtime((host_platform(),), compiler, sources=sources)[host_platform()]
         folder.mkdir(parents=True, exist_ok=True)
@@ -95,7 +95,7 @@ def declare(lib: ctypes.CDLL) -> ctypes.CDLL:
 
 
 def _build(folder: Path) -> ctypes.CDLL:
-    return declare(ctypes.CDLL(str(_compiled(folder, "uplift-host", HOST_SOURCES, HOST_HEADERS))))
+    return declare(ctypes.CDLL(str(_compiled(folder, "uplift-host", HOST_SOURCES))))
 
 
 _private: list = []                # the process's temporary folder, when no folder is given
@@ -125,7 +125,7 @@ def fmu_binaries(folder=None) -> dict:
     """{host platform: bytes} of the native FMUs' FMI 2.0 runtime compiled for this machine, from
     ``folder`` as ``library`` (compiled on first use), for ``build_native_fmus(...,
     binaries=...)``; raises NativeBuildError (or OSError) when it cannot be compiled here."""
-    path = _compiled(_folder(folder), "uplift-fmu2", SOURCES, HEADERS)
+    path = _compiled(_folder(folder), "uplift-fmu2", SOURCES)
     return {host_platform(): path.read_bytes()}
 
 
