@@ -186,7 +186,9 @@ class SharedRun:
     ``prepare_run`` or fitted by ``soil_fit`` when a route first needs it, else None; fit_error :
     the error of that fit when it failed (kept: the fit is tried once, and every route that needs
     it is refused or stopped with the reason); dt_check : a step-doubling check (``step_doubling``)
-    standing for every run, or None: each run checks its own motion (as a single run does).
+    standing for every run, or None: each run checks its own motion (as a single run does);
+    scene_key : ``oncurve.scene_key`` of the scene (what a pushover of it depends on; each
+    route's ``info`` carries it: ``uplift report`` draws the run on that pushover).
     """
     scene: object
     routes: tuple
@@ -199,6 +201,7 @@ class SharedRun:
     fit_error: Exception | None = None
     dt_check: Mapping | None = None
     fit_progress: Callable | None = None
+    scene_key: str = ""
 
     def soil_fit(self):
         """The rational fit of the gap table (``fit``): made here on first need (``scene_fit`` on
@@ -264,7 +267,7 @@ def prepare_run(scene, routes=None, cache_dir=None, sweep_progress=None, fit_pro
         if outputs and (fit is None or reads_tables):
             tables = scene_impedance(scene, outputs, cache_dir=cache_dir, progress=sweep_progress, stats=sweep)
     return SharedRun(scene=scene, routes=tuple(scene.analysis.routes), model=model, springs=springs, tables=tables,
-                     sweep=sweep, cache_dir=cache_dir, fit=fit, fit_progress=fit_progress)
+                     sweep=sweep, cache_dir=cache_dir, fit=fit, fit_progress=fit_progress, scene_key=scene_key(scene))
 
 
 def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=None, options=None,
@@ -302,7 +305,6 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
             warning = step_doubling_warning(dt_check)
             dt_notes = {"warnings": [warning] if warning else [], "info": {"dt_check": dt_check}}
         ctx = RunContext(scene=scene, motion=motion, prepared=run, cache_dir=cache_dir)
-        key = scene_key(scene)        # what a pushover of the scene depends on (uplift report draws the run on it)
         results = {}
         for route in chosen:
             res = _run_route(route, ctx.for_route(route, (options or {}).get(route.name)),
@@ -312,7 +314,7 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
             if route.needs_fit and run.fit is not None and not run.fit.report.tol_reached:
                 res = res.with_notes(warnings=[f"rational soil fit: {run.fit.report.message}"])
             ran = {} if res.status is Status.REFUSED else {"components": list(motion.components),
-                                                           "scene_key": key}
+                                                           "scene_key": run.scene_key}
             results[route.name] = res.with_notes(skipped=_shared_skips(scene, route, run), info=ran)
     return results, motion
 
