@@ -25,6 +25,7 @@ import html
 import io
 from pathlib import Path
 
+import h5py
 import numpy as np
 
 from uplift_common.files import atomic_output
@@ -324,14 +325,6 @@ ONCURVE_HEADER = ["route", "soil of the curve", "max |M| (MN m)", "at t (s)", "Î
                   "min contact (% area)", "curve's M at that rotation (MN m)", "max |M| / curve's M", "note"]
 
 
-def _is_hdf5(path: Path) -> bool:
-    try:
-        with open(path, "rb") as f:
-            return f.read(8) == b"\x89HDF\r\n\x1a\n"
-    except OSError:
-        return False
-
-
 def pushover_curves(key, scene_name: str, soils, components, sources, what: str, max_rotation: float = 0.0,
                     scene_toml: str = ""):
     """({soil: oncurve.Curve}, notes) for runs of scene key ``key`` on the ``soils`` ("bem",
@@ -348,7 +341,7 @@ def pushover_curves(key, scene_name: str, soils, components, sources, what: str,
     curves, notes, scenes = {}, [], []
     for src in sources:
         path = Path(src)
-        if path.is_file() and _is_hdf5(path):
+        if path.is_file() and h5py.is_hdf5(path):
             c = oncurve.Curve.from_file(read_pushover(path), str(path))
             c.check_key(key, what)
             curves[c.soil] = c

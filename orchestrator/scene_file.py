@@ -20,12 +20,7 @@ import re
 from importlib import resources
 from pathlib import Path
 
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python < 3.11
-    import tomli as tomllib
-
-from orchestrator.scene import SceneError, builtin_scenes
+from orchestrator.scene import SceneError, builtin_scenes, tomllib
 
 #: the keys of a scene that name a file (relative to the scene file): (section, key); a record's
 #: ``components`` is a table {axis: file}
