@@ -42,8 +42,12 @@ class InterfaceMesh:
     xy : ndarray, shape (n, 2), m     node coordinates about the raft centre
     area : ndarray, shape (n,), m^2   tributary (patch) areas
     cell : float or None, m           side of the square cells of a regular grid mesh
-    kind : str                        "circle", "rectangle" or "nodes"
+    kind : str                        "circle", "rectangle", "nodes" or "cells"
     size : tuple                      (radius,) or (lx, ly) for the regular shapes; () otherwise
+    cells : ndarray, shape (n, 4, 2), m, or None
+        the polygon of each node's cell (kind "cells", from a finite-element mesh): vertices
+        counter-clockwise in the frame of ``xy``, a triangle with one vertex repeated (an edge of
+        zero length); ``xy`` is then each cell's area centroid and ``area`` its area
     """
 
     xy: np.ndarray
@@ -51,6 +55,7 @@ class InterfaceMesh:
     cell: float | None = None
     kind: str = "nodes"
     size: tuple = ()
+    cells: np.ndarray | None = None
 
     def __post_init__(self):
         xy, area = interface_points(self.xy, self.area, MeshError, "mesh")
@@ -166,6 +171,55 @@ def rectangle_mesh(lx: float, ly: float, element_size: float) -> InterfaceMesh:
 def nodes_mesh(xy, area) -> InterfaceMesh:
     """A user node list with tributary areas (no grid)."""
     return InterfaceMesh(np.asarray(xy, float), np.asarray(area, float), cell=None, kind="nodes")
+
+
+def polygon_area_centroid(poly: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Signed area (m^2, > 0 counter-clockwise) and area centroid of polygons, shape (n, k, 2)."""
+    x, y = poly[..., 0], poly[..., 1]
+    xn, yn = np.roll(x, -1, axis=-1), np.roll(y, -1, axis=-1)
+    cross = x * yn - xn * y
+    area = 0.5 * cross.sum(axis=-1)
+    safe = np.where(area != 0, area, 1.0)
+    cx = ((x + xn) * cross).sum(axis=-1) / (6 * safe)
+    cy = ((y + yn) * cross).sum(axis=-1) / (6 * safe)
+    return area, np.column_stack([cx, cy])
+
+
+def cells_mesh(points, triangles=(), quads=(), centre=(0.0, 0.0)) -> InterfaceMesh:
+    """An interface of linear triangles and quadrilaterals: one node per cell, at its area centroid.
+
+    Parameters
+    ----------
+    points : array_like (m, 2), m          vertex coordinates on the raft plane
+    triangles, quads : int arrays (nt, 3), (nq, 4)   vertex indices of each cell (either orientation)
+    centre : (x, y), m                      the raft reference point: the mesh is shifted so that it
+                                            is the origin of ``xy`` and ``cells``
+
+    Cells are oriented counter-clockwise; a cell of zero area is refused naming its index.
+    """
+    pts = np.asarray(points, dtype=float)
+    if pts.ndim != 2 or pts.shape[1] != 2 or not np.all(np.isfinite(pts)):
+        raise MeshError(f"mesh points must be a finite (m, 2) array of x, y, got shape {pts.shape}")
+    polys = []
+    for conn, k in ((triangles, 3), (quads, 4)):
+        conn = np.asarray(conn, dtype=np.int64).reshape(-1, k)
+        if conn.size and (conn.min() < 0 or conn.max() >= pts.shape[0]):
+            raise MeshError(f"mesh cells refer to vertex indices outside 0..{pts.shape[0] - 1}")
+        p = pts[conn]
+        polys.append(np.concatenate([p, p[:, 2:3]], axis=1) if k == 3 else p)
+    poly = np.concatenate(polys) - np.asarray(centre, dtype=float)
+    if poly.shape[0] == 0:
+        raise MeshError("the mesh has no triangle or quadrilateral cells")
+    area, centroid = polygon_area_centroid(poly)
+    size = float(np.abs(poly).max())
+    flat = np.flatnonzero(np.abs(area) <= 1e-12 * max(size * size, 1e-300))
+    if flat.size:
+        raise MeshError(f"mesh cell {flat[0]} has zero area (its vertices are on one line or repeated): "
+                        "remove or repair the degenerate cells")
+    poly[area < 0] = poly[area < 0, ::-1]
+    poly = np.ascontiguousarray(poly)
+    poly.setflags(write=False)
+    return InterfaceMesh(centroid, np.abs(area), cell=None, kind="cells", cells=poly)
 
 
 def read_nodes_csv(path) -> InterfaceMesh:

@@ -49,6 +49,8 @@ def _material_dict(m) -> dict:
 def _mesh_dict(mesh) -> dict:
     h = hashlib.sha256(np.ascontiguousarray(mesh.xy, "<f8").tobytes()
                        + np.ascontiguousarray(mesh.area, "<f8").tobytes())
+    if mesh.cells is not None:
+        h.update(np.ascontiguousarray(mesh.cells, "<f8").tobytes())
     return {"kind": mesh.kind, "size": list(mesh.size), "cell": mesh.cell, "n": mesh.n,
             "arrays_sha256": h.hexdigest()}
 
