@@ -14,6 +14,7 @@ Modules (one concept each):
   closed_contact the closed-contact (linear) solver and the vectorised energy kernels
   driver         simulate(): the driver that runs a stepper over a record into a RouteResult
   results        RouteResult, the one result type of every route
+  plate          Kirchhoff plate bending: the DKT triangle (quads split in two), assembled stiffness
   winkler        Winkler mattress: springs, dashpots, RCC-G composite modal damping
   spec           scene tables -> objects (model_from_spec, winkler_from_spec, contact_from_spec)
   data/reactor.toml   the representative reactor building (model = "reactor")
@@ -34,6 +35,7 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "errors": ("ConvergenceError", "StructureError"),
     "model": ("G_ACC", "Beam", "Damping", "Mass", "Node", "Raft", "Spring", "StructureModel"),
     "newmark": ("NewmarkStepper",),
+    "plate": ("flexural_rigidity", "plate_stiffness", "pressure_load"),
     "preload": ("StaticState", "solve_static"),
     "results": ("RouteResult",),
     "driver": ("simulate",),
