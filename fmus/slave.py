@@ -196,11 +196,9 @@ class BankedSlave:
         why = state.get("refused")
         if why is None and state.get("identity") != self.identity:
             why = message("state_identity", got=f"{int(state.get('identity', 0)):016x}", expected=f"{self.identity:016x}")
-        if why is not None:
-            from pythonfmu.enums import Fmi2Status
-            self.last_error = f"fmi2SetFMUstate: {why}"
-            self.log(self.last_error, Fmi2Status.error)
-            survive_fatal(self)
+        if why is not None:              # the reason in the exception only: a message logged
+            self.last_error = f"fmi2SetFMUstate: {why}"      # before raising turns pythonfmu's
+            survive_fatal(self)                               # report of it into "unknown error"
             raise StateRefused(self.last_error)
         self.time = float(state["time"])
         self.bank.values[:] = state["bank"]
