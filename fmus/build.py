@@ -10,7 +10,10 @@ packages of ``resources/requirements.txt`` (pythonfmu FMUs run in the host's lib
 
 pythonfmu writes no output dependencies and no ``InitialUnknowns``; ``fix_model_description``
 adds them (outputs depend on no input at the same communication point: no direct
-feedthrough), so ``fmpy.validation.validate_fmu`` reports nothing.
+feedthrough), so ``fmpy.validation.validate_fmu`` reports nothing, and puts the guard
+(fmus/pyguard.py) in front of pythonfmu's library: the FMU's binary checks every argument of
+every FMI call (NULL and foreign pointers, GUID, resources, state machine, causality and
+variability) and forwards the legal calls to pythonfmu's, shipped beside it.
 """
 from __future__ import annotations
 

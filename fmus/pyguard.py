@@ -1,4 +1,4 @@
-"""The guard of the Python FMUs: a small C library (fmus/pyguard/guard.c) that a python FMU ships
+"""The guard of the Python FMUs: a small C library (fmus/pyguard_c/guard.c) that a python FMU ships
 as its ``binaries/<platform>/<modelIdentifier>.<so|dll>``, in front of pythonfmu's own library
 (shipped beside it as ``pythonfmu-export.<so|dll>`` and loaded from the guard's folder).
 
@@ -35,7 +35,7 @@ from pathlib import Path
 
 from fmus.native_build import NATIVE, PLATFORMS, NativeBuildError, fmi_headers
 
-SOURCE = Path(__file__).resolve().parent / "pyguard" / "guard.c"
+SOURCE = Path(__file__).resolve().parent / "pyguard_c" / "guard.c"
 #: the message table shared with the native runtime (fmus/schema.py generates it)
 HEADER = NATIVE / "include" / "uplift_messages.h"
 TABLE_FILE = "uplift_guard.txt"

@@ -1,4 +1,4 @@
-"""The guard of the python FMUs (fmus/pyguard.py, fmus/pyguard/guard.c): every misuse that
+"""The guard of the python FMUs (fmus/pyguard.py, fmus/pyguard_c/guard.c): every misuse that
 crashed pythonfmu's library or was silently accepted is refused with fmi2Error (fmi2Instantiate:
 NULL) and a logged reason, and the next legal call works; legal calls give what pythonfmu gives.
 
@@ -8,6 +8,8 @@ session's python export (``exported``) and one state of the native soil FMU (``e
 The child frees everything and exits normally, so a crash at teardown is seen too.
 """
 import json
+import re
+import shutil
 import subprocess
 import sys
 import textwrap
@@ -283,7 +285,7 @@ def test_every_misuse_is_refused_with_a_reason_and_the_next_call_works(exported,
     assert out["state-reused"] and out["freed-to-null"]
 
 
-def test_the_fmu_ships_the_guard_in_front_of_pythonfmu(exported):
+def test_the_fmu_ships_the_guard_in_front_of_pythonfmu(exported, tmp_path):
     """binaries/<platform>/<id>.<ext> is the guard (the FMI 2.0 entry points, no Python symbol),
     pythonfmu's library beside it, and the variable table matches the model description."""
     from fmpy import read_model_description
@@ -291,12 +293,22 @@ def test_the_fmu_ships_the_guard_in_front_of_pythonfmu(exported):
     md = read_model_description(str(exported.structure))
     ident = md.coSimulation.modelIdentifier
     with zipfile.ZipFile(exported.structure) as z:
-        names = set(z.namelist())
         table = z.read(f"resources/{TABLE_FILE}").decode()
         assert table == guard_table(z.read("modelDescription.xml"))
         guard, inner = (z.read(f"binaries/linux64/{n}") for n in (f"{ident}.so", "pythonfmu-export.so"))
-    assert {f"binaries/win64/{ident}.dll", "binaries/win64/pythonfmu-export.dll"} <= names
+        windows = {n: z.read(f"binaries/win64/{n}") for n in (f"{ident}.dll", "pythonfmu-export.dll")}
     assert b"fmi2DoStep" in guard and b"Py_Initialize" not in guard and b"PyGILState_Ensure" in inner
+    if shutil.which("objdump"):           # the Windows guard: pythonfmu's entry points, the C runtime only
+        dumps = {}
+        for name, blob in windows.items():
+            path = tmp_path / name
+            path.write_bytes(blob)
+            dumps[name] = subprocess.run(["objdump", "-p", str(path)], check=True, capture_output=True,
+                                         text=True).stdout
+        entries = {n: set(re.findall(r"\]\s+(fmi2\w+)", d)) for n, d in dumps.items()}
+        assert len(entries[f"{ident}.dll"]) > 30 and entries[f"{ident}.dll"] == entries["pythonfmu-export.dll"]
+        dlls = {d.lower() for d in re.findall(r"DLL Name: (\S+)", dumps[f"{ident}.dll"])}
+        assert all(d == "kernel32.dll" or d.startswith("api-ms-win-crt-") for d in dlls), dlls
     lines = table.splitlines()
     assert lines[1] == f"guid {md.guid}"
     rows = {int(line.split()[1]): line.split() for line in lines[3:]}
