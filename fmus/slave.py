@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import traceback
 
 import numpy as np
@@ -24,6 +25,15 @@ def survive_fatal(slave) -> None:
     import ctypes
     for obj in (slave, type(slave), slave.log_queue):
         ctypes.pythonapi.Py_IncRef(ctypes.py_object(obj))
+
+
+def forget_repeated_path(folder: str) -> None:
+    """pythonfmu puts the resources folder at the front of sys.path at every instantiation and
+    never takes it out (one entry more per instance, for ever, in a host that instantiates
+    often): keep its first entry only."""
+    if sys.path.count(folder) > 1:
+        first = sys.path.index(folder)
+        sys.path[:] = [p for i, p in enumerate(sys.path) if p != folder or i == first]
 
 
 class BankedSlave:
@@ -58,6 +68,7 @@ class BankedSlave:
     def _init_life_cycle(self, dt: float) -> None:
         from pythonfmu.default_experiment import DefaultExperiment
         adopt_resources(self.resources)
+        forget_repeated_path(str(self.resources))
         self.default_experiment = DefaultExperiment(0.0, self.settings.get("stop_time"), float(dt))
         self.dt = float(dt)
         self.time = 0.0

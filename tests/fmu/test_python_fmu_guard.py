@@ -222,6 +222,8 @@ HOST = textwrap.dedent(r"""
     case("set-input-after-terminate", fmu.SetReal(c, refs(vr["ag_x"]), 1, reals(1)))
     case("step-after-terminate", fmu.DoStep(c, 2 * steps * dt, dt, 1))
     case("reset", fmu.Reset(c) | fmu.start(c) | fmu.DoStep(c, 0.0, dt, 1))
+    # pythonfmu adds the resources folder to sys.path at every instantiation: one entry stays
+    out["path-entries"] = sys.path.count(fmu.folder + "/resources")
     for f, inst, state in ((fmu, ref, other), (native, nc, nat), (soil, sc, ss), (fmu, c, None)):
         if state is not None:
             f.FreeFMUstate(inst, byref(state))
@@ -283,6 +285,7 @@ def test_every_misuse_is_refused_with_a_reason_and_the_next_call_works(exported,
     assert out["parameter-kept"] == 1 and out["output-kept"]
     assert out["misused-equals-clean"] and out["replay-equal"]
     assert out["state-reused"] and out["freed-to-null"]
+    assert out["path-entries"] == 1
 
 
 def test_the_fmu_ships_the_guard_in_front_of_pythonfmu(exported, tmp_path):
