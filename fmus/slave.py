@@ -64,6 +64,8 @@ class BankedSlave:
     #: a communication step may be a multiple of dt (steps of dt inside); False: exactly dt (the
     #: pair, whose coupling is exchanged every dt)
     multistep = False
+    #: the build key (parameters and inputs) the model was built with, and last tried with
+    _built_with = _tried_with = None
 
     def _init_life_cycle(self, dt: float) -> None:
         from pythonfmu.default_experiment import DefaultExperiment
@@ -104,9 +106,12 @@ class BankedSlave:
         self._try_build()
 
     def exit_initialization_mode(self):
-        if self._built_with != self._build_key():       # a parameter or input set in between
+        if self._tried_with != self._build_key():       # a parameter or input set in between
             self._try_build()
         if self._built_with is None:
+            # the reason was logged when the build failed; a build that failed is not tried again
+            # with the same inputs: a message logged in the call that raises turns pythonfmu's
+            # report of the exception into "unknown error"
             survive_fatal(self)
             raise RuntimeError(self.last_error)
         self.time, self.phase = 0.0, "stepping"
@@ -118,6 +123,7 @@ class BankedSlave:
         """Build the model, or log why not (the message reaches the host here: pythonfmu drops
         the message of an exception, so exit_initialization_mode only raises after this)."""
         self._built_with = None
+        self._tried_with = self._build_key()
         start = getattr(self, "start_time", 0.0) or 0.0
         try:
             if start != 0.0:

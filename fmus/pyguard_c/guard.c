@@ -186,18 +186,27 @@ typedef struct {
     GState *states;
 } Guard;
 
+/* the message to the host's logger, whole (pythonfmu's may hold a traceback), each % doubled:
+   the logger takes a printf format */
 static void emit(Guard *G, fmi2Status status, const char *category, const char *text)
 {
-    char msg[2 * MSG + 16];
-    size_t k = 0;
-    for (const char *p = text; *p && k + 2 < sizeof msg; p++) {   /* the message is a printf format */
+    if (!G->logger)
+        return;
+    char small[2 * MSG + 16], *msg = small;
+    size_t n = 2 * strlen(text) + 1, size = sizeof small, k = 0;
+    if (n > size && (msg = (char *)malloc(n)) != NULL)
+        size = n;
+    else if (n > size)
+        msg = small;                          /* out of memory: the message cut */
+    for (const char *p = text; *p && k + 2 < size; p++) {
         if (*p == '%')
             msg[k++] = '%';
         msg[k++] = *p;
     }
     msg[k] = '\0';
-    if (G->logger)
-        G->logger(G->env, G->name, status, category, msg);
+    G->logger(G->env, G->name, status, category, msg);
+    if (msg != small)
+        free(msg);
 }
 
 static void error(Guard *G, const char *fmt, ...)

@@ -40,6 +40,10 @@ def test_initialisation_without_scipy_fails_loudly(exported):
     out = run_host(exported.structure, "no-scipy")
     assert out["status"] in (ERROR, FATAL)
     assert "initialisation failed" in out["log"] and "pip install -r" in out["log"]
+    # the traceback whole (the guard passes pythonfmu's long messages on uncut), and the
+    # exception's own report names the cause too (not pythonfmu's "unknown error")
+    assert "Traceback" in out["log"] and "import scipy" in out["log"] and "unknown error" not in out["log"]
+    assert "RuntimeError(\"initialisation failed" in out["log"]
 
 
 def test_host_modules_of_the_same_name_do_not_shadow_the_fmu(exported):
