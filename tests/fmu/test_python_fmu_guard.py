@@ -56,12 +56,13 @@ HOST = textwrap.dedent(r"""
         SIGNATURES[f"fmi2Get{name}"] = SIGNATURES[f"fmi2Set{name}"] = (c_int, [c_void_p, c_void_p, c_size_t, c_void_p])
 
     class Fmu:
-        def __init__(self, path):
+        def __init__(self, path, library=None):
             self.md = read_model_description(path)
             self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
             self.folder = str(extract(path))
             self.uri = f"file://{self.folder}/resources"
-            self.lib = ctypes.CDLL(f"{self.folder}/binaries/linux64/{self.md.coSimulation.modelIdentifier}.so")
+            library = library or self.md.coSimulation.modelIdentifier + ".so"
+            self.lib = ctypes.CDLL(f"{self.folder}/binaries/linux64/{library}")
             for name, (restype, argtypes) in SIGNATURES.items():
                 f = getattr(self.lib, name)
                 f.restype, f.argtypes = restype, argtypes
@@ -97,15 +98,15 @@ HOST = textwrap.dedent(r"""
     outs = refs(*[vr[n] for n in vr if n.startswith(("x[", "max_uplift", "energy."))])
     one_out, motion = refs(vr["x[2]"]), refs(vr["internal_motion"])
 
-    def outputs(c):
+    def outputs(c, f=fmu):
         values = reals(len(outs))
-        assert fmu.GetReal(c, outs, len(outs), values) == 0
+        assert f.GetReal(c, outs, len(outs), values) == 0
         return list(values)
 
-    def run(c, k0=0):
+    def run(c, k0=0, f=fmu):
         for k in range(k0, k0 + steps):
-            assert fmu.DoStep(c, k * dt, dt, 1) == 0, log[-3:]
-        return outputs(c)
+            assert f.DoStep(c, k * dt, dt, 1) == 0, log[-3:]
+        return outputs(c, f)
 
     # ---- fmi2Instantiate: refused with NULL, the reason logged ---------------------------------
     folder = fmu.folder.encode()
@@ -159,7 +160,14 @@ HOST = textwrap.dedent(r"""
     case("directional-derivative", fmu.GetDirectionalDerivative(c, None, 0, None, 0, None, None))
     # the refused calls changed nothing: the same steps as an instance that was never misused
     fmu.start(ref)
-    out["misused-equals-clean"] = run(c) == run(ref)
+    clean = run(ref)
+    out["moved"] = max(abs(x) for x in clean) > 0                   # the comparisons below mean something
+    out["misused-equals-clean"] = run(c) == clean
+    raw = Fmu(coupled_path, "pythonfmu-export.so")                  # pythonfmu's library, unguarded
+    rc = raw.new()
+    raw.start(rc)
+    out["guarded-equals-pythonfmu"] = run(rc, f=raw) == clean
+    raw.FreeInstance(rc)
 
     # ---- FMU states --------------------------------------------------------------------------
     s, other, nat = c_void_p(), c_void_p(), c_void_p()
@@ -283,7 +291,7 @@ def test_every_misuse_is_refused_with_a_reason_and_the_next_call_works(exported,
             assert out[name][1].strip(), name
         assert "unknown error" not in out[name][1], name
     assert out["parameter-kept"] == 1 and out["output-kept"]
-    assert out["misused-equals-clean"] and out["replay-equal"]
+    assert out["moved"] and out["misused-equals-clean"] and out["guarded-equals-pythonfmu"] and out["replay-equal"]
     assert out["state-reused"] and out["freed-to-null"]
     assert out["path-entries"] == 1
 
