@@ -41,6 +41,7 @@ HOST = textwrap.dedent(r"""
     SIGNATURES = {
         "fmi2Instantiate": (c_void_p, [c_char_p, c_int, c_char_p, c_char_p, POINTER(Callbacks), c_int, c_int]),
         "fmi2FreeInstance": (None, [c_void_p]),
+        "fmi2SetDebugLogging": (c_int, [c_void_p, c_int, c_size_t, c_void_p]),
         "fmi2SetupExperiment": (c_int, [c_void_p, c_int, c_double, c_double, c_int, c_double]),
         "fmi2EnterInitializationMode": (c_int, [c_void_p]), "fmi2ExitInitializationMode": (c_int, [c_void_p]),
         "fmi2Terminate": (c_int, [c_void_p]), "fmi2Reset": (c_int, [c_void_p]),
@@ -121,6 +122,9 @@ HOST = textwrap.dedent(r"""
     quiet = fmu.new(callbacks=Callbacks())                           # no logger: still guarded
     case("no-logger", fmu.DoStep(quiet, 0.0, dt, 1))
     fmu.FreeInstance(quiet)
+    bare = fmu.Instantiate(b"host", 1, fmu.md.guid.encode(), fmu.uri.encode(), None, 0, 0)   # no callbacks
+    case("null-callbacks", int(bare is not None) | fmu.start(bare) << 1 | fmu.DoStep(bare, 0.0, dt, 1) << 3)
+    fmu.FreeInstance(bare)
     alt = fmu.new(uri=b"file:" + folder + b"/resources")             # the other file URI form, decoded
     case("file-colon-uri", int(alt is not None))
     fmu.FreeInstance(alt)
@@ -157,6 +161,8 @@ HOST = textwrap.dedent(r"""
     out["output-kept"] = after[0] == before[0]
     case("set-input-after-init", fmu.SetReal(c, refs(vr["ag_x"]), 1, reals(1, 0.0)))
     case("status-null", fmu.GetRealStatus(c, 2, None))
+    case("logging-null-categories", fmu.SetDebugLogging(c, 1, 2, None))
+    case("logging-on", fmu.SetDebugLogging(c, 1, 0, None))
     case("directional-derivative", fmu.GetDirectionalDerivative(c, None, 0, None, 0, None, None))
     # the refused calls changed nothing: the same steps as an instance that was never misused
     fmu.start(ref)
@@ -246,7 +252,7 @@ EXPECTED = {
     "relative-path": (1, "cannot be opened"), "null-location": (1, "fmuResourceLocation (null)"),
     "bad-escape": (1, "is not a file URI"), "model-exchange": (1, "co-simulation only"),
     "empty-name": (1, "instanceName is empty"), "other-fmus-resources": (1, "belongs to another FMU"),
-    "no-logger": (ERROR, ""), "file-colon-uri": (1, ""),
+    "no-logger": (ERROR, ""), "null-callbacks": (1, ""), "file-colon-uri": (1, ""),
     "null-instance-step": (ERROR, ""), "null-instance-get": (ERROR, ""), "foreign-instance-step": (ERROR, ""),
     "null-instance-state": (ERROR, ""),
     "before-init": (ERROR, "fmi2DoStep before initialisation"),
@@ -258,7 +264,8 @@ EXPECTED = {
     "setup-after-init": (ERROR, "fmi2SetupExperiment is not allowed after initialisation"),
     "set-parameter-after-init": (ERROR, "is a fixed parameter: set it before fmi2ExitInitializationMode"),
     "set-output-after-init": (ERROR, "is an output"), "set-input-after-init": (OK, ""),
-    "status-null": (ERROR, "value pointer is NULL"), "directional-derivative": (ERROR, "not provided by this FMU"),
+    "status-null": (ERROR, "value pointer is NULL"),
+    "logging-null-categories": (ERROR, "categories is NULL"), "logging-on": (OK, ""), "directional-derivative": (ERROR, "not provided by this FMU"),
     "get-state-null": (ERROR, "FMUstate pointer is NULL"), "get-state": (OK, ""),
     "set-null-state": (ERROR, "not an FMU state of this FMU"), "set-unmapped-state": (ERROR, "not an FMU state"),
     "set-junk-state": (ERROR, "not an FMU state"), "set-other-instances-state": (ERROR, "not an FMU state"),
@@ -287,7 +294,7 @@ def test_every_misuse_is_refused_with_a_reason_and_the_next_call_works(exported,
         assert message in out[name][1], (name, out[name][1])
     for name, (status, _) in EXPECTED.items():                  # every refusal says why (a logger exists)
         if status in (1, ERROR) and not name.startswith(("null-instance", "foreign-instance", "no-logger",
-                                                          "file-colon")):
+                                                          "null-callbacks", "file-colon")):
             assert out[name][1].strip(), name
         assert "unknown error" not in out[name][1], name
     assert out["parameter-kept"] == 1 and out["output-kept"]
