@@ -282,6 +282,7 @@ EXPECTED = {
 }
 
 
+@pytest.mark.slow             # about 5 s: one child loading three FMUs
 def test_every_misuse_is_refused_with_a_reason_and_the_next_call_works(exported, exported_native):
     proc = subprocess.run([sys.executable, "-c", HOST, str(exported.coupled), str(exported.soil),
                            str(exported_native.soil), repr(DT), str(STEPS)],
