@@ -10,7 +10,10 @@ packages of ``resources/requirements.txt`` (pythonfmu FMUs run in the host's lib
 
 pythonfmu writes no output dependencies and no ``InitialUnknowns``; ``fix_model_description``
 adds them (outputs depend on no input at the same communication point: no direct
-feedthrough), so ``fmpy.validation.validate_fmu`` reports nothing.
+feedthrough), so ``fmpy.validation.validate_fmu`` reports nothing, and puts the guard
+(fmus/pyguard.py) in front of pythonfmu's library: the FMU's binary checks every argument of
+every FMI call (NULL and foreign pointers, GUID, resources, state machine, causality and
+variability) and forwards the legal calls to pythonfmu's, shipped beside it.
 """
 from __future__ import annotations
 
@@ -27,6 +30,7 @@ import numpy as np
 
 from fmus.bundle import bundle, requirements_of
 from fmus.coupling import history_gains
+from fmus.pyguard import install_guard
 from fmus.resources import (DEFAULT_SOIL_FACTORY, MESH_FILE, MOTION_FILE, REQUIREMENTS_FILE, SOIL_INSTANT_FILE,
                             SOIL_MODEL_FILE, save_rational, soil_from_model)
 
@@ -142,19 +146,22 @@ def _build(script: Path, dest: Path, files) -> Path:
         for name in set(sys.modules) - modules:
             if name == script.stem or name.startswith("_uplift_"):
                 del sys.modules[name]
-    fix_model_description(dest)
+    fix_model_description(dest, guard=True)
     return dest
 
 
-def fix_model_description(fmu_path) -> None:
+def fix_model_description(fmu_path, guard: bool = False) -> None:
     """Rewrite ModelStructure: every output listed with ``dependencies=""`` (no direct
     feedthrough: outputs at a communication point depend on the state only) under Outputs and
     under InitialUnknowns (computed at initialisation); outputs get ``initial="calculated"``
-    without a start value (FMI 2.0 forbids start for calculated variables)."""
+    without a start value (FMI 2.0 forbids start for calculated variables). ``guard``: also put
+    the guard library in front of pythonfmu's (fmus.pyguard.install_guard), with the variable
+    table of the fixed description."""
     fmu_path = Path(fmu_path)
     with zipfile.ZipFile(fmu_path) as z:
         items = {i.filename: z.read(i.filename) for i in z.infolist()}
     root = ET.fromstring(items["modelDescription.xml"])
+    identifier = root.find("CoSimulation").get("modelIdentifier")
     outputs = []
     for k, sv in enumerate(root.find("ModelVariables"), start=1):
         if sv.get("causality") == "output":
@@ -172,6 +179,8 @@ def fix_model_description(fmu_path) -> None:
                 ET.SubElement(node, "Unknown", index=str(k), dependencies="")
     ET.indent(root)
     items["modelDescription.xml"] = ET.tostring(root, encoding="UTF-8", xml_declaration=True)
+    if guard:
+        items = install_guard(items, identifier)
     tmp = fmu_path.with_suffix(".tmp")
     with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
         for name, blob in items.items():

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import traceback
 
 import numpy as np
@@ -24,6 +25,15 @@ def survive_fatal(slave) -> None:
     import ctypes
     for obj in (slave, type(slave), slave.log_queue):
         ctypes.pythonapi.Py_IncRef(ctypes.py_object(obj))
+
+
+def forget_repeated_path(folder: str) -> None:
+    """pythonfmu puts the resources folder at the front of sys.path at every instantiation and
+    never takes it out (one entry more per instance, for ever, in a host that instantiates
+    often): keep its first entry only."""
+    if sys.path.count(folder) > 1:
+        first = sys.path.index(folder)
+        sys.path[:] = [p for i, p in enumerate(sys.path) if p != folder or i == first]
 
 
 class BankedSlave:
@@ -54,10 +64,13 @@ class BankedSlave:
     #: a communication step may be a multiple of dt (steps of dt inside); False: exactly dt (the
     #: pair, whose coupling is exchanged every dt)
     multistep = False
+    #: the build key (parameters and inputs) the model was built with, and last tried with
+    _built_with = _tried_with = None
 
     def _init_life_cycle(self, dt: float) -> None:
         from pythonfmu.default_experiment import DefaultExperiment
         adopt_resources(self.resources)
+        forget_repeated_path(str(self.resources))
         self.default_experiment = DefaultExperiment(0.0, self.settings.get("stop_time"), float(dt))
         self.dt = float(dt)
         self.time = 0.0
@@ -93,9 +106,12 @@ class BankedSlave:
         self._try_build()
 
     def exit_initialization_mode(self):
-        if self._built_with != self._build_key():       # a parameter or input set in between
+        if self._tried_with != self._build_key():       # a parameter or input set in between
             self._try_build()
         if self._built_with is None:
+            # the reason was logged when the build failed; a build that failed is not tried again
+            # with the same inputs: a message logged in the call that raises turns pythonfmu's
+            # report of the exception into "unknown error"
             survive_fatal(self)
             raise RuntimeError(self.last_error)
         self.time, self.phase = 0.0, "stepping"
@@ -107,6 +123,7 @@ class BankedSlave:
         """Build the model, or log why not (the message reaches the host here: pythonfmu drops
         the message of an exception, so exit_initialization_mode only raises after this)."""
         self._built_with = None
+        self._tried_with = self._build_key()
         start = getattr(self, "start_time", 0.0) or 0.0
         try:
             if start != 0.0:
@@ -196,11 +213,9 @@ class BankedSlave:
         why = state.get("refused")
         if why is None and state.get("identity") != self.identity:
             why = message("state_identity", got=f"{int(state.get('identity', 0)):016x}", expected=f"{self.identity:016x}")
-        if why is not None:
-            from pythonfmu.enums import Fmi2Status
-            self.last_error = f"fmi2SetFMUstate: {why}"
-            self.log(self.last_error, Fmi2Status.error)
-            survive_fatal(self)
+        if why is not None:              # the reason in the exception only: a message logged
+            self.last_error = f"fmi2SetFMUstate: {why}"      # before raising turns pythonfmu's
+            survive_fatal(self)                               # report of it into "unknown error"
             raise StateRefused(self.last_error)
         self.time = float(state["time"])
         self.bank.values[:] = state["bank"]

@@ -147,10 +147,11 @@ def test_a_step_too_long_is_refused_up_front(fmus):
     assert out["huge-after"] == OK
 
 
-def test_calls_out_of_their_state_are_refused_by_the_guard(exported_native):
-    """The native runtime's allowed-state masks: set-up and initialisation calls after
-    initialisation are refused, naming the state; the instance goes on stepping."""
-    out = run(exported_native.soil, "machine")
+def test_calls_out_of_their_state_are_refused_by_the_guard(fmus):
+    """The allowed-state masks (the native runtime's; the python kind's guard, fmus/pyguard.py,
+    has the same): set-up and initialisation calls after initialisation are refused, naming the
+    state; the instance goes on stepping."""
+    out = run(fmus.soil, "machine")
     assert out["setup"] != OK and out["enter"] != OK and out["exit"] != OK and out["step"] == OK
     for fn in ("fmi2SetupExperiment", "fmi2EnterInitializationMode", "fmi2ExitInitializationMode"):
         assert f"{fn} is not allowed after initialisation" in out["log"], fn

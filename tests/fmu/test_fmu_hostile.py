@@ -3,11 +3,12 @@ host survives; a refused step leaves the instance usable. Each case runs in a su
 that a crash would be seen (exit by a signal) instead of killing the test run.
 
 What pythonfmu (the Python FMU wrapper) lets a Python FMU say: OK, fmi2Discard (``do_step``
-returns False) or fmi2Fatal (any exception, its message in the log). A call that cannot be
-right (a refused step, an unknown value reference) is fmi2Fatal, so that hosts stop on it
-(fmpy's simulate_fmu ends a run silently on fmi2Discard); the instance is left as it was and
-still answers if the host calls again (the standard allows no further call after fmi2Fatal,
-but a host that does must not crash).
+returns False) or fmi2Fatal (any exception, its message in the log). A step that cannot be
+right is fmi2Fatal, so that hosts stop on it (fmpy's simulate_fmu ends a run silently on
+fmi2Discard); the instance is left as it was and still answers if the host calls again (the
+standard allows no further call after fmi2Fatal, but a host that does must not crash). What the
+guard in front of pythonfmu refuses itself (a call out of its state, an unknown value reference:
+fmus/pyguard.py, tests/fmu/test_python_fmu_guard.py) is fmi2Error.
 """
 
 import pytest
@@ -40,6 +41,10 @@ def test_initialisation_without_scipy_fails_loudly(exported):
     out = run_host(exported.structure, "no-scipy")
     assert out["status"] in (ERROR, FATAL)
     assert "initialisation failed" in out["log"] and "pip install -r" in out["log"]
+    # the traceback whole (the guard passes pythonfmu's long messages on uncut), and the
+    # exception's own report names the cause too (not pythonfmu's "unknown error")
+    assert "Traceback" in out["log"] and "import scipy" in out["log"] and "unknown error" not in out["log"]
+    assert "RuntimeError(\"initialisation failed" in out["log"]
 
 
 def test_host_modules_of_the_same_name_do_not_shadow_the_fmu(exported):
