@@ -26,12 +26,14 @@ from structure.results import Status
 
 # what a command alone uses (bench, compare, ensembles, plots, reports, fits) is imported by it:
 # every command pays the imports at the top
+from orchestrator.design import case_envelope, format_envelope, is_design, run_design, write_design
+from orchestrator.design_spectra import plot_design_spectra, write_tables
 from orchestrator.ensemble import CONNECT_TIMEOUT_S, DT_CHECKS
 from orchestrator.exit_codes import EXIT_FAILED, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, STOPPED, USER_INPUT
 from orchestrator.motion import G
 from orchestrator.progress import Progress, labelled_bars
-from orchestrator.results_file import (ResultsFileError, check_output_folder, check_output_path, read_results, summary,
-                                  write_results)
+from orchestrator.results_file import (ResultsFileError, check_output_folder, check_output_path, read_cases,
+                                       read_results, summary, write_results)
 from orchestrator.routes import route_names
 from orchestrator.run import run_scene
 from orchestrator.scene import MAX_PGA_G, SceneError, builtin_scenes, load_scene, tomllib
@@ -145,6 +147,9 @@ def _parser() -> argparse.ArgumentParser:
                      help=f"route to run (repeatable; {', '.join(route_names())}); default: the scene's "
                           "[analysis].routes")
     run.add_argument("--plot-dir", type=Path, default=None, help="write figures to this directory")
+    run.add_argument("--design-dir", type=Path, default=None, metavar="DIR",
+                     help="write the design floor spectra ([output] design_spectra) as CSV tables and figures to "
+                          "this directory (default: <output stem>_design next to the results file)")
     json_flag(run, "print one JSON summary object on stdout")
     max_pga(run)
     run.add_argument("--pga", type=_positive, default=None, metavar="G",
@@ -403,6 +408,11 @@ def cmd_run(args) -> int:
     out = check_output_path(args.output or Path(f"{scene.name}_results.h5"))
     if args.plot_dir is not None:
         check_output_folder(args.plot_dir, _pngs(args.plot_dir), "--plot-dir")
+    if is_design(scene):
+        return _run_design(args, scene, out)
+    if args.design_dir is not None:
+        raise OptionError(f"--design-dir: scene {scene.name!r} asks for no design spectra; add [output] "
+                          "design_spectra = { damping = [0.05] } (docs/design_basis.md), or drop --design-dir")
     results, motion = run_scene(scene, args.routes, cache_dir=_cache(args),
                                 progress=labelled_bars(f"run {scene.name} [{{label}}]"),
                                 sweep_progress=Progress(f"impedance {scene.name}"),
@@ -439,6 +449,55 @@ def cmd_run(args) -> int:
             if not sys.stdout.isatty():     # stdout kept in a file: the warnings reach the terminal too
                 _say(*(f"WARNING [{r}]: {item}" for item in s["warnings"]))
     statuses = {res.status for res in results.values()}
+    if Status.REFUSED in statuses:
+        return EXIT_INPUT
+    return EXIT_FAILED if Status.STOPPED in statuses else EXIT_OK
+
+
+def _run_design(args, scene, out: Path) -> int:
+    """``uplift run`` of a scene with soil cases, strain-compatible soil or design spectra
+    (orchestrator.design): every case, one results file, the design tables and figures."""
+    design_dir = None
+    if scene.design_spectra is not None:
+        design_dir = args.design_dir or out.with_name(f"{out.stem}_design")
+        check_output_folder(design_dir, (), "--design-dir")
+    elif args.design_dir is not None:
+        raise OptionError(f"--design-dir: scene {scene.name!r} asks for no design spectra; add [output] "
+                          "design_spectra = { damping = [0.05] } (docs/design_basis.md), or drop --design-dir")
+    run = run_design(scene, args.routes, cache_dir=_cache(args),
+                     progress=labelled_bars(f"run {scene.name} [{{label}}]"),
+                     sweep_progress=Progress(f"impedance {scene.name}"),
+                     fit_progress=labelled_bars(f"fit {scene.name}: {{label}}"), announce=_say)
+    write_design(out, run, scene.overrides)
+    _say(f"wrote {out}")
+    if design_dir is not None:
+        _say(*(f"wrote {p}" for p in write_tables(run.spectra, design_dir)))
+        _say(*(f"wrote {p}" for p in plot_design_spectra(run.spectra, design_dir)))
+    if args.plot_dir:
+        from orchestrator.plots import plot_run                  # start-up cost: only with --plot-dir
+        first = next(iter(run.cases))
+        _say(*(f"wrote {path}" for path in plot_run(run.cases[first], run.motion, scene, args.plot_dir)))
+    table = case_envelope(run.cases)
+    site = None if run.site is None else {
+        "iterations": run.site.iterations, "converged": run.site.converged, "input": run.site.input,
+        "component": run.site.component, "g_ratio": run.site.g_ratio.tolist(), "damping": run.site.damping.tolist(),
+        "strain_eff": run.site.strain_eff.tolist(), "vs": [m.vs for m in run.site.profile.layers]}
+    if args.json:
+        _print_json({"cases": {c: {r: summary(res) for r, res in rs.items()} for c, rs in run.cases.items()},
+                     "envelope": table["envelope"], "site_response": site, "overrides": list(scene.overrides)})
+    else:
+        _out(f"motion: {run.motion.label} (components {', '.join(run.motion.components)})")
+        if site is not None:
+            _out(f"strain-compatible soil ({site['input']} motion, {site['component']} component): "
+                 f"{site['iterations']} iterations, {'converged' if site['converged'] else 'NOT converged'}; per layer "
+                 + "; ".join(f"G/Gmax {g:.3f}, damping {d:.4f}, strain {e:.3g}, vs {v:.1f} m/s"
+                             for g, d, e, v in zip(site["g_ratio"], site["damping"], site["strain_eff"], site["vs"])))
+        _out(format_envelope(table))
+        for case, rs in run.cases.items():
+            for r, res in rs.items():
+                if not res.converged:
+                    _out(f"{case} {r}: {res.status.value.upper()}: {res.message}")
+    statuses = {res.status for rs in run.cases.values() for res in rs.values()}
     if Status.REFUSED in statuses:
         return EXIT_INPUT
     return EXIT_FAILED if Status.STOPPED in statuses else EXIT_OK
@@ -601,6 +660,9 @@ def _announce_native_build(fmi_version: int):
 
 def cmd_compare(args) -> int:
     from orchestrator.compare import compare, format_table       # start-up cost: only this command
+    cases = read_cases(args.results)
+    if cases:
+        return _compare_cases(args, cases, compare, format_table)
     results = read_results(args.results)
     if args.reference is not None and args.reference not in results:
         raise ResultsFileError(f"--reference {args.reference!r} is not in {args.results} "
@@ -610,6 +672,25 @@ def cmd_compare(args) -> int:
         _print_json(table)
     else:
         _out(format_table(table))
+    return EXIT_OK
+
+
+def _compare_cases(args, cases, compare, format_table) -> int:
+    """``uplift compare`` of a design run: the routes compared per soil case, then the envelope
+    over the cases (orchestrator.design.case_envelope)."""
+    per = {case: read_results(args.results, case) for case in cases}
+    for case, results in per.items():
+        if args.reference is not None and args.reference not in results:
+            raise ResultsFileError(f"--reference {args.reference!r} is not in {args.results}, soil case {case} "
+                                   f"(routes: {', '.join(results)})")
+    tables = {case: compare(results, reference=args.reference) for case, results in per.items()}
+    envelope = case_envelope(per)
+    if args.json:
+        _print_json({"cases": tables, "envelope": envelope["envelope"]})
+    else:
+        for case, table in tables.items():
+            _out(f"soil case {case}:", format_table(table), "")
+        _out(format_envelope(envelope))
     return EXIT_OK
 
 
