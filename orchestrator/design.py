@@ -119,7 +119,7 @@ def run_design(scene, routes=None, cache_dir=None, progress=None, sweep_progress
                                    motion=motion)
     spectra = None
     if scene.design_spectra is not None:
-        spectra = design_spectra(cases, scene.design_spectra, scene.output.nodes, motion.components)
+        spectra = design_spectra(cases, scene.design_spectra, scene.output.nodes)
     return DesignRun(scene=scene, scenes=dict(scenes), cases=cases, motion=motion, site=site, spectra=spectra)
 
 

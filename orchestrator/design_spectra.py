@@ -45,8 +45,9 @@ AXES = ("x", "y", "z")
 
 @dataclass(frozen=True)
 class DesignSpectraConfig:
-    """[output] design_spectra: nodes (None: the scene's output nodes), directions (None: the
-    directions the motion excites), damping (ratios), broadening (r, the relative half-width),
+    """[output] design_spectra: nodes (None: the scene's output nodes), directions (None: x, y and
+    z, each where the floor moves above round-off: rocking makes vertical floor motion under a
+    horizontal shake), damping (ratios), broadening (r, the relative half-width),
     frequencies_hz (log-spaced from range_hz = [first, last, count]), envelope_routes (also the
     envelope over routes), routes (the routes that enter; None: every route with floor histories)."""
 
@@ -151,12 +152,12 @@ def broadened(frequencies_hz, spectra, ratio: float) -> np.ndarray:
     """``spectra`` (..., frequency) broadened by ±ratio (``orchestrator.spectra.broaden``) along its
     last axis; all-NaN rows stay NaN."""
     spectra = np.asarray(spectra, float)
-    out = np.full_like(spectra, np.nan)
-    flat, res = spectra.reshape(-1, spectra.shape[-1]), out.reshape(-1, spectra.shape[-1])
+    flat = spectra.reshape(-1, spectra.shape[-1])
+    res = np.full(flat.shape, np.nan)               # its own C-ordered array (a reshape of a strided one is a copy)
     for k, row in enumerate(flat):
         if np.isfinite(row).all():
             res[k] = broaden(frequencies_hz, row, ratio)
-    return out
+    return res.reshape(spectra.shape)
 
 
 def envelope(spectra, axis=0) -> np.ndarray:
@@ -164,15 +165,17 @@ def envelope(spectra, axis=0) -> np.ndarray:
     return np.fmax.reduce(np.asarray(spectra, float), axis=axis)
 
 
-def design_spectra(cases: dict, config: DesignSpectraConfig, default_nodes, motion_axes) -> DesignSpectra:
+def design_spectra(cases: dict, config: DesignSpectraConfig, default_nodes, axes=AXES) -> DesignSpectra:
     """The design spectra of ``cases`` = {case: {route: RouteResult}}: per case and route the raw
-    spectra of ``config``'s nodes (default ``default_nodes``) and directions (default the motion's
-    ``motion_axes``), broadened, and their envelope over cases per route (and over routes, "all")."""
+    spectra of ``config``'s nodes (default ``default_nodes``: None, every node of the results)
+    and directions (default ``axes``), broadened, and their envelope over cases per route (and
+    over routes, "all"); a direction at round-off in every case and route is left out."""
     names = list(cases)
     routes = tuple(config.routes) if config.routes is not None else \
         tuple(dict.fromkeys(r for c in cases.values() for r, res in c.items() if res.acc and res.nt > 1))
-    nodes = tuple(config.nodes or default_nodes or ())
-    directions = tuple(config.directions or motion_axes)
+    nodes = tuple(config.nodes or default_nodes
+                  or dict.fromkeys(n for c in cases.values() for res in c.values() for n in res.acc))
+    directions = tuple(config.directions or axes)
     f = config.frequencies_hz
     raw = np.full((len(names), len(routes), len(nodes), len(directions), len(config.damping), f.size), np.nan)
     for c, case in enumerate(names):
@@ -182,6 +185,9 @@ def design_spectra(cases: dict, config: DesignSpectraConfig, default_nodes, moti
                 continue
             raw[c, r] = raw_spectra(res.acc, float(res.time[1] - res.time[0]), nodes, directions,
                                     config.damping, f)
+    if config.directions is None:                                   # keep the directions that move
+        live = [j for j in range(len(directions)) if np.isfinite(raw[:, :, :, j]).any()]
+        raw, directions = raw[:, :, :, live], tuple(directions[j] for j in live)
     wide = broadened(f, raw, config.broadening)
     env = envelope(wide, axis=0)                                     # over cases: (route, ...)
     env_routes = routes
@@ -218,52 +224,58 @@ def write_tables(ds: DesignSpectra, folder) -> list:
                             cols += [ds.broadened[c, r, i, j, k] / G, ds.raw[c, r, i, j, k] / G]
                             header += [f"{case}_broadened_g", f"{case}_raw_g"]
                     over = "cases and routes" if route == "all" else "cases"
-                    notes = [f"# floor response spectrum for design: node {node}, direction {d}, damping "
+                    notes = [f"floor response spectrum for design: node {node}, direction {d}, damping "
                              f"{100 * zeta:g} %, route {route}",
-                             f"# pseudo-acceleration in g; broadened +-{100 * ds.broadening:g} % in frequency "
+                             f"pseudo-acceleration in g; broadened +-{100 * ds.broadening:g} % in frequency "
                              "(at f: max of the raw spectrum over [f/(1+r), f/(1-r)]), enveloped over "
                              f"{over} ({', '.join(ds.cases)})"]
                     path = folder / table_name(route, node, d, zeta)
                     with atomic_output(path) as tmp:
                         np.savetxt(tmp, np.column_stack(cols), delimiter=",", fmt="%.6e",
-                                   header="\n".join(notes)[2:] + "\n" + ",".join(header), comments="# ")
+                                   header="\n".join(notes + [",".join(header)]), comments="# ")
                     paths.append(path)
     return paths
 
 
 def plot_design_spectra(ds: DesignSpectra, folder) -> list:
-    """One figure per node and direction (``design_<node>_<direction>.png``): for each route of the
-    envelope and each damping, the raw spectra of the cases (thin) and the design envelope (thick).
-    Returns the paths written."""
+    """One figure per node and direction (``design_<node>_<direction>.png``), one panel per damping:
+    the raw spectra of each case (thin, one line style per case) and the design envelope of each
+    route (thick; black: the envelope over the routes too, when asked). Returns the paths written."""
     from orchestrator.plots import pyplot          # matplotlib: only when figures are drawn
     plt = pyplot()
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
+    styles = ("-", "--", ":", "-.")
     paths = []
     for i, node in enumerate(ds.nodes):
         for j, d in enumerate(ds.directions):
             if not np.isfinite(ds.envelope[:, i, j]).any():
                 continue
-            fig, ax = plt.subplots(figsize=(7, 4.5))
-            for k, zeta in enumerate(ds.damping):
+            fig, axes = plt.subplots(1, len(ds.damping), figsize=(5.5 * len(ds.damping), 4.5), squeeze=False,
+                                     sharey=True)
+            for k, (ax, zeta) in enumerate(zip(axes[0], ds.damping)):
                 for r, route in enumerate(ds.envelope_routes):
-                    colour = f"C{(k * len(ds.envelope_routes) + r) % 10}"
-                    if route != "all":
-                        for c, case in enumerate(ds.cases):
-                            ax.plot(ds.frequencies_hz, ds.raw[c, r, i, j, k] / G, color=colour, lw=0.7,
-                                    ls=("-", "--", ":", "-.")[c % 4], alpha=0.7,
-                                    label=f"{route} {case} raw, {100 * zeta:g} %")
-                    ax.plot(ds.frequencies_hz, ds.envelope[r, i, j, k] / G, color=colour, lw=2.2,
-                            label=f"{route} design envelope, {100 * zeta:g} %")
-            ax.set_xscale("log")
-            ax.set_xlabel("frequency (Hz)")
-            ax.set_ylabel("pseudo-acceleration (g)")
-            ax.set_title(f"{node}, {d}: broadened ±{100 * ds.broadening:g} %, enveloped over {', '.join(ds.cases)}")
-            ax.grid(True, which="both", alpha=0.3)
-            ax.legend(fontsize=6, ncol=2)
+                    if route == "all":
+                        ax.plot(ds.frequencies_hz, ds.envelope[r, i, j, k] / G, color="k", lw=2.6,
+                                label="design envelope, all routes")
+                        continue
+                    for c, case in enumerate(ds.cases):
+                        ax.plot(ds.frequencies_hz, ds.raw[c, r, i, j, k] / G, color=f"C{r}", lw=0.8,
+                                ls=styles[c % len(styles)], alpha=0.8, label=f"{route} {case} raw")
+                    ax.plot(ds.frequencies_hz, ds.envelope[r, i, j, k] / G, color=f"C{r}", lw=1.8,
+                            label=f"{route} design envelope")
+                ax.set_xscale("log")
+                ax.set_xlabel("frequency (Hz)")
+                ax.set_title(f"damping {100 * zeta:g} %")
+                ax.grid(True, which="both", alpha=0.3)
+            axes[0, 0].set_ylabel("pseudo-acceleration (g)")
+            axes[0, -1].legend(fontsize=7, loc="upper right")
+            fig.suptitle(f"{node}, {d}: floor spectra broadened ±{100 * ds.broadening:g} %, enveloped over "
+                         f"{', '.join(ds.cases)}")
+            fig.tight_layout()
             path = folder / f"design_{node}_{d}.png"
             with atomic_output(path) as tmp:
-                fig.savefig(tmp, dpi=110, format="png")
+                fig.savefig(tmp, dpi=100, format="png")
             plt.close(fig)
             paths.append(path)
     return paths

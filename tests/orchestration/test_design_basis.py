@@ -132,6 +132,8 @@ def test_broadened_never_below_raw_and_envelope_never_below_any_case():
     env = envelope(b, axis=0)
     assert np.all(env >= np.nan_to_num(b, nan=-np.inf))
     assert np.isfinite(env).all()
+    strided = np.asfortranarray(raw)                      # any memory layout (a selection of directions)
+    assert np.array_equal(broadened(f, strided, 0.15), b, equal_nan=True)
 
 
 def _floor(route, amp, f_hz, nt=400, dt=0.01):
