@@ -18,6 +18,7 @@ import math
 import os
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -26,11 +27,11 @@ from structure.results import Status
 
 # what a command alone uses (bench, compare, ensembles, plots, reports, fits) is imported by it:
 # every command pays the imports at the top
-from orchestrator.design import case_envelope, format_envelope, is_design, run_design, write_design
+from orchestrator.design import case_envelope, design_cases, format_envelope, is_design, run_design, write_design
 from orchestrator.design_spectra import plot_design_spectra, write_tables
 from orchestrator.ensemble import CONNECT_TIMEOUT_S, DT_CHECKS
 from orchestrator.exit_codes import EXIT_FAILED, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, STOPPED, USER_INPUT
-from orchestrator.motion import G
+from orchestrator.motion import G, make_motion
 from orchestrator.progress import Progress, labelled_bars
 from orchestrator.results_file import (ResultsFileError, check_output_folder, check_output_path, read_cases,
                                        read_results, summary, write_results)
@@ -281,6 +282,9 @@ def _parser() -> argparse.ArgumentParser:
     ens.add_argument("--dt-check", choices=DT_CHECKS, default="strongest",
                      help="step-doubling check of the time step: once on the strongest motion (default) or "
                           "on each cell's motion, as `uplift run` does (about one run more per cell)")
+    ens.add_argument("--case", default=None, metavar="NAME",
+                     help="a scene with [soil] cases or strain_compatible: run the ensemble on this soil case "
+                          "(e.g. be, lb, ub; the strain-compatible soil is that of the scene's own motion)")
     ens.add_argument("-o", "--output", type=Path, default=None,
                      help="ensemble file (default: <scene>_ensemble.h5); completed cells are kept in "
                           "<output>.cells/")
@@ -288,6 +292,20 @@ def _parser() -> argparse.ArgumentParser:
     max_pga(ens)
     no_cache(ens)
     ens.set_defaults(func=cmd_ensemble)
+    env = sub.add_parser("envelope", help="design floor spectra of ensembles: fractiles broadened, enveloped over cases",
+                         description="The fractile floor spectra of ensemble files (one per soil case: `uplift "
+                                     "ensemble SCENE --case NAME`), broadened +-BROADENING in frequency about their "
+                                     "peaks and enveloped over the files, per PGA, route, node and direction, as "
+                                     "CSV tables (frequency Hz, acceleration g); docs/design_basis.md.",
+                         epilog=GLOSSARY)
+    env.add_argument("ensembles", nargs="+", type=Path, metavar="ENSEMBLE", help="ensemble files of `uplift ensemble`")
+    env.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="folder of the tables")
+    env.add_argument("--quantile", type=float, choices=(0.16, 0.5, 0.84), default=0.84,
+                     help="fractile over the records (default 0.84)")
+    env.add_argument("--broadening", type=_fraction, default=0.15, metavar="R",
+                     help="relative half-width of the peak broadening (default 0.15)")
+    json_flag(env)
+    env.set_defaults(func=cmd_envelope)
     _fragility_parser(sub, json_flag)
     _pushover_parser(sub, json_flag, scene_arg, no_cache)
 
@@ -714,7 +732,7 @@ def cmd_report(args) -> int:
 
 def cmd_ensemble(args) -> int:
     from orchestrator.ensemble import ensemble_summary, run_ensemble   # start-up cost: only this command
-    scene = load_scene(args.scene, max_pga_g=args.max_pga)
+    scene = _ensemble_case(load_scene(args.scene, max_pga_g=args.max_pga), args.case)
     out = args.output or Path(f"{scene.name}_ensemble.h5")
     if args.n_seeds is not None and args.records is not None:
         raise OptionError("--n-seeds varies the scene's synthetic motion; --records gives the motions: drop one")
@@ -750,6 +768,56 @@ def cmd_ensemble(args) -> int:
     if summ["refused"]:
         return EXIT_INPUT
     return EXIT_FAILED if summ["stopped"] or summ["failed"] else EXIT_OK
+
+
+def _ensemble_case(scene, case):
+    """The scene an ensemble runs: ``scene`` itself, or with ``case`` its soil case (named
+    ``<scene>_<case>``); a scene with soil cases needs one."""
+    design = scene.soil_cases is not None or scene.strain_compatible is not None
+    if case is None:
+        if design:
+            names = scene.soil_cases.names if scene.soil_cases is not None else ("be",)
+            raise OptionError(f"scene {scene.name!r} has soil cases ({', '.join(names)}): an ensemble runs one; "
+                              "give --case NAME (one ensemble per case, then `uplift envelope` on the files)")
+        return scene
+    if not design:
+        raise OptionError(f"--case {case}: scene {scene.name!r} has no [soil] cases nor strain_compatible; drop --case")
+    cases = dict(design_cases(scene, make_motion(scene.motion, scene.analysis.dt))[0])
+    if case not in cases:
+        raise OptionError(f"--case {case}: scene {scene.name!r} has the soil cases {', '.join(cases)}; give one of them")
+    return replace(cases[case], name=f"{scene.name}_{case}")
+
+
+def cmd_envelope(args) -> int:
+    from orchestrator.ensemble import fractile_design_spectra, read_ensemble, write_fractile_tables  # only here
+    check_output_folder(args.output, (), "-o")
+    datasets = {}
+    for path in args.ensembles:
+        ds = read_ensemble(path)
+        label = str(ds.attrs.get("scene", "")) or path.stem
+        if label in datasets:
+            label = path.stem
+        datasets[label] = ds
+    design = fractile_design_spectra(datasets, args.quantile, args.broadening)
+    paths = write_fractile_tables(design, args.output)
+    _say(*(f"wrote {p}" for p in paths))
+    peaks = {f"{pga:g}": {route: {node: {d: float(np.nanmax(design["envelope"][a, r, i, j]) / G)
+                                         for j, d in enumerate(design["direction"])
+                                         if np.isfinite(design["envelope"][a, r, i, j]).any()}
+                                  for i, node in enumerate(design["node"])}
+                          for r, route in enumerate(design["route"])}
+             for a, pga in enumerate(design["pga"])}
+    if args.json:
+        _print_json({"cases": design["cases"], "quantile": design["quantile"], "broadening": design["broadening"],
+                     "envelope_peak_g": peaks, "tables": [str(p) for p in paths]})
+    else:
+        _out(f"{100 * args.quantile:g}th-percentile floor spectra, broadened +-{100 * args.broadening:g} %, enveloped "
+             f"over {', '.join(design['cases'])}: peak (g)")
+        for pga, routes in peaks.items():
+            for route, nodes in routes.items():
+                _out(f"  {pga} g [{route}]: " + "; ".join(f"{n} " + ", ".join(f"{d} {v:.3f}" for d, v in dirs.items())
+                                                      for n, dirs in nodes.items()))
+    return EXIT_OK
 
 
 def _fragility_parser(sub, json_flag):

@@ -27,8 +27,8 @@ import math
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.constants import g as G_PYSTRATA
 
-from orchestrator.motion import G
 from orchestrator.soil_cases import StrainCompatibleConfig
 from soil_impedance.profile import SoilProfile
 from uplift_common.errors import UserInputError
@@ -70,11 +70,13 @@ def _pystrata():
 
 
 def pystrata_profile(profile: SoilProfile, config: StrainCompatibleConfig):
-    """The pystrata Profile of ``profile`` with the curves of ``config`` (units: kN/m^3, m, m/s)."""
+    """The pystrata Profile of ``profile`` with the curves of ``config`` (units: kN/m^3, m, m/s;
+    unit weights and accelerations in g use pystrata's own g, scipy's 9.80665 m/s², so that its
+    densities are the scene's and its strains those of the motion in m/s²)."""
     ps = _pystrata()
     layers, sigma_v = [], 0.0                             # dry overburden at the layer's top, kPa
     for layer, curves in zip(profile.layers, config.curves):
-        unit_wt = layer.rho * G / 1000.0                 # kN/m^3
+        unit_wt = layer.rho * G_PYSTRATA / 1000.0                 # kN/m^3
         mid = sigma_v + unit_wt * layer.thickness / 2
         if curves.model == "darendeli":
             soil = ps.site.DarendeliSoilType(unit_wt=unit_wt, plas_index=curves.pi, ocr=curves.ocr,
@@ -89,7 +91,7 @@ def pystrata_profile(profile: SoilProfile, config: StrainCompatibleConfig):
         layers.append(ps.site.Layer(soil, layer.thickness, layer.vs))
         sigma_v += unit_wt * layer.thickness
     hs = profile.halfspace
-    layers.append(ps.site.Layer(ps.site.SoilType("halfspace", hs.rho * G / 1000.0, None, hs.damping), 0, hs.vs))
+    layers.append(ps.site.Layer(ps.site.SoilType("halfspace", hs.rho * G_PYSTRATA / 1000.0, None, hs.damping), 0, hs.vs))
     return ps.site.Profile(layers)
 
 
@@ -125,7 +127,7 @@ def strain_compatible(profile: SoilProfile, acc, dt: float, config: StrainCompat
     sampled at ``dt`` s (its stronger horizontal component), with ``config``; see the module."""
     ps = _pystrata()
     axis, history = horizontal_component(acc)
-    motion = ps.motion.TimeSeriesMotion("scene", "scene motion", dt, history / G)
+    motion = ps.motion.TimeSeriesMotion("scene", "scene motion", dt, history / G_PYSTRATA)
     column = pystrata_profile(profile, config)
     calc = _calculator(config)
     calc(motion, column, column.location(config.input, index=-1))

@@ -11,6 +11,7 @@ import pytest
 from helpers import tower, write_scene
 from orchestrator.cli import main
 from orchestrator.design import case_envelope, read_design, run_design, write_design
+from orchestrator.motion import G
 from orchestrator.design_spectra import DesignSpectraConfig, broadened, design_spectra, envelope, raw_spectra
 from orchestrator.results_file import read_cases, read_results, summary
 from orchestrator.scene import SceneError, load_scene, scene_from_dict
@@ -242,3 +243,62 @@ def test_commands_on_a_design_scene(design_file, tmp_path, capsys):
     assert main(["report", str(out), "-o", str(tmp_path / "rep")]) == 0
     page = (tmp_path / "rep" / "report.html").read_text()
     assert "Design basis: soil cases" in page and "Envelope over the soil cases" in page
+
+
+# ---- ensembles: one per case, fractile spectra broadened and enveloped ---------------------------
+
+def _ensemble(peak_hz, scale, pgas=(0.1, 0.2)):
+    xr = pytest.importorskip("xarray")
+    f = np.geomspace(0.5, 40.0, 120)
+    shape = (3, len(pgas), 1, 1, 3, f.size)
+    q = np.full(shape, np.nan)
+    for k, quant in enumerate((0.16, 0.5, 0.84)):
+        for a, pga in enumerate(pgas):
+            q[k, a, 0, 0, 0] = scale * pga * (1 + quant) * (1 + 4 * np.exp(-np.log(f / peak_hz) ** 2 / 0.002))
+    return xr.Dataset({"floor_spectrum_fractile": (("quantile", "pga", "route", "node", "direction", "frequency"), q)},
+                      coords={"quantile": [0.16, 0.5, 0.84], "pga": list(pgas), "route": ["monolithic"],
+                              "node": ["top"], "direction": ["x", "y", "z"], "frequency": f})
+
+
+def test_fractile_spectra_of_case_ensembles_are_broadened_and_enveloped(tmp_path):
+    from orchestrator.ensemble import EnsembleError, fractile_design_spectra, write_fractile_tables
+    sets = {"be": _ensemble(3.0, 1.0), "lb": _ensemble(2.5, 0.9), "ub": _ensemble(3.6, 1.1)}
+    d = fractile_design_spectra(sets, quantile=0.84, ratio=0.15)
+    assert d["raw"].shape == (3, 2, 1, 1, 3, 120)
+    np.testing.assert_array_equal(d["raw"][2], sets["ub"]["floor_spectrum_fractile"].sel(quantile=0.84).values)
+    finite = np.isfinite(d["raw"])
+    env = np.broadcast_to(d["envelope"][None], d["raw"].shape)
+    assert np.all(d["broadened"][finite] >= d["raw"][finite]) and np.all(env[finite] >= d["broadened"][finite])
+    f = d["frequency"]
+    k = int(np.argmax(d["raw"][0, 1, 0, 0, 0]))                  # be's narrow peak at 3 Hz, 0.2 g
+    inside = (f >= 0.85 * f[k]) & (f <= 1.15 * f[k])
+    assert np.all(d["broadened"][0, 1, 0, 0, 0][inside] == d["raw"][0, 1, 0, 0, 0, k])
+    paths = write_fractile_tables(d, tmp_path)
+    assert [p.name for p in paths] == ["ens_0.1g_monolithic_top_x_p84.csv", "ens_0.2g_monolithic_top_x_p84.csv"]
+    table = np.loadtxt(paths[1], delimiter=",")
+    np.testing.assert_allclose(table[:, 1], d["envelope"][1, 0, 0, 0] / G, rtol=1e-6)
+    with pytest.raises(EnsembleError, match="differ in their pga"):
+        fractile_design_spectra({"be": sets["be"], "lb": _ensemble(2.5, 0.9, pgas=(0.1, 0.3))})
+
+
+def test_an_ensemble_of_a_scene_with_cases_runs_one_case(tmp_path, capsys):
+    from orchestrator.cli import OptionError, _ensemble_case
+    from orchestrator.ensemble import EnsembleError, plan_ensemble
+    scene = scene_from_dict(design_scene(cases={"cv": 0.5}), name="tiny")
+    with pytest.raises(OptionError, match="give --case NAME"):
+        _ensemble_case(scene, None)
+    with pytest.raises(OptionError, match="has the soil cases be, lb, ub"):
+        _ensemble_case(scene, "mid")
+    lb = _ensemble_case(scene, "lb")
+    assert lb.name == "tiny_lb" and lb.profile == cases_of(design_scene(cases={"cv": 0.5}))["lb"].profile
+    assert plan_ensemble(lb, [0.1]).cells                              # a case is a scene of one soil
+    with pytest.raises(EnsembleError, match="an ensemble runs one soil"):
+        plan_ensemble(scene, [0.1])
+
+
+def test_the_reactor_design_example_loads_with_every_deliverable():
+    from helpers import ROOT
+    scene = load_scene(ROOT / "examples" / "reactor_design.toml")
+    assert scene.soil_cases.cv == 0.5 and scene.strain_compatible.curves[0].model == "darendeli"
+    assert scene.design_spectra.damping == (0.02, 0.05) and scene.design_spectra.envelope_routes
+    assert scene.profile == load_scene("reactor").profile                  # the built-in reactor's soil

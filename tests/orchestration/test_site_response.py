@@ -8,7 +8,7 @@ import pytest
 
 from helpers import tower
 from helpers.motions import broadband
-from orchestrator.motion import G
+from scipy.constants import g as G     # pystrata's g (the project's G is 9.81)
 from orchestrator.soil_cases import parse_strain_compatible
 from soil_impedance.profile import Layer, Material, SoilProfile
 
