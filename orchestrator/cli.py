@@ -515,6 +515,10 @@ def _run_design(args, scene, out: Path) -> int:
             for r, res in rs.items():
                 if not res.converged:
                     _out(f"{case} {r}: {res.status.value.upper()}: {res.message}")
+                for item in res.notes.warnings:
+                    _out(f"{case} {r}: WARNING: {item}")
+                    if not sys.stdout.isatty():     # stdout kept in a file: the warnings reach the terminal too
+                        _say(f"WARNING [{case} {r}]: {item}")
     statuses = {res.status for rs in run.cases.values() for res in rs.values()}
     if Status.REFUSED in statuses:
         return EXIT_INPUT

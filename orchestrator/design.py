@@ -78,7 +78,7 @@ def case_scene(scene, profile):
     source = copy.deepcopy(scene.source) if scene.source is not None else None
     if source is not None:
         soil = {k: v for k, v in source.get("soil", {}).items() if k not in ("cases", "strain_compatible")}
-        source["soil"] = {**soil, **profile_table(profile)}
+        source["soil"] = {**soil, **profile_table(profile)} if profile is not None else soil
         out = {k: v for k, v in source.get("output", {}).items() if k != "design_spectra"}
         source["output"] = out
         if not out:

@@ -534,6 +534,7 @@ def _scene(data, base_dir: Path, name: str, origin: str) -> Scene:
         design_spectra = parse_design_spectra(output_table["design_spectra"]) if "design_spectra" in output_table \
             else None
         output = _config(OutputConfig, {k: v for k, v in output_table.items() if k != "design_spectra"}, "output")
+        _check_design_spectra(design_spectra, structure, output, analysis)
         return Scene(name=name, base_dir=base_dir, profile=profile, mesh=mesh, contact_kind=contact_kind,
                      frequencies_hz=freqs, structure=structure, contact=contact, motion=motion,
                      analysis=analysis, output=output, winkler=winkler, source=copy.deepcopy(data),
@@ -649,6 +650,24 @@ def _soil_design(soil: dict, model: str, profile: SoilProfile | None):
                              "strain-compatible profile) or with no cases, not with named profiles: remove one")
         sc = parse_strain_compatible(soil["strain_compatible"], len(profile.layers))
     return cases, sc
+
+
+def _check_design_spectra(config, structure, output, analysis) -> None:
+    """[output] design_spectra's nodes among the nodes whose histories are kept ([output].nodes,
+    or every named node) and its routes among [analysis].routes."""
+    if config is None:
+        return
+    if structure is None:
+        raise SceneError("output.design_spectra needs a [structure] (floor spectra of its nodes)")
+    kept = output.nodes or structure.node_names
+    for node in config.nodes or ():
+        if node not in kept:
+            raise SceneError(f"output.design_spectra.nodes: {node!r} is not among the nodes kept "
+                             f"(output.nodes: {', '.join(kept)}); add it to output.nodes or remove it")
+    for route in config.routes or ():
+        if route not in analysis.routes:
+            raise SceneError(f"output.design_spectra.routes: {route!r} is not run (analysis.routes: "
+                             f"{', '.join(analysis.routes)}); add it there or remove it")
 
 
 FOUNDATION_KEYS = {"circle": ("radius", "element_size"), "rectangle": ("lx", "ly", "element_size"),

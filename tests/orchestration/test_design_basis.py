@@ -98,6 +98,23 @@ def test_bad_design_keys_are_one_line_errors_naming_the_key(soil, msg):
     assert msg in str(err.value) and "\n" not in str(err.value)
 
 
+@pytest.mark.parametrize("spectra, msg", [
+    ({"nodes": ["roof"]}, "output.design_spectra.nodes: 'roof' is not among the nodes kept"),
+    ({"routes": ["monolithic"]}, "output.design_spectra.routes: 'monolithic' is not run"),
+    ({"damping": [0.05, 0.7]}, "output.design_spectra.damping[1] = 0.7 must be a damping ratio in (0, 0.5)"),
+    ({"broadening": 0.6}, "output.design_spectra.broadening = 0.6"),
+    ({"directions": ["x", "up"]}, "output.design_spectra.directions"),
+    ({"range_hz": [10.0, 1.0, 50]}, "output.design_spectra.range_hz[1] = 1.0 must be a frequency > 10 Hz"),
+    ({"widen": 0.15}, "unknown key output.design_spectra.widen"),
+])
+def test_bad_design_spectra_keys_are_one_line_errors_naming_the_key(spectra, msg):
+    data = design_scene()
+    data["output"]["design_spectra"] = spectra
+    with pytest.raises(SceneError) as err:
+        scene_from_dict(data)
+    assert msg in str(err.value) and "\n" not in str(err.value)
+
+
 def test_named_profiles_are_cases_in_order():
     soft = {"name": "soft", "layers": [{**LAYERED["layers"][0], "vs": 250.0}], "halfspace": LAYERED["halfspace"]}
     stiff = {"name": "stiff", "halfspace": {**LAYERED["halfspace"], "vs": 900.0, "vp": None}}
@@ -302,3 +319,13 @@ def test_the_reactor_design_example_loads_with_every_deliverable():
     assert scene.soil_cases.cv == 0.5 and scene.strain_compatible.curves[0].model == "darendeli"
     assert scene.design_spectra.damping == (0.02, 0.05) and scene.design_spectra.envelope_routes
     assert scene.profile == load_scene("reactor").profile                  # the built-in reactor's soil
+
+
+def test_design_spectra_of_one_soil_without_a_bem_profile():
+    """[output] design_spectra alone, on Winkler moduli (no BEM soil): one case, "be", whose
+    envelope is its broadened spectrum."""
+    data = tower(soil={"halfspace": None}, output={"design_spectra": {"damping": [0.05], "range_hz": [0.5, 20.0, 30]}})
+    run = run_design(scene_from_dict(data))
+    assert list(run.cases) == ["be"] and run.scenes["be"].profile is None
+    ds = run.spectra
+    assert np.array_equal(ds.envelope, ds.broadened[0], equal_nan=True)
