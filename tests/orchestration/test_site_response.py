@@ -105,3 +105,10 @@ def test_a_vertical_motion_alone_is_refused():
     acc[:, 2] = 1.0
     with pytest.raises(SiteResponseError, match="no horizontal component"):
         strain_compatible(SOFT, acc, 0.01, cfg)
+
+
+def test_without_pystrata_the_message_says_how_to_install_it(monkeypatch):
+    import sys
+    monkeypatch.setitem(sys.modules, "pystrata", None)            # as if it were not installed
+    with pytest.raises(SiteResponseError, match=r"needs pystrata .*pip install 'uplift-ssi\[site\]'"):
+        strain_compatible(SOFT, MOTION, 0.005, parse_strain_compatible({"curves": "linear"}, 2))
