@@ -18,6 +18,7 @@ import math
 import os
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -26,12 +27,14 @@ from structure.results import Status
 
 # what a command alone uses (bench, compare, ensembles, plots, reports, fits) is imported by it:
 # every command pays the imports at the top
+from orchestrator.design import case_envelope, design_cases, format_envelope, is_design, run_design, write_design
+from orchestrator.design_spectra import plot_design_spectra, write_tables
 from orchestrator.ensemble import CONNECT_TIMEOUT_S, DT_CHECKS
 from orchestrator.exit_codes import EXIT_FAILED, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, STOPPED, USER_INPUT
-from orchestrator.motion import G
+from orchestrator.motion import G, make_motion
 from orchestrator.progress import Progress, labelled_bars
-from orchestrator.results_file import (ResultsFileError, check_output_folder, check_output_path, read_results, summary,
-                                  write_results)
+from orchestrator.results_file import (ResultsFileError, check_output_folder, check_output_path, read_cases,
+                                       read_results, summary, write_results)
 from orchestrator.routes import route_names
 from orchestrator.run import run_scene
 from orchestrator.scene import MAX_PGA_G, SceneError, builtin_scenes, load_scene, tomllib
@@ -145,6 +148,9 @@ def _parser() -> argparse.ArgumentParser:
                      help=f"route to run (repeatable; {', '.join(route_names())}); default: the scene's "
                           "[analysis].routes")
     run.add_argument("--plot-dir", type=Path, default=None, help="write figures to this directory")
+    run.add_argument("--design-dir", type=Path, default=None, metavar="DIR",
+                     help="write the design floor spectra ([output] design_spectra) as CSV tables and figures to "
+                          "this directory (default: <output stem>_design next to the results file)")
     json_flag(run, "print one JSON summary object on stdout")
     max_pga(run)
     run.add_argument("--pga", type=_positive, default=None, metavar="G",
@@ -276,6 +282,9 @@ def _parser() -> argparse.ArgumentParser:
     ens.add_argument("--dt-check", choices=DT_CHECKS, default="strongest",
                      help="step-doubling check of the time step: once on the strongest motion (default) or "
                           "on each cell's motion, as `uplift run` does (about one run more per cell)")
+    ens.add_argument("--case", default=None, metavar="NAME",
+                     help="a scene with [soil] cases or strain_compatible: run the ensemble on this soil case "
+                          "(e.g. be, lb, ub; the strain-compatible soil is that of the scene's own motion)")
     ens.add_argument("-o", "--output", type=Path, default=None,
                      help="ensemble file (default: <scene>_ensemble.h5); completed cells are kept in "
                           "<output>.cells/")
@@ -283,6 +292,20 @@ def _parser() -> argparse.ArgumentParser:
     max_pga(ens)
     no_cache(ens)
     ens.set_defaults(func=cmd_ensemble)
+    env = sub.add_parser("envelope", help="design floor spectra of ensembles: fractiles broadened, enveloped over cases",
+                         description="The fractile floor spectra of ensemble files (one per soil case: `uplift "
+                                     "ensemble SCENE --case NAME`), broadened +-BROADENING in frequency about their "
+                                     "peaks and enveloped over the files, per PGA, route, node and direction, as "
+                                     "CSV tables (frequency Hz, acceleration g); docs/design_basis.md.",
+                         epilog=GLOSSARY)
+    env.add_argument("ensembles", nargs="+", type=Path, metavar="ENSEMBLE", help="ensemble files of `uplift ensemble`")
+    env.add_argument("-o", "--output", type=Path, required=True, metavar="DIR", help="folder of the tables")
+    env.add_argument("--quantile", type=float, choices=(0.16, 0.5, 0.84), default=0.84,
+                     help="fractile over the records (default 0.84)")
+    env.add_argument("--broadening", type=_fraction, default=0.15, metavar="R",
+                     help="relative half-width of the peak broadening (default 0.15)")
+    json_flag(env)
+    env.set_defaults(func=cmd_envelope)
     _fragility_parser(sub, json_flag)
     _pushover_parser(sub, json_flag, scene_arg, no_cache)
 
@@ -403,6 +426,11 @@ def cmd_run(args) -> int:
     out = check_output_path(args.output or Path(f"{scene.name}_results.h5"))
     if args.plot_dir is not None:
         check_output_folder(args.plot_dir, _pngs(args.plot_dir), "--plot-dir")
+    if is_design(scene):
+        return _run_design(args, scene, out)
+    if args.design_dir is not None:
+        raise OptionError(f"--design-dir: scene {scene.name!r} asks for no design spectra; add [output] "
+                          "design_spectra = { damping = [0.05] } (docs/design_basis.md), or drop --design-dir")
     results, motion = run_scene(scene, args.routes, cache_dir=_cache(args),
                                 progress=labelled_bars(f"run {scene.name} [{{label}}]"),
                                 sweep_progress=Progress(f"impedance {scene.name}"),
@@ -439,6 +467,59 @@ def cmd_run(args) -> int:
             if not sys.stdout.isatty():     # stdout kept in a file: the warnings reach the terminal too
                 _say(*(f"WARNING [{r}]: {item}" for item in s["warnings"]))
     statuses = {res.status for res in results.values()}
+    if Status.REFUSED in statuses:
+        return EXIT_INPUT
+    return EXIT_FAILED if Status.STOPPED in statuses else EXIT_OK
+
+
+def _run_design(args, scene, out: Path) -> int:
+    """``uplift run`` of a scene with soil cases, strain-compatible soil or design spectra
+    (orchestrator.design): every case, one results file, the design tables and figures."""
+    design_dir = None
+    if scene.design_spectra is not None:
+        design_dir = args.design_dir or out.with_name(f"{out.stem}_design")
+        check_output_folder(design_dir, (), "--design-dir")
+    elif args.design_dir is not None:
+        raise OptionError(f"--design-dir: scene {scene.name!r} asks for no design spectra; add [output] "
+                          "design_spectra = { damping = [0.05] } (docs/design_basis.md), or drop --design-dir")
+    run = run_design(scene, args.routes, cache_dir=_cache(args),
+                     progress=labelled_bars(f"run {scene.name} [{{label}}]"),
+                     sweep_progress=Progress(f"impedance {scene.name}"),
+                     fit_progress=labelled_bars(f"fit {scene.name}: {{label}}"), announce=_say)
+    write_design(out, run, scene.overrides)
+    _say(f"wrote {out}")
+    if design_dir is not None:
+        _say(*(f"wrote {p}" for p in write_tables(run.spectra, design_dir)))
+        _say(*(f"wrote {p}" for p in plot_design_spectra(run.spectra, design_dir)))
+    if args.plot_dir:
+        from orchestrator.plots import plot_run                  # start-up cost: only with --plot-dir
+        first = next(iter(run.cases))
+        _say(*(f"wrote {path}" for path in plot_run(run.cases[first], run.motion, scene, args.plot_dir)))
+    table = case_envelope(run.cases)
+    site = None if run.site is None else {
+        "iterations": run.site.iterations, "converged": run.site.converged, "input": run.site.input,
+        "component": run.site.component, "g_ratio": run.site.g_ratio.tolist(), "damping": run.site.damping.tolist(),
+        "strain_eff": run.site.strain_eff.tolist(), "vs": [m.vs for m in run.site.profile.layers]}
+    if args.json:
+        _print_json({"cases": {c: {r: summary(res) for r, res in rs.items()} for c, rs in run.cases.items()},
+                     "envelope": table["envelope"], "site_response": site, "overrides": list(scene.overrides)})
+    else:
+        _out(f"motion: {run.motion.label} (components {', '.join(run.motion.components)})")
+        if site is not None:
+            _out(f"strain-compatible soil ({site['input']} motion, {site['component']} component): "
+                 f"{site['iterations']} iterations, {'converged' if site['converged'] else 'NOT converged'}; per layer "
+                 + "; ".join(f"G/Gmax {g:.3f}, damping {d:.4f}, strain {e:.3g}, vs {v:.1f} m/s"
+                             for g, d, e, v in zip(site["g_ratio"], site["damping"], site["strain_eff"], site["vs"])))
+        _out(format_envelope(table))
+        for case, rs in run.cases.items():
+            for r, res in rs.items():
+                if not res.converged:
+                    _out(f"{case} {r}: {res.status.value.upper()}: {res.message}")
+                for item in res.notes.warnings:
+                    _out(f"{case} {r}: WARNING: {item}")
+                    if not sys.stdout.isatty():     # stdout kept in a file: the warnings reach the terminal too
+                        _say(f"WARNING [{case} {r}]: {item}")
+    statuses = {res.status for rs in run.cases.values() for res in rs.values()}
     if Status.REFUSED in statuses:
         return EXIT_INPUT
     return EXIT_FAILED if Status.STOPPED in statuses else EXIT_OK
@@ -601,6 +682,9 @@ def _announce_native_build(fmi_version: int):
 
 def cmd_compare(args) -> int:
     from orchestrator.compare import compare, format_table       # start-up cost: only this command
+    cases = read_cases(args.results)
+    if cases:
+        return _compare_cases(args, cases, compare, format_table)
     results = read_results(args.results)
     if args.reference is not None and args.reference not in results:
         raise ResultsFileError(f"--reference {args.reference!r} is not in {args.results} "
@@ -610,6 +694,25 @@ def cmd_compare(args) -> int:
         _print_json(table)
     else:
         _out(format_table(table))
+    return EXIT_OK
+
+
+def _compare_cases(args, cases, compare, format_table) -> int:
+    """``uplift compare`` of a design run: the routes compared per soil case, then the envelope
+    over the cases (orchestrator.design.case_envelope)."""
+    per = {case: read_results(args.results, case) for case in cases}
+    for case, results in per.items():
+        if args.reference is not None and args.reference not in results:
+            raise ResultsFileError(f"--reference {args.reference!r} is not in {args.results}, soil case {case} "
+                                   f"(routes: {', '.join(results)})")
+    tables = {case: compare(results, reference=args.reference) for case, results in per.items()}
+    envelope = case_envelope(per)
+    if args.json:
+        _print_json({"cases": tables, "envelope": envelope["envelope"]})
+    else:
+        for case, table in tables.items():
+            _out(f"soil case {case}:", format_table(table), "")
+        _out(format_envelope(envelope))
     return EXIT_OK
 
 
@@ -633,7 +736,7 @@ def cmd_report(args) -> int:
 
 def cmd_ensemble(args) -> int:
     from orchestrator.ensemble import ensemble_summary, run_ensemble   # start-up cost: only this command
-    scene = load_scene(args.scene, max_pga_g=args.max_pga)
+    scene = _ensemble_case(load_scene(args.scene, max_pga_g=args.max_pga), args.case)
     out = args.output or Path(f"{scene.name}_ensemble.h5")
     if args.n_seeds is not None and args.records is not None:
         raise OptionError("--n-seeds varies the scene's synthetic motion; --records gives the motions: drop one")
@@ -669,6 +772,56 @@ def cmd_ensemble(args) -> int:
     if summ["refused"]:
         return EXIT_INPUT
     return EXIT_FAILED if summ["stopped"] or summ["failed"] else EXIT_OK
+
+
+def _ensemble_case(scene, case):
+    """The scene an ensemble runs: ``scene`` itself, or with ``case`` its soil case (named
+    ``<scene>_<case>``); a scene with soil cases needs one."""
+    design = scene.soil_cases is not None or scene.strain_compatible is not None
+    if case is None:
+        if design:
+            names = scene.soil_cases.names if scene.soil_cases is not None else ("be",)
+            raise OptionError(f"scene {scene.name!r} has soil cases ({', '.join(names)}): an ensemble runs one; "
+                              "give --case NAME (one ensemble per case, then `uplift envelope` on the files)")
+        return scene
+    if not design:
+        raise OptionError(f"--case {case}: scene {scene.name!r} has no [soil] cases nor strain_compatible; drop --case")
+    cases = dict(design_cases(scene, make_motion(scene.motion, scene.analysis.dt))[0])
+    if case not in cases:
+        raise OptionError(f"--case {case}: scene {scene.name!r} has the soil cases {', '.join(cases)}; give one of them")
+    return replace(cases[case], name=f"{scene.name}_{case}")
+
+
+def cmd_envelope(args) -> int:
+    from orchestrator.ensemble import fractile_design_spectra, read_ensemble, write_fractile_tables  # only here
+    check_output_folder(args.output, (), "-o")
+    datasets = {}
+    for path in args.ensembles:
+        ds = read_ensemble(path)
+        label = str(ds.attrs.get("scene", "")) or path.stem
+        if label in datasets:
+            label = path.stem
+        datasets[label] = ds
+    design = fractile_design_spectra(datasets, args.quantile, args.broadening)
+    paths = write_fractile_tables(design, args.output)
+    _say(*(f"wrote {p}" for p in paths))
+    peaks = {f"{pga:g}": {route: {node: {d: float(np.nanmax(design["envelope"][a, r, i, j]) / G)
+                                         for j, d in enumerate(design["direction"])
+                                         if np.isfinite(design["envelope"][a, r, i, j]).any()}
+                                  for i, node in enumerate(design["node"])}
+                          for r, route in enumerate(design["route"])}
+             for a, pga in enumerate(design["pga"])}
+    if args.json:
+        _print_json({"cases": design["cases"], "quantile": design["quantile"], "broadening": design["broadening"],
+                     "envelope_peak_g": peaks, "tables": [str(p) for p in paths]})
+    else:
+        _out(f"{100 * args.quantile:g}th-percentile floor spectra, broadened +-{100 * args.broadening:g} %, enveloped "
+             f"over {', '.join(design['cases'])}: peak (g)")
+        for pga, routes in peaks.items():
+            for route, nodes in routes.items():
+                _out(f"  {pga} g [{route}]: " + "; ".join(f"{n} " + ", ".join(f"{d} {v:.3f}" for d, v in dirs.items())
+                                                      for n, dirs in nodes.items()))
+    return EXIT_OK
 
 
 def _fragility_parser(sub, json_flag):

@@ -23,6 +23,7 @@ from __future__ import annotations
 import base64
 import html
 import io
+import json
 from pathlib import Path
 
 import h5py
@@ -33,10 +34,13 @@ from structure.results import Status
 
 from orchestrator import oncurve
 from orchestrator.compare import compare, format_difference
+from orchestrator.design import case_envelope, format_envelope, read_design
+from orchestrator.design_spectra import plot_design_spectra
 from orchestrator.ensemble import ensemble_components, read_ensemble
 from orchestrator.motion import G
 from orchestrator.plots import dodged, pyplot, route_style, run_figures
-from orchestrator.results_file import ResultsFileError, read_motion, read_results, read_scene_record, summary
+from orchestrator.results_file import (ResultsFileError, read_cases, read_motion, read_results, read_scene_record,
+                                       summary)
 from orchestrator.routes import get_route, route_names
 
 
@@ -133,8 +137,63 @@ def write_report(results_path, directory, reference: str | None = None, pushover
              "sqrt(rx² + ry²) (paper fig. 3-4), floor response spectra in x, y and z (fig. 5-6); dashed: "
              "the <code>linear</code> route (no uplift) when present.</p>"]
     parts += _images(figures)
+    parts += design_parts(results_path, directory, reference)
     parts += oncurve_parts(results, scene, curves, notes, directory)
     return _write_page(directory, parts)
+
+
+def design_parts(results_path, directory: Path, reference: str | None = None) -> list:
+    """The design-basis section of a report (orchestrator.design): per soil case the profile, the
+    summary and the route comparison, the envelope over the cases, the strain-compatible soil,
+    and the design floor spectra (figures and where their tables are); [] for a run of one soil."""
+    cases = read_cases(results_path)
+    if not cases:
+        return []
+    design = read_design(results_path)
+    esc = html.escape
+    per = {case: read_results(results_path, case) for case in cases}
+    rule = design["rule"]
+    how = (f"G / (1 + Cv), G, G (1 + Cv) with Cv = {rule['cv']:g} (vs / sqrt(1 + Cv), vs, vs sqrt(1 + Cv); density, "
+           "Poisson's ratio and damping kept)" if "cv" in rule else "named profiles")
+    parts = [f"<h2>Design basis: soil cases ({esc(', '.join(cases))})</h2>",
+             f"<p>Cases: {esc(how)}. The summary and figures above are those of case <b>{esc(cases[0])}</b>. "
+             "Rules and references: docs/design_basis.md.</p>"]
+    with h5py.File(results_path, "r") as f:
+        profiles = {case: json.loads(f[f"cases/{case}"].attrs["profile"]) for case in cases}
+    rows = [[case, *(f"{m['vs']:.1f} / {m['damping']:.4f}" for m in (*p["layers"], p["halfspace"]))]
+            for case, p in profiles.items()]
+    n_layers = len(profiles[cases[0]]["layers"])
+    parts.append(_table(["case", *(f"layer {i} vs (m/s) / damping" for i in range(n_layers)),
+                         "half-space vs (m/s) / damping"], rows))
+    site = design["site_response"]
+    if site is not None:
+        parts.append(f"<h3>Strain-compatible soil</h3><p>Equivalent-linear free-field analysis ({esc(site['input'])} "
+                     f"motion, component {esc(site['component'])}, strain ratio {site['strain_ratio']:g}, tolerance "
+                     f"{site['tolerance']:g}): {site['iterations']} iterations, "
+                     f"{'converged' if site['converged'] else 'NOT converged'}.</p>")
+        parts.append(_table(["layer", "vs low-strain (m/s)", "vs (m/s)", "G/Gmax", "damping low-strain", "damping",
+                             "effective strain", "peak strain"],
+                            [[i, f"{a:.1f}", f"{b:.1f}", f"{g:.4f}", f"{c:.4f}", f"{d:.4f}", f"{e:.3e}", f"{m:.3e}"]
+                             for i, (a, b, g, c, d, e, m) in enumerate(zip(
+                                 site["vs_initial"], site["vs"], site["g_ratio"], site["damping_initial"],
+                                 site["damping"], site["strain_eff"], site["strain_max"]))]))
+    for case, results in per.items():
+        parts += [f"<h3>Case {esc(case)}</h3>", _table(SUMMARY_HEADER, summary_rows(results))]
+        if len(results) > 1:
+            ref = reference if reference in results else None
+            parts.append(_table(COMPARISON_HEADER, comparison_rows(compare(results, reference=ref))))
+    parts += ["<h3>Envelope over the soil cases</h3>", f"<pre>{esc(format_envelope(case_envelope(per)))}</pre>"]
+    spectra = design["spectra"]
+    if spectra is not None:
+        paths = plot_design_spectra(spectra, directory)
+        parts.append(f"<h3>Design floor response spectra</h3><p>Broadened ±{100 * spectra.broadening:g} % in "
+                     "frequency (at f: the max of the raw spectrum over [f/(1+r), f/(1−r)]), enveloped over the "
+                     f"cases, at damping {', '.join(f'{100 * z:g} %' for z in spectra.damping)}; tables: "
+                     "<code>uplift run</code> writes them as CSV (frequency Hz, acceleration g).</p>")
+        for path in paths:
+            data = base64.b64encode(path.read_bytes()).decode("ascii")
+            parts.append(f"<img alt='{esc(path.stem)}' src='data:image/png;base64,{data}'>")
+    return parts
 
 
 def _save_figures(figures, directory: Path) -> list:

@@ -126,11 +126,12 @@ def check_output_folder(path, names=(), option: str = "-o") -> Path:
 
 
 def write_results(path, results: dict, motion=None, scene_name: str = "", scene_toml: str = "",
-                  overrides=()) -> Path:
+                  overrides=(), extra=None) -> Path:
     """Write ``{route: RouteResult}`` (and the motion, the scene as TOML, the overrides of the
     command line) to one HDF5 file of the layout of this module (format_version 2: netCDF4
     dimension scales, CF units, the per-route summary), atomically, with the checksum of its
-    whole content."""
+    whole content. ``extra(f)``, when given, writes more groups into the open file before the
+    checksum (the soil cases and design spectra of ``orchestrator.design``)."""
     path = check_output_path(path)
     with atomic_output(path) as tmp, h5py.File(tmp, "w") as f:
         f.attrs.update(uplift_file=KIND, format_version=FORMAT_VERSION, Conventions="CF-1.8", scene=scene_name,
@@ -141,6 +142,8 @@ def write_results(path, results: dict, motion=None, scene_name: str = "", scene_
         routes = f.create_group("routes")
         for name, res in results.items():
             _write_route(routes.create_group(name), res)
+        if extra is not None:
+            extra(f)
         stamp_checksum(f)
     return path
 
@@ -258,6 +261,10 @@ def _write_spectra(g, spectra) -> None:
               "frequency of the floor-spectrum peak")
 
 
+#: the writers of this layout, for the groups other modules add through ``write_results(extra=)``
+add_coordinate, add_variable, add_route = _coordinate, _variable, _write_route
+
+
 def _jsonable(obj):
     if isinstance(obj, np.ndarray):
         return obj.tolist()
@@ -268,23 +275,44 @@ def _jsonable(obj):
     return str(obj)
 
 
-def read_results(path) -> dict:
+def read_results(path, case: str | None = None) -> dict:
     """Read a results file back as ``{route: RouteResult}`` (format_version 2, or 1: the layout
     before it); a missing, unreadable or foreign file raises ResultsFileError naming it, a
-    changed one ChangedFileError."""
+    changed one ChangedFileError. ``case``: the routes of that soil case (``read_cases``; the
+    file's top-level routes are those of its first case)."""
     with _opened(path) as (f, version):
         read = _read_route if version >= 2 else _read_route_v1
-        return {route: read(route, g) for route, g in f["routes"].items()}
+        return {route: read(route, g) for route, g in _routes_group(f, path, case).items()}
 
 
-def read_summary(path) -> dict:
+def read_cases(path) -> list:
+    """The soil cases of a results file (``orchestrator.design``), in run order; [] for a run of
+    one soil (no ``/cases`` group)."""
+    with _opened(path) as (f, _):
+        return json.loads(f["cases"].attrs["names"]) if "cases" in f else []
+
+
+def _routes_group(f, path, case):
+    """The routes group of ``case`` (None: the top level; a case whose group has the attribute
+    ``routes`` is stored there, the first case at the top level ``/routes``)."""
+    if case is None:
+        return f["routes"]
+    names = json.loads(f["cases"].attrs["names"]) if "cases" in f else []
+    if case not in names:
+        raise ResultsFileError(f"{path} has no soil case {case!r} (cases: {', '.join(names) or 'none'}); "
+                               "give one of them")
+    return f[str(f[f"cases/{case}"].attrs.get("routes", f"/cases/{case}/routes"))]
+
+
+def read_summary(path, case: str | None = None) -> dict:
     """``{route: summary}`` as stored in a results file (format_version 2): the dict that
-    ``summary`` gives for each route, its numbers read from the file, not computed again."""
+    ``summary`` gives for each route, its numbers read from the file, not computed again
+    (``case``: of that soil case)."""
     with _opened(path) as (f, version):
         if version < 2:
             raise ResultsFileError(f"{path} has no stored summary (format_version 1): "
                                    "summary(read_results(path)[route]) computes it, or run `uplift run` again")
-        return {route: _stored_summary(g) for route, g in f["routes"].items()}
+        return {route: _stored_summary(g) for route, g in _routes_group(f, path, case).items()}
 
 
 def open_results(path, group: str | None = None):

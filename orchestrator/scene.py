@@ -37,6 +37,9 @@ from orchestrator.motion import (DIRECTIONS, FORMATS, SPECTRA, SYNTHETIC_DT, UNI
 from orchestrator.routes import get_route, route_names
 from soil_impedance.mesh import InterfaceMesh, MeshError, circle_mesh, read_nodes_csv, rectangle_mesh
 from soil_impedance.profile import DAMPING_MODELS, Layer, Material, SoilError, SoilProfile
+from orchestrator.design_spectra import DesignSpectraConfig, SpectraConfigError, parse_design_spectra
+from orchestrator.soil_cases import (SoilCaseError, SoilCases, StrainCompatibleConfig, parse_cases,
+                                     parse_strain_compatible)
 from structure.contact import ContactSettings
 from structure.errors import StructureError
 from structure.model import StructureModel
@@ -334,6 +337,12 @@ class Scene:
     #: the command line's overrides, in the order applied: ({"option": "--pga", "value": 0.5,
     #: "key": "motion.pga_g", "was": 0.25, "now": 0.5}, ...); for a record, --pga sets motion.scale
     overrides: tuple = ()
+    #: [soil] cases (the Cv rule or named profiles, orchestrator.soil_cases), None: one soil
+    soil_cases: SoilCases | None = None
+    #: [soil] strain_compatible (the equivalent-linear free-field analysis), None: the soil as given
+    strain_compatible: StrainCompatibleConfig | None = None
+    #: [output] design_spectra (broadened, enveloped floor spectra, orchestrator.design_spectra)
+    design_spectra: DesignSpectraConfig | None = None
 
     def __post_init__(self):
         f = np.array(self.frequencies_hz, float)
@@ -506,13 +515,14 @@ def _scene(data, base_dir: Path, name: str, origin: str) -> Scene:
     try:
         _check_keys(data, SECTIONS, "scene", what="section")
         soil = _section(data, "soil", 'halfspace = { vs = ..., nu = ..., rho = ... }')
-        _check_keys(soil, ("layers", "halfspace", "damping_model", "winkler"), "soil")
+        _check_keys(soil, ("layers", "halfspace", "damping_model", "winkler", "cases", "strain_compatible"), "soil")
         winkler = _winkler(soil.get("winkler"))
         model = _choice("soil.damping_model", soil.get("damping_model", "hysteretic"), DAMPING_MODELS,
                         hint="hysteretic: G (1 + 2i damping) at every frequency, the default; causal: "
                              "constant Q with a 0.05 Hz cut-off, vs given at 1 Hz")
         needed = "halfspace" in soil or "layers" in soil or not winkler.explicit
         profile = _profile(soil, model) if needed else None
+        cases, strain_compatible = _soil_design(soil, model, profile)
         mesh, contact_kind = _foundation(_section(data, "foundation",
                                                   'shape = "circle", radius = ..., element_size = ...'), base_dir)
         freqs = _frequencies(_table(data, "impedance"))
@@ -520,11 +530,16 @@ def _scene(data, base_dir: Path, name: str, origin: str) -> Scene:
         contact = contact_from_spec(_table(data, "contact"))
         motion = _motion(_table(data, "motion"), base_dir)
         analysis = _config(AnalysisConfig, _table(data, "analysis"), "analysis")
-        output = _config(OutputConfig, _table(data, "output"), "output")
+        output_table = _table(data, "output")
+        design_spectra = parse_design_spectra(output_table["design_spectra"]) if "design_spectra" in output_table \
+            else None
+        output = _config(OutputConfig, {k: v for k, v in output_table.items() if k != "design_spectra"}, "output")
+        _check_design_spectra(design_spectra, structure, output, analysis)
         return Scene(name=name, base_dir=base_dir, profile=profile, mesh=mesh, contact_kind=contact_kind,
                      frequencies_hz=freqs, structure=structure, contact=contact, motion=motion,
-                     analysis=analysis, output=output, winkler=winkler, source=copy.deepcopy(data))
-    except (SceneError, StructureError, MotionError, SoilError, MeshError) as exc:
+                     analysis=analysis, output=output, winkler=winkler, source=copy.deepcopy(data),
+                     soil_cases=cases, strain_compatible=strain_compatible, design_spectra=design_spectra)
+    except (SceneError, StructureError, MotionError, SoilError, MeshError, SoilCaseError, SpectraConfigError) as exc:
         raise SceneError(f"{origin}: {exc}") from None
 
 
@@ -610,6 +625,49 @@ def _profile(soil: dict, model: str) -> SoilProfile:
     out = tuple(_material(t, f"soil.layers[{i}]", cls=Layer, extra=("thickness",), damping_model=model)
                 for i, t in enumerate(layers))
     return SoilProfile(out, _material(soil["halfspace"], "soil.halfspace", damping_model=model))
+
+
+def _soil_design(soil: dict, model: str, profile: SoilProfile | None):
+    """(SoilCases or None, StrainCompatibleConfig or None) of [soil] cases and strain_compatible
+    (orchestrator.soil_cases): both need the BEM profile; named case profiles are parsed like the
+    scene's own (same damping model), strain_compatible goes with the Cv rule or with no cases."""
+    if "cases" not in soil and "strain_compatible" not in soil:
+        return None, None
+    if profile is None:
+        raise SceneError("soil.cases and soil.strain_compatible need the BEM soil: give soil.halfspace "
+                         "(and soil.layers)")
+
+    def case_profile(table, where):
+        try:
+            return _profile(table, model)
+        except (SceneError, SoilError) as exc:
+            raise SceneError(f"{where}: {exc}") from None
+    cases = parse_cases(soil["cases"], case_profile) if "cases" in soil else None
+    sc = None
+    if "strain_compatible" in soil:
+        if cases is not None and cases.cv is None:
+            raise SceneError("soil.strain_compatible goes with cases = { cv = ... } (the cases are built on the "
+                             "strain-compatible profile) or with no cases, not with named profiles: remove one")
+        sc = parse_strain_compatible(soil["strain_compatible"], len(profile.layers))
+    return cases, sc
+
+
+def _check_design_spectra(config, structure, output, analysis) -> None:
+    """[output] design_spectra's nodes among the nodes whose histories are kept ([output].nodes,
+    or every named node) and its routes among [analysis].routes."""
+    if config is None:
+        return
+    if structure is None:
+        raise SceneError("output.design_spectra needs a [structure] (floor spectra of its nodes)")
+    kept = output.nodes or structure.node_names
+    for node in config.nodes or ():
+        if node not in kept:
+            raise SceneError(f"output.design_spectra.nodes: {node!r} is not among the nodes kept "
+                             f"(output.nodes: {', '.join(kept)}); add it to output.nodes or remove it")
+    for route in config.routes or ():
+        if route not in analysis.routes:
+            raise SceneError(f"output.design_spectra.routes: {route!r} is not run (analysis.routes: "
+                             f"{', '.join(analysis.routes)}); add it there or remove it")
 
 
 FOUNDATION_KEYS = {"circle": ("radius", "element_size"), "rectangle": ("lx", "ly", "element_size"),

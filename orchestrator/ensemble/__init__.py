@@ -57,13 +57,15 @@ each PGA, or the seed. The attribute ``components`` ("x y z") says which compone
 The package: ``plan`` (inputs checked, cells, keys), ``triplets`` (the components of a record
 folder), ``store`` (one cell's run and values, the
 cell store), ``cluster`` (the dask cluster and the cells run on it), ``dataset`` (assembly,
-file, summary), ``runner`` (``run_ensemble``).
+file, summary), ``runner`` (``run_ensemble``), ``fractile_design`` (the fractile floor spectra of several ensembles,
+one per soil case, broadened and enveloped: ``uplift envelope``).
 """
 from uplift_common.lazy import lazy_exports
 
 #: the public names, imported from their submodule on first use (``uplift_common.lazy``)
 __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "cluster": ("CONNECT_TIMEOUT_S", "LOCAL_WORKER_CONFIG", "default_workers"),
+    "fractile_design": ("fractile_design_spectra", "write_fractile_tables"),
     "dataset": ("FRACTILE_VARIABLES", "KIND", "QUANTILES", "assemble", "ensemble_components", "ensemble_summary", "is_ensemble_file", "read_ensemble", "write_ensemble"),
     "plan": ("DT_CHECKS", "RECORD_SUFFIXES", "Cell", "EnsembleError", "Plan", "Record", "cell_key", "code_version", "plan_ensemble", "record_sources"),
     "runner": ("run_ensemble", "strongest_check"),

@@ -115,6 +115,10 @@ def plan_ensemble(scene: Scene, pgas, records=None, seeds=None, dt_check: str = 
     Without either: the scene's own motion. Bad input raises EnsembleError naming it."""
     if dt_check not in DT_CHECKS:
         raise EnsembleError(f"dt_check = {dt_check!r}: use one of {', '.join(DT_CHECKS)}")
+    if scene.soil_cases is not None or scene.strain_compatible is not None:
+        raise EnsembleError(f"scene {scene.name!r} has [soil] cases or strain_compatible: an ensemble runs one soil; "
+                            "run one ensemble per case on its scene (`uplift run` stores each case's scene in the "
+                            "results file, /cases/<case> attribute scene_toml; docs/design_basis.md)")
     limit = scene.analysis.max_pga_g
     pgas = _pgas(pgas, limit)
     base = scene.motion
