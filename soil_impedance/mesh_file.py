@@ -1,0 +1,358 @@
+"""The engineer's finite-element raft mesh as the interface: ``read_mesh(path, group, centre)``.
+
+The file is read through meshio: gmsh ``.msh`` (2.2 and 4.1), MED ``.med``, Abaqus ``.inp``,
+VTK ``.vtk`` and ``.vtu``. The interface is made of its linear triangles and quadrilaterals,
+either every 2-D cell of the file (a 2-D mesh, or one whose points all have the same z) or the
+cells of one named group (``group``: a gmsh physical group, an Abaqus element set, a MED group),
+e.g. the base faces of a 3-D mesh of the raft. Each cell becomes one interface node at its area
+centroid (``soil_impedance.mesh.cells_mesh``), in the frame of the raft centre ``centre``
+((x, y) in the file's coordinates, m; default: the area centroid of the interface).
+
+Refused before any computation, with a one-line ``MeshError`` naming the file and the fix: an
+unreadable file or an unknown format, no 2-D cell (in the group: the groups that exist are
+listed), cells off a horizontal plane z = const (non-planar or tilted), higher-order cells,
+polygons, degenerate cells (zero area, a quadrilateral not convex), overlapping cells (the same
+cell twice, an edge shared by more than two cells, superposed parts), a raft in several pieces,
+more cells than ``MAX_NODES``, and what ``check_footprint`` refuses (the centre outside the
+footprint). Holes (openings) in the raft are allowed. Coincident points of the file (the same
+coordinates under two numbers) are merged before the checks.
+"""
+from __future__ import annotations
+
+import hashlib
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .mesh import MAX_NODES, InterfaceMesh, MeshError, cells_mesh, check_footprint, polygon_area_centroid
+
+#: the formats read, by file suffix: meshio's format name and what to call it in messages
+FORMATS = {".msh": ("gmsh", "gmsh"), ".med": ("med", "MED"), ".inp": ("abaqus", "Abaqus"),
+           ".vtk": ("vtk", "VTK"), ".vtu": ("vtu", "VTU")}
+#: the linear 2-D cells (meshio's names) and their vertex counts
+LINEAR = {"triangle": 3, "quad": 4}
+#: relative tolerances: points closer than MERGE x the mesh's extent are one point; z varying by
+#: less than PLANE x the extent is one plane; cells apart (or into each other) by less than
+#: TOUCH x the median cell size touch; a cell whose area is under FLAT x its diameter^2 is flat
+MERGE, PLANE, TOUCH, FLAT = 1e-9, 1e-6, 1e-6, 1e-8
+
+
+@dataclass(frozen=True)
+class MeshSource:
+    """Where an interface mesh was read from: the file (absolute path), the SHA-256 of its
+    content, its format, the group selected (None: every 2-D cell) and the raft centre in the
+    file's coordinates (m): the provenance a results file keeps."""
+    path: Path
+    sha256: str
+    format: str
+    group: str | None
+    centre: tuple[float, float]
+
+    def as_dict(self) -> dict:
+        return {"path": str(self.path), "sha256": self.sha256, "format": self.format,
+                "group": self.group, "centre": list(self.centre)}
+
+
+def read_mesh(path, group: str | None = None, centre=None) -> InterfaceMesh:
+    """The interface mesh of a finite-element file (see the module docstring).
+
+    Parameters
+    ----------
+    path : str or Path            the mesh file (.msh, .med, .inp, .vtk, .vtu)
+    group : str or None           the named group of cells to take (None: every 2-D cell)
+    centre : (x, y) or None, m    the raft centre in the file's coordinates (None: the area
+                                  centroid of the interface)
+
+    Returns an InterfaceMesh of kind "cells" (one node per cell at its centroid, about the
+    centre). Raises MeshError naming the file and the fix.
+    """
+    return read_mesh_source(path, group, centre)[0]
+
+
+def read_mesh_source(path, group: str | None = None, centre=None) -> tuple[InterfaceMesh, MeshSource]:
+    """(InterfaceMesh, MeshSource) of ``read_mesh``: the mesh and where it came from."""
+    path = Path(path)
+    name = f"mesh file {str(path)!r}"
+    if centre is not None:
+        centre = _centre(centre, name)
+    fmt, label, raw = _open(path, name)
+    mesh = _meshio_read(path, fmt, label, name)
+    blocks = _select(mesh, group, label, name)
+    pts3, tris, quads = _cells(mesh, blocks, group, name)
+    pts = _planar(pts3, tris, quads, group, mesh, name)
+    pts, tris, quads = _merged(pts, tris, quads)
+    poly, ids = _polygons(pts, tris, quads)
+    n = poly.shape[0]
+    if n > MAX_NODES:
+        raise MeshError(f"{name}: {n} cells, each an interface node; at most MAX_NODES = {MAX_NODES} (the BEM "
+                        f"stores (3N)^2 complex values per frequency): mesh the raft coarser")
+    _check_cells(poly, ids, name)
+    if centre is None:
+        area, centroid = polygon_area_centroid(poly)
+        centre = tuple(float(c) for c in (area @ centroid) / area.sum())
+    try:
+        out = cells_mesh(pts, tris, quads, centre)
+        check_footprint(out, name)
+    except MeshError as exc:
+        text = str(exc)
+        raise MeshError(text if text.startswith(name) else f"{name}: {text}") from None
+    source = MeshSource(path.resolve(), hashlib.sha256(raw).hexdigest(), label, group, centre)
+    return out, source
+
+
+def _open(path: Path, name: str):
+    """(meshio format, label, bytes) of the file, or MeshError: missing, unreadable, unknown suffix."""
+    fmt = FORMATS.get(path.suffix.lower())
+    if fmt is None:
+        known = ", ".join(f"{s} ({lab})" for s, (_, lab) in FORMATS.items())
+        raise MeshError(f"{name}: unknown mesh format {path.suffix or '(no suffix)'!r}; give one of {known}")
+    if not path.is_file():
+        raise MeshError(f"{name}: no such file (paths are relative to the scene file)")
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise MeshError(f"{name} cannot be read: {exc.strerror}") from None
+    return fmt[0], fmt[1], raw
+
+
+def _meshio_read(path: Path, fmt: str, label: str, name: str):
+    import meshio  # ~0.5 s at start-up: only scenes with a mesh file pay it
+    try:
+        return meshio.read(path, file_format=fmt)
+    except MemoryError:
+        raise
+    except Exception as exc:                 # meshio's parsers raise anything on a damaged file
+        why = " ".join(str(exc).split())[:200] or type(exc).__name__
+        raise MeshError(f"{name} cannot be read as a {label} file ({why}): check that it is a {label} mesh, "
+                        f"or export it again") from None
+
+
+def _groups(mesh) -> dict:
+    """{group name: [per block: bool mask of its cells]} of every named group of the file:
+    meshio's cell sets (gmsh 4.1 physical groups, Abaqus element sets), gmsh 2.2 physical names
+    (field data and the ``gmsh:physical`` tags), MED groups (families of ``cell_tags``)."""
+    sizes = [len(b.data) for b in mesh.cells]
+    out = {}
+    for gname, per_block in (mesh.cell_sets or {}).items():
+        if gname.startswith("gmsh:"):
+            continue
+        masks = []
+        for size, idx in zip(sizes, per_block):
+            m = np.zeros(size, bool)
+            if idx is not None and len(idx):
+                m[np.asarray(idx, dtype=np.int64)] = True
+            masks.append(m)
+        out[gname] = masks
+    physical = mesh.cell_data.get("gmsh:physical")
+    if physical is not None:
+        for gname, (tag, dim) in (mesh.field_data or {}).items():
+            if gname not in out:
+                out[gname] = [(np.asarray(p) == tag) & (_dim(b.type) == dim) for b, p in zip(mesh.cells, physical)]
+    tags = mesh.cell_data.get("cell_tags")
+    families = getattr(mesh, "cell_tags", None) or {}
+    if tags is not None and families:
+        names = sorted({g for gs in families.values() for g in gs})
+        for gname in names:
+            fams = [f for f, gs in families.items() if gname in gs]
+            out.setdefault(gname, [np.isin(np.asarray(t), fams) for t in tags])
+    return out
+
+
+def _dim(cell_type: str) -> int:
+    for prefix, d in (("vertex", 0), ("line", 1), ("triangle", 2), ("quad", 2), ("polygon", 2)):
+        if cell_type.startswith(prefix):
+            return d
+    return 3
+
+
+def _select(mesh, group, label: str, name: str) -> list:
+    """[(block, mask)] of the cells to take: every cell, or those of ``group``."""
+    if group is None:
+        return [(b, np.ones(len(b.data), bool)) for b in mesh.cells]
+    groups = _groups(mesh)
+    if group not in groups:
+        if not groups:
+            hint = ("VTK files carry no named groups: write only the raft's base cells, or use a .msh, .med or "
+                    ".inp file" if label in ("VTK", "VTU") else "the file has no named groups: remove "
+                    "foundation.mesh_group to take every 2-D cell")
+            raise MeshError(f"{name}: no group {group!r}; {hint}")
+        raise MeshError(f"{name}: no group {group!r}; the groups of the file are {', '.join(sorted(groups))}: "
+                        "set foundation.mesh_group to the one of the raft's base")
+    return list(zip(mesh.cells, groups[group]))
+
+
+def _cells(mesh, blocks, group, name):
+    """(points (m, 3), triangles, quads) of the selected 2-D cells; MeshError when there
+    is none, or when they are higher order or polygons."""
+    tris, quads, other = [], [], {}
+    for block, mask in blocks:
+        if not mask.any():
+            continue
+        if block.type in LINEAR:
+            (tris if block.type == "triangle" else quads).append(np.asarray(block.data)[mask])
+        elif _dim(block.type) == 2:
+            kind = block.type
+            if kind == "polygon" or kind.startswith("polygon"):
+                raise MeshError(f"{name}: {int(mask.sum())} polygon cells; only triangles and quadrilaterals are "
+                                "read: split them (gmsh: Mesh.RecombineAll = 0 or 1)")
+            raise MeshError(f"{name}: {int(mask.sum())} higher-order cells ({kind}); the interface takes linear "
+                            "triangles and quadrilaterals (one node per cell): mesh with order 1 (gmsh: "
+                            "Mesh.ElementOrder = 1, or -order 1)")
+        else:
+            other[block.type] = other.get(block.type, 0) + int(mask.sum())
+    if not tris and not quads:
+        where = f"group {group!r}" if group is not None else "the file"
+        held = f" ({', '.join(f'{n} {t}' for t, n in other.items())})" if other else ""
+        fix = ("select the group of the raft's base faces with foundation.mesh_group" if group is not None or other
+               else "mesh the raft's base as triangles or quadrilaterals")
+        groups = sorted(_groups(mesh))
+        listed = f"; groups: {', '.join(groups)}" if groups else ""
+        raise MeshError(f"{name}: {where} has no triangle or quadrilateral cells{held}: {fix}{listed}")
+    tri = np.concatenate(tris).astype(np.int64) if tris else np.zeros((0, 3), np.int64)
+    quad = np.concatenate(quads).astype(np.int64) if quads else np.zeros((0, 4), np.int64)
+    pts = np.asarray(mesh.points, float)
+    if pts.shape[1] == 2:
+        pts = np.column_stack([pts, np.zeros(len(pts))])
+    return pts, tri, quad
+
+
+def _planar(pts3, tris, quads, group, mesh, name):
+    """The (x, y) of the points when every vertex of the cells has one z (a horizontal plane),
+    else MeshError (non-planar, tilted, or a 3-D mesh's faces without a group)."""
+    used = np.unique(np.concatenate([tris.ravel(), quads.ravel()]))
+    if used.size and (used.min() < 0 or used.max() >= len(pts3)):
+        raise MeshError(f"{name}: cells refer to point numbers the file does not have: export the mesh again")
+    p = pts3[used]
+    if not np.all(np.isfinite(p)):
+        raise MeshError(f"{name}: point coordinates that are not finite numbers: export the mesh again")
+    extent = float(np.ptp(p[:, :2], axis=0).max()) or 1.0
+    z = p[:, 2]
+    if np.ptp(z) > PLANE * extent:
+        groups = sorted(_groups(mesh))
+        fix = ("select the base faces with foundation.mesh_group" + (f" (groups: {', '.join(groups)})" if groups else "")
+               if group is None else f"group {group!r} is not the raft's base: choose its flat, horizontal faces")
+        raise MeshError(f"{name}: the cells are not on one horizontal plane z = const (z from {z.min():.6g} to "
+                        f"{z.max():.6g} m): the interface is the flat raft base, z up (a non-planar or tilted "
+                        f"surface is refused); {fix}")
+    return pts3[:, :2].copy()
+
+
+def _merged(pts, tris, quads):
+    """Points of the same coordinates (within MERGE x the extent) made one; unused points kept."""
+    extent = float(np.abs(pts).max(initial=0.0)) or 1.0
+    key = np.round(pts / (MERGE * extent)).astype(np.int64)
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    inverse = inverse.ravel()
+    return pts[first], inverse[tris], inverse[quads]
+
+
+def _polygons(pts, tris, quads):
+    """(polygons (n, 4, 2) counter-clockwise, vertex ids (n, 4)): triangles with their third
+    vertex repeated, in the order triangles then quadrilaterals (that of ``cells_mesh``)."""
+    ids = np.concatenate([np.concatenate([tris, tris[:, 2:3]], axis=1), quads])
+    poly = pts[ids]
+    area, _ = polygon_area_centroid(poly)
+    flip = area < 0
+    poly[flip] = poly[flip, ::-1]
+    ids = ids.copy()
+    ids[flip] = ids[flip, ::-1]
+    return poly, ids
+
+
+def _where(poly, k: int) -> str:
+    c = poly[k].mean(axis=0)
+    return f"cell {k} (near x = {c[0]:.6g}, y = {c[1]:.6g} m)"
+
+
+def _check_cells(poly, ids, name):
+    """Degenerate, duplicate and overlapping cells, edges of more than two cells, pieces."""
+    n = poly.shape[0]
+    area, _ = polygon_area_centroid(poly)
+    diam = np.max(np.linalg.norm(poly[:, :, None, :] - poly[:, None, :, :], axis=-1), axis=(1, 2))
+    flat = np.flatnonzero(area <= FLAT * diam ** 2)
+    if flat.size:
+        raise MeshError(f"{name}: {_where(poly, flat[0])} has zero area (its vertices are on one line or repeated; "
+                        f"{flat.size} such cells): repair or remove the degenerate cells")
+    edge = np.roll(poly, -1, axis=1) - poly                        # (n, 4, 2)
+    turn = edge[:, :, 0] * np.roll(edge, -1, axis=1)[:, :, 1] - edge[:, :, 1] * np.roll(edge, -1, axis=1)[:, :, 0]
+    folded = np.flatnonzero((turn < -FLAT * diam[:, None] ** 2).any(axis=1))
+    if folded.size:
+        raise MeshError(f"{name}: {_where(poly, folded[0])} is a quadrilateral that is not convex (folded, bow-tie "
+                        f"or with a reflex corner; {folded.size} such cells): repair it or split it into triangles")
+    key = np.sort(ids, axis=1)
+    key = np.where(key[:, :1] == key[:, 1:2], np.roll(key, -1, axis=1), key)   # a triangle's repeat first
+    _, first, counts = np.unique(np.sort(key, axis=1), axis=0, return_index=True, return_counts=True)
+    if (counts > 1).any():
+        k = first[np.flatnonzero(counts > 1)[0]]
+        raise MeshError(f"{name}: {_where(poly, k)} is in the mesh {counts.max()} times (duplicate cells; "
+                        f"{int((counts - 1).sum())} copies): remove the duplicates")
+    a, b = ids, np.roll(ids, -1, axis=1)
+    real = a != b
+    edges = np.sort(np.stack([a[real], b[real]], axis=1), axis=1)
+    uniq, counts = np.unique(edges, axis=0, return_counts=True)
+    if (counts > 2).any():
+        e = uniq[np.flatnonzero(counts > 2)[0]]
+        owner = np.flatnonzero(np.isin(ids, e).sum(axis=1) >= 2)
+        raise MeshError(f"{name}: an edge is shared by {counts.max()} cells ({', '.join(_where(poly, k) for k in owner[:3])}):"
+                        " the mesh has superposed parts; keep one layer of cells")
+    size = float(np.median(np.sqrt(area)))
+    i, j, sep = _near_pairs(poly, diam, TOUCH * size)
+    over = np.flatnonzero(sep < -TOUCH * size)
+    if over.size:
+        p, q = i[over[0]], j[over[0]]
+        raise MeshError(f"{name}: {_where(poly, p)} and {_where(poly, q)} overlap ({over.size} overlapping pairs): "
+                        "the mesh has superposed parts; keep one layer of cells")
+    from scipy.sparse import coo_matrix                       # only for the connectivity below
+    from scipy.sparse.csgraph import connected_components      # (the same)
+    touch = sep <= TOUCH * size
+    graph = coo_matrix((np.ones(int(touch.sum())), (i[touch], j[touch])), shape=(n, n))
+    count, label = connected_components(graph, directed=False)
+    if count > 1:
+        sizes = np.bincount(label)
+        parts = "; ".join(f"{sizes[c]} cells around x = {poly[label == c].mean(axis=(0, 1))[0]:.4g}, "
+                          f"y = {poly[label == c].mean(axis=(0, 1))[1]:.4g} m" for c in np.argsort(-sizes)[:3])
+        raise MeshError(f"{name}: the raft is in {count} pieces that do not touch ({parts}): a rigid raft is one "
+                        "piece; join them, or mesh them as one surface")
+
+
+def _near_pairs(poly, diam, tol):
+    """(i, j, separation) of the pairs of cells whose circles about their centroids meet:
+    separation > 0 apart (the largest gap along an edge normal of either), < 0 into each other
+    (the separating axis test of convex polygons), about 0 touching."""
+    from scipy.spatial import cKDTree                # the neighbour search of the checks only
+    centre = poly.mean(axis=1)
+    radius = np.linalg.norm(poly - centre[:, None, :], axis=-1).max(axis=1)
+    tree = cKDTree(centre)
+    rows, cols = [], []
+    for k, near in enumerate(tree.query_ball_point(centre, radius + radius.max() + tol)):
+        near = np.asarray(near, dtype=np.int64)
+        near = near[near > k]
+        rows.append(np.full(near.size, k, np.int64))
+        cols.append(near)
+    i, j = np.concatenate(rows), np.concatenate(cols)
+    if not i.size:
+        return i, j, np.zeros(0)
+    sep = np.full(i.size, -np.inf)
+    for chunk in range(0, i.size, 200_000):
+        s = slice(chunk, chunk + 200_000)
+        A, B = poly[i[s]], poly[j[s]]
+        edges = np.concatenate([np.roll(A, -1, axis=1) - A, np.roll(B, -1, axis=1) - B], axis=1)   # (p, 8, 2)
+        length = np.linalg.norm(edges, axis=-1)
+        valid = length > 0
+        normal = np.stack([-edges[..., 1], edges[..., 0]], axis=-1) / np.where(valid, length, 1.0)[..., None]
+        pa = np.einsum("pad,pkd->pak", normal, A)
+        pb = np.einsum("pad,pkd->pak", normal, B)
+        gap = np.maximum(pb.min(axis=2) - pa.max(axis=2), pa.min(axis=2) - pb.max(axis=2))
+        sep[s] = np.where(valid, gap, -np.inf).max(axis=1)
+    return i, j, sep
+
+
+def _centre(centre, name: str) -> tuple[float, float]:
+    ok = (isinstance(centre, (list, tuple)) and len(centre) == 2
+          and all(isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c) for c in centre))
+    if not ok:
+        raise MeshError(f"{name}: foundation.centre = {centre!r} must be [x, y], the raft centre in the mesh file's "
+                        "coordinates (m); omit it for the area centroid of the raft")
+    return float(centre[0]), float(centre[1])
