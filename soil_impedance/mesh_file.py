@@ -94,6 +94,7 @@ def read_mesh_source(path, group: str | None = None, centre=None) -> tuple[Inter
         centre = tuple(float(c) for c in (area @ centroid) / area.sum())
     try:
         out = cells_mesh(pts, tris, quads, centre)
+        _centre_inside(out, centre, name)
         check_footprint(out, name)
     except MeshError as exc:
         text = str(exc)
@@ -118,13 +119,20 @@ def _open(path: Path, name: str):
 
 
 def _meshio_read(path: Path, fmt: str, label: str, name: str):
+    """meshio's reader of ``fmt`` on the file (its own, not ``meshio.read``, which exits the
+    process on a file it cannot parse), its console warnings kept out of the terminal."""
+    import contextlib
+    import io
+
     import meshio  # ~0.5 s at start-up: only scenes with a mesh file pay it
+    said = io.StringIO()
     try:
-        return meshio.read(path, file_format=fmt)
+        with contextlib.redirect_stderr(said), contextlib.redirect_stdout(said):
+            return getattr(meshio, fmt).read(str(path))
     except MemoryError:
         raise
     except Exception as exc:                 # meshio's parsers raise anything on a damaged file
-        why = " ".join(str(exc).split())[:200] or type(exc).__name__
+        why = " ".join((str(exc) or said.getvalue() or type(exc).__name__).split())[:200]
         raise MeshError(f"{name} cannot be read as a {label} file ({why}): check that it is a {label} mesh, "
                         f"or export it again") from None
 
@@ -271,16 +279,16 @@ def _check_cells(poly, ids, name):
     n = poly.shape[0]
     area, _ = polygon_area_centroid(poly)
     diam = np.max(np.linalg.norm(poly[:, :, None, :] - poly[:, None, :, :], axis=-1), axis=(1, 2))
-    flat = np.flatnonzero(area <= FLAT * diam ** 2)
-    if flat.size:
-        raise MeshError(f"{name}: {_where(poly, flat[0])} has zero area (its vertices are on one line or repeated; "
-                        f"{flat.size} such cells): repair or remove the degenerate cells")
     edge = np.roll(poly, -1, axis=1) - poly                        # (n, 4, 2)
     turn = edge[:, :, 0] * np.roll(edge, -1, axis=1)[:, :, 1] - edge[:, :, 1] * np.roll(edge, -1, axis=1)[:, :, 0]
     folded = np.flatnonzero((turn < -FLAT * diam[:, None] ** 2).any(axis=1))
     if folded.size:
         raise MeshError(f"{name}: {_where(poly, folded[0])} is a quadrilateral that is not convex (folded, bow-tie "
                         f"or with a reflex corner; {folded.size} such cells): repair it or split it into triangles")
+    flat = np.flatnonzero(area <= FLAT * diam ** 2)
+    if flat.size:
+        raise MeshError(f"{name}: {_where(poly, flat[0])} has zero area (its vertices are on one line or repeated; "
+                        f"{flat.size} such cells): repair or remove the degenerate cells")
     key = np.sort(ids, axis=1)
     key = np.where(key[:, :1] == key[:, 1:2], np.roll(key, -1, axis=1), key)   # a triangle's repeat first
     _, first, counts = np.unique(np.sort(key, axis=1), axis=0, return_index=True, return_counts=True)
@@ -347,6 +355,20 @@ def _near_pairs(poly, diam, tol):
         gap = np.maximum(pb.min(axis=2) - pa.max(axis=2), pa.min(axis=2) - pb.max(axis=2))
         sep[s] = np.where(valid, gap, -np.inf).max(axis=1)
     return i, j, sep
+
+
+def _centre_inside(mesh, centre, name: str) -> None:
+    """Refuse a centre not strictly inside the convex hull of the cells' centroids (where the
+    weight and the overturning moment act; ``check_footprint``'s rule, said in a mesh's terms)."""
+    from scipy.spatial import ConvexHull, QhullError   # the hull of the check only
+    try:
+        hull = ConvexHull(mesh.xy)
+    except QhullError:
+        return                                         # on one line: check_footprint says so
+    if -hull.equations[:, 2].max() <= 1e-6 * float(np.abs(mesh.xy).max()):
+        raise MeshError(f"{name}: the raft centre ({centre[0]:.6g}, {centre[1]:.6g}) m is not inside the footprint "
+                        "of the cells (the convex hull of their centroids): the weight would tip the raft over its "
+                        "edge; set foundation.centre = [x, y] inside the raft, or omit it for the area centroid")
 
 
 def _centre(centre, name: str) -> tuple[float, float]:
