@@ -230,8 +230,9 @@ def run_figures(results: dict, motion, scene_name: str):
 def uplift_map_figures(results: dict, polygons, scene_name: str, mesh_source=None):
     """[("raft_uplift", Figure)]: the raft's interface mesh (its cells, or the square patches of
     a grid) coloured by the uplift (gap, mm) of each patch at the instant of the route's peak
-    uplift, one panel per route that has histories (the linear route, which never lifts, left
-    out when another route is there), one colour scale and bar for all, the raft centre marked.
+    uplift (patches in contact grey), one panel per route that has histories (the linear route,
+    which never lifts, left out when another route is there), one colour scale and bar for all,
+    the raft centre marked.
     ``polygons`` (N, 4, 2) m about the raft centre (``results_file.patch_polygons``);
     ``mesh_source``: a mesh file's provenance (its centre in the file's coordinates is named).
     Empty when no route has histories on N nodes. The caller closes the figure."""
@@ -255,10 +256,12 @@ def uplift_map_figures(results: dict, polygons, scene_name: str, mesh_source=Non
     fig, axes = plt.subplots(rows, cols, figsize=(width, 5.2 * rows * min(max(aspect, 0.5), 1.5) + 0.6),
                              squeeze=False, constrained_layout=True)
     cmap = plt.get_cmap("viridis").copy()
+    cmap.set_bad("0.85")                                     # patches in contact (no gap): light grey
     for ax, (route, res) in zip(axes.flat, runs.items()):
         k = peaks[route]
         gap = 1e3 * res.gap[k]
-        coll = PolyCollection(polygons, array=gap, cmap=cmap, edgecolors="0.35", linewidths=0.4)
+        coll = PolyCollection(polygons, array=np.ma.masked_less_equal(gap, 0.0), cmap=cmap, edgecolors="0.35",
+                              linewidths=0.4)
         coll.set_clim(0.0, vmax)
         ax.add_collection(coll)
         ax.plot([0.0], [0.0], marker="+", color="red", ms=14, mew=2.0, ls="none", label="raft centre")
@@ -276,10 +279,10 @@ def uplift_map_figures(results: dict, polygons, scene_name: str, mesh_source=Non
     for ax in list(axes.flat)[n:]:
         ax.set_visible(False)
     bar = fig.colorbar(coll, ax=axes.ravel().tolist(), shrink=0.9)
-    bar.set_label("uplift (gap between raft and soil) at the instant of peak uplift (mm)")
-    where = ""
+    bar.set_label("uplift: gap between raft and soil (mm); grey: in contact")
+    where = f"{polygons.shape[0]} patches"
     if mesh_source is not None:
         c = mesh_source["centre"]
-        where = f"; mesh {Path(mesh_source['path']).name}, raft centre at ({c[0]:.4g}, {c[1]:.4g}) m in its coordinates"
-    fig.suptitle(f"{scene_name}: uplift over the raft at the instant of peak uplift ({polygons.shape[0]} patches{where})")
+        where += f" of {Path(mesh_source['path']).name}, raft centre at ({c[0]:.4g}, {c[1]:.4g}) m in its coordinates"
+    fig.suptitle(f"{scene_name}: uplift over the raft at the instant of peak uplift\n({where})")
     return [("raft_uplift", fig)]

@@ -99,7 +99,8 @@ def test_the_results_file_keeps_the_mesh_and_where_it_came_from(tmp_path, capsys
 
 def test_uplift_map_colours_each_patch_by_its_gap_at_the_peak():
     """The figure's patches carry the gap (mm) of each node at the instant of the route's peak
-    uplift; one colour scale over the routes from 0 to the largest; the centre marked at (0, 0)."""
+    uplift (those in contact masked: grey); one colour scale over the routes from 0 to the
+    largest; the centre marked at (0, 0)."""
     a, b = route_result("winkler"), route_result("monolithic", gap_scale=2.0)
     h = 0.5 * np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]])
     polygons = a.xy[:, None, :] + h[None]
@@ -110,7 +111,9 @@ def test_uplift_map_colours_each_patch_by_its_gap_at_the_peak():
     for ax, res in zip(axes, (a, b)):
         coll = ax.collections[0]
         k = int(np.argmax(res.gap.max(axis=1)))
-        assert np.allclose(coll.get_array(), 1e3 * res.gap[k])
+        shown = coll.get_array()
+        assert np.allclose(np.ma.filled(shown, 0.0), 1e3 * res.gap[k])
+        assert np.array_equal(np.ma.getmaskarray(shown), res.gap[k] <= 0)          # in contact: grey
         assert coll.get_clim() == pytest.approx((0.0, 1e3 * b.gap.max()))
         assert np.allclose(ax.lines[0].get_xydata(), [[0.0, 0.0]])
     import matplotlib.pyplot as plt
