@@ -3,8 +3,9 @@
 The file is read through meshio: gmsh ``.msh`` (2.2 and 4.1), MED ``.med``, Abaqus ``.inp``,
 VTK ``.vtk`` and ``.vtu``. The interface is made of its linear triangles and quadrilaterals,
 either every 2-D cell of the file (a 2-D mesh, or one whose points all have the same z) or the
-cells of one named group (``group``: a gmsh physical group, an Abaqus element set, a MED group),
-e.g. the base faces of a 3-D mesh of the raft. Each cell becomes one interface node at its area
+cells of one named group (``group``: a gmsh physical group, an Abaqus element set or
+element-based surface (``*SURFACE``: faces of linear tetrahedra, wedges, hexahedra), a MED
+group), e.g. the base faces of a 3-D mesh of the raft. Each cell becomes one interface node at its area
 centroid (``soil_impedance.mesh.cells_mesh``), in the frame of the raft centre ``centre``
 ((x, y) in the file's coordinates, m; default: the area centroid of the interface).
 
@@ -79,7 +80,10 @@ def read_mesh_source(path, group: str | None = None, centre=None) -> tuple[Inter
         centre = _centre(centre, name)
     fmt, label, raw = _open(path, name)
     mesh = _meshio_read(path, fmt, label, name)
-    blocks = _select(mesh, group, label, name)
+    read_blocks = len(mesh.cells)
+    if fmt == "abaqus":
+        _add_abaqus_surfaces(mesh, raw, name)
+    blocks = _select(mesh, group, label, name, read_blocks)
     pts3, tris, quads = _cells(mesh, blocks, group, name)
     pts = _planar(pts3, tris, quads, group, mesh, name)
     pts, tris, quads = _merged(pts, tris, quads)
@@ -175,10 +179,11 @@ def _dim(cell_type: str) -> int:
     return 3
 
 
-def _select(mesh, group, label: str, name: str) -> list:
-    """[(block, mask)] of the cells to take: every cell, or those of ``group``."""
+def _select(mesh, group, label: str, name: str, read_blocks: int) -> list:
+    """[(block, mask)] of the cells to take: every cell of the file (its first ``read_blocks``
+    blocks: not the faces of Abaqus surfaces), or those of ``group``."""
     if group is None:
-        return [(b, np.ones(len(b.data), bool)) for b in mesh.cells]
+        return [(b, np.ones(len(b.data), bool)) for b in mesh.cells[:read_blocks]]
     groups = _groups(mesh)
     if group not in groups:
         if not groups:
@@ -189,6 +194,84 @@ def _select(mesh, group, label: str, name: str) -> list:
         raise MeshError(f"{name}: no group {group!r}; the groups of the file are {', '.join(sorted(groups))}: "
                         "set foundation.mesh_group to the one of the raft's base")
     return list(zip(mesh.cells, groups[group]))
+
+
+#: the faces of Abaqus solid elements (meshio's cell type) by face label, 0-based node positions
+ABAQUS_FACES = {
+    "tetra": {"S1": (0, 1, 2), "S2": (0, 3, 1), "S3": (1, 3, 2), "S4": (2, 3, 0)},
+    "wedge": {"S1": (0, 1, 2), "S2": (3, 5, 4), "S3": (0, 3, 4, 1), "S4": (1, 4, 5, 2), "S5": (2, 5, 3, 0)},
+    "hexahedron": {"S1": (0, 1, 2, 3), "S2": (4, 7, 6, 5), "S3": (0, 4, 5, 1), "S4": (1, 5, 6, 2),
+                   "S5": (2, 6, 7, 3), "S6": (3, 7, 4, 0)},
+}
+
+
+def _add_abaqus_surfaces(mesh, raw: bytes, name: str) -> None:
+    """Append the element-based surfaces of an Abaqus file (``*SURFACE, NAME=base``, lines
+    ``element or element set, S<k>``) to ``mesh`` as blocks of their faces (triangles,
+    quadrilaterals) and cell sets of their names, which meshio does not read."""
+    import meshio  # (imported by _meshio_read already)
+    text = raw.decode("latin-1").splitlines()
+    numbers, surfaces, k = [], {}, 0
+    while k < len(text):
+        line = text[k].strip()
+        head = line.upper()
+        k += 1
+        if head.startswith("*ELEMENT") and not head.startswith("*ELEMENT OUTPUT"):
+            ids = []
+            while k < len(text) and not text[k].lstrip().startswith("*"):
+                ids += [int(v) for v in text[k].replace(",", " ").split()]
+                k += 1
+            numbers.append(ids)
+        elif head.startswith("*SURFACE") and "TYPE=NODE" not in head.replace(" ", ""):
+            params = dict(p.split("=", 1) for p in line.replace(" ", "").split(",")[1:] if "=" in p)
+            sname = next((v for key, v in params.items() if key.upper() == "NAME"), None)
+            faces = []
+            while k < len(text) and not text[k].lstrip().startswith("*"):
+                parts = [v.strip() for v in text[k].split(",") if v.strip()]
+                if len(parts) >= 2:
+                    faces.append((parts[0], parts[1].upper()))
+                k += 1
+            if sname is not None:
+                surfaces[sname] = faces
+    if not surfaces:
+        return
+    where = {}
+    for b, (block, ids) in enumerate(zip(mesh.cells, numbers)):
+        width = block.data.shape[1] + 1
+        if len(ids) != width * len(block.data):
+            raise MeshError(f"{name}: cannot match the element numbers of its *ELEMENT blocks with the mesh read: "
+                            "write the raft's base as an element set of surface elements instead of a *SURFACE")
+        for i, number in enumerate(ids[::width]):
+            where[number] = (b, i)
+    added, sets = [], {key.upper(): v for key, v in (mesh.cell_sets or {}).items()}
+    for sname, faces in surfaces.items():
+        out = {3: [], 4: []}
+        for item, label in faces:
+            if item.lstrip("-").isdigit():
+                cells = [where.get(int(item))]
+            elif item.upper() in sets:
+                cells = [(b, int(i)) for b, idx in enumerate(sets[item.upper()]) for i in np.asarray(idx, np.int64)]
+            else:
+                raise MeshError(f"{name}: *SURFACE {sname} names {item!r}, which is neither an element number "
+                                "nor an element set of the file: correct the surface definition")
+            for cell in cells:
+                if cell is None:
+                    raise MeshError(f"{name}: *SURFACE {sname} names element {item}, which the file does not have")
+                block = mesh.cells[cell[0]]
+                face = ABAQUS_FACES.get(block.type, {}).get(label)
+                if face is None:
+                    raise MeshError(f"{name}: *SURFACE {sname}: face {label} of a {block.type} element is not read "
+                                    "(faces of linear tetrahedra, wedges and hexahedra are): write the raft's base "
+                                    "as an element set of surface elements")
+                out[len(face)].append(np.asarray(block.data[cell[1]])[list(face)])
+        added += [(sname, t, np.array(f, np.int64)) for t, f in (("triangle", out[3]), ("quad", out[4])) if f]
+    none = np.zeros(0, np.int64)
+    read = len(mesh.cells)
+    cell_sets = {key: list(v) + [none] * len(added) for key, v in (mesh.cell_sets or {}).items()}
+    for sname in {a[0] for a in added}:
+        cell_sets[sname] = [none] * read + [np.arange(len(c)) if s == sname else none for s, _, c in added]
+    mesh.cells = list(mesh.cells) + [meshio.CellBlock(t, c) for _, t, c in added]
+    mesh.cell_sets = cell_sets
 
 
 def _cells(mesh, blocks, group, name):

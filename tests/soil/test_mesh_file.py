@@ -118,6 +118,39 @@ def test_the_base_of_a_3d_mesh_by_its_group(fmt, tmp_path):
         read_mesh(path, group="bottom")
 
 
+#: the faces of Abaqus's C3D4 tetrahedron (Abaqus Analysis User's Guide, "three-dimensional solid
+#: element library": face 1 = nodes 1-2-3, 2 = 1-4-2, 3 = 2-4-3, 4 = 3-4-1), 0-based
+C3D4_FACES = {1: (0, 1, 2), 2: (0, 3, 1), 3: (1, 3, 2), 4: (2, 3, 0)}
+
+
+def test_an_abaqus_surface_on_the_faces_of_solid_elements(tmp_path):
+    """The box's tetrahedra as an Abaqus file whose base is a *SURFACE of element faces (given
+    by element sets, one per face label, and by element numbers): the same interface as the
+    gmsh file's "base" group of triangles."""
+    src = meshio.read(BOX)
+    tets = np.concatenate([b.data for b in src.cells if b.type == "tetra"])
+    path = tmp_path / "box.inp"
+    meshio.write(path, meshio.Mesh(src.points, [("tetra", tets)]), file_format="abaqus")
+    on_base = np.abs(src.points[:, 2]) < 1e-9
+    by_label = {}
+    for e, tet in enumerate(tets):
+        for label, face in C3D4_FACES.items():
+            if on_base[tet[list(face)]].all():
+                by_label.setdefault(label, []).append(e + 1)        # meshio numbers the elements from 1
+    assert sum(map(len, by_label.values())) == 120
+    with open(path, "a") as fh:
+        for label, elements in by_label.items():
+            fh.write(f"*ELSET, ELSET=base_s{label}\n" + "\n".join(map(str, elements[1:])) + "\n")
+        fh.write("*SURFACE, NAME=raft_base, TYPE=ELEMENT\n")
+        for label, elements in by_label.items():
+            fh.write(f"base_s{label}, S{label}\n{elements[0]}, S{label}\n")
+    got = _sorted(read_mesh(path, group="raft_base"))
+    ref = _sorted(read_mesh(BOX, group="base"))
+    assert np.allclose(got[0], ref[0], atol=1e-9) and np.allclose(got[1], ref[1], atol=1e-9)
+    with pytest.raises(MeshError, match="no group 'base'; the groups of the file are .*raft_base"):
+        read_mesh(path, group="base")
+
+
 def test_a_raft_with_an_opening_and_a_non_conforming_joint_is_read(tmp_path):
     """Holes are allowed (a 3 x 3 grid of 1 m squares less the middle one: 8 m^2, centroid at the
     middle); cells that touch along an edge without sharing its nodes (a hanging node) are one raft."""
