@@ -87,17 +87,20 @@ def read_mesh_source(path, group: str | None = None, centre=None) -> tuple[Inter
     pts3, tris, quads = _cells(mesh, blocks, group, name)
     pts = _planar(pts3, tris, quads, group, mesh, name)
     pts, tris, quads = _merged(pts, tris, quads)
+    used = pts[np.unique(np.concatenate([tris.ravel(), quads.ravel()]))]
+    offset = 0.5 * (used.min(axis=0) + used.max(axis=0))     # checks and areas near the origin (site
+    pts = pts - offset                                        # coordinates: x ~ 1e5 m cost no digits)
     poly, ids = _polygons(pts, tris, quads)
     n = poly.shape[0]
     if n > MAX_NODES:
         raise MeshError(f"{name}: {n} cells, each an interface node; at most MAX_NODES = {MAX_NODES} (the BEM "
                         f"stores (3N)^2 complex values per frequency): mesh the raft coarser")
-    _check_cells(poly, ids, name)
+    _check_cells(poly, ids, name, offset)
     if centre is None:
         area, centroid = polygon_area_centroid(poly)
-        centre = tuple(float(c) for c in (area @ centroid) / area.sum())
+        centre = tuple(float(c) for c in (area @ centroid) / area.sum() + offset)
     try:
-        out = cells_mesh(pts, tris, quads, centre)
+        out = cells_mesh(pts, tris, quads, np.subtract(centre, offset))
         _centre_inside(out, centre, name)
         check_footprint(out, name)
     except MeshError as exc:
@@ -322,8 +325,8 @@ def _planar(pts3, tris, quads, group, mesh, name):
     z = p[:, 2]
     if np.ptp(z) > PLANE * extent:
         groups = sorted(_groups(mesh))
-        fix = ("select the base faces with foundation.mesh_group" + (f" (groups: {', '.join(groups)})" if groups else "")
-               if group is None else f"group {group!r} is not the raft's base: choose its flat, horizontal faces")
+        listed = f" (groups: {', '.join(groups)})" if groups else ""
+        fix = (f"select the base faces with foundation.mesh_group{listed}" if group is None else f"group {group!r} is not the raft's base: choose its flat, horizontal faces")
         raise MeshError(f"{name}: the cells are not on one horizontal plane z = const (z from {z.min():.6g} to "
                         f"{z.max():.6g} m): the interface is the flat raft base, z up (a non-planar or tilted "
                         f"surface is refused); {fix}")
@@ -352,13 +355,14 @@ def _polygons(pts, tris, quads):
     return poly, ids
 
 
-def _where(poly, k: int) -> str:
-    c = poly[k].mean(axis=0)
+def _where(poly, offset, k: int) -> str:
+    c = poly[k].mean(axis=0) + offset
     return f"cell {k} (near x = {c[0]:.6g}, y = {c[1]:.6g} m)"
 
 
-def _check_cells(poly, ids, name):
-    """Degenerate, duplicate and overlapping cells, edges of more than two cells, pieces."""
+def _check_cells(poly, ids, name, offset):
+    """Degenerate, duplicate and overlapping cells, edges of more than two cells, pieces
+    (``poly`` about ``offset``, the file's coordinates of its origin, which messages add back)."""
     n = poly.shape[0]
     area, _ = polygon_area_centroid(poly)
     diam = np.max(np.linalg.norm(poly[:, :, None, :] - poly[:, None, :, :], axis=-1), axis=(1, 2))
@@ -366,18 +370,19 @@ def _check_cells(poly, ids, name):
     turn = edge[:, :, 0] * np.roll(edge, -1, axis=1)[:, :, 1] - edge[:, :, 1] * np.roll(edge, -1, axis=1)[:, :, 0]
     folded = np.flatnonzero((turn < -FLAT * diam[:, None] ** 2).any(axis=1))
     if folded.size:
-        raise MeshError(f"{name}: {_where(poly, folded[0])} is a quadrilateral that is not convex (folded, bow-tie "
-                        f"or with a reflex corner; {folded.size} such cells): repair it or split it into triangles")
+        raise MeshError(f"{name}: {_where(poly, offset, folded[0])} is a quadrilateral that is not convex (folded, "
+                        f"bow-tie or with a reflex corner; {folded.size} such cells): repair it or split it into "
+                        "triangles")
     flat = np.flatnonzero(area <= FLAT * diam ** 2)
     if flat.size:
-        raise MeshError(f"{name}: {_where(poly, flat[0])} has zero area (its vertices are on one line or repeated; "
-                        f"{flat.size} such cells): repair or remove the degenerate cells")
+        raise MeshError(f"{name}: {_where(poly, offset, flat[0])} has zero area (its vertices are on one line or "
+                        f"repeated; {flat.size} such cells): repair or remove the degenerate cells")
     key = np.sort(ids, axis=1)
     key = np.where(key[:, :1] == key[:, 1:2], np.roll(key, -1, axis=1), key)   # a triangle's repeat first
     _, first, counts = np.unique(np.sort(key, axis=1), axis=0, return_index=True, return_counts=True)
     if (counts > 1).any():
         k = first[np.flatnonzero(counts > 1)[0]]
-        raise MeshError(f"{name}: {_where(poly, k)} is in the mesh {counts.max()} times (duplicate cells; "
+        raise MeshError(f"{name}: {_where(poly, offset, k)} is in the mesh {counts.max()} times (duplicate cells; "
                         f"{int((counts - 1).sum())} copies): remove the duplicates")
     a, b = ids, np.roll(ids, -1, axis=1)
     real = a != b
@@ -386,15 +391,16 @@ def _check_cells(poly, ids, name):
     if (counts > 2).any():
         e = uniq[np.flatnonzero(counts > 2)[0]]
         owner = np.flatnonzero(np.isin(ids, e).sum(axis=1) >= 2)
-        raise MeshError(f"{name}: an edge is shared by {counts.max()} cells ({', '.join(_where(poly, k) for k in owner[:3])}):"
-                        " the mesh has superposed parts; keep one layer of cells")
+        cells = ", ".join(_where(poly, offset, k) for k in owner[:3])
+        raise MeshError(f"{name}: an edge is shared by {counts.max()} cells ({cells}): the mesh has superposed parts; "
+                        "keep one layer of cells")
     size = float(np.median(np.sqrt(area)))
     i, j, sep = _near_pairs(poly, diam, TOUCH * size)
     over = np.flatnonzero(sep < -TOUCH * size)
     if over.size:
         p, q = i[over[0]], j[over[0]]
-        raise MeshError(f"{name}: {_where(poly, p)} and {_where(poly, q)} overlap ({over.size} overlapping pairs): "
-                        "the mesh has superposed parts; keep one layer of cells")
+        raise MeshError(f"{name}: {_where(poly, offset, p)} and {_where(poly, offset, q)} overlap ({over.size} "
+                        "overlapping pairs): the mesh has superposed parts; keep one layer of cells")
     from scipy.sparse import coo_matrix                       # only for the connectivity below
     from scipy.sparse.csgraph import connected_components      # (the same)
     touch = sep <= TOUCH * size
@@ -402,8 +408,9 @@ def _check_cells(poly, ids, name):
     count, label = connected_components(graph, directed=False)
     if count > 1:
         sizes = np.bincount(label)
-        parts = "; ".join(f"{sizes[c]} cells around x = {poly[label == c].mean(axis=(0, 1))[0]:.4g}, "
-                          f"y = {poly[label == c].mean(axis=(0, 1))[1]:.4g} m" for c in np.argsort(-sizes)[:3])
+        at = [poly[label == c].mean(axis=(0, 1)) + offset for c in range(count)]
+        parts = "; ".join(f"{sizes[c]} cells around x = {at[c][0]:.4g}, y = {at[c][1]:.4g} m"
+                          for c in np.argsort(-sizes)[:3])
         raise MeshError(f"{name}: the raft is in {count} pieces that do not touch ({parts}): a rigid raft is one "
                         "piece; join them, or mesh them as one surface")
 

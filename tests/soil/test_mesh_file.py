@@ -89,6 +89,19 @@ def test_the_l_raft_against_its_closed_forms():
     assert source.group is None and source.format == "gmsh" and len(source.sha256) == 64
 
 
+def test_site_coordinates_cost_no_accuracy(tmp_path):
+    """The L raft moved to site coordinates (x ~ 5e5 m, y ~ 4.2e6 m, z = 120 m): the same
+    interface about its centre, the centre moved by as much."""
+    src = meshio.read(L_RAFT)
+    shift = np.array([5.0e5, 4.2e6, 120.0])
+    meshio.write(tmp_path / "site.msh", meshio.Mesh(src.points + shift, src.cells, cell_data={
+        k: src.cell_data[k] for k in ("gmsh:physical", "gmsh:geometrical")}), file_format="gmsh22", binary=True)
+    mesh, source = read_mesh_source(tmp_path / "site.msh")
+    ref = read_mesh(L_RAFT)
+    assert source.centre == pytest.approx((12.5 + 5.0e5, 12.5 + 4.2e6), rel=0, abs=1e-8)
+    assert np.allclose(mesh.xy, ref.xy, rtol=0, atol=1e-8) and np.allclose(mesh.area, ref.area, rtol=1e-10)
+
+
 @pytest.mark.parametrize("fmt", sorted(FORMATS))
 def test_each_format_gives_the_same_interface(fmt, tmp_path):
     src = meshio.read(L_RAFT)
