@@ -255,8 +255,7 @@ def uplift_map_figures(results: dict, polygons, scene_name: str, mesh_source=Non
     width = 5.2 * cols + 1.2
     fig, axes = plt.subplots(rows, cols, figsize=(width, 5.2 * rows * min(max(aspect, 0.5), 1.5) + 0.6),
                              squeeze=False, constrained_layout=True)
-    cmap = plt.get_cmap("viridis").copy()
-    cmap.set_bad("0.85")                                     # patches in contact (no gap): light grey
+    cmap = plt.get_cmap("viridis").with_extremes(bad="0.85")   # patches in contact (no gap): light grey
     for ax, (route, res) in zip(axes.flat, runs.items()):
         k = peaks[route]
         gap = 1e3 * res.gap[k]
