@@ -125,7 +125,8 @@ def test_the_l_raft_through_every_route_the_fmus_and_the_report(tmp_path, capsys
     """The built-in l_raft (44 cells, 26 frequencies, 1.5 s at 0.4 g): about a minute on 2
     cores, most of it the Python FMUs' build of the cosim route and the BEM sweep."""
     from orchestrator.export import export_scene
-    from orchestrator.master import FmuSlave
+    from orchestrator.master import FmuSlave, cosimulate
+    from orchestrator.motion import make_motion
     from orchestrator.report import write_report
 
     cache, out = tmp_path / "cache", tmp_path / "r.h5"
@@ -143,6 +144,9 @@ def test_the_l_raft_through_every_route_the_fmus_and_the_report(tmp_path, capsys
 
     scene = load_scene("l_raft")
     nat = export_scene(scene, tmp_path / "fmus", kind="native", cache_dir=cache)
+    pair = cosimulate(nat.structure, nat.soil, make_motion(scene.motion, scene.analysis.dt).acc, scene.analysis.dt,
+                      schedule="gauss-seidel")                     # the native pair under the project's master
+    assert pair.gap.shape == mono.gap.shape and rel(pair.raft, mono.raft) <= 1e-10 and rel(pair.gap, mono.gap) <= 1e-10
     rows = []
     with FmuSlave(nat.coupled, "coupled") as c:
         assert len(c.vrs("gap")) == 44
