@@ -20,7 +20,9 @@ coordinates under two numbers) are merged before the checks.
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import io
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -82,7 +84,13 @@ def read_mesh_source(path, group: str | None = None, centre=None) -> tuple[Inter
     mesh = _meshio_read(path, fmt, label, name)
     read_blocks = len(mesh.cells)
     if fmt == "abaqus":
-        _add_abaqus_surfaces(mesh, raw, name)
+        try:
+            _add_abaqus_surfaces(mesh, raw, name)
+        except MeshError:
+            raise
+        except (ValueError, IndexError) as exc:
+            raise MeshError(f"{name}: cannot read its *ELEMENT or *SURFACE lines ({exc}): check the file, or give "
+                            "the raft's base as an element set of surface elements") from None
     blocks = _select(mesh, group, label, name, read_blocks)
     pts3, tris, quads = _cells(mesh, blocks, group, name)
     pts = _planar(pts3, tris, quads, group, mesh, name)
@@ -128,9 +136,6 @@ def _open(path: Path, name: str):
 def _meshio_read(path: Path, fmt: str, label: str, name: str):
     """meshio's reader of ``fmt`` on the file (its own, not ``meshio.read``, which exits the
     process on a file it cannot parse), its console warnings kept out of the terminal."""
-    import contextlib
-    import io
-
     import meshio  # ~0.5 s at start-up: only scenes with a mesh file pay it
     said = io.StringIO()
     try:
