@@ -6,8 +6,8 @@ pair and coupled FMU on its interface nodes, the report's uplift map.
 Route comparisons (they hold whatever the BEM integrates on the cells, since both sides read the
 same table): cosim and the native coupled FMU equal the monolithic route to round-off; timefreq
 (the BEM table) within 0.5 % of monolithic (its rational fit) on max uplift (measured +0.10 %
-at the scene's 0.4 g; -0.29 % at 0.2 g, +1.1 % at 0.3 g: the agreement of these two routes on
-this small asymmetric raft is not better than about 1 %, see docs/raft.md).
+at the scene's 0.4 g; -0.29 % at 0.2 g, +1.1 % at 0.3 g, the latter from the table's 25 Hz
+band: +0.15 % with the table to 100 Hz, see docs/raft.md).
 """
 import hashlib
 import json
