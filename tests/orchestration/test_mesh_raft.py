@@ -75,6 +75,22 @@ def test_a_changed_mesh_file_of_the_same_name_is_not_reused(tmp_path):
     assert stats == {"computed": 2, "from_cache": False}
 
 
+def test_an_ensemble_cell_key_follows_the_mesh_content_not_its_path(tmp_path):
+    """The same mesh in two folders: one cell key (the folder is not an input); the file
+    changed: another."""
+    from orchestrator.ensemble.plan import cell_key
+    keys = []
+    for folder in ("a", "b"):
+        (tmp_path / folder).mkdir()
+        shutil.copy(L_RAFT, tmp_path / folder / "raft.msh")
+        keys.append(cell_key(load_scene(_scene(tmp_path / folder)), "winkler", 0.3))
+    m = meshio.read(L_RAFT)
+    meshio.write(tmp_path / "b" / "raft.msh", meshio.Mesh(m.points * [1.0, 1.05, 1.0], m.cells, cell_data={
+        k: m.cell_data[k] for k in ("gmsh:physical", "gmsh:geometrical")}), file_format="gmsh22")
+    keys.append(cell_key(load_scene(_scene(tmp_path / "b")), "winkler", 0.3))
+    assert keys[0] == keys[1] != keys[2]
+
+
 def test_the_results_file_keeps_the_mesh_and_where_it_came_from(tmp_path, capsys):
     """winkler with explicit moduli: no BEM, a second. The interface polygons are the cells, the
     file's SHA-256 and the centre are there, the scene as it ran names the mesh by absolute path
