@@ -435,7 +435,7 @@ def cmd_run(args) -> int:
                                 progress=labelled_bars(f"run {scene.name} [{{label}}]"),
                                 sweep_progress=Progress(f"impedance {scene.name}"),
                                 fit_progress=labelled_bars(f"fit {scene.name}: {{label}}"))
-    write_results(out, results, motion, scene.name, scene_toml(scene), scene.overrides)
+    write_results(out, results, motion, scene.name, scene_toml(scene), scene.overrides, scene.mesh, scene.mesh_source)
     _say(f"wrote {out}")
     summ = {"motion": {"label": motion.label, "components": list(motion.components),
                        "pga_g": {a: float(p) / G for a, p in zip("xyz", motion.pga) if a in motion.components}},

@@ -156,7 +156,7 @@ def write_design(path, run: DesignRun, overrides=()):
             _write_spectra(d.create_group("spectra"), run.spectra)
 
     return write_results(path, run.cases[first], run.motion, run.scene.name, scene_toml(run.scene), overrides,
-                         extra=extra)
+                         run.scene.mesh, run.scene.mesh_source, extra=extra)
 
 
 def _write_site(g, site: SiteResponse, scene) -> None:

@@ -57,8 +57,9 @@ def raft_load(model) -> np.ndarray:
 
 def scene_key(scene) -> str:
     """A digest (16 hex digits) of what a pushover of ``scene`` depends on: the interface mesh
-    (its nodes and areas), the contact kind, the soil profile, the structure and the winkler
-    springs' calibration; not the motion, the analysis or the code version."""
+    (its nodes and areas, the cells of a finite-element mesh), the contact kind, the soil
+    profile, the structure and the winkler springs' calibration; not the motion, the analysis
+    or the code version."""
     mesh = scene.mesh
     bem = None
     if scene.profile is not None:
@@ -71,6 +72,8 @@ def scene_key(scene) -> str:
              "winkler": {"springs": scene.winkler.springs, "match": scene.winkler.match,
                          "moduli": None if scene.winkler.moduli is None else list(scene.winkler.moduli)},
              "bem": bem}
+    if mesh.cells is not None:                 # (only then: the keys of the other meshes are kept)
+        parts["mesh"]["cells"] = hashlib.sha256(np.ascontiguousarray(mesh.cells, "<f8").tobytes()).hexdigest()
     text = json.dumps(parts, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 

@@ -6,6 +6,7 @@ from pathlib import Path
 import numpy as np
 
 from orchestrator.motion import G
+from orchestrator.results_file import patch_polygons
 from orchestrator.spectra import FLOOR_DAMPING, FLOOR_FREQUENCIES_HZ, excited, floor_spectra, response_spectrum
 
 RIGID_GROUPS = (("ux", "horizontal"), ("uz", "vertical"), ("rx", "rocking"), ("rz", "torsion"))
@@ -102,12 +103,16 @@ def _edges(xy, axis: int = 0):
 
 
 def plot_run(results: dict, motion, scene, directory) -> list:
-    """Write the figures of ``run_figures`` as ``<directory>/<name>.png``; returns the paths."""
+    """Write the figures of ``run_figures`` and the uplift map (``uplift_map_figure``, on the
+    scene's interface mesh) as ``<directory>/<name>.png``; returns the paths."""
     plt = pyplot()
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     paths = []
-    for name, fig in run_figures(results, motion, scene.name):
+    source = scene.mesh_source.as_dict() if scene.mesh_source is not None else None
+    figures = list(run_figures(results, motion, scene.name))
+    figures += uplift_map_figures(results, patch_polygons(scene.mesh), scene.name, source)
+    for name, fig in figures:
         paths.append(directory / f"{name}.png")
         fig.savefig(paths[-1], dpi=120)
         plt.close(fig)
@@ -220,3 +225,63 @@ def run_figures(results: dict, motion, scene_name: str):
         if fig is not None:
             fig.suptitle(f"{scene_name} [{route}]: floor response spectra, {label}{note}")
             yield f"{route}_floor_spectra", fig
+
+
+def uplift_map_figures(results: dict, polygons, scene_name: str, mesh_source=None):
+    """[("raft_uplift", Figure)]: the raft's interface mesh (its cells, or the square patches of
+    a grid) coloured by the uplift (gap, mm) of each patch at the instant of the route's peak
+    uplift (patches in contact grey), one panel per route that has histories (the linear route,
+    which never lifts, left out when another route is there), one colour scale and bar for all,
+    the raft centre marked.
+    ``polygons`` (N, 4, 2) m about the raft centre (``results_file.patch_polygons``);
+    ``mesh_source``: a mesh file's provenance (its centre in the file's coordinates is named).
+    Empty when no route has histories on N nodes. The caller closes the figure."""
+    from matplotlib.collections import PolyCollection  # with pyplot: only the commands that draw pay it
+    polygons = np.asarray(polygons, float)
+    runs = {r: res for r, res in results.items() if res.nt >= 1 and res.gap.shape[1:] == (polygons.shape[0],)}
+    if len(runs) > 1:
+        runs.pop("linear", None)
+    if not runs:
+        return []
+    plt = pyplot()
+    peaks = {r: int(np.argmax(res.gap.max(axis=1))) for r, res in runs.items()}
+    top = max(1e3 * float(res.gap[peaks[r]].max()) for r, res in runs.items())
+    vmax = top if top > 0 else 1.0
+    n = len(runs)
+    cols = min(n, 2)
+    rows = -(-n // cols)
+    span = np.ptp(polygons.reshape(-1, 2), axis=0)
+    aspect = float(span[1] / span[0]) if span[0] > 0 else 1.0
+    width = 5.2 * cols + 1.2
+    fig, axes = plt.subplots(rows, cols, figsize=(width, 5.2 * rows * min(max(aspect, 0.5), 1.5) + 0.6),
+                             squeeze=False, constrained_layout=True)
+    cmap = plt.get_cmap("viridis").with_extremes(bad="0.85")   # patches in contact (no gap): light grey
+    for ax, (route, res) in zip(axes.flat, runs.items()):
+        k = peaks[route]
+        gap = 1e3 * res.gap[k]
+        coll = PolyCollection(polygons, array=np.ma.masked_less_equal(gap, 0.0), cmap=cmap, edgecolors="0.35",
+                              linewidths=0.4)
+        coll.set_clim(0.0, vmax)
+        ax.add_collection(coll)
+        ax.plot([0.0], [0.0], marker="+", color="red", ms=14, mew=2.0, ls="none", label="raft centre")
+        lo, hi = polygons.reshape(-1, 2).min(axis=0), polygons.reshape(-1, 2).max(axis=0)
+        pad = 0.04 * float(max(hi - lo))
+        ax.set_xlim(lo[0] - pad, hi[0] + pad)
+        ax.set_ylim(lo[1] - pad, hi[1] + pad)
+        ax.set_aspect("equal")
+        ax.set_xlabel("x about the raft centre (m)")
+        ax.set_ylabel("y about the raft centre (m)")
+        lifted = 100 * float((res.gap[k] > 0).mean())
+        ax.set_title(f"{route}: t = {res.time[k]:.3f} s, max uplift {gap.max():.3g} mm, "
+                     f"{lifted:.0f} % of the patches lifted", fontsize="medium")
+        ax.legend(loc="upper right", fontsize="small")
+    for ax in list(axes.flat)[n:]:
+        ax.set_visible(False)
+    bar = fig.colorbar(coll, ax=axes.ravel().tolist(), shrink=0.9)
+    bar.set_label("uplift: gap between raft and soil (mm); grey: in contact")
+    where = f"{polygons.shape[0]} patches"
+    if mesh_source is not None:
+        c = mesh_source["centre"]
+        where += f" of {Path(mesh_source['path']).name}, raft centre at ({c[0]:.4g}, {c[1]:.4g}) m in its coordinates"
+    fig.suptitle(f"{scene_name}: uplift over the raft at the instant of peak uplift\n({where})")
+    return [("raft_uplift", fig)]

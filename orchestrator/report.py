@@ -38,8 +38,8 @@ from orchestrator.design import case_envelope, format_envelope, read_design
 from orchestrator.design_spectra import plot_design_spectra
 from orchestrator.ensemble import ensemble_components, read_ensemble
 from orchestrator.motion import G
-from orchestrator.plots import dodged, pyplot, route_style, run_figures
-from orchestrator.results_file import (ResultsFileError, read_cases, read_motion, read_results, read_scene_record,
+from orchestrator.plots import dodged, pyplot, route_style, run_figures, uplift_map_figures
+from orchestrator.results_file import (ResultsFileError, read_cases, read_interface, read_motion, read_results, read_scene_record,
                                        summary)
 from orchestrator.routes import get_route, route_names
 
@@ -116,7 +116,10 @@ def write_report(results_path, directory, reference: str | None = None, pushover
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     cmp = compare(results, reference=reference)
+    interface = read_interface(results_path)
     figures = _save_figures(run_figures(results, motion, scene), directory)
+    uplift_map = [] if interface is None else _save_figures(
+        uplift_map_figures(results, interface["polygon"], scene, interface["mesh_source"]), directory)
     esc = html.escape
     parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>uplift report: {esc(scene)}</title>",
              f"<style>{STYLE}</style></head><body>",
@@ -137,6 +140,10 @@ def write_report(results_path, directory, reference: str | None = None, pushover
              "sqrt(rx² + ry²) (paper fig. 3-4), floor response spectra in x, y and z (fig. 5-6); dashed: "
              "the <code>linear</code> route (no uplift) when present.</p>"]
     parts += _images(figures)
+    if uplift_map:
+        parts += ["<h2>Uplift over the raft</h2><p>The interface mesh (one patch per interface node: the cells of "
+                  "a mesh file, the squares of a grid) coloured by the uplift of each patch at the instant of each "
+                  "route's peak uplift; + the raft centre.</p>"] + _images(uplift_map)
     parts += design_parts(results_path, directory, reference)
     parts += oncurve_parts(results, scene, curves, notes, directory)
     return _write_page(directory, parts)

@@ -25,6 +25,13 @@ dimensions)::
                      the direction is round-off), floor_spectrum_peak (output, direction) m s-2
                      and its frequency floor_spectrum_peak_frequency (output, direction) Hz,
         peak_acc (output) m s-2
+    /interface/              attrs: kind (circle | rectangle | nodes | cells), mesh_source (JSON: a
+                                    mesh file's path, sha256, format, group and the raft centre in
+                                    its coordinates; "null" for the other foundations)
+        coordinates  node (node), vertex (vertex), axis ("x", "y"), x (node) m, y (node) m
+        polygon (node, vertex, axis) m: the patch of each interface node about the raft centre
+                     (a mesh file's cells, triangles with a vertex repeated; the squares of the
+                     same area for the other foundations), area (node) m2
 
 acc, disp, energy and the spectra are left out of a route that has none (a refused route keeps
 only its empty time and node coordinates). Open it with xarray::
@@ -126,12 +133,14 @@ def check_output_folder(path, names=(), option: str = "-o") -> Path:
 
 
 def write_results(path, results: dict, motion=None, scene_name: str = "", scene_toml: str = "",
-                  overrides=(), extra=None) -> Path:
+                  overrides=(), mesh=None, mesh_source=None, extra=None) -> Path:
     """Write ``{route: RouteResult}`` (and the motion, the scene as TOML, the overrides of the
-    command line) to one HDF5 file of the layout of this module (format_version 2: netCDF4
-    dimension scales, CF units, the per-route summary), atomically, with the checksum of its
-    whole content. ``extra(f)``, when given, writes more groups into the open file before the
-    checksum (the soil cases and design spectra of ``orchestrator.design``)."""
+    command line, the interface ``mesh`` (InterfaceMesh) with the ``mesh_source`` it was read
+    from (``soil_impedance.mesh_file.MeshSource`` or None)) to one HDF5 file of the layout of
+    this module (format_version 2: netCDF4 dimension scales, CF units, the per-route summary),
+    atomically, with the checksum of its whole content. ``extra(f)``, when given, writes more
+    groups into the open file before the checksum (the soil cases and design spectra of
+    ``orchestrator.design``)."""
     path = check_output_path(path)
     with atomic_output(path) as tmp, h5py.File(tmp, "w") as f:
         f.attrs.update(uplift_file=KIND, format_version=FORMAT_VERSION, Conventions="CF-1.8", scene=scene_name,
@@ -142,10 +151,49 @@ def write_results(path, results: dict, motion=None, scene_name: str = "", scene_
         routes = f.create_group("routes")
         for name, res in results.items():
             _write_route(routes.create_group(name), res)
+        if mesh is not None:
+            _write_interface(f.create_group("interface"), mesh, mesh_source)
         if extra is not None:
             extra(f)
         stamp_checksum(f)
     return path
+
+
+def patch_polygons(mesh) -> np.ndarray:
+    """(N, 4, 2) m: the patch of each interface node, counter-clockwise about the raft centre:
+    the cells of a finite-element mesh, else the square of the node's patch (``cell`` side on a
+    grid, sqrt(area) otherwise, as the BEM takes it)."""
+    if mesh.cells is not None:
+        return np.asarray(mesh.cells, float)
+    h = mesh.patch_half_sides[:, None, None]
+    corners = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
+    return np.asarray(mesh.xy, float)[:, None, :] + h * corners[None]
+
+
+def _write_interface(g, mesh, source) -> None:
+    """The interface mesh: each node's patch polygon and area, its kind and the file it came from."""
+    g.attrs["kind"] = mesh.kind
+    g.attrs["mesh_source"] = json.dumps(None if source is None else source.as_dict())
+    _coordinate(g, "node", np.arange(mesh.n), None, "interface node (index in the foundation mesh)")
+    _coordinate(g, "vertex", np.arange(4), None, "vertex of the patch polygon (counter-clockwise)")
+    _coordinate(g, "axis", ["x", "y"], None, "horizontal axis")
+    for k, axis in enumerate("xy"):
+        _variable(g, axis, mesh.xy[:, k], ("node",), "m", f"{axis} of the interface node about the raft centre")
+    _variable(g, "polygon", patch_polygons(mesh), ("node", "vertex", "axis"), "m",
+              "patch of the interface node about the raft centre (a triangle repeats a vertex)", "x y")
+    _variable(g, "area", mesh.area, ("node",), "m2", "area of the patch", "x y")
+
+
+def read_interface(path) -> dict | None:
+    """{"kind", "polygon" (N, 4, 2) m, "area" (N,) m2, "xy" (N, 2) m, "mesh_source" (dict or
+    None)} of a results file's interface (its checksum verified), None in a file written
+    without it."""
+    with _opened(path) as (f, _):
+        if "interface" not in f:
+            return None
+        g = f["interface"]
+        return {"kind": str(g.attrs["kind"]), "polygon": g["polygon"][()], "area": g["area"][()],
+                "xy": np.column_stack([g["x"][()], g["y"][()]]), "mesh_source": json.loads(g.attrs["mesh_source"])}
 
 
 def _describe(ds, units: str | None, long_name: str) -> None:

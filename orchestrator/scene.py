@@ -36,6 +36,7 @@ from orchestrator.motion import (DIRECTIONS, FORMATS, SPECTRA, SYNTHETIC_DT, UNI
                                  MotionError, check_components, read_components, read_record)
 from orchestrator.routes import get_route, route_names
 from soil_impedance.mesh import InterfaceMesh, MeshError, circle_mesh, read_nodes_csv, rectangle_mesh
+from soil_impedance.mesh_file import MeshSource, read_mesh_source
 from soil_impedance.profile import DAMPING_MODELS, Layer, Material, SoilError, SoilProfile
 from orchestrator.design_spectra import DesignSpectraConfig, SpectraConfigError, parse_design_spectra
 from orchestrator.soil_cases import (SoilCaseError, SoilCases, StrainCompatibleConfig, parse_cases,
@@ -343,6 +344,9 @@ class Scene:
     strain_compatible: StrainCompatibleConfig | None = None
     #: [output] design_spectra (broadened, enveloped floor spectra, orchestrator.design_spectra)
     design_spectra: DesignSpectraConfig | None = None
+    #: where a [foundation] mesh = FILE was read from (the file, its SHA-256, the group, the
+    #: raft centre in its coordinates: ``soil_impedance.mesh_file.MeshSource``); None otherwise
+    mesh_source: MeshSource | None = None
 
     def __post_init__(self):
         f = np.array(self.frequencies_hz, float)
@@ -523,8 +527,9 @@ def _scene(data, base_dir: Path, name: str, origin: str) -> Scene:
         needed = "halfspace" in soil or "layers" in soil or not winkler.explicit
         profile = _profile(soil, model) if needed else None
         cases, strain_compatible = _soil_design(soil, model, profile)
-        mesh, contact_kind = _foundation(_section(data, "foundation",
-                                                  'shape = "circle", radius = ..., element_size = ...'), base_dir)
+        mesh, contact_kind, mesh_source = _foundation(_section(data, "foundation",
+                                                               'shape = "circle", radius = ..., element_size = ...'),
+                                                      base_dir)
         freqs = _frequencies(_table(data, "impedance"))
         structure = parse_structure(data["structure"]) if "structure" in data else None
         contact = contact_from_spec(_table(data, "contact"))
@@ -538,7 +543,8 @@ def _scene(data, base_dir: Path, name: str, origin: str) -> Scene:
         return Scene(name=name, base_dir=base_dir, profile=profile, mesh=mesh, contact_kind=contact_kind,
                      frequencies_hz=freqs, structure=structure, contact=contact, motion=motion,
                      analysis=analysis, output=output, winkler=winkler, source=copy.deepcopy(data),
-                     soil_cases=cases, strain_compatible=strain_compatible, design_spectra=design_spectra)
+                     soil_cases=cases, strain_compatible=strain_compatible, design_spectra=design_spectra,
+                     mesh_source=mesh_source)
     except (SceneError, StructureError, MotionError, SoilError, MeshError, SoilCaseError, SpectraConfigError) as exc:
         raise SceneError(f"{origin}: {exc}") from None
 
@@ -671,24 +677,42 @@ def _check_design_spectra(config, structure, output, analysis) -> None:
 
 
 FOUNDATION_KEYS = {"circle": ("radius", "element_size"), "rectangle": ("lx", "ly", "element_size"),
-                   "nodes": ("file",)}
+                   "nodes": ("file",), "mesh": ("mesh", "mesh_group", "centre")}
+#: the keys each shape cannot do without (the others are optional)
+FOUNDATION_REQUIRED = {"circle": ("radius", "element_size"), "rectangle": ("lx", "ly", "element_size"),
+                       "nodes": ("file",), "mesh": ("mesh",)}
 
 
 def _foundation(table: dict, base_dir: Path):
-    shape = _choice("foundation.shape", table.get("shape", "circle"), tuple(FOUNDATION_KEYS))
+    """(InterfaceMesh, contact kind, MeshSource or None) of [foundation]. ``mesh = FILE`` (a
+    finite-element mesh, soil_impedance.mesh_file) implies shape = "mesh"."""
+    shape = table.get("shape", "mesh" if "mesh" in table else "circle")
+    shape = _choice("foundation.shape", shape, tuple(FOUNDATION_KEYS))
     keys = FOUNDATION_KEYS[shape]
-    _check_keys(table, ("shape", "contact") + keys, "foundation", required=keys)
+    if shape != "mesh" and "mesh" in table:
+        raise SceneError(f'foundation.mesh is the file of a finite-element raft: it goes with shape = "mesh" (or no '
+                         f'shape), not shape = {shape!r}; remove one of the two')
+    _check_keys(table, ("shape", "contact") + keys, "foundation", required=FOUNDATION_REQUIRED[shape])
     contact = _choice("foundation.contact", table.get("contact", "welded"), ("welded", "relaxed"),
                       hint="welded: all traction components, the default; relaxed: no shear under normal loads")
     if shape == "circle":
-        return circle_mesh(table["radius"], table["element_size"]), contact
+        return circle_mesh(table["radius"], table["element_size"]), contact, None
     if shape == "rectangle":
-        return rectangle_mesh(table["lx"], table["ly"], table["element_size"]), contact
+        return rectangle_mesh(table["lx"], table["ly"], table["element_size"]), contact, None
+    if shape == "mesh":
+        file, group = table["mesh"], table.get("mesh_group")
+        if not isinstance(file, str) or not file:
+            raise SceneError(f"foundation.mesh = {show(file)} must be a path (a string, relative to the scene file)")
+        if group is not None and (not isinstance(group, str) or not group):
+            raise SceneError(f"foundation.mesh_group = {show(group)} must be the name of a group of the mesh file "
+                             '(a string, e.g. "base"); omit it to take every 2-D cell')
+        mesh, source = read_mesh_source(base_dir / file, group, table.get("centre"))
+        return mesh, contact, source
     file = table["file"]
     if not isinstance(file, str) or not file:
         raise SceneError(f"foundation.file = {show(file)} must be a path (a string, relative to the scene file)")
     try:
-        return read_nodes_csv(base_dir / file), contact
+        return read_nodes_csv(base_dir / file), contact, None
     except (UnicodeDecodeError, OSError, csv.Error) as exc:
         raise SceneError(f"foundation.file = {file!r}: cannot read it as a UTF-8 CSV x,y,area: {exc}") from None
 

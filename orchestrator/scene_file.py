@@ -3,8 +3,8 @@ scene of a run as it ran (stored in the results file by ``uplift run``).
 
 A built-in scene (``orchestrator/scenes/NAME.toml``) is written as it is shipped, comments
 included (they say what each key means and its unit), under a header naming the command that
-wrote it. The copy runs from any folder: the files it names (a foundation's nodes CSV, record
-files) are copied beside the written file (``builtin_scene_text(name, folder)`` says which),
+wrote it. The copy runs from any folder: the files it names (a foundation's nodes CSV or mesh
+file, record files) are copied beside the written file (``builtin_scene_text(name, folder)`` says which),
 or, printed to stdout, named by absolute path.
 
 ``scene_toml(scene)`` writes a loaded scene back as TOML (its ``Scene.source``: the keys as read,
@@ -23,8 +23,8 @@ from pathlib import Path
 from orchestrator.scene import SceneError, builtin_scenes, tomllib
 
 #: the keys of a scene that name a file (relative to the scene file): (section, key); a record's
-#: ``components`` is a table {axis: file}
-PATH_KEYS = (("foundation", "file"), ("motion", "file"), ("motion", "components"))
+#: ``components`` is a table {axis: file}; ``foundation.mesh`` a finite-element raft mesh
+PATH_KEYS = (("foundation", "file"), ("foundation", "mesh"), ("motion", "file"), ("motion", "components"))
 
 
 def _paths(data: dict) -> list:

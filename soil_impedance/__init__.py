@@ -10,6 +10,7 @@ from uplift_common.lazy import lazy_exports
 __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "profile": ("Layer", "Material", "SoilError", "SoilProfile"),
     "mesh": ("InterfaceMesh", "MeshError", "cells_mesh", "circle_mesh", "nodes_mesh", "read_nodes_csv", "rectangle_mesh"),
+    "mesh_file": ("MeshSource", "read_mesh", "read_mesh_source"),
     "bem": ("BemError", "SurfaceBem", "nodal_dofs", "nodal_impedance"),
     "reduction": ("RIGID_DOFS", "condense_gap_rigid", "gap_dofs", "gap_reduction", "gap_transform", "rigid_reduction", "rigid_transform"),
     "table": ("ImpedanceTable", "TableError"),

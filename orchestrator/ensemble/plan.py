@@ -308,7 +308,7 @@ def cell_key(scene: Scene, route: str, pga_g: float, record_sha256: str = "", dt
     record by its files' checksum ``Record.sha256`` and its components, not its paths), the route,
     the PGA, the dt check and the code."""
     image = _canonical(scene)
-    for key in ("name", "base_dir", "source", "overrides"):
+    for key in ("name", "base_dir", "source", "overrides", "mesh_source"):   # a mesh file's content is scene.mesh
         image.pop(key, None)
     image["analysis"].pop("routes")
     components = list(scene.motion.axes) if scene.motion.components is not None else None

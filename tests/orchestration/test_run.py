@@ -49,7 +49,8 @@ def test_unknown_route_is_refused(tmp_path, capsys):
 def test_plots_written(tmp_path, capsys):
     figs = tmp_path / "figs"
     assert main(["run", str(_scene(tmp_path)), "-o", str(tmp_path / "r.h5"), "--plot-dir", str(figs)]) == 0
-    assert sorted(p.name for p in figs.iterdir()) == ["winkler_floor_spectra.png", "winkler_raft.png"]
+    assert sorted(p.name for p in figs.iterdir()) == ["raft_uplift.png", "winkler_floor_spectra.png",
+                                                      "winkler_raft.png"]
 
 
 @pytest.mark.parametrize("old, new, msg", [

@@ -57,8 +57,22 @@ def test_scene_prints_or_writes_the_builtin(name, tmp_path, capsys):
     assert main(["scene", name, "-o", str(out)]) == 0
     assert f"wrote {out}" in capsys.readouterr().err
     text = out.read_text(encoding="utf-8")
-    assert text == printed and text.startswith(f"# Written by `uplift scene {name}`")
-    assert tomllib.loads(text) == tomllib.loads((BUILTINS / f"{name}.toml").read_text(encoding="utf-8"))
+    assert text.startswith(f"# Written by `uplift scene {name}`") and printed.startswith(f"# Written by `uplift scene {name}`")
+    builtin = tomllib.loads((BUILTINS / f"{name}.toml").read_text(encoding="utf-8"))
+    files = scene_file._paths(builtin)
+    if not files:
+        assert text == printed and tomllib.loads(text) == builtin
+        return
+    # a scene that names files (l_raft's mesh): copied beside the written copy and named by their
+    # name there, named by absolute path when printed; both load into the built-in scene
+    for rel in files:
+        assert (out.parent / Path(rel).name).read_bytes() == (BUILTINS / rel).read_bytes()
+        assert f'"{Path(rel).name}"' in text and f'"{(BUILTINS / rel).resolve()}"' in printed
+    elsewhere = tmp_path / "printed.toml"
+    elsewhere.write_text(printed, encoding="utf-8")
+    ref = load_scene(name)
+    for copy in (load_scene(out), load_scene(elsewhere)):
+        assert np.array_equal(copy.mesh.xy, ref.mesh.xy) and np.array_equal(copy.mesh.area, ref.mesh.area)
 
 
 def test_scene_refuses_what_is_not_a_builtin(tmp_path, capsys):
