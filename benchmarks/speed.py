@@ -289,12 +289,14 @@ def _uplift_light(args):
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]))
     env.pop("PYTHONDONTWRITEBYTECODE", None)
     cmd = [sys.executable, "-m", "orchestrator.cli", *args]
-    c0, t0 = _cpu(), time.perf_counter()
-    done = subprocess.run(cmd, env=env, capture_output=True, text=True)
-    wall, cpu = time.perf_counter() - t0, _cpu() - c0
+    with tempfile.TemporaryDirectory() as tmp:      # not the current folder: `-m` puts it first on the path
+        c0, t0 = _cpu(), time.perf_counter()
+        done = subprocess.run(cmd, cwd=tmp, env=env, capture_output=True, text=True)
+        wall, cpu = time.perf_counter() - t0, _cpu() - c0
+        probe = subprocess.run([sys.executable, "-X", "importtime", *cmd[1:]], cwd=tmp, env=env, capture_output=True,
+                               text=True)
     if done.returncode:
         raise RuntimeError(f"uplift {' '.join(args)} failed ({done.returncode}): {done.stderr[-2000:]}")
-    probe = subprocess.run([sys.executable, "-X", "importtime", *cmd[1:]], env=env, capture_output=True, text=True)
     names = set(re.findall(r"^import time:\s+\d+ \|\s+\d+ \|\s*(\S+)\s*$", probe.stderr, re.M))
     heavy = sorted({n.split(".")[0] for n in names} & {"numpy", "scipy", "h5py", "fmpy", "pythonfmu", "dask"})
     return wall, f"whole process, {len(names)} modules imported" + (f" (among them {', '.join(heavy)})" if heavy else
