@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from uplift_common.errors import UserInputError
@@ -84,19 +85,25 @@ _REGISTRY: dict[str, Route] = {}
 _LOADED: set = set()
 _REMOVED: set = set()
 _LOADING: list = []
+_LOCK = threading.RLock()
 
 
 def _load(name: str) -> None:
     """Import the module of the built-in route ``name`` once (it registers itself): a route's
     module, and what it imports (the BEM, the fit, the FMUs), loads when that route is first
-    asked for, not when the registry is read (``uplift --help`` lists the names only)."""
-    if name in BUILTIN and name not in _LOADED:
-        _LOADED.add(name)
+    asked for, not when the registry is read (``uplift --help`` lists the names only). Another
+    thread asking meanwhile waits for the import to finish (the route is then registered)."""
+    if name not in BUILTIN or name in _LOADED:
+        return
+    with _LOCK:
+        if name in _LOADED or name in _LOADING:
+            return
         _LOADING.append(name)
         try:
             importlib.import_module(f"orchestrator.routes.{name}")
         finally:
-            _LOADING.pop()
+            _LOADING.remove(name)
+        _LOADED.add(name)
 
 
 def register(route: Route) -> Route:
@@ -109,10 +116,11 @@ def register(route: Route) -> Route:
 
 
 def unregister(name: str) -> None:
-    _REGISTRY.pop(name, None)
-    if name in BUILTIN:
-        _LOADED.add(name)                                 # not imported again: it stays out
-        _REMOVED.add(name)
+    with _LOCK:
+        _REGISTRY.pop(name, None)
+        if name in BUILTIN:
+            _LOADED.add(name)                             # not imported again: it stays out
+            _REMOVED.add(name)
 
 
 def route_names() -> tuple[str, ...]:

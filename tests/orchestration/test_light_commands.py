@@ -49,3 +49,24 @@ def test_light_commands_load_no_numerical_or_fmu_stack(args):
     assert not _heavy(names), f"uplift {' '.join(args)} imported {_heavy(names)}"
     assert not any(n.startswith("orchestrator.routes.") and n != "orchestrator.routes.base" for n in names), \
         "a route's module was imported to list the route names"
+
+
+def test_a_route_module_loads_when_its_route_is_asked_for():
+    """The registry lists every built-in route without importing one; get_route imports that
+    route's module only (winkler's imports monolithic's stepping); a built-in replaced before its
+    first use stays replaced (its module registers first), and an unregistered one stays out."""
+    code = ("import sys\n"
+            "from orchestrator.routes import Route, get_route, register, route_names, unregister\n"
+            "loaded = lambda: sorted(m.rpartition('.')[2] for m in sys.modules if m.startswith('orchestrator.routes.'))\n"
+            "print(' '.join(route_names())); print(' '.join(loaded()))\n"
+            "get_route('winkler'); print(' '.join(loaded()))\n"
+            "register(Route(name='cosim', summary='mine', run=print)); print(get_route('cosim').summary)\n"
+            "unregister('linear'); print(' '.join(route_names()))\n")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120,
+                         check=True).stdout.splitlines()
+    assert out[0] == "monolithic cosim linear timefreq winkler"
+    assert out[1] == "base"
+    assert out[2] == "base monolithic winkler"
+    assert out[3] == "mine"
+    assert out[4] == "monolithic cosim timefreq winkler"
