@@ -31,6 +31,10 @@ Rows (one small function each, registered with ``@row``; add one the same way):
                              fresh process, cache warm (the sweep and the fit are read here first)
   uplift run timefreq        the same with ``--route timefreq``: what one reference run costs a
                              user, the gap table read and verified
+  uplift --help              the command line's help in a fresh process (the light commands load
+                             none of numpy, scipy, h5py, the FMU stack or dask)
+  uplift scene               ``uplift scene reactor`` (the built-in scene's text on stdout), a fresh
+                             process
 
 --busy runs every row beside one CPU-burning process (``python -c "while True: pass"``,
 started and stopped here): the machine has two cores, so a route that uses both feels it.
@@ -265,6 +269,38 @@ def uplift_run_warm(case: Case):
 @row("uplift run timefreq")
 def uplift_run_timefreq(case: Case):
     return _uplift_run(case, "timefreq")
+
+
+@row("uplift --help")
+def uplift_help(case: Case):
+    return _uplift_light(["--help"])
+
+
+@row("uplift scene")
+def uplift_scene(case: Case):
+    return _uplift_light(["scene", SCENE])
+
+
+def _uplift_light(args):
+    """``uplift ARGS`` in a fresh process (its bytecode written, as for ``_uplift_run``): (wall s,
+    note with the modules it imported)."""
+    import orchestrator                             # the code under test: the one this process imports
+    root = Path(orchestrator.__file__).resolve().parents[1]
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(root), os.environ.get("PYTHONPATH", "")]))
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    cmd = [sys.executable, "-m", "orchestrator.cli", *args]
+    with tempfile.TemporaryDirectory() as tmp:      # not the current folder: `-m` puts it first on the path
+        c0, t0 = _cpu(), time.perf_counter()
+        done = subprocess.run(cmd, cwd=tmp, env=env, capture_output=True, text=True)
+        wall, cpu = time.perf_counter() - t0, _cpu() - c0
+        probe = subprocess.run([sys.executable, "-X", "importtime", *cmd[1:]], cwd=tmp, env=env, capture_output=True,
+                               text=True)
+    if done.returncode:
+        raise RuntimeError(f"uplift {' '.join(args)} failed ({done.returncode}): {done.stderr[-2000:]}")
+    names = set(re.findall(r"^import time:\s+\d+ \|\s+\d+ \|\s*(\S+)\s*$", probe.stderr, re.M))
+    heavy = sorted({n.split(".")[0] for n in names} & {"numpy", "scipy", "h5py", "fmpy", "pythonfmu", "dask"})
+    return wall, f"whole process, {len(names)} modules imported" + (f" (among them {', '.join(heavy)})" if heavy else
+                                                                     " (no numpy, scipy, h5py, FMU stack, dask)"), cpu
 
 
 def _uplift_run(case: Case, route: str):

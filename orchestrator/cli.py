@@ -11,7 +11,6 @@ goes to stdout as exactly one strict JSON object (no NaN or Infinity: ``strict_j
 from __future__ import annotations
 
 import argparse
-import importlib.metadata
 import importlib.util
 import json
 import math
@@ -21,27 +20,18 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
-
-from structure.results import Status
-
-# what a command alone uses (bench, compare, ensembles, plots, reports, fits) is imported by it:
-# every command pays the imports at the top
-from orchestrator.design import case_envelope, design_cases, format_envelope, is_design, run_design, write_design
-from orchestrator.design_spectra import plot_design_spectra, write_tables
-from orchestrator.ensemble import CONNECT_TIMEOUT_S, DT_CHECKS
+# the start-up cost of a command is what it imports: `uplift --help`, `uplift COMMAND --help` and
+# `uplift scene` load none of numpy, scipy, h5py, the FMU stack or dask (tests/orchestration/
+# test_light_commands.py). Only these light modules load here; each command imports what it
+# uses (the scene, the routes' computations, results files, ensembles, plots, reports, fits)
+from orchestrator.ensemble import CONNECT_TIMEOUT_S, DT_CHECKS       # the package's namespace only
 from orchestrator.exit_codes import EXIT_FAILED, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, STOPPED, USER_INPUT
-from orchestrator.motion import G, make_motion
 from orchestrator.progress import Progress, labelled_bars
-from orchestrator.results_file import (ResultsFileError, check_output_folder, check_output_path, read_cases,
-                                       read_results, summary, write_results)
-from orchestrator.routes import route_names
-from orchestrator.run import run_scene
-from orchestrator.scene import MAX_PGA_G, SceneError, builtin_scenes, load_scene, tomllib
-from orchestrator.scene_file import builtin_scene_text, scene_toml
+from orchestrator.routes import route_names                          # the names: no route's module
+from orchestrator.scene_base import MAX_PGA_G, SceneError, builtin_scenes, tomllib
 from orchestrator.settings import FMU_KINDS, compute_threads, default_cache_dir
 from uplift_common.errors import UserInputError
-from uplift_common.files import atomic_output
+
 
 class OptionError(UserInputError):
     """Command-line options that cannot go together; the message says which to drop."""
@@ -89,6 +79,7 @@ DISTRIBUTION = "uplift-ssi"
 def version() -> str:
     """The installed distribution's version (its metadata); not installed (a checkout on
     PYTHONPATH): the version of the checkout's pyproject.toml, marked so, else "unknown"."""
+    import importlib.metadata                       # start-up cost: only --version reads the metadata
     try:
         return importlib.metadata.version(DISTRIBUTION)
     except importlib.metadata.PackageNotFoundError:
@@ -101,6 +92,18 @@ def version() -> str:
     except (OSError, ValueError):
         pass
     return "unknown (not installed: pip install -e . in the project's folder)"
+
+
+class _Version(argparse.Action):
+    """``--version``: print the version and exit; the distribution's metadata is read only then
+    (importlib.metadata costs every other command a start-up it does not need)."""
+
+    def __init__(self, option_strings, dest=argparse.SUPPRESS, default=argparse.SUPPRESS, help=None):
+        super().__init__(option_strings, dest=dest, default=default, nargs=0, help=help)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        sys.stdout.write(f"uplift ({DISTRIBUTION}) {version()}\n")       # stdout, as argparse's own action
+        parser.exit()
 
 
 def _count(text: str) -> int:
@@ -120,8 +123,7 @@ def _parser() -> argparse.ArgumentParser:
         description="Foundation uplift under earthquake: soil-structure interaction with BEM impedances.",
         epilog=f"built-in scenes: {', '.join(builtin_scenes())}; routes: {', '.join(route_names())}; "
                "`uplift COMMAND --help` for a command's options")
-    p.add_argument("--version", action="version", version=f"uplift ({DISTRIBUTION}) {version()}",
-                   help="print the version of the installed uplift-ssi and exit")
+    p.add_argument("--version", action=_Version, help="print the version of the installed uplift-ssi and exit")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     def scene_arg(cmd):
@@ -170,7 +172,7 @@ def _parser() -> argparse.ArgumentParser:
     scn.add_argument("name", metavar="NAME", help=f"built-in scene ({', '.join(builtin_scenes())})")
     scn.add_argument("-o", "--output", type=Path, default=None, metavar="FILE",
                      help="write the scene to FILE (default: print it on stdout)")
-    scn.set_defaults(func=cmd_scene)
+    scn.set_defaults(func=cmd_scene, computes=False)        # no thread pools to limit (threadpoolctl not loaded)
 
     imp = sub.add_parser("impedance", help="soil impedance of the scene's foundation (BEM sweep)",
                          description="Compute the rigid-raft (6x6) and rigid+gap (6+N) impedance tables of "
@@ -349,6 +351,8 @@ def main(argv=None) -> int:
     except SystemExit as exc:        # argparse: --help (0) or a bad argument (2, message printed)
         return int(exc.code or 0)
     try:
+        if not getattr(args, "computes", True):
+            return args.func(args)
         with compute_threads():
             return args.func(args)
     except KeyboardInterrupt:
@@ -407,11 +411,12 @@ def _strict(value):
         items = [_strict(v) for v in value]
         reasons = [r for _, r in items if r]
         return [v for v, _ in items], (f"null entries: {reasons[0]}" if reasons else None)
-    if isinstance(value, (float, np.floating)):
+    np = sys.modules.get("numpy")           # numpy numbers exist only once numpy is loaded
+    if isinstance(value, float) or (np is not None and isinstance(value, np.floating)):
         if math.isfinite(value):
             return float(value), None
         return None, f"not a finite number ({float(value)}): the computation gave none"
-    if isinstance(value, (np.integer, np.bool_)):
+    if np is not None and isinstance(value, (np.integer, np.bool_)):
         return value.item(), None
     return value, None
 
@@ -422,6 +427,14 @@ def _print_json(value):
 
 
 def cmd_run(args) -> int:
+    # start-up cost: what a run uses loads in it (the other commands do not pay it)
+    from orchestrator.motion import G                                            # (same)
+    from orchestrator.results_file import check_output_folder, check_output_path, summary, write_results  # (same)
+    from orchestrator.run import run_scene                                       # (same)
+    from orchestrator.scene import load_scene                                    # (same)
+    from orchestrator.scene_file import scene_toml                               # (same)
+    from structure.results import Status                                         # (same)
+    from orchestrator.design import is_design                                   # (same)
     scene = load_scene(args.scene, max_pga_g=args.max_pga, pga_g=args.pga, dt=args.dt, duration_s=args.duration)
     out = check_output_path(args.output or Path(f"{scene.name}_results.h5"))
     if args.plot_dir is not None:
@@ -475,6 +488,10 @@ def cmd_run(args) -> int:
 def _run_design(args, scene, out: Path) -> int:
     """``uplift run`` of a scene with soil cases, strain-compatible soil or design spectra
     (orchestrator.design): every case, one results file, the design tables and figures."""
+    from orchestrator.design import case_envelope, format_envelope, run_design, write_design  # only here
+    from orchestrator.design_spectra import plot_design_spectra, write_tables  # (same)
+    from orchestrator.results_file import check_output_folder, summary  # (same)
+    from structure.results import Status  # (same)
     design_dir = None
     if scene.design_spectra is not None:
         design_dir = args.design_dir or out.with_name(f"{out.stem}_design")
@@ -531,10 +548,13 @@ def _pngs(folder: Path) -> list:
 
 
 def cmd_scene(args) -> int:
+    from orchestrator.scene_file import builtin_scene_text      # start-up cost: the text only, no scene loaded
     if args.output is None:
         text, _ = builtin_scene_text(args.name)
         sys.stdout.write(text)
         return EXIT_OK
+    from orchestrator.results_file import check_output_path     # start-up cost: only when a file is written
+    from uplift_common.files import atomic_output                # (same)
     text, companions = builtin_scene_text(args.name, args.output.parent)
     check_output_path(args.output)
     for name in companions:
@@ -552,8 +572,11 @@ def cmd_scene(args) -> int:
 
 def cmd_impedance(args) -> int:
     # start-up cost: what only this command uses loads in it
+    import numpy as np                                           # (same)
     from orchestrator.impedance import rigid_json, scene_impedance, scene_static
     from orchestrator.plots import plot_impedance                # (same)
+    from orchestrator.results_file import check_output_path      # (same)
+    from orchestrator.scene import load_scene                    # (same)
     t0 = time.perf_counter()
     scene = load_scene(args.scene)
     for path in (args.output, args.gap, args.plot):
@@ -586,6 +609,8 @@ def cmd_impedance(args) -> int:
 def cmd_fit(args) -> int:
     # start-up cost: what only this command uses loads in it
     from orchestrator.impedance import scene_fit, scene_impedance
+    from orchestrator.results_file import check_output_path      # (same)
+    from orchestrator.scene import load_scene                    # (same)
     from soil_impedance.fit import save_fit                      # (same)
     t0 = time.perf_counter()
     scene = load_scene(args.scene)
@@ -621,6 +646,8 @@ def cmd_export(args) -> int:
     # the FMU stack (fmpy, pythonfmu, the native builder) loads only for an export:
     from orchestrator.crosscheck import model_folder, write_cross_check     # fmpy
     from orchestrator.export import export_scene                            # fmpy, pythonfmu
+    from orchestrator.results_file import check_output_folder               # h5py
+    from orchestrator.scene import load_scene                               # numpy, the mesh, the structure
     scene = load_scene(args.scene)
     if scene.structure is None:
         raise SceneError(f"scene {scene.name!r} has no [structure]: nothing to export "
@@ -682,6 +709,8 @@ def _announce_native_build(fmi_version: int):
 
 def cmd_compare(args) -> int:
     from orchestrator.compare import compare, format_table       # start-up cost: only this command
+    from orchestrator.results_file import ResultsFileError, read_results     # (same)
+    from orchestrator.results_file import read_cases
     cases = read_cases(args.results)
     if cases:
         return _compare_cases(args, cases, compare, format_table)
@@ -700,6 +729,8 @@ def cmd_compare(args) -> int:
 def _compare_cases(args, cases, compare, format_table) -> int:
     """``uplift compare`` of a design run: the routes compared per soil case, then the envelope
     over the cases (orchestrator.design.case_envelope)."""
+    from orchestrator.design import case_envelope, format_envelope  # only here
+    from orchestrator.results_file import ResultsFileError, read_results  # (same)
     per = {case: read_results(args.results, case) for case in cases}
     for case, results in per.items():
         if args.reference is not None and args.reference not in results:
@@ -720,6 +751,7 @@ def cmd_report(args) -> int:
     # start-up cost: what only this command uses loads in it
     from orchestrator.ensemble import is_ensemble_file
     from orchestrator.report import write_ensemble_report, write_report   # (same)
+    from orchestrator.results_file import ResultsFileError, check_output_folder   # (same)
     check_output_folder(args.output, ["report.html", *_pngs(args.output)])
     if args.results.suffix.lower() == ".toml":
         raise ResultsFileError(f"{args.results} is a scene: `uplift report` reads the file that `uplift run` or "
@@ -736,6 +768,7 @@ def cmd_report(args) -> int:
 
 def cmd_ensemble(args) -> int:
     from orchestrator.ensemble import ensemble_summary, run_ensemble   # start-up cost: only this command
+    from orchestrator.scene import load_scene                          # (same)
     scene = _ensemble_case(load_scene(args.scene, max_pga_g=args.max_pga), args.case)
     out = args.output or Path(f"{scene.name}_ensemble.h5")
     if args.n_seeds is not None and args.records is not None:
@@ -777,6 +810,8 @@ def cmd_ensemble(args) -> int:
 def _ensemble_case(scene, case):
     """The scene an ensemble runs: ``scene`` itself, or with ``case`` its soil case (named
     ``<scene>_<case>``); a scene with soil cases needs one."""
+    from orchestrator.design import design_cases  # only here
+    from orchestrator.motion import make_motion  # (same)
     design = scene.soil_cases is not None or scene.strain_compatible is not None
     if case is None:
         if design:
@@ -794,6 +829,9 @@ def _ensemble_case(scene, case):
 
 def cmd_envelope(args) -> int:
     from orchestrator.ensemble import fractile_design_spectra, read_ensemble, write_fractile_tables  # only here
+    import numpy as np  # (same)
+    from orchestrator.motion import G  # (same)
+    from orchestrator.results_file import check_output_folder  # (same)
     check_output_folder(args.output, (), "-o")
     datasets = {}
     for path in args.ensembles:
@@ -852,6 +890,7 @@ def cmd_fragility(args) -> int:
     from orchestrator import fragility as frag  # scipy.optimize and xarray: only this command pays them
     from orchestrator.ensemble import read_ensemble              # (same)
     from orchestrator.plots import pyplot                        # (same)
+    from orchestrator.results_file import check_output_path      # (same)
     if args.plot is not None:
         check_output_path(args.plot)
     try:
@@ -888,6 +927,7 @@ def cmd_fragility(args) -> int:
 
 def cmd_bench(args) -> int:
     from orchestrator.bench import bench, bench_config, format_rows, json_safe, plot_rows   # start-up cost
+    from orchestrator.results_file import check_output_path                                  # (same)
     if args.plot is not None:
         check_output_path(args.plot)
     rows = bench(bench_config(args.quick), cache_dir=_cache(args), log=lambda msg: _say(msg))
@@ -930,6 +970,8 @@ def _pushover_parser(sub, json_flag, scene_arg, no_cache):
 
 def cmd_pushover(args) -> int:
     from orchestrator.pushover import plot_pushover, pushover_json, scene_pushover, write_pushover  # start-up cost
+    from orchestrator.results_file import check_output_path                                       # (same)
+    from orchestrator.scene import load_scene                                                     # (same)
     scene = load_scene(args.scene)
     out = check_output_path(args.output or Path(f"{scene.name}_pushover.h5"))
     if args.plot is not None:

@@ -15,7 +15,10 @@ motion, its step-doubling check, the routes.
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
+import json
+import platform
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -136,6 +139,53 @@ def _native_run_key(lib, blob: bytes, acc) -> str:
     a = np.ascontiguousarray(acc, "<f8")
     h.update(f"{a.shape}".encode() + memoryview(a).cast("B"))
     return h.hexdigest()
+
+
+#: what a synthetic motion depends on besides its [motion] keys and the step: the code that makes
+#: it (the spectral matching, the response spectra, g) and numpy (its random generator and its
+#: elementary functions), the machine's kind
+MOTION_CODE = ("orchestrator.motion", "orchestrator.spectra", "structure.model")
+
+
+def scene_motion(config, dt: float, cache_dir=None) -> Motion:
+    """``make_motion(config, dt)``: a synthetic motion (``config.kind == "synthetic"``) is kept in
+    the cache folder (``motion-<key>.h5``, checksummed, verified on read) under the key of its
+    inputs (``_motion_key``: every [motion] key, the step, ``MOTION_CODE``'s sources, numpy's
+    version, the machine's kind): a warm run reads its bits back instead of matching the spectrum
+    again (the same numbers to the bit, a function of the inputs only); a record is read as
+    before, and nothing is kept without a cache folder."""
+    if cache_dir is None or config.kind != "synthetic":
+        return make_motion(config, dt)
+    path = Path(cache_dir) / f"motion-{_motion_key(config, dt)[:24]}.h5"
+    hit = read_entry(path, _read_motion)
+    if hit is not None:
+        return hit
+    motion = make_motion(config, dt)
+
+    def writer(p):
+        with atomic_output(p) as tmp, h5py.File(tmp, "w") as h:
+            h.create_dataset("acc", data=motion.acc)
+            h.attrs.update(dt=motion.dt, label=motion.label, components=" ".join(motion.components))
+            stamp_checksum(h)
+    write_entry(path, writer)
+    return motion
+
+
+def _motion_key(config, dt: float) -> str:
+    """SHA-256 of what ``make_motion(config, dt)`` of a synthetic motion reads: the [motion] keys
+    (every field of the MotionConfig, exactly: ``repr``), the step, and ``MOTION_CODE``."""
+    fields = {f.name: repr(getattr(config, f.name)) for f in dataclasses.fields(config) if f.init}
+    h = hashlib.sha256(json.dumps({"motion": fields, "dt": repr(float(dt)), "numpy": np.__version__,
+                                   "machine": platform.machine()}, sort_keys=True).encode())
+    h.update(code_digest(*MOTION_CODE).encode())
+    return h.hexdigest()
+
+
+def _read_motion(h) -> Motion:
+    acc = h["acc"][()]
+    if acc.ndim != 2 or acc.shape[1] != 3:
+        raise ValueError(f"acc of shape {acc.shape}, not (nt, 3)")
+    return Motion(float(h.attrs["dt"]), acc, str(h.attrs["label"]), tuple(str(h.attrs["components"]).split()))
 
 
 def _keep(path, value: float) -> None:
@@ -294,7 +344,7 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
         raise ValueError(f"run_scene: shared was prepared for analysis.dt = {shared.scene.analysis.dt:g} s, "
                          f"not {scene.analysis.dt:g} s (its time-step check): call prepare_run on this scene")
     dt = scene.analysis.dt
-    motion = make_motion(scene.motion, dt) if motion is None else motion.resampled(dt)   # before any computation
+    motion = scene_motion(scene.motion, dt, cache_dir) if motion is None else motion.resampled(dt)   # before any computation
     run = shared if shared is not None else prepare_run(scene, cache_dir=cache_dir, sweep_progress=sweep_progress,
                                                         fit_progress=fit_progress)
     with compute_threads():

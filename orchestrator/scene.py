@@ -25,11 +25,6 @@ from functools import partial
 from importlib import resources
 from pathlib import Path
 
-try:
-    import tomllib
-except ModuleNotFoundError:  # Python < 3.11
-    import tomli as tomllib
-
 import numpy as np
 
 from orchestrator.motion import (DIRECTIONS, FORMATS, SPECTRA, SYNTHETIC_DT, UNITS, VERTICAL_RATIO, G, Motion,
@@ -46,11 +41,10 @@ from structure.errors import StructureError
 from structure.model import StructureModel
 from structure.spec import (WINKLER_MODULI, StructureSpec, build_model, check_choice, check_keys, check_number,
                             contact_from_spec, parse_structure, show, winkler_moduli)
-from uplift_common.errors import UserInputError
 
-
-class SceneError(UserInputError):
-    """An invalid scene; the message names the scene, the key at fault and how to fix it."""
+# the error, the built-in names, the TOML reader and the PGA limit live in a module the command
+# line loads without this one (numpy, the mesh, the structure): re-exported here
+from orchestrator.scene_base import MAX_PGA_G, SceneError, builtin_scenes, tomllib
 
 
 _check_keys = partial(check_keys, error=SceneError)
@@ -69,9 +63,6 @@ MAX_FREQUENCIES = 10_000
 FIT_TOL = 0.01
 #: default time budget of the timefreq route, s ([analysis].timefreq_max_s)
 TIMEFREQ_MAX_S = 600.0
-#: default limit of the peak ground acceleration a scene may ask for, g ([analysis].max_pga_g):
-#: the strongest records ever measured peak near 3-4 g; far beyond, a scale or PGA is a typo
-MAX_PGA_G = 5.0
 
 
 # ---- section configurations -------------------------------------------------------------------
@@ -415,11 +406,6 @@ class Scene:
         source = None if self.source is None else \
             {**self.source, "analysis": {**self.source.get("analysis", {}), "routes": list(routes)}}
         return replace(self, analysis=replace(self.analysis, routes=check_routes(routes, where)), source=source)
-
-
-def builtin_scenes() -> list[str]:
-    return sorted(p.name[:-5] for p in resources.files("orchestrator.scenes").iterdir()
-                  if p.name.endswith(".toml"))
 
 
 def load_scene(spec: str | Path, max_pga_g: float | None = None, pga_g: float | None = None,

@@ -20,7 +20,7 @@ import re
 from importlib import resources
 from pathlib import Path
 
-from orchestrator.scene import SceneError, builtin_scenes, tomllib
+from orchestrator.scene_base import SceneError, builtin_scenes, tomllib
 
 #: the keys of a scene that name a file (relative to the scene file): (section, key); a record's
 #: ``components`` is a table {axis: file}; ``foundation.mesh`` a finite-element raft mesh

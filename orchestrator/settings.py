@@ -12,9 +12,7 @@ from __future__ import annotations
 
 import os
 from contextlib import contextmanager
-
-from soil_impedance.cache import default_cache_dir  # noqa: F401  (the cache folder, re-exported)
-from threadpoolctl import threadpool_limits
+from pathlib import Path
 
 #: the kinds of FMU ``uplift export`` writes (orchestrator.export; named here so the command line
 #: lists them without loading the FMU stack)
@@ -33,9 +31,17 @@ def thread_count() -> int:
     return n
 
 
+def default_cache_dir() -> Path:
+    """The project's cache folder: ``soil_impedance.cache.default_cache_dir`` ($UPLIFT_CACHE, else
+    ~/.cache/uplift), named here so that the command line finds it without loading h5py."""
+    from soil_impedance.cache import default_cache_dir as folder   # start-up cost: h5py, when a command caches
+    return folder()
+
+
 @contextmanager
 def compute_threads(n: int | None = None):
     """Run the block with BLAS and OpenMP thread pools limited to ``n`` (default
     ``thread_count()``); the previous limits come back on exit."""
+    from threadpoolctl import threadpool_limits     # start-up cost: only a command that computes
     with threadpool_limits(limits=n or thread_count()):
         yield

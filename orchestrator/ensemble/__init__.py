@@ -62,13 +62,21 @@ one per soil case, broadened and enveloped: ``uplift envelope``).
 """
 from uplift_common.lazy import lazy_exports
 
+#: seconds to wait for an existing scheduler to answer (and for its first worker); the
+#: command line's --connect-timeout (defined here, where the command line reads it without
+#: loading the submodules: ``cluster`` uses it)
+CONNECT_TIMEOUT_S = 10.0
+#: the step-doubling checks an ensemble can make (``plan``; the command line's --dt-check)
+DT_CHECKS = ("strongest", "each")
+
 #: the public names, imported from their submodule on first use (``uplift_common.lazy``)
 __getattr__, __dir__, __all__ = lazy_exports(__name__, {
-    "cluster": ("CONNECT_TIMEOUT_S", "LOCAL_WORKER_CONFIG", "default_workers"),
+    "cluster": ("LOCAL_WORKER_CONFIG", "default_workers"),
     "fractile_design": ("fractile_design_spectra", "write_fractile_tables"),
     "dataset": ("FRACTILE_VARIABLES", "KIND", "QUANTILES", "assemble", "ensemble_components", "ensemble_summary", "is_ensemble_file", "read_ensemble", "write_ensemble"),
-    "plan": ("DT_CHECKS", "RECORD_SUFFIXES", "Cell", "EnsembleError", "Plan", "Record", "cell_key", "code_version", "plan_ensemble", "record_sources"),
+    "plan": ("RECORD_SUFFIXES", "Cell", "EnsembleError", "Plan", "Record", "cell_key", "code_version", "plan_ensemble", "record_sources"),
     "runner": ("run_ensemble", "strongest_check"),
     "store": ("CELL_VARIABLES", "DAMPING", "DIRECTIONS", "FAILED", "FREQUENCIES_HZ", "ONCURVE_VARIABLES", "ROUNDOFF", "TEXT_VARIABLES", "CellStore", "cell_values", "run_cell"),
     "triplets": ("COMPONENTS_FILE", "folder_components", "peer_component"),
 })
+__all__ += ["CONNECT_TIMEOUT_S", "DT_CHECKS"]

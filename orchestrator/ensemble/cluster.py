@@ -12,12 +12,10 @@ from contextlib import contextmanager
 
 from orchestrator.settings import thread_count
 
+from . import CONNECT_TIMEOUT_S      # defined in the package: the command line reads it there
 from .plan import EnsembleError
 from .store import run_cell
 
-#: seconds to wait for an existing scheduler to answer (and for its first worker); the
-#: command line's --connect-timeout
-CONNECT_TIMEOUT_S = 10.0
 #: a local cluster starts at most this many worker processes per usable core (more only queue
 #: for the cores, each with its own memory and start-up)
 WORKERS_PER_CORE = 2

@@ -14,13 +14,12 @@ from uplift_common.code import PACKAGES, code_digest
 from orchestrator.motion import DIRECTIONS, G, MotionError, read_components
 from orchestrator.scene import MotionConfig, Scene, SceneError
 
+from . import DT_CHECKS                 # the step-doubling check: once on the strongest motion, or each cell its own
 from .triplets import EnsembleError, folder_components
 
 #: record files taken from a folder, by suffix (case-insensitive): their format (None: the
 #: scene's [motion].format when it is a record, else two-column)
 RECORD_SUFFIXES = {".at2": "peer-at2", ".txt": None, ".dat": None}
-#: the step-doubling check: once on the strongest motion, or each cell its own
-DT_CHECKS = ("strongest", "each")
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ timefreq   the paper's time-frequency method with uplift on the BEM table (the r
 ========== ==================================================================================
 
 Adding a route: a module here that calls ``register(Route(...))``, named in ``base.BUILTIN``
-(imported when the registry is first read), or ``register`` from user code. Everything that
+(imported when the route is first asked for: ``get_route``), or ``register`` from user code. Everything that
 lists routes reads ``route_names()``.
 """
 from orchestrator.routes.base import (Route, RouteInputError, RunContext, default_reference, get_route, has_uplift,

@@ -7,9 +7,10 @@ knobs, and ``run(context, progress) -> RouteResult``. ``run_scene``, ``uplift ru
 ``uplift compare``, ``uplift report`` and ``uplift bench`` all read the registry: adding a
 route is adding one module (and its name to ``BUILTIN``), or calling ``register`` from user code.
 
-The built-in routes' modules are imported when the registry is first read (xarray's backend
-registry does the same): importing the registry costs nothing, so the scene can validate route
-names against it without depending on what the routes import (the BEM, the fit, the FMUs).
+The built-in routes are known by name (``BUILTIN``) and each one's module is imported when that
+route is first asked for (``get_route``): importing or listing the registry costs nothing, so
+the scene validates route names and the command line lists them without loading what the
+routes import (the BEM, the fit, the FMUs), and a run loads only the routes it runs.
 Route modules import the leaves (soil_impedance, structure, fmus), the motion, the
 time-frequency package and this module, never the scene, run or CLI modules.
 """
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from uplift_common.errors import UserInputError
@@ -79,45 +81,67 @@ class Route:
 #: which registers it when imported
 BUILTIN = ("monolithic", "cosim", "linear", "timefreq", "winkler")
 _REGISTRY: dict[str, Route] = {}
-_BUILTIN_LOADED = []
+#: built-in routes whose module was imported (each registered itself) or that were unregistered
+_LOADED: set = set()
+_REMOVED: set = set()
+_LOADING: list = []
+_LOCK = threading.RLock()
 
 
-def _registry() -> dict[str, Route]:
-    """The registry, the built-in routes' modules imported (they register) on first use."""
-    if not _BUILTIN_LOADED:
-        _BUILTIN_LOADED.append(True)
-        for name in BUILTIN:
+def _load(name: str) -> None:
+    """Import the module of the built-in route ``name`` once (it registers itself): a route's
+    module, and what it imports (the BEM, the fit, the FMUs), loads when that route is first
+    asked for, not when the registry is read (``uplift --help`` lists the names only). Another
+    thread asking meanwhile waits for the import to finish (the route is then registered)."""
+    if name not in BUILTIN or name in _LOADED:
+        return
+    with _LOCK:
+        if name in _LOADED or name in _LOADING:
+            return
+        _LOADING.append(name)
+        try:
             importlib.import_module(f"orchestrator.routes.{name}")
-    return _REGISTRY
+        finally:
+            _LOADING.remove(name)
+        _LOADED.add(name)
 
 
 def register(route: Route) -> Route:
     """Add ``route`` to the registry (replacing a route of the same name); returns it."""
-    if route.name not in BUILTIN:
-        _registry()                 # the built-in routes first: the registry's order is fixed
+    if route.name in BUILTIN and route.name not in _LOADING:
+        _load(route.name)           # user code replacing a built-in: the built-in registers first, then is replaced
+    _REMOVED.discard(route.name)
     _REGISTRY[route.name] = route
     return route
 
 
 def unregister(name: str) -> None:
-    _registry().pop(name, None)
+    with _LOCK:
+        _REGISTRY.pop(name, None)
+        if name in BUILTIN:
+            _LOADED.add(name)                             # not imported again: it stays out
+            _REMOVED.add(name)
 
 
 def route_names() -> tuple[str, ...]:
-    """Names of the registered routes, in registration order."""
-    return tuple(_registry())
+    """Names of the registered routes, in registration order (the built-in ones first, in
+    ``BUILTIN``'s order): read without importing any route's module."""
+    return tuple(n for n in BUILTIN if n not in _REMOVED) + tuple(n for n in _REGISTRY if n not in BUILTIN)
 
 
 def get_route(name: str) -> Route:
+    """The registered route ``name`` (a built-in one's module imported on first use)."""
+    if name not in _REMOVED:
+        _load(name)
     try:
-        return _registry()[name]
+        return _REGISTRY[name]
     except KeyError:
-        raise RouteInputError(f"unknown route {name!r}; available: {', '.join(_REGISTRY)}") from None
+        raise RouteInputError(f"unknown route {name!r}; available: {', '.join(route_names())}") from None
 
 
 def has_uplift(name: str) -> bool:
     """Whether route ``name`` lets the raft lift off (a name not registered: assumed so)."""
-    return name not in _registry() or _REGISTRY[name].uplift
+    return name not in route_names() or get_route(name).uplift
 
 
 def default_reference(names) -> str:
@@ -129,7 +153,8 @@ def default_reference(names) -> str:
     if not names:
         raise ValueError("no routes to choose a reference among")
     lifting = [n for n in names if has_uplift(n)]
-    ranked = [(_registry()[n].reference_rank, -i) for i, n in enumerate(lifting) if n in _REGISTRY]
+    known = route_names()
+    ranked = [(get_route(n).reference_rank, -i) for i, n in enumerate(lifting) if n in known]
     best = max(ranked, default=(0, 0))
     return lifting[-best[1]] if best[0] > 0 else (lifting or names)[0]
 

@@ -15,7 +15,7 @@ from helpers import ROOT, small_reactor, write_scene
 
 #: every list of sources a cache is keyed on: (module, attribute)
 CACHE_SOURCES = [("soil_impedance.sweep", "CODE"), ("soil_impedance.fit.options", "CODE"),
-                 ("orchestrator.run", "DT_CHECK_CODE"), ("uplift_common.code", "PACKAGES")]
+                 ("orchestrator.run", "DT_CHECK_CODE"), ("orchestrator.run", "MOTION_CODE"), ("uplift_common.code", "PACKAGES")]
 
 
 @pytest.mark.parametrize("module, attribute", CACHE_SOURCES)

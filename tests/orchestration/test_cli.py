@@ -144,10 +144,10 @@ def test_run_summary_on_stdout_progress_on_stderr_json_strict(tmp_path):
 def test_run_json_with_a_non_finite_value_says_null_and_why(tmp_path, capsys, monkeypatch):
     """A route whose numbers are not finite (a diverged run) is written null with the reason."""
     from helpers import tower, write_scene
-    from orchestrator import cli
+    import orchestrator.results_file as results_file          # the command imports it when it runs
     from orchestrator.results_file import summary
     monkeypatch.setenv("UPLIFT_CACHE", str(tmp_path / "cache"))
-    monkeypatch.setattr(cli, "summary", lambda res: dict(summary(res), max_uplift_m=float("nan"),
+    monkeypatch.setattr(results_file, "summary", lambda res: dict(summary(res), max_uplift_m=float("nan"),
                                                          peak_acc_g={"top": float("inf")}))
     scene = write_scene(tmp_path / "tower.toml", tower())
     assert main(["run", scene, "-o", str(tmp_path / "r.h5"), "--json"]) == 0

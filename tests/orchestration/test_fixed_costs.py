@@ -262,3 +262,45 @@ def test_the_fit_is_made_once_on_first_need_and_a_failed_fit_refuses_only_its_ro
     again = run_cell(scene, "monolithic", copy, (), tmp_path)
     assert calls == ["fit"] and first["status"] == again["status"] == "converged"
     assert first["max_uplift"] == again["max_uplift"]
+
+
+def test_a_synthetic_motion_is_matched_once_then_read_to_the_bit(tmp_path, monkeypatch):
+    """scene_motion keeps a synthetic motion under the key of its inputs: a second call reads the
+    bits make_motion gives (it is not called again), a change of a [motion] key or of the step is
+    a miss, a damaged entry is made again with a CacheWarning, and nothing is kept without a
+    cache folder."""
+    import dataclasses
+
+    import orchestrator.run as run
+    scene = scene_from_dict(SCENE, name="small")
+    real, calls = run.make_motion, []
+
+    def counted(config, dt):
+        calls.append(dt)
+        return real(config, dt)
+
+    monkeypatch.setattr(run, "make_motion", counted)
+    first = run.scene_motion(scene.motion, 0.005, tmp_path)
+    again = run.scene_motion(scene.motion, 0.005, tmp_path)
+    direct = real(scene.motion, 0.005)
+    assert calls == [0.005]
+    assert again.acc.tobytes() == first.acc.tobytes() == direct.acc.tobytes()
+    assert (again.dt, again.label, again.components) == (direct.dt, direct.label, direct.components)
+    for change in (dict(pga_g=0.35), dict(seed=4), dict(duration_s=0.6)):
+        calls.clear()
+        other = dataclasses.replace(scene.motion, **change)
+        moved = run.scene_motion(other, 0.005, tmp_path)
+        assert calls == [0.005] and moved.acc.tobytes() == real(other, 0.005).acc.tobytes(), change
+    calls.clear()
+    assert run.scene_motion(scene.motion, 0.004, tmp_path).acc.shape != first.acc.shape and calls == [0.004]
+    entry = tmp_path / f"motion-{run._motion_key(scene.motion, 0.005)[:24]}.h5"
+    with h5py.File(entry, "r+") as f:                  # a changed value, the checksum left as it was
+        f["acc"][0, 0] += 1.0
+    calls.clear()
+    with pytest.warns(CacheWarning, match="damaged cache entry"):
+        damaged = run.scene_motion(scene.motion, 0.005, tmp_path)
+    assert damaged.acc.tobytes() == direct.acc.tobytes() and calls == [0.005]
+    kept = sorted(tmp_path.glob("motion-*.h5"))
+    calls.clear()
+    assert run.scene_motion(scene.motion, 0.005, None).acc.tobytes() == direct.acc.tobytes() and calls == [0.005]
+    assert sorted(tmp_path.glob("motion-*.h5")) == kept

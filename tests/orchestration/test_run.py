@@ -183,11 +183,11 @@ def test_step_doubling_warns_when_dt_does_not_resolve_the_contact(tmp_path, caps
 def test_output_path_checked_before_computing_and_old_results_kept(tmp_path, capsys, monkeypatch):
     """A missing output folder is refused at once (exit 2, nothing computed); a run that dies
     while writing leaves the previous results file intact (atomic replace)."""
-    import orchestrator.cli as cli
+    import orchestrator.run as run            # `uplift run` imports run_scene from it when it runs
 
     scene = _scene(tmp_path)
     computed = []
-    monkeypatch.setattr(cli, "run_scene", lambda *a, **k: computed.append(1))
+    monkeypatch.setattr(run, "run_scene", lambda *a, **k: computed.append(1))
     assert main(["run", str(scene), "-o", str(tmp_path / "absent" / "r.h5")]) == 2
     assert "output folder" in capsys.readouterr().err and not computed
     monkeypatch.undo()
