@@ -15,7 +15,6 @@ feedthrough), so ``fmpy.validation.validate_fmu`` reports nothing.
 from __future__ import annotations
 
 import json
-import shutil
 import sys
 import tempfile
 import xml.etree.ElementTree as ET
@@ -29,6 +28,7 @@ from fmus.bundle import bundle, requirements_of
 from fmus.coupling import history_gains
 from fmus.resources import (DEFAULT_SOIL_FACTORY, MESH_FILE, MOTION_FILE, REQUIREMENTS_FILE, SOIL_INSTANT_FILE,
                             SOIL_MODEL_FILE, save_rational, soil_from_model)
+from uplift_common.files import atomic_output
 
 HERE = Path(__file__).resolve().parent
 OPTIONS = dict(canHandleVariableCommunicationStepSize=False, canGetAndSetFMUstate=True,
@@ -172,11 +172,9 @@ def fix_model_description(fmu_path) -> None:
                 ET.SubElement(node, "Unknown", index=str(k), dependencies="")
     ET.indent(root)
     items["modelDescription.xml"] = ET.tostring(root, encoding="UTF-8", xml_declaration=True)
-    tmp = fmu_path.with_suffix(".tmp")
-    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
+    with atomic_output(fmu_path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
         for name, blob in items.items():
             z.writestr(name, blob, compress_type=_compression(name))
-    shutil.move(tmp, fmu_path)
 
 
 def _compression(name: str) -> int:

@@ -38,7 +38,7 @@ from soil_impedance.sweep import provenance as sweep_provenance
 from structure.static_contact import PushoverCurve, liftoff_onset, pushover, rocking_vector
 from uplift_common.code import code_digest
 from uplift_common.errors import UserInputError
-from uplift_common.files import atomic_output, require_checksum, stamp_checksum
+from uplift_common.files import atomic_output, require_checksum, save_figure, stamp_checksum
 
 from orchestrator.impedance import scene_static
 from orchestrator.oncurve import raft_load, scene_key
@@ -301,6 +301,6 @@ def plot_pushover(run: PushoverRun, path) -> Path:
     from orchestrator.plots import pyplot  # matplotlib: only when a figure is drawn
     plt = pyplot()
     fig = pushover_figure(run)
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)
     return Path(path)

@@ -31,15 +31,19 @@ Usage::
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import os
+import re
 import shutil
+import socket
 import stat
 import tempfile
 from pathlib import Path
 
 import h5py
 import numpy as np
+from uplift_common import interrupts
 from uplift_common.errors import UserInputError
 
 CHECKSUM_ATTR = "sha256"
@@ -98,17 +102,25 @@ def atomic_output(path):
     (fsync), renamed onto the target (``os.replace``, atomic) and the folder entry is synced; on
     any exception, KeyboardInterrupt included, it is removed and the exception re-raised: the old
     file stays intact until the new one is complete, and concurrent writers never share a
-    temporary name (pid + random suffix). Raises OutputFolderError if the folder is missing.
+    temporary name (``temporary_name``: host, pid and a random suffix). The rename and the
+    removal are held against Ctrl-C (``uplift_common.interrupts.held``: a SIGINT there is raised
+    after them). Temporaries of the same target left by a process that died (kill -9, a power
+    cut) are removed first (``sweep_orphans``). A file system that refuses the data (full,
+    quota, file size limit, I/O error) raises OutputWriteError naming the path. Raises
+    OutputFolderError if the folder is missing.
     """
     target = output_target(path)
     folder = target.parent
     if not folder.is_dir():
         raise OutputFolderError(f"cannot write {path}: folder {folder} does not exist "
                                 "(create it first or choose another path)")
-    fd, name = tempfile.mkstemp(dir=folder, prefix=f".{target.name}.{os.getpid()}.", suffix=".tmp")
-    os.close(fd)
-    tmp = Path(name)
+    sweep_orphans(folder, target.name)
+    tmp = None
     try:
+        with interrupts.held():                 # created and recorded at once: never left unnamed
+            fd, name = tempfile.mkstemp(dir=folder, prefix=_temporary_prefix(target.name), suffix=".tmp")
+            os.close(fd)
+            tmp = Path(name)
         yield tmp
         os.chmod(tmp, 0o666 & ~_UMASK)          # mkstemp makes 0600; keep the usual mode
         fd = os.open(tmp, os.O_RDONLY)
@@ -117,12 +129,193 @@ def atomic_output(path):
         finally:
             os.close(fd)
         output_target(path)                     # still a regular file (or absent) at the rename
-        os.replace(tmp, target)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
+        with interrupts.held():
+            os.replace(tmp, target)
+            _COMMITTED.append(target)
+            tmp = None
+    except BaseException as exc:
+        with interrupts.held():
+            if tmp is not None:
+                with contextlib.suppress(OSError):
+                    tmp.unlink()
+        refused = _refused(exc)
+        if refused is not None:
+            raise OutputWriteError(_refusal_message(path, folder, refused, exc)) from None
         raise
     _fsync_folder(folder)
+
+
+class OutputWriteError(UserInputError):
+    """The file system refused the data of an output (no space left, a quota, a file size
+    limit, an I/O error): nothing was written, a previous file at the path is left as it was.
+    The command line exits 3 (orchestrator.exit_codes.EXIT_WRITE)."""
+
+
+#: errno values of a file system that refuses data (not a bad path: those are refused before)
+REFUSED_ERRNOS = {errno.ENOSPC: "no space left on device", errno.EDQUOT: "disk quota exceeded",
+                  errno.EFBIG: "file too large for the file system (or the process's file size limit)",
+                  errno.EIO: "input/output error"}
+_COMMITTED: list = []
+
+
+def committed() -> list:
+    """The files ``atomic_output`` renamed into place in this process, in order (what a command
+    interrupted afterwards did write, whole)."""
+    return list(_COMMITTED)
+
+
+def _refused(exc):
+    """The errno of REFUSED_ERRNOS behind ``exc`` (itself or an exception it was raised from or
+    while handling), or None."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, OutputWriteError):
+            return None
+        if isinstance(exc, OSError) and exc.errno in REFUSED_ERRNOS:
+            return exc.errno
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+def _refusal_message(path, folder: Path, code: int, exc, left: str = "") -> str:
+    left = left or f"a previous {Path(path).name} is left as it was"
+    free = ""
+    with contextlib.suppress(OSError):
+        st = os.statvfs(folder)
+        free = f"; {_size(st.f_bavail * st.f_frsize)} free on its file system"
+    return (f"cannot write {str(path)!r}: {REFUSED_ERRNOS[code]} ({type(exc).__name__}, errno "
+            f"{errno.errorcode.get(code, code)}){free}; free some space (or choose another path) and run "
+            f"the command again: nothing was written, {left}")
+
+
+def _size(n: int) -> str:
+    for unit in ("bytes", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n:.0f} {unit}" if unit == "bytes" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} TiB"
+
+
+# ---- temporaries and the orphans of dead processes ----------------------------------------------
+
+#: this machine, in temporary names (a folder shared by several machines: a pid means nothing on
+#: another one, and its temporaries are never swept from here)
+HOST = hashlib.sha256(socket.gethostname().encode()).hexdigest()[:8]
+_TEMPORARY = re.compile(r"^\.(?P<name>.+)\.(?:(?P<host>[0-9a-f]{8})-)?(?P<pid>\d+)\.[A-Za-z0-9_]+\.tmp$")
+
+
+def _temporary_prefix(name: str) -> str:
+    return f".{name}.{HOST}-{os.getpid()}."
+
+
+def temporary_name(name: str) -> str:
+    """A unique name for a temporary of the file (or folder) ``name``, hidden, that
+    ``sweep_orphans`` removes once this process is gone: ``.<name>.<host>-<pid>.<random>.tmp``."""
+    return f"{_temporary_prefix(name)}{os.urandom(6).hex()}.tmp"
+
+
+def _alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, OSError):
+        return True                             # another user's process, or cannot tell: keep it
+    return True
+
+
+def sweep_orphans(folder, name: str | None = None) -> list:
+    """Remove from ``folder`` the temporaries (``temporary_name``, or the older form without the
+    host) of ``name`` (None: of any name) left by a process of this machine that is no longer
+    running (killed, crashed); return their paths. A temporary whose process runs (or may: the
+    pid of another user) is kept; so is one of another machine. Errors are ignored (best effort:
+    the next command tries again)."""
+    removed = []
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return removed
+    for entry in entries:
+        m = _TEMPORARY.match(entry.name)
+        if m is None or (name is not None and m["name"] != name) or m["host"] not in (None, HOST):
+            continue
+        if _alive(int(m["pid"])):
+            continue
+        try:
+            if entry.is_dir(follow_symlinks=False):
+                shutil.rmtree(entry.path)
+            else:
+                os.unlink(entry.path)
+        except OSError:
+            continue
+        removed.append(Path(entry.path))
+    return removed
+
+
+@contextlib.contextmanager
+def atomic_folder(folder):
+    """Several files of one folder written as one output: yield a staging folder (hidden, inside
+    ``folder``, which is made if missing); the caller writes its files there under their final
+    names. On normal exit each file is flushed to disk and renamed into ``folder`` (a symlink in
+    ``folder`` is followed; each file is whole, old or new) and the staging folder removed; on
+    any exception, KeyboardInterrupt included, the staging folder is removed (and ``folder``, if
+    this call made it), nothing in ``folder`` having changed. Staging folders of dead processes
+    are swept first (``sweep_orphans``); a file system that refuses the data raises
+    OutputWriteError naming the folder."""
+    folder = Path(folder)
+    made = []
+    for parent in [*reversed(folder.absolute().parents), folder.absolute()]:
+        if not parent.exists():
+            made.append(parent)
+    stage = None
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        sweep_orphans(folder, "stage")
+        with interrupts.held():
+            stage = folder / temporary_name("stage")
+            stage.mkdir()
+        yield stage
+        names = sorted(p.name for p in stage.iterdir())
+        for name in names:
+            fd = os.open(stage / name, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+            output_target(folder / name)        # still a regular file (or absent) at the rename
+        with interrupts.held():
+            for name in names:
+                target = output_target(folder / name)
+                os.replace(stage / name, target)
+                _COMMITTED.append(target)
+            shutil.rmtree(stage, ignore_errors=True)
+            stage = None
+    except BaseException as exc:
+        with interrupts.held():
+            if stage is not None:
+                shutil.rmtree(stage, ignore_errors=True)
+            for parent in reversed(made):
+                with contextlib.suppress(OSError):
+                    parent.rmdir()              # only if empty: what this call made
+        refused = _refused(exc)
+        if refused is not None:
+            raise OutputWriteError(_refusal_message(folder, folder.parent if made else folder, refused, exc,
+                                                    f"the files in {str(folder)!r} are left as they were")) from None
+        raise
+    _fsync_folder(folder)
+
+
+def save_figure(fig, path, **savefig) -> Path:
+    """Write the matplotlib figure ``fig`` to ``path`` atomically (``atomic_output``: a full
+    disk or a Ctrl-C leaves the old image), in the format of the path's suffix (PNG without
+    one); ``savefig``: matplotlib's options (dpi, ...). Returns ``path``."""
+    fmt = Path(path).suffix[1:].lower() or "png"
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, format=fmt, **savefig)
+    return Path(path)
 
 
 @contextlib.contextmanager

@@ -1,0 +1,132 @@
+"""Ctrl-C (SIGINT) at any instant: a command either stops before it commits an output or after,
+never in the middle of a commit, never silently, never killed by the signal.
+
+Python turns SIGINT into a ``KeyboardInterrupt`` raised wherever the main thread happens to be.
+Three places make that unsafe: the commit of a file (the rename onto the target and the removal
+of the temporary: interrupted there, the command cannot tell whether the new file is in place),
+a ``__del__`` or a weakref callback (an exception raised there is printed as "Exception ignored
+in ..." and swallowed: the command goes on and exits 0), and the interpreter's own exit (once
+Python has put the default action back, a SIGINT kills the process by the signal).
+
+``install()`` (the command line, once, in the main thread) replaces Python's SIGINT handler by
+one that counts every SIGINT (``received``) and raises ``KeyboardInterrupt`` unless held;
+``held()`` is a section in which a SIGINT is only counted, and raised as ``KeyboardInterrupt``
+when the outermost held section ends (``uplift_common.files`` holds the commit of every file);
+``hold_for_exit()`` counts from then on without raising and ignores the signal, for a command
+that has finished and only prints and exits. A ``KeyboardInterrupt`` swallowed by a ``__del__``
+or a callback is silent (``sys.unraisablehook``) but still counted: the command line asks
+``received()`` before it exits and exits 130 even when nothing raised.
+
+Usage::
+
+    interrupts.install()
+    try:
+        code = command()
+    except KeyboardInterrupt:
+        code = None
+    interrupts.hold_for_exit()
+    if interrupts.received():
+        ...                                   # one line, exit 130
+    with interrupts.held():                   # a SIGINT in here is raised at its end
+        os.replace(tmp, target)
+"""
+from __future__ import annotations
+
+import contextlib
+import signal
+import sys
+import threading
+
+_state = {"received": 0, "depth": 0, "owed": False, "closing": False}
+
+
+def _handler(signum, frame):
+    _state["received"] += 1
+    if _state["depth"] or _state["closing"]:
+        _state["owed"] = not _state["closing"]
+        return
+    raise KeyboardInterrupt
+
+
+def _unraisable(hook):
+    def unraisable(info):
+        if isinstance(info.exc_value, KeyboardInterrupt):   # a Ctrl-C inside a __del__ or a callback:
+            return                                          # counted by the handler; nothing printed
+        hook(info)
+    return unraisable
+
+
+def _main_thread() -> bool:
+    return threading.current_thread() is threading.main_thread()
+
+
+def install(held: bool = False):
+    """Handle SIGINT as this module says (main thread only; a SIGINT that is ignored, as in a
+    shell's background job, stays ignored) and return the handler it replaces (for
+    ``restore``). The count starts again at zero, unless the handler is already in place (then
+    it is kept: a program that held SIGINT while its modules loaded, ``held=True``, finds the
+    SIGINTs of that time counted). ``held``: hold SIGINT until the next ``install()``."""
+    previous = signal.getsignal(signal.SIGINT) if _main_thread() else None
+    if previous is not _handler:
+        _state.update(received=0, owed=False)
+    _state.update(depth=1 if held else 0, closing=False)
+    if not _main_thread() or previous is signal.SIG_IGN:
+        return previous
+    signal.signal(signal.SIGINT, _handler)
+    if not getattr(sys.unraisablehook, "_uplift", False):
+        hook = _unraisable(sys.unraisablehook)
+        hook._uplift = True
+        sys.unraisablehook = hook
+    return previous
+
+
+def restore(previous) -> None:
+    """Put back the SIGINT handler ``install`` replaced (a command run inside another program,
+    e.g. a test calling the command line's ``main``)."""
+    if _main_thread() and previous is not None:
+        signal.signal(signal.SIGINT, previous)
+    _state.update(depth=0, owed=False, closing=False)
+
+
+def received() -> int:
+    """How many SIGINTs arrived since ``install()`` (raised, held or swallowed alike)."""
+    return _state["received"]
+
+
+@contextlib.contextmanager
+def held():
+    """A section that a SIGINT does not cut: it is counted and raised as ``KeyboardInterrupt``
+    when the outermost held section ends (after it, whole). Outside the main thread, or when
+    ``install`` did not run, the section holds SIGINT all the same (the handler is put in place
+    for its duration)."""
+    if not _main_thread():
+        yield
+        return
+    previous = signal.getsignal(signal.SIGINT)
+    ours = previous is _handler
+    if not ours and previous is signal.default_int_handler:
+        signal.signal(signal.SIGINT, _handler)
+        ours = True
+        restore = True
+    else:
+        restore = False
+    _state["depth"] += 1
+    try:
+        yield
+    finally:
+        _state["depth"] -= 1
+        if restore:
+            signal.signal(signal.SIGINT, previous)
+        if ours and _state["depth"] == 0 and _state["owed"]:
+            _state["owed"] = False
+            if sys.exc_info()[0] is None:      # an error already on its way keeps its message
+                raise KeyboardInterrupt
+
+
+def hold_for_exit(ignore: bool = True) -> None:
+    """From now on a SIGINT is counted, never raised; ``ignore``: then ignored (SIG_IGN, which
+    the interpreter keeps to its end): the process can no longer be cut or killed by it while it
+    prints its last line and exits."""
+    _state["closing"] = True
+    if ignore and _main_thread() and signal.getsignal(signal.SIGINT) is _handler:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
