@@ -301,7 +301,7 @@ def _plausible_samples(path, acc, units: str) -> None:
     quantity = "sample_g" if units == "g" else "sample_ms2"
     bad = np.flatnonzero(np.abs(acc) > PLAUSIBLE[quantity].hi)
     if bad.size:
-        check_plausible(f"{path}: sample {bad[0]} (of {acc.size})", float(acc[bad[0]]), quantity, MotionError)
+        check_plausible(f"{path}: sample {bad[0] + 1} of {acc.size}", float(acc[bad[0]]), quantity, MotionError)
 
 
 def _lines(path: Path) -> list:

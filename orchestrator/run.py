@@ -20,11 +20,10 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-import h5py
 import numpy as np
 from soil_impedance.cache import read_entry, write_entry
 from uplift_common.code import code_digest
-from uplift_common.files import atomic_output, stamp_checksum
+from uplift_common.files import hdf5_output, stamp_checksum
 
 from structure import ConvergenceError, simulate
 from structure.results import RouteResult, Status
@@ -141,7 +140,7 @@ def _native_run_key(lib, blob: bytes, acc) -> str:
 def _keep(path, value: float) -> None:
     """Store a check's answer (atomic, checksummed; a failure only warns: ``write_entry``)."""
     def writer(p):
-        with atomic_output(p) as tmp, h5py.File(tmp, "w") as h:
+        with hdf5_output(p) as h:
             h.attrs["max_uplift_m"] = value
             stamp_checksum(h)
     write_entry(path, writer)

@@ -164,16 +164,25 @@ def committed() -> list:
     return list(_COMMITTED)
 
 
+#: how HDF5 reports the errno of a failed write in its messages (h5py raises them as OSError
+#: or RuntimeError without an errno attribute): "file write failed: ..., errno = 28, ..."
+_HDF5_ERRNO = re.compile(r"errno = (\d+)")
+
+
 def _refused(exc):
     """The errno of REFUSED_ERRNOS behind ``exc`` (itself or an exception it was raised from or
-    while handling), or None."""
+    while handling; an OSError's errno, or the errno an HDF5 message quotes), or None."""
     seen = set()
     while exc is not None and id(exc) not in seen:
         seen.add(id(exc))
-        if isinstance(exc, OutputWriteError):
+        if isinstance(exc, (OutputWriteError, KeyboardInterrupt)):
             return None
         if isinstance(exc, OSError) and exc.errno in REFUSED_ERRNOS:
             return exc.errno
+        if isinstance(exc, (OSError, RuntimeError)):
+            quoted = [int(n) for n in _HDF5_ERRNO.findall(str(exc)) if int(n) in REFUSED_ERRNOS]
+            if quoted:
+                return quoted[0]
         exc = exc.__cause__ or exc.__context__
     return None
 
@@ -306,6 +315,33 @@ def atomic_folder(folder):
                                                     f"the files in {str(folder)!r} are left as they were")) from None
         raise
     _fsync_folder(folder)
+
+
+@contextlib.contextmanager
+def hdf5_output(path):
+    """Yield an ``h5py.File`` open for writing in memory (HDF5's core driver, no backing store);
+    on normal exit its image is written to ``path`` in one write of this process
+    (``write_image``: atomically, ``atomic_output``). HDF5 itself never writes to the disk: a
+    disk that fills raises a clean OutputWriteError here, whereas an HDF5 file whose writes fail
+    leaves the library in a broken state (errors printed as objects are freed, then a crash at
+    the process's exit). The caller stamps the checksum last (``stamp_checksum``), as usual."""
+    f = h5py.File(f"uplift-in-memory-{os.getpid()}-{os.urandom(8).hex()}.h5", "w", driver="core",
+                  backing_store=False)
+    try:
+        yield f
+        f.flush()
+        image = f.id.get_file_image()
+    finally:
+        f.close()
+    write_image(path, image)
+
+
+def write_image(path, data) -> Path:
+    """Write the bytes ``data`` (e.g. an HDF5 file image made in memory) to ``path`` atomically
+    (``atomic_output``); returns ``path``."""
+    with atomic_output(path) as tmp, open(tmp, "wb") as out:
+        out.write(data)
+    return Path(path)
 
 
 def save_figure(fig, path, **savefig) -> Path:
@@ -484,8 +520,9 @@ def stamp_checksum(f: h5py.File) -> str:
 
 
 def stamp_file(path) -> str:
-    """Stamp the checksum of the HDF5 file ``path`` in place (a file written by another library,
-    e.g. xarray, before it is renamed into place) and return it."""
+    """Stamp the checksum of the HDF5 file ``path`` (or file-like object: an image in memory) in
+    place (a file written by another library, e.g. xarray, before it is renamed into place) and
+    return it."""
     with h5py.File(path, "r+") as f:
         return stamp_checksum(f)
 
