@@ -344,7 +344,8 @@ def main(argv=None) -> int:
         try:
             if interrupts.received():             # a Ctrl-C while the modules loaded
                 raise KeyboardInterrupt
-            outcome = _run(sys.argv[1:] if program else list(argv))
+            argv = sys.argv[1:] if program else list(argv)
+            outcome = _run(argv)
         finally:
             interrupts.hold_for_exit(ignore=program)
     except KeyboardInterrupt:
@@ -352,7 +353,7 @@ def main(argv=None) -> int:
     interrupts.hold_for_exit(ignore=program)
     try:
         if interrupts.received() or outcome is None:
-            print(_interrupted_line(committed()[before:]), file=sys.stderr)
+            print(_interrupted_line(committed()[before:], "ensemble" in (argv or ())[:1]), file=sys.stderr)
             return EXIT_INTERRUPTED
         code, message = outcome
         if message:
@@ -363,7 +364,7 @@ def main(argv=None) -> int:
             interrupts.restore(previous)
 
 
-def _interrupted_line(written) -> str:
+def _interrupted_line(written, ensemble: bool = False) -> str:
     """The one line of an interrupted command: which outputs it had written (whole) before the
     Ctrl-C, if any; the cache's entries and an ensemble's finished cells are not outputs."""
     cache = default_cache_dir().resolve()
@@ -372,7 +373,8 @@ def _interrupted_line(written) -> str:
         return (f"uplift: interrupted after writing {', '.join(map(str, dict.fromkeys(outputs)))} (whole: the "
                 "new output was committed); nothing else was written")
     return ("uplift: interrupted before the output was committed: nothing was written, a previous file at the "
-            "output path is left as it was (an ensemble keeps its finished runs for a rerun)")
+            "output path is left as it was" + (" (the finished runs are kept in <output>.cells/ for a rerun)"
+                                               if ensemble else ""))
 
 
 def _run(argv) -> tuple:

@@ -6,6 +6,17 @@ under a unique temporary name in the target folder and renamed onto the target o
 complete (``os.replace`` is atomic on one file system): a reader sees the old file or the new
 one, never a mix, and concurrent writers each succeed (the last one wins).
 
+Orphans, full disks, Ctrl-C. A temporary is named ``.<name>.<host>-<pid>.<random>.tmp``; one
+left by a process that died (kill -9, a crash) is removed by the next write to the same file
+(``sweep_orphans``, once per folder and process: its pid no longer runs on this machine). The several files of one output
+folder (an export, a report) are written in a staging folder and moved in together
+(``atomic_folder``). A file system that refuses the data (no space left, a quota, a file size
+limit, an I/O error) raises ``OutputWriteError`` naming the path and the space left, nothing
+written; HDF5 files are made in memory and written in one write of this process
+(``hdf5_output``), so that HDF5 never meets the error itself. The rename and the clean-up are
+held against Ctrl-C (``uplift_common.interrupts``), and ``committed()`` lists what was renamed
+into place (what an interrupted command did write, whole).
+
 Output paths. A rename replaces whatever the name points at: a device, a FIFO or a socket
 would be destroyed and a symlink turned into a plain file. ``output_target`` refuses a path
 that exists and is not a regular file (``OutputPathError``), and follows a symlink: the file
@@ -18,10 +29,11 @@ one whose content no longer matches (``ChangedFileError``: it changed since it w
 
 Usage::
 
-    with atomic_output(path) as tmp:
-        with h5py.File(tmp, "w") as f:
-            ...                              # write datasets and attributes
-            stamp_checksum(f)
+    with hdf5_output(path) as f:             # in memory, then atomic_output
+        ...                                  # write datasets and attributes
+        stamp_checksum(f)
+    with atomic_output(path) as tmp:         # any other file
+        tmp.write_text(text)
     with h5py.File(path, "r") as f:
         require_checksum(f, path)            # ChangedFileError if it changed
     with atomic_update(path) as tmp:         # append to a stamped file: a verified copy,
@@ -105,7 +117,7 @@ def atomic_output(path):
     temporary name (``temporary_name``: host, pid and a random suffix). The rename and the
     removal are held against Ctrl-C (``uplift_common.interrupts.held``: a SIGINT there is raised
     after them). Temporaries of the same target left by a process that died (kill -9, a power
-    cut) are removed first (``sweep_orphans``). A file system that refuses the data (full,
+    cut) are removed first (``sweep_orphans``, once per folder and process). A file system that refuses the data (full,
     quota, file size limit, I/O error) raises OutputWriteError naming the path. Raises
     OutputFolderError if the folder is missing.
     """
@@ -114,7 +126,7 @@ def atomic_output(path):
     if not folder.is_dir():
         raise OutputFolderError(f"cannot write {path}: folder {folder} does not exist "
                                 "(create it first or choose another path)")
-    sweep_orphans(folder, target.name)
+    _sweep_once(folder)
     tmp = None
     try:
         with interrupts.held():                 # created and recorded at once: never left unnamed
@@ -214,6 +226,18 @@ HOST = hashlib.sha256(socket.gethostname().encode()).hexdigest()[:8]
 _TEMPORARY = re.compile(r"^\.(?P<name>.+)\.(?:(?P<host>[0-9a-f]{8})-)?(?P<pid>\d+)\.[A-Za-z0-9_]+\.tmp$")
 
 
+_SWEPT: set = set()
+
+
+def _sweep_once(folder) -> None:
+    """``sweep_orphans(folder)``, once per folder and process (the orphans of dead processes do
+    not come back; an ensemble writes thousands of cells into one folder)."""
+    key = os.path.realpath(folder)
+    if key not in _SWEPT:
+        _SWEPT.add(key)
+        sweep_orphans(folder)
+
+
 def _temporary_prefix(name: str) -> str:
     return f".{name}.{HOST}-{os.getpid()}."
 
@@ -237,11 +261,13 @@ def _alive(pid: int) -> bool:
 
 
 def sweep_orphans(folder, name: str | None = None) -> list:
-    """Remove from ``folder`` the temporaries (``temporary_name``, or the older form without the
-    host) of ``name`` (None: of any name) left by a process of this machine that is no longer
-    running (killed, crashed); return their paths. A temporary whose process runs (or may: the
-    pid of another user) is kept; so is one of another machine. Errors are ignored (best effort:
-    the next command tries again)."""
+    """Remove from ``folder`` the temporaries (``temporary_name``) of ``name`` (None: of any
+    name) left by a process of this machine that is no longer running (killed, crashed); return
+    their paths. The older form without the host (``.<name>.<pid>.<random>.tmp``, written before)
+    is removed as well when it is of ``name``, or (``name`` None) when the file it was for
+    exists beside it. A temporary whose process runs (or may: the pid of another user) is kept;
+    so is one of another machine. Errors are ignored (best effort: the next command tries
+    again)."""
     removed = []
     try:
         entries = list(os.scandir(folder))
@@ -250,6 +276,8 @@ def sweep_orphans(folder, name: str | None = None) -> list:
     for entry in entries:
         m = _TEMPORARY.match(entry.name)
         if m is None or (name is not None and m["name"] != name) or m["host"] not in (None, HOST):
+            continue
+        if m["host"] is None and name is None and not os.path.lexists(os.path.join(folder, m["name"])):
             continue
         if _alive(int(m["pid"])):
             continue
@@ -282,7 +310,7 @@ def atomic_folder(folder):
     stage = None
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        sweep_orphans(folder, "stage")
+        _sweep_once(folder)
         with interrupts.held():
             stage = folder / temporary_name("stage")
             stage.mkdir()

@@ -87,14 +87,16 @@ def test_temporaries_of_a_killed_writer_are_swept_by_the_next_write(kind, tmp_pa
     assert p.returncode == -signal.SIGKILL
     left = _temporaries(where)
     assert len(left) == 1 and old.read_bytes() == OLD                  # the old file whole, the temporary left
-    # temporaries of a live process, of another machine, of another file: kept
+    # temporaries of a live process, of another machine: kept; of a dead one, for another file: swept too
     live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
     try:
         name = "out.h5" if kind == "file" else "stage"
-        kept = [f".{name}.{files.HOST}-{live.pid}.abcdef.tmp", f".{name}.00000000-{_dead_pid()}.abcdef.tmp",
-                f".other.h5.{files.HOST}-{_dead_pid()}.abcdef.tmp"]
-        for k in kept:
+        kept = [f".{name}.{files.HOST}-{live.pid}.abcdef.tmp", f".{name}.00000000-{_dead_pid()}.abcdef.tmp"]
+        for k in kept + [f".other.h5.{files.HOST}-{_dead_pid()}.abcdef.tmp"]:
             (where / k).write_bytes(b"x")
+        kept.append(f".gone.h5.{_dead_pid()}.abcdef.tmp")  # the older form, no host: kept while gone.h5 is absent
+        (where / kept[-1]).write_bytes(b"x")
+        files._SWEPT.clear()                       # this test process has swept the folder before
         if kind == "file":
             with atomic_output(out) as tmp:
                 tmp.write_bytes(b"new")
@@ -105,9 +107,10 @@ def test_temporaries_of_a_killed_writer_are_swept_by_the_next_write(kind, tmp_pa
     finally:
         live.kill()
         live.wait()
-    # the live process gone, a sweep of every name removes its temporary and the other file's; never
-    # the other machine's
-    assert sorted(p.name for p in sweep_orphans(where)) == sorted([kept[0], kept[2]])
+    # the live process gone, a sweep removes its temporary; never the other machine's
+    assert [p.name for p in sweep_orphans(where)] == [kept[0]]
+    (where / "gone.h5").write_bytes(b"")           # the older form goes once its file is there
+    assert [p.name for p in sweep_orphans(where)] == [kept[2]]
     assert _temporaries(where) == [kept[1]]
 
 
