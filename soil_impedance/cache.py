@@ -84,5 +84,6 @@ def write_entry(path, writer) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
         writer(path)
     except (OSError, OutputWriteError) as exc:
-        warnings.warn(CacheWarning(f"could not write cache entry {path} ({exc}); continuing without it"),
+        why = exc.reason if isinstance(exc, OutputWriteError) else exc
+        warnings.warn(CacheWarning(f"could not write cache entry {path} ({why}); continuing without it"),
                       stacklevel=3)

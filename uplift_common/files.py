@@ -152,7 +152,8 @@ def atomic_output(path):
                     tmp.unlink()
         refused = _refused(exc)
         if refused is not None:
-            raise OutputWriteError(_refusal_message(path, folder, refused, exc)) from None
+            raise OutputWriteError(_refusal_message(path, folder, refused, exc), refused,
+                                   _reason(folder, refused)) from None
         raise
     _fsync_folder(folder)
 
@@ -160,7 +161,12 @@ def atomic_output(path):
 class OutputWriteError(UserInputError):
     """The file system refused the data of an output (no space left, a quota, a file size
     limit, an I/O error): nothing was written, a previous file at the path is left as it was.
-    The command line exits 3 (orchestrator.exit_codes.EXIT_WRITE)."""
+    The command line exits 3 (orchestrator.exit_codes.EXIT_WRITE). ``errno``: the refusal's
+    (REFUSED_ERRNOS); ``reason``: it in words, with the space left (for a shorter message)."""
+
+    def __init__(self, message: str, code: int | None = None, reason: str = ""):
+        super().__init__(message)
+        self.errno, self.reason = code, reason or message
 
 
 #: errno values of a file system that refuses data (not a bad path: those are refused before)
@@ -199,15 +205,19 @@ def _refused(exc):
     return None
 
 
-def _refusal_message(path, folder: Path, code: int, exc, left: str = "") -> str:
-    left = left or f"a previous {Path(path).name} is left as it was"
+def _reason(folder: Path, code: int) -> str:
+    """The refusal in words and the space left on the folder's file system (when known)."""
     free = ""
     with contextlib.suppress(OSError):
         st = os.statvfs(folder)
         free = f"; {_size(st.f_bavail * st.f_frsize)} free on its file system"
-    return (f"cannot write {str(path)!r}: {REFUSED_ERRNOS[code]} ({type(exc).__name__}, errno "
-            f"{errno.errorcode.get(code, code)}){free}; free some space (or choose another path) and run "
-            f"the command again: nothing was written, {left}")
+    return f"{REFUSED_ERRNOS[code]} (errno {errno.errorcode.get(code, code)}){free}"
+
+
+def _refusal_message(path, folder: Path, code: int, exc, left: str = "") -> str:
+    left = left or f"a previous {Path(path).name} is left as it was"
+    return (f"cannot write {str(path)!r}: {_reason(folder, code)}; free some space (or choose another path) and "
+            f"run the command again: nothing was written, {left}")
 
 
 def _size(n: int) -> str:
@@ -337,10 +347,12 @@ def atomic_folder(folder):
             for parent in reversed(made):
                 with contextlib.suppress(OSError):
                     parent.rmdir()              # only if empty: what this call made
-        refused = _refused(exc)
+        refused = exc.errno if isinstance(exc, OutputWriteError) else _refused(exc)   # a file of the stage's
         if refused is not None:
-            raise OutputWriteError(_refusal_message(folder, folder.parent if made else folder, refused, exc,
-                                                    f"the files in {str(folder)!r} are left as they were")) from None
+            where = folder.parent if made else folder
+            raise OutputWriteError(_refusal_message(folder, where, refused, exc, "the files in "
+                                                    f"{str(folder)!r} are left as they were"), refused,
+                                   _reason(where, refused)) from None
         raise
     _fsync_folder(folder)
 
@@ -366,9 +378,17 @@ def hdf5_output(path):
 
 def write_image(path, data) -> Path:
     """Write the bytes ``data`` (e.g. an HDF5 file image made in memory) to ``path`` atomically
-    (``atomic_output``); returns ``path``."""
-    with atomic_output(path) as tmp, open(tmp, "wb") as out:
-        out.write(data)
+    (``atomic_output``); returns ``path``. A refusal (OutputWriteError) says the space needed."""
+    try:
+        with atomic_output(path) as tmp, open(tmp, "wb") as out:
+            out.write(data)
+    except OutputWriteError as exc:
+        need = f"{_size(len(data))} needed"
+        text, reason = str(exc), exc.reason
+        if "free on its file system" in text:
+            text = text.replace("free on its file system", f"free on its file system, {need}", 1)
+            reason = reason.replace("free on its file system", f"free on its file system, {need}", 1)
+        raise OutputWriteError(text, exc.errno, reason) from None
     return Path(path)
 
 

@@ -39,6 +39,7 @@ from soil_impedance.cache import CacheWarning, write_entry
 from uplift_common.files import OutputWriteError, atomic_folder, atomic_output, stamp_checksum, sweep_orphans
 from uplift_common.ranges import MAX_LAYERS, MAX_STRUCTURE_NODES, PLAUSIBLE, plausible_range
 from helpers import ROOT, changed, tower, write_scene
+from helpers.scenes import export_tower
 
 POSIX = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals and resource limits")
 #: the small tower on explicit Winkler moduli (no BEM): a run takes about a second
@@ -161,7 +162,7 @@ def test_atomic_output_on_a_full_disk(point, tmp_path, monkeypatch):
         if point == "write":
             _enospc()
         stamp_checksum(f)
-    assert re.search(rf"cannot write '{re.escape(str(out))}': no space left on device \(OSError, errno ENOSPC\); "
+    assert re.search(rf"cannot write '{re.escape(str(out))}': no space left on device \(errno ENOSPC\); "
                      r"[0-9.]+ \w+ free on its file system; .* a previous out.h5 is left as it was", str(err.value))
     assert out.read_bytes() == OLD and _temporaries(tmp_path) == []
 
@@ -198,7 +199,8 @@ def results(tmp_path_factory):
 def _old_outputs(tmp_path):
     """The outputs of every writing command, each holding OLD (a report folder with its page)."""
     (tmp_path / "rep").mkdir()
-    for name in ("out.h5", "s2.toml", "p.h5", "rep/report.html"):
+    (tmp_path / "exp").mkdir()
+    for name in ("out.h5", "s2.toml", "p.h5", "imp.h5", "rep/report.html", "exp/structure.fmu"):
         (tmp_path / name).write_bytes(OLD)
 
 
@@ -207,6 +209,8 @@ FULL_DISK = {                      # command -> (argv in tmp_path, the file it w
     "scene": (lambda d, r: ["scene", "reactor", "-o", "s2.toml"], "s2.toml"),
     "pushover": (lambda d, r: ["pushover", "s.toml", "--soil", "winkler", "--steps", "4", "-o", "p.h5"], "p.h5"),
     "report": (lambda d, r: ["report", str(r), "-o", "rep"], "rep/report.html"),
+    "impedance": (lambda d, r: ["impedance", "x.toml", "-o", "imp.h5"], "imp.h5"),
+    "export": (lambda d, r: ["export", "x.toml", "--kind", "python", "-o", "exp"], "exp/structure.fmu"),
 }
 
 
@@ -216,6 +220,7 @@ def test_full_disk_is_a_clean_error_of_every_writing_command(command, results, t
     line naming the path, the old output as it was, no temporary or staging folder left."""
     monkeypatch.chdir(tmp_path)
     write_scene(tmp_path / "s.toml", WINKLER)
+    write_scene(tmp_path / "x.toml", export_tower())          # a small BEM scene: impedance, export
     _old_outputs(tmp_path)
     argv, target = FULL_DISK[command]
     before = sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*"))
@@ -223,13 +228,17 @@ def test_full_disk_is_a_clean_error_of_every_writing_command(command, results, t
     capsys.readouterr()
     assert main(argv(tmp_path, results)) == EXIT_WRITE
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) - sum(ln.startswith(("wrote", "run ", "pushover ", "fit ")) for ln in err) == 1, err
+    progress = ("wrote", "run ", "pushover ", "fit ", "impedance ", "  ")
+    assert len(err) - sum(ln.startswith(progress) for ln in err) == 1, err
     assert err[-1].startswith("uplift: error: cannot write") and "no space left on device" in err[-1], err
-    assert (target.partition("/")[0] in err[-1]) and "Traceback" not in "\n".join(err)
+    named = "exp'" if command == "export" else "rep'" if command == "report" else f"{target}'"   # the output, not a stage
+    assert f"cannot write '{named}" in err[-1] or f"/{named}" in err[-1], err
+    assert ".tmp" not in err[-1] and "Traceback" not in "\n".join(err)
     assert (tmp_path / target).read_bytes() == OLD
     assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before          # nothing partial
 
 
+@pytest.mark.slow                        # a local dask cluster: about 10 s
 def test_full_disk_at_the_ensemble_write(tmp_path, monkeypatch, capsys):
     """The ensemble file cannot be written: exit 3, the old file as it was, the finished cells
     kept in <output>.cells for a rerun."""
@@ -261,6 +270,7 @@ def _file_size_limit(limit):
 
 
 @POSIX
+@pytest.mark.slow                        # two commands in child processes: about 8 s
 def test_a_real_file_size_limit_in_a_child_process(results, tmp_path):
     """The kernel refuses the data (RLIMIT_FSIZE: writes past 64 KiB fail with EFBIG, as a full
     disk fails with ENOSPC): `uplift run -o` and `uplift report -o` exit 3 with one line, the
@@ -328,6 +338,7 @@ def test_ctrl_c_while_exiting_does_not_kill_by_the_signal(tmp_path):
 
 
 @POSIX
+@pytest.mark.slow                        # a local dask cluster: about 10 s
 def test_ctrl_c_at_the_ensemble_write_keeps_the_old_file_and_the_cells(tmp_path):
     write_scene(tmp_path / "s.toml", WINKLER)
     (tmp_path / "e.h5").write_bytes(OLD)
