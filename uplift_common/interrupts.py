@@ -96,9 +96,11 @@ def received() -> int:
 @contextlib.contextmanager
 def held():
     """A section that a SIGINT does not cut: it is counted and raised as ``KeyboardInterrupt``
-    when the outermost held section ends (after it, whole). Outside the main thread, or when
-    ``install`` did not run, the section holds SIGINT all the same (the handler is put in place
-    for its duration)."""
+    when the outermost held section ends (after it, whole; when an exception is already on its
+    way out of the section, that one goes on, and ``received`` still tells). When ``install``
+    did not run, the handler is put in place for the section's duration (unless SIGINT is
+    ignored or handled by someone else). Outside the main thread nothing is needed: Python
+    raises KeyboardInterrupt in the main thread only."""
     if not _main_thread():
         yield
         return
