@@ -17,9 +17,10 @@ import sys
 
 from uplift_common import interrupts
 
-if __name__ == "__main__" or sys.argv[0].endswith(("/uplift", "\\uplift", "uplift.exe")):
+if interrupts.started_as("orchestrator.cli", "uplift"):
     # the program itself (not a test importing it): a Ctrl-C while the modules below load (a
-    # second or two) is counted, not raised mid-import; main() then stops at once (exit 130)
+    # second or two) is counted, not raised mid-import; main() then stops at once (exit 130).
+    # orchestrator/__init__.py did it already (before this module's source was even compiled)
     interrupts.install(held=True)
 
 import argparse

@@ -56,6 +56,20 @@ def _unraisable(hook):
     return unraisable
 
 
+def started_as(module: str, script: str) -> bool:
+    """True when this process is the program ``python -m <module>`` or its console script
+    ``<script>`` (the interpreter's own command line, ``sys.orig_argv``): a module may then hold
+    SIGINT while it loads (``install(held=True)``), since its ``main`` installs the handler."""
+    argv = list(getattr(sys, "orig_argv", sys.argv))
+    for i, arg in enumerate(argv[1:], start=1):
+        if arg == "-m":
+            return argv[i + 1:i + 2] == [module]
+        if not arg.startswith("-"):              # the script the interpreter runs
+            name = arg.replace("\\", "/").rpartition("/")[2]
+            return name in (script, f"{script}.exe", f"{script}-script.py")
+    return False
+
+
 def _main_thread() -> bool:
     return threading.current_thread() is threading.main_thread()
 
