@@ -5,8 +5,12 @@ from __future__ import annotations
 import concurrent.futures
 import logging
 import math
+import multiprocessing.spawn as spawn
 import os
+import shlex
+import shutil
 import signal
+import tempfile
 import threading
 from contextlib import contextmanager
 
@@ -138,10 +142,6 @@ def _workers_ignore_sigint():
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    import multiprocessing.spawn as spawn  # start-up cost: only a local cluster
-    import shlex                            # (same)
-    import shutil                           # (same)
-    import tempfile                         # (same)
     if os.name == "posix" and os.path.exists("/bin/sh"):
         folder = tempfile.mkdtemp(prefix="uplift_workers_")
         wrapper = os.path.join(folder, "python")
