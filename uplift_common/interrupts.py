@@ -108,13 +108,15 @@ def received() -> int:
 
 
 @contextlib.contextmanager
-def held():
+def held(defer: bool = False):
     """A section that a SIGINT does not cut: it is counted and raised as ``KeyboardInterrupt``
     when the outermost held section ends (after it, whole; when an exception is already on its
     way out of the section, that one goes on, and ``received`` still tells). When ``install``
     did not run, the handler is put in place for the section's duration (unless SIGINT is
     ignored or handled by someone else). Outside the main thread nothing is needed: Python
-    raises KeyboardInterrupt in the main thread only."""
+    raises KeyboardInterrupt in the main thread only. ``defer``: the SIGINT of the section is
+    not raised at its end but by the next ``raise_owed()`` (e.g. once what the section built is
+    in a ``with`` that will shut it down)."""
     if not _main_thread():
         yield
         return
@@ -133,10 +135,17 @@ def held():
         _state["depth"] -= 1
         if restore:
             signal.signal(signal.SIGINT, previous)
-        if ours and _state["depth"] == 0 and _state["owed"]:
+        if ours and _state["depth"] == 0 and _state["owed"] and not defer:
             _state["owed"] = False
             if sys.exc_info()[0] is None:      # an error already on its way keeps its message
                 raise KeyboardInterrupt
+
+
+def raise_owed() -> None:
+    """Raise the KeyboardInterrupt of a SIGINT that a ``held(defer=True)`` section took, if any."""
+    if _state["owed"] and not _state["depth"]:
+        _state["owed"] = False
+        raise KeyboardInterrupt
 
 
 def hold_for_exit(ignore: bool = True) -> None:

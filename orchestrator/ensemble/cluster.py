@@ -15,6 +15,7 @@ import threading
 from contextlib import contextmanager
 
 from orchestrator.settings import thread_count
+from uplift_common import interrupts
 
 from .plan import EnsembleError
 from .store import run_cell
@@ -123,10 +124,20 @@ def _client(workers, scheduler, log, timeout: float = CONNECT_TIMEOUT_S):
     n = str(thread_count())
     env = {"UPLIFT_THREADS": n, "OMP_NUM_THREADS": n, "OPENBLAS_NUM_THREADS": n, "MKL_NUM_THREADS": n}
     with _workers_ignore_sigint():
-        with dask.config.set(LOCAL_WORKER_CONFIG):
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=None, silence_logs=logging.CRITICAL, env=env)
-        with cluster, Client(cluster) as client:
+        # a Ctrl-C while the cluster starts is raised once it is in the `with` that shuts it down
+        # (raised inside LocalCluster's constructor, it left a half-made cluster that dask's exit
+        # handler then failed to close, with a traceback)
+        with interrupts.held(defer=True):
+            with dask.config.set(LOCAL_WORKER_CONFIG):
+                cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                       dashboard_address=None, silence_logs=logging.CRITICAL, env=env)
+            try:
+                client = Client(cluster)
+            except BaseException:
+                cluster.close()
+                raise
+        with cluster, client:
+            interrupts.raise_owed()
             yield client
 
 
