@@ -61,12 +61,20 @@ def started_as(module: str, script: str) -> bool:
     ``<script>`` (the interpreter's own command line, ``sys.orig_argv``): a module may then hold
     SIGINT while it loads (``install(held=True)``), since its ``main`` installs the handler."""
     argv = list(getattr(sys, "orig_argv", sys.argv))
-    for i, arg in enumerate(argv[1:], start=1):
+    i = 1
+    while i < len(argv):
+        arg = argv[i]
         if arg == "-m":
             return argv[i + 1:i + 2] == [module]
+        if arg == "-c":
+            return False
+        if arg in ("-X", "-W"):                  # the interpreter's options that take a value
+            i += 2
+            continue
         if not arg.startswith("-"):              # the script the interpreter runs
             name = arg.replace("\\", "/").rpartition("/")[2]
             return name in (script, f"{script}.exe", f"{script}-script.py")
+        i += 1
     return False
 
 

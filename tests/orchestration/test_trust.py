@@ -447,3 +447,37 @@ def test_built_in_and_test_scenes_lie_in_the_ranges():
     for name in builtin_scenes():
         load_scene(name)
     scene_from_dict(tower(), name="tower")
+
+
+@POSIX
+def test_a_held_section_takes_sigint_after_its_end():
+    """In process: a SIGINT inside ``held()`` is raised right after it, not inside; with
+    ``defer`` it waits for ``raise_owed()``; either way ``received`` counts it."""
+    from uplift_common import interrupts
+    previous = interrupts.install()
+    try:
+        done = []
+        with pytest.raises(KeyboardInterrupt), interrupts.held():
+            os.kill(os.getpid(), signal.SIGINT)
+            sum(range(100000))                      # the handler runs here, and only counts
+            done.append("section finished")
+        assert done == ["section finished"] and interrupts.received() == 1
+        with interrupts.held(defer=True):
+            os.kill(os.getpid(), signal.SIGINT)
+            sum(range(100000))
+        done.append("after the deferred section")
+        with pytest.raises(KeyboardInterrupt):
+            interrupts.raise_owed()
+        assert done[-1] == "after the deferred section" and interrupts.received() == 2
+        interrupts.raise_owed()                         # nothing owed any more
+    finally:
+        interrupts.restore(previous)
+
+
+def test_started_as_reads_the_interpreters_command_line(monkeypatch):
+    from uplift_common.interrupts import started_as
+    for argv, expected in ((["python", "-m", "orchestrator.cli", "run"], True), (["python", "-m", "pytest"], False),
+                           (["python", "/venv/bin/uplift", "run"], True), (["python", "-c", "pass"], False),
+                           (["python", "-X", "dev", "/usr/bin/uplift"], True), (["python", "script.py"], False)):
+        monkeypatch.setattr(sys, "orig_argv", argv)
+        assert started_as("orchestrator.cli", "uplift") == expected, argv
