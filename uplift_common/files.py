@@ -36,15 +36,16 @@ Usage::
         tmp.write_text(text)
     with h5py.File(path, "r") as f:
         require_checksum(f, path)            # ChangedFileError if it changed
-    with atomic_update(path) as tmp:         # append to a stamped file: a verified copy,
-        ds.to_netcdf(tmp, mode="a", group="extra", engine="h5netcdf")
-                                             # re-stamped and renamed into place on exit
+    with atomic_update(path) as copy:        # append to a stamped file: a verified copy in
+        ds.to_netcdf(copy, mode="a", group="extra", engine="h5netcdf")
+                                             # memory, re-stamped and written atomically on exit
 """
 from __future__ import annotations
 
 import contextlib
 import errno
 import hashlib
+import io
 import os
 import re
 import shutil
@@ -404,17 +405,18 @@ def save_figure(fig, path, **savefig) -> Path:
 
 @contextlib.contextmanager
 def atomic_update(path):
-    """Append to the stamped HDF5 file ``path``: yield a temporary copy of it for the caller to
-    modify (h5py mode "r+" or "a", xarray ``to_netcdf(mode="a")``), then re-stamp its checksum
-    and rename it onto ``path`` atomically. The file is verified first (ChangedFileError)."""
+    """Append to the stamped HDF5 file ``path``: yield a copy of it in memory (``io.BytesIO``)
+    for the caller to modify (``h5py.File(copy, "r+")``, xarray ``to_netcdf(copy, mode="a",
+    engine="h5netcdf")``), then re-stamp its checksum and write it onto ``path`` atomically
+    (``write_image``: HDF5 never writes to the disk itself, ``hdf5_output``'s reason). The file
+    is verified first (ChangedFileError)."""
     path = Path(path)
     with h5py.File(path, "r") as f:
         require_checksum(f, path)
-    with atomic_output(path) as tmp:
-        shutil.copyfile(output_target(path), tmp)
-        yield tmp
-        with h5py.File(tmp, "r+") as f:
-            stamp_checksum(f)
+    copy = io.BytesIO(output_target(path).read_bytes())
+    yield copy
+    stamp_file(copy)
+    write_image(path, copy.getbuffer())
 
 
 def _fsync_folder(folder) -> None:

@@ -167,6 +167,28 @@ def test_atomic_output_on_a_full_disk(point, tmp_path, monkeypatch):
     assert out.read_bytes() == OLD and _temporaries(tmp_path) == []
 
 
+def test_an_append_on_a_full_disk_leaves_the_file_as_it_was(tmp_path, monkeypatch):
+    """atomic_update (`uplift fragility` storing its fits in the ensemble file): the append is
+    made in memory; the disk refuses the new image: OutputWriteError, the file byte for byte."""
+    from uplift_common.files import atomic_update, hdf5_output, require_checksum
+    path = tmp_path / "e.h5"
+    with hdf5_output(path) as f:
+        f["a"] = np.arange(5.0)
+        stamp_checksum(f)
+    before = path.read_bytes()
+    monkeypatch.setattr(os, "fsync", _enospc)
+    with pytest.raises(OutputWriteError, match="cannot write .*e.h5': no space left on device"), \
+            atomic_update(path) as copy, h5py.File(copy, "r+") as f:
+        f["b"] = np.arange(1e5)
+    assert path.read_bytes() == before and _temporaries(tmp_path) == []
+    monkeypatch.undo()
+    with atomic_update(path) as copy, h5py.File(copy, "r+") as f:
+        f["b"] = np.arange(3.0)
+    with h5py.File(path, "r") as f:
+        require_checksum(f, path)
+        assert list(f) == ["a", "b"]
+
+
 def test_atomic_folder_on_a_full_disk_leaves_no_folder_it_made(tmp_path, monkeypatch):
     monkeypatch.setattr(os, "fsync", _enospc)
     with pytest.raises(OutputWriteError, match="nothing was written"), \
