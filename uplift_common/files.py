@@ -260,8 +260,15 @@ def temporary_name(name: str) -> str:
 
 
 def _alive(pid: int) -> bool:
+    """Whether process ``pid`` may be running (True when it cannot be told)."""
     if pid == os.getpid():
         return True
+    if os.name == "nt":                          # os.kill(pid, 0) would terminate it there
+        try:
+            import psutil  # not everywhere: only Windows needs it here
+        except ImportError:
+            return True
+        return psutil.pid_exists(pid)
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
