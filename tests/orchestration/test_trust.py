@@ -376,6 +376,25 @@ def test_ctrl_c_at_the_ensemble_write_keeps_the_old_file_and_the_cells(tmp_path)
     assert len(list((tmp_path / "e.h5.cells").iterdir())) == 2          # finished runs kept for a rerun
 
 
+@POSIX
+@pytest.mark.slow                        # a local dask cluster: about 10 s
+def test_ctrl_c_while_the_cluster_starts_is_not_lost(tmp_path):
+    """SIGINT as the local cluster's workers start (sent from inside LocalCluster's constructor):
+    exit 130, one line, no traceback of a half-made cluster at exit, no worker left (it was
+    ignored there, and the ensemble ran on to exit 0)."""
+    write_scene(tmp_path / "s.toml", WINKLER)
+    (tmp_path / "e.h5").write_bytes(OLD)
+    hook = ("import distributed\ninit = distributed.LocalCluster.__init__\n"
+            "def starting(self, *a, **k):\n    sigint()\n    init(self, *a, **k)\n"
+            "distributed.LocalCluster.__init__ = starting\n")
+    p = _cli(SIGINT_SELF + hook, ["ensemble", "s.toml", "--seeds", "1", "--pga", "0.3", "--workers", "1", "-o", "e.h5"],
+             tmp_path)
+    err = p.stderr.strip().splitlines()
+    assert p.returncode == EXIT_INTERRUPTED, p.stderr
+    assert err[-1].startswith("uplift: interrupted before the output was committed"), p.stderr
+    assert "Traceback" not in p.stderr and (tmp_path / "e.h5").read_bytes() == OLD
+
+
 # ---- absurd magnitudes ----------------------------------------------------------------------------
 
 ABSURD = {                          # name -> (section changes of the tower, key named, quantity)
