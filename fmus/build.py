@@ -18,7 +18,6 @@ variability) and forwards the legal calls to pythonfmu's, shipped beside it.
 from __future__ import annotations
 
 import json
-import shutil
 import sys
 import tempfile
 import xml.etree.ElementTree as ET
@@ -33,6 +32,7 @@ from fmus.coupling import history_gains
 from fmus.pyguard import install_guard
 from fmus.resources import (DEFAULT_SOIL_FACTORY, MESH_FILE, MOTION_FILE, REQUIREMENTS_FILE, SOIL_INSTANT_FILE,
                             SOIL_MODEL_FILE, save_rational, soil_from_model)
+from uplift_common.files import atomic_output
 
 HERE = Path(__file__).resolve().parent
 OPTIONS = dict(canHandleVariableCommunicationStepSize=False, canGetAndSetFMUstate=True,
@@ -181,11 +181,9 @@ def fix_model_description(fmu_path, guard: bool = False) -> None:
     items["modelDescription.xml"] = ET.tostring(root, encoding="UTF-8", xml_declaration=True)
     if guard:
         items = install_guard(items, identifier)
-    tmp = fmu_path.with_suffix(".tmp")
-    with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
+    with atomic_output(fmu_path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as z:
         for name, blob in items.items():
             z.writestr(name, blob, compress_type=_compression(name))
-    shutil.move(tmp, fmu_path)
 
 
 def _compression(name: str) -> int:

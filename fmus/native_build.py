@@ -38,7 +38,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import os
-import shutil
 import struct
 import subprocess
 import sys
@@ -56,6 +55,7 @@ from fmus.coupling import history_gains
 from fmus.resources import DEFAULT_SOIL_FACTORY, soil_from_model
 from fmus.schema import ROLES, UNITS, slot_table, variables, variables3
 from uplift_common.errors import ComputationError
+from uplift_common.files import atomic_output
 
 if TYPE_CHECKING:
     from fmus.build import FmuData
@@ -515,8 +515,7 @@ def _zip(path: Path, identifier: str, md: bytes, resources: bytes, binaries: dic
         z.writestr(info, blob)
 
     table = platforms_of(fmi_version)
-    tmp = path.with_name(path.name + ".tmp")
-    with zipfile.ZipFile(tmp, "w") as z:
+    with atomic_output(path) as tmp, zipfile.ZipFile(tmp, "w") as z:
         add(z, "modelDescription.xml", md)
         for platform, blob in binaries.items():
             add(z, f"binaries/{platform}/{identifier}.{table[platform][1]}", blob)
@@ -527,5 +526,4 @@ def _zip(path: Path, identifier: str, md: bytes, resources: bytes, binaries: dic
         if fmi_version == 3:
             add(z, "sources/buildDescription.xml", build_description(identifier))
         add(z, f"resources/{RESOURCE_FILE}", resources, zipfile.ZIP_STORED)   # read at every instantiation
-    shutil.move(tmp, path)
     return path

@@ -37,6 +37,7 @@ from fmus.native_build import (CFLAGS, SOURCES, NativeBuildError, compile_runtim
                                encode_resources, host_platform, soil_records, stepper_records)
 from fmus.schema import ENERGY_TERMS, row_slices, row_width
 from uplift_common.code import code_digest
+from uplift_common.files import atomic_output
 
 #: the C files of the in-process library (the numerics and simulate.c; no FMI side)
 HOST_SOURCES = ("simulate.c", "stepper.c", "soil.c", "linalg.c", "resources.c")
@@ -74,9 +75,8 @@ def _compiled(folder: Path, stem: str, sources) -> Path:
     if not path.is_file():
         blob = compile_runtime((host_platform(),), compiler, sources=sources)[host_platform()]
         folder.mkdir(parents=True, exist_ok=True)
-        tmp = folder / f".{path.name}.{os.getpid()}.{threading.get_ident()}.tmp"
-        tmp.write_bytes(blob)
-        os.replace(tmp, path)                     # atomic: a concurrent build writes the same bytes
+        with atomic_output(path) as tmp:          # a concurrent build writes the same bytes
+            tmp.write_bytes(blob)
     return path
 
 

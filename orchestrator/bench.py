@@ -53,6 +53,7 @@ from structure import Damping, simulate
 from structure.contact import AUTO_FACTOR
 from structure.damping import fixed_base_modes
 from structure.results import RouteResult
+from uplift_common.files import save_figure
 
 from orchestrator.compare import compare
 from orchestrator.impedance import scene_impedance
@@ -415,7 +416,7 @@ def plot_rows(rows, path):
             ax.grid(True, which="both", alpha=0.3)
             if ax.get_legend_handles_labels()[0]:
                 ax.legend(fontsize=8)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)           # atomically (a full disk: OutputWriteError)
     plt.close(fig)
     return Path(path)
 

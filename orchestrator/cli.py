@@ -2,20 +2,32 @@
 
 Exit codes (orchestrator.exit_codes): 0 success; 1 a computation stopped (results written so
 far, reason printed); 2 bad input (scene, file, option, a tool the machine lacks:
-orchestrator.exit_codes); 130 interrupted (Ctrl-C: one line on stderr, no output half-written, a
-previous file at -o left as it was). Every output path is checked before any computation.
+orchestrator.exit_codes); 3 an output could not be written (a full disk, a quota: one line naming
+the path, nothing written, a previous file at -o left as it was); 130 interrupted (Ctrl-C at any
+instant: one line on stderr saying whether the output was committed, no output half-written, a
+previous file at -o left as it was unless the new one was committed whole). Every output path is
+checked before any computation.
 A command's answer (a summary, a table) goes to stdout; machine-readable output (``--json``)
 goes to stdout as exactly one strict JSON object (no NaN or Infinity: ``strict_json``); progress,
 ``wrote ...`` lines and messages go to stderr. This is the only module that prints.
 """
 from __future__ import annotations
 
+import sys
+
+from uplift_common import interrupts
+
+if interrupts.started_as("orchestrator.cli", "uplift"):
+    # the program itself (not a test importing it): a Ctrl-C while the modules below load (a
+    # second or two) is counted, not raised mid-import; main() then stops at once (exit 130).
+    # orchestrator/__init__.py did it already (before this module's source was even compiled)
+    interrupts.install(held=True)
+
 import argparse
 import importlib.util
 import json
 import math
 import os
-import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -25,13 +37,14 @@ from pathlib import Path
 # test_light_commands.py). Only these light modules load here; each command imports what it
 # uses (the scene, the routes' computations, results files, ensembles, plots, reports, fits)
 from orchestrator.ensemble import CONNECT_TIMEOUT_S, DT_CHECKS       # the package's namespace only
-from orchestrator.exit_codes import EXIT_FAILED, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, STOPPED, USER_INPUT
+from orchestrator.exit_codes import (EXIT_FAILED, EXIT_INPUT, EXIT_INTERRUPTED, EXIT_OK, EXIT_WRITE, STOPPED,
+                                     USER_INPUT, WRITE_FAILED)
 from orchestrator.progress import Progress, labelled_bars
 from orchestrator.routes import route_names                          # the names: no route's module
 from orchestrator.scene_base import MAX_PGA_G, SceneError, builtin_scenes, tomllib
 from orchestrator.settings import FMU_KINDS, compute_threads, default_cache_dir
 from uplift_common.errors import UserInputError
-
+from uplift_common.interrupts import REFUSED_ERRNOS, committed
 
 class OptionError(UserInputError):
     """Command-line options that cannot go together; the message says which to drop."""
@@ -117,12 +130,18 @@ def _count(text: str) -> int:
     return v
 
 
+#: the exit codes, as ``uplift --help`` lists them (orchestrator.exit_codes, docs/conventions.md)
+EXIT_CODES_HELP = (f"exit codes: {EXIT_OK} done, {EXIT_FAILED} a computation stopped (results so far written), "
+                   f"{EXIT_INPUT} bad input, {EXIT_WRITE} an output could not be written (disk full: nothing "
+                   f"written, the old file kept), {EXIT_INTERRUPTED} interrupted (Ctrl-C)")
+
+
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="uplift",
         description="Foundation uplift under earthquake: soil-structure interaction with BEM impedances.",
         epilog=f"built-in scenes: {', '.join(builtin_scenes())}; routes: {', '.join(route_names())}; "
-               "`uplift COMMAND --help` for a command's options")
+               f"`uplift COMMAND --help` for a command's options; {EXIT_CODES_HELP}")
     p.add_argument("--version", action=_Version, help="print the version of the installed uplift-ssi and exit")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
@@ -339,36 +358,93 @@ def command_list(parser: argparse.ArgumentParser) -> str:
 
 
 def main(argv=None) -> int:
-    argv = sys.argv[1:] if argv is None else list(argv)
+    """Run the command of ``argv`` (None: the program's arguments) and return its exit code
+    (module docstring). A Ctrl-C at any instant ends in exit 130 and one line saying what was
+    written (``uplift_common.interrupts``); run as the program (``argv`` None), SIGINT is ignored
+    once the outcome is known, so that the process is never killed by it on its way out."""
+    program = argv is None
+    previous = interrupts.install()
+    before = len(committed())
+    outcome = None
+    try:
+        try:
+            if interrupts.received():             # a Ctrl-C while the modules loaded
+                raise KeyboardInterrupt
+            argv = sys.argv[1:] if program else list(argv)
+            outcome = _run(argv)
+        finally:
+            interrupts.hold_for_exit(ignore=program)
+    except KeyboardInterrupt:
+        pass
+    interrupts.hold_for_exit(ignore=program)
+    try:
+        if interrupts.received() or outcome is None:
+            print(_interrupted_line(committed()[before:], "ensemble" in (argv or ())[:1]), file=sys.stderr)
+            return EXIT_INTERRUPTED
+        code, message = outcome
+        if message:
+            print(message, file=sys.stderr)
+        return code
+    finally:
+        if not program:
+            interrupts.restore(previous)
+
+
+def _interrupted_line(written, ensemble: bool = False) -> str:
+    """The one line of an interrupted command: which outputs it had written (whole) before the
+    Ctrl-C, if any; the cache's entries and an ensemble's finished cells are not outputs."""
+    cache = default_cache_dir().resolve()
+    outputs = [p for p in written if cache not in p.resolve().parents and not p.parent.name.endswith(".cells")]
+    if outputs:
+        return (f"uplift: interrupted after writing {', '.join(map(str, dict.fromkeys(outputs)))} (whole: the "
+                "new output was committed); nothing else was written")
+    return ("uplift: interrupted before the output was committed: nothing was written, a previous file at the "
+            "output path is left as it was" + (" (the finished runs are kept in <output>.cells/ for a rerun)"
+                                               if ensemble else ""))
+
+
+def _run(argv) -> tuple:
+    """(exit code, the error line or None) of the command of ``argv``; a KeyboardInterrupt
+    goes through."""
     parser = _parser()
     if not argv:        # no command: the commands, one line each (a missing command is bad input: exit 2)
         print(f"{parser.format_usage()}\ncommands:\n{command_list(parser)}\n\n"
               "`uplift COMMAND --help` for a command's options, `uplift --help` for more\n"
               "uplift: error: give a COMMAND, e.g. uplift run reactor", file=sys.stderr)
-        return EXIT_INPUT
+        return EXIT_INPUT, None
     try:
         args = parser.parse_args(argv)
     except SystemExit as exc:        # argparse: --help (0) or a bad argument (2, message printed)
-        return int(exc.code or 0)
+        return int(exc.code or 0), None
     try:
         if not getattr(args, "computes", True):
-            return args.func(args)
+            return args.func(args), None
         with compute_threads():
-            return args.func(args)
-    except KeyboardInterrupt:
-        print("uplift: interrupted (no output was half-written; an ensemble keeps its finished runs)",
-              file=sys.stderr)
-        return EXIT_INTERRUPTED
+            return args.func(args), None
+    except WRITE_FAILED as exc:       # a full disk: nothing written, the old output intact
+        return EXIT_WRITE, f"uplift: error: {exc}"
     except USER_INPUT as exc:
-        print(f"uplift: error: {exc}", file=sys.stderr)
-        return EXIT_INPUT
+        return EXIT_INPUT, f"uplift: error: {exc}"
     except STOPPED as exc:
-        print(f"uplift: stopped: {exc}", file=sys.stderr)
-        return EXIT_FAILED
+        return EXIT_FAILED, f"uplift: stopped: {exc}"
     except BrokenPipeError:
         # stdout closed early (e.g. piped into `head`): nothing more to say
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return EXIT_OK
+        return EXIT_OK, None
+    except OSError as exc:
+        refused = _refused_write(exc)
+        if refused is None:
+            raise
+        return EXIT_WRITE, refused
+
+
+def _refused_write(exc) -> str | None:
+    """The one line of an OSError of a file system that refused data outside an atomic write
+    (uplift_common.files.REFUSED_ERRNOS), or None."""
+    if exc.errno not in REFUSED_ERRNOS:
+        return None
+    where = f" {exc.filename!r}" if exc.filename else ""
+    return f"uplift: error: cannot write{where}: {REFUSED_ERRNOS[exc.errno]}; free some space and run the command again"
 
 
 def _cache(args):
@@ -901,9 +977,10 @@ def cmd_fragility(args) -> int:
     if not args.no_store:
         _say(f"wrote the group {frag.GROUP!r} of {frag.store_fragility(args.ensemble, fits)}")
     if args.plot is not None:
+        from uplift_common.files import save_figure               # (same)
         plt = pyplot()
         fig = frag.fragility_figure(fits, title=f"{args.ensemble.name}: fragility")
-        fig.savefig(args.plot, dpi=120)
+        save_figure(fig, args.plot, dpi=120)
         plt.close(fig)
         _say(f"wrote {args.plot}")
     out = frag.fragility_json(fits)

@@ -38,7 +38,7 @@ from fmus.bundle import PACKAGES
 from fmus.resources import DEFAULT_SOIL_FACTORY
 from fmus.schema import AG
 from fmus.native_build import FMI_VERSIONS, build_native_fmus
-from uplift_common.files import atomic_output
+from uplift_common.files import atomic_folder, atomic_output
 from structure.spec import contact_table
 
 from orchestrator.impedance import scene_fit
@@ -132,14 +132,20 @@ def export_scene(scene, outdir, soil_model=None, *, dt: float | None = None, mot
         soil_model = scene_fit(scene, cache_dir=cache_dir).model
     data = fmu_data(scene, soil_model, dt, motion, soil_factory, soil_kwargs, extra_modules)
     outdir = Path(outdir)
-    if kind == "native":
-        fmus = build_native_fmus(data, outdir, coupled=True, fmi_version=fmi_version, progress=progress)
-    else:
-        fmus = build_fmus(data, outdir, coupled=True)
     stop = (motion.acc.shape[0] - 1) * dt
-    ssd = write_ssd(outdir / "system.ssd", fmus["structure"], fmus["soil"], dt, stop, name=scene.name)
-    ssp = write_ssp(outdir / "system.ssp", fmus["structure"], fmus["soil"], dt, stop, name=scene.name)
-    return Export(fmus["structure"], fmus["soil"], fmus["coupled"], ssd, ssp, float(dt), float(stop), fmi_version)
+    # the five files are written in a staging folder and moved into outdir together at the end
+    # (uplift_common.files.atomic_folder): an export that fails, is interrupted or killed leaves
+    # outdir as it was
+    with atomic_folder(outdir) as stage:
+        if kind == "native":
+            fmus = build_native_fmus(data, stage, coupled=True, fmi_version=fmi_version, progress=progress)
+        else:
+            fmus = build_fmus(data, stage, coupled=True)
+        write_ssd(stage / "system.ssd", fmus["structure"], fmus["soil"], dt, stop, name=scene.name)
+        write_ssp(stage / "system.ssp", fmus["structure"], fmus["soil"], dt, stop, name=scene.name)
+        names = {role: Path(path).name for role, path in fmus.items()}
+    return Export(*(outdir / names[role] for role in ("structure", "soil", "coupled")), outdir / "system.ssd",
+                  outdir / "system.ssp", float(dt), float(stop), fmi_version)
 
 
 #: outputs of the structure listed as SSD connectors beside the coupling (what an SSP tool records)

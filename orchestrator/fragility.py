@@ -403,7 +403,7 @@ def fragility_json(frag) -> dict:
 def store_fragility(path, frag) -> Path:
     """Write ``frag`` as the group ``fragility`` of the ensemble file ``path`` (replacing an
     earlier one), atomically: the file is verified and copied, the group written into the copy,
-    the copy re-stamped with its checksum and renamed onto ``path`` (``uplift_common.files.atomic_update``)."""
+    the copy (in memory) re-stamped with its checksum and written onto ``path`` (``uplift_common.files.atomic_update``)."""
     path = Path(path)
     with atomic_update(path) as tmp:
         with h5py.File(tmp, "a") as f:

@@ -33,6 +33,7 @@ from structure import G_ACC as G  # m/s^2 per g
 
 from orchestrator.spectra import response_spectrum
 from uplift_common.errors import UserInputError
+from uplift_common.ranges import PLAUSIBLE, check_plausible
 
 _IN = 0.0254
 #: the choices of the [motion] keys (and of the readers' arguments)
@@ -260,6 +261,7 @@ def read_record(path, fmt: str = "two-column", units: str = "g", scale: float = 
         raise MotionError(f"motion.format = {fmt!r}: use \"peer-at2\" or \"two-column\"")
     axis = _axis(direction)
     dt, acc = (_read_at2 if fmt == "peer-at2" else _read_two_column)(path, _lines(path))
+    _plausible_samples(path, acc, units)
     acc = acc * scale * (G if units == "g" else 1.0)
     out = np.zeros((acc.size, 3))
     out[:, axis] = acc
@@ -290,6 +292,16 @@ def read_components(files, fmt: str = "two-column", units: str = "g", scale: flo
     acc = sum(m.acc for m in parts.values())
     label = ", ".join(f"{a}: {Path(files[a]).name}" for a in axes) + f" x{scale:g}"
     return Motion(first.dt, acc, label, axes)
+
+
+def _plausible_samples(path, acc, units: str) -> None:
+    """Refuse (MotionError) a record with a sample beyond the plausible range of its units
+    (uplift_common.ranges: 50 g, 500 m/s2), naming the file and the sample, before any
+    arithmetic on it (a sample of 1e308 would overflow the scaling)."""
+    quantity = "sample_g" if units == "g" else "sample_ms2"
+    bad = np.flatnonzero(np.abs(acc) > PLAUSIBLE[quantity].hi)
+    if bad.size:
+        check_plausible(f"{path}: sample {bad[0] + 1} of {acc.size}", float(acc[bad[0]]), quantity, MotionError)
 
 
 def _lines(path: Path) -> list:
@@ -333,6 +345,9 @@ def _read_two_column(path, lines):
         raise MotionError(f"{path}: expected at least two lines of two columns (time, acceleration), "
                           f"got {len(rows)}")
     data = np.array(rows)
+    far = np.flatnonzero(np.abs(data[:, 0]) > PLAUSIBLE["record_time"].hi)
+    if far.size:          # before the differences (which would overflow)
+        check_plausible(f"{path}, line {where[far[0]]}: time", float(data[far[0], 0]), "record_time", MotionError)
     steps = np.diff(data[:, 0])
     if np.any(steps <= 0) or np.ptp(steps) > 1e-6 * steps.mean():
         bad = int(np.argmax(steps <= 0)) if np.any(steps <= 0) else int(np.argmax(np.abs(steps - steps[0])))

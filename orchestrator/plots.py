@@ -5,6 +5,8 @@ from pathlib import Path
 
 import numpy as np
 
+from uplift_common.files import atomic_folder, save_figure
+
 from orchestrator.motion import G
 from orchestrator.results_file import patch_polygons
 from orchestrator.spectra import FLOOR_DAMPING, FLOOR_FREQUENCIES_HZ, excited, floor_spectra, response_spectrum
@@ -62,7 +64,7 @@ def plot_impedance(table, scene, path: Path, static=None):
     """Write ``impedance_figure`` to ``path`` (PNG); returns ``path``."""
     plt = pyplot()
     fig = impedance_figure(table, scene, static)
-    fig.savefig(path, dpi=130)
+    save_figure(fig, path, dpi=130)
     plt.close(fig)
     return path
 
@@ -107,15 +109,15 @@ def plot_run(results: dict, motion, scene, directory) -> list:
     scene's interface mesh) as ``<directory>/<name>.png``; returns the paths."""
     plt = pyplot()
     directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
     paths = []
     source = scene.mesh_source.as_dict() if scene.mesh_source is not None else None
     figures = list(run_figures(results, motion, scene.name))
     figures += uplift_map_figures(results, patch_polygons(scene.mesh), scene.name, source)
-    for name, fig in figures:
-        paths.append(directory / f"{name}.png")
-        fig.savefig(paths[-1], dpi=120)
-        plt.close(fig)
+    with atomic_folder(directory) as stage:          # every figure, or none (the old ones)
+        for name, fig in figures:
+            paths.append(directory / f"{name}.png")
+            save_figure(fig, stage / paths[-1].name, dpi=120)
+            plt.close(fig)
     return paths
 
 

@@ -38,7 +38,7 @@ from soil_impedance.sweep import provenance as sweep_provenance
 from structure.static_contact import PushoverCurve, liftoff_onset, pushover, rocking_vector
 from uplift_common.code import code_digest
 from uplift_common.errors import UserInputError
-from uplift_common.files import atomic_output, require_checksum, stamp_checksum
+from uplift_common.files import hdf5_output, require_checksum, save_figure, stamp_checksum
 
 from orchestrator.impedance import scene_static
 from orchestrator.oncurve import raft_load, scene_key
@@ -210,7 +210,7 @@ def _variable(f, name, data, dims, units, long_name):
 def write_pushover(path, run: PushoverRun) -> Path:
     """Write the pushover to one HDF5 file (the module docstring's layout), atomically, checksummed."""
     c, on = run.curve, run.curve.onset
-    with atomic_output(path) as tmp, h5py.File(tmp, "w") as f:
+    with hdf5_output(path) as f:
         f.attrs.update(uplift_file=KIND, format_version=FORMAT_VERSION, Conventions="CF-1.8", scene=run.scene,
                        created=time.strftime("%Y-%m-%dT%H:%M:%S"), soil=run.soil, soil_label=run.soil_label,
                        direction_deg=run.direction_deg, weight_N=run.weight_N, extra_vertical_N=run.extra_vertical_N,
@@ -301,6 +301,6 @@ def plot_pushover(run: PushoverRun, path) -> Path:
     from orchestrator.plots import pyplot  # matplotlib: only when a figure is drawn
     plt = pyplot()
     fig = pushover_figure(run)
-    fig.savefig(path, dpi=120)
+    save_figure(fig, path, dpi=120)
     plt.close(fig)
     return Path(path)

@@ -29,7 +29,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from uplift_common.files import atomic_output
+from uplift_common.files import atomic_folder, atomic_output
 from structure.results import Status
 
 from orchestrator import oncurve
@@ -114,39 +114,40 @@ def write_report(results_path, directory, reference: str | None = None, pushover
     curves, notes = results_curves(results, scene, motion, pushover, f"results file {results_path}",  # refusals first
                                    read_scene_record(results_path)["scene_toml"])
     directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    cmp = compare(results, reference=reference)
-    interface = read_interface(results_path)
-    figures = _save_figures(run_figures(results, motion, scene), directory)
-    uplift_map = [] if interface is None else _save_figures(
-        uplift_map_figures(results, interface["polygon"], scene, interface["mesh_source"]), directory)
-    esc = html.escape
-    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>uplift report: {esc(scene)}</title>",
-             f"<style>{STYLE}</style></head><body>",
-             f"<h1>Foundation uplift: scene <code>{esc(scene)}</code></h1>",
-             f"<p>Results file <code>{esc(str(results_path))}</code>, written {esc(created)}"
-             + (f"; motion: {esc(motion.label)}, components {esc(', '.join(motion.components))}, "
-                f"{motion.acc.shape[0]} samples at {1e3 * motion.dt:g} ms" if motion is not None else "") + ".</p>",
-             "<h2>Routes</h2><ul>"
-             + "".join(f"<li><b>{esc(r)}</b>: {esc(route_note(r))}</li>"
-                       for r in results) + "</ul>",
-             "<h2>Summary per route</h2>", _table(SUMMARY_HEADER, summary_rows(results)),
-             f"<h2>Route comparison (reference: {esc(cmp['reference'])})</h2>",
-             "<p>Relative differences (route − reference) / reference; floor-spectrum peaks: "
-             f"{100 * cmp['damping']:.0f} % damped pseudo-acceleration, largest difference over output "
-             "nodes and directions.</p>", _table(COMPARISON_HEADER, comparison_rows(cmp)),
-             "<h2>Figures</h2><p>Per route: uplift at the raft edges along x and y, the raft's vertical "
-             "displacements (edges and centre) and its rocking about x and y with the magnitude "
-             "sqrt(rx² + ry²) (paper fig. 3-4), floor response spectra in x, y and z (fig. 5-6); dashed: "
-             "the <code>linear</code> route (no uplift) when present.</p>"]
-    parts += _images(figures)
-    if uplift_map:
-        parts += ["<h2>Uplift over the raft</h2><p>The interface mesh (one patch per interface node: the cells of "
-                  "a mesh file, the squares of a grid) coloured by the uplift of each patch at the instant of each "
-                  "route's peak uplift; + the raft centre.</p>"] + _images(uplift_map)
-    parts += design_parts(results_path, directory, reference)
-    parts += oncurve_parts(results, scene, curves, notes, directory)
-    return _write_page(directory, parts)
+    with atomic_folder(directory) as stage:      # every file of the report, or none (the old ones)
+        cmp = compare(results, reference=reference)
+        interface = read_interface(results_path)
+        figures = _save_figures(run_figures(results, motion, scene), stage)
+        uplift_map = [] if interface is None else _save_figures(
+            uplift_map_figures(results, interface["polygon"], scene, interface["mesh_source"]), stage)
+        esc = html.escape
+        parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>uplift report: {esc(scene)}</title>",
+                 f"<style>{STYLE}</style></head><body>",
+                 f"<h1>Foundation uplift: scene <code>{esc(scene)}</code></h1>",
+                 f"<p>Results file <code>{esc(str(results_path))}</code>, written {esc(created)}"
+                 + (f"; motion: {esc(motion.label)}, components {esc(', '.join(motion.components))}, "
+                    f"{motion.acc.shape[0]} samples at {1e3 * motion.dt:g} ms" if motion is not None else "") + ".</p>",
+                 "<h2>Routes</h2><ul>"
+                 + "".join(f"<li><b>{esc(r)}</b>: {esc(route_note(r))}</li>"
+                           for r in results) + "</ul>",
+                 "<h2>Summary per route</h2>", _table(SUMMARY_HEADER, summary_rows(results)),
+                 f"<h2>Route comparison (reference: {esc(cmp['reference'])})</h2>",
+                 "<p>Relative differences (route − reference) / reference; floor-spectrum peaks: "
+                 f"{100 * cmp['damping']:.0f} % damped pseudo-acceleration, largest difference over output "
+                 "nodes and directions.</p>", _table(COMPARISON_HEADER, comparison_rows(cmp)),
+                 "<h2>Figures</h2><p>Per route: uplift at the raft edges along x and y, the raft's vertical "
+                 "displacements (edges and centre) and its rocking about x and y with the magnitude "
+                 "sqrt(rx² + ry²) (paper fig. 3-4), floor response spectra in x, y and z (fig. 5-6); dashed: "
+                 "the <code>linear</code> route (no uplift) when present.</p>"]
+        parts += _images(figures)
+        if uplift_map:
+            parts += ["<h2>Uplift over the raft</h2><p>The interface mesh (one patch per interface node: the cells "
+                      "of a mesh file, the squares of a grid) coloured by the uplift of each patch at the instant of "
+                      "each route's peak uplift; + the raft centre.</p>"] + _images(uplift_map)
+        parts += design_parts(results_path, stage, reference)
+        parts += oncurve_parts(results, scene, curves, notes, stage)
+        _write_page(stage, parts)
+    return directory / PAGE
 
 
 def design_parts(results_path, directory: Path, reference: str | None = None) -> list:
@@ -223,8 +224,12 @@ def _images(figures) -> list:
             for name, data in figures]
 
 
+#: the report's page in its folder
+PAGE = "report.html"
+
+
 def _write_page(directory: Path, parts) -> Path:
-    out = directory / "report.html"
+    out = directory / PAGE
     with atomic_output(out) as tmp:
         tmp.write_text("\n".join(parts + ["</body></html>"]), encoding="utf-8")
     return out
@@ -357,32 +362,33 @@ def write_ensemble_report(path, directory, pushover=()) -> Path:
     ds = read_ensemble(path)
     curves, notes = ensemble_curves(ds, pushover, f"ensemble file {path}")      # refusals first
     directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    figures = _save_figures(ensemble_figures(ds), directory)
-    esc = html.escape
-    a = ds.attrs
-    status = ds["status"].values
-    others = [[str(ds["record"].values[i]), f"{ds['pga'].values[j]:g}", str(ds["route"].values[k]),
-               str(status[i, j, k]), str(ds["message"].values[i, j, k])]
-              for i, j, k in zip(*np.nonzero(status != Status.CONVERGED.value))]
-    parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>uplift ensemble: {esc(a['scene'])}</title>",
-             f"<style>{STYLE}</style></head><body>",
-             f"<h1>Foundation uplift: ensemble of scene <code>{esc(a['scene'])}</code></h1>",
-             f"<p>Ensemble file <code>{esc(str(path))}</code>, written {esc(str(a.get('created', '')))}: "
-             f"{ds.sizes['record']} records x {ds.sizes['pga']} PGAs x {ds.sizes['route']} routes = {status.size} "
-             f"runs ({a['computed']} computed, {a['reused']} kept from an earlier run) on {a['workers']} workers in "
-             f"{a['wall_s']:.1f} s (set-up: sweep and fit {a['setup_s']:.1f} s, time-step check "
-             f"{a['dt_check_s']:.1f} s).</p>",
-             "<h2>Routes</h2><ul>" + "".join(f"<li><b>{esc(str(r))}</b>: {esc(route_note(str(r)))}</li>"
-                                             for r in ds["route"].values) + "</ul>",
-             "<h2>Fractiles over the records, per PGA</h2><p>Over the converged runs only; linear "
-             "interpolation between the sorted values (numpy).</p>", _table(ENSEMBLE_HEADER, ensemble_rows(ds)),
-             "<h2>Runs that did not converge</h2>"
-             + (_table(["record", "PGA (g)", "route", "status", "why"], others) if others else "<p>None.</p>"),
-             "<h2>Figures</h2>"]
-    parts += _images(figures)
-    parts += ensemble_oncurve_parts(ds, curves, notes, directory)
-    return _write_page(directory, parts + fragility_parts(path, directory))
+    with atomic_folder(directory) as stage:      # every file of the report, or none (the old ones)
+        figures = _save_figures(ensemble_figures(ds), stage)
+        esc = html.escape
+        a = ds.attrs
+        status = ds["status"].values
+        others = [[str(ds["record"].values[i]), f"{ds['pga'].values[j]:g}", str(ds["route"].values[k]),
+                   str(status[i, j, k]), str(ds["message"].values[i, j, k])]
+                  for i, j, k in zip(*np.nonzero(status != Status.CONVERGED.value))]
+        parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>uplift ensemble: {esc(a['scene'])}</title>",
+                 f"<style>{STYLE}</style></head><body>",
+                 f"<h1>Foundation uplift: ensemble of scene <code>{esc(a['scene'])}</code></h1>",
+                 f"<p>Ensemble file <code>{esc(str(path))}</code>, written {esc(str(a.get('created', '')))}: "
+                 f"{ds.sizes['record']} records x {ds.sizes['pga']} PGAs x {ds.sizes['route']} routes = {status.size} "
+                 f"runs ({a['computed']} computed, {a['reused']} kept from an earlier run) on {a['workers']} workers in "
+                 f"{a['wall_s']:.1f} s (set-up: sweep and fit {a['setup_s']:.1f} s, time-step check "
+                 f"{a['dt_check_s']:.1f} s).</p>",
+                 "<h2>Routes</h2><ul>" + "".join(f"<li><b>{esc(str(r))}</b>: {esc(route_note(str(r)))}</li>"
+                                                 for r in ds["route"].values) + "</ul>",
+                 "<h2>Fractiles over the records, per PGA</h2><p>Over the converged runs only; linear "
+                 "interpolation between the sorted values (numpy).</p>", _table(ENSEMBLE_HEADER, ensemble_rows(ds)),
+                 "<h2>Runs that did not converge</h2>"
+                 + (_table(["record", "PGA (g)", "route", "status", "why"], others) if others else "<p>None.</p>"),
+                 "<h2>Figures</h2>"]
+        parts += _images(figures)
+        parts += ensemble_oncurve_parts(ds, curves, notes, stage)
+        _write_page(stage, parts + fragility_parts(path, stage))
+    return directory / PAGE
 
 
 # ---- runs on the static pushover curve (orchestrator.oncurve) -----------------------------------

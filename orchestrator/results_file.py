@@ -57,7 +57,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from uplift_common.files import ChangedFileError, OutputPathError, atomic_output, output_target, require_checksum, stamp_checksum
+from uplift_common.files import ChangedFileError, OutputPathError, hdf5_output, output_target, require_checksum, stamp_checksum
 from structure.results import RouteResult, RunNotes, Status
 
 from orchestrator.motion import G, Motion
@@ -142,7 +142,7 @@ def write_results(path, results: dict, motion=None, scene_name: str = "", scene_
     groups into the open file before the checksum (the soil cases and design spectra of
     ``orchestrator.design``)."""
     path = check_output_path(path)
-    with atomic_output(path) as tmp, h5py.File(tmp, "w") as f:
+    with hdf5_output(path) as f:
         f.attrs.update(uplift_file=KIND, format_version=FORMAT_VERSION, Conventions="CF-1.8", scene=scene_name,
                        scene_toml=scene_toml, overrides=json.dumps(list(overrides)),
                        created=time.strftime("%Y-%m-%dT%H:%M:%S"))

@@ -23,11 +23,10 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-import h5py
 import numpy as np
 from soil_impedance.cache import read_entry, write_entry
 from uplift_common.code import code_digest
-from uplift_common.files import atomic_output, stamp_checksum
+from uplift_common.files import hdf5_output, stamp_checksum
 
 from structure import ConvergenceError, simulate
 from structure.results import RouteResult, Status
@@ -163,7 +162,7 @@ def scene_motion(config, dt: float, cache_dir=None) -> Motion:
     motion = make_motion(config, dt)
 
     def writer(p):
-        with atomic_output(p) as tmp, h5py.File(tmp, "w") as h:
+        with hdf5_output(p) as h:
             h.create_dataset("acc", data=motion.acc)
             h.attrs.update(dt=motion.dt, label=motion.label, components=" ".join(motion.components))
             stamp_checksum(h)
@@ -191,7 +190,7 @@ def _read_motion(h) -> Motion:
 def _keep(path, value: float) -> None:
     """Store a check's answer (atomic, checksummed; a failure only warns: ``write_entry``)."""
     def writer(p):
-        with atomic_output(p) as tmp, h5py.File(tmp, "w") as h:
+        with hdf5_output(p) as h:
             h.attrs["max_uplift_m"] = value
             stamp_checksum(h)
     write_entry(path, writer)

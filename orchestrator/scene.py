@@ -41,6 +41,7 @@ from structure.errors import StructureError
 from structure.model import StructureModel
 from structure.spec import (WINKLER_MODULI, StructureSpec, build_model, check_choice, check_keys, check_number,
                             contact_from_spec, parse_structure, show, winkler_moduli)
+from uplift_common.ranges import MAX_LAYERS, check_count, check_plausible
 
 # the error, the built-in names, the TOML reader and the PGA limit live in a module the command
 # line loads without this one (numpy, the mesh, the structure): re-exported here
@@ -50,6 +51,7 @@ from orchestrator.scene_base import MAX_PGA_G, SceneError, builtin_scenes, tomll
 _check_keys = partial(check_keys, error=SceneError)
 _number = partial(check_number, error=SceneError)
 _choice = partial(check_choice, error=SceneError)
+_plausible = partial(check_plausible, error=SceneError)
 
 SECTIONS = ("soil", "foundation", "impedance", "structure", "contact", "motion", "analysis", "output")
 #: most time steps a run may take (motion duration over the analysis step; a synthetic motion
@@ -112,6 +114,7 @@ class MotionConfig:
         _choice("motion.units", self.units, UNITS)
         if not _number("motion.scale", self.scale, expect="a finite nonzero factor"):
             raise SceneError(f"motion.scale = {show(self.scale)} must be a finite nonzero factor")
+        _plausible("motion.scale", self.scale, "scale")
         _set(self, "scale", float(self.scale))
         if self.components is None:
             if self.file is None:
@@ -595,6 +598,10 @@ def _winkler(table) -> WinklerConfig:
 
 
 MATERIAL_KEYS = ("vs", "vp", "nu", "rho", "damping")
+#: the plausible range (uplift_common.ranges.PLAUSIBLE) of each key of a soil material
+SOIL_RANGES = {"vs": "vs", "vp": "vp", "rho": "rho", "thickness": "thickness"}     # damping: Material's [0, 0.5)
+#: ... of each length of [foundation]
+FOUNDATION_RANGES = {"radius": "radius", "lx": "length", "ly": "length", "element_size": "element_size"}
 
 
 def _material(table, where: str, cls=Material, extra=(), damping_model="hysteretic"):
@@ -604,6 +611,9 @@ def _material(table, where: str, cls=Material, extra=(), damping_model="hysteret
             raise SceneError(f"{where}.{key} is missing (give vs in m/s, rho in kg/m^3"
                              + (", thickness in m)" if extra else ")"))
     values = {k: _number(f"{where}.{k}", v) for k, v in table.items()}
+    for k, v in values.items():
+        if k in SOIL_RANGES:
+            _plausible(f"{where}.{k}", v, SOIL_RANGES[k])
     return cls(name=where, damping_model=damping_model, **values)
 
 
@@ -614,6 +624,7 @@ def _profile(soil: dict, model: str) -> SoilProfile:
     layers = soil.get("layers", [])
     if not isinstance(layers, list):
         raise SceneError("soil.layers must be a list of tables { thickness, vs, nu or vp, rho, damping }")
+    check_count("soil.layers", len(layers), MAX_LAYERS, "layers", SceneError)
     out = tuple(_material(t, f"soil.layers[{i}]", cls=Layer, extra=("thickness",), damping_model=model)
                 for i, t in enumerate(layers))
     return SoilProfile(out, _material(soil["halfspace"], "soil.halfspace", damping_model=model))
@@ -679,6 +690,9 @@ def _foundation(table: dict, base_dir: Path):
         raise SceneError(f'foundation.mesh is the file of a finite-element raft: it goes with shape = "mesh" (or no '
                          f'shape), not shape = {shape!r}; remove one of the two')
     _check_keys(table, ("shape", "contact") + keys, "foundation", required=FOUNDATION_REQUIRED[shape])
+    for key in set(keys) & set(FOUNDATION_RANGES):
+        if key in table:
+            _plausible(f"foundation.{key}", table[key], FOUNDATION_RANGES[key])
     contact = _choice("foundation.contact", table.get("contact", "welded"), ("welded", "relaxed"),
                       hint="welded: all traction components, the default; relaxed: no shear under normal loads")
     if shape == "circle":
@@ -713,6 +727,7 @@ def _frequencies(table: dict) -> np.ndarray:
             raise SceneError(f"impedance.range_hz = {show(r)} must be [fmin, fmax, count] (count an integer)")
         fmin = _number("impedance.range_hz[0]", r[0], 0.0, lo_open=False, expect="a frequency fmin >= 0 Hz")
         fmax = _number("impedance.range_hz[1]", r[1], fmin, expect=f"a frequency fmax > fmin = {fmin:g} Hz")
+        _plausible("impedance.range_hz[1]", fmax, "frequency")
         count = _number("impedance.range_hz[2]", r[2], 2, MAX_FREQUENCIES, lo_open=False, integer=True,
                         expect=f"an integer count in [2, {MAX_FREQUENCIES}]")
         return np.linspace(fmin, fmax, count)
@@ -720,7 +735,9 @@ def _frequencies(table: dict) -> np.ndarray:
     if not isinstance(freqs, list) or not 1 <= len(freqs) <= MAX_FREQUENCIES:
         raise SceneError(f"impedance.frequencies_hz = {show(freqs)} must be a non-empty list of numbers in Hz "
                          f"(at most {MAX_FREQUENCIES})")
-    f = np.array([_number(f"impedance.frequencies_hz[{i}]", v, 0.0, lo_open=False) for i, v in enumerate(freqs)])
+    f = np.array([_plausible(f"impedance.frequencies_hz[{i}]", _number(f"impedance.frequencies_hz[{i}]", v, 0.0,
+                                                                         lo_open=False), "frequency")
+                  for i, v in enumerate(freqs)])
     if np.any(np.diff(f) <= 0):
         raise SceneError(f"impedance.frequencies_hz = {show(freqs)} must be >= 0 and strictly increasing")
     return f

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import h5py
 
-from uplift_common.files import ComplexPairs, verify_checksum
+from uplift_common.files import ComplexPairs, OutputWriteError, verify_checksum
 
 
 def default_cache_dir() -> Path:
@@ -83,6 +83,7 @@ def write_entry(path, writer) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         writer(path)
-    except OSError as exc:
-        warnings.warn(CacheWarning(f"could not write cache entry {path} ({exc}); continuing without it"),
+    except (OSError, OutputWriteError) as exc:
+        why = exc.reason if isinstance(exc, OutputWriteError) else exc
+        warnings.warn(CacheWarning(f"could not write cache entry {path} ({why}); continuing without it"),
                       stacklevel=3)

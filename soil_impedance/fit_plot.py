@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from uplift_common.files import save_figure
+
 
 def plot_fit(result, table, path, dofs=None):
     """Table vs model for the rigid diagonal terms (Re and Im, DOF-scaled by K_ii(f_0)) and the
@@ -38,6 +40,6 @@ def plot_fit(result, table, path, dofs=None):
     axes[0].set_title(f"{rep.order} poles, max error {rep.max_rel_error:.2e}, "
                       f"{'passive' if rep.passive else 'NOT passive'} (margin {rep.passivity_margin:.2e})")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from uplift_common.files import ChangedFileError, ComplexPairs, atomic_output, require_checksum, stamp_checksum
+from uplift_common.files import ChangedFileError, ComplexPairs, hdf5_output, require_checksum, stamp_checksum
 from uplift_common.errors import UserInputError
 
 FORMAT = "uplift.ImpedanceTable"
@@ -156,7 +156,7 @@ class ImpedanceTable:
         """Write the table to an HDF5 file, atomically (replaces an existing file only once the
         new one is complete; the folder must exist: ``uplift_common.files.OutputFolderError`` otherwise)."""
         import h5py
-        with atomic_output(path) as tmp, h5py.File(tmp, "w") as h:
+        with hdf5_output(path) as h:
             h.attrs["format"] = FORMAT
             h.attrs["format_version"] = FORMAT_VERSION
             h.attrs["hash"] = self.hash

@@ -23,10 +23,14 @@ import numpy as np
 
 from .contact import AUTO_FACTOR, ContactSettings
 from .errors import StructureError
+from uplift_common.ranges import MAX_STRUCTURE_ELEMENTS, MAX_STRUCTURE_NODES, check_count, check_plausible
 from .model import Beam, Damping, Mass, Node, Raft, Spring, StructureModel
 from .soil_interface import WinklerSoil
 
 BUILTIN_MODELS = ("reactor",)
+#: the plausible range (uplift_common.ranges.PLAUSIBLE) of each number of a beam
+BEAM_RANGES = {"E": "modulus", "G": "modulus", "A": "area", "Asy": "area", "Asz": "area", "Iy": "second_moment",
+               "Iz": "second_moment", "J": "second_moment", "rho": "beam_density"}
 STRUCTURE_KEYS = ("nodes", "beams", "raft", "masses", "springs", "damping")
 WINKLER_MODULI = ("kv", "kh", "cv", "ch")
 CONTACT_KEYS = ("auto_factor", "enabled", "penalty", "precheck")
@@ -106,10 +110,26 @@ def _list(where: str, v, what: str):
     return v
 
 
-def _vec(where, v, n, lo=None):
+def _vec(where, v, n, lo=None, quantity=None):
+    """A list of ``n`` numbers >= lo, each in the plausible range of ``quantity`` (if given)."""
     if not isinstance(v, (list, tuple)) or len(v) != n:
         raise StructureError(f"{where} = {show(v)} must be a list of {n} numbers")
-    return tuple(check_number(f"{where}[{i}]", x, lo, lo_open=False) for i, x in enumerate(v))
+    out = tuple(check_number(f"{where}[{i}]", x, lo, lo_open=False) for i, x in enumerate(v))
+    for i, x in enumerate(out if quantity else ()):
+        _plausible(f"{where}[{i}]", x, quantity)
+    return out
+
+
+def _plausible(where, v, quantity):
+    """v, refused (StructureError) outside the plausible range of ``quantity`` (uplift_common.ranges)."""
+    return check_plausible(where, v, quantity, StructureError)
+
+
+def _count(where, items, most, what):
+    """Refuse a list longer than ``most`` before parsing its items (a file of absurd size)."""
+    if isinstance(items, (list, tuple)):
+        check_count(where, len(items), most, what, StructureError)
+    return items
 
 
 def _id(where, v):
@@ -196,6 +216,8 @@ def _damping(path, d):
                          expect="a ratio in [0, 1), e.g. 0.07 for 7 %")
         return Damping("modal", ratio=r)
     a0, a1 = _vec(f"{path}.rayleigh", d["rayleigh"], 2, 0.0)
+    _plausible(f"{path}.rayleigh[0]", a0, "rayleigh_a0")
+    _plausible(f"{path}.rayleigh[1]", a1, "rayleigh_a1")
     return Damping("rayleigh", a0=a0, a1=a1)
 
 
@@ -222,6 +244,9 @@ def parse_structure(table: dict) -> StructureSpec:
     nodes, ids = [], set()
     if not isinstance(table["nodes"], list) or not table["nodes"]:
         raise StructureError(f"{p}.nodes must be a non-empty list of {{ id, xyz, name }} tables")
+    _count(f"{p}.nodes", table["nodes"], MAX_STRUCTURE_NODES, "nodes")
+    for key in ("beams", "masses", "springs"):
+        _count(f"{p}.{key}", table.get(key), MAX_STRUCTURE_ELEMENTS, key)
     for i, n in enumerate(table["nodes"]):
         q = f"{p}.nodes[{i}]"
         check_keys(n, ("id", "xyz", "name"), q, required=("id", "xyz"))
@@ -232,7 +257,7 @@ def parse_structure(table: dict) -> StructureSpec:
         name = n.get("name")
         if name is not None and (not isinstance(name, str) or not name):
             raise StructureError(f"{q}.name = {show(name)} must be a non-empty string")
-        nodes.append(Node(nid, _vec(f"{q}.xyz", n["xyz"], 3), name))
+        nodes.append(Node(nid, _vec(f"{q}.xyz", n["xyz"], 3, quantity="coordinate"), name))
     names = [n.name for n in nodes if n.name]
     if len(set(names)) != len(names):
         raise StructureError(f"{p}.nodes: names must be unique, got {names}")
@@ -258,19 +283,23 @@ def parse_structure(table: dict) -> StructureSpec:
         for k in ("Asy", "Asz"):
             vals[k] = check_number(f"{q}.{k}", b[k], 0.0) if k in b else None
         vals["rho"] = check_number(f"{q}.rho", b["rho"], 0.0, lo_open=False) if "rho" in b else 0.0
+        for k, v in vals.items():
+            if v is not None:
+                _plausible(f"{q}.{k}", v, BEAM_RANGES[k])
         beams.append(Beam((n1, n2), **vals))
     masses = []
     for i, m in enumerate(_list(f"{p}.masses", table.get("masses", []), "tables")):
         q = f"{p}.masses[{i}]"
         check_keys(m, ("node", "m", "inertia"), q, required=("node", "m"))
-        masses.append(Mass(ref(f"{q}.node", m["node"]), check_number(f"{q}.m", m["m"], 0.0, lo_open=False),
-                           _vec(f"{q}.inertia", m.get("inertia", [0.0, 0.0, 0.0]), 3, 0.0)))
+        masses.append(Mass(ref(f"{q}.node", m["node"]),
+                           _plausible(f"{q}.m", check_number(f"{q}.m", m["m"], 0.0, lo_open=False), "mass"),
+                           _vec(f"{q}.inertia", m.get("inertia", [0.0, 0.0, 0.0]), 3, 0.0, "rotary_inertia")))
     springs = []
     for i, s in enumerate(_list(f"{p}.springs", table.get("springs", []), "tables")):
         q = f"{p}.springs[{i}]"
         check_keys(s, ("node", "k", "node2"), q, required=("node", "k"))
         n2 = ref(f"{q}.node2", s["node2"]) if "node2" in s else None
-        springs.append(Spring(ref(f"{q}.node", s["node"]), _vec(f"{q}.k", s["k"], 6, 0.0), n2))
+        springs.append(Spring(ref(f"{q}.node", s["node"]), _vec(f"{q}.k", s["k"], 6, 0.0, "stiffness"), n2))
     q = f"{p}.raft"
     r = table["raft"]
     check_keys(r, ("node", "m", "inertia"), q, required=("node",))
@@ -278,8 +307,8 @@ def parse_structure(table: dict) -> StructureSpec:
     if abs(xyz[rn][2]) > 1e-9:
         raise StructureError(f"{q}.node = {rn} is at z = {xyz[rn][2]:g}: the raft master node must "
                              "lie on z = 0 at the raft centre")
-    raft = RaftSpec(rn, check_number(f"{q}.m", r.get("m", 0.0), 0.0, lo_open=False),
-                    _vec(f"{q}.inertia", r.get("inertia", [0.0, 0.0, 0.0]), 3, 0.0))
+    raft = RaftSpec(rn, _plausible(f"{q}.m", check_number(f"{q}.m", r.get("m", 0.0), 0.0, lo_open=False), "mass"),
+                    _vec(f"{q}.inertia", r.get("inertia", [0.0, 0.0, 0.0]), 3, 0.0, "rotary_inertia"))
     connected = {rn}
     edges = [b.nodes for b in beams] + [(s.node, s.node2) for s in springs if s.node2 is not None]
     grow = True
@@ -319,7 +348,8 @@ def winkler_moduli(table: dict, where: str = "soil.winkler") -> tuple:
     """(kv, kh, cv, ch) from { kv, kh, cv = 0, ch = 0 }: subgrade moduli N/m^3 (kv > 0, kh >= 0)
     and dashpots N s/m^3 (>= 0) per unit area."""
     check_keys(table, WINKLER_MODULI, where, required=("kv", "kh"))
-    return tuple(check_number(f"{where}.{k}", table.get(k, 0.0), 0.0, lo_open=k == "kv")
+    return tuple(_plausible(f"{where}.{k}", check_number(f"{where}.{k}", table.get(k, 0.0), 0.0, lo_open=k == "kv"),
+                            "subgrade_modulus" if k in ("kv", "kh") else "subgrade_damping")
                  for k in WINKLER_MODULI)
 
 
@@ -359,8 +389,9 @@ def contact_from_spec(table: dict | None) -> ContactSettings:
         if pen != "auto":
             raise StructureError(f"{p}.penalty = {show(pen)} must be \"auto\" or a stiffness in N/m per node")
     else:
-        pen = check_number(f"{p}.penalty", pen, 0.0)
-    factor = check_number(f"{p}.auto_factor", table.get("auto_factor", AUTO_FACTOR), 0.0)
+        pen = _plausible(f"{p}.penalty", check_number(f"{p}.penalty", pen, 0.0), "penalty")
+    factor = _plausible(f"{p}.auto_factor", check_number(f"{p}.auto_factor", table.get("auto_factor", AUTO_FACTOR), 0.0),
+                        "penalty_factor")
     return ContactSettings(enabled=en, penalty=pen, auto_factor=factor, precheck=pre)
 
 

@@ -15,3 +15,14 @@ class UserInputError(ValueError):
 
 class ComputationError(RuntimeError):
     """A computation that stopped before its end; the message says where and why."""
+
+
+class OutputWriteError(UserInputError):
+    """The file system refused the data of an output (no space left, a quota, a file size
+    limit, an I/O error): nothing was written, a previous file at the path is left as it was.
+    The command line exits 3 (orchestrator.exit_codes.EXIT_WRITE). ``errno``: the refusal's
+    (uplift_common.interrupts.REFUSED_ERRNOS); ``reason``: it in words, with the space left (for a shorter message)."""
+
+    def __init__(self, message: str, code: int | None = None, reason: str = ""):
+        super().__init__(message)
+        self.errno, self.reason = code, reason or message

@@ -6,6 +6,17 @@ under a unique temporary name in the target folder and renamed onto the target o
 complete (``os.replace`` is atomic on one file system): a reader sees the old file or the new
 one, never a mix, and concurrent writers each succeed (the last one wins).
 
+Orphans, full disks, Ctrl-C. A temporary is named ``.<name>.<host>-<pid>.<random>.tmp``; one
+left by a process that died (kill -9, a crash) is removed by the next write to the same file
+(``sweep_orphans``, once per folder and process: its pid no longer runs on this machine). The several files of one output
+folder (an export, a report) are written in a staging folder and moved in together
+(``atomic_folder``). A file system that refuses the data (no space left, a quota, a file size
+limit, an I/O error) raises ``OutputWriteError`` naming the path and the space left, nothing
+written; HDF5 files are made in memory and written in one write of this process
+(``hdf5_output``), so that HDF5 never meets the error itself. The rename and the clean-up are
+held against Ctrl-C (``uplift_common.interrupts``), and ``committed()`` lists what was renamed
+into place (what an interrupted command did write, whole).
+
 Output paths. A rename replaces whatever the name points at: a device, a FIFO or a socket
 would be destroyed and a symlink turned into a plain file. ``output_target`` refuses a path
 that exists and is not a regular file (``OutputPathError``), and follows a symlink: the file
@@ -18,29 +29,35 @@ one whose content no longer matches (``ChangedFileError``: it changed since it w
 
 Usage::
 
-    with atomic_output(path) as tmp:
-        with h5py.File(tmp, "w") as f:
-            ...                              # write datasets and attributes
-            stamp_checksum(f)
+    with hdf5_output(path) as f:             # in memory, then atomic_output
+        ...                                  # write datasets and attributes
+        stamp_checksum(f)
+    with atomic_output(path) as tmp:         # any other file
+        tmp.write_text(text)
     with h5py.File(path, "r") as f:
         require_checksum(f, path)            # ChangedFileError if it changed
-    with atomic_update(path) as tmp:         # append to a stamped file: a verified copy,
-        ds.to_netcdf(tmp, mode="a", group="extra", engine="h5netcdf")
-                                             # re-stamped and renamed into place on exit
+    with atomic_update(path) as copy:        # append to a stamped file: a verified copy in
+        ds.to_netcdf(copy, mode="a", group="extra", engine="h5netcdf")
+                                             # memory, re-stamped and written atomically on exit
 """
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
+import io
 import os
+import re
 import shutil
+import socket
 import stat
 import tempfile
 from pathlib import Path
 
 import h5py
 import numpy as np
-from uplift_common.errors import UserInputError
+from uplift_common import interrupts
+from uplift_common.errors import OutputWriteError, UserInputError
 
 CHECKSUM_ATTR = "sha256"
 _CHUNK_BYTES = 1 << 26          # datasets are hashed in slabs of about 64 MiB along axis 0
@@ -98,17 +115,25 @@ def atomic_output(path):
     (fsync), renamed onto the target (``os.replace``, atomic) and the folder entry is synced; on
     any exception, KeyboardInterrupt included, it is removed and the exception re-raised: the old
     file stays intact until the new one is complete, and concurrent writers never share a
-    temporary name (pid + random suffix). Raises OutputFolderError if the folder is missing.
+    temporary name (``temporary_name``: host, pid and a random suffix). The rename and the
+    removal are held against Ctrl-C (``uplift_common.interrupts.held``: a SIGINT there is raised
+    after them). Temporaries of the same target left by a process that died (kill -9, a power
+    cut) are removed first (``sweep_orphans``, once per folder and process). A file system that refuses the data (full,
+    quota, file size limit, I/O error) raises OutputWriteError naming the path. Raises
+    OutputFolderError if the folder is missing.
     """
     target = output_target(path)
     folder = target.parent
     if not folder.is_dir():
         raise OutputFolderError(f"cannot write {path}: folder {folder} does not exist "
                                 "(create it first or choose another path)")
-    fd, name = tempfile.mkstemp(dir=folder, prefix=f".{target.name}.{os.getpid()}.", suffix=".tmp")
-    os.close(fd)
-    tmp = Path(name)
+    _sweep_once(folder)
+    tmp = None
     try:
+        with interrupts.held():                 # created and recorded at once: never left unnamed
+            fd, name = tempfile.mkstemp(dir=folder, prefix=_temporary_prefix(target.name), suffix=".tmp")
+            os.close(fd)
+            tmp = Path(name)
         yield tmp
         os.chmod(tmp, 0o666 & ~_UMASK)          # mkstemp makes 0600; keep the usual mode
         fd = os.open(tmp, os.O_RDONLY)
@@ -117,27 +142,269 @@ def atomic_output(path):
         finally:
             os.close(fd)
         output_target(path)                     # still a regular file (or absent) at the rename
-        os.replace(tmp, target)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
+        with interrupts.held():
+            os.replace(tmp, target)
+            interrupts.note_committed(target)
+            tmp = None
+    except BaseException as exc:
+        with interrupts.held():
+            if tmp is not None:
+                with contextlib.suppress(OSError):
+                    tmp.unlink()
+        refused = _refused(exc)
+        if refused is not None:
+            raise OutputWriteError(_refusal_message(path, folder, refused, exc), refused,
+                                   _reason(folder, refused)) from None
+        raise
+    _fsync_folder(folder)
+
+
+#: errno values of a file system that refuses data (not a bad path: those are refused before)
+REFUSED_ERRNOS = interrupts.REFUSED_ERRNOS
+committed = interrupts.committed
+
+
+#: how HDF5 reports the errno of a failed write in its messages (h5py raises them as OSError
+#: or RuntimeError without an errno attribute): "file write failed: ..., errno = 28, ..."
+_HDF5_ERRNO = re.compile(r"errno = (\d+)")
+
+
+def _refused(exc):
+    """The errno of REFUSED_ERRNOS behind ``exc`` (itself or an exception it was raised from or
+    while handling; an OSError's errno, or the errno an HDF5 message quotes), or None."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, (OutputWriteError, KeyboardInterrupt)):
+            return None
+        if isinstance(exc, OSError) and exc.errno in REFUSED_ERRNOS:
+            return exc.errno
+        if isinstance(exc, (OSError, RuntimeError)):
+            quoted = [int(n) for n in _HDF5_ERRNO.findall(str(exc)) if int(n) in REFUSED_ERRNOS]
+            if quoted:
+                return quoted[0]
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+def _reason(folder: Path, code: int) -> str:
+    """The refusal in words and the space left on the folder's file system (when known)."""
+    free = ""
+    with contextlib.suppress(OSError):
+        st = os.statvfs(folder)
+        free = f"; {_size(st.f_bavail * st.f_frsize)} free on its file system"
+    return f"{REFUSED_ERRNOS[code]} (errno {errno.errorcode.get(code, code)}){free}"
+
+
+def _refusal_message(path, folder: Path, code: int, exc, left: str = "") -> str:
+    left = left or f"a previous {Path(path).name} is left as it was"
+    return (f"cannot write {str(path)!r}: {_reason(folder, code)}; free some space (or choose another path) and "
+            f"run the command again: nothing was written, {left}")
+
+
+def _size(n: int) -> str:
+    for unit in ("bytes", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n:.0f} {unit}" if unit == "bytes" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} TiB"
+
+
+# ---- temporaries and the orphans of dead processes ----------------------------------------------
+
+#: this machine, in temporary names (a folder shared by several machines: a pid means nothing on
+#: another one, and its temporaries are never swept from here)
+HOST = hashlib.sha256(socket.gethostname().encode()).hexdigest()[:8]
+_TEMPORARY = re.compile(r"^\.(?P<name>.+)\.(?:(?P<host>[0-9a-f]{8})-)?(?P<pid>\d+)\.[A-Za-z0-9_]+\.tmp$")
+
+
+_SWEPT: set = set()
+
+
+def _sweep_once(folder) -> None:
+    """``sweep_orphans(folder)``, once per folder and process (the orphans of dead processes do
+    not come back; an ensemble writes thousands of cells into one folder)."""
+    key = os.path.realpath(folder)
+    if key not in _SWEPT:
+        _SWEPT.add(key)
+        sweep_orphans(folder)
+
+
+def _temporary_prefix(name: str) -> str:
+    return f".{name}.{HOST}-{os.getpid()}."
+
+
+def temporary_name(name: str) -> str:
+    """A unique name for a temporary of the file (or folder) ``name``, hidden, that
+    ``sweep_orphans`` removes once this process is gone: ``.<name>.<host>-<pid>.<random>.tmp``."""
+    return f"{_temporary_prefix(name)}{os.urandom(6).hex()}.tmp"
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` may be running (True when it cannot be told)."""
+    if pid == os.getpid():
+        return True
+    if os.name == "nt":                          # os.kill(pid, 0) would terminate it there
+        try:
+            import psutil  # not everywhere: only Windows needs it here
+        except ImportError:
+            return True
+        return psutil.pid_exists(pid)
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, OSError):
+        return True                             # another user's process, or cannot tell: keep it
+    return True
+
+
+def sweep_orphans(folder, name: str | None = None) -> list:
+    """Remove from ``folder`` the temporaries (``temporary_name``) of ``name`` (None: of any
+    name) left by a process of this machine that is no longer running (killed, crashed); return
+    their paths. The older form without the host (``.<name>.<pid>.<random>.tmp``, written before)
+    is removed as well when it is of ``name``, or (``name`` None) when the file it was for
+    exists beside it. A temporary whose process runs (or may: the pid of another user) is kept;
+    so is one of another machine. Errors are ignored (best effort: the next command tries
+    again)."""
+    removed = []
+    try:
+        entries = list(os.scandir(folder))
+    except OSError:
+        return removed
+    for entry in entries:
+        m = _TEMPORARY.match(entry.name)
+        if m is None or (name is not None and m["name"] != name) or m["host"] not in (None, HOST):
+            continue
+        if m["host"] is None and name is None and not os.path.lexists(os.path.join(folder, m["name"])):
+            continue
+        if _alive(int(m["pid"])):
+            continue
+        try:
+            if entry.is_dir(follow_symlinks=False):
+                shutil.rmtree(entry.path)
+            else:
+                os.unlink(entry.path)
+        except OSError:
+            continue
+        removed.append(Path(entry.path))
+    return removed
+
+
+@contextlib.contextmanager
+def atomic_folder(folder):
+    """Several files of one folder written as one output: yield a staging folder (hidden, inside
+    ``folder``, which is made if missing); the caller writes its files there under their final
+    names. On normal exit each file is flushed to disk and renamed into ``folder`` (a symlink in
+    ``folder`` is followed; each file is whole, old or new) and the staging folder removed; on
+    any exception, KeyboardInterrupt included, the staging folder is removed (and ``folder``, if
+    this call made it), nothing in ``folder`` having changed. Staging folders of dead processes
+    are swept first (``sweep_orphans``); a file system that refuses the data raises
+    OutputWriteError naming the folder."""
+    folder = Path(folder)
+    made = []
+    for parent in [*reversed(folder.absolute().parents), folder.absolute()]:
+        if not parent.exists():
+            made.append(parent)
+    stage = None
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        _sweep_once(folder)
+        with interrupts.held():
+            stage = folder / temporary_name("stage")
+            stage.mkdir()
+        yield stage
+        names = sorted(p.name for p in stage.iterdir())
+        for name in names:
+            fd = os.open(stage / name, os.O_RDONLY)
+            try:
+                os.fsync(fd)
+            finally:
+                os.close(fd)
+            output_target(folder / name)        # still a regular file (or absent) at the rename
+        with interrupts.held():
+            for name in names:
+                target = output_target(folder / name)
+                os.replace(stage / name, target)
+                interrupts.note_committed(target)
+            shutil.rmtree(stage, ignore_errors=True)
+            stage = None
+    except BaseException as exc:
+        with interrupts.held():
+            if stage is not None:
+                shutil.rmtree(stage, ignore_errors=True)
+            for parent in reversed(made):
+                with contextlib.suppress(OSError):
+                    parent.rmdir()              # only if empty: what this call made
+        refused = exc.errno if isinstance(exc, OutputWriteError) else _refused(exc)   # a file of the stage's
+        if refused is not None:
+            where = folder.parent if made else folder
+            raise OutputWriteError(_refusal_message(folder, where, refused, exc, "the files in "
+                                                    f"{str(folder)!r} are left as they were"), refused,
+                                   _reason(where, refused)) from None
         raise
     _fsync_folder(folder)
 
 
 @contextlib.contextmanager
+def hdf5_output(path):
+    """Yield an ``h5py.File`` open for writing in memory (HDF5's core driver, no backing store);
+    on normal exit its image is written to ``path`` in one write of this process
+    (``write_image``: atomically, ``atomic_output``). HDF5 itself never writes to the disk: a
+    disk that fills raises a clean OutputWriteError here, whereas an HDF5 file whose writes fail
+    leaves the library in a broken state (errors printed as objects are freed, then a crash at
+    the process's exit). The caller stamps the checksum last (``stamp_checksum``), as usual."""
+    f = h5py.File(f"uplift-in-memory-{os.getpid()}-{os.urandom(8).hex()}.h5", "w", driver="core",
+                  backing_store=False)
+    try:
+        yield f
+        f.flush()
+        image = f.id.get_file_image()
+    finally:
+        f.close()
+    write_image(path, image)
+
+
+def write_image(path, data) -> Path:
+    """Write the bytes ``data`` (e.g. an HDF5 file image made in memory) to ``path`` atomically
+    (``atomic_output``); returns ``path``. A refusal (OutputWriteError) says the space needed."""
+    try:
+        with atomic_output(path) as tmp, open(tmp, "wb") as out:
+            out.write(data)
+    except OutputWriteError as exc:
+        need = f"{_size(len(data))} needed"
+        text, reason = str(exc), exc.reason
+        if "free on its file system" in text:
+            text = text.replace("free on its file system", f"free on its file system, {need}", 1)
+            reason = reason.replace("free on its file system", f"free on its file system, {need}", 1)
+        raise OutputWriteError(text, exc.errno, reason) from None
+    return Path(path)
+
+
+def save_figure(fig, path, **savefig) -> Path:
+    """Write the matplotlib figure ``fig`` to ``path`` atomically (``atomic_output``: a full
+    disk or a Ctrl-C leaves the old image), in the format of the path's suffix (PNG without
+    one); ``savefig``: matplotlib's options (dpi, ...). Returns ``path``."""
+    fmt = Path(path).suffix[1:].lower() or "png"
+    with atomic_output(path) as tmp:
+        fig.savefig(tmp, format=fmt, **savefig)
+    return Path(path)
+
+
+@contextlib.contextmanager
 def atomic_update(path):
-    """Append to the stamped HDF5 file ``path``: yield a temporary copy of it for the caller to
-    modify (h5py mode "r+" or "a", xarray ``to_netcdf(mode="a")``), then re-stamp its checksum
-    and rename it onto ``path`` atomically. The file is verified first (ChangedFileError)."""
+    """Append to the stamped HDF5 file ``path``: yield a copy of it in memory (``io.BytesIO``)
+    for the caller to modify (``h5py.File(copy, "r+")``, xarray ``to_netcdf(copy, mode="a",
+    engine="h5netcdf")``), then re-stamp its checksum and write it onto ``path`` atomically
+    (``write_image``: HDF5 never writes to the disk itself, ``hdf5_output``'s reason). The file
+    is verified first (ChangedFileError)."""
     path = Path(path)
     with h5py.File(path, "r") as f:
         require_checksum(f, path)
-    with atomic_output(path) as tmp:
-        shutil.copyfile(output_target(path), tmp)
-        yield tmp
-        with h5py.File(tmp, "r+") as f:
-            stamp_checksum(f)
+    copy = io.BytesIO(output_target(path).read_bytes())
+    yield copy
+    stamp_file(copy)
+    write_image(path, copy.getbuffer())
 
 
 def _fsync_folder(folder) -> None:
@@ -291,8 +558,9 @@ def stamp_checksum(f: h5py.File) -> str:
 
 
 def stamp_file(path) -> str:
-    """Stamp the checksum of the HDF5 file ``path`` in place (a file written by another library,
-    e.g. xarray, before it is renamed into place) and return it."""
+    """Stamp the checksum of the HDF5 file ``path`` (or file-like object: an image in memory) in
+    place (a file written by another library, e.g. xarray, before it is renamed into place) and
+    return it."""
     with h5py.File(path, "r+") as f:
         return stamp_checksum(f)
 

@@ -5,12 +5,17 @@ from __future__ import annotations
 import concurrent.futures
 import logging
 import math
+import multiprocessing.spawn as spawn
 import os
+import shlex
+import shutil
 import signal
+import tempfile
 import threading
 from contextlib import contextmanager
 
 from orchestrator.settings import thread_count
+from uplift_common import interrupts
 
 from . import CONNECT_TIMEOUT_S      # defined in the package: the command line reads it there
 from .plan import EnsembleError
@@ -116,20 +121,49 @@ def _client(workers, scheduler, log, timeout: float = CONNECT_TIMEOUT_S):
         return
     n = str(thread_count())
     env = {"UPLIFT_THREADS": n, "OMP_NUM_THREADS": n, "OPENBLAS_NUM_THREADS": n, "MKL_NUM_THREADS": n}
-    with dask.config.set(LOCAL_WORKER_CONFIG), _workers_ignore_sigint():
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.CRITICAL, env=env)
-    with cluster, Client(cluster) as client:
-        yield client
+    with _workers_ignore_sigint():
+        # a Ctrl-C while the cluster starts is raised once it is in the `with` that shuts it down
+        # (raised inside LocalCluster's constructor, it left a half-made cluster that dask's exit
+        # handler then failed to close, with a traceback)
+        with interrupts.held(defer=True):
+            with dask.config.set(LOCAL_WORKER_CONFIG):
+                cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                       dashboard_address=None, silence_logs=logging.CRITICAL, env=env)
+            try:
+                client = Client(cluster)
+            except BaseException:
+                cluster.close()
+                raise
+        with cluster, client:
+            interrupts.raise_owed()
+            yield client
 
 
 @contextmanager
 def _workers_ignore_sigint():
     """Start worker processes with SIGINT ignored: a Ctrl-C at a terminal reaches the whole
     process group, and the workers would each print a traceback; this process stops them
-    when it handles the interrupt itself (a Ctrl-C while they start is ignored)."""
+    when it handles the interrupt itself. The workers are started (multiprocessing's spawn)
+    through a two-line shell wrapper that ignores SIGINT and execs Python, which keeps it
+    ignored for the process's life; this process goes on taking Ctrl-C all the while (it is
+    never lost, ``uplift_common.interrupts``). Without a POSIX shell, SIGINT is ignored here
+    while the cluster starts (a Ctrl-C of that time is lost)."""
     if threading.current_thread() is not threading.main_thread():
         yield
+        return
+    if os.name == "posix" and os.path.exists("/bin/sh"):
+        folder = tempfile.mkdtemp(prefix="uplift_workers_")
+        wrapper = os.path.join(folder, "python")
+        with open(wrapper, "w") as f:
+            f.write(f"#!/bin/sh\ntrap '' INT\nexec {shlex.quote(os.fsdecode(spawn.get_executable()))} \"$@\"\n")
+        os.chmod(wrapper, 0o755)
+        before = spawn.get_executable()
+        spawn.set_executable(wrapper)
+        try:
+            yield
+        finally:
+            spawn.set_executable(before)
+            shutil.rmtree(folder, ignore_errors=True)
         return
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:

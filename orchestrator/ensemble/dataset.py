@@ -3,6 +3,7 @@ written (netCDF4 through h5netcdf, atomically, with a checksum of its data), rea
 (verified) and summarised."""
 from __future__ import annotations
 
+import io
 import time
 import warnings
 from pathlib import Path
@@ -10,7 +11,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from uplift_common.files import CHECKSUM_ATTR, atomic_output, require_checksum, stamp_file
+from uplift_common.files import CHECKSUM_ATTR, require_checksum, stamp_file, write_image
 from structure.results import Status
 
 from orchestrator.motion import G
@@ -108,9 +109,10 @@ def write_ensemble(ds, path) -> Path:
     its content (``uplift_common.files``; a later append re-stamps it with
     ``uplift_common.files.atomic_update``)."""
     path = check_output_path(path)
-    with atomic_output(path) as tmp:
-        ds.to_netcdf(tmp, engine="h5netcdf")
-        stamp_file(tmp)
+    buf = io.BytesIO()               # written in memory, then to the disk in one write (hdf5_output's reason)
+    ds.to_netcdf(buf, engine="h5netcdf")
+    stamp_file(buf)
+    write_image(path, buf.getbuffer())
     return path
 
 

@@ -5,11 +5,10 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import h5py
 import numpy as np
 
 from soil_impedance.cache import read_entry
-from uplift_common.files import atomic_output, stamp_checksum
+from uplift_common.files import hdf5_output, stamp_checksum
 from structure.results import Status
 
 from orchestrator.oncurve import raft_load, run_extremes
@@ -105,7 +104,7 @@ class CellStore:
 
     def write(self, key: str, values: dict) -> None:
         self.folder.mkdir(exist_ok=True)
-        with atomic_output(self._path(key)) as tmp, h5py.File(tmp, "w") as f:
+        with hdf5_output(self._path(key)) as f:
             f.attrs["key"] = key
             for name, value in values.items():
                 if isinstance(value, np.ndarray):

@@ -12,12 +12,11 @@ from .result import FitReport, FitResult
 def save_fit(result: FitResult, path) -> None:
     """Model (``rational.write_model`` layout) + the report as JSON attribute ``fit_report`` + the
     content checksum (``uplift_common.files.stamp_checksum``), written atomically (``uplift_common.files.atomic_output``)."""
-    import h5py
 
-    from uplift_common.files import atomic_output, stamp_checksum
+    from uplift_common.files import hdf5_output, stamp_checksum
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_output(path) as tmp, h5py.File(tmp, "w") as h:
+    with hdf5_output(path) as h:
         write_model(h, result.model)
         h.attrs["fit_report"] = json.dumps(result.report.to_dict())
         stamp_checksum(h)
