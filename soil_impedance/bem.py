@@ -266,10 +266,7 @@ class RadialRegular:
     def __call__(self, r):
         """A, B, C, D at radii r (any shape; 0 or in [r_lo, r_max]), complex, m/N."""
         r = np.asarray(r, dtype=float)
-        if self._spline is None:
-            v = np.broadcast_to(self.at_zero, r.shape + (4,)).copy()
-        else:
-            v = self._spline(r)
+        v = np.broadcast_to(self.at_zero, r.shape + (4,)).copy() if self._spline is None else self._spline(r)
         zero = r == 0
         if zero.any():
             v[zero] = self.at_zero
