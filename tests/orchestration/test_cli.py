@@ -32,7 +32,7 @@ def test_impedance_json_contract(scene, tmp_path, capsys):
     out = tmp_path / "table.h5"
     assert main(["impedance", str(scene), "--json", "-o", str(out)]) == 0
     data = json.loads(capsys.readouterr().out)          # exactly one JSON object on stdout
-    assert set(data) == {"frequencies_hz", "dofs", "rigid", "wall_s"}
+    assert set(data) == {"frequencies_hz", "dofs", "rigid", "wall_s", "discretisation_error"}
     assert data["dofs"] == ["ux", "uy", "uz", "rx", "ry", "rz"]
     K = np.array(data["rigid"])                          # (F, 6, 6, 2)
     assert K.shape == (1, 6, 6, 2)
@@ -40,6 +40,10 @@ def test_impedance_json_contract(scene, tmp_path, capsys):
     G, R, nu = 2000 * 500.0 ** 2, 10.0, 1 / 3
     kv = 4 * G * R * math.log(3 - 4 * nu) / (1 - 2 * nu)
     assert K[0, 2, 2, 0] == pytest.approx(kv, rel=0.08)
+    # the coarse grid (R/h = 4) is too flexible (-3.5 %): the estimate (vs h/2, Richardson) says so
+    err = data["discretisation_error"]["errors"]
+    assert set(err) == set(data["dofs"]) and -0.08 < err["uz"] < -0.01
+    assert abs(K[0, 2, 2, 0] / (1 + err["uz"]) - kv) < 0.5 * abs(K[0, 2, 2, 0] - kv)
     with h5py.File(out) as f:                             # the file is readable with plain h5py
         assert f["matrices_real"].shape == (1, 6, 6)
 
