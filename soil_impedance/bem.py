@@ -1,18 +1,31 @@
 """Surface BEM (subregion method): flexibility and nodal impedance of an interface mesh.
 
-Tractions are piecewise constant on patches: the grid cells of regular meshes (squares of side
-``mesh.cell``, or the lx/nx × ly/ny rectangles of a rectangle mesh), equal-area squares of side
-``sqrt(area)`` for node lists; displacements are collocated at the patch centres. With a
-unit *force* on patch j, ``F[i, j]`` (3×3 block) is the displacement at node i::
+Tractions are piecewise constant on cells: the grid cells of regular meshes (squares of side
+``mesh.cell``, or the lx/nx × ly/ny rectangles of a rectangle mesh), the true polygons of a
+finite-element mesh (kind "cells": triangles and quadrilaterals), equal-area squares of side
+``sqrt(area)`` for node lists; displacements are collocated at the cell centres: the square
+centres, or the **area centroids** of the cells (kind "cells"), which are the mesh's nodes,
+hence the structure's interface nodes and the points where the contact gaps are measured. With
+a unit *force* on cell j, ``F[i, j]`` (3×3 block) is the displacement at node i::
 
-    F_ij = (1/A_j) ∫_{patch j} g_static(x_i - y) dy   +   g_regular(x_i - x_j; ω)
+    F_ij = (1/A_j) ∫_{cell j} g_static(x_i - y) dy   +   g_regular(|x_i - x_j|; ω)
 
 The static part (Boussinesq/Cerruti with G*(ω) of the top material: the singular part of the
-dynamic kernel at ω) is integrated in closed form over every patch (``patch.static_patch_kernel``,
-once at ω = 0, then scaled by G*(0)/G*(ω): it is proportional to 1/G*); the smooth regular part
-(``greens.regular_green``) is taken at the patch centre (midpoint rule, O(h²), below the O(h)
-error of constant tractions). On grid meshes the kernel is evaluated only at the distinct
-integer offsets, and ``regular_green`` only at the distinct radii.
+dynamic kernel at ω) is integrated in closed form over every cell, exactly from any field point
+(inside, on or outside the cell): rectangles by corner primitives (``patch.static_patch_kernel``),
+polygons by edge decomposition (``patch.polygon_integrals``). The smooth regular part
+(``greens.regular_green``) is taken at the cell centre offset (midpoint rule, O(h²), below the
+O(h) error of constant tractions: a cell quadrature would cost several kernel values per pair
+for no gain in order).
+
+Grid meshes: the kernel is evaluated only at the distinct integer offsets, and
+``regular_green`` only at the distinct radii (this path's arithmetic is unchanged: its tables
+are cached). Irregular meshes (node lists, cells): memory O(n²) reals, never n² radii through
+the Bessel transforms: the six static basis integrals are stored per pair (48 bytes), and per
+frequency the regular kernel is evaluated on a radial grid refined until a cubic spline meets
+``RADIAL_TOL`` (``RadialRegular``), interpolated at the pair radii and assembled into F by
+blocks of rows; F is then symmetrised in place (collocation on unequal cells is not exactly
+reciprocal).
 
 DOF ordering is node-interleaved: ``[ux0, uy0, uz0, ux1, uy1, uz1, ...]`` (m, N).
 The nodal impedance ``K = F⁻¹`` maps interface displacements to the forces applied to the soil.

@@ -4,7 +4,9 @@ A mesh is a set of nodes (x, y) on the plane z = 0 with the area of the patch ea
 stands for. Regular meshes (circle, rectangle) are made of equal square cells of side
 ``cell`` on a grid: every node offset is an integer multiple of ``cell``, which the BEM
 exploits (translation invariance: only distinct offsets are computed). A user node list
-has no grid (``cell is None``); its patches are taken as squares of the same area.
+has no grid (``cell is None``); its patches are taken as squares of the same area. A
+finite-element mesh of the raft (``cells_mesh``: triangles and quadrilaterals) keeps each
+cell's true polygon (``cells``), its node at the cell's area centroid.
 """
 from __future__ import annotations
 
