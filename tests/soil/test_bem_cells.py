@@ -26,8 +26,8 @@ KERNELS = [lambda x, y, r: 1 / r, lambda x, y, r: x * x / r ** 3, lambda x, y, r
            lambda x, y, r: x * y / r ** 3, lambda x, y, r: x / r ** 2, lambda x, y, r: y / r ** 2]
 
 
-def _disk(kind, n):
-    d = np.load(MESHES / f"disk_{kind}_{n}.npz")
+def _disk(kind, n=None):
+    d = np.load(MESHES / (f"disk_{kind}_{n}.npz" if n else f"disk_{kind}.npz"))
     return cells_mesh(d["points"], d.get("triangles", ()), d.get("quads", ()))
 
 
@@ -176,7 +176,7 @@ DOF = {"ux": 0, "uy": 1, "uz": 2, "rx": 3, "ry": 4, "rz": 5}
 
 
 @functools.cache
-def _disk_errors(kind, n, nu=1 / 3):
+def _disk_errors(kind, n=None, nu=1 / 3):
     prof = SoilProfile.homogeneous(vs=100.0, rho=2000.0, nu=nu)
     G = prof.top.shear_modulus
     mesh = _disk(kind, n)
@@ -208,6 +208,18 @@ def test_rigid_disk_on_unstructured_cells_converges_at_order_one(kind):
         assert abs(errs[10][d]) < tol[0], f"K{d} at R/h = 10: {errs[10][d]:.4f}"
     for d in ("rx", "ry", "rz"):
         assert abs(errs[10][d]) < tol[1], f"K{d} at R/h = 10: {errs[10][d]:.4f}"
+
+
+@pytest.mark.slow
+def test_rigid_disk_on_a_mesh_graded_toward_the_edge_meets_the_targets():
+    # where uniform R/10 triangles miss 2.5 % on Kr, Kt (-3.5 %): the error is the edge, where the
+    # rigid raft's traction is singular; triangles graded from R/4 to R/20 at the edge (613
+    # cells, fewer than the 761 of uniform R/10) give Kh, Kv -0.69 %, Kr, Kt -2.0 to -2.1 %
+    errs = _disk_errors("graded")
+    for d in ("ux", "uy", "uz"):
+        assert -0.015 < errs[d] < 0, f"K{d}: {errs[d]:.4f}"
+    for d in ("rx", "ry", "rz"):
+        assert -0.025 < errs[d] < 0, f"K{d}: {errs[d]:.4f}"
 
 
 @pytest.mark.slow

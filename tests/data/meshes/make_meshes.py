@@ -5,7 +5,9 @@
 Each ``disk_<kind>_<R/h>.npz`` holds ``points`` (m, 2), m, and ``triangles`` (nt, 3) or ``quads``
 (nq, 4), vertex indices: a disk of radius R = 10 m meshed by gmsh's Frontal-Delaunay algorithm
 at mesh size h (``quad``: the same recombined into quadrilaterals by Blossom, full-quad
-subdivision off, so the size stays h). The tests read them with numpy only (no gmsh).
+subdivision off, so the size stays h). ``disk_graded.npz``: triangles graded from h = R/4 at
+the centre to h = R/20 at the edge (size h_edge + (h - h_edge) sqrt(1 - r/R)), where the rigid
+raft's traction is singular. The tests read them with numpy only (no gmsh).
 """
 from __future__ import annotations
 
@@ -19,8 +21,9 @@ RADIUS = 10.0
 DIVISIONS = (5, 7, 10)
 
 
-def disk_mesh(radius: float, h: float, quads: bool = False, seed: int = 0):
-    """Points (m, 2) and cells ((nt, 3) triangles or (nq, 4) quads) of a disk meshed by gmsh."""
+def disk_mesh(radius: float, h: float, quads: bool = False, seed: int = 0, h_edge: float | None = None):
+    """Points (m, 2) and cells ((nt, 3) triangles or (nq, 4) quads) of a disk meshed by gmsh
+    (size h; with ``h_edge``, graded from h at the centre to h_edge at the edge)."""
     import gmsh
     gmsh.initialize(["-noenv"])
     try:
@@ -30,8 +33,15 @@ def disk_mesh(radius: float, h: float, quads: bool = False, seed: int = 0):
         gmsh.model.add("disk")
         gmsh.model.occ.addDisk(0, 0, 0, radius, radius)
         gmsh.model.occ.synchronize()
-        gmsh.option.setNumber("Mesh.MeshSizeMin", h)
-        gmsh.option.setNumber("Mesh.MeshSizeMax", h)
+        if h_edge is None:
+            gmsh.option.setNumber("Mesh.MeshSizeMin", h)
+            gmsh.option.setNumber("Mesh.MeshSizeMax", h)
+        else:
+            field = gmsh.model.mesh.field.add("MathEval")
+            gmsh.model.mesh.field.setString(field, "F", f"{h_edge}+({h}-{h_edge})*(1-sqrt(x*x+y*y)/{radius})^0.5")
+            gmsh.model.mesh.field.setAsBackgroundMesh(field)
+            for key in ("Mesh.MeshSizeExtendFromBoundary", "Mesh.MeshSizeFromPoints", "Mesh.MeshSizeFromCurvature"):
+                gmsh.option.setNumber(key, 0)
         gmsh.option.setNumber("Mesh.Algorithm", 6)            # Frontal-Delaunay
         if quads:
             gmsh.option.setNumber("Mesh.RecombinationAlgorithm", 1)   # Blossom
@@ -60,6 +70,9 @@ def main():
             path = HERE / f"disk_{kind}_{n}.npz"
             np.savez_compressed(path, points=pts, **{key: conn})
             print(f"{path.name}: {pts.shape[0]} points, {conn.shape[0]} cells")
+    pts, conn = disk_mesh(RADIUS, RADIUS / 4, h_edge=RADIUS / 20)
+    np.savez_compressed(HERE / "disk_graded.npz", points=pts, triangles=conn)
+    print(f"disk_graded.npz: {pts.shape[0]} points, {conn.shape[0]} cells")
 
 
 if __name__ == "__main__":
