@@ -248,9 +248,14 @@ class RadialRegular:
         vs_min = min(m.vs for m in list(profile.layers) + [profile.halfspace])
         h = min(h0, 2 * np.pi * vs_min / omega / 8) if omega > 0 else h0
         r_lo = min(r_lo, r_max)
+        self.calls = 0
+        if r_max - r_lo <= 1e-9 * max(r_max, 1.0):       # one non-zero radius (or none): exact values
+            values, self.at_zero = self._evaluate(profile, omega, np.array([r_max, 0.0]), r_max, rule)
+            self.r, self.error, self.converged, self._spline = np.array([r_max]), 0.0, True, None
+            self._single = values[0]
+            return
         m = max(8, 2 * int(np.ceil((r_max - r_lo) / h / 2)))
         r = np.linspace(r_lo, r_max, m + 1)
-        self.calls = 0
         values, self.at_zero = self._evaluate(profile, omega, np.append(r, 0.0), r_max, rule)
         values = values[:-1]
         while True:
@@ -264,7 +269,7 @@ class RadialRegular:
             both[::2], both[1::2] = values, extra
             r, values = np.linspace(r_lo, r_max, 2 * r.size - 1), both
         self.r, self.error, self.converged = r, err, err <= tol
-        self._spline = CubicSpline(r, values, axis=0) if r_max > r_lo else None
+        self._spline = CubicSpline(r, values, axis=0)
 
     def _evaluate(self, profile, omega, r, r_max, rule, batch=512):
         """regular_green at r (with r_max appended to every batch: the same wavenumber rule),
@@ -279,7 +284,7 @@ class RadialRegular:
     def __call__(self, r):
         """A, B, C, D at radii r (any shape; 0 or in [r_lo, r_max]), complex, m/N."""
         r = np.asarray(r, dtype=float)
-        v = np.broadcast_to(self.at_zero, r.shape + (4,)).copy() if self._spline is None else self._spline(r)
+        v = np.broadcast_to(self._single, r.shape + (4,)).copy() if self._spline is None else self._spline(r)
         zero = r == 0
         if zero.any():
             v[zero] = self.at_zero

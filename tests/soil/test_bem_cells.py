@@ -157,6 +157,10 @@ def test_radial_grid_refines_until_the_bound_and_is_deterministic():
     r = np.linspace(0.5, 12.0, 777)
     assert all(np.array_equal(x, y) for x, y in zip(a(r), b(r)))
     assert np.allclose(a(np.zeros(3))[0], a.at_zero[0])
+    for xy in ([[0.0, 0.0]], [[0.0, 0.0], [1.5, 0.0]]):      # no or one non-zero radius: exact values
+        mesh = nodes_mesh(xy, np.ones(len(xy)))
+        w = 2 * math.pi * 5.0
+        assert np.array_equal(SurfaceBem(prof, mesh).flexibility(w), SurfaceBem(prof, mesh, radial_tol=0).flexibility(w))
 
 
 def test_max_pair_distance_and_duplicate_check_in_n_log_n():
