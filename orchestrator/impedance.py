@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from soil_impedance import impedance_sweep, static_impedance
+from soil_impedance.discretisation import static_error_estimate
 from soil_impedance.fit import FitOptions, cached_fit, fit_table
 from soil_impedance.sweep import table_key
 
@@ -75,7 +76,6 @@ def scene_discretisation_error(scene, cache_dir=None) -> dict:
     """Estimated relative discretisation error of the scene's static rigid impedances (its mesh
     against the same raft refined, Richardson: ``soil_impedance.discretisation``), or
     ``{"skipped": reason}``. Both static solves are cached like any table."""
-    from soil_impedance.discretisation import static_error_estimate
     return static_error_estimate(scene.profile, scene.mesh, scene.contact_kind, cache_dir=cache_dir)
 
 
