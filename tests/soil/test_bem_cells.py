@@ -276,3 +276,33 @@ def test_memory_estimate_refuses_before_allocating(monkeypatch):
     est = sweep_memory(4000, 200, ("rigid", "gap"))
     assert est["F"] == 16 * 12000 ** 2 and est["outputs"] >= 200 * 16 * 4006 ** 2
     assert sweep_memory(4000, 1, ("rigid",))["total"] < est["total"]
+
+
+PEAK_CHILD = """
+import resource, sys
+import numpy as np
+sys.path.insert(0, {tests!r})
+from test_bem_cells import _jittered_triangles
+from soil_impedance import SoilProfile, impedance_sweep
+from soil_impedance.sweep import sweep_memory
+mesh = _jittered_triangles(30, 15)
+prof = SoilProfile.homogeneous(vs=200.0, rho=2000.0, nu=0.3, damping=0.05)
+impedance_sweep(prof, mesh, [0.0, 5.0], outputs=("rigid", "gap"))
+print(mesh.n, sweep_memory(mesh.n, 2, ("rigid", "gap"))["total"],
+      resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)
+"""
+
+
+@pytest.mark.slow
+def test_memory_estimate_bounds_the_measured_peak():
+    # the estimate against the peak resident memory (maxrss, which counts what LAPACK allocates)
+    # of a real sweep in a child process: 900 irregular cells, rigid + gap, two frequencies
+    import os
+    import subprocess
+    import sys
+    code = PEAK_CHILD.format(tests=str(Path(__file__).resolve().parent))
+    env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+    n, estimate, peak = (int(v) for v in out.stdout.split())
+    assert n == 900
+    assert peak <= estimate <= 1.6 * peak, f"estimate {estimate / 2**20:.0f} MiB, peak {peak / 2**20:.0f} MiB"
