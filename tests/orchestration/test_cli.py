@@ -206,3 +206,13 @@ def test_a_single_seed_says_it_is_one_motion(tmp_path, capsys, monkeypatch):
         in capsys.readouterr().err
     assert main(["ensemble", scene, "--pga", "0.1", "--n-seeds", "3"]) == 130
     assert seen["seeds"] == [0, 1, 2] and "one motion" not in capsys.readouterr().err
+
+
+def test_impedance_refused_when_the_sweep_would_not_fit(scene, capsys, monkeypatch):
+    # the sweep's memory estimate against the machine's available memory (here 1 MiB): exit 2,
+    # one line naming the estimate, the memory and the fix, and no BEM computed
+    monkeypatch.setattr("soil_impedance.sweep.available_memory", lambda: 2 ** 20)
+    monkeypatch.setattr("soil_impedance.sweep._compute", lambda *a, **k: pytest.fail("computed before refusing"))
+    assert main(["impedance", str(scene), "--no-cache"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "needs about" in err[0] and "0.00 GiB available" in err[0] and "coarser mesh" in err[0]
