@@ -489,7 +489,7 @@ def cmd_impedance(args) -> int:
     error = scene_discretisation_error(scene, cache_dir=cache)
     for name, path in (("rigid", args.output), ("gap", args.gap)):
         if path:
-            tables[name].save(path)
+            tables[name].save(path, notes={"discretisation_error": error})
             _say(f"wrote {path} ({name} table)")
     if args.plot:
         plot_impedance(tables["rigid"], scene, args.plot, static=scene_static(scene, cache_dir=cache))

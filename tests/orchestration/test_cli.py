@@ -46,6 +46,7 @@ def test_impedance_json_contract(scene, tmp_path, capsys):
     assert abs(K[0, 2, 2, 0] / (1 + err["uz"]) - kv) < 0.5 * abs(K[0, 2, 2, 0] - kv)
     with h5py.File(out) as f:                             # the file is readable with plain h5py
         assert f["matrices_real"].shape == (1, 6, 6)
+        assert json.loads(f.attrs["notes"])["discretisation_error"] == data["discretisation_error"]
 
 
 def test_cache_reuses_sweep(scene, capsys, monkeypatch):
