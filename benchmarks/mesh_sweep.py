@@ -11,7 +11,16 @@ most 8 GB peak.
 Each size runs in a child process: its peak resident memory (``resource.getrusage`` maxrss of
 the child) counts what BLAS/LAPACK allocate, which tracemalloc does not see. One BLAS thread.
 Prints per size: cells, DOFs, the estimate of ``sweep.sweep_memory``, the measured peak, the
-wall time of the sweep and per frequency, and the radial grid size of the last frequency.
+wall time of the sweep and per frequency.
+
+Measured (2 cores shared with five other jobs, load ~8: wall times are several times the CPU
+times; estimate of the current ``sweep_memory``)::
+
+    target  cells   DOFs  h (m)  est GB  peak GB   wall s  s/freq
+       250    271    813   3.49    0.38     0.22     20.2    1.01
+       500    509   1527   2.47    0.55     0.36     64.4    3.22
+      1000   1013   3039   1.74    1.25     0.93    431.3   21.56
+      2000   1966   5898   1.23    1.91     1.89    418.5  209.27   (2 frequencies only)
 """
 from __future__ import annotations
 
