@@ -20,7 +20,8 @@ times; estimate of the current ``sweep_memory``)::
        250    271    813   3.49    0.38     0.22     20.2    1.01
        500    509   1527   2.47    0.55     0.36     64.4    3.22
       1000   1013   3039   1.74    1.25     0.93    431.3   21.56
-      2000   1966   5898   1.23    1.91     1.89    418.5  209.27   (2 frequencies only)
+      2000   1966   5898   1.23    3.84     3.01   1090.8   54.54
+      (2000 at 2 frequencies, the machine busier: est 1.91 GB, peak 1.89 GB, 209 s/frequency)
 """
 from __future__ import annotations
 
