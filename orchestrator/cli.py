@@ -195,7 +195,9 @@ def _parser() -> argparse.ArgumentParser:
 
     imp = sub.add_parser("impedance", help="soil impedance of the scene's foundation (BEM sweep)",
                          description="Compute the rigid-raft (6x6) and rigid+gap (6+N) impedance tables of "
-                                     "the scene's foundation over the scene's frequencies.")
+                                     "the scene's foundation over the scene's frequencies, and estimate the "
+                                     "discretisation error of its static rigid terms (the mesh against the same "
+                                     "raft refined; printed, and in --json as discretisation_error).")
     scene_arg(imp)
     imp.add_argument("-o", "--output", type=Path, help="write the rigid 6x6 table to this HDF5 file")
     imp.add_argument("--gap", type=Path, metavar="FILE",
@@ -649,7 +651,8 @@ def cmd_scene(args) -> int:
 def cmd_impedance(args) -> int:
     # start-up cost: what only this command uses loads in it
     import numpy as np                                           # (same)
-    from orchestrator.impedance import rigid_json, scene_impedance, scene_static
+    from orchestrator.impedance import (discretisation_lines, rigid_json, scene_discretisation_error,
+                                        scene_impedance, scene_static)
     from orchestrator.plots import plot_impedance                # (same)
     from orchestrator.results_file import check_output_path      # (same)
     from orchestrator.scene import load_scene                    # (same)
@@ -663,22 +666,24 @@ def cmd_impedance(args) -> int:
     tables = scene_impedance(scene, outputs, cache_dir=cache,
                              progress=Progress(f"impedance {scene.name}"))
     wall = time.perf_counter() - t0
+    error = scene_discretisation_error(scene, cache_dir=cache)
     for name, path in (("rigid", args.output), ("gap", args.gap)):
         if path:
-            tables[name].save(path)
+            tables[name].save(path, notes={"discretisation_error": error})
             _say(f"wrote {path} ({name} table)")
     if args.plot:
         plot_impedance(tables["rigid"], scene, args.plot, static=scene_static(scene, cache_dir=cache))
         _say(f"wrote {args.plot}")
     if args.json:
-        _print_json(rigid_json(tables["rigid"], wall))
+        _print_json(rigid_json(tables["rigid"], wall, error))
     else:
         table = tables["rigid"]
         diag = np.diagonal(table.matrices, axis1=1, axis2=2)
         _out(f"rigid impedance, {len(table.frequencies_hz)} frequencies, {wall:.2f} s",
              "   f (Hz) " + "".join(f"{d:>24s}" for d in table.dofs),
              *(f"{f:9.3f} " + "".join(f"{z.real:12.4e}{z.imag:+12.4e}" for z in row)
-               for f, row in zip(table.frequencies_hz, diag)))
+               for f, row in zip(table.frequencies_hz, diag)),
+             *discretisation_lines(error))
     return EXIT_OK
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from soil_impedance import impedance_sweep, static_impedance
+from soil_impedance.discretisation import static_error_estimate
 from soil_impedance.fit import FitOptions, cached_fit, fit_table
 from soil_impedance.sweep import table_key
 
@@ -71,11 +72,36 @@ def _fit_options(scene, fit_options) -> FitOptions:
     return FitOptions.make(**fit_options)
 
 
-def rigid_json(table, wall_s: float) -> dict:
-    """The ``uplift impedance --json`` object: per frequency a 6×6 list of [re, im]."""
-    return {
+def scene_discretisation_error(scene, cache_dir=None) -> dict:
+    """Estimated relative discretisation error of the scene's static rigid impedances (its mesh
+    against the same raft refined, Richardson: ``soil_impedance.discretisation``), or
+    ``{"skipped": reason}``. Both static solves are cached like any table."""
+    return static_error_estimate(scene.profile, scene.mesh, scene.contact_kind, cache_dir=cache_dir)
+
+
+#: the static terms of the error lines, by rigid DOF
+TERMS = {"ux": "Kh (x)", "uy": "Kh (y)", "uz": "Kv", "rx": "Kr (x)", "ry": "Kr (y)", "rz": "Kt"}
+
+
+def discretisation_lines(estimate: dict) -> list[str]:
+    """The text lines of ``uplift impedance`` for a ``scene_discretisation_error`` result: a
+    heading, then one line per term (its signed relative error, %), or why it was skipped."""
+    if "skipped" in estimate:
+        return [f"discretisation error: not estimated: {estimate['skipped']}"]
+    head = (f"discretisation error of the static rigid impedances (mesh of {estimate['n']} nodes vs refined, "
+            f"{estimate['n_refined']} nodes; Richardson, order {estimate['order']:g}):")
+    return [head, *(f"  {TERMS[d]:7s} {100 * e:+7.2f} %" for d, e in estimate["errors"].items())]
+
+
+def rigid_json(table, wall_s: float, discretisation: dict | None = None) -> dict:
+    """The ``uplift impedance --json`` object: per frequency a 6×6 list of [re, im]; and the
+    ``discretisation_error`` estimate (``scene_discretisation_error``) when given."""
+    out = {
         "frequencies_hz": [float(f) for f in table.frequencies_hz],
         "dofs": list(table.dofs),
         "rigid": [[[[float(z.real), float(z.imag)] for z in row] for row in K] for K in table.matrices],
         "wall_s": float(wall_s),
     }
+    if discretisation is not None:
+        out["discretisation_error"] = discretisation
+    return out

@@ -14,7 +14,8 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "bem": ("BemError", "SurfaceBem", "nodal_dofs", "nodal_impedance"),
     "reduction": ("RIGID_DOFS", "condense_gap_rigid", "gap_dofs", "gap_reduction", "gap_transform", "rigid_reduction", "rigid_transform"),
     "table": ("ImpedanceTable", "TableError"),
-    "sweep": ("impedance_sweep", "static_impedance"),
+    "sweep": ("SweepMemoryError", "check_sweep_memory", "impedance_sweep", "static_impedance", "sweep_memory"),
+    "discretisation": ("refined_mesh", "static_error_estimate"),
     "rational": ("FitError", "RationalModel"),
     "fit": ("FitOptions", "FitReport", "FitResult", "fit_table", "load_fit", "save_fit"),
 })

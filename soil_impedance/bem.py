@@ -1,18 +1,31 @@
 """Surface BEM (subregion method): flexibility and nodal impedance of an interface mesh.
 
-Tractions are piecewise constant on patches: the grid cells of regular meshes (squares of side
-``mesh.cell``, or the lx/nx × ly/ny rectangles of a rectangle mesh), equal-area squares of side
-``sqrt(area)`` for node lists; displacements are collocated at the patch centres. With a
-unit *force* on patch j, ``F[i, j]`` (3×3 block) is the displacement at node i::
+Tractions are piecewise constant on cells: the grid cells of regular meshes (squares of side
+``mesh.cell``, or the lx/nx × ly/ny rectangles of a rectangle mesh), the true polygons of a
+finite-element mesh (kind "cells": triangles and quadrilaterals), equal-area squares of side
+``sqrt(area)`` for node lists; displacements are collocated at the cell centres: the square
+centres, or the **area centroids** of the cells (kind "cells"), which are the mesh's nodes,
+hence the structure's interface nodes and the points where the contact gaps are measured. With
+a unit *force* on cell j, ``F[i, j]`` (3×3 block) is the displacement at node i::
 
-    F_ij = (1/A_j) ∫_{patch j} g_static(x_i - y) dy   +   g_regular(x_i - x_j; ω)
+    F_ij = (1/A_j) ∫_{cell j} g_static(x_i - y) dy   +   g_regular(|x_i - x_j|; ω)
 
 The static part (Boussinesq/Cerruti with G*(ω) of the top material: the singular part of the
-dynamic kernel at ω) is integrated in closed form over every patch (``patch.static_patch_kernel``,
-once at ω = 0, then scaled by G*(0)/G*(ω): it is proportional to 1/G*); the smooth regular part
-(``greens.regular_green``) is taken at the patch centre (midpoint rule, O(h²), below the O(h)
-error of constant tractions). On grid meshes the kernel is evaluated only at the distinct
-integer offsets, and ``regular_green`` only at the distinct radii.
+dynamic kernel at ω) is integrated in closed form over every cell, exactly from any field point
+(inside, on or outside the cell): rectangles by corner primitives (``patch.static_patch_kernel``),
+polygons by edge decomposition (``patch.polygon_integrals``). The smooth regular part
+(``greens.regular_green``) is taken at the cell centre offset (midpoint rule, O(h²), below the
+O(h) error of constant tractions: a cell quadrature would cost several kernel values per pair
+for no gain in order).
+
+Grid meshes: the kernel is evaluated only at the distinct integer offsets, and
+``regular_green`` only at the distinct radii (this path's arithmetic is unchanged: its tables
+are cached). Irregular meshes (node lists, cells): memory O(n²) reals, never n² radii through
+the Bessel transforms: the six static basis integrals are stored per pair (48 bytes), and per
+frequency the regular kernel is evaluated on a radial grid refined until a cubic spline meets
+``RADIAL_TOL`` (``RadialRegular``), interpolated at the pair radii and assembled into F by
+blocks of rows; F is then symmetrised in place (collocation on unequal cells is not exactly
+reciprocal).
 
 DOF ordering is node-interleaved: ``[ux0, uy0, uz0, ux1, uy1, uz1, ...]`` (m, N).
 The nodal impedance ``K = F⁻¹`` maps interface displacements to the forces applied to the soil.
@@ -63,40 +76,39 @@ class SurfaceBem:
     mesh : InterfaceMesh
     contact : "welded" or "relaxed"
     rule : passed unchanged to ``greens.regular_green`` (integration rule), or None
+    radial_tol : irregular meshes only: relative interpolation tolerance of the regular part
+        (None: ``RADIAL_TOL``; 0: ``regular_green`` at every pair radius, for verification)
     """
 
-    def __init__(self, profile, mesh, contact="welded", rule=None):
+    def __init__(self, profile, mesh, contact="welded", rule=None, radial_tol=None):
         if contact not in CONTACTS:
             raise BemError(f"contact = {contact!r}: use one of {CONTACTS}")
         self.profile, self.mesh, self.contact, self.rule = profile, mesh, contact, rule
-        n = mesh.n
         grid = _grid(mesh)
-        if grid is not None:
-            ij, (hx, hy) = grid
-            di = ij[:, None, 0] - ij[None, :, 0]
-            dj = ij[:, None, 1] - ij[None, :, 1]
-            # distinct offsets: a box of integer offsets, kernels indexed into it
-            span = np.abs(di).max(initial=0), np.abs(dj).max(initial=0)
-            width = 2 * span[1] + 1
-            box = ((di + span[0]) * width + (dj + span[1])).ravel()
-            used, self._pair_index = np.unique(box, return_inverse=True)
-            self._pair_index = self._pair_index.ravel()
-            self._off = np.column_stack([used // width - span[0], used % width - span[1]]) * (hx, hy)
-            hax = np.full(used.size, 0.5 * hx)
-            hay = np.full(used.size, 0.5 * hy)
-        else:
-            d = mesh.xy[:, None, :] - mesh.xy[None, :, :]
-            self._off = d.reshape(-1, 2)
-            self._pair_index = np.arange(n * n)
-            hax = hay = np.broadcast_to(mesh.patch_half_sides[None, :], (n, n)).ravel()
         self._grid = grid is not None
+        self.regular_calls = 0
+        if grid is None:                      # irregular mesh: bounded memory, see _IrregularOperator
+            self._irregular = _IrregularOperator(profile, mesh, contact, rule, radial_tol)
+            return
+        self._irregular = None
+        ij, (hx, hy) = grid
+        di = ij[:, None, 0] - ij[None, :, 0]
+        dj = ij[:, None, 1] - ij[None, :, 1]
+        # distinct offsets: a box of integer offsets, kernels indexed into it
+        span = np.abs(di).max(initial=0), np.abs(dj).max(initial=0)
+        width = 2 * span[1] + 1
+        box = ((di + span[0]) * width + (dj + span[1])).ravel()
+        used, self._pair_index = np.unique(box, return_inverse=True)
+        self._pair_index = self._pair_index.ravel()
+        self._off = np.column_stack([used // width - span[0], used % width - span[1]]) * (hx, hy)
+        hax = np.full(used.size, 0.5 * hx)
+        hay = np.full(used.size, 0.5 * hy)
         self._static = static_patch_kernel(profile.top, self._off[:, 0], self._off[:, 1], hax, hay, 0.0)
         self._g_static = profile.top.complex_shear_modulus(0.0)
         r = np.hypot(self._off[:, 0], self._off[:, 1])
         scale = max(float(r.max(initial=0.0)), 1.0)
         self._radii, self._radius_index = np.unique(np.round(r / scale, 12) * scale, return_inverse=True)
         self._radius_index = self._radius_index.ravel()
-        self.regular_calls = 0
 
     @property
     def n_dof(self) -> int:
@@ -104,7 +116,10 @@ class SurfaceBem:
 
     @property
     def n_radii(self) -> int:
-        """Number of distinct radii sent to ``regular_green`` per frequency."""
+        """Number of distinct radii sent to ``regular_green`` per frequency (irregular meshes: the
+        radial interpolation grid of the last frequency, 0 before any)."""
+        if self._irregular is not None:
+            return self._irregular.n_radii
         return self._radii.size
 
     def flexibility(self, omega: float) -> np.ndarray:
@@ -117,6 +132,9 @@ class SurfaceBem:
         if not np.isfinite(omega) or omega < 0:
             raise BemError(f"omega = {omega!r} rad/s must be finite and >= 0 "
                            "(use K(-ω) = conj K(ω) for negative frequencies)")
+        if self._irregular is not None:
+            self.regular_calls += 1
+            return self._irregular.flexibility(float(omega))
         A, B, C, D = _regular_green(self.profile, float(omega), self._radii, self.rule)
         self.regular_calls += 1
         k = self._radius_index
@@ -176,3 +194,196 @@ def nodal_impedance(profile, mesh, omega, contact="welded", rule=None) -> np.nda
 def nodal_dofs(n: int) -> list[str]:
     """Labels of the nodal DOFs: ['ux0', 'uy0', 'uz0', 'ux1', ...]."""
     return [f"u{c}{i}" for i in range(n) for c in "xyz"]
+
+
+#: relative tolerance of the radial interpolation of the regular kernel on irregular meshes: the
+#: cubic spline through every other node of the radial grid must match the skipped nodes within
+#: RADIAL_TOL × max|regular part| (a bound on the error of the spline through all nodes, about
+#: 16 times smaller for a smooth kernel). Part of this module, so of the sweep's code digest.
+RADIAL_TOL = 1.0e-6
+#: most radial grid nodes per frequency (refinement stops there; ~21 kB of Bessel values each)
+RADIAL_MAX_NODES = 1 << 12
+#: pairs (i, j) assembled at once: bounds the temporaries of the irregular assembly (~30 arrays
+#: of this many float64, about 16 MB each)
+CHUNK_PAIRS = 1 << 16
+
+
+def max_pair_distance(xy) -> float:
+    """Largest distance between two of the points xy (n, 2), m, in O(n log n) (convex hull)."""
+    xy = np.asarray(xy, dtype=float)
+    if xy.shape[0] < 2:
+        return 0.0
+    pts = xy
+    if xy.shape[0] > 3:
+        from scipy.spatial import ConvexHull, QhullError
+        try:
+            pts = xy[ConvexHull(xy).vertices]
+        except QhullError:                 # all on one line: the extreme points along it
+            u = xy - xy[0]
+            axis = u[np.argmax(np.hypot(u[:, 0], u[:, 1]))]
+            s = u @ axis
+            pts = xy[[np.argmin(s), np.argmax(s)]]
+    d = pts[:, None, :] - pts[None, :, :]
+    return float(np.hypot(d[..., 0], d[..., 1]).max())
+
+
+class RadialRegular:
+    """The regular kernel (A, B, C, D)(r) of one frequency: exact at r = 0, and on [r_lo, r_max]
+    a uniform radial grid interpolated by cubic splines (not-a-knot).
+
+    r_lo is the smallest non-zero pair distance of the mesh: the pair radii are 0 (the self
+    terms) and [r_lo, r_max], and the spline never spans the kernel's non-smooth point r = 0
+    (terms like r² ln r: a spline across it converges like h² only, measured). Grid spacing: at
+    most the smaller of ``h0`` (the mesh's typical cell size) and an eighth of the shortest
+    shear wavelength 2π min(Vs)/ω; then halved (deterministically) until the spline through
+    every other node reproduces the skipped nodes within ``tol`` × max|A, B, C, D| (a bound for
+    the spline through all nodes, whose error is ~16 times smaller), or until
+    ``RADIAL_MAX_NODES`` (``converged`` False; ``error`` says by how much). Every call of
+    ``regular_green`` includes r_max, so the wavenumber rule is that of a direct evaluation at
+    the mesh's pair radii (whose largest is r_max): interpolation is the only difference.
+    """
+
+    def __init__(self, profile, omega, r_lo, r_max, h0, rule=None, tol=RADIAL_TOL):
+        from scipy.interpolate import CubicSpline
+        vs_min = min(m.vs for m in list(profile.layers) + [profile.halfspace])
+        h = min(h0, 2 * np.pi * vs_min / omega / 8) if omega > 0 else h0
+        r_lo = min(r_lo, r_max)
+        self.calls = 0
+        if r_max - r_lo <= 1e-9 * max(r_max, 1.0):       # one non-zero radius (or none): exact values
+            values, self.at_zero = self._evaluate(profile, omega, np.array([r_max, 0.0]), r_max, rule)
+            self.r, self.error, self.converged, self._spline = np.array([r_max]), 0.0, True, None
+            self._single = values[0]
+            return
+        m = max(8, 2 * int(np.ceil((r_max - r_lo) / h / 2)))
+        r = np.linspace(r_lo, r_max, m + 1)
+        values, self.at_zero = self._evaluate(profile, omega, np.append(r, 0.0), r_max, rule)
+        values = values[:-1]
+        while True:
+            scale = max(float(np.abs(values).max()), float(np.abs(self.at_zero).max()))
+            coarse = CubicSpline(r[::2], values[::2], axis=0)
+            err = float(np.abs(coarse(r[1::2]) - values[1::2]).max()) / scale if scale > 0 else 0.0
+            if err <= tol or 2 * r.size - 1 > RADIAL_MAX_NODES:
+                break
+            extra, _ = self._evaluate(profile, omega, 0.5 * (r[:-1] + r[1:]), r_max, rule)
+            both = np.empty((2 * r.size - 1,) + values.shape[1:], dtype=complex)
+            both[::2], both[1::2] = values, extra
+            r, values = np.linspace(r_lo, r_max, 2 * r.size - 1), both
+        self.r, self.error, self.converged = r, err, err <= tol
+        self._spline = CubicSpline(r, values, axis=0)
+
+    def _evaluate(self, profile, omega, r, r_max, rule, batch=512):
+        """regular_green at r (with r_max appended to every batch: the same wavenumber rule),
+        as (len(r), 4) complex; and the last value (for r = 0 when asked)."""
+        out = np.empty((r.size, 4), dtype=complex)
+        for k in range(0, r.size, batch):
+            part = np.append(r[k:k + batch], r_max)
+            out[k:k + batch] = np.stack(_regular_green(profile, omega, part, rule), axis=-1)[:-1]
+            self.calls += 1
+        return out, out[-1].copy()
+
+    def __call__(self, r):
+        """A, B, C, D at radii r (any shape; 0 or in [r_lo, r_max]), complex, m/N."""
+        r = np.asarray(r, dtype=float)
+        v = np.broadcast_to(self._single, r.shape + (4,)).copy() if self._spline is None else self._spline(r)
+        zero = r == 0
+        if zero.any():
+            v[zero] = self.at_zero
+        return v[..., 0], v[..., 1], v[..., 2], v[..., 3]
+
+
+class _IrregularOperator:
+    """Flexibility of an irregular mesh (node list or cells) in memory O(n²) reals.
+
+    Stored per pair: the six static basis integrals (``patch.polygon_integrals`` over the true
+    cell, or ``patch.rectangle_integrals`` over the equal-area square of a node), divided by the
+    source cell's area, float64 (48 bytes per pair). Per frequency, F is assembled in blocks of
+    rows from them and the regular kernel interpolated at the pair radii (``RadialRegular``):
+    never an (n², n_k) Bessel matrix. Collocation at the nodes (the cells' area centroids).
+    """
+
+    def __init__(self, profile, mesh, contact, rule, radial_tol):
+        from scipy.spatial import cKDTree
+        from .patch import polygon_integrals, rectangle_integrals
+        self.profile, self.mesh, self.contact, self.rule = profile, mesh, contact, rule
+        self.tol = RADIAL_TOL if radial_tol is None else float(radial_tol)
+        n, xy = mesh.n, mesh.xy
+        self.rows = max(1, CHUNK_PAIRS // max(n, 1))
+        self.basis = np.empty((6, n, n))
+        half = 0.5 * np.sqrt(mesh.area)
+        for i0 in range(0, n, self.rows):
+            i1 = min(n, i0 + self.rows)
+            if mesh.cells is not None:
+                q = xy[i0:i1, None, None, :] - mesh.cells[None, :, :, :]    # p = x_i - y, still CCW
+                self.basis[:, i0:i1] = polygon_integrals(q) / mesh.area
+            else:
+                d = xy[i0:i1, None, :] - xy[None, :, :]
+                self.basis[:, i0:i1] = rectangle_integrals(d[..., 0], d[..., 1], half, half) / (4 * half * half)
+        self.r_max = max_pair_distance(xy)
+        self.h0 = float(np.median(np.sqrt(mesh.area)))      # typical cell size
+        self.r_lo = self.r_max
+        if n > 1:
+            dist, _ = cKDTree(xy).query(xy, k=2)
+            self.h0 = min(self.h0, 2 * float(np.median(dist[:, 1])))
+            self.r_lo = float(dist[:, 1].min())                # smallest non-zero pair distance
+        self.radial = None
+
+    @property
+    def n_radii(self) -> int:
+        return 0 if self.radial is None else self.radial.r.size
+
+    def flexibility(self, omega):
+        profile, n, xy = self.profile, self.mesh.n, self.mesh.xy
+        top = profile.top
+        G = top.complex_shear_modulus(omega)
+        nu = top.poisson
+        c = 1.0 / (2 * np.pi * G)
+        b0 = (1 - 2 * nu) / (4 * np.pi * G)
+        static_only = omega == 0 and profile.is_homogeneous
+        self.radial = None
+        if not static_only and self.tol > 0:
+            self.radial = RadialRegular(profile, omega, self.r_lo, self.r_max, self.h0, self.rule, self.tol)
+        F = np.zeros((3 * n, 3 * n), dtype=complex)
+        V = F.reshape(n, 3, n, 3)
+        for i0 in range(0, n, self.rows):
+            i1 = min(n, i0 + self.rows)
+            one_r, xx, yy, xy_, x_r2, y_r2 = self.basis[:, i0:i1]
+            gxx, gyy, gxy = c * (one_r - nu * yy), c * (one_r - nu * xx), c * nu * xy_
+            gzz, gxz, gyz = c * (1 - nu) * one_r, b0 * x_r2, b0 * y_r2
+            if not static_only:
+                d = xy[i0:i1, None, :] - xy[None, :, :]
+                r = np.hypot(d[..., 0], d[..., 1])
+                if self.radial is not None:
+                    A, B, C, D = self.radial(np.minimum(r, self.r_max))
+                else:                      # direct evaluation (verification): same rule via r_max
+                    A, B, C, D = (v[:-1].reshape(r.shape) for v in
+                                  _regular_green(profile, omega, np.append(r.ravel(), self.r_max), self.rule))
+                pos = r > 0
+                safe = np.where(pos, r, 1.0)
+                cs, sn = np.where(pos, d[..., 0] / safe, 0.0), np.where(pos, d[..., 1] / safe, 0.0)
+                c2, s2 = np.where(pos, cs * cs, 0.5), np.where(pos, sn * sn, 0.5)
+                gxx = gxx + C * c2 + D * s2
+                gyy = gyy + C * s2 + D * c2
+                gxy = gxy + (C - D) * sn * cs
+                gzz = gzz + A
+                gxz, gyz = gxz + B * cs, gyz + B * sn
+            rows = V[i0:i1]
+            rows[:, 0, :, 0], rows[:, 1, :, 1], rows[:, 2, :, 2] = gxx, gyy, gzz
+            rows[:, 0, :, 1] = rows[:, 1, :, 0] = gxy
+            if self.contact == "welded":
+                rows[:, 0, :, 2], rows[:, 1, :, 2] = gxz, gyz
+                rows[:, 2, :, 0], rows[:, 2, :, 1] = -gxz, -gyz
+        _symmetrise(F, 3 * self.rows)
+        return F
+
+
+def _symmetrise(F, block):
+    """F <- (F + Fᵀ)/2 in place, by blocks of ``block`` rows (no full-size temporary):
+    collocation on unequal cells is not exactly reciprocal."""
+    m = F.shape[0]
+    for i0 in range(0, m, block):
+        i1 = min(m, i0 + block)
+        for j0 in range(i0, m, block):
+            j1 = min(m, j0 + block)
+            s = 0.5 * (F[i0:i1, j0:j1] + F[j0:j1, i0:i1].T)
+            F[i0:i1, j0:j1] = s
+            F[j0:j1, i0:i1] = s.T

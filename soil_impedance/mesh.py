@@ -4,7 +4,9 @@ A mesh is a set of nodes (x, y) on the plane z = 0 with the area of the patch ea
 stands for. Regular meshes (circle, rectangle) are made of equal square cells of side
 ``cell`` on a grid: every node offset is an integer multiple of ``cell``, which the BEM
 exploits (translation invariance: only distinct offsets are computed). A user node list
-has no grid (``cell is None``); its patches are taken as squares of the same area.
+has no grid (``cell is None``); its patches are taken as squares of the same area. A
+finite-element mesh of the raft (``cells_mesh``: triangles and quadrilaterals) keeps each
+cell's true polygon (``cells``), its node at the cell's area centroid.
 """
 from __future__ import annotations
 
@@ -22,15 +24,17 @@ class MeshError(UserInputError):
     """An invalid interface mesh input; the message names the input and how to fix it."""
 
 
-#: most interface nodes a mesh may have: the BEM is dense, (3N)^2 complex values per frequency
-#: (3.6 GB at N = 5000), and the reactor raft needs 241
+#: a hard limit on the interface nodes of a mesh, whatever the machine: the BEM is dense, one LU
+#: of (3N)^2 complex values per frequency, O(N^3) time (minutes per frequency at N = 5000; the
+#: reactor raft needs 241). Whether a sweep fits in memory is checked separately, before it
+#: allocates, from the machine's available memory (``sweep.check_sweep_memory``).
 MAX_NODES = 5000
 
 
 def _too_many(n: float, where: str, h_min: float, about: bool = False):
     count = f"about {n:.3g}" if about else f"{n:d}"
-    raise MeshError(f"{where} gives {count} interface nodes; at most MAX_NODES = {MAX_NODES} (the BEM stores "
-                    f"(3N)^2 complex values per frequency): use element_size >= {h_min:.3g} m")
+    raise MeshError(f"{where} gives {count} interface nodes; at most MAX_NODES = {MAX_NODES} (the dense BEM "
+                    f"takes O(N^3) time per frequency): use element_size >= {h_min:.3g} m")
 
 
 @dataclass(frozen=True, eq=False)
@@ -61,12 +65,14 @@ class InterfaceMesh:
         xy, area = interface_points(self.xy, self.area, MeshError, "mesh")
         if xy.shape[0] > MAX_NODES:
             raise MeshError(f"the interface mesh has {xy.shape[0]} nodes; at most MAX_NODES = {MAX_NODES} "
-                            "(the BEM stores (3N)^2 complex values per frequency): use fewer, larger patches")
-        if xy.shape[0] > 1:
-            d = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
-            d[np.diag_indices_from(d)] = np.inf
-            i, j = np.unravel_index(np.argmin(d), d.shape)
-            if d[i, j] < 1e-9 * max(1.0, np.abs(xy).max()):
+                            "(the dense BEM takes O(N^3) time per frequency): use fewer, larger patches")
+        if xy.shape[0] > 1:                      # nearest neighbours in O(n log n)
+            from scipy.spatial import cKDTree
+            dist, idx = cKDTree(xy).query(xy, k=2)
+            other = np.where(idx[:, 1] != np.arange(xy.shape[0]), idx[:, 1], idx[:, 0])
+            k = int(np.argmin(dist[:, 1]))
+            i, j = sorted((k, int(other[k])))
+            if dist[k, 1] < 1e-9 * max(1.0, np.abs(xy).max()):
                 raise MeshError(f"mesh nodes {i} and {j} coincide at ({xy[i, 0]:g}, {xy[i, 1]:g}): "
                                 "remove the duplicate")
         object.__setattr__(self, "xy", xy)

@@ -11,13 +11,15 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
+import os
 from pathlib import Path
 
 import numpy as np
 import scipy.linalg as sla
 
-from .bem import CONTACTS, BemError, SurfaceBem, nodal_dofs
+from .bem import CHUNK_PAIRS, CONTACTS, RADIAL_TOL, BemError, SurfaceBem, _grid, nodal_dofs
 from uplift_common.code import code_digest
+from uplift_common.errors import UserInputError
 
 from .cache import read_entry, write_entry
 from .greens_rule import GreenRule
@@ -58,13 +60,18 @@ def _mesh_dict(mesh) -> dict:
 def provenance(profile, mesh, contact, rule, output) -> dict:
     """The inputs of one sweep output, as a JSON-able dict (hashed with the frequencies).
 
-    ``rule=None`` is recorded as the default ``GreenRule()`` it stands for (every field)."""
-    return {"profile": {"layers": [_material_dict(l) for l in profile.layers],
+    ``rule=None`` is recorded as the default ``GreenRule()`` it stands for (every field). An
+    irregular mesh records the relative tolerance of its radial interpolation of the regular
+    kernel (``bem.RADIAL_TOL``; also in the code digest)."""
+    prov = {"profile": {"layers": [_material_dict(l) for l in profile.layers],
                         "halfspace": _material_dict(profile.halfspace)},
             "mesh": _mesh_dict(mesh), "contact": contact,
             "rule": repr(GreenRule() if rule is None else rule),
             "output": output, "code_version": code_version(),
             "dof_order": "node-interleaved [ux0,uy0,uz0,ux1,...]" if output == "nodal" else output}
+    if _grid(mesh) is None:
+        prov["radial_tol"] = RADIAL_TOL
+    return prov
 
 
 def table_key(profile, mesh, frequencies_hz, contact="welded", output="gap", rule=None) -> str:
@@ -93,6 +100,96 @@ def _read_cached(path, key):
     return read_entry(path, reader, keep=True)
 
 
+class SweepMemoryError(UserInputError):
+    """A sweep that would not fit in the machine's available memory (refused before allocating)."""
+
+
+#: bytes of the interpreter with numpy/scipy/h5py loaded, counted in every estimate
+BASE_BYTES = 200 * 2 ** 20
+#: share of MemAvailable a sweep may plan to use (the rest: the OS, the estimate's own error)
+MEMORY_SHARE = 0.9
+#: added to the arrays' bytes: what the allocator keeps of freed temporaries (measured with
+#: benchmarks/mesh_sweep.py: 1966 cells peaked 11 % above the arrays' sum plus the interpreter)
+MARGIN = 0.15
+
+
+def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = False) -> dict[str, int]:
+    """Estimated peak bytes of ``impedance_sweep`` by item (and ``"total"``), before allocating.
+
+    Parameters
+    ----------
+    n : int              interface nodes (3n DOFs)
+    n_freq : int         frequencies swept (the outputs hold one matrix per frequency)
+    outputs : iterable   among "rigid", "gap", "nodal"
+    grid : bool          circle/rectangle grid meshes (assembly by distinct offsets), else irregular
+
+    Items: ``F`` the flexibility (3n)² complex, factorised in place (LU); ``assembly``: grid
+    meshes gather (n², 3, 3) complex blocks and transpose them (two more F-sized arrays),
+    irregular ones hold the six static basis integrals per pair (48 n² bytes) and row blocks of
+    ``CHUNK_PAIRS`` pairs; ``work``: per frequency, ``nodal`` inverts a copy of F and symmetrises
+    (three more), ``gap`` solves for 6 + n right-hand sides (B real, X complex, K_g twice);
+    ``outputs``: the tables held, n_freq matrices each, plus half the largest for the h5 copy of
+    its real or imaginary part; ``margin``: ``MARGIN`` of all these (the allocator keeps part of
+    the freed temporaries); ``base``: the interpreter and libraries.
+    """
+    m = 3 * n
+    fsize = 16 * m * m
+    sizes = {"rigid": 6, "gap": 6 + n, "nodal": m}
+    outputs = tuple(outputs)
+    # grid: blocks gathered per pair and transposed; irregular: basis per pair + polygon temporaries
+    assembly = 2 * fsize + 8 * n * n if grid else 48 * n * n + 40 * 4 * 8 * CHUNK_PAIRS
+    work = 0
+    if "nodal" in outputs:              # the inverse stays alive through the gap solve
+        work += 3 * fsize
+    if "gap" in outputs:
+        g = 6 + n
+        work += 24 * m * g + 3 * 16 * g * g
+    held = [16 * n_freq * sizes[o] ** 2 for o in outputs]
+    items = {"F": fsize, "assembly": assembly, "work": work,
+             "outputs": sum(held) + (max(held) // 2 if held else 0)}
+    items["margin"] = int(MARGIN * sum(items.values()))
+    items["base"] = BASE_BYTES
+    items["total"] = sum(items.values())
+    return items
+
+
+def available_memory() -> int | None:
+    """Bytes the machine can give a new allocation: MemAvailable of /proc/meminfo, else the free
+    physical pages (os.sysconf); None if neither is known."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def _gib(b: float) -> str:
+    return f"{b / 2 ** 30:.2f} GiB"
+
+
+def check_sweep_memory(mesh, n_freq: int, outputs=("rigid", "gap")) -> dict[str, int]:
+    """Refuse (SweepMemoryError, exit 2) a sweep whose ``sweep_memory`` estimate exceeds
+    ``MEMORY_SHARE`` of ``available_memory()``; returns the estimate otherwise."""
+    est = sweep_memory(mesh.n, n_freq, outputs, grid=_grid(mesh) is not None)
+    avail = available_memory()
+    if avail is not None and est["total"] > MEMORY_SHARE * avail:
+        per = est["total"] - est["outputs"]
+        raise SweepMemoryError(
+            f"the impedance sweep of {mesh.n} interface nodes at {n_freq} frequencies (outputs "
+            f"{', '.join(outputs)}) needs about {_gib(est['total'])} (flexibility {_gib(est['F'])}, "
+            f"tables {_gib(est['outputs'])}) but the machine has {_gib(avail)} available "
+            f"(MemAvailable): use a coarser mesh (larger foundation.element_size, fewer cells: memory "
+            f"grows like N²) or fewer frequencies ([impedance].range_hz; the tables alone take "
+            f"{_gib(est['outputs'] / max(n_freq, 1))} per frequency, the rest {_gib(per)})")
+    return est
+
+
 def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("rigid", "gap"),
                     cache_dir=None, progress=None, rule=None) -> dict[str, ImpedanceTable]:
     """Impedance of ``mesh`` on ``profile`` at each frequency, reduced as asked.
@@ -108,6 +205,9 @@ def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("r
                                          (None: no cache, always compute)
     progress : callable(done, total, label) or None, called after each frequency (label: "2.5 Hz")
     rule : passed to ``greens.regular_green``
+
+    Raises SweepMemoryError (a UserInputError) before computing when the estimated peak memory
+    (``sweep_memory``) does not fit in the machine's available memory.
 
     Returns
     -------
@@ -138,6 +238,7 @@ def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("r
                 tables[o] = table
     todo = [o for o in outputs if o not in tables]
     if todo:
+        check_sweep_memory(mesh, f.size, todo)          # before anything large is allocated
         computed = _compute(SurfaceBem(profile, mesh, contact, rule), f, todo, progress)
         dofs = {"rigid": RIGID_DOFS, "gap": gap_dofs(mesh.n), "nodal": nodal_dofs(mesh.n)}
         for o in todo:

@@ -7,6 +7,8 @@ HDF5 layout (open it with h5py, HDFView, MATLAB ``h5read``...):
   /dofs             utf-8 strings (n,)
   attrs: format = "uplift.ImpedanceTable", format_version = 1, hash (of the inputs: provenance
          + frequencies), data_sha256 (of matrices + dofs, checked on load), provenance (JSON),
+         notes (JSON, optional: what the writer adds about the table, e.g. the discretisation
+         error estimate of ``uplift impedance``; not an input, not in the hash),
          sha256 (of the whole file, ``uplift_common.files.stamp_checksum``; checked on load: a file that
          changed since it was written, or carries none, is refused)
 
@@ -152,11 +154,14 @@ class ImpedanceTable:
             out[neg] = np.conj(out[neg])
         return out[0] if q0.ndim == 0 else out
 
-    def save(self, path) -> None:
+    def save(self, path, notes: dict | None = None) -> None:
         """Write the table to an HDF5 file, atomically (replaces an existing file only once the
-        new one is complete; the folder must exist: ``uplift_common.files.OutputFolderError`` otherwise)."""
+        new one is complete; the folder must exist: ``uplift_common.files.OutputFolderError`` otherwise).
+        ``notes``: a JSON-able dict stored as the ``notes`` attribute (not part of the hash)."""
         import h5py
         with hdf5_output(path) as h:
+            if notes is not None:
+                h.attrs["notes"] = json.dumps(notes, sort_keys=True, default=str)
             h.attrs["format"] = FORMAT
             h.attrs["format_version"] = FORMAT_VERSION
             h.attrs["hash"] = self.hash

@@ -32,7 +32,7 @@ def test_impedance_json_contract(scene, tmp_path, capsys):
     out = tmp_path / "table.h5"
     assert main(["impedance", str(scene), "--json", "-o", str(out)]) == 0
     data = json.loads(capsys.readouterr().out)          # exactly one JSON object on stdout
-    assert set(data) == {"frequencies_hz", "dofs", "rigid", "wall_s"}
+    assert set(data) == {"frequencies_hz", "dofs", "rigid", "wall_s", "discretisation_error"}
     assert data["dofs"] == ["ux", "uy", "uz", "rx", "ry", "rz"]
     K = np.array(data["rigid"])                          # (F, 6, 6, 2)
     assert K.shape == (1, 6, 6, 2)
@@ -40,8 +40,13 @@ def test_impedance_json_contract(scene, tmp_path, capsys):
     G, R, nu = 2000 * 500.0 ** 2, 10.0, 1 / 3
     kv = 4 * G * R * math.log(3 - 4 * nu) / (1 - 2 * nu)
     assert K[0, 2, 2, 0] == pytest.approx(kv, rel=0.08)
+    # the coarse grid (R/h = 4) is too flexible (-3.5 %): the estimate (vs h/2, Richardson) says so
+    err = data["discretisation_error"]["errors"]
+    assert set(err) == set(data["dofs"]) and -0.08 < err["uz"] < -0.01
+    assert abs(K[0, 2, 2, 0] / (1 + err["uz"]) - kv) < 0.5 * abs(K[0, 2, 2, 0] - kv)
     with h5py.File(out) as f:                             # the file is readable with plain h5py
         assert f["matrices_real"].shape == (1, 6, 6)
+        assert json.loads(f.attrs["notes"])["discretisation_error"] == data["discretisation_error"]
 
 
 def test_cache_reuses_sweep(scene, capsys, monkeypatch):
@@ -202,3 +207,13 @@ def test_a_single_seed_says_it_is_one_motion(tmp_path, capsys, monkeypatch):
         in capsys.readouterr().err
     assert main(["ensemble", scene, "--pga", "0.1", "--n-seeds", "3"]) == 130
     assert seen["seeds"] == [0, 1, 2] and "one motion" not in capsys.readouterr().err
+
+
+def test_impedance_refused_when_the_sweep_would_not_fit(scene, capsys, monkeypatch):
+    # the sweep's memory estimate against the machine's available memory (here 1 MiB): exit 2,
+    # one line naming the estimate, the memory and the fix, and no BEM computed
+    monkeypatch.setattr("soil_impedance.sweep.available_memory", lambda: 2 ** 20)
+    monkeypatch.setattr("soil_impedance.sweep._compute", lambda *a, **k: pytest.fail("computed before refusing"))
+    assert main(["impedance", str(scene), "--no-cache"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "needs about" in err[0] and "0.00 GiB available" in err[0] and "coarser mesh" in err[0]
