@@ -109,8 +109,12 @@ def write_ensemble(ds, path) -> Path:
     its content (``uplift_common.files``; a later append re-stamps it with
     ``uplift_common.files.atomic_update``)."""
     path = check_output_path(path)
+    import dask
     buf = io.BytesIO()               # written in memory, then to the disk in one write (hdf5_output's reason)
-    ds.to_netcdf(buf, engine="h5netcdf")
+    # the local scheduler's lock: under a distributed client xarray would take a cluster-wide lock
+    # named by the target, which a BytesIO cannot give
+    with dask.config.set(scheduler="synchronous"):
+        ds.to_netcdf(buf, engine="h5netcdf")
     stamp_file(buf)
     write_image(path, buf.getbuffer())
     return path
