@@ -86,12 +86,12 @@ def _main_thread() -> bool:
 def install(held: bool = False):
     """Handle SIGINT as this module says (main thread only; a SIGINT that is ignored, as in a
     shell's background job, stays ignored) and return the handler it replaces (for
-    ``restore``). The count starts again at zero, unless the handler is already in place (then
-    it is kept: a program that held SIGINT while its modules loaded, ``held=True``, finds the
-    SIGINTs of that time counted). ``held``: hold SIGINT until the next ``install()``."""
+    ``restore``). The count starts again at zero, unless the handler is already in place and
+    holding (then it is kept: a program that held SIGINT while its modules loaded,
+    ``held=True``, finds the SIGINTs of that time counted). ``held``: hold SIGINT until the next ``install()``."""
     previous = signal.getsignal(signal.SIGINT) if _main_thread() else None
-    if previous is not _handler:
-        _state.update(received=0, owed=False)
+    if previous is not _handler or not _state["depth"]:     # not holding since the modules loaded:
+        _state.update(received=0, owed=False)                # a handler left by an earlier command starts over
     _state.update(depth=1 if held else 0, closing=False)
     if not _main_thread() or previous is signal.SIG_IGN:
         return previous

@@ -109,7 +109,7 @@ def write_ensemble(ds, path) -> Path:
     its content (``uplift_common.files``; a later append re-stamps it with
     ``uplift_common.files.atomic_update``)."""
     path = check_output_path(path)
-    import dask
+    import dask                      # start-up cost: the ensemble's writer only
     buf = io.BytesIO()               # written in memory, then to the disk in one write (hdf5_output's reason)
     # the local scheduler's lock: under a distributed client xarray would take a cluster-wide lock
     # named by the target, which a BytesIO cannot give

@@ -287,7 +287,7 @@ from soil_impedance import SoilProfile, impedance_sweep
 from soil_impedance.sweep import sweep_memory
 mesh = _jittered_triangles(30, 15)
 prof = SoilProfile.homogeneous(vs=200.0, rho=2000.0, nu=0.3, damping=0.05)
-impedance_sweep(prof, mesh, [0.0], outputs=("rigid",))          # every library loaded, a small sweep
+import scipy.interpolate, scipy.linalg, scipy.spatial, scipy.special    # what a sweep loads
 base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 impedance_sweep(prof, mesh, [0.0, 5.0], outputs=("rigid", "gap"))
 items = sweep_memory(mesh.n, 2, ("rigid", "gap"))
@@ -309,5 +309,5 @@ def test_memory_estimate_bounds_the_measured_peak():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
     n, estimate, peak = (int(v) for v in out.stdout.split())
     assert n == 900
-    # measured: 413 MiB estimated for 207 MiB used (the estimate counts every temporary at once)
-    assert peak <= estimate <= 2.5 * peak, f"estimate {estimate / 2**20:.0f} MiB, peak {peak / 2**20:.0f} MiB"
+    # measured: 413 MiB estimated for 382 MiB added
+    assert peak <= estimate <= 1.6 * peak, f"estimate {estimate / 2**20:.0f} MiB, peak {peak / 2**20:.0f} MiB"
