@@ -181,7 +181,7 @@ def check_sweep_memory(mesh, n_freq: int, outputs=("rigid", "gap")) -> dict[str,
     if avail is not None and est["total"] > MEMORY_SHARE * avail:
         per = est["total"] - est["outputs"]
         raise SweepMemoryError(
-            f"the impedance sweep of {mesh.n} interface nodes at {n_freq} frequencies (outputs "
+            f"the impedance sweep of {mesh.n} interface nodes at {n_freq} frequenc{'y' if n_freq == 1 else 'ies'} (outputs "
             f"{', '.join(outputs)}) needs about {_gib(est['total'])} (flexibility {_gib(est['F'])}, "
             f"tables {_gib(est['outputs'])}) but the machine has {_gib(avail)} available "
             f"(MemAvailable): use a coarser mesh (larger foundation.element_size, fewer cells: memory "
