@@ -68,7 +68,7 @@ CORE = ("instance.c", "model.c", "variables.c", "state.c", "stepper.c", "soil.c"
 SOURCES = ("fmi2.c",) + CORE
 #: the FMI 3.0 entry layer and the same files
 SOURCES3 = ("fmi3.c",) + CORE
-HEADERS = ("uplift.h", "fmu.h", "uplift_messages.h", "uplift_schema.h")
+HEADERS = ("uplift.h", "fmu.h", "uplift_crc32.h", "uplift_messages.h", "uplift_schema.h")
 RESOURCE_FILE = "uplift.bin"
 #: FMI 2.0 platform -> (zig target, shared library suffix); glibc 2.17 for old Linux hosts
 PLATFORMS = {"linux64": ("x86_64-linux-gnu.2.17", "so"), "win64": ("x86_64-windows-gnu", "dll"),

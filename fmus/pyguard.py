@@ -36,8 +36,9 @@ from pathlib import Path
 from fmus.native_build import NATIVE, PLATFORMS, NativeBuildError, fmi_headers
 
 SOURCE = Path(__file__).resolve().parent / "pyguard_c" / "guard.c"
-#: the message table shared with the native runtime (fmus/schema.py generates it)
-HEADER = NATIVE / "include" / "uplift_messages.h"
+#: the headers shared with the native runtime: the message table (fmus/schema.py generates it)
+#: and the CRC-32 of serialised states
+HEADERS = (NATIVE / "include" / "uplift_messages.h", NATIVE / "include" / "uplift_crc32.h")
 TABLE_FILE = "uplift_guard.txt"
 INNER_STEM = "pythonfmu-export"
 CAUSALITIES = ("parameter", "calculatedParameter", "input", "output", "local", "independent")
@@ -72,7 +73,7 @@ def guard_table(model_description: bytes) -> str:
 def compile_guard(platforms) -> dict:
     """{platform: bytes of the guard library} for FMI 2.0 platform names (linux64, win64,
     darwin64), compiled by ziglang's C compiler once per process and source digest."""
-    digest = hashlib.sha256(SOURCE.read_bytes() + b"\0" + HEADER.read_bytes()).hexdigest()
+    digest = hashlib.sha256(b"\0".join(p.read_bytes() for p in (SOURCE, *HEADERS))).hexdigest()
     out = {}
     for platform in platforms:
         if platform not in PLATFORMS:

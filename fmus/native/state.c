@@ -17,6 +17,7 @@
 #include <string.h>
 
 #include "fmu.h"
+#include "uplift_crc32.h"
 
 #define STATE_MAGIC 0x55504c4946545354ULL      /* "UPLIFTST" */
 #define SER_HEADER 32
@@ -26,18 +27,6 @@ typedef struct {
     size_t len;
     double data[1];
 } State;
-
-/* CRC-32 (IEEE 802.3, reflected, as zlib's crc32), bitwise: a few MB/s is plenty for a state */
-uint32_t up_crc32(const unsigned char *p, size_t n)
-{
-    uint32_t c = 0xFFFFFFFFu;
-    for (size_t i = 0; i < n; i++) {
-        c ^= p[i];
-        for (int k = 0; k < 8; k++)
-            c = (c >> 1) ^ (0xEDB88320u & (0u - (c & 1u)));
-    }
-    return c ^ 0xFFFFFFFFu;
-}
 
 static State *checked_state(UpInstance *I, void *s, const char *fn)
 {

@@ -44,6 +44,7 @@
 #include <string.h>
 
 #include "fmi2Functions.h"
+#include "uplift_crc32.h"
 #include "uplift_messages.h"
 
 #define GUARD_MAGIC 0x555047554152444bULL      /* "UPGUARDK" */
@@ -740,18 +741,6 @@ fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate s, fmi2Byte bytes
     return in.fmi2SerializeFMUstate(G->inner, S->inner, bytes, need);
 }
 
-/* CRC-32 (IEEE 802.3, reflected, as zlib's crc32) */
-static uint32_t crc32(const unsigned char *p, size_t n)
-{
-    uint32_t c = 0xFFFFFFFFu;
-    for (size_t i = 0; i < n; i++) {
-        c ^= p[i];
-        for (int k = 0; k < 8; k++)
-            c = (c >> 1) ^ (0xEDB88320u & (0u - (c & 1u)));
-    }
-    return c ^ 0xFFFFFFFFu;
-}
-
 static uint64_t le(const unsigned char *p, int n)
 {
     uint64_t v = 0;
@@ -775,7 +764,7 @@ static const char *state_problem(const unsigned char *b, size_t size, char *buf)
         snprintf(buf, 96, UP_MSG_STATE_VERSION, got, want);
         return buf;
     }
-    if (le(b + 12, 4) != crc32(b + 16, size - 16))
+    if (le(b + 12, 4) != up_crc32(b + 16, size - 16))
         return UP_MSG_STATE_CHECKSUM;
     return NULL;
 }

@@ -112,7 +112,6 @@ int up_no_variables(UpInstance *I, const char *fn, const char *type, const unsig
                     const void *value);
 
 /* state.c: FMU states (0, or -1 with the reason logged) */
-uint32_t up_crc32(const unsigned char *p, size_t n);
 int up_state_get(UpInstance *I, const char *fn, void **s);
 int up_state_set(UpInstance *I, const char *fn, void *s);
 int up_state_free(UpInstance *I, const char *fn, void **s);

@@ -41,7 +41,6 @@
 #ifdef UP_PREFIX
 #define UP_SYM(name) UP_PASTE(UP_PREFIX, name)
 #define up_check_refs UP_SYM(up_check_refs)
-#define up_crc32 UP_SYM(up_crc32)
 #define up_dot UP_SYM(up_dot)
 #define up_element_name UP_SYM(up_element_name)
 #define up_boolean_refs UP_SYM(up_boolean_refs)
