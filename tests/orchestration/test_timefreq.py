@@ -68,20 +68,20 @@ def test_time_budget_keeps_the_last_iterate():
     assert not nk.converged and "time budget" in nk.message
 
 
-@pytest.mark.slow
 @EXPERIMENTAL
 def test_continuous_tf_is_the_limit_of_newmark_with_uplift():
     """K + i w C soil (exact in both routes), uplift under a smooth pulse: Newmark's max uplift
-    approaches the continuous-time TF value (bilinear=False, dt = 2.5 ms) as dt -> 0, within
-    2 % at dt = 2.5 ms."""
-    ref = solve(MODEL, soil(), smooth_pulse(0.0025, amp=3.0), 0.0025, contact=UPLIFT,
+    approaches the continuous-time TF value (bilinear=False, dt = 5 ms) as dt -> 0 (measured
+    1.9 %, 0.30 %, 0.10 % at dt = 20, 10, 5 ms), within 2 % at dt = 5 ms. (At dt = 2.5 ms the
+    Newton-Krylov reference costs 75 s instead of 1 s and moves by 0.3 %.)"""
+    ref = solve(MODEL, soil(), smooth_pulse(0.005, amp=3.0), 0.005, contact=UPLIFT,
                 grid=GridOptions(bilinear=False), options=SolveOptions(method="newton-krylov"))
     assert ref.converged and ref.max_uplift() > 5e-4
     errs = []
-    for dt in (0.01, 0.005, 0.0025):
+    for dt in (0.02, 0.01, 0.005):
         td = simulate(MODEL, soil(), smooth_pulse(dt, amp=3.0), dt, contact=UPLIFT)
         errs.append(abs(td.max_uplift() - ref.max_uplift()) / ref.max_uplift())
-    assert errs[2] < 0.02 and errs[2] < errs[0], errs
+    assert errs[2] < 0.02 and errs[2] < errs[1] < errs[0], errs
 
 
 @EXPERIMENTAL
