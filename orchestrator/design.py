@@ -146,7 +146,7 @@ def write_design(path, run: DesignRun, overrides=()):
             if name == first:
                 g.attrs["routes"] = "/routes"
                 continue
-            routes = g.create_group("routes")
+            routes = g.create_group("routes", track_order=True)
             for route, res in run.cases[name].items():
                 add_route(routes.create_group(route), res)
         d = f.create_group("design")

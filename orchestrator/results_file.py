@@ -148,7 +148,7 @@ def write_results(path, results: dict, motion=None, scene_name: str = "", scene_
                        created=time.strftime("%Y-%m-%dT%H:%M:%S"))
         if motion is not None:
             _write_motion(f.create_group("motion"), motion)
-        routes = f.create_group("routes")
+        routes = f.create_group("routes", track_order=True)
         for name, res in results.items():
             _write_route(routes.create_group(name), res)
         if mesh is not None:

@@ -123,6 +123,7 @@ def _same(a: RouteResult, b: RouteResult):
 
 def test_read_results_gives_back_everything(results_file):
     back = read_results(results_file)
+    assert list(back) == list(ROUTES) == list(read_summary(results_file))   # run order, not alphabetical
     for route, res in _results().items():
         _same(back[route], res)
     scene, _, motion = read_motion(results_file)
