@@ -51,7 +51,7 @@ from fmpy.util import read_ref_opt_file
 from fmus.resources import MOTION_FILE
 from fmus.schema import AG, vector3
 from fmus.native_build import RESOURCE_FILE, decode_resources
-from uplift_common.files import atomic_output
+from uplift_common.files import atomic_folder, atomic_output
 
 from orchestrator.export import HEADLINE, Export
 from orchestrator.master import FmuSlave
@@ -282,15 +282,12 @@ def write_cross_check(exported: Export, xdir, scene_name: str = "") -> CrossChec
     folders = {}
     for model, (inputs, outputs) in reference_histories(exported).items():
         folder = folders[model] = model_folder(xdir, model, exported.fmi_version)
-        folder.mkdir(parents=True, exist_ok=True)
-        with atomic_output(folder / f"{model}.fmu") as tmp:
-            shutil.copyfile(getattr(exported, model), tmp)
-        with atomic_output(folder / f"{model}_ref.opt") as tmp:
-            tmp.write_text("".join(f"{k}, {v!r}\n" for k, v in opt.items()))
-        write_csv(folder / f"{model}_in.csv", dt, inputs)
-        write_csv(folder / f"{model}_ref.csv", dt, outputs)
-        with atomic_output(folder / "README.md") as tmp:
-            tmp.write_text(readme(model, exported, outputs, scene_name))
+        with atomic_folder(folder) as stage:     # the model's folder changes as a whole, or not at all
+            shutil.copyfile(getattr(exported, model), stage / f"{model}.fmu")
+            (stage / f"{model}_ref.opt").write_text("".join(f"{k}, {v!r}\n" for k, v in opt.items()))
+            write_csv(stage / f"{model}_in.csv", dt, inputs)
+            write_csv(stage / f"{model}_ref.csv", dt, outputs)
+            (stage / "README.md").write_text(readme(model, exported, outputs, scene_name))
     return CrossCheck(root=Path(xdir), models=folders, problems=check_cross_check(xdir))
 
 

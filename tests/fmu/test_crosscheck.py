@@ -73,6 +73,22 @@ def test_validator_reports_planted_problems(xc, tmp_path):
     assert f"more than {FMPY_MAX_INTERVALS} intervals" in problems[1]
 
 
+def test_a_failed_write_leaves_each_model_folder_whole(xc, exported, tmp_path, monkeypatch):
+    """A write that fails (or is interrupted) inside a model's folder leaves that folder as it was:
+    its files are staged and moved into place together (uplift_common.files.atomic_folder)."""
+    import orchestrator.crosscheck as crosscheck
+    root = tmp_path / "xc"
+    shutil.copytree(xc.root, root)
+    before = {p: p.read_bytes() for p in root.rglob("*") if p.is_file()}
+
+    def fails(*args):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(crosscheck, "readme", fails)          # the last file of the first folder
+    with pytest.raises(KeyboardInterrupt):
+        write_cross_check(exported, root, "small")
+    assert {p: p.read_bytes() for p in root.rglob("*") if p.is_file()} == before
+
+
 @pytest.mark.parametrize("model", MODELS)
 def test_replay_of_in_csv_reproduces_ref_csv(xc, model):
     """Run as fmpy's cross-check runner does (python -m fmpy.cross_check --simulate)."""
