@@ -79,6 +79,9 @@ def test_a_failed_write_leaves_each_model_folder_whole(xc, exported, tmp_path, m
     import orchestrator.crosscheck as crosscheck
     root = tmp_path / "xc"
     shutil.copytree(xc.root, root)
+    for p in root.rglob("*"):
+        if p.is_file():
+            p.write_bytes(b"a file of an earlier export")
     before = {p: p.read_bytes() for p in root.rglob("*") if p.is_file()}
 
     def fails(*args):
