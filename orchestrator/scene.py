@@ -39,7 +39,7 @@ from orchestrator.soil_cases import (SoilCaseError, SoilCases, StrainCompatibleC
 from structure.contact import ContactSettings
 from structure.errors import StructureError
 from structure.model import StructureModel
-from structure.plate_raft import PLATE_RANGES, PlateProperties
+from structure.plate_raft import PLATE_RANGES, PlateProperties, PlateRaftModel, plate_cells
 from structure.spec import (WINKLER_MODULI, StructureSpec, build_model, check_choice, check_keys, check_number,
                             contact_from_spec, parse_structure, show, winkler_moduli)
 from uplift_common.ranges import MAX_LAYERS, check_count, check_plausible
@@ -419,7 +419,6 @@ class Scene:
         """The PlateRaftModel of a plate raft (``raft`` not None) on the interface's cells: the
         stick model (``model``, default ``self.model()``) with its raft master's mass and inertia
         replaced by the plate's own (rho t A per vertex)."""
-        from structure.plate_raft import PlateRaftModel, plate_cells
         if self.raft is None:
             raise SceneError(f"scene {self.name!r} has a rigid raft: foundation.raft.kind = \"plate\" makes a plate")
         model = model or self.model()

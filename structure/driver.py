@@ -18,6 +18,7 @@ from .contact import ContactSettings
 from .errors import ConvergenceError, StructureError
 from .model import StructureModel
 from .newmark import ENERGY_TERMS, NewmarkStepper
+from .plate_raft import PlateRaftModel, PlateStepper
 from .preload import StaticState
 from .results import RouteResult, RunNotes, Status
 
@@ -55,7 +56,6 @@ def _simulate(model, soil, ag, dt, contact, damping, alpha, output_nodes, progre
         raise StructureError(f"ground acceleration must have shape (nt, 3), got {ag.shape}")
     if not np.all(np.isfinite(ag)):
         raise StructureError("ground acceleration contains NaN or inf")
-    from .plate_raft import PlateRaftModel, PlateStepper
     plate = isinstance(model, PlateRaftModel)
     st = (PlateStepper if plate else NewmarkStepper)(model, soil, dt, contact=contact, damping=damping,
                                                       alpha=alpha, static=static, ag0=ag[0])

@@ -31,6 +31,7 @@ d = Bc uB, Bc = [C_slaved Bq | C_free | -I].
 """
 from __future__ import annotations
 
+import dataclasses
 from collections import OrderedDict
 from dataclasses import dataclass
 from functools import cached_property
@@ -465,7 +466,6 @@ def rigid_equivalent(pm: PlateRaftModel) -> StructureModel:
     """The rigid-raft StructureModel with the plate's lumped mass and inertia (about the centre:
     m = sum m_k; Ixx = sum m_k y_k^2 + J_k, Iyy = sum m_k x_k^2 + J_k, Izz = sum m_k r_k^2)
     added to the raft master's: the rigid limit's reference."""
-    import dataclasses
     mk, Jk = pm.vertex_masses
     x, y = pm.points.T
     r = pm.stick.raft

@@ -78,7 +78,14 @@ def run_monolithic(scene, motion=None, soil_model=None, *, soil_factory: str | N
                if stepper == "native" else "")
     res = step_scene(scene, model, soil, motion, route=route, progress=progress, cache_dir=cache_dir,
                      stepper=stepper, why=why)
-    return res.with_notes(info={"soil_model": soil_model.provenance})
+    info = {"soil_model": soil_model.provenance}
+    if isinstance(model, PlateRaftModel):
+        p = model.plate
+        info["raft"] = {"kind": "plate", "thickness_m": p.thickness, "E_Pa": p.E, "nu": p.nu, "rho_kg_m3": p.rho,
+                        "rigid_radius_m": p.rigid_radius, "vertices": model.n_vertices, "free_vertices": model.nf,
+                        "plate_mass_kg": float(model.vertex_masses[0].sum()),
+                        "dropped_mass_coupling_m": model.mass_coupling}
+    return res.with_notes(info=info)
 
 
 def step_scene(scene, model, soil, motion, *, route: str, progress=None, cache_dir=None, stepper: str = "native",

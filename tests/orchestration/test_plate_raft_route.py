@@ -45,6 +45,9 @@ def test_a_plate_raft_runs_on_the_monolithic_route_and_its_deflections_are_writt
     assert res.converged and res.info["stepper"] == "python"
     assert any("native runtime steps a rigid raft only" in w for w in res.notes.warnings)
     assert res.max_uplift() > 1e-3
+    raft = res.info["raft"]
+    assert raft["kind"] == "plate" and raft["free_vertices"] == pm.nf and raft["dropped_mass_coupling_m"] < 1e-12
+    assert np.isclose(raft["plate_mass_kg"], 2500.0 * 2.0 * sc.mesh.area.sum(), rtol=1e-12)
     # the route is structure.simulate on the scene's plate model and the same soil, exactly
     ref = simulate(pm, soil_from_model(model, 0.005, DEFAULT_SOIL_FACTORY), motion.acc, 0.005,
                    contact=sc.contact, output_nodes=sc.output.nodes)

@@ -171,3 +171,21 @@ def test_plate_refusals():
     soil = WinklerSoil(mesh.xy, 1e9, 1e9)
     with pytest.raises(StructureError, match="external_soil"):
         PlateStepper(pm, soil, 0.01, external_soil=True)
+
+
+def test_a_plate_step_rolls_back_and_repeats_exactly():
+    mesh, pm = reactor_plate(element_size=5.0)
+    mo = pulse_motion(0.005, 0.4)
+    st = PlateStepper(pm, rock_winkler(mesh.xy, mesh.area), 0.005, ag0=mo.acc[0])
+    for k in range(1, 60):
+        st.set_ground_acceleration(mo.acc[k])
+        st.step()
+    saved = st.get_state()
+    st.set_ground_acceleration(mo.acc[60])
+    st.step()
+    first, x = st.u.copy(), st.x.copy()
+    st.set_state(saved)
+    st.set_ground_acceleration(mo.acc[60])
+    st.step()
+    assert np.array_equal(first, st.u) and np.array_equal(x, st.x)
+    assert x.shape == (6 + mesh.n,) and np.array_equal(x[6:], st.u[st.ns:])    # the soil's [q, w]
