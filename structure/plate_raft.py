@@ -309,8 +309,13 @@ class _PlateSoil(SoilInterface):
         return (self.S.T @ sp.csr_matrix(K) @ self.S).tocsr()
 
     def instantaneous(self, dt):
+        # called at every (sub)step (the soil takes its step size from it): the extension is kept
+        # while the soil returns the same matrices
         K0, C0 = self.soil.instantaneous(dt)
-        return self._ext(K0), self._ext(C0)
+        last = getattr(self, "_last", None)
+        if last is None or last[0] is not K0 or last[1] is not C0:
+            last = self._last = (K0, C0, self._ext(K0), self._ext(C0))
+        return last[2], last[3]
 
     def history(self):
         h = np.zeros(self.n_dof)
@@ -358,7 +363,17 @@ class PlateStepper(NewmarkStepper):
         self.N, self.n, self.ni, self.nb = N, model.n_dof, model.ni, model.nb
         self.ns = self.n - N                         # u[ns:] = the soil w, as for the rigid raft
         self.Bc = model.boundary_trace
-        self.Bcd = self.Bc.toarray()
+        self.BcT = self.Bc.T.tocsr()
+        # Bc^T diag(s) Bc as sum_i s_i b_i b_i^T: the flat positions in (nb, nb) and the products
+        # b_ia b_ib of each node's row (a few vertices and its soil w), gathered once
+        Bc = self.Bc.tocsr()
+        pos, prod, node = [], [], []
+        for i in range(N):
+            c, v = Bc.indices[Bc.indptr[i]:Bc.indptr[i + 1]], Bc.data[Bc.indptr[i]:Bc.indptr[i + 1]]
+            pos.append((c[:, None] * self.nb + c[None, :]).ravel())
+            prod.append(np.outer(v, v).ravel())
+            node.append(np.full(c.size * c.size, i))
+        self._jpos, self._jprod, self._jnode = (np.concatenate(a) for a in (pos, prod, node))
         self.kp = penalty_stiffness(self.contact, soil.static_stiffness(), N)
         self.Ks = model.stiffness
         if static is None:
@@ -438,7 +453,7 @@ class PlateStepper(NewmarkStepper):
         else:
             P, act = self.P0 - self.kp * d, np.ones(self.N, bool)
         dp = P - self.P0
-        return P, act, -(self.Bc.T @ dp)
+        return P, act, -(self.BcT @ dp)
 
     def _jacobian_lu(self, sysd, active):
         key = (sysd["key"], active.tobytes())
@@ -447,8 +462,8 @@ class PlateStepper(NewmarkStepper):
             self._lu_cache.move_to_end(key)
             return lu
         s = (1 + self.alpha) * self.kp * active
-        B = self.Bcd[active]
-        J = sysd["S0"] + B.T @ (s[active, None] * B)
+        J = sysd["S0"] + np.bincount(self._jpos, self._jprod * s[self._jnode],
+                                     minlength=self.nb * self.nb).reshape(self.nb, self.nb)
         lu = sla.lu_factor(J, check_finite=False)
         self.n_factorisations += 1
         self._lu_cache[key] = lu
