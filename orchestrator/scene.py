@@ -415,6 +415,12 @@ class Scene:
                              '[structure] model = "reactor"')
         return build_model(self.structure, self.mesh.xy, self.mesh.area)
 
+    def check_rigid_raft(self, what: str) -> None:
+        """Refuse a plate raft in ``what`` (a command that models a rigid raft only, for now)."""
+        if self.raft is not None:
+            raise SceneError(f"{what} models a rigid raft only (for now); scene {self.name!r} has foundation.raft.kind "
+                             "= \"plate\": set it to \"rigid\" (or remove foundation.raft) for this command")
+
     def plate_model(self, model: StructureModel | None = None):
         """The PlateRaftModel of a plate raft (``raft`` not None) on the interface's cells: the
         stick model (``model``, default ``self.model()``) with its raft master's mass and inertia

@@ -10,6 +10,8 @@ from helpers import pulse_motion, soil_model, write_scene
 from helpers.winkler import NU, R, RHO
 from fmus.resources import DEFAULT_SOIL_FACTORY, soil_from_model
 from orchestrator.cli import main
+from orchestrator.export import export_scene
+from orchestrator.pushover import scene_pushover
 from orchestrator.results_file import read_results, write_results
 from orchestrator.routes.monolithic import run_monolithic
 from orchestrator.scene import SceneError, scene_from_dict
@@ -91,6 +93,12 @@ def test_routes_and_foundations_that_cannot_carry_a_plate_are_refused(tmp_path, 
     with pytest.raises(SceneError, match="needs the interface's cells"):
         scene_from_dict(scene(shape="nodes", radius=None, element_size=None, file="n.csv"), base_dir=tmp_path)
     assert scene_from_dict(scene(raft={"kind": "rigid"})).raft is None
+    plate = scene_from_dict(scene(), name="plate")
+    with pytest.raises(SceneError, match="the static pushover models a rigid raft only"):
+        scene_pushover(plate)
+    with pytest.raises(SceneError, match="the FMU export models a rigid raft only"):
+        export_scene(plate, tmp_path / "fmus")
+    assert not (tmp_path / "fmus").exists()
     # the command line: exit 2, one line naming the key
     assert main(["run", write_scene(tmp_path, data), "-o", str(tmp_path / "out.h5")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
