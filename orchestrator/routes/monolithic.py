@@ -72,7 +72,14 @@ def run_monolithic(scene, motion=None, soil_model=None, *, soil_factory: str | N
     model = model or (scene.plate_model() if getattr(scene, "raft", None) is not None else scene.model())
     why = (f"the soil factory {factory} has no native runtime: the Python stepper ran"
            if stepper == "native" and factory != DEFAULT_SOIL_FACTORY else "")
+    warnings = []
     if isinstance(model, PlateRaftModel):
+        off = model.mass_coupling
+        if off > 1e-3 * scene.mesh.radius:
+            warnings.append(f"the plate's held region (within {model.plate.rigid_radius:g} m of the raft centre) has its "
+                            f"mass centre {off:.3g} m off the raft centre: its uz-rx, uz-ry mass coupling is left out of "
+                            "the lumped mass (docs/formulation.md, 'Flexible raft'); a region symmetric about the centre "
+                            "has none")
         why = (f"a plate raft ({model.nf} free vertices, rigid within {model.plate.rigid_radius:g} m of the centre) "
                "is stepped by the Python stepper: the native runtime steps a rigid raft only"
                if stepper == "native" else "")
@@ -85,7 +92,7 @@ def run_monolithic(scene, motion=None, soil_model=None, *, soil_factory: str | N
                         "rigid_radius_m": p.rigid_radius, "vertices": model.n_vertices, "free_vertices": model.nf,
                         "plate_mass_kg": float(model.vertex_masses[0].sum()),
                         "dropped_mass_coupling_m": model.mass_coupling}
-    return res.with_notes(info=info)
+    return res.with_notes(info=info, warnings=warnings)
 
 
 def step_scene(scene, model, soil, motion, *, route: str, progress=None, cache_dir=None, stepper: str = "native",
