@@ -28,6 +28,9 @@ def simulate(model: StructureModel, soil, ag, dt: float, contact: ContactSetting
              route: str = "newmark", static: StaticState | None = None) -> RouteResult:
     """Time history of the structure on ``soil`` under ground acceleration ``ag``.
 
+    model : StructureModel (a rigid raft, NewmarkStepper) or PlateRaftModel (a plate raft,
+    PlateStepper; the result then carries the plate's deflections).
+
     ag : (nt, 3) m/s^2 at t_k = k dt (x, y, z); output_nodes : node names (default: all
     named nodes); progress : callable(done, total) or None, called as the run goes with
     done = k + 1 of total = nt samples. Returns a RouteResult; on a Newton failure raises
