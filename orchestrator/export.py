@@ -119,6 +119,7 @@ def export_scene(scene, outdir, soil_model=None, *, dt: float | None = None, mot
     """
     if kind not in KINDS:
         raise ValueError(f"kind = {kind!r}: use one of {', '.join(KINDS)}")
+    scene.check_rigid_raft("the FMU export")
     if fmi_version not in FMI_VERSIONS:
         raise ValueError(f"fmi_version = {fmi_version!r}: use one of {', '.join(map(str, FMI_VERSIONS))}")
     if fmi_version == 3 and kind != "native":

@@ -136,6 +136,7 @@ def scene_pushover(scene, soil: str | None = None, direction="x", steps: int = 5
     rotation steps (steps + 1 points from 0, and the onset rotation inserted when it lies
     between them); max_rotation rad (default: DEFAULT_ONSET_MULTIPLE
     times the lift-off onset rotation); vertical_load N, downward, added to the weight."""
+    scene.check_rigid_raft("the static pushover")
     with compute_threads():          # small dense solves: threaded BLAS only slows them (orchestrator.settings)
         return _pushover(scene, soil, direction, steps, max_rotation, vertical_load, cache_dir, progress)
 

@@ -19,6 +19,9 @@ dimensions)::
                      energy_term (energy_term), frequency (frequency) Hz
         raft_translation (time, direction) m     raft_rotation (time, direction) rad
         gap, contact_force, soil_w (time, node) m, N, m     newton_iters (time)
+        a plate raft (foundation.raft.kind = "plate"): plate_vertex (plate_vertex), plate_vertex_x,
+        plate_vertex_y (plate_vertex) m, plate_deflection (time, node) m, plate_vertex_deflection
+        (time, plate_vertex) m (relative to the static state and to the free field)
         acc (time, output, direction) m s-2      disp (time, output, direction) m
         energy (time, energy_term) J
         floor_spectrum (output, direction, frequency) m s-2: 5 % pseudo-acceleration (NaN where
@@ -263,12 +266,30 @@ def _write_route(g, res) -> None:
     for name, (units, long_name) in NODE_HISTORIES.items():
         _variable(g, name, getattr(res, name), ("time", "node"), units, long_name, coordinates)
     _variable(g, "newton_iters", res.newton_iters, ("time",), "1", "linear solves of the step (0 for linear routes)")
+    if res.plate_deflection is not None:
+        _write_plate(g, res, coordinates)
     _write_outputs(g, res)
     if res.energy:
         _coordinate(g, "energy_term", list(res.energy), None, "term of the energy balance "
                     "(input = kinetic + strain + damping + soil + contact)")
         _variable(g, "energy", np.stack(list(res.energy.values()), axis=1), ("time", "energy_term"), "J",
                   "cumulative work or stored energy")
+
+
+def _write_plate(g, res, coordinates: str) -> None:
+    """A plate raft's deflections: at the interface nodes (time, node) and at the plate's vertices
+    (time, plate_vertex), with the vertices' coordinates."""
+    m = res.plate_vertices.shape[0]
+    _coordinate(g, "plate_vertex", np.arange(m), None, "vertex of the plate raft (DKT mesh on the interface cells)")
+    for k, axis in enumerate("xy"):
+        _variable(g, f"plate_vertex_{axis}", res.plate_vertices[:, k], ("plate_vertex",), "m",
+                  f"{axis} of the plate vertex about the raft centre")
+    _variable(g, "plate_deflection", res.plate_deflection, ("time", "node"), "m",
+              "plate raft deflection at the interface node (its cell's vertices interpolated), relative to the "
+              "static state and to the free field", coordinates)
+    _variable(g, "plate_vertex_deflection", res.plate_vertex_deflection, ("time", "plate_vertex"), "m",
+              "plate raft deflection at the vertex, relative to the static state and to the free field",
+              "plate_vertex_x plate_vertex_y")
 
 
 def _write_outputs(g, res) -> None:
@@ -455,6 +476,9 @@ def _read_route(route, g) -> RouteResult:
           **{name: g[name][()] for name in NODE_HISTORIES}}
     if "x" in g:
         kw["xy"] = np.column_stack([g["x"][()], g["y"][()]])
+    if "plate_deflection" in g:
+        kw.update(plate_deflection=g["plate_deflection"][()], plate_vertex_deflection=g["plate_vertex_deflection"][()],
+                  plate_vertices=np.column_stack([g["plate_vertex_x"][()], g["plate_vertex_y"][()]]))
     for key, dim in (("acc", "output"), ("disp", "disp_output" if "disp_output" in g else "output")):
         if key in g:
             values = g[key][()]

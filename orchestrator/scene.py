@@ -39,6 +39,7 @@ from orchestrator.soil_cases import (SoilCaseError, SoilCases, StrainCompatibleC
 from structure.contact import ContactSettings
 from structure.errors import StructureError
 from structure.model import StructureModel
+from structure.plate_raft import PLATE_RANGES, PlateProperties, PlateRaftModel, plate_cells
 from structure.spec import (WINKLER_MODULI, StructureSpec, build_model, check_choice, check_keys, check_number,
                             contact_from_spec, parse_structure, show, winkler_moduli)
 from uplift_common.ranges import MAX_LAYERS, check_count, check_plausible
@@ -341,8 +342,19 @@ class Scene:
     #: where a [foundation] mesh = FILE was read from (the file, its SHA-256, the group, the
     #: raft centre in its coordinates: ``soil_impedance.mesh_file.MeshSource``); None otherwise
     mesh_source: MeshSource | None = None
+    #: [foundation] raft = { kind = "plate", ... }: the plate raft (structure.plate_raft); None: rigid
+    raft: PlateProperties | None = None
 
     def __post_init__(self):
+        if self.raft is not None:
+            other = [r for r in self.analysis.routes if r not in PLATE_ROUTES]
+            if other:
+                raise SceneError(
+                    f"foundation.raft.kind = \"plate\" runs on the route{'s' if len(PLATE_ROUTES) > 1 else ''} "
+                    f"{', '.join(PLATE_ROUTES)} only (the Python stepper); route{'s' if len(other) > 1 else ''} "
+                    f"{', '.join(other)} cannot carry a plate yet (a rigid raft only: no plate in the native "
+                    "runtime, the FMUs, the frequency-domain and Winkler routes): drop them from analysis.routes, "
+                    "or use raft.kind = \"rigid\"")
         f = np.array(self.frequencies_hz, float)
         f.setflags(write=False)
         _set(self, "frequencies_hz", f)
@@ -402,6 +414,26 @@ class Scene:
             raise SceneError(f"scene {self.name!r} has no [structure] section; add one, e.g. "
                              '[structure] model = "reactor"')
         return build_model(self.structure, self.mesh.xy, self.mesh.area)
+
+    def check_rigid_raft(self, what: str) -> None:
+        """Refuse a plate raft in ``what`` (a command that models a rigid raft only, for now)."""
+        if self.raft is not None:
+            raise SceneError(f"{what} models a rigid raft only (for now); scene {self.name!r} has foundation.raft.kind "
+                             "= \"plate\": set it to \"rigid\" (or remove foundation.raft) for this command")
+
+    def plate_model(self, model: StructureModel | None = None):
+        """The PlateRaftModel of a plate raft (``raft`` not None) on the interface's cells: the
+        stick model (``model``, default ``self.model()``) with its raft master's mass and inertia
+        replaced by the plate's own (rho t A per vertex)."""
+        if self.raft is None:
+            raise SceneError(f"scene {self.name!r} has a rigid raft: foundation.raft.kind = \"plate\" makes a plate")
+        model = model or self.model()
+        stick = replace(model, raft=replace(model.raft, m=0.0, inertia=(0.0, 0.0, 0.0)))
+        points, cells, trace = plate_cells(self.mesh.xy, self.mesh.cell, self.mesh.cells)
+        try:
+            return PlateRaftModel(stick, self.raft, points, cells, trace)
+        except StructureError as exc:
+            raise SceneError(f"foundation.{exc}") from None
 
     def with_routes(self, routes, where: str = "--route") -> Scene:
         """The scene with other routes (e.g. the command line's, named ``where`` in messages),
@@ -516,9 +548,9 @@ def _scene(data, base_dir: Path, name: str, origin: str) -> Scene:
         needed = "halfspace" in soil or "layers" in soil or not winkler.explicit
         profile = _profile(soil, model) if needed else None
         cases, strain_compatible = _soil_design(soil, model, profile)
-        mesh, contact_kind, mesh_source = _foundation(_section(data, "foundation",
-                                                               'shape = "circle", radius = ..., element_size = ...'),
-                                                      base_dir)
+        foundation = _section(data, "foundation", 'shape = "circle", radius = ..., element_size = ...')
+        mesh, contact_kind, mesh_source = _foundation(foundation, base_dir)
+        raft = _raft(foundation.get("raft", {}), mesh)
         freqs = _frequencies(_table(data, "impedance"))
         structure = parse_structure(data["structure"]) if "structure" in data else None
         contact = contact_from_spec(_table(data, "contact"))
@@ -533,7 +565,7 @@ def _scene(data, base_dir: Path, name: str, origin: str) -> Scene:
                      frequencies_hz=freqs, structure=structure, contact=contact, motion=motion,
                      analysis=analysis, output=output, winkler=winkler, source=copy.deepcopy(data),
                      soil_cases=cases, strain_compatible=strain_compatible, design_spectra=design_spectra,
-                     mesh_source=mesh_source)
+                     mesh_source=mesh_source, raft=raft)
     except (SceneError, StructureError, MotionError, SoilError, MeshError, SoilCaseError, SpectraConfigError) as exc:
         raise SceneError(f"{origin}: {exc}") from None
 
@@ -689,7 +721,7 @@ def _foundation(table: dict, base_dir: Path):
     if shape != "mesh" and "mesh" in table:
         raise SceneError(f'foundation.mesh is the file of a finite-element raft: it goes with shape = "mesh" (or no '
                          f'shape), not shape = {shape!r}; remove one of the two')
-    _check_keys(table, ("shape", "contact") + keys, "foundation", required=FOUNDATION_REQUIRED[shape])
+    _check_keys(table, ("shape", "contact") + keys + ("raft",), "foundation", required=FOUNDATION_REQUIRED[shape])
     for key in set(keys) & set(FOUNDATION_RANGES):
         if key in table:
             _plausible(f"foundation.{key}", table[key], FOUNDATION_RANGES[key])
@@ -715,6 +747,41 @@ def _foundation(table: dict, base_dir: Path):
         return read_nodes_csv(base_dir / file), contact, None
     except (UnicodeDecodeError, OSError, csv.Error) as exc:
         raise SceneError(f"foundation.file = {file!r}: cannot read it as a UTF-8 CSV x,y,area: {exc}") from None
+
+
+#: the routes that run a plate raft (foundation.raft.kind = "plate")
+PLATE_ROUTES = ("monolithic",)
+#: the keys of foundation.raft = { kind = "plate", ... } (rigid_radius optional)
+PLATE_KEYS = ("kind", "thickness", "E", "nu", "rho", "rigid_radius")
+
+
+def _raft(table, mesh: InterfaceMesh) -> PlateProperties | None:
+    """foundation.raft: None for kind = "rigid" (the default), else the PlateProperties (SI);
+    rigid_radius defaults to half the raft's radius (``mesh.radius``)."""
+    if not isinstance(table, dict):
+        raise SceneError(f"foundation.raft = {show(table)} must be a table, e.g. raft = {{ kind = \"plate\", "
+                         "thickness = 4.0, E = 30e9, nu = 0.2, rho = 2500.0 }")
+    kind = _choice("foundation.raft.kind", table.get("kind", "rigid"), ("rigid", "plate"),
+                   hint="rigid: the raft's rigid-body DOFs only, the default; plate: a DKT plate on the interface's "
+                        "cells")
+    if kind == "rigid":
+        _check_keys(table, ("kind",), "foundation.raft")
+        return None
+    _check_keys(table, PLATE_KEYS, "foundation.raft", required=("thickness", "E", "nu", "rho"))
+    values = {}
+    for key, (lo, hi) in PLATE_RANGES.items():
+        values[key] = _number(f"foundation.raft.{key}", table[key], lo, hi, lo_open=False,
+                              expect=f"a number in [{lo:g}, {hi:g}] ({dict(thickness='m', E='Pa', nu='-', rho='kg/m^3')[key]})")
+    radius = 0.5 * mesh.radius
+    if "rigid_radius" in table:
+        radius = _number("foundation.raft.rigid_radius", table["rigid_radius"], 0.0,
+                         expect="a positive length in m (the plate vertices within it of the raft centre move with "
+                                "the stick base)")
+    if mesh.cell is None and mesh.cells is None:
+        raise SceneError("foundation.raft.kind = \"plate\" needs the interface's cells: a circle or a rectangle of "
+                         "square cells, or a mesh file (foundation.mesh); this foundation has none "
+                         f"(shape {mesh.kind!r})")
+    return PlateProperties(rigid_radius=radius, **values)
 
 
 def _frequencies(table: dict) -> np.ndarray:

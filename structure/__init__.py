@@ -15,6 +15,8 @@ Modules (one concept each):
   driver         simulate(): the driver that runs a stepper over a record into a RouteResult
   results        RouteResult, the one result type of every route
   plate          Kirchhoff plate bending: the DKT triangle (quads split in two), assembled stiffness
+  plate_raft     a flexible raft: the DKT plate on the interface's cells (PlateRaftModel) and its
+                 Newmark stepper (PlateStepper; simulate() takes a PlateRaftModel)
   winkler        Winkler mattress: springs, dashpots, RCC-G composite modal damping
   spec           scene tables -> objects (model_from_spec, winkler_from_spec, contact_from_spec)
   data/reactor.toml   the representative reactor building (model = "reactor")
@@ -36,6 +38,7 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "model": ("G_ACC", "Beam", "Damping", "Mass", "Node", "Raft", "Spring", "StructureModel"),
     "newmark": ("NewmarkStepper",),
     "plate": ("flexural_rigidity", "plate_stiffness", "pressure_load"),
+    "plate_raft": ("PlateProperties", "PlateRaftModel", "PlateStepper", "plate_cells"),
     "preload": ("StaticState", "solve_static"),
     "results": ("RouteResult",),
     "driver": ("simulate",),

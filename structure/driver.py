@@ -18,6 +18,7 @@ from .contact import ContactSettings
 from .errors import ConvergenceError, StructureError
 from .model import StructureModel
 from .newmark import ENERGY_TERMS, NewmarkStepper
+from .plate_raft import PlateRaftModel, PlateStepper
 from .preload import StaticState
 from .results import RouteResult, RunNotes, Status
 
@@ -26,6 +27,9 @@ def simulate(model: StructureModel, soil, ag, dt: float, contact: ContactSetting
              damping=None, alpha: float = 0.0, output_nodes=None, progress=None,
              route: str = "newmark", static: StaticState | None = None) -> RouteResult:
     """Time history of the structure on ``soil`` under ground acceleration ``ag``.
+
+    model : StructureModel (a rigid raft, NewmarkStepper) or PlateRaftModel (a plate raft,
+    PlateStepper; the result then carries the plate's deflections).
 
     ag : (nt, 3) m/s^2 at t_k = k dt (x, y, z); output_nodes : node names (default: all
     named nodes); progress : callable(done, total) or None, called as the run goes with
@@ -55,8 +59,9 @@ def _simulate(model, soil, ag, dt, contact, damping, alpha, output_nodes, progre
         raise StructureError(f"ground acceleration must have shape (nt, 3), got {ag.shape}")
     if not np.all(np.isfinite(ag)):
         raise StructureError("ground acceleration contains NaN or inf")
-    st = NewmarkStepper(model, soil, dt, contact=contact, damping=damping, alpha=alpha,
-                        static=static, ag0=ag[0])
+    plate = isinstance(model, PlateRaftModel)
+    st = (PlateStepper if plate else NewmarkStepper)(model, soil, dt, contact=contact, damping=damping,
+                                                      alpha=alpha, static=static, ag0=ag[0])
     names = [n.name for n in model.nodes if n.name] if output_nodes is None else list(output_nodes)
     dofs = {nm: model.dofs(model.node_by_name(nm).id)[:3] for nm in names}
     nt, N = ag.shape[0], model.n_interface
@@ -65,6 +70,9 @@ def _simulate(model, soil, ag, dt, contact, damping, alpha, output_nodes, progre
         acc={nm: np.zeros((nt, 3)) for nm in names}, disp={nm: np.zeros((nt, 3)) for nm in names},
         energy={k: np.zeros(nt) for k in ENERGY_TERMS},
         newton_iters=np.zeros(nt, int))
+    if plate:
+        res.plate_vertex_deflection = np.zeros((nt, model.n_vertices))
+        res.plate_deflection = np.zeros((nt, N))
     info = dict(settlement=st.static.settlement, P0=st.P0.copy(), penalty=st.kp.copy(),
                 delta0=st.delta0.copy(), dt=dt, alpha=alpha, contact_enabled=st.contact.enabled)
     skipped = []
@@ -99,7 +107,7 @@ def _simulate(model, soil, ag, dt, contact, damping, alpha, output_nodes, progre
     failure, n_subdivided = (None, 0) if closed else _nonlinear(st, res, ag, dofs, progress)
     info.update(factorisations=st.n_factorisations, subdivided_steps=n_subdivided)
     out = RouteResult(route=route, time=dt * np.arange(nt), **vars(res), wall_s=_time.perf_counter() - t0,
-                      xy=np.array(model.raft.xy), notes=RunNotes(skipped=skipped, precheck=note), info=info)
+                      xy=np.array(model.raft.xy), plate_vertices=np.array(model.points) if plate else None, notes=RunNotes(skipped=skipped, precheck=note), info=info)
     if failure is not None:
         exc, k = failure
         exc.result = out.truncated(k, Status.STOPPED, str(exc))
@@ -123,6 +131,8 @@ def _nonlinear(st: NewmarkStepper, res: SimpleNamespace, ag, dofs, progress):
             res.disp[nm][k] = st.u[d]
         for key, val in st.energies().items():
             res.energy[key][k] = val
+        if hasattr(res, "plate_deflection"):
+            res.plate_vertex_deflection[k], res.plate_deflection[k] = st.plate_deflections(st.u)
 
     record(0)
     n_subdivided = 0

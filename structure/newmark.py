@@ -189,8 +189,8 @@ class NewmarkStepper:
         if key in self._systems:
             return self._systems[key]
         K0, C0 = self.soil.instantaneous(dt)
-        K0e = embed(self.model, sp.csr_matrix((self.ns, self.ns)), K0)
-        C0e = embed(self.model, sp.csr_matrix((self.ns, self.ns)), C0)
+        K0e = self._embed_soil(K0)
+        C0e = self._embed_soil(C0)
         c0, c1, _, _ = self._coeffs(dt)
         Ktot = (self.Ks + K0e).tocsr()
         Ctot = (self.Cs + C0e).tocsr()
@@ -207,12 +207,34 @@ class NewmarkStepper:
         self._systems[key] = sysd
         return sysd
 
+    # ---- the raft's vertical trace (hooks: structure.plate_raft's PlateStepper overrides them) --
+    def _embed_soil(self, K0):
+        """The soil's (6+N, 6+N) matrix on the whole (n_dof, n_dof) system."""
+        return embed(self.model, sp.csr_matrix((self.ns, self.ns)), K0)
+
+    def _interface_operator(self):
+        """B (N, n_dof): d = B u."""
+        return interface_operator(self.model)
+
+    def _trace(self, uB):
+        """d (N,) = raft trace - w for the interface block uB = [q, w] (or an increment of it)."""
+        return self.Bq3 @ uB[2:5] - uB[6:]
+
+    def _relative_block(self, U):
+        """d (k, N) for a block of whole states U (k, n_dof)."""
+        ni = self.ni
+        return U[:, ni + 2:ni + 5] @ self.Bq3.T - U[:, self.ns:]
+
+    def _relative_history(self, out, U):
+        """d (nt, N) from the recorded raft and soil_w histories (U (nt, n_dof) the states)."""
+        return out["raft"][:, 2:5] @ self.Bq3.T - out["soil_w"]
+
     def _closed_lu(self, sysd):
         """Solver of the whole effective matrix with every contact spring closed: the linear
         problem (contact disabled, or closed everywhere), one factorisation per step size."""
         lu = sysd.get("lu_closed")
         if lu is None:
-            B = interface_operator(self.model)
+            B = self._interface_operator()
             Kc = B.T @ sp.diags(self.kp) @ B
             lu = sysd["lu_closed"] = ClosedSolver(sysd["A"] + (1 + self.alpha) * Kc, self.ns)
             self.n_factorisations += 1
@@ -244,8 +266,8 @@ class NewmarkStepper:
         the step t in (0, 1] where dx . g(uB + t dx) = 0. dx . g(t) is continuous, piecewise
         linear and non-decreasing in t (kinks where a node opens or closes), so the root is
         found exactly by scanning the kinks. Returns 1 when the full step is not past it."""
-        d0 = self.Bq3 @ uB[2:5] - uB[6:]
-        dd = self.Bq3 @ dx[2:5] - dx[6:]
+        d0 = self._trace(uB)
+        dd = self._trace(dx)
         pen = self.delta0 - d0
         a = dx @ g0 + (1 + al) * (dd @ (self.kp * np.maximum(pen, 0.0)))  # linear part at t = 0
         b = dx @ (S0 @ dx)
@@ -447,8 +469,8 @@ class NewmarkStepper:
         b, g = self.beta, self.gamma
         W = np.array([[c0, c2, c3], [c1, -(1 - g / b), -dt * (1 - g / (2 * b))]])
         e = np.array([[1.0], [c1], [c0]])
-        M, ni, ns = self.M, self.ni, self.ns
-        Ktot, Ctot, B3, delta0 = sysd["Ktot"], sysd["Ctot"], self.Bq3, self.delta0
+        M, ni = self.M, self.ni
+        Ktot, Ctot, delta0 = sysd["Ktot"], sysd["Ctot"], self.delta0
         Cq = MatVec(Ctot)
         F = -ag @ self.Mr.T
         Fk = (1 + al) * F
@@ -484,7 +506,7 @@ class NewmarkStepper:
                 # tension (d > delta0) checked in blocks of steps: the run restarts from t = 0 anyway
                 if stop_on_tension:
                     blk = Zh[k0:k + 1, 0]
-                    tens = np.flatnonzero(((blk[:, ni + 2:ni + 5] @ B3.T - blk[:, ns:]) > delta0).any(axis=1))
+                    tens = np.flatnonzero((self._relative_block(blk) > delta0).any(axis=1))
                     if tens.size:
                         return k0 + int(tens[0])
                     k0 = k + 1
@@ -504,7 +526,7 @@ class NewmarkStepper:
         U, V, A = Zh[:, 0], Zh[:, 1], Zh[:, 2]
         out["raft"] = U[:, ni:ni + 6].copy()
         out["soil_w"] = U[:, ns:].copy()
-        d = out["raft"][:, 2:5] @ self.Bq3.T - out["soil_w"]
+        d = self._relative_history(out, U)
         if self.contact.enabled:
             P = contact_force(d, self.delta0, self.kp)[0]
             out["gap"][:] = gap(d, self.delta0)

@@ -64,8 +64,15 @@ def solve_static(model: StructureModel, soil, kp, load=None, unilateral=True, ma
     if load is not None:
         F = F + load
     B = interface_operator(model)
+    return solve_static_system(K, F, B, kp, model.n_struct - 4, unilateral, max_iter)
+
+
+def solve_static_system(K, F, B, kp, settle_dof: int, unilateral=True, max_iter=60) -> StaticState:
+    """The static equilibrium of an assembled system: K (n, n) sparse stiffness (structure and
+    soil), F (n,) N loads, B (N, n) the contact operator d = B u, kp (N,) N/m penalties;
+    settle_dof the index of the raft centre's uz (the settlement is -u there)."""
     kp = np.asarray(kp, float)
-    active = np.ones(model.n_interface, bool)
+    active = np.ones(B.shape[0], bool)
     for it in range(1, max_iter + 1):
         Kt = (K + B.T @ sp.diags(kp * active) @ B).tocsc()
         try:
@@ -80,7 +87,7 @@ def solve_static(model: StructureModel, soil, kp, load=None, unilateral=True, ma
         new = d < 0 if unilateral else np.ones_like(active)
         if np.array_equal(new, active):
             P0 = kp * np.maximum(0.0, -d) if unilateral else -kp * d
-            return StaticState(u, P0, d, -float(u[model.n_struct - 4]), it)
+            return StaticState(u, P0, d, -float(u[settle_dof]), it)
         active = new
         if not active.any():
             raise StructureError("static preload: the raft is not in contact anywhere; the "

@@ -76,6 +76,9 @@ class RouteResult:
     wall_s : float, s; xy : (N, 2) m interface nodes
     notes : RunNotes (skipped, warnings, precheck, timings)
     info : route-specific details (static settlement, P0, penalty, solver history, ...), JSON-able
+    plate_deflection : (nt, N) m, a plate raft's deflection at the interface nodes (dynamic, as
+                       raft); plate_vertex_deflection : (nt, m) m, at its vertices; plate_vertices
+                       (m, 2) m about the raft centre (None for a rigid raft)
     """
     route: str
     time: np.ndarray
@@ -93,6 +96,9 @@ class RouteResult:
     xy: np.ndarray | None = None
     notes: RunNotes = field(default_factory=RunNotes)
     info: Mapping = field(default_factory=dict)
+    plate_deflection: np.ndarray | None = None
+    plate_vertex_deflection: np.ndarray | None = None
+    plate_vertices: np.ndarray | None = None
 
     def __post_init__(self):
         put = lambda name, value: object.__setattr__(self, name, value)
@@ -109,6 +115,8 @@ class RouteResult:
             put(name, MappingProxyType({str(k): _frozen(v) for k, v in getattr(self, name).items()}))
         put("newton_iters", _frozen(np.zeros(nt, int) if self.newton_iters is None else self.newton_iters, int))
         put("xy", None if self.xy is None else _frozen(self.xy))
+        for name in ("plate_deflection", "plate_vertex_deflection", "plate_vertices"):
+            put(name, None if getattr(self, name) is None else _frozen(getattr(self, name)))
         put("status", Status(self.status))
         put("message", str(self.message))
         put("wall_s", float(self.wall_s))
@@ -149,12 +157,14 @@ class RouteResult:
                   info=None) -> RouteResult:
         """The first nt samples (results up to a failure), with the reason."""
         cut = lambda m: {k: v[:nt] for k, v in m.items()}
+        plate = {k: getattr(self, k)[:nt] for k in ("plate_deflection", "plate_vertex_deflection")
+                 if getattr(self, k) is not None}
         return dataclasses.replace(
             self, time=self.time[:nt], raft=self.raft[:nt], gap=self.gap[:nt],
             contact_force=self.contact_force[:nt], soil_w=self.soil_w[:nt], acc=cut(self.acc),
             disp=cut(self.disp), energy=cut(self.energy), newton_iters=self.newton_iters[:nt],
             status=status, message=message or self.message,
-            wall_s=self.wall_s if wall_s is None else wall_s, info={**self.info, **(info or {})})
+            wall_s=self.wall_s if wall_s is None else wall_s, info={**self.info, **(info or {})}, **plate)
 
     def max_uplift(self) -> float:
         return float(self.gap.max()) if self.gap.size else 0.0

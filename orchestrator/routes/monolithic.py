@@ -23,6 +23,7 @@ import time
 
 from fmus.resources import DEFAULT_SOIL_FACTORY, soil_from_model
 from structure import ConvergenceError, NewmarkStepper, simulate
+from structure.plate_raft import PlateRaftModel
 
 from orchestrator.impedance import scene_fit
 from orchestrator.motion import make_motion
@@ -58,7 +59,8 @@ def run_monolithic(scene, motion=None, soil_model=None, *, soil_factory: str | N
     (default: the fit of the scene's gap table); soil_factory : "module:callable" building the
     soil as factory(model, dt, **soil_kwargs) (default: the recursive convolution); dt : s
     (default: the motion's, else the scene's [analysis] dt); model : the structure model
-    (default: built from the scene); stepper : "native" (the C runtime, falling back to
+    (default: built from the scene; a scene with a plate raft: ``scene.plate_model()``, stepped by
+    the Python stepper, ``notes.warnings`` saying so); stepper : "native" (the C runtime, falling back to
     "python" with a warning where it cannot run) or "python" (``structure.simulate``).
     Returns a RouteResult (``info["stepper"]``: the one that ran); a Newton failure returns the
     samples so far with status STOPPED.
@@ -67,12 +69,30 @@ def run_monolithic(scene, motion=None, soil_model=None, *, soil_factory: str | N
     motion, soil_model, dt = route_inputs(scene, motion, soil_model, dt, cache_dir)
     factory = soil_factory or DEFAULT_SOIL_FACTORY
     soil = soil_from_model(soil_model, dt, factory, soil_kwargs)
-    model = model or scene.model()
+    model = model or (scene.plate_model() if getattr(scene, "raft", None) is not None else scene.model())
     why = (f"the soil factory {factory} has no native runtime: the Python stepper ran"
            if stepper == "native" and factory != DEFAULT_SOIL_FACTORY else "")
+    warnings = []
+    if isinstance(model, PlateRaftModel):
+        off = model.mass_coupling
+        if off > 1e-3 * scene.mesh.radius:
+            warnings.append(f"the plate's held region (within {model.plate.rigid_radius:g} m of the raft centre) has its "
+                            f"mass centre {off:.3g} m off the raft centre: its uz-rx, uz-ry mass coupling is left out of "
+                            "the lumped mass (docs/formulation.md, 'Flexible raft'); a region symmetric about the centre "
+                            "has none")
+        why = (f"a plate raft ({model.nf} free vertices, rigid within {model.plate.rigid_radius:g} m of the centre) "
+               "is stepped by the Python stepper: the native runtime steps a rigid raft only"
+               if stepper == "native" else "")
     res = step_scene(scene, model, soil, motion, route=route, progress=progress, cache_dir=cache_dir,
                      stepper=stepper, why=why)
-    return res.with_notes(info={"soil_model": soil_model.provenance})
+    info = {"soil_model": soil_model.provenance}
+    if isinstance(model, PlateRaftModel):
+        p = model.plate
+        info["raft"] = {"kind": "plate", "thickness_m": p.thickness, "E_Pa": p.E, "nu": p.nu, "rho_kg_m3": p.rho,
+                        "rigid_radius_m": p.rigid_radius, "vertices": model.n_vertices, "free_vertices": model.nf,
+                        "plate_mass_kg": float(model.vertex_masses[0].sum()),
+                        "dropped_mass_coupling_m": model.mass_coupling}
+    return res.with_notes(info=info, warnings=warnings)
 
 
 def step_scene(scene, model, soil, motion, *, route: str, progress=None, cache_dir=None, stepper: str = "native",
@@ -121,7 +141,10 @@ def _native(model, soil, motion, scene, route, progress, folder, damping):
 
 
 def run(ctx, progress=None):
-    return run_monolithic(ctx.scene, ctx.motion, ctx.fit().model, progress=progress, model=ctx.model(),
+    model = ctx.model()
+    if getattr(ctx.scene, "raft", None) is not None:
+        model = ctx.scene.plate_model(model)
+    return run_monolithic(ctx.scene, ctx.motion, ctx.fit().model, progress=progress, model=model,
                           cache_dir=ctx.cache_dir, stepper=ctx.options.get("stepper", "native"))
 
 
