@@ -484,18 +484,27 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
     (an int or nested sizes, outermost first).
     stand_in : a ContactProblem on the same grid and static state whose causal kernel the march
     steps instead of prob's (a causal soil standing in for the table, e.g. its rational fit);
-    the residual, and so the fixed point, stay prob's.
+    or a marcher, any object with ``march(lam, source, deadline) -> (d (N, nt), info)`` (info:
+    newton, factors, steps; MarchDiverged when it cannot go on) that solves a causal stand-in's
+    contact equations with the source added (the native stepper on the table's constrained fit:
+    orchestrator/standin.py). The residual, and so the fixed point, stay prob's: a stand-in
+    changes the sweeps (their count: the linear rate rho(S_x^-1 (S - S_x))), not the answer.
     ahead : the truncated kernel's look-ahead (CausalSweep; 0: the plain causal kernel); it
     changes the sweeps, not the fixed point.
     single : the marches in correction form with single-precision products (CausalSweep); it
     changes the sweeps' cost, not the fixed point.
 
     Returns an Outcome (history: one MarchSweep per sweep)."""
-    marched = prob if stand_in is None else stand_in
-    sweep = CausalSweep(marched, block, fold is True, sub, ahead, single)
-    # the residual's S through the march's split when it is prob's (a table's K then not formed)
-    eq = ContactEquation(prob, lam, sweep.far.apply if stand_in is None and isinstance(sweep.far, AffineSplit)
-                         else None)
+    marcher = stand_in if hasattr(stand_in, "march") else None
+    marched = prob if stand_in is None or marcher is not None else stand_in
+    if marcher is None:
+        sweep = CausalSweep(marched, block, fold is True, sub, ahead, single)
+        split = sweep.far if stand_in is None and isinstance(sweep.far, AffineSplit) else None
+    else:                  # the residual's split alone (no kernel head: the march is the stand-in's)
+        sweep, split = None, AffineSplit(prob.op, prob.grid)
+        split = split if split.usable else None
+    # the residual's S through the split when it is prob's (a table's K then not formed)
+    eq = ContactEquation(prob, lam, split.apply if split is not None else None)
     scale = eq.scale
     hist = []
     W = np.zeros_like(prob.f)
@@ -504,7 +513,7 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
     y = np.zeros_like(prob.f)
 
     def kernel():
-        return "folded" if sweep.fold else "truncated"
+        return "stand-in" if marcher is not None else "folded" if sweep.fold else "truncated"
 
     def ended(status, reason=""):
         return Outcome(best[1] if best else y, status, tuple(hist), reason,
@@ -514,10 +523,13 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
         t0 = time.perf_counter()
         try:
             with np.errstate(over="ignore", invalid="ignore"):
-                d, info = march(prob, lam, sweep=sweep, source=W, deadline=deadline)
+                if marcher is not None:
+                    d, info = marcher.march(lam, W, deadline)
+                else:
+                    d, info = march(prob, lam, sweep=sweep, source=W, deadline=deadline)
         except MarchDiverged as exc:
             hist.append(MarchSweep(k, math.nan, time.perf_counter() - t0, kernel(), diverged=True))
-            if fold == "auto" and not sweep.fold:      # start again on the folded kernel
+            if fold == "auto" and marcher is None and not sweep.fold:      # start again on the folded kernel
                 sweep = CausalSweep(marched, block, True, sub)
                 W, Gs, Fs, best = np.zeros_like(prob.f), [], [], None
                 continue
