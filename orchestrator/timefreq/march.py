@@ -30,6 +30,7 @@ one, where h_0 is a band-limited dashpot with negative eigenvalues.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from dataclasses import dataclass
 
@@ -500,12 +501,32 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
     if marcher is None:
         sweep = CausalSweep(marched, block, fold is True, sub, ahead, single)
         split = sweep.far if stand_in is None and isinstance(sweep.far, AffineSplit) else None
-    else:                  # the residual's split alone (no kernel head: the march is the stand-in's)
-        sweep, split = None, AffineSplit(prob.op, prob.grid)
-        split = split if split.usable else None
-    # the residual's S through the split when it is prob's (a table's K then not formed)
-    eq = ContactEquation(prob, lam, split.apply if split is not None else None)
-    scale = eq.scale
+    else:
+        # the residual's split alone (no kernel head: the march is the stand-in's), built in a
+        # thread beside the first march (a native marcher releases the interpreter's lock; on the
+        # reactor the split is ~1 CPU s, a native march ~0.3): the same split, whatever the timing
+        sweep, split, built = None, None, {}
+
+        def build():
+            try:
+                built["split"] = AffineSplit(prob.op, prob.grid)
+            except BaseException as exc:     # raised again in the solve's thread
+                built["error"] = exc
+        builder = threading.Thread(target=build, name="uplift-split", daemon=True)
+        builder.start()
+    eq = None
+
+    def equation():
+        nonlocal eq, split
+        if eq is None:
+            if marcher is not None:
+                builder.join()
+                if "error" in built:
+                    raise built["error"]
+                split = built["split"] if built["split"].usable else None
+            # the residual's S through the split when it is prob's (a table's K then not formed)
+            eq = ContactEquation(prob, lam, split.apply if split is not None else None)
+        return eq
     hist = []
     W = np.zeros_like(prob.f)
     Gs, Fs = [], []                       # Anderson: past maps G(W) = W + g and residuals g
@@ -538,8 +559,8 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
             hist.append(MarchSweep(k, math.nan, time.perf_counter() - t0, kernel()))
             return ended(SolverStatus.STOPPED, "time budget")
         y = y_from_d(prob, d)
-        g = eq.residual(y)
-        r = float(np.linalg.norm(g) / scale)
+        g = equation().residual(y)
+        r = float(np.linalg.norm(g) / eq.scale)
         hist.append(MarchSweep(k, r, time.perf_counter() - t0, kernel(), newton=info["newton"],
                                factors=info["factors"], anderson=len(Fs)))
         if monitor is not None:
