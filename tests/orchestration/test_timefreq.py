@@ -294,3 +294,40 @@ def test_continuation_is_the_routes_affine_band():
                 if isinstance(b, AffineBand))
     A, B = continuation(table)
     assert np.allclose(A, dense(band.A), rtol=1e-13, atol=0) and np.allclose(B, dense(band.B), rtol=1e-13, atol=0)
+
+
+def test_native_march_with_a_source_is_the_grids_causal_march():
+    """The native stepper's per-step source (up_sim_steps_src, orchestrator/standin.py) solves the
+    grid march's causal equations with the same source: on a passive rational soil with uplift
+    (the recursion's z-transform on the bilinear grid, wrap-around 1e-10), NativeStandIn.march
+    and march.march(prob, source=W) (no look-ahead) give the same contact history to 1e-7, for
+    W zero and for W a smooth force of the blocked force's size (its sign and its alignment:
+    W_n enters step n)."""
+    from helpers import oscillator_model
+    from fmus.native_stepper import library
+    from orchestrator.standin import NativeStandIn
+    from orchestrator.timefreq import prepare
+    from orchestrator.timefreq.march import march
+    from soil_impedance.convolution import RecursiveConvolutionSoil
+
+    if library() is None:
+        pytest.skip("no C compiler here")
+    w = soil()
+    K = w.static_stiffness().toarray()
+    C = w.instantaneous(0.005)[1].toarray()
+    model = oscillator_model(K, C, terms=[(0.3, 0.02, 0.3 / (2 * np.pi * 6.0) ** 2, K)],
+                             maxwell=[(0.2, 0.2 / (2 * np.pi * 15.0), K)])
+    ag = motion(0.35, duration=2.0)
+    prob = prepare(MODEL, RecursiveConvolutionSoil(model, 0.005), ag, 0.005, contact=UPLIFT,
+                   grid=GridOptions(bilinear=True, wrap_tol=1e-10, pad_s=20.0).resolved(bilinear=True, window=True))
+    native = NativeStandIn(prob, model, library())
+    N, nt = prob.f.shape
+    t = 0.005 * np.arange(nt)
+    W = 0.3 * np.abs(prob.f).max() * np.sin(2 * np.pi * 1.3 * t)[None, :] * np.linspace(-1, 1, N)[:, None]
+    for source in (np.zeros((N, nt)), W):
+        d_native, info = native.march(1.0, source)
+        d_grid, _ = march(prob, 1.0, source=source, ahead=0)
+        assert info["steps"] == nt
+        assert np.abs(d_grid).max() > 1e-4 and (d_grid > prob.static.delta0[:, None]).any()     # lifted
+        assert rel(d_native, d_grid) < 1e-7
+    assert rel(native.march(1.0, W)[0], native.march(1.0, np.zeros((N, nt)))[0]) > 1e-2   # the source acts
