@@ -331,3 +331,37 @@ def test_native_march_with_a_source_is_the_grids_causal_march():
         assert np.abs(d_grid).max() > 1e-4 and (d_grid > prob.static.delta0[:, None]).any()     # lifted
         assert rel(d_native, d_grid) < 1e-7
     assert rel(native.march(1.0, W)[0], native.march(1.0, np.zeros((N, nt)))[0]) > 1e-2   # the source acts
+
+
+def test_a_run_of_the_route_marches_the_stand_in(tmp_path):
+    """``run_scene`` (what ``uplift run`` does): the timefreq route takes the run's fit and marches
+    its constrained stand-in (info["march"]). (No cache: the native library is the process's, as
+    the other tests'; the constrained fit's cache is tested below.)"""
+    from helpers import small_reactor
+    from orchestrator.run import run_scene
+    from orchestrator.scene import scene_from_dict
+
+    scene = scene_from_dict(small_reactor(soil=LAYERED, motion={"duration_s": 1.0},
+                                          analysis={"routes": ["timefreq"]}), name="run")
+    results, _ = run_scene(scene, cache_dir=None)
+    res = results["timefreq"]
+    assert res.converged and res.info["march"] == "stand-in", res.notes.warnings
+    assert not res.notes.warnings
+
+
+def test_the_constrained_fit_is_cached_by_its_inputs(tmp_path):
+    """continuation_fit's cache: the second call reads the same model (its digest), passivity and
+    error; other poles are another entry; the model's D and E are the route's continuation."""
+    from helpers import small_reactor
+    from soil_impedance.fit.continuation import continuation, continuation_fit
+
+    _, _, _, table, fit = _scene_run(small_reactor(soil=LAYERED, motion={"duration_s": 0.5}), tmp_path, "cache")
+    first = continuation_fit(table, fit.model.poles, cache_dir=tmp_path)
+    again = continuation_fit(table, fit.model.poles, cache_dir=tmp_path)
+    assert not first.cached and again.cached
+    assert again.model.digest == first.model.digest and again.passive == first.passive
+    assert again.max_rel_error == first.max_rel_error
+    other = continuation_fit(table, fit.model.poles[:-2], cache_dir=tmp_path)
+    assert not other.cached and len(list(tmp_path.glob("standin-*.h5"))) == 2
+    A, B = continuation(table)
+    assert np.array_equal(first.model.D, A) and np.array_equal(first.model.E, B)
