@@ -9,8 +9,6 @@ API::
 """
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
 from uplift_common.errors import ComputationError, UserInputError
@@ -86,8 +84,8 @@ def run(ctx, progress=None):
                        output_nodes=ctx.scene.output.nodes, max_seconds=ctx.scene.analysis.timefreq_max_s,
                        progress=progress, fit=fit, cache_dir=ctx.cache_dir, **ctx.options)
     if why:
-        said = f"timefreq: no causal stand-in (the scene's fit failed: {why}); the march on the table's own kernel ran"
-        res = dataclasses.replace(res, notes=dataclasses.replace(res.notes, warnings=res.notes.warnings + (said,)))
+        said = f"no causal stand-in (the scene's fit failed: {why}); the march on the table's own kernel ran"
+        res = res.with_notes(warnings=[said])
     return res
 
 

@@ -117,9 +117,7 @@ def solve(model, soil, ag, dt, *, contact=None, damping=None, output_nodes=None,
     res = route_result(prob, route, d, P, gap, output_nodes=output_nodes,
                        status=Status.CONVERGED if out.converged else Status.STOPPED,
                        message=_message(method.name, out, residual, options.max_seconds), started=t0, info=info)
-    if said:
-        res = dataclasses.replace(res, notes=dataclasses.replace(res.notes, warnings=res.notes.warnings + tuple(said)))
-    return res
+    return res.with_notes(warnings=said) if said else res
 
 
 def _on_stand_in(prob, stand_in, options, monitor, deadline):
@@ -131,14 +129,14 @@ def _on_stand_in(prob, stand_in, options, monitor, deadline):
     except ComputationError as exc:            # the native library refused the stand-in's model
         marcher, why = None, str(exc).splitlines()[0]
     if marcher is None:
-        return None, {}, [f"timefreq: no causal stand-in ({why}); the march on the table's own kernel ran "
-                          "(the same answer, ~2x the time)"]
+        return None, {}, [f"no causal stand-in ({why}); the march on the table's own kernel ran "
+                          "(the same answer, at its cost)"]
     out = defect_correction(prob, tol=options.tol or 1e-10, max_sweeps=options.max_iter or 60, monitor=monitor,
                             deadline=deadline, stand_in=marcher)
     if out.converged or out.status is SolverStatus.STOPPED:
         return out, dict(march="stand-in", stand_in=why), []
-    return None, {}, [f"timefreq: the stand-in's sweeps ended {out.status.value} ({why}; {len(out.history)} "
-                      "sweeps); the march on the table's own kernel ran (the same answer, ~2x the time)"]
+    return None, {}, [f"the stand-in's sweeps ended {out.status.value} ({why}; {len(out.history)} "
+                      "sweeps); the march on the table's own kernel ran (the same answer, at its cost)"]
 
 
 def _message(method, out, residual, max_seconds) -> str:
