@@ -443,7 +443,7 @@ class MarchSweep:
     """One sweep of ``defect_correction``.
 
     sweep : from 1; residual : |g| / |f| after it (NaN: the march did not finish); wall_s : s
-    kernel : "truncated" | "folded" (kernel_head); diverged : the march passed DIVERGED_M (on
+    kernel : "truncated" | "folded" (kernel_head) | "stand-in" (a marcher's); diverged : the march passed DIVERGED_M (on
     the truncated kernel with fold "auto": the solve starts again on the folded one)
     newton, factors : the march's linear solves and LU factorisations; anderson : past
     residuals mixed into the next source
