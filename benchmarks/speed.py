@@ -26,7 +26,8 @@ Rows (one small function each, registered with ``@row``; add one the same way):
                              the proxy springs at dt and dt/2), nothing cached
   ensemble, 2 workers        ``run_ensemble`` of 8 seeds x 2 PGAs on 2 local workers from an empty
                              output, runs per minute (cluster start, set-up, step check included)
-  timefreq route             orchestrator.routes.timefreq.run_timefreq on the BEM table
+  timefreq route             orchestrator.routes.timefreq.run_timefreq on the BEM table, given the
+                             scene's fit (the march on its causal stand-in, orchestrator/standin.py)
   uplift run (warm)          the whole command ``uplift run reactor --route monolithic`` in a
                              fresh process, cache warm (the sweep and the fit are read here first)
   uplift run timefreq        the same with ``--route timefreq``: what one reference run costs a
@@ -254,11 +255,12 @@ def timefreq_route(case: Case):
     from orchestrator.routes.timefreq import run_timefreq
     sc = case.scene
     t0 = time.perf_counter()
-    res = run_timefreq(case.motion, case.model, case.table, contact=sc.contact, output_nodes=sc.output.nodes)
+    res = run_timefreq(case.motion, case.model, case.table, contact=sc.contact, output_nodes=sc.output.nodes,
+                       fit=case.fit, cache_dir=case._cache())
     wall = time.perf_counter() - t0
     info = res.info
-    return wall, (f"max uplift {1e3 * res.max_uplift():.6f} mm, {info['iterations']} sweeps, setup "
-                  f"{info['setup_s']:.2f} s")
+    return wall, (f"max uplift {1e3 * res.max_uplift():.6f} mm, {info['iterations']} sweeps on the "
+                  f"{info['march']}, setup {info['setup_s']:.2f} s")
 
 
 @row("uplift run (warm)")

@@ -34,7 +34,8 @@ Rows:
             another reference, the table with the fit's own values above the table's last
             frequency instead of its springs and dashpots; and a stand-in with the fit's poles
             and the route's continuation as its asymptote (D = A, E = B, the residues refit:
-            ``continuation_model``) on the table.
+            ``soil_impedance.fit.continuation_model``) on the table, marched on the grid (the route
+            marches it natively by default: orchestrator/standin.py).
 
   --parts   where a march solve's CPU goes on the reactor (one thread): the far-field split and
             the kernel head, per sweep the far field, the near field's products from finished
@@ -331,18 +332,18 @@ def contention(pga, repeat=2, threads=(1, 2)):
 def stand_in(pga, sweeps=30, tol=1e-6):
     """Residual per sweep, CPU s and max uplift of defect_correction on the reactor's table,
     marching the table's own kernel (the default), the scene's rational fit (stand_in) and the
-    fit's poles with the route's continuation as asymptote (``continuation_model``)."""
+    fit's poles with the route's continuation as asymptote (soil_impedance.fit.continuation)."""
     from orchestrator.timefreq import (GridOptions, InterfaceOperator, SoilBands, defect_correction, prepare,
                                        soil_bands)
-    from orchestrator.timefreq.soil import AffineBand, DenseBand
+    from orchestrator.timefreq.soil import DenseBand
     from soil_impedance.convolution import RecursiveConvolutionSoil
+    from soil_impedance.fit.continuation import continuation_model
 
     scene, model, motion, table, _ = reactor(pga)
     fit = _fit_soil(scene, table, motion.dt)
     prob = prepare(model, table, motion.acc, motion.dt, grid=GridOptions().resolved(bilinear=True, window=True),
                    contact=scene.contact)
-    cont = next(b for b in prob.op.soil.bands if isinstance(b, AffineBand))        # the route's A + s B
-    st = continuation_model(table, fit.model, cont.A, cont.B)
+    st = continuation_model(table, fit.model.poles)[0]      # the route's A + s B above the table
     ops = {"fit": InterfaceOperator(model, soil_bands(fit, prob.grid), prob.grid, structure=prob.op.st),
            "continuation": InterfaceOperator(model, soil_bands(RecursiveConvolutionSoil(st, motion.dt),
                                                                prob.grid), prob.grid, structure=prob.op.st)}
@@ -390,30 +391,6 @@ def stand_in(pga, sweeps=30, tol=1e-6):
         print(f"{ref:<17} {name:<24} {out.status.value:<14} {len(res):3d} sweeps  cpu {cpu:6.1f} s  max uplift "
               f"{1e3 * uplift:.6f} mm  residuals " + " ".join(f"{r:.1e}" for r in res))
     return rows
-
-
-def continuation_model(table, fit, A, B):
-    """The fit's poles with the route's continuation as asymptote: RationalModel(poles, R, D = A,
-    E = B), the residues R refit to the table (its causal fade applied, as the route's band)
-    minus A + s B at the table's frequencies: one real least squares (poles fixed, rows weighted
-    by 1 / |K(f)|_F, every entry a right-hand side), symmetrised. Its interface stiffness then
-    tends to the route's springs and dashpots above the table's last frequency, as the table's
-    does."""
-    from orchestrator.timefreq.soil import causal_table, dense
-    from soil_impedance.rational import RationalModel
-    from soil_impedance.vectfit import coefficients_to_residues, real_basis
-
-    K, _ = causal_table(table)
-    f = np.asarray(table.frequencies_hz, float)
-    s = 2j * np.pi * f
-    A, B = dense(A), dense(B)
-    w = 1.0 / np.linalg.norm(K.reshape(f.size, -1), axis=1)
-    Phi = w[:, None] * real_basis(s, fit.poles, const=False, linear=False)
-    Y = w[:, None] * (K - A[None] - s[:, None, None] * B[None]).reshape(f.size, -1)
-    coef = np.linalg.lstsq(np.concatenate([Phi.real, Phi.imag]), np.concatenate([Y.real, Y.imag]), rcond=None)[0]
-    n = K.shape[1]
-    R = coefficients_to_residues(coef.reshape(-1, n, n), fit.poles)
-    return RationalModel(fit.poles, 0.5 * (R + np.swapaxes(R, 1, 2)), A, B, dofs=fit.dofs)
 
 
 def parts(pga, tol=1e-6):

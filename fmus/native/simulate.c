@@ -24,6 +24,11 @@
      Returns 0; 1 when a step's Newton iteration failed after its halvings (samples up to
      stats[0], the stepper's message in err; the run cannot go on); -1 when k0 is not the next
      sample (message in err). The samples are the same bits whatever the chunks.
+   up_sim_steps_src(handle, ag, src, k0, k1, rows, iters, stats, err)
+     up_sim_steps with a source in the contact equations: src (nt, N) N, row k the force W_k that
+     the step to sample k adds to its contact equations (P - P0 + W the dynamic interface force,
+     UpStepper.src; row 0 not read: sample 0 is the state at rest). The time-frequency route's
+     defect correction marches its causal stand-in this way (orchestrator/timefreq/standin.py).
    up_sim_close(handle)  frees the handle (NULL: nothing)
    up_simulate(res, size, ag, nt, rows, iters, stats, err)
      the whole motion in one call (open, the nt samples, close); returns 0, 1 or -1 as above. */
@@ -130,8 +135,8 @@ UP_API int64_t up_sim_width(const UpSim *h)
     return UP_ROW_WIDTH((int64_t)h->st.N, (int64_t)h->nnodes);
 }
 
-UP_API int up_sim_steps(UpSim *h, const double *ag, int64_t k0, int64_t k1, double *rows, int64_t *iters,
-                        int64_t *stats, char *err)
+static int steps(UpSim *h, const double *ag, const double *src, int64_t k0, int64_t k1, double *rows,
+                 int64_t *iters, int64_t *stats, char *err)
 {
     UpStepper *st = &h->st;
     size_t width = (size_t)up_sim_width(h);
@@ -144,7 +149,10 @@ UP_API int up_sim_steps(UpSim *h, const double *ag, int64_t k0, int64_t k1, doub
     for (; k < k1; k++) {
         if (k > 0) {
             memcpy(st->ag_next, ag + 3 * k, 3 * sizeof(double));
-            if (up_stepper_step(st)) {
+            st->src = src ? src + (size_t)k * (size_t)st->N : NULL;
+            int failed = up_stepper_step(st);
+            st->src = NULL;
+            if (failed) {
                 memcpy(err, h->err, UP_MSG);
                 h->failed = 1;
                 rc = 1;
@@ -160,6 +168,18 @@ UP_API int up_sim_steps(UpSim *h, const double *ag, int64_t k0, int64_t k1, doub
     stats[1] = st->n_factorisations;
     stats[2] = h->halved;
     return rc;
+}
+
+UP_API int up_sim_steps(UpSim *h, const double *ag, int64_t k0, int64_t k1, double *rows, int64_t *iters,
+                        int64_t *stats, char *err)
+{
+    return steps(h, ag, NULL, k0, k1, rows, iters, stats, err);
+}
+
+UP_API int up_sim_steps_src(UpSim *h, const double *ag, const double *src, int64_t k0, int64_t k1, double *rows,
+                            int64_t *iters, int64_t *stats, char *err)
+{
+    return steps(h, ag, src, k0, k1, rows, iters, stats, err);
 }
 
 UP_API int up_simulate(const unsigned char *res, uint64_t size, const double *ag, int64_t nt, double *rows,

@@ -298,6 +298,17 @@ static void load(const UpStepper *s, const double *ag, double *F)
     }
     for (int i = s->ns; i < s->n; i++)
         F[i] = 0.0;
+    if (s->src) {                     /* the source W: P - P0 + W is the interface force, so B^T W a load */
+        double *Fq = F + s->ni, *Fw = F + s->ni + 6;
+        for (int i = 0; i < s->N; i++) {
+            const double *b = s->Bq3 + 3 * (size_t)i;
+            double w = s->src[i];
+            Fq[2] += b[0] * w;
+            Fq[3] += b[1] * w;
+            Fq[4] += b[2] * w;
+            Fw[i] -= w;
+        }
+    }
 }
 
 void up_stepper_rest(UpStepper *s, const double *ag0)

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from uplift_common.errors import ComputationError, UserInputError
+
 from orchestrator.routes.base import Route, register
 
 #: default tolerance on the relative whole-range residual: the reactor's max uplift and raft
@@ -22,7 +24,7 @@ SOLVE_KEYWORDS = ("damping", "static", "route")
 
 
 def run_timefreq(motion, model, table_gap, *, contact, output_nodes, max_seconds=None, progress=None,
-                 **overrides):
+                 fit=None, cache_dir=None, **overrides):
     """RouteResult of ``solve`` on the BEM gap table ``table_gap`` (ImpedanceTable, 6+N) for
     ``motion`` (orchestrator.motion.Motion: acc (nt, 3) m/s^2, dt s), the structure ``model``,
     the ContactSettings ``contact`` and the output node names.
@@ -32,6 +34,11 @@ def run_timefreq(motion, model, table_gap, *, contact, output_nodes, max_seconds
     as k out of n = 100 (at most 99 before the end). overrides : fields of GridOptions (pad_s,
     wrap_tol, bilinear, nfft, window) and SolveOptions (method, tol, max_iter, threads, paper,
     newton_krylov), and damping, static, route; default tol TOL.
+    fit : the scene's passive fit (FitResult or RationalModel) or None: with it the march steps
+    the causal stand-in (orchestrator/standin.py: the fit's poles constrained to the route's
+    continuation above the table, cached in ``cache_dir``, on the native stepper) when that is
+    passive, else the table's own kernel (and notes.warnings says why); info["march"] says which.
+    The answer is the table's either way (the residual is the table's).
     """
     # the solver's imports (pyfftw, scipy.interpolate: ~0.7 s) when the route runs, not with the registry
     from orchestrator.timefreq import GridOptions, SolveOptions, solve, with_overrides
@@ -41,8 +48,15 @@ def run_timefreq(motion, model, table_gap, *, contact, output_nodes, max_seconds
     if unknown:
         raise ValueError(f"run_timefreq: unknown option {unknown[0]!r}; options: GridOptions and SolveOptions "
                          f"fields or {', '.join(SOLVE_KEYWORDS)}")
+    stand_in = None
+    if fit is not None:
+        # the native host and the constrained fit only when a fit is given
+        from orchestrator.standin import stand_in_factory
+        stand_in = stand_in_factory(table_gap, getattr(fit, "model", fit), cache_dir=cache_dir,
+                                    damping=rest.get("damping"))
     return solve(model, table_gap, motion.acc, motion.dt, contact=contact, output_nodes=output_nodes,
-                 grid=grid, options=options, monitor=decades_bar(progress, options.tol or TOL), **rest)
+                 grid=grid, options=options, monitor=decades_bar(progress, options.tol or TOL), stand_in=stand_in,
+                 **rest)
 
 
 def decades_bar(bar, tol):
@@ -60,9 +74,19 @@ def decades_bar(bar, tol):
 
 
 def run(ctx, progress=None):
-    return run_timefreq(ctx.motion, ctx.model(), ctx.tables["gap"], contact=ctx.scene.contact,
-                        output_nodes=ctx.scene.output.nodes, max_seconds=ctx.scene.analysis.timefreq_max_s,
-                        progress=progress, **ctx.options)
+    try:
+        fit = ctx.fit()                 # the scene's fit: the stand-in's poles (cached, shared with the TD routes)
+    except (UserInputError, ComputationError) as exc:   # none: the march on the table's own kernel (said in the notes)
+        fit, why = None, str(exc).splitlines()[0]
+    else:
+        why = ""
+    res = run_timefreq(ctx.motion, ctx.model(), ctx.tables["gap"], contact=ctx.scene.contact,
+                       output_nodes=ctx.scene.output.nodes, max_seconds=ctx.scene.analysis.timefreq_max_s,
+                       progress=progress, fit=fit, cache_dir=ctx.cache_dir, **ctx.options)
+    if why:
+        said = f"no causal stand-in (the scene's fit failed: {why}); the march on the table's own kernel ran"
+        res = res.with_notes(warnings=[said])
+    return res
 
 
 ROUTE = register(Route(

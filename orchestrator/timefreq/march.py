@@ -30,6 +30,7 @@ one, where h_0 is a band-limited dashpot with negative eigenvalues.
 from __future__ import annotations
 
 import math
+import threading
 import time
 from dataclasses import dataclass
 
@@ -442,7 +443,7 @@ class MarchSweep:
     """One sweep of ``defect_correction``.
 
     sweep : from 1; residual : |g| / |f| after it (NaN: the march did not finish); wall_s : s
-    kernel : "truncated" | "folded" (kernel_head); diverged : the march passed DIVERGED_M (on
+    kernel : "truncated" | "folded" (kernel_head) | "stand-in" (a marcher's); diverged : the march passed DIVERGED_M (on
     the truncated kernel with fold "auto": the solve starts again on the folded one)
     newton, factors : the march's linear solves and LU factorisations; anderson : past
     residuals mixed into the next source
@@ -484,19 +485,48 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
     (an int or nested sizes, outermost first).
     stand_in : a ContactProblem on the same grid and static state whose causal kernel the march
     steps instead of prob's (a causal soil standing in for the table, e.g. its rational fit);
-    the residual, and so the fixed point, stay prob's.
+    or a marcher, any object with ``march(lam, source, deadline) -> (d (N, nt), info)`` (info:
+    newton, factors, steps; MarchDiverged when it cannot go on) that solves a causal stand-in's
+    contact equations with the source added (the native stepper on the table's constrained fit:
+    orchestrator/standin.py). The residual, and so the fixed point, stay prob's: a stand-in
+    changes the sweeps (their count: the linear rate rho(S_x^-1 (S - S_x))), not the answer.
     ahead : the truncated kernel's look-ahead (CausalSweep; 0: the plain causal kernel); it
     changes the sweeps, not the fixed point.
     single : the marches in correction form with single-precision products (CausalSweep); it
     changes the sweeps' cost, not the fixed point.
 
     Returns an Outcome (history: one MarchSweep per sweep)."""
-    marched = prob if stand_in is None else stand_in
-    sweep = CausalSweep(marched, block, fold is True, sub, ahead, single)
-    # the residual's S through the march's split when it is prob's (a table's K then not formed)
-    eq = ContactEquation(prob, lam, sweep.far.apply if stand_in is None and isinstance(sweep.far, AffineSplit)
-                         else None)
-    scale = eq.scale
+    marcher = stand_in if hasattr(stand_in, "march") else None
+    marched = prob if stand_in is None or marcher is not None else stand_in
+    if marcher is None:
+        sweep = CausalSweep(marched, block, fold is True, sub, ahead, single)
+        split = sweep.far if stand_in is None and isinstance(sweep.far, AffineSplit) else None
+    else:
+        # the residual's split alone (no kernel head: the march is the stand-in's), built in a
+        # thread beside the first march (a native marcher releases the interpreter's lock; on the
+        # reactor the split is ~1 CPU s, a native march ~0.3): the same split, whatever the timing
+        sweep, split, built = None, None, {}
+
+        def build():
+            try:
+                built["split"] = AffineSplit(prob.op, prob.grid)
+            except BaseException as exc:     # raised again in the solve's thread
+                built["error"] = exc
+        builder = threading.Thread(target=build, name="uplift-split", daemon=True)
+        builder.start()
+    eq = None
+
+    def equation():
+        nonlocal eq, split
+        if eq is None:
+            if marcher is not None:
+                builder.join()
+                if "error" in built:
+                    raise built["error"]
+                split = built["split"] if built["split"].usable else None
+            # the residual's S through the split when it is prob's (a table's K then not formed)
+            eq = ContactEquation(prob, lam, split.apply if split is not None else None)
+        return eq
     hist = []
     W = np.zeros_like(prob.f)
     Gs, Fs = [], []                       # Anderson: past maps G(W) = W + g and residuals g
@@ -504,7 +534,7 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
     y = np.zeros_like(prob.f)
 
     def kernel():
-        return "folded" if sweep.fold else "truncated"
+        return "stand-in" if marcher is not None else "folded" if sweep.fold else "truncated"
 
     def ended(status, reason=""):
         return Outcome(best[1] if best else y, status, tuple(hist), reason,
@@ -514,10 +544,13 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
         t0 = time.perf_counter()
         try:
             with np.errstate(over="ignore", invalid="ignore"):
-                d, info = march(prob, lam, sweep=sweep, source=W, deadline=deadline)
+                if marcher is not None:
+                    d, info = marcher.march(lam, W, deadline)
+                else:
+                    d, info = march(prob, lam, sweep=sweep, source=W, deadline=deadline)
         except MarchDiverged as exc:
             hist.append(MarchSweep(k, math.nan, time.perf_counter() - t0, kernel(), diverged=True))
-            if fold == "auto" and not sweep.fold:      # start again on the folded kernel
+            if fold == "auto" and marcher is None and not sweep.fold:      # start again on the folded kernel
                 sweep = CausalSweep(marched, block, True, sub)
                 W, Gs, Fs, best = np.zeros_like(prob.f), [], [], None
                 continue
@@ -526,8 +559,8 @@ def defect_correction(prob, lam=1.0, tol=1e-10, max_sweeps=60, depth=5, block=BL
             hist.append(MarchSweep(k, math.nan, time.perf_counter() - t0, kernel()))
             return ended(SolverStatus.STOPPED, "time budget")
         y = y_from_d(prob, d)
-        g = eq.residual(y)
-        r = float(np.linalg.norm(g) / scale)
+        g = equation().residual(y)
+        r = float(np.linalg.norm(g) / eq.scale)
         hist.append(MarchSweep(k, r, time.perf_counter() - t0, kernel(), newton=info["newton"],
                                factors=info["factors"], anderson=len(Fs)))
         if monitor is not None:

@@ -16,6 +16,7 @@ from uplift_common.lazy import lazy_exports
 
 #: the public names, imported from their submodule on first use (``uplift_common.lazy``)
 __getattr__, __dir__, __all__ = lazy_exports(__name__, {
+    "continuation": ("ContinuationFit", "continuation", "continuation_fit", "continuation_model"),
     "io": ("load_fit", "read_fit", "save_fit"),
     "options": ("CODE", "POLE_CAP", "RIGID", "RIGID_IM_FLOOR", "WEIGHTINGS", "FitOptions", "code_version"),
     "pipeline": ("cached_fit", "fit", "fit_table"),

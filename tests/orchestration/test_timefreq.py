@@ -1,4 +1,5 @@
 """Time-frequency route with uplift vs the Newmark route, and its two solvers."""
+import dataclasses
 import importlib.util
 
 import numpy as np
@@ -181,3 +182,186 @@ def test_a_stand_in_kernel_changes_the_sweeps_not_the_answer():
     assert gap_own.max() > 1e-3
     assert abs(gap_via.max() - gap_own.max()) / gap_own.max() < 1e-6
     assert rel(gap_via, gap_own) < 1e-6
+
+
+# ---- the causal stand-in (orchestrator/standin.py): the table's constrained fit marched natively ----
+
+#: the reactor scene's soil (causal damping): the layered rock
+LAYERED = {"damping_model": "causal",
+           "layers": [{"thickness": 8.0, "vs": 1350.0, "nu": 0.3, "rho": 2400.0, "damping": 0.03}],
+           "halfspace": {"vs": 1600.0, "nu": 0.3, "rho": 2500.0, "damping": 0.03}}
+
+
+def _scene_run(scene_dict, tmp_path, name):
+    """(scene, model, motion, gap table, fit) of a scene, swept and fitted into tmp_path."""
+    from orchestrator.impedance import scene_fit, scene_impedance
+    from orchestrator.motion import make_motion
+    from orchestrator.scene import load_scene, scene_from_dict
+    from structure.spec import build_model
+
+    scene = load_scene(name) if scene_dict is None else scene_from_dict(scene_dict, name=name)
+    model = build_model(scene.structure, scene.mesh.xy, scene.mesh.area)
+    table = scene_impedance(scene, ("gap",), cache_dir=tmp_path)["gap"]
+    fit = scene_fit(scene, cache_dir=tmp_path, table=table)
+    return scene, model, make_motion(scene.motion, scene.analysis.dt), table, fit
+
+
+def _stand_in_against_today(scene, model, motion, table, fit, cache):
+    from orchestrator.routes.timefreq import run_timefreq
+
+    kw = dict(contact=scene.contact, output_nodes=scene.output.nodes)
+    today = run_timefreq(motion, model, table, **kw)
+    via = run_timefreq(motion, model, table, fit=fit, cache_dir=cache, **kw)
+    assert today.converged and via.converged, (today.message, via.message)
+    assert today.info["march"] == "own kernel" and via.info["march"] == "stand-in", via.notes.warnings
+    assert all(h["kernel"] == "stand-in" for h in via.info["history"])
+    assert abs(via.max_uplift() - today.max_uplift()) / today.max_uplift() < 1e-6
+    return today, via
+
+
+def test_stand_in_route_equals_todays_march_on_a_strongly_lifting_scene(tmp_path):
+    """The small reactor (21 nodes) on the reactor's layered causal soil at 0.7 g: 86 % of the
+    raft lifts at once, 54 mm; the route on the native stand-in (the fit's poles constrained to the
+    route's continuation) and today's march on the table's own kernel, both at the route's
+    tolerance (1e-6): the same max uplift to 1e-6 relative, and the stand-in's sweeps are the
+    stand-in's. (On the default hysteretic halfspace the constrained fit is not passive, margin
+    -0.21: the fallback below.)"""
+    from helpers import small_reactor
+
+    scene, model, motion, table, fit = _scene_run(small_reactor(soil=LAYERED, motion={"pga_g": 0.7, "duration_s": 2.0}),
+                                                  tmp_path, "strong")
+    today, via = _stand_in_against_today(scene, model, motion, table, fit, None)
+    assert today.max_uplift() > 2e-2
+    assert (today.gap > 0).mean(axis=1).max() > 0.5               # more than half the raft lifted at once
+    assert rel(via.gap, today.gap) < 1e-5
+
+
+@pytest.mark.slow
+def test_stand_in_route_equals_todays_march_on_the_reactor(tmp_path):
+    """The built-in reactor (241 nodes, 10 s at 0.25 g, the BEM table): the same max uplift to
+    1e-6 relative on the stand-in as on today's march (measured: 2.470031243 against 2.470030723
+    mm, 2e-7); ~60 s cold (the sweep, the fit, the constrained fit's passivity test)."""
+    import os
+
+    cache = os.environ.get("UPLIFT_CACHE") or tmp_path
+    scene, model, motion, table, fit = _scene_run(None, cache, "reactor")
+    _stand_in_against_today(scene, model, motion, table, fit, cache)
+
+
+def test_stand_in_not_passive_falls_back_to_todays_march_and_says_so(monkeypatch):
+    """The constrained fit's passivity test forced to fail: the route marches the table's own
+    kernel (today's route, the same answer as without a fit) and its notes.warnings say why."""
+    from helpers import small_reactor
+
+    import soil_impedance.passivity as passivity
+    from orchestrator.routes.timefreq import run_timefreq
+
+    real = passivity.check_passive
+
+    def failing(model, *args, **kw):
+        rep = real(model, *args, **kw)
+        return dataclasses.replace(rep, passive=False) if "constrained" in model.provenance else rep
+    import tempfile
+    with tempfile.TemporaryDirectory() as tmp:
+        scene, model, motion, table, fit = _scene_run(small_reactor(soil=LAYERED, motion={"duration_s": 1.0}), tmp,
+                                                      "mild")
+        monkeypatch.setattr(passivity, "check_passive", failing)
+        kw = dict(contact=scene.contact, output_nodes=scene.output.nodes)
+        res = run_timefreq(motion, model, table, fit=fit, **kw)          # no cache: the forced verdict not kept
+        plain = run_timefreq(motion, model, table, **kw)
+    assert res.converged and res.info["march"] == "own kernel"
+    assert any("not passive" in w and "own kernel" in w for w in res.notes.warnings), res.notes.warnings
+    assert not plain.notes.warnings
+    assert res.max_uplift() == plain.max_uplift()
+
+
+def test_continuation_is_the_routes_affine_band():
+    """soil_impedance.fit.continuation (the stand-in's D and E) is the route's spring-dashpot band
+    above the table (orchestrator.timefreq.soil), on a table with a hysteretic offset faded."""
+    from orchestrator.timefreq.grid import Grid
+    from orchestrator.timefreq.soil import AffineBand, dense, soil_bands
+    from soil_impedance.fit.continuation import continuation
+    from soil_impedance.table import ImpedanceTable
+
+    rng = np.random.default_rng(2)
+    f = np.linspace(0.0, 20.0, 11)
+    n = 7
+    base = rng.standard_normal((n, n))
+    K0 = base @ base.T + n * np.eye(n)
+    K = np.array([K0 * (1 - 0.01 * x) + 1j * (0.05 * K0 + 0.02 * x * K0) for x in f])
+    table = ImpedanceTable(f, K, [f"d{i}" for i in range(n)], {})
+    band = next(b for b in soil_bands(table, Grid.build(400, 0.005, pad_s=1.0, wrap_tol=1e-4, bilinear=True)).bands
+                if isinstance(b, AffineBand))
+    A, B = continuation(table)
+    assert np.allclose(A, dense(band.A), rtol=1e-13, atol=0) and np.allclose(B, dense(band.B), rtol=1e-13, atol=0)
+
+
+def test_native_march_with_a_source_is_the_grids_causal_march():
+    """The native stepper's per-step source (up_sim_steps_src, orchestrator/standin.py) solves the
+    grid march's causal equations with the same source: on a passive rational soil with uplift
+    (the recursion's z-transform on the bilinear grid, wrap-around 1e-10), NativeStandIn.march
+    and march.march(prob, source=W) (no look-ahead) give the same contact history to 1e-7, for
+    W zero and for W a smooth force of the blocked force's size (its sign and its alignment:
+    W_n enters step n)."""
+    from helpers import oscillator_model
+    from fmus.native_stepper import library
+    from orchestrator.standin import NativeStandIn
+    from orchestrator.timefreq import prepare
+    from orchestrator.timefreq.march import march
+    from soil_impedance.convolution import RecursiveConvolutionSoil
+
+    if library() is None:
+        pytest.skip("no C compiler here")
+    w = soil()
+    K = w.static_stiffness().toarray()
+    C = w.instantaneous(0.005)[1].toarray()
+    model = oscillator_model(K, C, terms=[(0.3, 0.02, 0.3 / (2 * np.pi * 6.0) ** 2, K)],
+                             maxwell=[(0.2, 0.2 / (2 * np.pi * 15.0), K)])
+    ag = motion(0.35, duration=2.0)
+    prob = prepare(MODEL, RecursiveConvolutionSoil(model, 0.005), ag, 0.005, contact=UPLIFT,
+                   grid=GridOptions(bilinear=True, wrap_tol=1e-10, pad_s=20.0).resolved(bilinear=True, window=True))
+    native = NativeStandIn(prob, model, library())
+    N, nt = prob.f.shape
+    t = 0.005 * np.arange(nt)
+    W = 0.3 * np.abs(prob.f).max() * np.sin(2 * np.pi * 1.3 * t)[None, :] * np.linspace(-1, 1, N)[:, None]
+    for source in (np.zeros((N, nt)), W):
+        d_native, info = native.march(1.0, source)
+        d_grid, _ = march(prob, 1.0, source=source, ahead=0)
+        assert info["steps"] == nt
+        assert np.abs(d_grid).max() > 1e-4 and (d_grid > prob.static.delta0[:, None]).any()     # lifted
+        assert rel(d_native, d_grid) < 1e-7
+    assert rel(native.march(1.0, W)[0], native.march(1.0, np.zeros((N, nt)))[0]) > 1e-2   # the source acts
+
+
+def test_a_run_of_the_route_marches_the_stand_in(tmp_path):
+    """``run_scene`` (what ``uplift run`` does): the timefreq route takes the run's fit and marches
+    its constrained stand-in (info["march"]). (No cache: the native library is the process's, as
+    the other tests'; the constrained fit's cache is tested below.)"""
+    from helpers import small_reactor
+    from orchestrator.run import run_scene
+    from orchestrator.scene import scene_from_dict
+
+    scene = scene_from_dict(small_reactor(soil=LAYERED, motion={"duration_s": 1.0},
+                                          analysis={"routes": ["timefreq"]}), name="run")
+    results, _ = run_scene(scene, cache_dir=None)
+    res = results["timefreq"]
+    assert res.converged and res.info["march"] == "stand-in", res.notes.warnings
+    assert not res.notes.warnings
+
+
+def test_the_constrained_fit_is_cached_by_its_inputs(tmp_path):
+    """continuation_fit's cache: the second call reads the same model (its digest), passivity and
+    error; other poles are another entry; the model's D and E are the route's continuation."""
+    from helpers import small_reactor
+    from soil_impedance.fit.continuation import continuation, continuation_fit
+
+    _, _, _, table, fit = _scene_run(small_reactor(soil=LAYERED, motion={"duration_s": 0.5}), tmp_path, "cache")
+    first = continuation_fit(table, fit.model.poles, cache_dir=tmp_path)
+    again = continuation_fit(table, fit.model.poles, cache_dir=tmp_path)
+    assert not first.cached and again.cached
+    assert again.model.digest == first.model.digest and again.passive == first.passive
+    assert again.max_rel_error == first.max_rel_error
+    other = continuation_fit(table, fit.model.poles[:-2], cache_dir=tmp_path)
+    assert not other.cached and len(list(tmp_path.glob("standin-*.h5"))) == 2
+    A, B = continuation(table)
+    assert np.array_equal(first.model.D, A) and np.array_equal(first.model.E, B)

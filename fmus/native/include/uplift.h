@@ -275,6 +275,9 @@ typedef struct {
     UpSparse Ks_sp, Cs_sp;    /* Ks, Cs compressed (their products per step) */
     UpSoil *soil;             /* dt-dependent soil matrices; stepped unless external */
     int external;             /* 1: the history h is an input (h_ext), the soil is not stepped */
+    const double *src;        /* (N) or NULL: a source W added to the contact equations of the next step,
+                                 P - P0 + W the dynamic interface force (a load B^T W on [q, w]; held over
+                                 a halved step's two halves): the time-frequency route's defect correction */
     UpSystem sys[UP_MAXLEV];
     /* per (level, active set): the base, the k nodes where J differs from it and the LU of the
        (k, k) capacitance matrix; least recently used replaced */
@@ -316,6 +319,8 @@ UP_API UpSim *up_sim_open(const unsigned char *res, uint64_t size, const double 
 UP_API int64_t up_sim_width(const UpSim *h);
 UP_API int up_sim_steps(UpSim *h, const double *ag, int64_t k0, int64_t k1, double *rows, int64_t *iters,
                         int64_t *stats, char *err);
+UP_API int up_sim_steps_src(UpSim *h, const double *ag, const double *src, int64_t k0, int64_t k1, double *rows,
+                            int64_t *iters, int64_t *stats, char *err);
 UP_API void up_sim_close(UpSim *h);
 UP_API int up_simulate(const unsigned char *res, uint64_t size, const double *ag, int64_t nt, double *rows,
                        int64_t *iters, int64_t *stats, char *err);

@@ -1,0 +1,131 @@
+"""The fit constrained to the time-frequency route's continuation: ``continuation_fit``.
+
+The time-frequency route (orchestrator/timefreq) continues a table above its last frequency
+f_max by springs and dashpots, K = A + s B with A = Re K(f_max) and B = Im K(f_max) / (2 pi
+f_max) (the table's causal target, ``target.causal_target``). A stand-in for the table that the
+route's march can step at a rational model's cost must have that asymptote, or the defect
+correction's linear rate rho(S_x^-1 (S_table - S_x)) passes 1 above the table (the plain fit's: 2.4
+at 63 Hz, 34 at Nyquist on the reactor; benchmarks/timefreq.py --stand-in). This fit takes
+given poles (the scene's passive fit's), fixes D = A and E = B and refits the residues to the
+causal target minus A + s B at the table's frequencies by one real least squares (every entry
+a right-hand side, rows weighted by 1 / |K(f)|_F), symmetrised; then tests its passivity
+(``passivity.check_passive``, stored with the model). It is less accurate on the table than
+the fit (3.1e-2 against 9e-4 relative at worst on the reactor, at 25 Hz), which costs sweeps,
+not accuracy: the route's residual stays the table's.
+
+Cached like the fits (``cache_dir``): keyed by the table's hash, the poles, the fit code's
+digest; checksummed and written atomically (``soil_impedance.cache``).
+"""
+from __future__ import annotations
+
+import hashlib
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .options import code_version
+from .target import causal_cutoff, causal_target
+
+
+@dataclass(frozen=True)
+class ContinuationFit:
+    """model : RationalModel (poles given, D = A, E = B, its passivity test stored);
+    passive : its verdict; margin : the test's margin; max_rel_error : max over the table's
+    frequencies of |K_model - K_target|_F / |K_target|_F; cached : read from the cache;
+    wall_s : s."""
+    model: object
+    passive: bool
+    margin: float
+    max_rel_error: float
+    cached: bool = False
+    wall_s: float = 0.0
+
+
+def continuation(table):
+    """(A, B) (n, n) real: the route's springs and dashpots above the table's last frequency
+    (orchestrator.timefreq.soil's affine band), from the table's causal target at f_max."""
+    K = np.asarray(table.matrices)
+    f = np.asarray(table.frequencies_hz, float)
+    top = causal_target(f, K, causal_cutoff(table, K))[-1]
+    return np.ascontiguousarray(top.real), np.ascontiguousarray(top.imag / (2 * np.pi * f[-1]))
+
+
+def continuation_model(table, poles, dofs=None):
+    """(RationalModel with the given ``poles``, D = A, E = B of ``continuation``, the residues
+    refit; max relative error on the table's causal target)."""
+    from ..rational import RationalModel
+    from ..vectfit import coefficients_to_residues, real_basis
+
+    f = np.asarray(table.frequencies_hz, float)
+    K = causal_target(f, np.asarray(table.matrices), causal_cutoff(table, np.asarray(table.matrices)))
+    A, B = continuation(table)
+    poles = np.asarray(poles, complex)
+    s = 2j * np.pi * f
+    w = 1.0 / np.linalg.norm(K.reshape(f.size, -1), axis=1)
+    Phi = w[:, None] * real_basis(s, poles, const=False, linear=False)
+    Y = w[:, None] * (K - A[None] - s[:, None, None] * B[None]).reshape(f.size, -1)
+    coef = np.linalg.lstsq(np.concatenate([Phi.real, Phi.imag]), np.concatenate([Y.real, Y.imag]), rcond=None)[0]
+    n = K.shape[1]
+    R = coefficients_to_residues(coef.reshape(-1, n, n), poles)
+    model = RationalModel(poles, 0.5 * (R + np.swapaxes(R, 1, 2)), A, B,
+                          dofs=list(table.dofs) if dofs is None else dofs,
+                          provenance={"source_table_hash": table.hash, "constrained": "route continuation above "
+                                      f"{f[-1]:g} Hz: D = Re K(f_max), E = Im K(f_max) / (2 pi f_max)"})
+    err = np.linalg.norm((model(s) - K).reshape(f.size, -1), axis=1) * w
+    return model, float(err.max())
+
+
+def continuation_fit(table, poles, *, cache_dir=None) -> ContinuationFit:
+    """The passive-tested stand-in of ``table`` with ``poles`` (module notes), from the cache
+    ``cache_dir`` when there (None: no cache)."""
+    from ..passivity import check_passive, with_verified_passivity
+
+    t0 = time.perf_counter()
+    poles = np.asarray(poles, complex)
+    path = None
+    if cache_dir is not None:
+        path = _cache_path(table.hash, poles, cache_dir)
+        hit = _read(path)
+        if hit is not None:
+            return hit
+    model, err = continuation_model(table, poles)
+    rep = check_passive(model)                      # kept by the model's digest: not run again below
+    model = with_verified_passivity(model)
+    out = ContinuationFit(model, bool(rep.passive), float(rep.margin), err, False, time.perf_counter() - t0)
+    if path is not None:
+        from ..cache import write_entry
+        write_entry(path, lambda p: _save(out, p))
+    return out
+
+
+def _cache_path(table_hash: str, poles, cache_dir) -> Path:
+    h = hashlib.sha256(table_hash.encode())
+    h.update(np.ascontiguousarray(poles, complex).tobytes())
+    h.update(code_version().encode())
+    return Path(cache_dir) / f"standin-{h.hexdigest()[:24]}.h5"
+
+
+def _save(fit: ContinuationFit, path) -> None:
+    from uplift_common.files import hdf5_output, stamp_checksum
+
+    from ..rational import write_model
+    with hdf5_output(Path(path)) as h:
+        write_model(h, fit.model)
+        h.attrs["passive"] = fit.passive
+        h.attrs["margin"] = fit.margin
+        h.attrs["max_rel_error"] = fit.max_rel_error
+        stamp_checksum(h)
+
+
+def _read(path) -> ContinuationFit | None:
+    from ..cache import read_entry
+    from ..rational import read_model
+
+    def reader(h):
+        t0 = time.perf_counter()
+        model = read_model(h, path)
+        return ContinuationFit(model, bool(h.attrs["passive"]), float(h.attrs["margin"]),
+                               float(h.attrs["max_rel_error"]), True, time.perf_counter() - t0)
+    return read_entry(path, reader)
