@@ -236,18 +236,6 @@ def test_stand_in_route_equals_todays_march_on_a_strongly_lifting_scene(tmp_path
     assert rel(via.gap, today.gap) < 1e-5
 
 
-@pytest.mark.slow
-def test_stand_in_route_equals_todays_march_on_the_reactor(tmp_path):
-    """The built-in reactor (241 nodes, 10 s at 0.25 g, the BEM table): the same max uplift to
-    1e-6 relative on the stand-in as on today's march (measured: 2.470031243 against 2.470030723
-    mm, 2e-7); ~60 s cold (the sweep, the fit, the constrained fit's passivity test)."""
-    import os
-
-    cache = os.environ.get("UPLIFT_CACHE") or tmp_path
-    scene, model, motion, table, fit = _scene_run(None, cache, "reactor")
-    _stand_in_against_today(scene, model, motion, table, fit, cache)
-
-
 def test_stand_in_not_passive_falls_back_to_todays_march_and_says_so(monkeypatch):
     """The constrained fit's passivity test forced to fail: the route marches the table's own
     kernel (today's route, the same answer as without a fit) and its notes.warnings say why."""
