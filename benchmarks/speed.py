@@ -28,7 +28,10 @@ Rows (one small function each, registered with ``@row``; add one the same way):
                              output, runs per minute (cluster start, set-up, step check included)
   timefreq route             orchestrator.routes.timefreq.run_timefreq on the BEM table
   uplift run (warm)          the whole command ``uplift run reactor --route monolithic`` in a
-                             fresh process, cache warm (the sweep and the fit are read here first)
+                             fresh process, cache warm (the sweep and the fit are read here first);
+                             its note gives the route's own wall time (the stepping, as the command
+                             prints it, 2 decimals) and the ratio of the whole process to it (issue
+                             41: at most 2x)
   uplift run timefreq        the same with ``--route timefreq``: what one reference run costs a
                              user, the gap table read and verified
   uplift --help              the command line's help in a fresh process (the light commands load
@@ -324,8 +327,9 @@ def _uplift_run(case: Case, route: str):
     if done.returncode:
         raise RuntimeError(f"uplift run failed ({done.returncode}): {done.stderr[-2000:]}")
     stepped = re.search(rf"^{route} .*wall ([0-9.]+) s", done.stdout, re.M)          # the summary: stdout
+    ratio = f" = {wall / float(stepped.group(1)):.2f}x its stepping" if stepped and float(stepped.group(1)) > 0 else ""
     return wall, ("whole process: imports, cache reads, checks, the route"
-                  + (f" ({stepped.group(1)} s)" if stepped else "") + ", the results file")
+                  + (f" ({stepped.group(1)} s)" if stepped else "") + ", the results file" + ratio)
 
 
 @contextlib.contextmanager
@@ -359,8 +363,8 @@ def measure(names, repeat: int, busy: bool, case: Case | None = None) -> list:
                 c0 = _cpu()
                 wall, note, *cpu = ROWS[name](case)      # a row may give its own CPU time (its timed part)
                 runs.append((wall, cpu[0] if cpu else _cpu() - c0, note))
-            wall, cpu, _ = min(runs)
-            out.append({"row": name, "wall_s": wall, "cpu_s": cpu, "note": runs[-1][2]})
+            wall, cpu, note = min(runs)                 # the best run, with its own note
+            out.append({"row": name, "wall_s": wall, "cpu_s": cpu, "note": note})
     kernel = out[0]["wall_s"]
     for r in out:
         r["ratio"] = r["wall_s"] / kernel
