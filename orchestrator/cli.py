@@ -509,10 +509,9 @@ def cmd_run(args) -> int:
     from orchestrator.motion import G                                            # (same)
     from orchestrator.results_file import check_output_folder, check_output_path, summary, write_results  # (same)
     from orchestrator.run import run_scene                                       # (same)
-    from orchestrator.scene import load_scene                                    # (same)
+    from orchestrator.scene import is_design, load_scene                         # (same; not orchestrator.design)
     from orchestrator.scene_file import scene_toml                               # (same)
     from structure.results import Status                                         # (same)
-    from orchestrator.design import is_design                                   # (same)
     scene = load_scene(args.scene, max_pga_g=args.max_pga, pga_g=args.pga, dt=args.dt, duration_s=args.duration)
     out = check_output_path(args.output or Path(f"{scene.name}_results.h5"))
     if args.plot_dir is not None:

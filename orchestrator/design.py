@@ -49,6 +49,7 @@ from orchestrator.run import run_scene
 from orchestrator.scene_file import scene_toml
 from orchestrator.site_response import SiteResponse, strain_compatible
 from orchestrator.soil_cases import case_profiles, profile_table
+from orchestrator.scene import is_design  # noqa: F401  (defined beside the Scene: `uplift run` asks it without importing this module)
 from uplift_common.files import require_checksum
 
 
@@ -64,11 +65,6 @@ class DesignRun:
     motion: object
     site: SiteResponse | None = None
     spectra: DesignSpectra | None = None
-
-
-def is_design(scene) -> bool:
-    """True when the scene asks for soil cases, strain-compatible soil or design spectra."""
-    return any(x is not None for x in (scene.soil_cases, scene.strain_compatible, scene.design_spectra))
 
 
 def case_scene(scene, profile):

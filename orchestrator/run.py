@@ -97,8 +97,10 @@ def _dt_check_run(scene, model, soil, motion, cache_dir=None, keep: bool = True)
     fails: through the native stepper where it is available (the monolithic route's C runtime:
     the same answer to round-off, several times faster), else ``simulate``. With a cache folder (and keep)
     the native answer is kept there (``dtcheck-<key>.h5``, checksummed, verified on read) under
-    the key of everything the C runtime reads (``_native_run_key``): read back, never stepped
-    again, by a run of the same structure, springs, contact, motion and step."""
+    the key of the stepper's inputs (``_dt_check_key``: the structure, the springs' matrices, the
+    contact settings, the motion and its step, the code and the C runtime): read back, never
+    stepped (nor its stepper built) again, by a run of the same structure, springs, contact,
+    motion and step."""
     from fmus.native_stepper import cache_folder, encode_run, library, native_max_uplift, springs_soil   # when it checks
     from structure import NewmarkStepper
     lib = library(cache_folder(cache_dir))
@@ -107,37 +109,76 @@ def _dt_check_run(scene, model, soil, motion, cache_dir=None, keep: bool = True)
             return simulate(model, soil, motion.acc, motion.dt, contact=scene.contact, route="dt-check").max_uplift()
         except ConvergenceError:
             return float("nan")
-    st = NewmarkStepper(model, springs_soil(soil, motion.dt), motion.dt, contact=scene.contact,
-                        external_soil=True, ag0=motion.acc[0])
-    blob = encode_run(st)
     path = None if cache_dir is None or not keep else \
-        Path(cache_dir) / f"dtcheck-{_native_run_key(lib, blob, motion.acc)[:24]}.h5"
+        Path(cache_dir) / f"dtcheck-{_dt_check_key(lib, model, soil, scene.contact, motion)[:24]}.h5"
     if path is not None:
         hit = read_entry(path, lambda h: float(h.attrs["max_uplift_m"]))
         if hit is not None:
             return hit
-    value = native_max_uplift(st, motion.acc, lib, blob)
+    st = NewmarkStepper(model, springs_soil(soil, motion.dt), motion.dt, contact=scene.contact,
+                        external_soil=True, ag0=motion.acc[0])
+    value = native_max_uplift(st, motion.acc, lib, encode_run(st))
     if path is not None:
         _keep(path, value)
     return value
 
 
-#: what the native answer of a check also depends on besides its inputs: the Python side that
-#: encodes them for the C runtime and the measure taken of its histories
-DT_CHECK_CODE = ("fmus.native_stepper", "fmus.native_build", "orchestrator.run")
+#: what the native answer of a check also depends on besides its inputs: the code that builds the
+#: stepper from them (the structure's matrices, the static state, the springs as a soil without
+#: memory), the Python side that encodes them for the C runtime, and the measure taken of its histories
+DT_CHECK_CODE = ("structure", "soil_impedance.convolution", "soil_impedance.rational", "fmus.native_stepper",
+                 "fmus.native_build", "orchestrator.run")
 
 
-def _native_run_key(lib, blob: bytes, acc) -> str:
-    """SHA-256 of what a native run reads: the compiled library (its file name is the digest of
-    its C sources, compiler, flags and platform), the encoded model (``blob``, ``encode_run``: the
-    structure's matrices, static state, soil springs, penalty and contact settings, the step), the ground
-    acceleration, and the sources of the Python side (``DT_CHECK_CODE``)."""
+def _dt_check_key(lib, model, soil, contact, motion) -> str:
+    """SHA-256 of what a check's native run is made of, taken before its stepper is built (a
+    warm run builds none): the compiled library (its file name is the digest of its C sources,
+    compiler, flags and platform), ``DT_CHECK_CODE``'s sources, the structure model (every field,
+    its arrays' bytes: ``_feed``), the springs as the stepper reads them (their instantaneous
+    stiffness and damping matrices at the motion's step), the contact settings, the step and the
+    ground acceleration."""
     h = hashlib.sha256(Path(lib._name).name.encode() + b"\0")
     h.update(code_digest(*DT_CHECK_CODE).encode())
-    h.update(blob)
-    a = np.ascontiguousarray(acc, "<f8")
-    h.update(f"{a.shape}".encode() + memoryview(a).cast("B"))
+    K, C = soil.instantaneous(motion.dt)
+    dense = lambda a: np.asarray(a.toarray() if hasattr(a, "toarray") else a, float)
+    for part in (model, (dense(K), dense(C)), contact, float(motion.dt), np.asarray(motion.acc, float)):
+        _feed(h, part)
     return h.hexdigest()
+
+
+def _feed(h, value) -> None:
+    """Feed ``value`` into hash ``h`` unambiguously (each item typed and delimited): dataclasses
+    (their type and every field), tuples and lists, dicts (sorted), numpy arrays (dtype, shape,
+    bytes) and scalars (exact ``repr``); any other type raises TypeError (a key must not miss an input)."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        h.update(f"<{type(value).__module__}.{type(value).__qualname__}".encode())
+        for f in dataclasses.fields(value):
+            h.update(f" {f.name}=".encode())
+            _feed(h, getattr(value, f.name))
+        h.update(b">")
+    elif isinstance(value, (tuple, list)):
+        h.update(f"[{len(value)}".encode())
+        for item in value:
+            h.update(b",")
+            _feed(h, item)
+        h.update(b"]")
+    elif isinstance(value, dict):
+        h.update(f"{{{len(value)}".encode())
+        for key in sorted(value, key=repr):
+            _feed(h, key)
+            h.update(b":")
+            _feed(h, value[key])
+        h.update(b"}")
+    elif isinstance(value, np.ndarray):
+        a = np.ascontiguousarray(value)
+        if a.dtype.kind not in "biufc":
+            raise TypeError(f"_feed: no digest for an array of dtype {a.dtype}")
+        h.update(f"(array {a.dtype.str} {a.shape})".encode())
+        h.update(memoryview(a.reshape(-1)).cast("B"))
+    elif value is None or isinstance(value, (bool, int, float, complex, str, np.generic)):
+        h.update(f"({type(value).__name__} {value!r})".encode())
+    else:
+        raise TypeError(f"_feed: no digest for a {type(value).__name__}")
 
 
 #: what a synthetic motion depends on besides its [motion] keys and the step: the code that makes

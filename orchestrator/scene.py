@@ -443,6 +443,12 @@ class Scene:
         return replace(self, analysis=replace(self.analysis, routes=check_routes(routes, where)), source=source)
 
 
+def is_design(scene) -> bool:
+    """True when the scene asks for soil cases, strain-compatible soil or design spectra (its run
+    is ``orchestrator.design``'s)."""
+    return any(x is not None for x in (scene.soil_cases, scene.strain_compatible, scene.design_spectra))
+
+
 def load_scene(spec: str | Path, max_pga_g: float | None = None, pga_g: float | None = None,
                dt: float | None = None, duration_s: float | None = None) -> Scene:
     """Load a scene from a TOML path or a built-in name (see ``builtin_scenes()``). The command

@@ -37,6 +37,33 @@ def _too_many(n: float, where: str, h_min: float, about: bool = False):
                     f"takes O(N^3) time per frequency): use element_size >= {h_min:.3g} m")
 
 
+#: above this many nodes the duplicate check finds nearest neighbours with a k-d tree, in
+#: O(n log n) (scipy.spatial); at or below it by blocks of exact pairwise distances in numpy, which
+#: for such sizes is as fast and spares a run the import of scipy.spatial (0.1-0.15 s)
+KDTREE_NODES = 1024
+
+
+def _closest_pair(xy: np.ndarray) -> tuple[float, int, int]:
+    """(distance m, k, other): the smallest distance between two distinct nodes of ``xy`` (n, 2),
+    n >= 2, node ``k`` and its nearest neighbour ``other`` (k the first node at that distance)."""
+    n = xy.shape[0]
+    if n > KDTREE_NODES:                         # nearest neighbours in O(n log n)
+        from scipy.spatial import cKDTree
+        dist, idx = cKDTree(xy).query(xy, k=2)
+        other = np.where(idx[:, 1] != np.arange(n), idx[:, 1], idx[:, 0])
+        k = int(np.argmin(dist[:, 1]))
+        return float(dist[k, 1]), k, int(other[k])
+    nearest, which = np.empty(n), np.empty(n, dtype=np.intp)
+    for r in range(0, n, 256):                   # at most 256 x n distances at a time
+        rows = np.arange(r, min(r + 256, n))
+        d = np.hypot(xy[rows, None, 0] - xy[None, :, 0], xy[rows, None, 1] - xy[None, :, 1])
+        d[np.arange(rows.size), rows] = np.inf  # not a node's distance to itself
+        which[rows] = np.argmin(d, axis=1)
+        nearest[rows] = d[np.arange(rows.size), which[rows]]
+    k = int(np.argmin(nearest))
+    return float(nearest[k]), k, int(which[k])
+
+
 @dataclass(frozen=True, eq=False)
 class InterfaceMesh:
     """Interface nodes and their tributary areas.
@@ -66,13 +93,10 @@ class InterfaceMesh:
         if xy.shape[0] > MAX_NODES:
             raise MeshError(f"the interface mesh has {xy.shape[0]} nodes; at most MAX_NODES = {MAX_NODES} "
                             "(the dense BEM takes O(N^3) time per frequency): use fewer, larger patches")
-        if xy.shape[0] > 1:                      # nearest neighbours in O(n log n)
-            from scipy.spatial import cKDTree
-            dist, idx = cKDTree(xy).query(xy, k=2)
-            other = np.where(idx[:, 1] != np.arange(xy.shape[0]), idx[:, 1], idx[:, 0])
-            k = int(np.argmin(dist[:, 1]))
-            i, j = sorted((k, int(other[k])))
-            if dist[k, 1] < 1e-9 * max(1.0, np.abs(xy).max()):
+        if xy.shape[0] > 1:
+            d, k, other = _closest_pair(xy)
+            i, j = sorted((k, other))
+            if d < 1e-9 * max(1.0, np.abs(xy).max()):
                 raise MeshError(f"mesh nodes {i} and {j} coincide at ({xy[i, 0]:g}, {xy[i, 1]:g}): "
                                 "remove the duplicate")
         object.__setattr__(self, "xy", xy)
