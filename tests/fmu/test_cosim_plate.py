@@ -112,3 +112,48 @@ def test_the_native_export_of_a_plate_is_refused_with_the_fix(tmp_path):
     with pytest.raises(SceneError, match=r"native FMU export .* rigid raft only.*--kind python"):
         export_scene(SCENE, tmp_path / "fmus", MODEL, motion=MOTION, kind="native")
     assert not (tmp_path / "fmus").exists()
+    # the native builder itself refuses the plate's data (it would step a rigid raft)
+    from fmus.native_build import model_records
+    from orchestrator.export import fmu_data
+    with pytest.raises(ValueError, match="plate raft: the native FMUs step a rigid raft only"):
+        model_records(fmu_data(SCENE, MODEL, MOTION.dt))
+
+
+def test_plate_stepper_with_an_external_soil_is_the_in_process_stepper_bit_for_bit():
+    """PlateStepper(external_soil=True) fed h = soil.history() on [q, w] and committing its x,
+    xdot to that soil is the in-process stepper, every state bit for bit; its inputs survive
+    get_state / next_inputs and a restart (what the structure FMU keeps in its state)."""
+    from fmus.resources import soil_from_model
+    from structure.plate_raft import PlateStepper
+    pm, dt, acc = SCENE.plate_model(), MOTION.dt, MOTION.acc[:161]
+    inner = PlateStepper(pm, soil_from_model(MODEL, dt), dt, contact=SCENE.contact, ag0=acc[0])
+    soil = soil_from_model(MODEL, dt)
+    outer = PlateStepper(pm, soil, dt, contact=SCENE.contact, external_soil=True, ag0=acc[0])
+
+    def outer_step(k):
+        soil.instantaneous(dt)
+        outer.set_ground_acceleration(acc[k])
+        outer.set_soil_history(soil.history())
+        outer.step()
+        soil.commit(outer.x.copy(), outer.xdot.copy())
+
+    for k in range(1, 121):
+        inner.set_ground_acceleration(acc[k])
+        inner.step()
+        outer_step(k)
+        assert np.array_equal(outer.u, inner.u) and np.array_equal(outer.P, inner.P), k
+    assert inner.gap().max() > 1e-3 and outer.x.shape == (6 + SCENE.mesh.n,)
+    # the state with the next inputs: the same next 40 steps after a restart
+    saved, soil_saved, (ag_next, h_next) = outer.get_state(), soil.get_state(), outer.next_inputs()
+    assert "soil" not in saved and h_next.shape == (6 + SCENE.mesh.n,) and np.abs(h_next).max() > 0
+    for k in range(121, 161):
+        outer_step(k)
+    first = outer.u.copy()
+    outer.set_state(saved)
+    soil.set_state(soil_saved)
+    outer.set_ground_acceleration(ag_next)
+    outer.set_soil_history(h_next)
+    assert np.array_equal(outer.next_inputs()[1], h_next)
+    for k in range(121, 161):
+        outer_step(k)
+    assert np.array_equal(outer.u, first) and np.abs(first).max() > 0
