@@ -67,9 +67,10 @@ class StepperOutputs:
         if s.get("plate"):
             model = plate_model(model, s["plate"], mesh)
         ag0 = self.motion[0] if self.internal_motion else self.bank.values[self.sl["ag"]]
-        self.stepper = (PlateStepper if s.get("plate") else NewmarkStepper)(model, soil, self.dt, contact=contact_from_spec(s["contact"]),
-                                      damping=s.get("damping"), alpha=float(s.get("alpha", 0.0)),
-                                      external_soil=external_soil, ag0=ag0)
+        stepper = PlateStepper if s.get("plate") else NewmarkStepper
+        self.stepper = stepper(model, soil, self.dt, contact=contact_from_spec(s["contact"]),
+                               damping=s.get("damping"), alpha=float(s.get("alpha", 0.0)),
+                               external_soil=external_soil, ag0=ag0)
         self._dofs = {nm: model.dofs(model.node_by_name(nm).id)[:3] for nm in self.nodes}
         v = self.bank.values
         v[self.sl["max_uplift"]] = v[self.sl["max_raft_rotation"]] = 0.0

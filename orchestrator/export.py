@@ -107,7 +107,6 @@ def plate_data(scene) -> dict | None:
     return {"properties": dataclasses.asdict(pm.plate), "points": pm.points, "cells": pm.cells, "trace": pm.trace}
 
 
-
 def export_scene(scene, outdir, soil_model=None, *, dt: float | None = None, motion=None,
                  soil_factory: str | None = None, soil_kwargs: dict | None = None,
                  extra_modules=(), cache_dir=None, kind: str = "native", fmi_version: int = 2,

@@ -79,6 +79,7 @@ def test_cosim_python_pair_equals_monolithic(mono, spread, schedule):
     assert any("plate raft" in w and "native pair steps a rigid raft only" in w for w in cos.notes.warnings)
 
 
+@pytest.mark.slow            # 8 s: an export of three FMUs, the pair and the coupled FMU run
 def test_exported_python_fmus_of_a_plate_validate_and_equal_monolithic(mono, spread, tmp_path):
     from fmpy.validation import validate_fmu
     from orchestrator.export import export_scene
