@@ -53,6 +53,10 @@ class FmuData:
     soil_factory : "module:callable" building the soil as factory(model, dt, **soil_kwargs)
     extra_modules : paths of .py files or packages bundled too (e.g. a custom soil factory)
     damping, alpha                 structural damping override (None or a modal ratio), HHT alpha
+    plate : dict or None           a plate raft (structure.plate_raft; None: the rigid raft):
+                                   "properties" {thickness m, E Pa, nu, rho kg/m^3, rigid_radius m}
+                                   and its mesh "points" (m, 2) m, "cells" (N vertex tuples),
+                                   "trace" (N, m) sparse: ``plate_cells``' output
     """
     structure: dict
     contact: dict
@@ -67,6 +71,7 @@ class FmuData:
     extra_modules: tuple = ()
     damping: float | None = None
     alpha: float = 0.0
+    plate: dict | None = None
 
 
 def build_fmus(data: FmuData, outdir, coupled: bool = False) -> dict:
@@ -91,7 +96,8 @@ def build_fmus(data: FmuData, outdir, coupled: bool = False) -> dict:
               "soil": {"factory": data.soil_factory, "kwargs": kwargs}}
     stepper = {**common, "n_interface": N, "structure": data.structure, "contact": data.contact,
                "damping": data.damping, "alpha": data.alpha, "output_nodes": list(data.output_nodes),
-               "motion": data.motion is not None}
+               "motion": data.motion is not None,
+               "plate": None if data.plate is None else {k: float(v) for k, v in data.plate["properties"].items()}}
     roles = {"structure": stepper, "soil": common}
     if coupled:
         roles["coupled"] = stepper
@@ -104,7 +110,8 @@ def build_fmus(data: FmuData, outdir, coupled: bool = False) -> dict:
             (d / f"uplift_{role}.json").write_text(json.dumps(settings, indent=1))
             save_rational(d / SOIL_MODEL_FILE, data.soil_model)      # the structure's sub-steps need it
             if role != "soil":
-                np.savez(d / MESH_FILE, xy=np.asarray(data.xy, float), area=np.asarray(data.area, float))
+                np.savez(d / MESH_FILE, xy=np.asarray(data.xy, float), area=np.asarray(data.area, float),
+                         **plate_arrays(data.plate))
                 if data.motion is not None:
                     np.savez(d / MOTION_FILE, acc=np.asarray(data.motion, float), dt=float(data.dt))
             if role == "structure":
@@ -118,6 +125,21 @@ def build_fmus(data: FmuData, outdir, coupled: bool = False) -> dict:
             out[role] = _build(script_of(HERE / f"{role}_fmu.py"), outdir / f"{role}.fmu",
                                sorted(d.iterdir()) + [private])
     return out
+
+
+def plate_arrays(plate) -> dict:
+    """The plate's mesh as the structure FMU's mesh file carries it (``fmus.stepper.plate_model``
+    reads it back): plate_points (m, 2) m, plate_cells (N, 4) vertex indices (-1 after a
+    triangle's 3), the trace weights (N, m) as CSR arrays; none for a rigid raft."""
+    if plate is None:
+        return {}
+    import scipy.sparse as sp
+    cells = np.full((len(plate["cells"]), 4), -1, np.int64)
+    for i, c in enumerate(plate["cells"]):
+        cells[i, :len(c)] = c
+    C = sp.csr_matrix(plate["trace"])
+    return dict(plate_points=np.asarray(plate["points"], float), plate_cells=cells, plate_trace_data=C.data,
+                plate_trace_indices=C.indices.astype(np.int64), plate_trace_indptr=C.indptr.astype(np.int64))
 
 
 def _save_instantaneous(path, soil, dt) -> None:

@@ -280,6 +280,9 @@ def model_records(data: FmuData, newton: dict | None = None) -> dict:
     if data.soil_factory != DEFAULT_SOIL_FACTORY:
         raise ValueError(f"soil factory {data.soil_factory!r}: native FMUs run the recursive convolution of the "
                          f"rational model ({DEFAULT_SOIL_FACTORY}) only; export with kind = 'python' for another soil")
+    if getattr(data, "plate", None) is not None:
+        raise ValueError("a plate raft: the native FMUs step a rigid raft only; export with kind = 'python' "
+                         "(fmus.build.build_fmus carries the plate)")
     unknown = set(newton or {}) - set(NEWTON_KEYS)
     if unknown:
         raise ValueError(f"newton keys {sorted(unknown)}: allowed {', '.join(NEWTON_KEYS)}")

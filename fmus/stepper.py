@@ -17,6 +17,9 @@ Inputs ``ag_x, ag_y, ag_z`` (m/s2, the slot ``ag``): the ground acceleration alo
 the END of the coming step, a_g(t + dt) (the scheme is implicit), read only when the parameter
 ``internal_motion`` is false; by default the motion bundled in resources (every component of
 the scene's motion) drives the FMU (after its last sample: zero).
+A plate raft (the settings' "plate", the plate's mesh in the mesh file: fmus.build.plate_arrays)
+is stepped by ``structure.plate_raft.PlateStepper``: the same variables (x, xdot are the soil's
+DOFs [q, w]; acc_/disp_ of the sticks' nodes), the plate's own deflections are not outputs.
 Outputs are computed at initialisation (the static state) and after each step; none depends
 on an input at the same communication point (no direct feedthrough).
 """
@@ -47,11 +50,13 @@ class StepperOutputs:
 
     def _build_stepper(self, soil, external_soil: bool):
         from structure import NewmarkStepper
+        from structure.plate_raft import PlateStepper
         from structure.spec import contact_from_spec, model_from_spec
 
         s, res = self.settings, self.resources
         with np.load(f"{res}/{MESH_FILE}", allow_pickle=False) as z:
             xy, area = z["xy"], z["area"]
+            mesh = {k: z[k] for k in z.files}
         self.motion = None
         if self.internal_motion:
             if not s.get("motion"):
@@ -59,10 +64,13 @@ class StepperOutputs:
             with np.load(f"{res}/{MOTION_FILE}", allow_pickle=False) as z:
                 self.motion = np.array(z["acc"], float)
         model = model_from_spec(s["structure"], xy, area)
+        if s.get("plate"):
+            model = plate_model(model, s["plate"], mesh)
         ag0 = self.motion[0] if self.internal_motion else self.bank.values[self.sl["ag"]]
-        self.stepper = NewmarkStepper(model, soil, self.dt, contact=contact_from_spec(s["contact"]),
-                                      damping=s.get("damping"), alpha=float(s.get("alpha", 0.0)),
-                                      external_soil=external_soil, ag0=ag0)
+        stepper = PlateStepper if s.get("plate") else NewmarkStepper
+        self.stepper = stepper(model, soil, self.dt, contact=contact_from_spec(s["contact"]),
+                               damping=s.get("damping"), alpha=float(s.get("alpha", 0.0)),
+                               external_soil=external_soil, ag0=ag0)
         self._dofs = {nm: model.dofs(model.node_by_name(nm).id)[:3] for nm in self.nodes}
         v = self.bank.values
         v[self.sl["max_uplift"]] = v[self.sl["max_raft_rotation"]] = 0.0
@@ -101,3 +109,21 @@ class StepperOutputs:
         st.set_state(state["stepper"])
         st.set_ground_acceleration(np.array(state["ag_next"]))
         st.set_soil_history(np.array(state["h_ext"]))
+
+
+def plate_model(stick, properties: dict, mesh: dict):
+    """The PlateRaftModel of the resources: the stick model with its raft master's mass and
+    inertia replaced by the plate's (as ``orchestrator.scene.Scene.plate_model``), the plate's
+    properties (settings) and mesh (the mesh file's arrays, fmus.build.plate_arrays)."""
+    import dataclasses
+
+    import scipy.sparse as sp
+
+    from structure.plate_raft import PlateProperties, PlateRaftModel
+
+    stick = dataclasses.replace(stick, raft=dataclasses.replace(stick.raft, m=0.0, inertia=(0.0, 0.0, 0.0)))
+    points = mesh["plate_points"]
+    cells = [tuple(int(v) for v in c if v >= 0) for c in mesh["plate_cells"]]
+    trace = sp.csr_matrix((mesh["plate_trace_data"], mesh["plate_trace_indices"], mesh["plate_trace_indptr"]),
+                          shape=(len(cells), points.shape[0]))
+    return PlateRaftModel(stick, PlateProperties(**properties), points, cells, trace)

@@ -23,6 +23,7 @@ them as FMI 3.0 FMUs (interface vectors as arrays).
 """
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import tempfile
 import xml.etree.ElementTree as ET
@@ -43,6 +44,7 @@ from structure.spec import contact_table
 
 from orchestrator.impedance import scene_fit
 from orchestrator.motion import make_motion
+from orchestrator.scene import NATIVE_PLATE_FIX
 from orchestrator.settings import FMU_KINDS
 
 #: the kinds of FMU export_scene writes: pythonfmu, or the native C runtime (fmus/native_build.py)
@@ -82,7 +84,8 @@ def factory_modules(soil_factory: str) -> tuple:
 
 def fmu_data(scene, soil_model, dt: float, motion=None, soil_factory: str | None = None,
              soil_kwargs: dict | None = None, extra_modules=()):
-    """The FmuData of a scene (structure and contact tables, interface mesh, outputs)."""
+    """The FmuData of a scene (structure and contact tables, interface mesh, outputs; a plate
+    raft's properties and mesh: ``plate_data``)."""
     factory = soil_factory or DEFAULT_SOIL_FACTORY
     nodes = scene.output.nodes
     if nodes is None:
@@ -92,7 +95,16 @@ def fmu_data(scene, soil_model, dt: float, motion=None, soil_factory: str | None
                    dt=float(dt), output_nodes=list(nodes),
                    motion=None if motion is None else np.asarray(motion.acc, float),
                    soil_factory=factory, soil_kwargs=dict(soil_kwargs or {}),
-                   extra_modules=tuple(extra_modules) + factory_modules(factory))
+                   extra_modules=tuple(extra_modules) + factory_modules(factory), plate=plate_data(scene))
+
+
+def plate_data(scene) -> dict | None:
+    """FmuData.plate of a scene with a plate raft (None: a rigid raft): the properties and the
+    mesh of ``scene.plate_model()`` (the FMU rebuilds the same PlateRaftModel from them)."""
+    if getattr(scene, "raft", None) is None:
+        return None
+    pm = scene.plate_model()
+    return {"properties": dataclasses.asdict(pm.plate), "points": pm.points, "cells": pm.cells, "trace": pm.trace}
 
 
 def export_scene(scene, outdir, soil_model=None, *, dt: float | None = None, motion=None,
@@ -107,9 +119,9 @@ def export_scene(scene, outdir, soil_model=None, *, dt: float | None = None, mot
     dt : s (default: the scene's [analysis] dt); motion : Motion (default: the scene's)
     soil_factory : "module:callable" building the soil from (model, dt, **soil_kwargs)
     kind : "native" (default: the C runtime of fmus/native compiled for linux64, win64 and
-           darwin64, no Python in the host; the default soil factory only) or "python"
-           (pythonfmu: the host needs Python with numpy and scipy); the same variables and
-           the same answers
+           darwin64, no Python in the host; the default soil factory only; a rigid raft only) or
+           "python" (pythonfmu: the host needs Python with numpy and scipy; a plate raft too: the
+           structure and coupled FMUs carry it); the same variables and the same answers
     fmi_version : 2 (default) or 3: FMI 3.0 co-simulation FMUs of the native runtime (the
                   interface vectors as arrays, binaries for x86_64-linux, x86_64-windows,
                   x86_64-darwin and aarch64-darwin), the same answers; the pair's system.ssd
@@ -119,7 +131,8 @@ def export_scene(scene, outdir, soil_model=None, *, dt: float | None = None, mot
     """
     if kind not in KINDS:
         raise ValueError(f"kind = {kind!r}: use one of {', '.join(KINDS)}")
-    scene.check_rigid_raft("the FMU export")
+    if kind == "native":
+        scene.check_rigid_raft("the native FMU export (the C runtime)", NATIVE_PLATE_FIX)
     if fmi_version not in FMI_VERSIONS:
         raise ValueError(f"fmi_version = {fmi_version!r}: use one of {', '.join(map(str, FMI_VERSIONS))}")
     if fmi_version == 3 and kind != "native":

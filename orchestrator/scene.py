@@ -353,7 +353,7 @@ class Scene:
                     f"foundation.raft.kind = \"plate\" runs on the route{'s' if len(PLATE_ROUTES) > 1 else ''} "
                     f"{', '.join(PLATE_ROUTES)} only (the Python stepper); route{'s' if len(other) > 1 else ''} "
                     f"{', '.join(other)} cannot carry a plate yet (a rigid raft only: no plate in the native "
-                    "runtime, the FMUs, the frequency-domain and Winkler routes): drop them from analysis.routes, "
+                    "runtime, the frequency-domain and Winkler routes): drop them from analysis.routes, "
                     "or use raft.kind = \"rigid\"")
         f = np.array(self.frequencies_hz, float)
         f.setflags(write=False)
@@ -415,11 +415,13 @@ class Scene:
                              '[structure] model = "reactor"')
         return build_model(self.structure, self.mesh.xy, self.mesh.area)
 
-    def check_rigid_raft(self, what: str) -> None:
-        """Refuse a plate raft in ``what`` (a command that models a rigid raft only, for now)."""
+    def check_rigid_raft(self, what: str, instead: str = "") -> None:
+        """Refuse a plate raft in ``what`` (a command that models a rigid raft only, for now);
+        ``instead``: what does carry a plate, said as the other fix."""
         if self.raft is not None:
             raise SceneError(f"{what} models a rigid raft only (for now); scene {self.name!r} has foundation.raft.kind "
-                             "= \"plate\": set it to \"rigid\" (or remove foundation.raft) for this command")
+                             "= \"plate\": set it to \"rigid\" (or remove foundation.raft) for this command"
+                             + (f", or {instead}" if instead else ""))
 
     def plate_model(self, model: StructureModel | None = None):
         """The PlateRaftModel of a plate raft (``raft`` not None) on the interface's cells: the
@@ -756,7 +758,9 @@ def _foundation(table: dict, base_dir: Path):
 
 
 #: the routes that run a plate raft (foundation.raft.kind = "plate")
-PLATE_ROUTES = ("monolithic",)
+PLATE_ROUTES = ("monolithic", "cosim")
+#: the other fix a native FMU export of a plate raft is told (the Python FMUs carry a plate)
+NATIVE_PLATE_FIX = "export the Python FMUs (uplift export --kind python), which carry a plate"
 #: the keys of foundation.raft = { kind = "plate", ... } (rigid_radius optional)
 PLATE_KEYS = ("kind", "thickness", "E", "nu", "rho", "rigid_radius")
 

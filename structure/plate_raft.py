@@ -338,14 +338,13 @@ class _PlateSoil(SoilInterface):
 class PlateStepper(NewmarkStepper):
     """NewmarkStepper on a PlateRaftModel: the same discrete equations, step rule, Newton,
     line search and closed-contact march, with the contact operator d = Bc [q, t, w] of the
-    plate (the hooks ``_trace``, ``_contact``, ``_jacobian_lu``...). The soil is stepped in
-    process only (external_soil is refused: the co-simulation does not carry a plate yet)."""
+    plate (the hooks ``_trace``, ``_contact``, ``_jacobian_lu``...). With ``external_soil``
+    (the structure FMU) the soil's history force h comes on the soil's DOFs [q, w] (6 + N)
+    through ``set_soil_history`` and is laid on the boundary block [q, t, w] (zero on t)."""
 
     def _init(self, model, soil, dt, contact, damping, alpha, static, external_soil, ag0):
         if not isinstance(model, PlateRaftModel):
             raise StructureError("PlateStepper steps a PlateRaftModel")
-        if external_soil:
-            raise StructureError("a plate raft is stepped with its soil in process (external_soil is not supported)")
         if not dt > 0:
             raise StructureError(f"time step dt = {dt!r} must be > 0")
         if not -1.0 / 3.0 - 1e-12 <= alpha <= 0.0:
@@ -359,7 +358,7 @@ class PlateStepper(NewmarkStepper):
         self.alpha = float(alpha)
         self.beta = (1 - alpha) ** 2 / 4
         self.gamma = 0.5 - alpha
-        self.external_soil = False
+        self.external_soil = bool(external_soil)
         self.N, self.n, self.ni, self.nb = N, model.n_dof, model.ni, model.nb
         self.ns = self.n - N                         # u[ns:] = the soil w, as for the rigid raft
         self.Bc = model.boundary_trace
@@ -407,6 +406,18 @@ class PlateStepper(NewmarkStepper):
         self.last_iters = 0
         self.last_substeps = 1
         self._nsub = 0
+
+    # ---- inputs ----------------------------------------------------------------------
+    def set_soil_history(self, h) -> None:
+        """Soil history force h (6+N,) on the soil's DOFs [q, w], N, for the next step (external
+        soil only): zero on the plate deflections t of the boundary block."""
+        h_ext = np.zeros(self.nb)
+        h_ext[self.soil.sel] = np.asarray(h, float).reshape(6 + self.N)
+        self._h_ext = h_ext
+
+    def next_inputs(self) -> tuple:
+        """(a_g(t + dt) (3,) m/s^2, h (6+N,) N on [q, w]): what ``set_soil_history`` takes back."""
+        return self._ag_next.copy(), self._h_ext[self.soil.sel].copy()
 
     # ---- outputs ---------------------------------------------------------------------
     @property

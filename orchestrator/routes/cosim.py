@@ -4,8 +4,10 @@ in either order, Jacobi) equals the monolithic route to round-off.
 
 The pair is native by default (the C runtime, compiled for this machine once per content hash
 into the cache folder: fmus.native_stepper.fmu_binaries); ``kind="python"`` runs the pythonfmu
-pair. With a soil factory other than the default, or where no C compiler is available, the
-Python pair runs and ``notes.warnings`` says why.
+pair. With a soil factory other than the default, a plate raft (foundation.raft.kind = "plate":
+the structure FMU steps structure.plate_raft.PlateStepper; the native runtime steps a rigid raft
+only), or where no C compiler is available, the Python pair runs and ``notes.warnings`` says
+why.
 
 API::
 
@@ -20,7 +22,7 @@ from pathlib import Path
 
 from fmus.resources import DEFAULT_SOIL_FACTORY
 from orchestrator.routes.base import Route, register
-from orchestrator.routes.monolithic import route_inputs
+from orchestrator.routes.monolithic import plate_warnings, route_inputs
 
 #: what the co-simulation says about the linear pre-check (see structure.ContactSettings)
 PRECHECK_COSIM = ("not available: the FMUs advance one step at a time and cannot look ahead, so "
@@ -57,7 +59,13 @@ def run_cosim(scene, motion=None, soil_model=None, *, schedule: str = "gauss-sei
         out = Path(workdir) if workdir is not None else Path(tmp)
         t0 = time.perf_counter()
         data = fmu_data(scene, soil_model, dt, None, soil_factory, soil_kwargs)
-        binaries, why = _native_runtime(data, cache_dir) if kind == "native" else (None, "")
+        if data.plate is not None:
+            warnings += plate_warnings(scene.plate_model(), scene.mesh.radius)
+        if kind == "native" and data.plate is not None:
+            binaries, why = None, (f"a plate raft ({len(data.plate['points'])} vertices) runs in the Python FMUs: the "
+                                   "native pair steps a rigid raft only")
+        else:
+            binaries, why = _native_runtime(data, cache_dir) if kind == "native" else (None, "")
         if binaries is not None:
             fmus = build_native_fmus(data, out, platforms=tuple(binaries), binaries=binaries)
         else:

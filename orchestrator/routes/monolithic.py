@@ -74,12 +74,7 @@ def run_monolithic(scene, motion=None, soil_model=None, *, soil_factory: str | N
            if stepper == "native" and factory != DEFAULT_SOIL_FACTORY else "")
     warnings = []
     if isinstance(model, PlateRaftModel):
-        off = model.mass_coupling
-        if off > 1e-3 * scene.mesh.radius:
-            warnings.append(f"the plate's held region (within {model.plate.rigid_radius:g} m of the raft centre) has its "
-                            f"mass centre {off:.3g} m off the raft centre: its uz-rx, uz-ry mass coupling is left out of "
-                            "the lumped mass (docs/formulation.md, 'Flexible raft'); a region symmetric about the centre "
-                            "has none")
+        warnings += plate_warnings(model, scene.mesh.radius)
         why = (f"a plate raft ({model.nf} free vertices, rigid within {model.plate.rigid_radius:g} m of the centre) "
                "is stepped by the Python stepper: the native runtime steps a rigid raft only"
                if stepper == "native" else "")
@@ -93,6 +88,18 @@ def run_monolithic(scene, motion=None, soil_model=None, *, soil_factory: str | N
                         "plate_mass_kg": float(model.vertex_masses[0].sum()),
                         "dropped_mass_coupling_m": model.mass_coupling}
     return res.with_notes(info=info, warnings=warnings)
+
+
+def plate_warnings(model: PlateRaftModel, radius: float) -> list:
+    """What a run of the plate raft ``model`` (on a raft of ``radius`` m) says in notes.warnings:
+    a held region whose mass centre is off the raft centre (its dropped mass coupling)."""
+    off = model.mass_coupling
+    if off <= 1e-3 * radius:
+        return []
+    return [f"the plate's held region (within {model.plate.rigid_radius:g} m of the raft centre) has its "
+            f"mass centre {off:.3g} m off the raft centre: its uz-rx, uz-ry mass coupling is left out of "
+            "the lumped mass (docs/formulation.md, 'Flexible raft'); a region symmetric about the centre "
+            "has none"]
 
 
 def step_scene(scene, model, soil, motion, *, route: str, progress=None, cache_dir=None, stepper: str = "native",

@@ -88,9 +88,11 @@ def test_bad_plate_keys_are_refused_with_the_key(change, message):
 
 def test_routes_and_foundations_that_cannot_carry_a_plate_are_refused(tmp_path, capsys):
     data = scene()
-    data["analysis"]["routes"] = ["monolithic", "linear", "cosim"]
-    with pytest.raises(SceneError, match="routes linear, cosim cannot carry a plate yet"):
+    data["analysis"]["routes"] = ["monolithic", "winkler", "cosim"]
+    with pytest.raises(SceneError, match="route winkler cannot carry a plate yet"):
         scene_from_dict(data)
+    data["analysis"]["routes"] = ["monolithic", "cosim"]                 # the cosim route carries a plate
+    assert scene_from_dict(data).raft is not None
     (tmp_path / "n.csv").write_text("x,y,area\n-2,-2,4\n2,-2,4\n2,2,4\n-2,2,4\n")
     with pytest.raises(SceneError, match="needs the interface's cells"):
         scene_from_dict(scene(shape="nodes", radius=None, element_size=None, file="n.csv"), base_dir=tmp_path)
@@ -98,13 +100,18 @@ def test_routes_and_foundations_that_cannot_carry_a_plate_are_refused(tmp_path, 
     plate = scene_from_dict(scene(), name="plate")
     with pytest.raises(SceneError, match="the static pushover models a rigid raft only"):
         scene_pushover(plate)
-    with pytest.raises(SceneError, match="the FMU export models a rigid raft only"):
+    with pytest.raises(SceneError, match="the native FMU export .* models a rigid raft only"):
         export_scene(plate, tmp_path / "fmus")
     assert not (tmp_path / "fmus").exists()
-    # the command line: exit 2, one line naming the key
+    # the command line: exit 2, one line naming the key (the native export: and the fix, before the fit)
+    data["analysis"]["routes"] = ["monolithic", "linear", "winkler"]
     assert main(["run", write_scene(tmp_path, data), "-o", str(tmp_path / "out.h5")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "foundation.raft.kind" in err[0], err
+    assert main(["export", write_scene(tmp_path, scene()), "-o", str(tmp_path / "fmus")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "foundation.raft.kind" in err[0] and "--kind python" in err[0], err
+    assert not (tmp_path / "fmus").exists()
 
 
 def test_a_plate_on_a_mesh_file_s_cells_off_centre_held_region_is_said():
