@@ -264,7 +264,8 @@ def outline_edges(cells):
     -------
     ndarray (n, 4) bool: ``[j, k]`` True when edge k of cell j (vertex k to its successor; for a
     triangle, edges 0, 1, 2 are v0v1, v1v2, v2v0) is on the outline. Vertices are matched by
-    their exact coordinates (a conforming mesh: the cells were cut from one point list).
+    their exact coordinates (the cells were cut from one point list); an edge of one cell that
+    lies along edges of other cells (a non-conforming joint) is not on the outline.
     """
     cells = np.asarray(cells, dtype=float)
     n = cells.shape[0]
@@ -280,6 +281,29 @@ def outline_edges(cells):
     uniq, inverse, counts = np.unique(key[live], return_inverse=True, return_counts=True)
     out = np.zeros((n, 4), dtype=bool)
     out[live] = counts[inverse.ravel()] == 1
+    # a non-conforming joint (a hanging node: cells touching along an edge without sharing its
+    # nodes) leaves edges of one cell inside the raft: an edge overlapping another such edge of
+    # opposite direction on the same line is not on the outline
+    j, k = np.nonzero(out)
+    if j.size > 1:
+        a = verts[j, k]
+        b = np.take_along_axis(verts, nxt[:, :, None], axis=1)[j, k]
+        e = b - a
+        length = np.hypot(e[:, 0], e[:, 1])
+        t = e / length[:, None]
+        tol = 1e-9 * max(float(np.abs(cells).max()), 1e-300)
+        inner = np.zeros(j.size, dtype=bool)
+        for i0 in range(0, j.size, 1024):
+            i1 = min(j.size, i0 + 1024)
+            ti = t[i0:i1, None, :]
+            anti = (ti * t[None]).sum(-1) < -1 + 1e-9
+            da, db = a[None] - a[i0:i1, None], b[None] - a[i0:i1, None]
+            off = np.maximum(np.abs(ti[..., 0] * da[..., 1] - ti[..., 1] * da[..., 0]),
+                             np.abs(ti[..., 0] * db[..., 1] - ti[..., 1] * db[..., 0]))
+            sa, sb = (ti * da).sum(-1), (ti * db).sum(-1)       # the other edge along this one
+            overlap = np.minimum(np.maximum(sa, sb), length[i0:i1, None]) - np.maximum(np.minimum(sa, sb), 0.0)
+            inner[i0:i1] = np.any(anti & (off <= tol) & (overlap > tol), axis=1)
+        out[j[inner], k[inner]] = False
     return out
 
 

@@ -241,6 +241,23 @@ def test_outline_edges_are_the_boundary_and_the_holes():
     assert refined_mesh(mesh).total_area == pytest.approx(32.0, rel=1e-14)
 
 
+def test_a_non_conforming_joint_is_not_outline():
+    # a 1 × 2 quad beside two 1 × 1 quads (a hanging node at (1, 1)), and the same with the
+    # right column shifted up by half a cell (partial overlaps): the outline is the boundary only
+    pts = np.array([[0, 0], [1, 0], [1, 2], [0, 2], [2, 0], [2, 1], [1, 1], [2, 2]], float)
+    mesh = cells_mesh(pts, quads=[[0, 1, 2, 3], [1, 4, 5, 6], [6, 5, 7, 2]], centre=(1.0, 1.0))
+    on = outline_edges(mesh.cells)
+    length = np.hypot(*(np.roll(mesh.cells, -1, axis=1) - mesh.cells).transpose(2, 0, 1))
+    assert length[on].sum() == pytest.approx(8.0, rel=1e-14) and on.sum() == 7
+    # the right column shifted up by half a cell: partial overlaps along x = 1 are joints too
+    pts = np.array([[0, 0], [1, 0], [1, 2], [0, 2], [1, .5], [2, .5], [2, 1.5], [1, 1.5], [2, 2.5], [1, 2.5]])
+    mesh = cells_mesh(pts, quads=[[0, 1, 2, 3], [4, 5, 6, 7], [7, 6, 8, 9]], centre=(1.0, 1.0))
+    expected = np.ones((3, 4), bool)
+    expected[0, 1] = expected[1, 3] = expected[2, 3] = False            # along x = 1
+    expected[1, 2] = expected[2, 0] = False                              # shared: (1, 1.5)-(2, 1.5)
+    assert np.array_equal(outline_edges(mesh.cells), expected)
+
+
 def _fan_quadrature(poly, field):
     """∫ over a polygon of the six kernels at p = field - y, by the signed triangles (field
     point, edge): on y = field + u e(v), e(v) = a - field + v (b - a), a kernel f of degree -1
