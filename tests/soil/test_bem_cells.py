@@ -328,7 +328,7 @@ def test_rigid_disk_on_unstructured_cells_meets_the_targets_at_order_one_and_a_h
     #   quads      (106, 186, 387 cells): Kh, Kv -0.29, -0.15, -0.07 % (order 2.0);
     #              Kr -3.8, -2.4, -1.3 %; Kt -3.83, -2.37, -1.31 %: orders 1.50-1.60
     # constant tractions (the scheme before) at R/h = 10: triangles Kh, Kv -1.16 %, Kr -3.5 %,
-    # Kt -3.4 %; quads -1.6 % and -4.8 %, order 1.0: the edge shape divides the error by 3.5-20
+    # Kt -3.4 %; quads -1.6 % and -4.8 %, order 1.0: the edge shape divides the error by 3.4-23
     errs = {n: _disk_errors(kind, n) for n in (5, 7, 10)}
     h = np.log([1 / 5, 1 / 7, 1 / 10])
     for d in DOF:
