@@ -380,6 +380,25 @@ def test_circle_grid_and_quad_mesh_of_the_disk_agree_dynamically():
     assert np.all(rel[:3] < 0.01) and np.all(rel[3:] < 0.025), rel
 
 
+def test_the_traction_scheme_is_in_the_provenance_and_the_cache_key(monkeypatch):
+    # a mesh file's table records "sqrt-8" and misses a table computed with constant tractions;
+    # grids (their arithmetic unchanged) record nothing new
+    import soil_impedance.bem as bem
+    from soil_impedance.sweep import provenance, table_key
+    prof, mesh, grid = SoilProfile.homogeneous(100.0, 2000.0, 0.3), _disk("quad", 5), circle_mesh(R, 2.0)
+    assert provenance(prof, mesh, "relaxed", None, "rigid")["tractions"] == "sqrt-8"
+    assert "tractions" not in provenance(prof, grid, "relaxed", None, "rigid")
+    keys = table_key(prof, mesh, [0.0, 5.0], "relaxed", "rigid"), table_key(prof, grid, [0.0, 5.0], "relaxed", "rigid")
+    monkeypatch.setattr(bem, "EDGE_TRACTIONS", "constant")
+    assert provenance(prof, mesh, "relaxed", None, "rigid")["tractions"] == "constant"
+    assert table_key(prof, mesh, [0.0, 5.0], "relaxed", "rigid") != keys[0]
+    assert table_key(prof, grid, [0.0, 5.0], "relaxed", "rigid") == keys[1]
+    T = rigid_transform(mesh)                  # the default follows EDGE_TRACTIONS
+    default, const, sqrt = (np.diag(T.T @ SurfaceBem(prof, mesh, edge=e).solve(0.0, T)).real
+                            for e in (None, "constant", "sqrt-8"))
+    assert np.array_equal(default, const) and np.all(sqrt > const)
+
+
 def test_refined_mesh_splits_every_cell_in_four():
     for kind in ("tri", "quad"):
         mesh = _disk(kind, 5)
