@@ -308,7 +308,8 @@ def outline_edges(cells):
 
 
 def edge_strips(mesh, scheme=None):
-    """The edge-singular traction shape of the cells sharing an edge with the raft's outline.
+    """The edge-singular traction shape of the cells sharing an edge with the raft's outline
+    (``scheme`` "sqrt-<m>"; None: ``edge_tractions(mesh)``).
 
     A rigid raft's contact traction grows like 1/sqrt(d) toward its outline (d: distance to
     it). In such a cell (its longest outline edge AB, the opposite side DC, or the opposite
@@ -318,8 +319,8 @@ def edge_strips(mesh, scheme=None):
     m = ``EDGE_STRIPS`` strips t_k <= t <= t_(k+1), t_k = (k/m)² (quadrilaterals, exact images
     of the square's strips), scaled so that the cell's total force is its nodal force: strip k
     carries the fraction f_k = [P(t_(k+1)) - P(t_k)]/P(1) of it, P(t) = ∫₀ᵗ τ^(-1/2) ρ(τ) dτ =
-    2ρ0 √t + (2/3)ρ1 t^(3/2), ρ(t) = ρ0 + ρ1 t the area per unit t (linear: ρ0 the mean of
-    AB × ((D-A) + (C-B))/2, ρ1 = 2(area - ρ0)). The strips are polygons: the static kernel is
+    2ρ0 √t + (2/3)ρ1 t^(3/2), ρ(t) = ρ0 + ρ1 t the area per unit t (linear in t: ρ0 the cross
+    product (B-A) × ((D-A) + (C-B))/2, ρ1 = 2(area - ρ0)). The strips are polygons: the static kernel is
     integrated over them exactly (``patch.polygon_integrals``), so the cell's static integral
     is exact for this shape. The strip means regularise the singularity: the largest traction,
     on the strip along the outline, is about m times the cell's mean (0.75 m in a triangle).
