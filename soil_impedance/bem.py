@@ -440,8 +440,11 @@ class _IrregularOperator:
     source cell's area, float64 (48 bytes per pair); for an outline cell (``edge_strips``) the
     integrals over its strips weighted by their tractions, in the same 48 bytes. Per frequency,
     F is assembled in blocks of rows from them and the regular kernel interpolated at the pair
-    radii, node i to force centroid j (``RadialRegular``): never an (n², n_k) Bessel matrix.
-    Collocation at the nodes (the cells' area centroids).
+    radii, node i to force centroid j (``RadialRegular``; the self terms at r = 0, its exact
+    value: a centroid a fraction of the cell from its node would stretch the radial grid down
+    toward the kernel's non-smooth point r = 0, two to four times the nodes, for a change of
+    (kr)² there): never an (n², n_k) Bessel matrix. Collocation at the nodes (the cells' area
+    centroids).
     """
 
     def __init__(self, profile, mesh, contact, rule, radial_tol, edge=None):
@@ -480,8 +483,9 @@ class _IrregularOperator:
         if n > 1:
             dist, _ = cKDTree(xy).query(xy, k=2)
             self.h0 = min(self.h0, 2 * float(np.median(dist[:, 1])))
-            if strips is not None:                   # node i to the force point of cell j
-                dist, _ = cKDTree(xy).query(self.source, k=2)
+            if strips is not None:                   # node i != j to the force point of cell j
+                dist, idx = cKDTree(xy).query(self.source, k=min(n, 3))
+                dist = dist[idx != np.arange(n)[:, None]]
             self.r_lo = float(dist[dist > 0].min())            # smallest non-zero pair distance
         self.radial = None
 
@@ -509,6 +513,7 @@ class _IrregularOperator:
             gzz, gxz, gyz = c * (1 - nu) * one_r, b0 * x_r2, b0 * y_r2
             if not static_only:
                 d = xy[i0:i1, None, :] - self.source[None, :, :]
+                d[np.arange(i1 - i0), np.arange(i0, i1)] = 0.0      # self terms: r = 0, exact
                 r = np.hypot(d[..., 0], d[..., 1])
                 if self.radial is not None:
                     A, B, C, D = self.radial(np.minimum(r, self.r_max))
