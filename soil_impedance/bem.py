@@ -13,7 +13,8 @@ a unit *force* on cell j, ``F[i, j]`` (3×3 block) is the displacement at node i
 with φ_j = 1/A_j and s_j = x_j, except in the cells of a finite-element mesh that share an edge
 with the raft's outline (``EDGE_TRACTIONS`` = "sqrt"): there φ_j is the edge-singular shape of a
 rigid raft's contact traction, ~ 1/sqrt(distance to the outline), as strips of constant value
-(``edge_strips``; total force 1), and s_j its force centroid. Constant tractions on such a mesh
+(``edge_strips``; total force 1), and s_j its force centroid (s_j = x_j for i = j: the self term
+at r = 0, see ``_IrregularOperator``). Constant tractions on such a mesh
 converge at first order only, the error at the outline; with the edge shape at order ~1.5 and
 5 times smaller at h = R/10 (docs/raft.md). Grids and node lists are unchanged.
 
