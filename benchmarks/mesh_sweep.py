@@ -24,6 +24,16 @@ times; estimate of the current ``sweep_memory``)::
       1000   1013   3039   1.74    1.25     0.93    431.3   21.56
       2000   1966   5898   1.23    3.84     3.01   1090.8   54.54
       (2000 at 2 frequencies, the machine busier: est 1.91 GB, peak 1.89 GB, 209 s/frequency)
+
+With the outline cells' edge-singular tractions (the default since; ``--tractions constant`` the
+scheme above), 20 frequencies, the machine loaded (load 6-10, so wall times vary by 2x)::
+
+    target  cells   DOFs  h (m)  est GB  peak GB   wall s  s/freq setup s  step s
+       250    271    813   3.49    0.38     0.21     15.9    0.79    1.39    0.64
+       500    509   1527   2.47    0.55     0.35     39.6    1.98    4.24    1.93
+      1000   1013   3039   1.74    1.25     0.93    292.4   14.62   12.39   14.33
+    constant tractions, run right after under the same load:
+      1000   1013   3039   1.74    1.25     0.93    257.9   12.90    8.42   13.56
 """
 from __future__ import annotations
 
