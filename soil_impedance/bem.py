@@ -8,15 +8,23 @@ centres, or the **area centroids** of the cells (kind "cells"), which are the me
 hence the structure's interface nodes and the points where the contact gaps are measured. With
 a unit *force* on cell j, ``F[i, j]`` (3×3 block) is the displacement at node i::
 
-    F_ij = (1/A_j) ∫_{cell j} g_static(x_i - y) dy   +   g_regular(|x_i - x_j|; ω)
+    F_ij = ∫_{cell j} g_static(x_i - y) φ_j(y) dy   +   g_regular(|x_i - s_j|; ω)
+
+with φ_j = 1/A_j and s_j = x_j, except in the cells of a finite-element mesh that share an edge
+with the raft's outline (``EDGE_TRACTIONS`` = "sqrt"): there φ_j is the edge-singular shape of a
+rigid raft's contact traction, ~ 1/sqrt(distance to the outline), as strips of constant value
+(``edge_strips``; total force 1), and s_j its force centroid (s_j = x_j for i = j: the self term
+at r = 0, see ``_IrregularOperator``). Constant tractions on such a mesh
+converge at first order only, the error at the outline; with the edge shape at order ~1.5 and
+5 times smaller at h = R/10 (docs/raft.md). Grids and node lists are unchanged.
 
 The static part (Boussinesq/Cerruti with G*(ω) of the top material: the singular part of the
 dynamic kernel at ω) is integrated in closed form over every cell, exactly from any field point
 (inside, on or outside the cell): rectangles by corner primitives (``patch.static_patch_kernel``),
-polygons by edge decomposition (``patch.polygon_integrals``). The smooth regular part
-(``greens.regular_green``) is taken at the cell centre offset (midpoint rule, O(h²), below the
-O(h) error of constant tractions: a cell quadrature would cost several kernel values per pair
-for no gain in order).
+polygons (and the strips of an outline cell) by edge decomposition (``patch.polygon_integrals``).
+The smooth regular part (``greens.regular_green``) is taken at the offset from the cell's force
+centroid (one-point rule exact for a kernel linear over the cell, O(h²): a cell quadrature
+would cost several kernel values per pair for no gain in order).
 
 Grid meshes: the kernel is evaluated only at the distinct integer offsets, and
 ``regular_green`` only at the distinct radii (this path's arithmetic is unchanged: its tables
@@ -78,9 +86,12 @@ class SurfaceBem:
     rule : passed unchanged to ``greens.regular_green`` (integration rule), or None
     radial_tol : irregular meshes only: relative interpolation tolerance of the regular part
         (None: ``RADIAL_TOL``; 0: ``regular_green`` at every pair radius, for verification)
+    edge : the traction scheme of a finite-element mesh's outline cells, "sqrt-<m>" (m strips)
+        or "constant"; None: ``edge_tractions(mesh)`` (what a table's provenance records).
+        Ignored by grids and node lists (constant tractions).
     """
 
-    def __init__(self, profile, mesh, contact="welded", rule=None, radial_tol=None):
+    def __init__(self, profile, mesh, contact="welded", rule=None, radial_tol=None, edge=None):
         if contact not in CONTACTS:
             raise BemError(f"contact = {contact!r}: use one of {CONTACTS}")
         self.profile, self.mesh, self.contact, self.rule = profile, mesh, contact, rule
@@ -88,7 +99,7 @@ class SurfaceBem:
         self._grid = grid is not None
         self.regular_calls = 0
         if grid is None:                      # irregular mesh: bounded memory, see _IrregularOperator
-            self._irregular = _IrregularOperator(profile, mesh, contact, rule, radial_tol)
+            self._irregular = _IrregularOperator(profile, mesh, contact, rule, radial_tol, edge)
             return
         self._irregular = None
         ij, (hx, hy) = grid
@@ -227,6 +238,137 @@ def max_pair_distance(xy) -> float:
     return float(np.hypot(d[..., 0], d[..., 1]).max())
 
 
+#: traction shape in the cells of a finite-element mesh (kind "cells") that share an edge with the
+#: raft's outline (outer boundary and holes): "sqrt", 1/sqrt(t) across the cell from that edge
+#: (``edge_strips``), or "constant" (every cell; the scheme before, kept for verification)
+EDGE_TRACTIONS = "sqrt"
+#: strips of constant traction per outline cell, bounded by the lines t_k = (k/m)², k = 0..m
+EDGE_STRIPS = 8
+
+
+def edge_tractions(mesh) -> str:
+    """The traction scheme of a mesh's cells, as recorded in a table's provenance: "constant"
+    for grids and node lists, else ``EDGE_TRACTIONS`` with its strip count ("sqrt-8")."""
+    if mesh.cells is None or _grid(mesh) is not None or EDGE_TRACTIONS == "constant":
+        return "constant"
+    return f"{EDGE_TRACTIONS}-{EDGE_STRIPS}"
+
+
+def outline_edges(cells):
+    """The edges of the raft's outline (outer boundary and holes): those of one cell only.
+
+    Parameters
+    ----------
+    cells : ndarray (n, 4, 2), m     counter-clockwise cells, triangles with vertex 2 repeated
+
+    Returns
+    -------
+    ndarray (n, 4) bool: ``[j, k]`` True when edge k of cell j (vertex k to its successor; for a
+    triangle, edges 0, 1, 2 are v0v1, v1v2, v2v0) is on the outline. Vertices are matched by
+    their exact coordinates (the cells were cut from one point list); an edge of one cell that
+    lies along edges of other cells (a non-conforming joint) is not on the outline.
+    """
+    cells = np.asarray(cells, dtype=float)
+    n = cells.shape[0]
+    tri = np.all(cells[:, 2] == cells[:, 3], axis=1)
+    order = np.where(tri[:, None], [0, 1, 2, 0], [0, 1, 2, 3])      # triangle: v0 v1 v2 (v0)
+    verts = np.take_along_axis(cells, order[:, :, None], axis=1)
+    _, vid = np.unique(verts.reshape(-1, 2), axis=0, return_inverse=True)
+    vid = vid.reshape(n, 4)
+    nxt = np.where(tri[:, None], [1, 2, 0, 0], [1, 2, 3, 0])
+    a, b = vid, np.take_along_axis(vid, nxt, axis=1)
+    live = ~(tri[:, None] & (np.arange(4) == 3))
+    key = np.minimum(a, b).astype(np.int64) * (vid.max() + 1) + np.maximum(a, b)
+    uniq, inverse, counts = np.unique(key[live], return_inverse=True, return_counts=True)
+    out = np.zeros((n, 4), dtype=bool)
+    out[live] = counts[inverse.ravel()] == 1
+    # a non-conforming joint (a hanging node: cells touching along an edge without sharing its
+    # nodes) leaves edges of one cell inside the raft: an edge overlapping another such edge of
+    # opposite direction on the same line is not on the outline
+    j, k = np.nonzero(out)
+    if j.size > 1:
+        a = verts[j, k]
+        b = np.take_along_axis(verts, nxt[:, :, None], axis=1)[j, k]
+        e = b - a
+        length = np.hypot(e[:, 0], e[:, 1])
+        t = e / length[:, None]
+        tol = 1e-9 * max(float(np.abs(cells).max()), 1e-300)
+        inner = np.zeros(j.size, dtype=bool)
+        for i0 in range(0, j.size, 1024):
+            i1 = min(j.size, i0 + 1024)
+            ti = t[i0:i1, None, :]
+            anti = (ti * t[None]).sum(-1) < -1 + 1e-9
+            da, db = a[None] - a[i0:i1, None], b[None] - a[i0:i1, None]
+            off = np.maximum(np.abs(ti[..., 0] * da[..., 1] - ti[..., 1] * da[..., 0]),
+                             np.abs(ti[..., 0] * db[..., 1] - ti[..., 1] * db[..., 0]))
+            sa, sb = (ti * da).sum(-1), (ti * db).sum(-1)       # the other edge along this one
+            overlap = np.minimum(np.maximum(sa, sb), length[i0:i1, None]) - np.maximum(np.minimum(sa, sb), 0.0)
+            inner[i0:i1] = np.any(anti & (off <= tol) & (overlap > tol), axis=1)
+        out[j[inner], k[inner]] = False
+    return out
+
+
+def edge_strips(mesh, scheme=None):
+    """The edge-singular traction shape of the cells sharing an edge with the raft's outline
+    (``scheme`` "sqrt-<m>"; None: ``edge_tractions(mesh)``).
+
+    A rigid raft's contact traction grows like 1/sqrt(d) toward its outline (d: distance to
+    it). In such a cell (its longest outline edge AB, the opposite side DC, or the opposite
+    vertex C = D of a triangle) the cell is the image of the unit square by
+    y(s, t) = (1-t)(A + s(B-A)) + t(D + s(C-D)): t = 0 on the outline, 1 across the cell
+    (t = d/H in a triangle, H its height over AB). The shape is 1/sqrt(t) taken as its mean on
+    m = ``EDGE_STRIPS`` strips t_k <= t <= t_(k+1), t_k = (k/m)² (quadrilaterals, exact images
+    of the square's strips), scaled so that the cell's total force is its nodal force: strip k
+    carries the fraction f_k = [P(t_(k+1)) - P(t_k)]/P(1) of it, P(t) = ∫₀ᵗ τ^(-1/2) ρ(τ) dτ =
+    2ρ0 √t + (2/3)ρ1 t^(3/2), ρ(t) = ρ0 + ρ1 t the area per unit t (linear in t: ρ0 the cross
+    product (B-A) × ((D-A) + (C-B))/2, ρ1 = 2(area - ρ0)). The strips are polygons: the static kernel is
+    integrated over them exactly (``patch.polygon_integrals``), so the cell's static integral
+    is exact for this shape. The strip means regularise the singularity: the largest traction,
+    on the strip along the outline, is about m times the cell's mean (0.75 m in a triangle).
+
+    Returns
+    -------
+    cells : int array (k,)            the outline cells
+    strips : ndarray (k, m, 4, 2), m  their strips, counter-clockwise
+    weights : ndarray (k, m), 1/m²    traction of each strip per unit force on the cell, f/area
+    source : ndarray (n, 2), m        every cell's force centroid (the node, but Σ f_k c_k for an
+                                      outline cell, c_k the strip centroids): where the regular
+                                      part is taken (one-point rule exact for linear kernels)
+    """
+    from .mesh import polygon_area_centroid
+    scheme = edge_tractions(mesh) if scheme is None else scheme
+    m = int(scheme.split("-")[1])
+    cells = mesh.cells
+    on = outline_edges(cells)
+    tri = np.all(cells[:, 2] == cells[:, 3], axis=1)
+    length = np.hypot(*(np.roll(cells, -1, axis=1) - cells).transpose(2, 0, 1))
+    # a triangle's edge 2 is v2 -> v0 (stored as v3 -> v0 with v3 = v2, edge 2 being v2 -> v3 = 0)
+    length[tri, 2] = length[tri, 3]
+    which = np.flatnonzero(on.any(axis=1))
+    k = np.argmax(np.where(on[which], length[which], -1.0), axis=1)
+    P = cells[which]
+    idx = np.arange(which.size)
+    t3 = tri[which]
+    A = P[idx, k]
+    B = P[idx, np.where(t3, (k + 1) % 3, (k + 1) % 4)]
+    C = P[idx, np.where(t3, (k + 2) % 3, (k + 2) % 4)]
+    D = np.where(t3[:, None], C, P[idx, (k + 3) % 4])
+    t = (np.arange(m + 1) / m) ** 2
+    lo, hi = t[:-1, None], t[1:, None]
+    strips = np.stack([A[:, None] + lo * (D - A)[:, None], B[:, None] + lo * (C - B)[:, None],
+                       B[:, None] + hi * (C - B)[:, None], A[:, None] + hi * (D - A)[:, None]], axis=2)
+    ab, side = B - A, 0.5 * ((D - A) + (C - B))
+    rho0 = ab[:, 0] * side[:, 1] - ab[:, 1] * side[:, 0]
+    rho1 = 2 * (mesh.area[which] - rho0)
+    prim = 2 * rho0[:, None] * np.sqrt(t) + (2 / 3) * rho1[:, None] * t ** 1.5
+    frac = np.diff(prim, axis=1) / prim[:, -1:]
+    area, centroid = polygon_area_centroid(strips.reshape(-1, 4, 2))
+    area, centroid = area.reshape(which.size, m), centroid.reshape(which.size, m, 2)
+    source = mesh.xy.copy()
+    source[which] = np.einsum("km,kmc->kc", frac, centroid)
+    return which, strips, frac / area, source
+
+
 class RadialRegular:
     """The regular kernel (A, B, C, D)(r) of one frequency: exact at r = 0, and on [r_lo, r_max]
     a uniform radial grid interpolated by cubic splines (not-a-knot).
@@ -296,12 +438,17 @@ class _IrregularOperator:
 
     Stored per pair: the six static basis integrals (``patch.polygon_integrals`` over the true
     cell, or ``patch.rectangle_integrals`` over the equal-area square of a node), divided by the
-    source cell's area, float64 (48 bytes per pair). Per frequency, F is assembled in blocks of
-    rows from them and the regular kernel interpolated at the pair radii (``RadialRegular``):
-    never an (n², n_k) Bessel matrix. Collocation at the nodes (the cells' area centroids).
+    source cell's area, float64 (48 bytes per pair); for an outline cell (``edge_strips``) the
+    integrals over its strips weighted by their tractions, in the same 48 bytes. Per frequency,
+    F is assembled in blocks of rows from them and the regular kernel interpolated at the pair
+    radii, node i to force centroid j (``RadialRegular``; the self terms at r = 0, its exact
+    value: a centroid a fraction of the cell from its node would stretch the radial grid down
+    toward the kernel's non-smooth point r = 0, two to four times the nodes, for a change of
+    (kr)² there): never an (n², n_k) Bessel matrix. Collocation at the nodes (the cells' area
+    centroids).
     """
 
-    def __init__(self, profile, mesh, contact, rule, radial_tol):
+    def __init__(self, profile, mesh, contact, rule, radial_tol, edge=None):
         from scipy.spatial import cKDTree
         from .patch import polygon_integrals, rectangle_integrals
         self.profile, self.mesh, self.contact, self.rule = profile, mesh, contact, rule
@@ -309,6 +456,13 @@ class _IrregularOperator:
         n, xy = mesh.n, mesh.xy
         self.rows = max(1, CHUNK_PAIRS // max(n, 1))
         self.basis = np.empty((6, n, n))
+        self.edge = edge_tractions(mesh) if edge is None else edge
+        if mesh.cells is None:
+            self.edge = "constant"
+        strips = None
+        self.source = xy                      # where each cell's force acts for the regular part
+        if self.edge != "constant":
+            cells, strips, weights, self.source = edge_strips(mesh, self.edge)
         half = 0.5 * np.sqrt(mesh.area)
         for i0 in range(0, n, self.rows):
             i1 = min(n, i0 + self.rows)
@@ -318,13 +472,22 @@ class _IrregularOperator:
             else:
                 d = xy[i0:i1, None, :] - xy[None, :, :]
                 self.basis[:, i0:i1] = rectangle_integrals(d[..., 0], d[..., 1], half, half) / (4 * half * half)
-        self.r_max = max_pair_distance(xy)
+        if strips is not None and cells.size:     # outline cells: the edge-singular shape, strip by strip
+            rows = max(1, CHUNK_PAIRS // max(strips.shape[0] * strips.shape[1], 1))
+            for i0 in range(0, n, rows):
+                i1 = min(n, i0 + rows)
+                q = xy[i0:i1, None, None, None, :] - strips[None]
+                self.basis[:, i0:i1, cells] = np.einsum("aikm,km->aik", polygon_integrals(q), weights)
+        self.r_max = max_pair_distance(np.concatenate([xy, self.source]) if strips is not None else xy)
         self.h0 = float(np.median(np.sqrt(mesh.area)))      # typical cell size
         self.r_lo = self.r_max
         if n > 1:
             dist, _ = cKDTree(xy).query(xy, k=2)
             self.h0 = min(self.h0, 2 * float(np.median(dist[:, 1])))
-            self.r_lo = float(dist[:, 1].min())                # smallest non-zero pair distance
+            if strips is not None:                   # node i != j to the force point of cell j
+                dist, idx = cKDTree(xy).query(self.source, k=min(n, 3))
+                dist = dist[idx != np.arange(n)[:, None]]
+            self.r_lo = float(dist[dist > 0].min())            # smallest non-zero pair distance
         self.radial = None
 
     @property
@@ -350,7 +513,8 @@ class _IrregularOperator:
             gxx, gyy, gxy = c * (one_r - nu * yy), c * (one_r - nu * xx), c * nu * xy_
             gzz, gxz, gyz = c * (1 - nu) * one_r, b0 * x_r2, b0 * y_r2
             if not static_only:
-                d = xy[i0:i1, None, :] - xy[None, :, :]
+                d = xy[i0:i1, None, :] - self.source[None, :, :]
+                d[np.arange(i1 - i0), np.arange(i0, i1)] = 0.0      # self terms: r = 0, exact
                 r = np.hypot(d[..., 0], d[..., 1])
                 if self.radial is not None:
                     A, B, C, D = self.radial(np.minimum(r, self.r_max))

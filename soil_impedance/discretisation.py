@@ -1,12 +1,16 @@
 """Discretisation error of a mesh's static rigid impedances: the mesh against itself refined.
 
-The BEM's tractions are constant per cell, collocated at the cells' area centroids (grids: the
-square centres); its static rigid impedances converge like h^p with p = ``ORDER`` (measured on
-gmsh disks of R/h = 5, 7, 10 against the closed forms, relaxed contact: triangles 1.05-1.10,
-quadrilaterals 0.95-1.0, tests/soil/test_bem_cells.py; grids ~1, test_bem_static.py). With
-K_h and K_{h/2} (every cell split in four, grids at half the element size), Richardson's
-extrapolation K* = (2^p K_{h/2} - K_h)/(2^p - 1) estimates the relative error of the mesh's
-K_h as (K_h - K*)/K*, per diagonal term.
+The BEM's tractions are constant per cell (on a finite-element mesh, edge-singular in the cells
+along the raft's outline: ``bem.edge_strips``), collocated at the cells' area centroids (grids:
+the square centres). The static rigid impedances of a mesh converge like h^p with p =
+``MESH_ORDER`` = 1.5 (measured on gmsh disks of R/h = 5, 7, 10 against the closed forms,
+relaxed contact: rocking and torsion 1.50-1.60 on quadrilaterals and triangles, translations
+1.5 on triangles, 2.0 on quadrilaterals, tests/soil/test_bem_cells.py); grids and node lists
+like h (p = ``ORDER`` = 1, test_bem_static.py). With K_h and K_{h/2} (every cell split in four,
+grids at half the element size), Richardson's extrapolation K* = (2^p K_{h/2} - K_h)/(2^p - 1)
+estimates the relative error of the mesh's K_h as (K_h - K*)/K*, per diagonal term: the error
+of the BEM on the mesh's own outline (a polygon's missing area against the disk it approximates
+is the user's geometry, not refined by splitting cells).
 
 Circle grids keep every square whose centre is in the disk: their area and moments change
 irregularly with h (the staircase), and Richardson on K_h itself is meaningless (measured: +0.3 %
@@ -22,8 +26,10 @@ import numpy as np
 from .mesh import InterfaceMesh, MeshError, circle_mesh, rectangle_mesh
 from .reduction import RIGID_DOFS
 
-#: measured convergence order of the static rigid impedances in the element size (see above)
+#: measured convergence order of the static rigid impedances in the element size (see above):
+#: grids and node lists (constant tractions); finite-element meshes with the edge-singular shape
 ORDER = 1.0
+MESH_ORDER = 1.5
 #: most nodes of the refined mesh: beyond, its static solve (one LU of (3N)², O(N³)) takes
 #: minutes and the estimate is skipped with this reason (the reactor raft: 241 -> 965 nodes)
 MAX_REFINED_NODES = 2000
@@ -72,8 +78,11 @@ def refined_mesh(mesh: InterfaceMesh) -> InterfaceMesh:
     return cells_mesh(points, quads=np.arange(points.shape[0]).reshape(-1, 4))
 
 
-def static_error_estimate(profile, mesh, contact="welded", cache_dir=None, order=ORDER) -> dict:
+def static_error_estimate(profile, mesh, contact="welded", cache_dir=None, order=None) -> dict:
     """Estimated relative discretisation error of the static rigid impedances of ``mesh``.
+
+    ``order`` p: None, ``MESH_ORDER`` for a mesh whose outline cells carry the edge-singular
+    shape (``bem.edge_tractions`` not "constant"), else ``ORDER``.
 
     Returns ``{"errors": {dof: relative error of K_h[dof, dof] (signed, -), ...}, "order": p,
     "n": N, "n_refined": 4N}``, or ``{"skipped": reason}`` when the refined mesh cannot be made
@@ -81,7 +90,10 @@ def static_error_estimate(profile, mesh, contact="welded", cache_dir=None, order
     check, ``sweep.check_sweep_memory``). Both static solves go through ``static_impedance``
     (cached in ``cache_dir`` like any table).
     """
+    from .bem import edge_tractions
     from .sweep import SweepMemoryError, check_sweep_memory, static_impedance
+    if order is None:
+        order = ORDER if edge_tractions(mesh) == "constant" else MESH_ORDER
     if 4 * mesh.n > MAX_REFINED_NODES:
         return {"skipped": f"the refined mesh would have about {4 * mesh.n} nodes, more than "
                            f"MAX_REFINED_NODES = {MAX_REFINED_NODES} (its static solve would take minutes): "

@@ -77,8 +77,9 @@ class InterfaceMesh:
     size : tuple                      (radius,) or (lx, ly) for the regular shapes; () otherwise
     cells : ndarray, shape (n, 4, 2), m, or None
         the polygon of each node's cell (kind "cells", from a finite-element mesh): vertices
-        counter-clockwise in the frame of ``xy``, a triangle with one vertex repeated (an edge of
-        zero length); ``xy`` is then each cell's area centroid and ``area`` its area
+        counter-clockwise in the frame of ``xy``, a triangle with its third vertex repeated
+        (``cells[:, 2] == cells[:, 3]``, an edge of zero length); ``xy`` is then each cell's
+        area centroid and ``area`` its area
     """
 
     xy: np.ndarray
@@ -246,7 +247,10 @@ def cells_mesh(points, triangles=(), quads=(), centre=(0.0, 0.0)) -> InterfaceMe
     if flat.size:
         raise MeshError(f"mesh cell {flat[0]} has zero area (its vertices are on one line or repeated): "
                         "remove or repair the degenerate cells")
-    poly[area < 0] = poly[area < 0, ::-1]
+    tri = np.all(poly[:, 2] == poly[:, 3], axis=1)
+    flip = area < 0
+    poly[flip & ~tri] = poly[flip & ~tri, ::-1]
+    poly[flip & tri] = poly[flip & tri][:, [1, 0, 2, 3]]     # v1 v0 v2 (v2): the repeated vertex stays last
     poly = np.ascontiguousarray(poly)
     poly.setflags(write=False)
     return InterfaceMesh(centroid, np.abs(area), cell=None, kind="cells", cells=poly)

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import scipy.linalg as sla
 
-from .bem import CHUNK_PAIRS, CONTACTS, RADIAL_TOL, BemError, SurfaceBem, _grid, nodal_dofs
+from .bem import CHUNK_PAIRS, CONTACTS, RADIAL_TOL, BemError, SurfaceBem, _grid, edge_tractions, nodal_dofs
 from uplift_common.code import code_digest
 from uplift_common.errors import UserInputError
 
@@ -62,7 +62,8 @@ def provenance(profile, mesh, contact, rule, output) -> dict:
 
     ``rule=None`` is recorded as the default ``GreenRule()`` it stands for (every field). An
     irregular mesh records the relative tolerance of its radial interpolation of the regular
-    kernel (``bem.RADIAL_TOL``; also in the code digest)."""
+    kernel (``bem.RADIAL_TOL``; also in the code digest) and its traction scheme
+    (``bem.edge_tractions``: "constant", or "sqrt-8" for the cells of a mesh file)."""
     prov = {"profile": {"layers": [_material_dict(l) for l in profile.layers],
                         "halfspace": _material_dict(profile.halfspace)},
             "mesh": _mesh_dict(mesh), "contact": contact,
@@ -71,6 +72,7 @@ def provenance(profile, mesh, contact, rule, output) -> dict:
             "dof_order": "node-interleaved [ux0,uy0,uz0,ux1,...]" if output == "nodal" else output}
     if _grid(mesh) is None:
         prov["radial_tol"] = RADIAL_TOL
+        prov["tractions"] = edge_tractions(mesh)
     return prov
 
 
