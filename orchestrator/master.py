@@ -28,7 +28,7 @@ import tempfile
 import time as _time
 from pathlib import Path
 from types import SimpleNamespace
-from xml.etree import ElementTree
+from xml.parsers import expat
 
 import numpy as np
 from fmpy import extract, read_model_description
@@ -69,7 +69,7 @@ class FmuSlave:
     def __init__(self, path, name: str | None = None, parameters: dict | None = None):
         self.path = Path(path)
         self._tmp = tempfile.TemporaryDirectory(prefix=f"uplift_{name or self.path.stem}_")
-        self.dir = extract(str(self.path), self._tmp.name)
+        self.dir = extract(str(self.path), self._tmp.name, include=needed_member)
         self.md = model_description(Path(self.dir) / "modelDescription.xml")
         self.version = 3 if self.md.fmiVersion.startswith("3") else 2
         self.name = name or self.md.modelName
@@ -272,27 +272,61 @@ class FmuSlave:
         self.close()
 
 
+def needed_member(name: str) -> bool:
+    """Whether an FMU's archive member is extracted to run it: everything but the sources and the
+    documentation (an importer runs the binaries with the resources and the model description)."""
+    return not name.startswith(("sources/", "documentation/"))
+
+
+class _Done(Exception):
+    """The model variables are read: the rest of the model description is not parsed."""
+
+
 def model_description(xml: Path):
     """The model description in ``xml`` as the master uses it: fmiVersion, guid, modelName,
     generationTool, coSimulation.modelIdentifier and modelVariables (name, valueReference, type,
-    causality; ``dimensions`` None). FMI 2.0 read here in one pass of ElementTree; FMI 3.0 (array
-    dimensions) by fmpy. Neither is checked against the schema (fmpy's reader builds a full
-    object per variable and validates: most of the set-up of a pair with a thousand variables);
-    the export's tests run fmpy.validation.validate_fmu on every kind and version."""
-    root = ElementTree.parse(xml).getroot()
+    causality; ``dimensions`` None). FMI 2.0 read here in one pass of expat up to the
+    ModelStructure (no tree built); FMI 3.0 (array dimensions) by fmpy. Neither is checked
+    against the schema (fmpy's reader builds a full object per variable and validates: most of
+    the set-up of a pair with a thousand variables); the export's tests run
+    fmpy.validation.validate_fmu on every kind and version."""
+    root, cosim, variables, current = {}, {}, [], []
+
+    def start(tag, attrs):
+        if not root:
+            root.update(attrs)
+            if not root.get("fmiVersion", "").startswith("2"):
+                raise _Done
+        elif tag == "ScalarVariable":
+            current[:] = [attrs]
+            variables.append(SimpleNamespace(name=attrs.get("name"), valueReference=int(attrs.get("valueReference")),
+                                             type=None, causality=attrs.get("causality", "local"), dimensions=None))
+        elif current and tag in FMI2_TYPES:
+            variables[-1].type = tag
+            current.clear()
+        elif tag == "CoSimulation":
+            cosim.update(attrs)
+        elif tag == "ModelStructure":
+            raise _Done
+
+    def end(tag):
+        if tag == "ScalarVariable":
+            current.clear()
+
+    parser = expat.ParserCreate()
+    parser.StartElementHandler, parser.EndElementHandler = start, end
+    try:
+        with open(xml, "rb") as f:
+            parser.ParseFile(f)
+    except _Done:
+        pass
     if not root.get("fmiVersion", "").startswith("2"):
         return read_model_description(str(xml), validate=False)
-    variables = []
-    for sv in root.iter("ScalarVariable"):
-        kind = next((child.tag for child in sv if child.tag in FMI2_TYPES), None)
-        variables.append(SimpleNamespace(name=sv.get("name"), valueReference=int(sv.get("valueReference")),
-                                         type=kind, causality=sv.get("causality", "local"), dimensions=None))
-    cs = root.find("CoSimulation")
-    if cs is None:
+    if not cosim:
         raise CosimError(f"{xml}: not a co-simulation FMU (no CoSimulation element)")
     return SimpleNamespace(fmiVersion=root.get("fmiVersion"), guid=root.get("guid"), modelName=root.get("modelName"),
                            generationTool=root.get("generationTool"), modelVariables=variables,
-                           coSimulation=SimpleNamespace(modelIdentifier=cs.get("modelIdentifier")))
+                           coSimulation=SimpleNamespace(modelIdentifier=cosim.get("modelIdentifier")))
 
 
 def output_nodes(structure: FmuSlave) -> list:
@@ -301,7 +335,8 @@ def output_nodes(structure: FmuSlave) -> list:
 
 class Timer:
     """Wall and CPU (process) time per part of a co-simulation step, s: ``add(part)`` books
-    the time since the previous ``add`` or ``mark`` to ``part``."""
+    the time since the previous ``add`` or ``mark`` to ``part``; ``rest(part, since)`` books to
+    ``part`` what the other parts do not hold of the time since ``since`` (a ``now()``)."""
 
     def __init__(self):
         self.parts = {"structure step": 0.0, "soil step": 0.0, "transfers": 0.0}
@@ -316,6 +351,16 @@ class Timer:
         self.parts[part] = self.parts.get(part, 0.0) + wall - self._wall
         self.cpu[part] = self.cpu.get(part, 0.0) + cpu - self._cpu
         self._wall, self._cpu = wall, cpu
+
+    @staticmethod
+    def now():
+        return _time.perf_counter(), _time.process_time()
+
+    def rest(self, part, since):
+        wall, cpu = self.now()
+        others = [p for p in self.parts if p != part and p != "initialisation"]
+        self.parts[part] = max(0.0, wall - since[0] - sum(self.parts[p] for p in others))
+        self.cpu[part] = max(0.0, cpu - since[1] - sum(self.cpu[p] for p in others))
 
 
 def cosimulate(structure_fmu, soil_fmu, ag, dt: float, schedule: str = "gauss-seidel",
@@ -379,11 +424,14 @@ def _run(S, G, ag, dt, schedule, route, progress, start):
     timer = Timer()
     timer.parts["initialisation"] = _time.perf_counter() - start[0]
     timer.cpu["initialisation"] = _time.process_time() - start[1]
+    # the clocks are read around the doSteps only (two reads of each a step and FMU: the CPU clock is a
+    # system call); the transfers are the rest of the loop: FMI get/set, the master's own work
+    loop = timer.now()
 
     def soil_step(t, row):                       # G takes the structure's outputs of row `row`
         if set_x(y0 + row * ys) > FMI2_WARNING:
             G.failed(set_x)
-        timer.add("transfers")
+        timer.mark()
         G.do_step(t, dt)
         timer.add("soil step")
 
@@ -397,7 +445,7 @@ def _run(S, G, ag, dt, schedule, route, progress, start):
 
     def structure_step(t, k):
         structure_inputs(k)
-        timer.add("transfers")
+        timer.mark()
         S.do_step(t, dt)
         timer.add("structure step")
         if get_y(y0 + k * ys) > FMI2_WARNING:
@@ -407,7 +455,6 @@ def _run(S, G, ag, dt, schedule, route, progress, start):
     try:
         for k in range(1, nt):
             t = (k - 1) * dt
-            timer.mark()
             if schedule == "jacobi":              # each from the other's outputs at t
                 take_g(k)
                 structure_step(t, k)
@@ -420,12 +467,12 @@ def _run(S, G, ag, dt, schedule, route, progress, start):
                 take_g(k)
                 structure_step(t, k)
                 soil_step(t, k)
-            timer.add("transfers")
             done = k + 1
             if progress is not None:
                 progress(done, nt)
     except CosimError as exc:
         message = str(exc)
+    timer.rest("transfers", loop)
     cols = _columns(Y[:done], names, [S.size(nm) for nm in names])
     x = cols["x"]
     headline = S.get("max_uplift", "max_raft_rotation")

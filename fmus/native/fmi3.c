@@ -192,6 +192,8 @@ fmi3Status fmi3GetFloat64(fmi3Instance c, const fmi3ValueReference vr[], size_t 
         return fmi3Error;
     for (size_t i = 0, k = 0; i < nvr; i++) {
         int64_t first = I->vars3[2 * vr[i]], len = I->vars3[2 * vr[i] + 1];
+        if (first >= 0)
+            up_soil_read(I, first, len);
         memcpy(values + k, first < 0 ? I->time : I->bank + first, (size_t)len * sizeof(double));
         k += (size_t)len;
     }

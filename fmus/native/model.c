@@ -49,12 +49,21 @@ static void publish_stepper(UpInstance *I)
         *up_var(I, S_X_TIME) = *st->t;
 }
 
-/* g is written by the step (or at rest, zero) */
+/* g is written by the step (or at rest, zero); f and dissipated_energy are computed when they are
+   read (up_soil_read): a master that reads g only does not pay for them */
 static void publish_soil(UpInstance *I, double t_next)
 {
     *up_var(I, S_G_TIME) = t_next;
-    memcpy(up_var(I, S_F), I->soil.f, (size_t)I->n * sizeof(double));
-    *up_var(I, S_DISSIPATED_ENERGY) = *I->soil.work;
+    *I->soil.stale = 1.0;
+}
+
+void up_soil_read(UpInstance *I, int64_t first, int64_t len)
+{
+    if (I->role != ROLE_SOIL || *I->soil.stale == 0.0)
+        return;
+    int64_t f = I->slot[S_F], e = I->slot[S_DISSIPATED_ENERGY];
+    if ((first < f + I->n && f < first + len) || (first <= e && e < first + len))
+        up_soil_outputs(&I->soil, 0, up_var(I, S_F), up_var(I, S_DISSIPATED_ENERGY));
 }
 
 /* the model at rest at t = 0 with the current inputs and parameters; 0 or -1 with I->err */

@@ -17,7 +17,13 @@
    A soil stepped alone (the soil FMU, up_soil_step) publishes g_{n+2}, the history of the step after
    next without the part driven by the state committed next (fmus/coupling.py). Its own history for
    the commit of u_n is then what it published two steps before plus that part, h_n = g_n + Gx u_{n-1}
-   with the constant gain Gx = sum_k R_k b_k (a_k + 1): one product over H per step, as the stepper. */
+   with the constant gain Gx = sum_k R_k b_k (a_k + 1): one product over H per step, as the stepper.
+   Its outputs, the force f_n = (D0 u_n + E u'_n) + h_n and the work done on it, are not needed by
+   the step itself: the step keeps E u'_n and h_n, and accumulates the work of the force's part
+   E u' + h, sum du . ((E u' + h)_n + (E u' + h)_{n-1}) / 2. The part D0 u telescopes (D0 is
+   symmetric): sum du_n . D0 (u_n + u_{n-1}) / 2 = u_n . D0 u_n / 2 from rest. So D0 u_n, the force
+   and the total work are computed only when read (up_soil_outputs): two n x n products a step
+   instead of three; the force bit for bit as when it was computed every step, the work to round-off. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -189,7 +195,7 @@ void up_soil_free(UpSoil *s)
 
 size_t up_soil_state_len(const UpSoil *s)
 {
-    return s->L + (s->Gx ? 5 : 3) * (size_t)s->n + 1;
+    return s->L + (s->Gx ? 7 : 3) * (size_t)s->n + (s->Gx ? 2 : 1);
 }
 
 void up_soil_bind(UpSoil *s, double *state)
@@ -202,6 +208,9 @@ void up_soil_bind(UpSoil *s, double *state)
     s->work = s->f + s->n;
     s->gq = s->Gx ? s->work + 1 : NULL;
     s->gp = s->Gx ? s->gq + s->n : NULL;
+    s->ev = s->Gx ? s->gp + s->n : NULL;
+    s->hn = s->Gx ? s->ev + s->n : NULL;
+    s->stale = s->Gx ? s->hn + s->n : NULL;
 }
 
 void up_soil_rest(UpSoil *s)
@@ -353,39 +362,76 @@ void up_soil_commit(UpSoil *s, int lev, const double *x, const double *xd, const
     memcpy(s->f, f, (size_t)n * sizeof(double));
 }
 
-/* in place on the pole states y' after the next commit: a y' + b 0, the stacked history input
-   of the step after next when a zero state is committed next */
-static void stack_ahead(const UpSoil *s, const UpSoilLevel *lv, double *g)
+/* g = a y' with y' = a y + b u: the stacked history input of the step after next when a zero state
+   is committed next (the pole states after that commit, then their history with a zero input), in
+   one pass over the pole states y (the same operations as advance_states then stack with zero
+   states: the terms b 0 are left out, an exact zero added) */
+static void stack_ahead(const UpSoil *s, const UpSoilLevel *lv, const double *yr, const double *yc,
+                        const double *u, double *g)
 {
-    memset(s->fbuf, 0, (size_t)s->n * sizeof(double));
-    stack(s, lv, g, g + (size_t)s->mr * s->n, s->fbuf, g);
+    int n = s->n;
+    for (int k = 0; k < s->mr; k++)
+        for (int j = 0; j < n; j++) {
+            size_t q = (size_t)k * n + j;
+            g[q] = lv->ar[k] * (lv->ar[k] * yr[q] + lv->br[k] * u[j]);
+        }
+    double *gc = g + (size_t)s->mr * n;
+    for (int k = 0; k < s->mc; k++) {
+        double are = lv->ac[2 * k], aim = lv->ac[2 * k + 1], bre = lv->bc[2 * k], bim = lv->bc[2 * k + 1];
+        for (int j = 0; j < n; j++) {
+            size_t q = ((size_t)k * n + j) * 2;
+            double yre = yc[q], yim = yc[q + 1];
+            double are1 = (are * yre - aim * yim) + bre * u[j], aim1 = (are * yim + aim * yre) + bim * u[j];
+            gc[q] = are * are1 - aim * aim1;
+            gc[q + 1] = are * aim1 + aim * are1;
+        }
+    }
 }
 
 void up_soil_ahead(UpSoil *s, int lev, double *g)
 {
     /* committing a zero state: y' = a y + b u, then the history of y' with u' = 0 */
-    const UpSoilLevel *lv = &s->lev[lev];
-    int n = s->n;
-    double *zero = s->fbuf + n;
-    memset(zero, 0, (size_t)n * sizeof(double));
-    memcpy(s->g, s->yr, s->L * sizeof(double));
-    advance_states(s, lv, zero, s->u, s->g, s->g + (size_t)s->mr * n);
-    stack_ahead(s, lv, s->g);
+    stack_ahead(s, &s->lev[lev], s->yr, s->yc, s->u, s->g);
     history_product(s, s->g, g);
 }
 
 void up_soil_step(UpSoil *s, int lev, const double *x, const double *xd, double *g)
 {
-    /* h_n = g_n + Gx u_{n-1} for the commit of x = u_n (gq: g_n, published two steps before), then
-       g_{n+2} (gp, published) */
+    /* h_n = g_n + Gx u_{n-1} for the commit of x = u_n (gq: g_n, published two steps before), E x'_n,
+       the work of E x' + h over the step; then g_{n+2} (gp, published). D0 x, the force and the total
+       work wait until they are read (up_soil_outputs) */
     int n = s->n;
-    double *h = s->fbuf + n, *f = s->fbuf + 2 * (size_t)n;
+    double *h = s->fbuf + n, *ev = s->fbuf + 2 * (size_t)n;
     up_symv(s->Gx, s->Gxp, n, s->u, h);
     for (int i = 0; i < n; i++)
         h[i] = s->gq[i] + h[i];
-    up_soil_force(s, lev, x, xd, h, f);
-    up_soil_commit(s, lev, x, xd, f);
+    up_symv(s->E, s->Ep, n, xd, ev);
+    double w = 0.0;
+    for (int i = 0; i < n; i++)
+        w += (x[i] - s->u[i]) * (0.5 * ((ev[i] + h[i]) + (s->ev[i] + s->hn[i])));
+    *s->work += w;
+    advance_states(s, &s->lev[lev], x, s->u, s->yr, s->yc);
+    memcpy(s->u, x, (size_t)n * sizeof(double));
+    memcpy(s->ud, xd, (size_t)n * sizeof(double));
+    memcpy(s->ev, ev, (size_t)n * sizeof(double));
+    memcpy(s->hn, h, (size_t)n * sizeof(double));
+    *s->stale = 1.0;
     memcpy(s->gq, s->gp, (size_t)n * sizeof(double));
     up_soil_ahead(s, lev, s->gp);
     memcpy(g, s->gp, (size_t)n * sizeof(double));
+}
+
+void up_soil_outputs(UpSoil *s, int lev, double *f, double *work)
+{
+    /* f = (D0 u + E u') + h as up_soil_force; the work: that of E u' + h plus u . D0 u / 2 */
+    int n = s->n;
+    double *Dx = s->fbuf + 3 * (size_t)n;
+    up_symv(s->lev[lev].D0, s->lev[lev].D0p, n, s->u, Dx);
+    double e = 0.0;
+    for (int i = 0; i < n; i++) {
+        f[i] = (Dx[i] + s->ev[i]) + s->hn[i];
+        e += s->u[i] * Dx[i];
+    }
+    *work = *s->work + 0.5 * e;
+    *s->stale = 0.0;
 }

@@ -42,6 +42,8 @@ int up_get_reals(UpInstance *I, const char *fn, const unsigned int vr[], size_t 
 {
     if (check_real_refs(I, fn, vr, nvr, value))
         return -1;
+    for (size_t i = 0; i < nvr && I->soil.stale && *I->soil.stale != 0.0; i++)
+        up_soil_read(I, vr[i], 1);
     for (size_t i = 0; i < nvr; i++)
         value[i] = I->bank[vr[i]];
     return 0;

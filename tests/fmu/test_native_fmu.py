@@ -247,6 +247,48 @@ def test_native_soil_equals_python_soil_on_random_inputs(case, python_runs):
         assert rel(a, b) <= 1e-10
 
 
+def test_native_soil_outputs_computed_when_read(case):
+    """The native soil FMU computes f and dissipated_energy only when they are read (D0 x then; the
+    work of D0 x telescopes to x . D0 x / 2). Read after 30 steps of g alone, then again after a
+    state saved while they were not computed is restored: equal, bit for bit, to an instance that
+    read them every step (the same state), and to the soil object stepped in process (the
+    recursive convolution: its force and its work summed step by step) to 1e-10, as the Python FMU."""
+    from soil_impedance.convolution import RecursiveConvolutionSoil
+    nat = case[0]
+    drive = soil_drive(MODEL.n, steps=41)
+    soil = RecursiveConvolutionSoil(MODEL, DT)
+    soil.instantaneous(DT)
+    ref = []
+    for k, u in enumerate(drive):
+        if k:                                        # at t = 0 the soil is at rest: nothing committed
+            soil.commit(u[:MODEL.n], u[MODEL.n:2 * MODEL.n])
+        ref.append(np.concatenate([soil.total_force(), [soil.dissipated_energy()]]))
+    with FmuSlave(nat.soil, "every") as a, FmuSlave(nat.soil, "late") as b:
+        a.initialize()
+        b.initialize()
+        every, late = [], {}
+        for k, u in enumerate(drive):
+            for fmu in (a, b):
+                fmu.set("x", "xdot", "x_time", u)
+                fmu.do_step(k * DT, DT)
+            every.append(a.get("f", "dissipated_energy").copy())
+            b.get("g", "g_time")                     # what the master reads: not the outputs
+            if k == 30:
+                late[k] = b.get("f", "dissipated_energy").copy()
+            if k == 33:
+                saved = b.get_state()                # outputs not computed at this state
+        late[40] = b.get("f", "dissipated_energy").copy()
+        b.set_state(saved)
+        late[33] = b.get("f", "dissipated_energy").copy()
+        b.fmu.freeFMUState(saved)
+    assert abs(ref[-1][-1]) > 0 and np.abs(ref[-1][:-1]).max() > 0
+    for k, got in late.items():
+        assert np.array_equal(got, every[k])
+    for k in range(len(drive)):
+        assert rel(every[k][:-1], ref[k][:-1]) <= 1e-10
+        assert abs(every[k][-1] - ref[k][-1]) <= 1e-10 * abs(ref[-1][-1])
+
+
 #: the histories whose spread holds each output of COUPLED_OUT (x = [raft q, soil w])
 SPREAD_OF = {"x": ("raft", "soil_w"), "gap": ("gap",), "P": ("contact_force",), "energy.soil": ("energy.soil",),
              "energy.kinetic": ("energy.kinetic",)}

@@ -94,6 +94,9 @@ int up_set_logging(UpInstance *I, const char *fn, int on, size_t n, const char *
 /* model.c */
 enum { UP_REFUSED = 1, UP_FAILED = 2 };
 double *up_var(UpInstance *I, int slot);
+/* before the bank's elements first .. first + len - 1 are read: the soil's outputs f and
+   dissipated_energy computed if they are among them and not yet computed since the last step */
+void up_soil_read(UpInstance *I, int64_t first, int64_t len);
 int up_initial_state(UpInstance *I);                          /* 0, or -1 with I->err */
 int up_step(UpInstance *I, double t, int last);  /* 0, UP_REFUSED or UP_FAILED with I->err; outputs if last */
 int up_setup_experiment(UpInstance *I, const char *fn, int stop_defined, double start, double stop);  /* 0 / -1 */

@@ -99,8 +99,10 @@
 #define up_soil_history UP_SYM(up_soil_history)
 #define up_soil_init UP_SYM(up_soil_init)
 #define up_soil_level UP_SYM(up_soil_level)
+#define up_soil_read UP_SYM(up_soil_read)
 #define up_soil_rest UP_SYM(up_soil_rest)
 #define up_soil_state_len UP_SYM(up_soil_state_len)
+#define up_soil_outputs UP_SYM(up_soil_outputs)
 #define up_soil_step UP_SYM(up_soil_step)
 #define up_state_deserialize UP_SYM(up_state_deserialize)
 #define up_state_free UP_SYM(up_state_free)
@@ -219,8 +221,11 @@ typedef struct {
     double *Gx, *Gxp;         /* (n, n) history gain at level 0 and packed (NULL if not symmetric): a soil
                                  stepped alone (up_soil_init's stepped = 2) only */
     UpSoilLevel lev[UP_MAXLEV];
-    /* state, inside the instance's state block (gq, gp: a soil stepped alone) */
-    double *yr, *yc, *u, *ud, *f, *work, *gq, *gp;
+    /* state, inside the instance's state block. f: the force committed last, work: the work done on
+       the soil (a soil stepped alone: f unused, work that of the force's part E u' + h; gq, gp the
+       histories published, ev = E u', hn = h of the commit, stale = 1 when its outputs are not
+       computed yet: up_soil_outputs) */
+    double *yr, *yc, *u, *ud, *f, *work, *gq, *gp, *ev, *hn, *stale;
 } UpSoil;
 
 /* stepped: 0 the history is given (a structure FMU), 1 stepped by the stepper, 2 stepped alone (a soil
@@ -236,6 +241,8 @@ void up_soil_force(UpSoil *s, int lev, const double *x, const double *xd, const 
 void up_soil_commit(UpSoil *s, int lev, const double *x, const double *xd, const double *f);
 void up_soil_ahead(UpSoil *s, int lev, double *g);       /* history of the step after next, zero state next */
 void up_soil_step(UpSoil *s, int lev, const double *x, const double *xd, double *g);  /* commit x, then g */
+/* a soil stepped alone: its force f (n) and the work done on it, of the state committed last */
+void up_soil_outputs(UpSoil *s, int lev, double *f, double *work);
 
 /* ---- stepper.c: Newmark-contact stepper ---------------------------------------------------- */
 typedef struct {
