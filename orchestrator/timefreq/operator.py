@@ -34,6 +34,7 @@ from scipy.linalg import LinAlgError, eigh
 
 from structure import damping_matrix, fixed_base_modes
 
+from orchestrator.timefreq.plate import PlateStructure, is_plate
 from orchestrator.timefreq.soil import AffineBand, MatrixBand, Scratch, dense
 
 #: frequencies per chunk below which a band is not split between threads
@@ -143,16 +144,22 @@ class ModalStructure:
         return self.T[dofs] @ q + self.Phi[dofs] @ eta
 
 
+def structure_of(model, damping=None):
+    """The structure's condensation on its raft coordinates: ModalStructure (a rigid raft, on
+    q) or PlateStructure (a plate raft, on [q, t])."""
+    return PlateStructure(model, damping) if is_plate(model) else ModalStructure(model, damping)
+
+
 class InterfaceOperator:
     """S(s), f(s) and the back-substitution of the condensed system on one Grid.
 
     Parameters
     ----------
-    model : StructureModel
+    model : StructureModel, or a PlateRaftModel (its raft coordinates [q, t]: plate)
     soil : SoilBands                 K(s) on [q, w] (soil.soil_bands)
     grid : Grid
     damping : None | float | Damping structural damping (see structure.damping_matrix)
-    structure : ModalStructure       the model's modal data if already built
+    structure : ModalStructure       the model's modal data if already built (a plate: PlateStructure)
     pool : WorkerPool                threads for the per-frequency work (default: none)
     """
 
@@ -162,17 +169,19 @@ class InterfaceOperator:
             raise ValueError(f"the soil has {soil.n} DOFs, the raft needs 6 + N = {6 + model.n_interface}")
         self.model, self.soil, self.grid = model, soil, grid
         self.pool = pool or WorkerPool(1)
-        self.st = structure or ModalStructure(model, damping)
+        self.st = structure or structure_of(model, damping)
         self.N = model.n_interface
         s = grid.s
         self.s = s
-        Bq = model.raft.vertical_trace()
+        # the raft coordinates' trace: a rigid raft's Bq (N, 6), a plate's B (N, 6 + nf) (plate)
+        Bq = self.st.trace if is_plate(model) else model.raft.vertical_trace()
         self.Bq = Bq
+        self.nr = nr = Bq.shape[1]
         F = s.size
         A, b = self.st.blocks(s)
         self.b = b
-        self.Vr = np.empty((F, self.N, 6), complex)
-        self.Vl = np.empty((F, 6, self.N), complex)
+        self.Vr = np.empty((F, self.N, nr), complex)
+        self.Vl = np.empty((F, nr, self.N), complex)
         Zqq = A.copy()
         for band in soil.bands:
             i = _span(band.idx)
@@ -292,7 +301,8 @@ class InterfaceOperator:
         return (self.Vr @ t)[:, :, 0].T
 
     def raft(self, ag_hat, d_hat):
-        """q (6, F) from the ground motion (3, F) and the contact displacement d (N, F)."""
+        """q (6, F) from the ground motion (3, F) and the contact displacement d (N, F) (a plate:
+        its raft coordinates r = [q, t], (6 + nf, F))."""
         rhs = self.b @ ag_hat.T[:, :, None] + self.Vl @ np.ascontiguousarray(d_hat.T)[:, :, None]
         return (self.Zinv @ rhs)[:, :, 0].T
 
@@ -324,7 +334,7 @@ class SubInverse:
                 else:
                     d = 1.0 / (lam[:, None] + s[None, :])                    # (m, Fb)
                     Vr = op.Vr[idx][:, O, :]                                 # (Fb, m, 6)
-                    Y6 = self._kinv(V, d, np.ascontiguousarray(Vr.transpose(1, 0, 2)), 6)
+                    Y6 = self._kinv(V, d, np.ascontiguousarray(Vr.transpose(1, 0, 2)), op.nr)
                     Y6 = np.ascontiguousarray(Y6.transpose(1, 0, 2))         # (Fb, m, 6)
                     Vl = np.ascontiguousarray(op.Vl[idx][:, :, O])           # (Fb, 6, m)
                     Minv = np.linalg.inv(op.Zqq[idx] - Vl @ Y6)
