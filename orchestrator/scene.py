@@ -351,10 +351,10 @@ class Scene:
             if other:
                 raise SceneError(
                     f"foundation.raft.kind = \"plate\" runs on the route{'s' if len(PLATE_ROUTES) > 1 else ''} "
-                    f"{', '.join(PLATE_ROUTES)} only (the Python stepper); route{'s' if len(other) > 1 else ''} "
-                    f"{', '.join(other)} cannot carry a plate yet (a rigid raft only: no plate in the native "
-                    "runtime, the FMUs, the frequency-domain and Winkler routes): drop them from analysis.routes, "
-                    "or use raft.kind = \"rigid\"")
+                    f"{', '.join(PLATE_ROUTES)} only (the Python stepper, the frequency-domain routes); "
+                    f"route{'s' if len(other) > 1 else ''} {', '.join(other)} cannot carry a plate yet (a rigid "
+                    "raft only: no plate in the native runtime, the FMUs and the Winkler route): drop them from "
+                    "analysis.routes, or use raft.kind = \"rigid\"")
         f = np.array(self.frequencies_hz, float)
         f.setflags(write=False)
         _set(self, "frequencies_hz", f)
@@ -750,7 +750,7 @@ def _foundation(table: dict, base_dir: Path):
 
 
 #: the routes that run a plate raft (foundation.raft.kind = "plate")
-PLATE_ROUTES = ("monolithic",)
+PLATE_ROUTES = ("monolithic", "linear", "timefreq")
 #: the keys of foundation.raft = { kind = "plate", ... } (rigid_radius optional)
 PLATE_KEYS = ("kind", "thickness", "E", "nu", "rho", "rigid_radius")
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from orchestrator.routes.base import Route, register
+from orchestrator.routes.base import Route, register, route_model
 
 #: default tolerance on the relative whole-range residual: the reactor's max uplift and raft
 #: rotation move by < 1e-6 relative from there to 1e-8 (one more sweep), far below the 0.1 %
@@ -60,7 +60,7 @@ def decades_bar(bar, tol):
 
 
 def run(ctx, progress=None):
-    return run_timefreq(ctx.motion, ctx.model(), ctx.tables["gap"], contact=ctx.scene.contact,
+    return run_timefreq(ctx.motion, route_model(ctx), ctx.tables["gap"], contact=ctx.scene.contact,
                         output_nodes=ctx.scene.output.nodes, max_seconds=ctx.scene.analysis.timefreq_max_s,
                         progress=progress, **ctx.options)
 

@@ -37,7 +37,7 @@ from structure.results import RouteResult, Status
 
 from orchestrator.timefreq.grid import Grid, pad_rule_s
 from orchestrator.timefreq.operator import InterfaceOperator, WorkerPool, structure_of
-from orchestrator.timefreq.plate import is_plate, plate_static
+from orchestrator.timefreq.plate import PLATE_PAD_S, is_plate, plate_static
 from orchestrator.timefreq.soil import soil_bands
 
 
@@ -128,6 +128,8 @@ def prepare(model, soil, ag, dt, *, grid, contact=None, damping=None, static=Non
     wrap_tol, window = grid.wrap_tol, grid.window
     rule = pad_rule_s(st.decay_rates, n_tau=3.0 if window else np.log(1.0 / wrap_tol))
     pad = rule if grid.pad_s is None else float(grid.pad_s)
+    if grid.pad_s is None and is_plate(model):
+        pad = max(pad, PLATE_PAD_S)         # a lifted plate rings undamped (plate.PLATE_PAD_S)
     g = Grid.build(ag.shape[0], dt, pad_s=pad, wrap_tol=wrap_tol if window else 1.0,
                    bilinear=grid.bilinear, nfft=grid.nfft, eta_pad_s=min(pad, rule))
     bands = soil_bands(soil, g)
