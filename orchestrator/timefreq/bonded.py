@@ -14,7 +14,7 @@ needs alone, max(1 s, ln(1/wrap_tol) tau_1) (grid): the window would amplify the
 part of a hysteretic table by up to 1/wrap_tol at the end of the record (on the reactor the
 raft rotation drifted to 1.7e-5 rad, 11 % of its peak, in the last second). The bilinear grid
 keeps the window (its s_d has a pole at z = -1, the Nyquist bin, on the unit circle), and so
-does a plate raft (orchestrator/timefreq/plate.py: its bending modes on the soil are lightly
+does a plate raft (orchestrator/timefreq/flexible.py: its bending modes on the soil are lightly
 damped and ring past the sticks' padding).
 """
 from __future__ import annotations
@@ -29,7 +29,7 @@ from structure.results import RouteResult
 
 from orchestrator.timefreq.operator import WorkerPool
 from orchestrator.timefreq.solver_options import THREADS, GridOptions
-from orchestrator.timefreq.plate import is_plate
+from orchestrator.timefreq.flexible import is_plate
 from orchestrator.timefreq.problem import prepare, route_result
 
 

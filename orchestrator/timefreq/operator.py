@@ -34,7 +34,6 @@ from scipy.linalg import LinAlgError, eigh
 
 from structure import damping_matrix, fixed_base_modes
 
-from orchestrator.timefreq.plate import PlateStructure, is_plate
 from orchestrator.timefreq.soil import AffineBand, MatrixBand, Scratch, dense
 
 #: frequencies per chunk below which a band is not split between threads
@@ -144,22 +143,17 @@ class ModalStructure:
         return self.T[dofs] @ q + self.Phi[dofs] @ eta
 
 
-def structure_of(model, damping=None):
-    """The structure's condensation on its raft coordinates: ModalStructure (a rigid raft, on
-    q) or PlateStructure (a plate raft, on [q, t])."""
-    return PlateStructure(model, damping) if is_plate(model) else ModalStructure(model, damping)
-
-
 class InterfaceOperator:
     """S(s), f(s) and the back-substitution of the condensed system on one Grid.
 
     Parameters
     ----------
-    model : StructureModel, or a PlateRaftModel (its raft coordinates [q, t]: plate)
+    model : StructureModel, or a PlateRaftModel (its raft coordinates [q, t]: flexible)
     soil : SoilBands                 K(s) on [q, w] (soil.soil_bands)
     grid : Grid
     damping : None | float | Damping structural damping (see structure.damping_matrix)
-    structure : ModalStructure       the model's modal data if already built (a plate: PlateStructure)
+    structure : ModalStructure       the model's modal data if already built (a plate: its
+                                     PlateStructure, required: flexible.structure_of)
     pool : WorkerPool                threads for the per-frequency work (default: none)
     """
 
@@ -169,12 +163,15 @@ class InterfaceOperator:
             raise ValueError(f"the soil has {soil.n} DOFs, the raft needs 6 + N = {6 + model.n_interface}")
         self.model, self.soil, self.grid = model, soil, grid
         self.pool = pool or WorkerPool(1)
-        self.st = structure or structure_of(model, damping)
+        if structure is None and hasattr(model, "plate"):
+            raise ValueError("a plate raft's operator needs its PlateStructure: pass structure="
+                             "orchestrator.timefreq.flexible.structure_of(model, damping)")
+        self.st = structure or ModalStructure(model, damping)
         self.N = model.n_interface
         s = grid.s
         self.s = s
-        # the raft coordinates' trace: a rigid raft's Bq (N, 6), a plate's B (N, 6 + nf) (plate)
-        Bq = self.st.trace if is_plate(model) else model.raft.vertical_trace()
+        # the raft coordinates' trace: a rigid raft's Bq (N, 6), a plate's B (N, 6 + nf) (flexible)
+        Bq = self.st.trace if hasattr(self.st, "trace") else model.raft.vertical_trace()
         self.Bq = Bq
         self.nr = nr = Bq.shape[1]
         F = s.size

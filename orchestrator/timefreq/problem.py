@@ -36,8 +36,8 @@ from structure.preload import solve_static
 from structure.results import RouteResult, Status
 
 from orchestrator.timefreq.grid import Grid, pad_rule_s
-from orchestrator.timefreq.operator import InterfaceOperator, WorkerPool, structure_of
-from orchestrator.timefreq.plate import PLATE_PAD_S, is_plate, plate_static
+from orchestrator.timefreq.flexible import PLATE_PAD_S, is_plate, plate_static, structure_of
+from orchestrator.timefreq.operator import InterfaceOperator, WorkerPool
 from orchestrator.timefreq.soil import soil_bands
 
 
@@ -129,7 +129,7 @@ def prepare(model, soil, ag, dt, *, grid, contact=None, damping=None, static=Non
     rule = pad_rule_s(st.decay_rates, n_tau=3.0 if window else np.log(1.0 / wrap_tol))
     pad = rule if grid.pad_s is None else float(grid.pad_s)
     if grid.pad_s is None and is_plate(model):
-        pad = max(pad, PLATE_PAD_S)         # a lifted plate rings undamped (plate.PLATE_PAD_S)
+        pad = max(pad, PLATE_PAD_S)         # a lifted plate rings undamped (flexible.PLATE_PAD_S)
     g = Grid.build(ag.shape[0], dt, pad_s=pad, wrap_tol=wrap_tol if window else 1.0,
                    bilinear=grid.bilinear, nfft=grid.nfft, eta_pad_s=min(pad, rule))
     bands = soil_bands(soil, g)

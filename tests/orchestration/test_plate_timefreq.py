@@ -1,6 +1,6 @@
 """A plate raft (``[foundation] raft = { kind = "plate", ... }``) on the frequency-domain routes:
 ``timefreq`` with uplift and ``linear`` (bonded) against the Python stepper on the same plate and
-the same soil (orchestrator/timefreq/plate.py: the structure condensed per frequency on the raft
+the same soil (orchestrator/timefreq/flexible.py: the structure condensed per frequency on the raft
 coordinates [q, t])."""
 import copy
 import dataclasses
@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from helpers import pulse_motion, rel, soil_model
+from helpers.winkler import NU, R, RHO
 from fmus.resources import DEFAULT_SOIL_FACTORY, soil_from_model
 from orchestrator.impedance import scene_fit, scene_impedance
 from orchestrator.routes.linear import ROUTE as LINEAR
@@ -17,12 +18,21 @@ from orchestrator.routes.monolithic import run_monolithic
 from orchestrator.routes.timefreq import ROUTE as TIMEFREQ
 from orchestrator.scene import SceneError, scene_from_dict
 from orchestrator.timefreq import GridOptions, SolveOptions, linear_fd, solve
-from orchestrator.timefreq.plate import PLATE_PAD_S
+from orchestrator.timefreq.flexible import PLATE_PAD_S
 from structure import simulate
 
-from test_plate_raft_route import SCENE
-
 DT = 0.005
+#: the scene of tests/orchestration/test_plate_raft_route.py: the reactor's sticks on a 2 m
+#: concrete plate over a 49-node disk of radius R
+SCENE = {
+    "soil": {"halfspace": {"vs": 1600.0, "nu": NU, "rho": RHO}},
+    "foundation": {"shape": "circle", "radius": R, "element_size": 5.0,
+                   "raft": {"kind": "plate", "thickness": 2.0, "E": 30e9, "nu": 0.2, "rho": 2500.0}},
+    "structure": {"model": "reactor", "damping": {"modal": 0.07}},
+    "contact": {"enabled": True},
+    "analysis": {"dt": DT, "routes": ["monolithic"]},
+    "output": {"nodes": ["top_outer", "internals_37m"]},
+}
 
 
 @pytest.fixture(scope="module")

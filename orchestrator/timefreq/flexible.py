@@ -34,6 +34,8 @@ from structure.plate import plate_stiffness
 from structure.preload import solve_static_system
 from structure.plate_raft import PlateRaftModel
 
+from orchestrator.timefreq.operator import ModalStructure
+
 #: the least padding, s, of a plate raft's grid (its default pad_s: the sticks' decay rule gives
 #: ~1.2 s): the plate's parts that lift ring with no damping but the structure's, and their
 #: wrap-around kept the march from converging on the 49-node test plate (1.16 s: stalled at a
@@ -47,13 +49,18 @@ def is_plate(model) -> bool:
     return isinstance(model, PlateRaftModel)
 
 
+def structure_of(model, damping=None):
+    """The structure's condensation on its raft coordinates: ModalStructure (a rigid raft, on
+    q) or PlateStructure (a plate raft, on [q, t])."""
+    return PlateStructure(model, damping) if is_plate(model) else ModalStructure(model, damping)
+
+
 class PlateStructure:
     """ModalStructure's interface for a PlateRaftModel (module notes): ``blocks(s)`` on r = [q,
     t], ``node_response`` of the sticks' nodes, ``decay_rates`` (the sticks'), ``trace`` B (N,
     6 + nf) dense, ``vertex_trace`` (m, 6 + nf) the vertex deflections from r."""
 
     def __init__(self, pm: PlateRaftModel, damping=None):
-        from orchestrator.timefreq.operator import ModalStructure     # the operator imports this module
         self.model = pm
         self.sticks = ModalStructure(pm.stick, damping)
         ns6, nf = pm.ns_struct - 6, pm.nf
