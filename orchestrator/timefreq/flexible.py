@@ -104,11 +104,15 @@ class PlateStructure:
         A[:] = self.Kc
         A += s2[:, None, None] * np.diag(self.Mr)
         if self.lam.size:
-            Wt = self.W.T
-            for c in range(0, F, 64):                                   # (64, nr, n_θ) at a time
-                j = slice(c, c + 64)
+            # sum_j W_ij g_j(s) W_kj for every s as one real GEMM: (W (x) W) (nr^2, n_θ) times
+            # g's real and imaginary parts (n_θ, F), 128 frequencies at a time
+            nr = self.nr
+            WW = (self.W[:, None, :] * self.W[None, :, :]).reshape(nr * nr, -1)
+            for c in range(0, F, 128):
+                j = slice(c, c + 128)
                 g = s2[j, None] / (self.lam * (self.lam + s2[j, None]))  # (f, n_θ)
-                A[j] += (self.W[None] * g[:, None, :]) @ Wt
+                A[j].real += (WW @ g.real.T).T.reshape(-1, nr, nr)
+                A[j].imag += (WW @ g.imag.T).T.reshape(-1, nr, nr)
         A[:, :6, :6] += Aq
         b = np.empty((F, self.nr, 3), complex)
         b[:] = self.load
