@@ -159,6 +159,15 @@ def default_reference(names) -> str:
     return lifting[-best[1]] if best[0] > 0 else (lifting or names)[0]
 
 
+def route_model(ctx):
+    """The structure a route runs: the run's model, on the scene's plate raft when it has one
+    (``Scene.plate_model``: a PlateRaftModel)."""
+    model = ctx.model()
+    if getattr(ctx.scene, "raft", None) is not None:
+        model = ctx.scene.plate_model(model)
+    return model
+
+
 @dataclass
 class RunContext:
     """What a route receives: the scene, its motion at the analysis step, and what the run

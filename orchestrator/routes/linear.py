@@ -9,7 +9,7 @@ API::
 """
 from __future__ import annotations
 
-from orchestrator.routes.base import Route, register
+from orchestrator.routes.base import Route, register, route_model
 
 #: keyword overrides that are not GridOptions fields
 LINEAR_KEYWORDS = ("damping", "threads", "route")
@@ -35,7 +35,7 @@ def run_linear(motion, model, table_gap, *, contact, output_nodes, **overrides):
 
 
 def run(ctx, progress=None):
-    return run_linear(ctx.motion, ctx.model(), ctx.tables["gap"], contact=ctx.scene.contact,
+    return run_linear(ctx.motion, route_model(ctx), ctx.tables["gap"], contact=ctx.scene.contact,
                       output_nodes=ctx.scene.output.nodes, **ctx.options)
 
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from uplift_common.errors import ComputationError, UserInputError
 
-from orchestrator.routes.base import Route, register
+from orchestrator.routes.base import Route, register, route_model
 
 #: default tolerance on the relative whole-range residual: the reactor's max uplift and raft
 #: rotation move by < 1e-6 relative from there to 1e-8 (one more sweep), far below the 0.1 %
@@ -74,13 +74,13 @@ def decades_bar(bar, tol):
 
 
 def run(ctx, progress=None):
-    try:
-        fit = ctx.fit()                 # the scene's fit: the stand-in's poles (cached, shared with the TD routes)
-    except (UserInputError, ComputationError) as exc:   # none: the march on the table's own kernel (said in the notes)
-        fit, why = None, str(exc).splitlines()[0]
-    else:
-        why = ""
-    res = run_timefreq(ctx.motion, ctx.model(), ctx.tables["gap"], contact=ctx.scene.contact,
+    fit, why = None, ""
+    if getattr(ctx.scene, "raft", None) is None:    # a plate: the native stand-in marches a rigid raft only
+        try:
+            fit = ctx.fit()             # the scene's fit: the stand-in's poles (cached, shared with the TD routes)
+        except (UserInputError, ComputationError) as exc:   # none: the march on the table's own kernel (said in the notes)
+            why = str(exc).splitlines()[0]
+    res = run_timefreq(ctx.motion, route_model(ctx), ctx.tables["gap"], contact=ctx.scene.contact,
                        output_nodes=ctx.scene.output.nodes, max_seconds=ctx.scene.analysis.timefreq_max_s,
                        progress=progress, fit=fit, cache_dir=ctx.cache_dir, **ctx.options)
     if why:

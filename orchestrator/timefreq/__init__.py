@@ -1,5 +1,6 @@
 """The time-frequency (TF) reference solver: the soil applied per frequency (the BEM table
-itself, no rational fit), the structure condensed exactly on the raft, the unilateral contact
+itself, no rational fit), the structure condensed exactly on the raft (rigid, or a plate's raft
+coordinates), the unilateral contact
 solved over the whole time range (paper §3). Depends on numpy, scipy, pyfftw, soil_impedance
 and structure only: no scene, no command line.
 
@@ -11,6 +12,8 @@ grid           Grid: zero padding, exponential window, (bilinear) Laplace variab
 soil           soil_bands: K(s) of an ImpedanceTable, WinklerSoil, RationalModel or its recursion
 operator       ModalStructure, InterfaceOperator (interface stiffness S, blocked force f, raft
                back-substitution), WorkerPool (the threads of the per-frequency work)
+flexible       PlateStructure: a plate raft (structure.plate_raft) condensed on its raft
+               coordinates [q, t] per frequency; its static preload, its least padding
 problem        prepare -> ContactProblem (grid, operator, static preload, renormalised unknown),
                ContactEquation (whole-range residual g), SolverStatus, Outcome, route_result
 march          the default solver: causal marches + defect correction (MarchSweep per sweep)
@@ -40,6 +43,7 @@ __getattr__, __dir__, __all__ = lazy_exports(__name__, {
     "march": ("DIVERGED_M", "MarchDiverged", "MarchSweep", "defect_correction", "kernel_head", "march"),
     "methods": ("DEFAULT", "METHODS", "ExperimentalMethodWarning", "Method"),
     "operator": ("InterfaceOperator", "ModalStructure", "WorkerPool"),
+    "flexible": ("PLATE_PAD_S", "PlateStructure"),
     "solver_options": ("THREADS", "GridOptions", "NewtonKrylovOptions", "PaperOptions", "SolveOptions", "with_overrides"),
     "problem": ("ContactEquation", "ContactProblem", "Outcome", "SolverStatus", "prepare", "route_result"),
     "soil": ("SoilBands", "causal_table", "soil_bands"),

@@ -54,7 +54,8 @@ class AffineSplit:
         self.op, self.grid = op, grid
         bands = op.soil.bands
         affine = [b for b in bands if isinstance(b, AffineBand)]
-        self.usable = grid.bilinear and len(affine) == 1 and \
+        # a plate raft's structure term has rank 6 + nf (op.nr): the generic far field
+        self.usable = grid.bilinear and len(affine) == 1 and op.nr == 6 and \
             all(isinstance(b, (AffineBand, MatrixBand)) for b in bands)
         if not self.usable:
             return

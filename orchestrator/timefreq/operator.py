@@ -148,11 +148,12 @@ class InterfaceOperator:
 
     Parameters
     ----------
-    model : StructureModel
+    model : StructureModel, or a PlateRaftModel (its raft coordinates [q, t]: flexible)
     soil : SoilBands                 K(s) on [q, w] (soil.soil_bands)
     grid : Grid
     damping : None | float | Damping structural damping (see structure.damping_matrix)
-    structure : ModalStructure       the model's modal data if already built
+    structure : ModalStructure       the model's modal data if already built (a plate: its
+                                     PlateStructure, required: flexible.structure_of)
     pool : WorkerPool                threads for the per-frequency work (default: none)
     """
 
@@ -162,17 +163,22 @@ class InterfaceOperator:
             raise ValueError(f"the soil has {soil.n} DOFs, the raft needs 6 + N = {6 + model.n_interface}")
         self.model, self.soil, self.grid = model, soil, grid
         self.pool = pool or WorkerPool(1)
+        if structure is None and hasattr(model, "plate"):
+            raise ValueError("a plate raft's operator needs its PlateStructure: pass structure="
+                             "orchestrator.timefreq.flexible.structure_of(model, damping)")
         self.st = structure or ModalStructure(model, damping)
         self.N = model.n_interface
         s = grid.s
         self.s = s
-        Bq = model.raft.vertical_trace()
+        # the raft coordinates' trace: a rigid raft's Bq (N, 6), a plate's B (N, 6 + nf) (flexible)
+        Bq = self.st.trace if hasattr(self.st, "trace") else model.raft.vertical_trace()
         self.Bq = Bq
+        self.nr = nr = Bq.shape[1]
         F = s.size
         A, b = self.st.blocks(s)
         self.b = b
-        self.Vr = np.empty((F, self.N, 6), complex)
-        self.Vl = np.empty((F, 6, self.N), complex)
+        self.Vr = np.empty((F, self.N, nr), complex)
+        self.Vl = np.empty((F, nr, self.N), complex)
         Zqq = A.copy()
         for band in soil.bands:
             i = _span(band.idx)
@@ -292,7 +298,8 @@ class InterfaceOperator:
         return (self.Vr @ t)[:, :, 0].T
 
     def raft(self, ag_hat, d_hat):
-        """q (6, F) from the ground motion (3, F) and the contact displacement d (N, F)."""
+        """q (6, F) from the ground motion (3, F) and the contact displacement d (N, F) (a plate:
+        its raft coordinates r = [q, t], (6 + nf, F))."""
         rhs = self.b @ ag_hat.T[:, :, None] + self.Vl @ np.ascontiguousarray(d_hat.T)[:, :, None]
         return (self.Zinv @ rhs)[:, :, 0].T
 
@@ -324,7 +331,7 @@ class SubInverse:
                 else:
                     d = 1.0 / (lam[:, None] + s[None, :])                    # (m, Fb)
                     Vr = op.Vr[idx][:, O, :]                                 # (Fb, m, 6)
-                    Y6 = self._kinv(V, d, np.ascontiguousarray(Vr.transpose(1, 0, 2)), 6)
+                    Y6 = self._kinv(V, d, np.ascontiguousarray(Vr.transpose(1, 0, 2)), op.nr)
                     Y6 = np.ascontiguousarray(Y6.transpose(1, 0, 2))         # (Fb, m, 6)
                     Vl = np.ascontiguousarray(op.Vl[idx][:, :, O])           # (Fb, 6, m)
                     Minv = np.linalg.inv(op.Zqq[idx] - Vl @ Y6)

@@ -36,7 +36,8 @@ from structure.preload import solve_static
 from structure.results import RouteResult, Status
 
 from orchestrator.timefreq.grid import Grid, pad_rule_s
-from orchestrator.timefreq.operator import InterfaceOperator, ModalStructure, WorkerPool
+from orchestrator.timefreq.flexible import PLATE_PAD_S, is_plate, plate_static, structure_of
+from orchestrator.timefreq.operator import InterfaceOperator, WorkerPool
 from orchestrator.timefreq.soil import soil_bands
 
 
@@ -123,17 +124,21 @@ def prepare(model, soil, ag, dt, *, grid, contact=None, damping=None, static=Non
     if ag.ndim != 2 or ag.shape[1] != 3 or not np.all(np.isfinite(ag)):
         raise ValueError(f"ground acceleration must be a finite (nt, 3) array, got shape {ag.shape}")
     contact = contact or ContactSettings()
-    st = ModalStructure(model, damping)
+    st = structure_of(model, damping)
     wrap_tol, window = grid.wrap_tol, grid.window
     rule = pad_rule_s(st.decay_rates, n_tau=3.0 if window else np.log(1.0 / wrap_tol))
     pad = rule if grid.pad_s is None else float(grid.pad_s)
+    if grid.pad_s is None and is_plate(model):
+        pad = max(pad, PLATE_PAD_S)         # a lifted plate rings undamped (flexible.PLATE_PAD_S)
     g = Grid.build(ag.shape[0], dt, pad_s=pad, wrap_tol=wrap_tol if window else 1.0,
                    bilinear=grid.bilinear, nfft=grid.nfft, eta_pad_s=min(pad, rule))
     bands = soil_bands(soil, g)
     op = InterfaceOperator(model, bands, g, structure=st, pool=pool)
     N = model.n_interface
     kp = penalty_stiffness(contact, bands.K0, N)
-    static = static or solve_static(model, bands, kp, unilateral=contact.enabled)
+    if static is None:
+        static = plate_static(model, bands.K0, kp, unilateral=contact.enabled) if is_plate(model) else \
+            solve_static(model, bands, kp, unilateral=contact.enabled)
     kloc = np.diag(bands.K0)[6:6 + N].copy()
     k = aux_factor * np.where(kloc > 0, kloc, kp * 1e-4)
     k = np.minimum(k, kp)
@@ -142,7 +147,9 @@ def prepare(model, soil, ag, dt, *, grid, contact=None, damping=None, static=Non
     info = dict(nfft=g.nfft, eta=g.eta, pad_s=(g.nfft - g.nt) * dt, pad_rule_s=rule,
                 wrap_tol=wrap_tol, window=window, bilinear=grid.bilinear, soil=bands.label, n_freq=g.n_freq,
                 setup_s=time.perf_counter() - t0,
-                condensation="exact: all fixed-base modes + rigid raft, per frequency")
+                condensation="exact: all fixed-base modes + rigid raft, per frequency" if not is_plate(model) else
+                "exact: the sticks' fixed-base modes + the plate's rotations on [q, t] (the held raft and the "
+                f"{model.nf} free vertices' deflections), per frequency")
     return ContactProblem(model, g, op, ag, ag_hat, f, static, contact, kp, k, info)
 
 
@@ -191,14 +198,21 @@ def route_result(prob: ContactProblem, route: str, d, P, gap, *, output_nodes=No
     perf_counter time the route began (wall_s is measured to the end of this assembly)."""
     g, op, model = prob.grid, prob.op, prob.model
     d_hat = g.to_freq(d)
-    q_hat = op.raft(prob.ag_hat, d_hat)
+    q_hat = op.raft(prob.ag_hat, d_hat)                      # a plate: r = [q, t]
     q = g.to_time(q_hat)
     w = prob.op.Bq @ q - d
+    plate = {}
+    if is_plate(model):
+        W = (op.st.vertex_trace @ q).T                       # (nt, m) the plate's vertex deflections
+        plate = dict(plate_vertex_deflection=W, plate_deflection=W @ model.trace.T.toarray(),
+                     plate_vertices=np.array(model.points))
+        q = q[:6]
+    stick = model.stick if is_plate(model) else model        # the node_response's numbering
     names = [n.name for n in model.nodes if n.name] if output_nodes is None else list(output_nodes)
     acc, disp = {}, {}
     s2 = op.s * op.s
     for nm in names:
-        dofs = model.dofs(model.node_by_name(nm).id)[:3]
+        dofs = stick.dofs(model.node_by_name(nm).id)[:3]
         u_hat = op.st.node_response(dofs, op.s, q_hat, prob.ag_hat)
         disp[nm] = g.to_time(u_hat).T
         acc[nm] = g.to_time(s2 * u_hat + prob.ag_hat).T      # absolute: no feedthrough
@@ -212,4 +226,4 @@ def route_result(prob: ContactProblem, route: str, d, P, gap, *, output_nodes=No
     return RouteResult(route=route, time=g.dt * np.arange(nt), raft=q.T, gap=np.asarray(gap).T,
                        contact_force=np.asarray(P).T, soil_w=w.T, acc=acc, disp=disp,
                        newton_iters=np.zeros(nt, int), status=status, message=message, wall_s=wall,
-                       xy=np.array(model.raft.xy), info=inf)
+                       xy=np.array(model.raft.xy), info=inf, **plate)

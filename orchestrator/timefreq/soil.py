@@ -218,10 +218,31 @@ def _upper_in(n: int):
 
 
 def rows_P(K, Bq):
-    """(K[w, :] P (F, N, 6), P^T K[:, w] (F, 6, N), P^T K P (F, 6, 6)) of K (F, n, n), P = [I; Bq]."""
+    """(K[w, :] P (F, N, r), P^T K[:, w] (F, r, N), P^T K P (F, r, r)) of K (F, n, n), P = [I; Bq]
+    for a rigid raft's trace Bq (N, 6) (r = 6), P = [[I, 0]; Bq] for a plate's Bq (N, r) on its
+    raft coordinates [q, t] (``plate_rows_P``)."""
+    if Bq.shape[1] != 6:
+        return plate_rows_P(K[:, :6, :6], K[:, :6, 6:], K[:, 6:, :6], K[:, 6:, 6:], Bq)
     Vr = K[:, 6:, :6] + K[:, 6:, 6:] @ Bq
     Vl = K[:, :6, 6:] + np.swapaxes(Bq, 0, 1) @ K[:, 6:, 6:]
     KPP = K[:, :6, :6] + K[:, :6, 6:] @ Bq + np.swapaxes(Bq, 0, 1) @ Vr
+    return Vr, Vl, KPP
+
+
+def plate_rows_P(Kqq, Kqw, Kwq, Kww, B):
+    """rows_P's blocks for a plate raft (``structure.plate_raft``): the raft coordinates r = [q,
+    t] (6 + nf: the rigid DOFs and the free vertices' deflections), the soil's x = [q, w] = P r
+    + [0; -d] with P = [[I, 0]; B], B (N, 6 + nf) the trace of r at the nodes. The soil's
+    blocks (..., 6, 6), (..., 6, N), (..., N, 6), (..., N, N); the results (..., N, r),
+    (..., r, N), (..., r, r), the soil acting on q and (through w) on the trace only."""
+    Bt = B.T
+    Vr = Kww @ B
+    Vr[..., :6] += Kwq
+    Vl = Bt @ Kww
+    Vl[..., :6, :] += Kqw
+    KPP = Bt @ Vr
+    KPP[..., :6, :] += Kqw @ B
+    KPP[..., :6, :6] += Kqq
     return Vr, Vl, KPP
 
 
@@ -286,6 +307,9 @@ class AffineBand:
         of A, the same of B); rows_P(s) = A's + s B's."""
         out = []
         for M in (dense(self.A), dense(self.B)):
+            if Bq.shape[1] != 6:
+                out.append(plate_rows_P(M[:6, :6], M[:6, 6:], M[6:, :6], M[6:, 6:], Bq))
+                continue
             Vr = M[6:, :6] + M[6:, 6:] @ Bq
             Vl = M[:6, 6:] + Bq.T @ M[6:, 6:]
             KPP = M[:6, :6] + M[:6, 6:] @ Bq + Bq.T @ Vr

@@ -91,7 +91,7 @@ def test_routes_and_foundations_that_cannot_carry_a_plate_are_refused(tmp_path, 
     data["analysis"]["routes"] = ["monolithic", "winkler", "cosim"]
     with pytest.raises(SceneError, match="route winkler cannot carry a plate yet"):
         scene_from_dict(data)
-    data["analysis"]["routes"] = ["monolithic", "cosim"]                 # the cosim route carries a plate
+    data["analysis"]["routes"] = ["monolithic", "cosim", "linear", "timefreq"]     # these carry a plate
     assert scene_from_dict(data).raft is not None
     (tmp_path / "n.csv").write_text("x,y,area\n-2,-2,4\n2,-2,4\n2,2,4\n-2,2,4\n")
     with pytest.raises(SceneError, match="needs the interface's cells"):
