@@ -440,6 +440,9 @@ def pushover_curves(key, scene_name: str, soils, components, sources, what: str,
         if scene.structure is None:
             notes.append(f"{label} has no [structure]: no weight to push over")
             continue
+        if scene.raft is not None:
+            notes.append(f"{label} has a plate raft: the static pushover models a rigid raft only (no curve)")
+            continue
         for soil in sorted(set(soils) - set(curves)):
             if soil == "bem" and scene.profile is None:
                 notes.append(f"{label} has no half-space: no pushover on the BEM soil")

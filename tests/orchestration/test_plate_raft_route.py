@@ -13,9 +13,12 @@ from fmus.resources import DEFAULT_SOIL_FACTORY, soil_from_model
 from orchestrator.cli import main
 from orchestrator.export import export_scene
 from orchestrator.pushover import scene_pushover
+from orchestrator.oncurve import scene_key
+from orchestrator.report import write_report
 from orchestrator.results_file import read_results, write_results
 from orchestrator.routes.monolithic import run_monolithic
 from orchestrator.scene import SceneError, load_scene, scene_from_dict
+from orchestrator.scene_file import scene_toml
 from structure import simulate
 from structure.model import vertical_trace
 from structure.plate_raft import PlateProperties, PlateRaftModel
@@ -69,6 +72,13 @@ def test_a_plate_raft_runs_on_the_monolithic_route_and_its_deflections_are_writt
         assert g["plate_deflection"].attrs["units"] == "m" and g["plate_vertex_deflection"].attrs["units"] == "m"
         assert g["plate_vertex_deflection"].shape == (motion.acc.shape[0], pm.n_vertices)
         assert g["gap"].shape == (motion.acc.shape[0], sc.mesh.n)            # the uplift per node, as before
+    # the report draws the run (the uplift map on the cells) and says why it has no pushover curve
+    keyed = dataclasses.replace(res, info={**res.info, "scene_key": scene_key(sc)})      # as `uplift run` keeps it
+    path = write_results(tmp_path / "s.h5", {"monolithic": keyed}, motion=motion, scene_name="plate",
+                         scene_toml=scene_toml(sc), mesh=sc.mesh)
+    html = write_report(path, tmp_path / "report").read_text()
+    assert "has a plate raft: the static pushover models a rigid raft only" in html
+    assert (tmp_path / "report" / "raft_uplift.png").is_file()
 
 
 @pytest.mark.parametrize("change, message", [

@@ -9,7 +9,7 @@ import scipy.sparse as sp
 from helpers.cases import pulse_motion
 from helpers.winkler import rock_winkler
 from soil_impedance.mesh import circle_mesh, cells_mesh
-from structure import ContactSettings, StructureError, WinklerSoil, simulate
+from structure import ContactSettings, StructureError, simulate
 from structure.model import G_ACC, Node, Raft, StructureModel, vertical_trace
 from structure.plate import plate_stiffness
 from structure.plate_raft import PlateProperties, PlateRaftModel, PlateStepper, plate_cells, rigid_equivalent
@@ -233,10 +233,6 @@ def test_plate_refusals():
         PlateRaftModel(stick, PlateProperties(0.5, 30e9, 0.2, 2500.0, 0.5), pts, cells, C)
     with pytest.raises(StructureError, match="raft.nu"):
         PlateProperties(0.5, 30e9, 0.6, 2500.0, 1.0)
-    pm = PlateRaftModel(stick, PlateProperties(0.5, 30e9, 0.2, 2500.0, 2.0), pts, cells, C)
-    soil = WinklerSoil(mesh.xy, 1e9, 1e9)
-    with pytest.raises(StructureError, match="external_soil"):
-        PlateStepper(pm, soil, 0.01, external_soil=True)
 
 
 def test_a_plate_step_rolls_back_and_repeats_exactly():
