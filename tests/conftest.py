@@ -1,4 +1,11 @@
 """Fixtures shared by test modules."""
+import os
+
+# Two xdist workers on two cores: OpenBLAS's own threads on top only add contention (a BLAS-heavy
+# test of 11 s ran 83 s beside another); .ci/run sets the same. Set before numpy loads; the CLI
+# subprocesses of the tests inherit it.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
 import pytest
 
 from helpers import EXPORT_MOTION, small_scene, soil_model
