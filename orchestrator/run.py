@@ -437,7 +437,8 @@ def _shared_skips(scene, route, run: SharedRun) -> list:
                    "(no wavenumber integral at 0 Hz)")
     if "gap" in tables:
         n = scene.mesh.n
-        out.append(f"rigid raft: soil interface reduced from 3N = {3 * n} to 6 + N = {6 + n} DOFs")
+        what = "rigid raft" if scene.raft is None else "plate raft, rigid in its plane"
+        out.append(f"{what}: soil interface reduced from 3N = {3 * n} to 6 + N = {6 + n} DOFs")
     if cached_fit:
         out.append("rational fit read from cache")
     return out

@@ -137,3 +137,18 @@ def test_a_plate_on_a_mesh_file_s_cells_off_centre_held_region_is_said():
     res = run_monolithic(plate, pulse_motion(0.005, 0.4), soil_model(sc))
     assert res.converged and res.plate_vertex_deflection.shape[1] == pm.n_vertices
     assert any("mass centre" in w and "left out" in w for w in res.notes.warnings), res.notes.warnings
+
+
+def test_the_run_notes_say_the_soil_reduction_of_a_plate():
+    """The gap table's reduction (3N to 6 + N) holds for a plate too (rigid in its plane, the N
+    vertical DOFs under it); the run's notes do not call the raft rigid."""
+    import types
+
+    from orchestrator.routes.base import get_route
+    from orchestrator.run import _shared_skips
+    run = types.SimpleNamespace(sweep={}, fit=None)
+    plate, rigid = scene_from_dict(scene(), name="plate"), scene_from_dict(scene(raft=None), name="rigid")
+    n = plate.mesh.n
+    said = f"soil interface reduced from 3N = {3 * n} to 6 + N = {6 + n} DOFs"
+    assert f"plate raft, rigid in its plane: {said}" in _shared_skips(plate, get_route("monolithic"), run)
+    assert f"rigid raft: {said}" in _shared_skips(rigid, get_route("monolithic"), run)
