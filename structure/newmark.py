@@ -93,18 +93,8 @@ class NewmarkStepper:
             self._init(model, soil, dt, contact, damping, alpha, static, external_soil, ag0)
 
     def _init(self, model, soil, dt, contact, damping, alpha, static, external_soil, ag0):
-        if not dt > 0:
-            raise StructureError(f"time step dt = {dt!r} must be > 0")
-        if not -1.0 / 3.0 - 1e-12 <= alpha <= 0.0:
-            raise StructureError(f"HHT alpha = {alpha!r} must lie in [-1/3, 0]")
-        if soil.n_dof != 6 + model.n_interface:
-            raise StructureError(f"soil has {soil.n_dof} interface DOFs, the raft needs 6 + N = "
-                                 f"{6 + model.n_interface}")
-        self.model, self.soil, self.dt = model, soil, float(dt)
-        self.contact = contact or ContactSettings()
-        self.alpha = float(alpha)
-        self.beta = (1 - alpha) ** 2 / 4
-        self.gamma = 0.5 - alpha
+        self._scheme(model, soil, dt, contact, alpha)
+        self.soil = soil
         self.external_soil = external_soil
         ns, N = model.n_struct, model.n_interface
         self.ns, self.N, self.n = ns, N, model.n_dof
@@ -122,11 +112,31 @@ class NewmarkStepper:
         self.Mr = self.M[:, None] * r
         Bq = model.raft.vertical_trace()
         self.Bq3 = Bq[:, 2:5]                      # (N, 3) on q[2:5] = uz, rx, ry
+        self._start(ag0)
+
+    def _scheme(self, model, soil, dt, contact, alpha) -> None:
+        """Check the step, the HHT alpha and the soil's size; set the model, the step, the contact
+        settings and the scheme's parameters (alpha, beta, gamma)."""
+        if not dt > 0:
+            raise StructureError(f"time step dt = {dt!r} must be > 0")
+        if not -1.0 / 3.0 - 1e-12 <= alpha <= 0.0:
+            raise StructureError(f"HHT alpha = {alpha!r} must lie in [-1/3, 0]")
+        if soil.n_dof != 6 + model.n_interface:
+            raise StructureError(f"soil has {soil.n_dof} interface DOFs, the raft needs 6 + N = "
+                                 f"{6 + model.n_interface}")
+        self.model, self.dt = model, float(dt)
+        self.contact = contact or ContactSettings()
+        self.alpha = float(alpha)
+        self.beta = (1 - alpha) ** 2 / 4
+        self.gamma = 0.5 - alpha
+
+    def _start(self, ag0) -> None:
+        """Empty caches and the state at rest at t = 0 under a_g(0) = ``ag0`` (M, Mr, P0 and the
+        sizes set)."""
         self._systems = {}
         self._lu_cache = OrderedDict()
         self.n_factorisations = 0
         self._h_ext = np.zeros(self.nb)
-        # state
         self.t = 0.0
         self.u = np.zeros(self.n)
         self.v = np.zeros(self.n)

@@ -32,7 +32,6 @@ d = Bc uB, Bc = [C_slaved Bq | C_free | -I].
 from __future__ import annotations
 
 import dataclasses
-from collections import OrderedDict
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -40,7 +39,7 @@ import numpy as np
 import scipy.linalg as sla
 import scipy.sparse as sp
 
-from .contact import ContactSettings, contact_force, penalty_stiffness
+from .contact import contact_force, penalty_stiffness
 from .damping import damping_matrix
 from .errors import StructureError
 from .model import G_ACC, StructureModel
@@ -345,19 +344,9 @@ class PlateStepper(NewmarkStepper):
     def _init(self, model, soil, dt, contact, damping, alpha, static, external_soil, ag0):
         if not isinstance(model, PlateRaftModel):
             raise StructureError("PlateStepper steps a PlateRaftModel")
-        if not dt > 0:
-            raise StructureError(f"time step dt = {dt!r} must be > 0")
-        if not -1.0 / 3.0 - 1e-12 <= alpha <= 0.0:
-            raise StructureError(f"HHT alpha = {alpha!r} must lie in [-1/3, 0]")
+        self._scheme(model, soil, dt, contact, alpha)
         N = model.n_interface
-        if soil.n_dof != 6 + N:
-            raise StructureError(f"soil has {soil.n_dof} interface DOFs, the raft needs 6 + N = {6 + N}")
-        self.model, self.dt = model, float(dt)
         self.soil = _PlateSoil(soil, model.nf, N)
-        self.contact = contact or ContactSettings()
-        self.alpha = float(alpha)
-        self.beta = (1 - alpha) ** 2 / 4
-        self.gamma = 0.5 - alpha
         self.external_soil = bool(external_soil)
         self.N, self.n, self.ni, self.nb = N, model.n_dof, model.ni, model.nb
         self.ns = self.n - N                         # u[ns:] = the soil w, as for the rigid raft
@@ -386,26 +375,7 @@ class PlateStepper(NewmarkStepper):
         self.Cs = model.damping(damping)
         self.Mr = self.M[:, None] * model.influence
         self.Bq3 = None
-        self._systems = {}
-        self._lu_cache = OrderedDict()
-        self.n_factorisations = 0
-        self._h_ext = np.zeros(self.nb)
-        self.t = 0.0
-        self.u = np.zeros(self.n)
-        self.v = np.zeros(self.n)
-        ag0 = np.asarray(ag0, float)
-        self.ag = ag0.copy()
-        self.F = -self.Mr @ ag0
-        self.a = np.where(self.M > 0, self.F / np.where(self.M > 0, self.M, 1.0), 0.0)
-        self.P = self.P0.copy()
-        self.fs = np.zeros(self.nb)
-        self.fc = np.zeros(self.nb)
-        self.R = np.zeros(self.n)
-        self.work = dict(input=0.0, damping=0.0, soil=0.0, contact=0.0)
-        self._ag_next = ag0.copy()
-        self.last_iters = 0
-        self.last_substeps = 1
-        self._nsub = 0
+        self._start(ag0)
 
     # ---- inputs ----------------------------------------------------------------------
     def set_soil_history(self, h) -> None:
