@@ -287,3 +287,74 @@ def uplift_map_figures(results: dict, polygons, scene_name: str, mesh_source=Non
         where += f" of {Path(mesh_source['path']).name}, raft centre at ({c[0]:.4g}, {c[1]:.4g}) m in its coordinates"
     fig.suptitle(f"{scene_name}: uplift over the raft at the instant of peak uplift\n({where})")
     return [("raft_uplift", fig)]
+
+
+def _held_outline(res):
+    """(k, 2) m: the held region's outline (the convex hull of its vertices, closed), None when
+    the result does not say which vertices are held."""
+    if res.plate_vertex_held is None or res.plate_vertices is None or res.plate_vertex_held.sum() < 3:
+        return None
+    from scipy.spatial import ConvexHull
+    p = res.plate_vertices[res.plate_vertex_held]
+    hull = p[ConvexHull(p).vertices]
+    return np.vstack([hull, hull[:1]])
+
+
+def plate_map_figures(results: dict, polygons, area, scene_name: str):
+    """[("<route>_plate_maps", Figure)] per route of a plate raft (its results carry the plate's
+    vertices): the interface cells at the instant of the route's peak uplift coloured by the
+    uplift (mm; in contact: grey) and by the compressive contact pressure (kPa; lifted: grey),
+    each with its colour bar, the held region (the stick base) outlined, the raft centre marked,
+    and, beside them, the peak bending moment envelope max(|Mx|, |My|) (kN m/m) over the run when
+    the route gives it. ``polygons`` (N, 4, 2) m, ``area`` (N,) m² of the interface cells. The
+    caller closes the figures."""
+    from matplotlib.collections import PolyCollection  # with pyplot: only the commands that draw pay it
+    from orchestrator.results_file import contact_pressure, peak_uplift_step
+    polygons, area = np.asarray(polygons, float), np.asarray(area, float)
+    out = []
+    plt = None
+    for route, res in results.items():
+        if res.plate_vertices is None or res.nt < 1 or res.gap.shape[1:] != (polygons.shape[0],):
+            continue
+        plt = plt or pyplot()
+        k = peak_uplift_step(res.gap)
+        gap = 1e3 * res.gap[k]
+        kpa = 1e-3 * contact_pressure(res.contact_force[k], area)
+        panels = [("uplift: gap between raft and soil (mm)", np.ma.masked_less_equal(gap, 0.0), "viridis",
+                   (0.0, max(float(gap.max()), 1e-9)), "grey: in contact"),
+                  ("compressive contact pressure (kPa)", np.ma.masked_less_equal(kpa, 0.0), "magma_r",
+                   (0.0, max(float(kpa.max()), 1e-9)), "grey: lifted")]
+        if res.plate_moment_peak is not None:
+            env = 1e-3 * np.abs(res.plate_moment_peak[:, :2]).max(axis=1)
+            panels.append(("peak bending moment over the run, max(|Mx|, |My|) (kN·m/m)", env, "cividis",
+                           (0.0, max(float(env.max()), 1e-9)), ""))
+        lo, hi = polygons.reshape(-1, 2).min(axis=0), polygons.reshape(-1, 2).max(axis=0)
+        span = hi - lo
+        aspect = float(span[1] / span[0]) if span[0] > 0 else 1.0
+        n = len(panels)
+        fig, axes = plt.subplots(1, n, figsize=(5.0 * n, 4.6 * min(max(aspect, 0.5), 1.5) + 0.9),
+                                 squeeze=False, constrained_layout=True)
+        outline = _held_outline(res)
+        for ax, (label, values, cmap, clim, grey) in zip(axes[0], panels):
+            coll = PolyCollection(polygons, array=values, cmap=plt.get_cmap(cmap).with_extremes(bad="0.85"),
+                                  edgecolors="0.35", linewidths=0.4)
+            coll.set_clim(*clim)
+            ax.add_collection(coll)
+            if outline is not None:
+                ax.plot(outline[:, 0], outline[:, 1], color="red", lw=1.8, label="held region (stick base)")
+            ax.plot([0.0], [0.0], marker="+", color="red", ms=12, mew=2.0, ls="none", label="raft centre")
+            pad = 0.04 * float(span.max())
+            ax.set_xlim(lo[0] - pad, hi[0] + pad)
+            ax.set_ylim(lo[1] - pad, hi[1] + pad)
+            ax.set_aspect("equal")
+            ax.set_xlabel("x about the raft centre (m)")
+            ax.set_ylabel("y about the raft centre (m)")
+            ax.legend(loc="upper right", fontsize="x-small")
+            bar = fig.colorbar(coll, ax=ax, shrink=0.85, location="bottom")
+            bar.set_label(label + (f"; {grey}" if grey else ""), fontsize="small")
+        lifted = 100 * float((res.gap[k] > 0).mean())
+        fig.suptitle(f"{scene_name} [{route}]: plate raft at the instant of peak uplift, t = {res.time[k]:.3f} s "
+                     f"(max uplift {gap.max():.3g} mm, {lifted:.0f} % of the cells lifted, peak pressure "
+                     f"{kpa.max():.4g} kPa)")
+        out.append((f"{route}_plate_maps", fig))
+    return out

@@ -38,7 +38,7 @@ from orchestrator.design import case_envelope, format_envelope, read_design
 from orchestrator.design_spectra import plot_design_spectra
 from orchestrator.ensemble import ensemble_components, read_ensemble
 from orchestrator.motion import G
-from orchestrator.plots import dodged, pyplot, route_style, run_figures, uplift_map_figures
+from orchestrator.plots import dodged, plate_map_figures, pyplot, route_style, run_figures, uplift_map_figures
 from orchestrator.results_file import (ResultsFileError, read_cases, read_interface, read_motion, read_results, read_scene_record,
                                        summary)
 from orchestrator.routes import get_route, route_names
@@ -120,6 +120,8 @@ def write_report(results_path, directory, reference: str | None = None, pushover
         figures = _save_figures(run_figures(results, motion, scene), stage)
         uplift_map = [] if interface is None else _save_figures(
             uplift_map_figures(results, interface["polygon"], scene, interface["mesh_source"]), stage)
+        plate_maps = [] if interface is None else _save_figures(
+            plate_map_figures(results, interface["polygon"], interface["area"], scene), stage)
         esc = html.escape
         parts = [f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>uplift report: {esc(scene)}</title>",
                  f"<style>{STYLE}</style></head><body>",
@@ -144,6 +146,13 @@ def write_report(results_path, directory, reference: str | None = None, pushover
             parts += ["<h2>Uplift over the raft</h2><p>The interface mesh (one patch per interface node: the cells "
                       "of a mesh file, the squares of a grid) coloured by the uplift of each patch at the instant of "
                       "each route's peak uplift; + the raft centre.</p>"] + _images(uplift_map)
+        if plate_maps:
+            parts += ["<h2>The plate raft</h2><p>Per route with a plate raft, at the instant of its peak uplift: the "
+                      "uplift of each interface cell (grey: in contact) and its compressive contact pressure (its "
+                      "contact force over its area; grey: lifted); beside them the largest bending moment per unit "
+                      "length over the run, max(|Mx|, |My|) of each cell (static + dynamic; the DKT moments at "
+                      "the cells' triangle centroids). Red outline: the held region, which moves rigidly with the "
+                      "stick base; + the raft centre.</p>"] + _images(plate_maps)
         parts += design_parts(results_path, stage, reference)
         parts += oncurve_parts(results, scene, curves, notes, stage)
         _write_page(stage, parts)

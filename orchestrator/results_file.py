@@ -20,8 +20,15 @@ dimensions)::
         raft_translation (time, direction) m     raft_rotation (time, direction) rad
         gap, contact_force, soil_w (time, node) m, N, m     newton_iters (time)
         a plate raft (foundation.raft.kind = "plate"): plate_vertex (plate_vertex), plate_vertex_x,
-        plate_vertex_y (plate_vertex) m, plate_deflection (time, node) m, plate_vertex_deflection
-        (time, plate_vertex) m (relative to the static state and to the free field)
+        plate_vertex_y (plate_vertex) m, plate_vertex_held (plate_vertex) 1 (the held region's
+        vertices), plate_deflection (time, node) m, plate_vertex_deflection (time, plate_vertex) m
+        (relative to the static state and to the free field); contact_pressure (time, node) Pa
+        (contact_force / the cell's area), and at the instant of peak uplift (attribute time_s)
+        uplift_map (node) m and contact_pressure_map (node) Pa; moment ("Mx", "My", "Mxy"),
+        base_cell (base_cell): the cells around the stick base (interface node indices),
+        plate_moment (time, base_cell, moment) N m m-1 and plate_moment_peak (node, moment)
+        N m m-1 (bending moments per unit length, static + dynamic, top fibre in tension
+        positive; the peak: the largest magnitude over time) when the route computes them
         acc (time, output, direction) m s-2      disp (time, output, direction) m
         energy (time, energy_term) J
         floor_spectrum (output, direction, frequency) m s-2: 5 % pseudo-acceleration (NaN where
@@ -152,8 +159,9 @@ def write_results(path, results: dict, motion=None, scene_name: str = "", scene_
         if motion is not None:
             _write_motion(f.create_group("motion"), motion)
         routes = f.create_group("routes", track_order=True)
+        area = None if mesh is None else np.asarray(mesh.area, float)
         for name, res in results.items():
-            _write_route(routes.create_group(name), res)
+            _write_route(routes.create_group(name), res, area)
         if mesh is not None:
             _write_interface(f.create_group("interface"), mesh, mesh_source)
         if extra is not None:
@@ -240,9 +248,10 @@ def _write_motion(m, motion) -> None:
     _variable(m, "acc", motion.acc, ("time", "direction"), "m s-2", "ground acceleration")
 
 
-def _write_route(g, res) -> None:
+def _write_route(g, res, area=None) -> None:
     """One route's group (the layout of this module): its attributes, histories, floor spectra
-    and summary numbers."""
+    and summary numbers; ``area`` (N,) m² the interface cells' areas (a plate raft's contact
+    pressures; None: none written)."""
     g.attrs.update(route=res.route, status=res.status.value, message=res.message, wall_s=res.wall_s,
                    notes=json.dumps(res.notes.as_dict()), info=json.dumps(dict(res.info), default=_jsonable))
     s = summary(res)
@@ -267,7 +276,7 @@ def _write_route(g, res) -> None:
         _variable(g, name, getattr(res, name), ("time", "node"), units, long_name, coordinates)
     _variable(g, "newton_iters", res.newton_iters, ("time",), "1", "linear solves of the step (0 for linear routes)")
     if res.plate_deflection is not None:
-        _write_plate(g, res, coordinates)
+        _write_plate(g, res, coordinates, area)
     _write_outputs(g, res)
     if res.energy:
         _coordinate(g, "energy_term", list(res.energy), None, "term of the energy balance "
@@ -276,14 +285,52 @@ def _write_route(g, res) -> None:
                   "cumulative work or stored energy")
 
 
-def _write_plate(g, res, coordinates: str) -> None:
+def peak_uplift_step(gap) -> int:
+    """The time step of the peak uplift (the first, on a tie; 0 without uplift): where the
+    summary's max_uplift_time_s is."""
+    gap = np.asarray(gap)
+    return int(np.argmax(gap.max(axis=1))) if gap.size else 0
+
+
+def contact_pressure(contact_force, area) -> np.ndarray:
+    """(..., N) Pa: the compressive contact pressure of each interface node, its contact force
+    (..., N) N over its cell's area (N,) m²."""
+    return np.asarray(contact_force, float) / np.asarray(area, float)
+
+
+def _write_plate(g, res, coordinates: str, area=None) -> None:
     """A plate raft's deflections: at the interface nodes (time, node) and at the plate's vertices
-    (time, plate_vertex), with the vertices' coordinates."""
+    (time, plate_vertex), with the vertices' coordinates and the held ones; with ``area`` the
+    contact pressures (time, node) and the uplift and pressure maps at peak uplift; the bending
+    moments when the route gives them."""
     m = res.plate_vertices.shape[0]
     _coordinate(g, "plate_vertex", np.arange(m), None, "vertex of the plate raft (DKT mesh on the interface cells)")
     for k, axis in enumerate("xy"):
         _variable(g, f"plate_vertex_{axis}", res.plate_vertices[:, k], ("plate_vertex",), "m",
                   f"{axis} of the plate vertex about the raft centre")
+    if res.plate_vertex_held is not None:
+        _variable(g, "plate_vertex_held", res.plate_vertex_held.astype(np.int8), ("plate_vertex",), "1",
+                  "1: the vertex is in the held region (moves rigidly with the stick base), 0: free",
+                  "plate_vertex_x plate_vertex_y")
+    if area is not None and res.nt:
+        k = peak_uplift_step(res.gap)
+        p = contact_pressure(res.contact_force, area)
+        _variable(g, "contact_pressure", p, ("time", "node"), "Pa",
+                  "compressive contact pressure (contact force over the cell's area)", coordinates)
+        _variable(g, "uplift_map", res.gap[k], ("node",), "m", "uplift (gap) of the interface node at the "
+                  "instant of peak uplift", coordinates).attrs["time_s"] = float(res.time[k])
+        _variable(g, "contact_pressure_map", p[k], ("node",), "Pa", "compressive contact pressure at the "
+                  "instant of peak uplift", coordinates).attrs["time_s"] = float(res.time[k])
+    if res.plate_moment is not None:
+        _coordinate(g, "moment", ["Mx", "My", "Mxy"], None, "bending moment per unit length (Mx: about the "
+                    "plate's y axis, from the curvature along x; Mxy: the twisting moment)")
+        _coordinate(g, "base_cell", res.plate_moment_cells, None, "interface cell around the stick base (node "
+                    "index): vertices both in and out of the held region")
+        _variable(g, "plate_moment", res.plate_moment, ("time", "base_cell", "moment"), "N m m-1",
+                  "bending moment per unit length in the cell around the stick base (static + dynamic; positive: "
+                  "top fibre in tension)")
+        _variable(g, "plate_moment_peak", res.plate_moment_peak, ("node", "moment"), "N m m-1",
+                  "largest magnitude over time of the bending moment per unit length in the cell", coordinates)
     _variable(g, "plate_deflection", res.plate_deflection, ("time", "node"), "m",
               "plate raft deflection at the interface node (its cell's vertices interpolated), relative to the "
               "static state and to the free field", coordinates)
@@ -479,6 +526,11 @@ def _read_route(route, g) -> RouteResult:
     if "plate_deflection" in g:
         kw.update(plate_deflection=g["plate_deflection"][()], plate_vertex_deflection=g["plate_vertex_deflection"][()],
                   plate_vertices=np.column_stack([g["plate_vertex_x"][()], g["plate_vertex_y"][()]]))
+        if "plate_vertex_held" in g:
+            kw["plate_vertex_held"] = g["plate_vertex_held"][()].astype(bool)
+        if "plate_moment" in g:
+            kw.update(plate_moment=g["plate_moment"][()], plate_moment_peak=g["plate_moment_peak"][()],
+                      plate_moment_cells=g["base_cell"][()])
     for key, dim in (("acc", "output"), ("disp", "disp_output" if "disp_output" in g else "output")):
         if key in g:
             values = g[key][()]

@@ -234,11 +234,16 @@ class AnalysisConfig:
 @dataclass(frozen=True)
 class OutputConfig:
     """[output]: nodes, the names of the structure nodes whose responses are kept (None: every
-    named node); checked against the structure by Scene."""
+    named node); checked against the structure by Scene. raft_points: {name: (x, y) m} points of
+    a plate raft (about its centre) whose accelerations and floor spectra are kept beside the
+    nodes' (the nearest plate vertex; Scene checks that the raft is a plate)."""
 
     nodes: tuple[str, ...] | None = None
+    raft_points: dict | None = None
 
     def __post_init__(self):
+        if self.raft_points is not None:
+            _set(self, "raft_points", _raft_points(self.raft_points))
         if self.nodes is None:
             return
         nodes = self.nodes
@@ -367,6 +372,27 @@ class Scene:
                     "a half-space), e.g. halfspace = { vs = 500.0, nu = 0.33, rho = 2000.0 }"
                     + ("" if self.winkler.explicit else
                        "; a winkler-only run may give [soil] winkler = { kv, kh } moduli instead"))
+        if self.output.raft_points is not None:
+            if self.raft is None:
+                raise SceneError("output.raft_points: the points of a plate raft; this scene's raft is rigid (its "
+                                 "motion is the raft node's: add \"raft\" to output.nodes instead, or make it a plate "
+                                 "with foundation.raft.kind = \"plate\")")
+            other = [r for r in self.analysis.routes if r not in RAFT_POINT_ROUTES]
+            if other:
+                raise SceneError(f"output.raft_points is computed by the route{'s' if len(RAFT_POINT_ROUTES) > 1 else ''} "
+                                 f"{', '.join(RAFT_POINT_ROUTES)} only; route{'s' if len(other) > 1 else ''} "
+                                 f"{', '.join(other)} give{'' if len(other) > 1 else 's'} no plate accelerations: drop "
+                                 "them from analysis.routes or remove output.raft_points")
+            clash = sorted(set(self.output.raft_points) & set(self.structure.node_names if self.structure else ()))
+            if clash:
+                raise SceneError(f"output.raft_points: {clash[0]!r} is the name of a structure node; name the point "
+                                 "otherwise")
+        if self.raft is not None and self.raft.damping > 0:
+            undamped = [r for r in self.analysis.routes if r in UNDAMPED_PLATE_ROUTES]
+            if undamped:
+                raise SceneError(f"foundation.raft.damping: the route{'s' if len(undamped) > 1 else ''} "
+                                 f"{', '.join(undamped)} condense{'' if len(undamped) > 1 else 's'} the plate without "
+                                 "its own damping: set damping.ratio = 0 for them, or drop them from analysis.routes")
         if self.output.nodes is not None:
             if self.structure is None:
                 raise SceneError("output.nodes names structure nodes but the scene has no [structure]")
@@ -761,8 +787,42 @@ def _foundation(table: dict, base_dir: Path):
 PLATE_ROUTES = ("monolithic", "cosim", "linear", "timefreq")
 #: the other fix a native FMU export of a plate raft is told (the Python FMUs carry a plate)
 NATIVE_PLATE_FIX = "export the Python FMUs (uplift export --kind python), which carry a plate"
-#: the keys of foundation.raft = { kind = "plate", ... } (rigid_radius optional)
-PLATE_KEYS = ("kind", "thickness", "E", "nu", "rho", "rigid_radius")
+#: the keys of foundation.raft = { kind = "plate", ... } (rigid_radius, damping optional)
+PLATE_KEYS = ("kind", "thickness", "E", "nu", "rho", "rigid_radius", "damping")
+#: the routes that give [output] raft_points (the Python stepper's plate vertices)
+RAFT_POINT_ROUTES = ("monolithic",)
+#: the routes whose plate has no damping of its own (the frequency-domain condensation)
+UNDAMPED_PLATE_ROUTES = ("linear", "timefreq")
+#: foundation.raft.damping = { ratio, frequency_hz }: the default frequency, Hz
+PLATE_DAMPING_HZ = 10.0
+
+
+def _raft_points(points) -> dict:
+    """output.raft_points = { name = [x, y], ... } (m about the raft centre) as {name: (x, y)}."""
+    eg = "e.g. raft_points = { edge = [18.0, 0.0] } (m about the raft centre)"
+    if not isinstance(points, dict) or not points:
+        raise SceneError(f"output.raft_points = {show(points)} must be a table of named points, {eg}")
+    out = {}
+    for name, xy in points.items():
+        if (not isinstance(xy, (list, tuple)) or len(xy) != 2
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in xy)):
+            raise SceneError(f"output.raft_points.{name} = {show(xy)} must be [x, y] in m, {eg}")
+        out[str(name)] = (float(xy[0]), float(xy[1]))
+    return out
+
+
+def _plate_damping(table) -> dict:
+    """foundation.raft.damping = { ratio, frequency_hz }: {damping, damping_hz} of PlateProperties."""
+    eg = f"e.g. damping = {{ ratio = 0.02, frequency_hz = {PLATE_DAMPING_HZ:g} }}"
+    if not isinstance(table, dict):
+        raise SceneError(f"foundation.raft.damping = {show(table)} must be a table, {eg} (stiffness proportional: "
+                         "the ratio at that frequency)")
+    _check_keys(table, ("ratio", "frequency_hz"), "foundation.raft.damping", required=("ratio",))
+    ratio = _number("foundation.raft.damping.ratio", table["ratio"], 0.0, 1.0, lo_open=False, hi_open=True,
+                    expect=f"a damping ratio in [0, 1), {eg}")
+    hz = _number("foundation.raft.damping.frequency_hz", table.get("frequency_hz", PLATE_DAMPING_HZ), 0.0, 1e3,
+                 expect=f"a frequency in (0, 1000] Hz, {eg}")
+    return {"damping": ratio, "damping_hz": hz}
 
 
 def _raft(table, mesh: InterfaceMesh) -> PlateProperties | None:
@@ -791,6 +851,8 @@ def _raft(table, mesh: InterfaceMesh) -> PlateProperties | None:
         raise SceneError("foundation.raft.kind = \"plate\" needs the interface's cells: a circle or a rectangle of "
                          "square cells, or a mesh file (foundation.mesh); this foundation has none "
                          f"(shape {mesh.kind!r})")
+    if "damping" in table:
+        values.update(_plate_damping(table["damping"]))
     return PlateProperties(rigid_radius=radius, **values)
 
 

@@ -25,14 +25,19 @@ from .results import RouteResult, RunNotes, Status
 
 def simulate(model: StructureModel, soil, ag, dt: float, contact: ContactSettings | None = None,
              damping=None, alpha: float = 0.0, output_nodes=None, progress=None,
-             route: str = "newmark", static: StaticState | None = None) -> RouteResult:
+             route: str = "newmark", static: StaticState | None = None, raft_points=None) -> RouteResult:
     """Time history of the structure on ``soil`` under ground acceleration ``ag``.
 
     model : StructureModel (a rigid raft, NewmarkStepper) or PlateRaftModel (a plate raft,
-    PlateStepper; the result then carries the plate's deflections).
+    PlateStepper; the result then carries the plate's deflections, its moments at the stick base
+    and their peaks over the plate, which vertices are held).
 
     ag : (nt, 3) m/s^2 at t_k = k dt (x, y, z); output_nodes : node names (default: all
-    named nodes); progress : callable(done, total) or None, called as the run goes with
+    named nodes); raft_points : {name: (x, y) m} points of a plate raft whose absolute
+    acceleration and displacement join ``acc`` and ``disp`` under that name (the nearest plate
+    vertex: its deflection and the raft's in-plane rigid motion; ``info["raft_points"]`` gives the
+    vertex and its coordinates; a rigid raft raises StructureError); progress : callable(done,
+    total) or None, called as the run goes with
     done = k + 1 of total = nt samples. Returns a RouteResult; on a Newton failure raises
     ConvergenceError with ``.result`` holding the samples computed so far.
 
@@ -49,10 +54,26 @@ def simulate(model: StructureModel, soil, ag, dt: float, contact: ContactSetting
     """
     with single_threaded_blas():
         return _simulate(model, soil, ag, dt, contact, damping, alpha, output_nodes, progress,
-                         route, static)
+                         route, static, raft_points)
 
 
-def _simulate(model, soil, ag, dt, contact, damping, alpha, output_nodes, progress, route, static):
+def _raft_points(model, raft_points) -> tuple:
+    """({name: P (3, n_dof)}, {name: info}) of the raft points asked for (``simulate``)."""
+    if not raft_points:
+        return {}, {}
+    if not isinstance(model, PlateRaftModel):
+        raise StructureError("raft points need a plate raft (a rigid raft's motion is its master's: ask for the "
+                             "raft node instead)")
+    ops, info = {}, {}
+    for name, (x, y) in raft_points.items():
+        k = model.nearest_vertex(float(x), float(y))
+        ops[name] = model.point_operator(k)
+        info[name] = {"x_m": float(x), "y_m": float(y), "vertex": k, "vertex_x_m": float(model.points[k, 0]),
+                      "vertex_y_m": float(model.points[k, 1])}
+    return ops, info
+
+
+def _simulate(model, soil, ag, dt, contact, damping, alpha, output_nodes, progress, route, static, raft_points):
     t0 = _time.perf_counter()
     ag = np.asarray(ag, float)
     if ag.ndim != 2 or ag.shape[1] != 3:
@@ -64,17 +85,25 @@ def _simulate(model, soil, ag, dt, contact, damping, alpha, output_nodes, progre
                                                       alpha=alpha, static=static, ag0=ag[0])
     names = [n.name for n in model.nodes if n.name] if output_nodes is None else list(output_nodes)
     dofs = {nm: model.dofs(model.node_by_name(nm).id)[:3] for nm in names}
+    points, points_info = _raft_points(model, raft_points)
+    clash = sorted(set(points) & set(names))
+    if clash:
+        raise StructureError(f"raft point {clash[0]!r} has the name of a structure output node: rename it")
     nt, N = ag.shape[0], model.n_interface
     res = SimpleNamespace(      # history buffers, filled in place, frozen into a RouteResult at the end
         raft=np.zeros((nt, 6)), gap=np.zeros((nt, N)), contact_force=np.zeros((nt, N)), soil_w=np.zeros((nt, N)),
-        acc={nm: np.zeros((nt, 3)) for nm in names}, disp={nm: np.zeros((nt, 3)) for nm in names},
+        acc={nm: np.zeros((nt, 3)) for nm in [*names, *points]}, disp={nm: np.zeros((nt, 3)) for nm in [*names, *points]},
         energy={k: np.zeros(nt) for k in ENERGY_TERMS},
         newton_iters=np.zeros(nt, int))
     if plate:
         res.plate_vertex_deflection = np.zeros((nt, model.n_vertices))
         res.plate_deflection = np.zeros((nt, N))
+        res.plate_moment = np.zeros((nt, model.base_cells.size, 3))
+        res.plate_moment_peak = np.zeros((N, 3))
     info = dict(settlement=st.static.settlement, P0=st.P0.copy(), penalty=st.kp.copy(),
                 delta0=st.delta0.copy(), dt=dt, alpha=alpha, contact_enabled=st.contact.enabled)
+    if points:
+        info["raft_points"] = points_info
     skipped = []
     enabled = st.contact.enabled
     if not enabled:
@@ -100,14 +129,20 @@ def _simulate(model, soil, ag, dt, contact, damping, alpha, output_nodes, progre
             note = "the closed-contact run is not finite: nonlinear run from t = 0"
         else:
             vars(res).update(st.closed_histories(ag, *out, dofs))
+            for nm, P in points.items():
+                res.acc[nm] = (P @ out[0][:, 2].T).T + ag
+                res.disp[nm] = (P @ out[0][:, 0].T).T
             note = note or "no tension: the closed-contact (linear) solution is the unilateral one"
             skipped.append(
                 "contact disabled: one linear solve per step, no Newton" if not enabled else
                 "no tension in the linear pre-check: nonlinear contact iterations skipped")
-    failure, n_subdivided = (None, 0) if closed else _nonlinear(st, res, ag, dofs, progress)
+    failure, n_subdivided = (None, 0) if closed else _nonlinear(st, res, ag, dofs, progress, points)
     info.update(factorisations=st.n_factorisations, subdivided_steps=n_subdivided)
     out = RouteResult(route=route, time=dt * np.arange(nt), **vars(res), wall_s=_time.perf_counter() - t0,
-                      xy=np.array(model.raft.xy), plate_vertices=np.array(model.points) if plate else None, notes=RunNotes(skipped=skipped, precheck=note), info=info)
+                      xy=np.array(model.raft.xy), plate_vertices=np.array(model.points) if plate else None,
+                      plate_moment_cells=model.base_cells.copy() if plate else None,
+                      plate_vertex_held=model.slaved.copy() if plate else None,
+                      notes=RunNotes(skipped=skipped, precheck=note), info=info)
     if failure is not None:
         exc, k = failure
         exc.result = out.truncated(k, Status.STOPPED, str(exc))
@@ -115,7 +150,7 @@ def _simulate(model, soil, ag, dt, contact, damping, alpha, output_nodes, progre
     return out
 
 
-def _nonlinear(st: NewmarkStepper, res: SimpleNamespace, ag, dofs, progress):
+def _nonlinear(st: NewmarkStepper, res: SimpleNamespace, ag, dofs, progress, points=None):
     """The step-by-step run (Newton on the contact), recorded into the buffers ``res``.
     Returns (failure, subdivided steps): failure is None or (ConvergenceError, first step not
     computed)."""
@@ -131,8 +166,14 @@ def _nonlinear(st: NewmarkStepper, res: SimpleNamespace, ag, dofs, progress):
             res.disp[nm][k] = st.u[d]
         for key, val in st.energies().items():
             res.energy[key][k] = val
+        for nm, P in (points or {}).items():
+            res.acc[nm][k] = P @ st.a + st.ag
+            res.disp[nm][k] = P @ st.u
         if hasattr(res, "plate_deflection"):
             res.plate_vertex_deflection[k], res.plate_deflection[k] = st.plate_deflections(st.u)
+            Mk = st.plate_moments(st.u)
+            res.plate_moment[k] = Mk[st.model.base_cells]
+            np.maximum(res.plate_moment_peak, np.abs(Mk), out=res.plate_moment_peak)
 
     record(0)
     n_subdivided = 0

@@ -78,14 +78,57 @@ def dkt_stiffness(x, y, Db: np.ndarray) -> np.ndarray:
     Cx, Cy = _dkt_coefficients(x, y)
     K = np.zeros(x.shape[:-1] + (9, 9))
     for (xi, eta), w in zip(*_GAUSS):
-        dxi, deta = _quadratic_derivatives(xi, eta)
-        hx_xi, hx_eta, hy_xi, hy_eta = Cx @ dxi, Cx @ deta, Cy @ dxi, Cy @ deta
-        B = np.stack([y31[..., None] * hx_xi + y12[..., None] * hx_eta,
-                      -x31[..., None] * hy_xi - x12[..., None] * hy_eta,
-                      -x31[..., None] * hx_xi - x12[..., None] * hx_eta
-                      + y31[..., None] * hy_xi + y12[..., None] * hy_eta], axis=-2) / two_a[..., None]
+        B = _curvature_matrix(Cx, Cy, x31, y31, x12, y12, two_a, xi, eta)
         K += (w * two_a)[..., None] * np.einsum("...ki,kl,...lj->...ij", B, Db, B)
     return K
+
+
+def _curvature_matrix(Cx, Cy, x31, y31, x12, y12, two_a, xi, eta) -> np.ndarray:
+    """B (..., 3, 9): the curvatures [κx, κy, 2κxy] = [βx,x, βy,y, βx,y + βy,x] at (ξ, η) from
+    the element's nine DOFs."""
+    dxi, deta = _quadratic_derivatives(xi, eta)
+    hx_xi, hx_eta, hy_xi, hy_eta = Cx @ dxi, Cx @ deta, Cy @ dxi, Cy @ deta
+    return np.stack([y31[..., None] * hx_xi + y12[..., None] * hx_eta,
+                     -x31[..., None] * hy_xi - x12[..., None] * hy_eta,
+                     -x31[..., None] * hx_xi - x12[..., None] * hx_eta
+                     + y31[..., None] * hy_xi + y12[..., None] * hy_eta], axis=-2) / two_a[..., None]
+
+
+def dkt_curvatures(x, y) -> tuple[np.ndarray, np.ndarray]:
+    """(B (..., 3, 9), area (...,)): the curvatures [κx, κy, 2κxy] (1/m) at the centroid of DKT
+    triangles (vertices (x[..., k], y[..., k]) counter-clockwise) from their nine DOFs, and the
+    triangles' areas m². κx = βx,x = -∂²w/∂x² (w up): positive where the plate is convex
+    upwards (hogging)."""
+    x, y = np.asarray(x, float), np.asarray(y, float)
+    x31, y31 = x[..., 2] - x[..., 0], y[..., 2] - y[..., 0]
+    x12, y12 = x[..., 0] - x[..., 1], y[..., 0] - y[..., 1]
+    two_a = (x31 * y12 - x12 * y31)[..., None]
+    Cx, Cy = _dkt_coefficients(x, y)
+    return _curvature_matrix(Cx, Cy, x31, y31, x12, y12, two_a, 1 / 3, 1 / 3), 0.5 * two_a[..., 0]
+
+
+def moment_operator(points, cells, E: float, thickness: float, nu: float) -> sp.csr_matrix:
+    """S (3 n_cells, 3m): the bending moments per unit length [Mx, My, Mxy] (N·m/m) of each cell,
+    rows interleaved per cell, from the plate's DOFs ``[w0, θx0, θy0, w1, ...]``: the DKT moments
+    ``D_b B`` at the centroid of each of the cell's triangles (a quadrilateral's two, split as
+    ``plate_stiffness`` splits it), averaged with the triangles' areas as weights. Sign: Mx =
+    D (κx + ν κy) with κx = -∂²w/∂x² (w up): a moment is positive when it puts the plate's top
+    fibre in tension (hogging); Mxy = D (1 - ν) κxy."""
+    points = np.asarray(points, dtype=float)
+    Db = bending_matrix(E, thickness, nu)
+    tris, owner = [], []
+    for i, cell in enumerate(cells):
+        t = _triangles(points, [cell])
+        tris.append(t)
+        owner += [i] * t.shape[0]
+    tris, owner = np.concatenate(tris), np.array(owner)
+    B, area = dkt_curvatures(points[tris, 0], points[tris, 1])
+    weight = area / np.bincount(owner, area)[owner]
+    S = weight[:, None, None] * np.einsum("kl,tlj->tkj", Db, B)            # (n_tri, 3, 9)
+    dofs = (3 * tris[:, :, None] + np.arange(3)).reshape(-1, 9)            # (n_tri, 9)
+    rows = np.broadcast_to((3 * owner[:, None] + np.arange(3))[:, :, None], S.shape)
+    cols = np.broadcast_to(dofs[:, None, :], S.shape)
+    return sp.csr_matrix((S.ravel(), (rows.ravel(), cols.ravel())), shape=(3 * len(cells), 3 * points.shape[0]))
 
 
 def _triangles(points: np.ndarray, cells) -> np.ndarray:

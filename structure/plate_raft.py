@@ -19,8 +19,17 @@ cells' areas, equal shares) on w and on the in-plane q (ux, uy; rz: rho t A_k r_
 rho t^3/12 A_k on θx, θy. A slaved vertex's mass goes to the master's diagonal
 (uz: m_k; rx: m_k y_k^2 + J_k; ry: m_k x_k^2 + J_k), its off-diagonal terms (uz-rx: sum m_k y_k,
 uz-ry: -sum m_k x_k) dropped: they vanish for a rigid region symmetric about the centre
-(``PlateRaftModel.mass_coupling`` gives their size). The plate has no structural damping (the
-soil's radiation and material damping act on it).
+(``PlateRaftModel.mass_coupling`` gives their size). The plate's own damping (``damping``, a
+ratio at ``damping_hz``) is stiffness proportional, C_plate = beta G^T Kp G with beta = 2 zeta /
+(2 pi f): zeta at f, zeta f'/f at f' (0 by default: the soil's radiation and material damping
+act on it).
+
+Results (``PlateStepper.plate_outputs``): the vertex deflections and their trace at the nodes,
+the bending moments per unit length [Mx, My, Mxy] (N m/m, static + dynamic) of each interface
+cell (``moment_operator``: the DKT moments at its triangles' centroids, area-averaged), among
+them the stick-base cells (``base_cells``: the cells with vertices both in and out of the held
+region), and the motion of the raft points (``point_operator``: the nearest vertex's vertical
+deflection with the raft's in-plane rigid motion).
 
 Global DOF layout (n_dof = n_struct + 3 nf + N, nf free vertices):
   [6 DOFs of every non-raft node | θx, θy of each free vertex | q (6) | w of each free vertex |
@@ -44,26 +53,31 @@ from .damping import damping_matrix
 from .errors import StructureError
 from .model import G_ACC, StructureModel
 from .newmark import NewmarkStepper
-from .plate import plate_stiffness
+from .plate import moment_operator, plate_stiffness
 from .preload import solve_static_system
 from .soil_interface import SoilInterface
 
 #: ranges accepted for the plate's properties (SI): thickness m, E Pa, nu -, rho kg/m^3
 PLATE_RANGES = {"thickness": (1e-3, 50.0), "E": (1e6, 1e15), "nu": (0.0, 0.499), "rho": (0.0, 2e4)}
+#: ranges of the plate's damping: ratio (-) at the frequency damping_hz (Hz)
+DAMPING_RANGES = {"damping": (0.0, 1.0), "damping_hz": (1e-3, 1e3)}
 
 
 @dataclass(frozen=True)
 class PlateProperties:
     """The raft as a plate: thickness m, E Pa, nu (-), rho kg/m^3; rigid_radius m: the plate
-    vertices within it of the raft centre move rigidly with the raft master (the stick base)."""
+    vertices within it of the raft centre move rigidly with the raft master (the stick base);
+    damping: the plate's stiffness-proportional damping ratio at damping_hz (Hz) (module notes)."""
     thickness: float
     E: float
     nu: float
     rho: float
     rigid_radius: float
+    damping: float = 0.0
+    damping_hz: float = 10.0
 
     def __post_init__(self):
-        for key, (lo, hi) in PLATE_RANGES.items():
+        for key, (lo, hi) in {**PLATE_RANGES, **DAMPING_RANGES}.items():
             v = getattr(self, key)
             if not isinstance(v, (int, float)) or isinstance(v, bool) or not np.isfinite(v) or not lo <= v <= hi:
                 raise StructureError(f"raft.{key} = {v!r} must be a number in [{lo:g}, {hi:g}]")
@@ -225,14 +239,55 @@ class PlateRaftModel:
 
     # ---- matrices ------------------------------------------------------------------------
     @cached_property
+    def cell_area(self) -> np.ndarray:
+        """(N,) m^2: the area of each interface node's cell (the contact pressure's divisor)."""
+        A = np.zeros(len(self.cells))
+        for i, c in enumerate(self.cells):
+            p = self.points[list(c)]
+            A[i] = 0.5 * abs(np.dot(p[:, 0], np.roll(p[:, 1], -1)) - np.dot(np.roll(p[:, 0], -1), p[:, 1]))
+        return A
+
+    @cached_property
     def vertex_area(self) -> np.ndarray:
         """A_k (m,), m^2: each cell's area shared equally by its vertices."""
         A = np.zeros(self.n_vertices)
-        for c in self.cells:
-            p = self.points[list(c)]
-            a = 0.5 * abs(np.dot(p[:, 0], np.roll(p[:, 1], -1)) - np.dot(np.roll(p[:, 0], -1), p[:, 1]))
+        for c, a in zip(self.cells, self.cell_area):
             A[list(c)] += a / len(c)
         return A
+
+    @cached_property
+    def moment_operator(self) -> sp.csr_matrix:
+        """(3N, n_dof): the bending moments per unit length [Mx, My, Mxy] (N m/m) of each
+        interface cell, rows interleaved per cell, from the global DOFs (``structure.plate.
+        moment_operator``: positive when the top fibre is in tension)."""
+        p = self.plate
+        return (moment_operator(self.points, self.cells, p.E, p.thickness, p.nu) @ self.plate_map).tocsr()
+
+    @cached_property
+    def base_cells(self) -> np.ndarray:
+        """The interface cells around the stick base (node indices, ascending): those with
+        vertices both in and out of the held region, where the plate leaves the rigid region."""
+        return np.array([i for i, c in enumerate(self.cells)
+                         if self.slaved[list(c)].any() and not self.slaved[list(c)].all()], dtype=np.int64)
+
+    def nearest_vertex(self, x: float, y: float) -> int:
+        """The plate vertex nearest the point (x, y) m about the raft centre; a point farther
+        than a cell's diagonal from every vertex (off the raft) raises StructureError."""
+        d = np.hypot(self.points[:, 0] - x, self.points[:, 1] - y)
+        k = int(np.argmin(d))
+        reach = np.sqrt(2.0 * self.cell_area.max())
+        if d[k] > reach:
+            raise StructureError(f"raft point ({x:g}, {y:g}) m is {d[k]:.3g} m from the nearest plate vertex (more "
+                                 f"than a cell's diagonal, {reach:.3g} m): it is off the raft; give a point on it")
+        return k
+
+    def point_operator(self, vertex: int) -> sp.csr_matrix:
+        """(3, n_dof): the displacement (x, y, z) of plate vertex ``vertex`` from the global DOFs:
+        the raft's rigid in-plane motion (ux - rz y, uy + rz x) and the vertex's deflection w."""
+        x, y = self.points[vertex]
+        q = self.i_q
+        rows = sp.csr_matrix(([1.0, -y, 1.0, x], ([0, 0, 1, 1], [q[0], q[5], q[1], q[5]])), shape=(2, self.n_dof))
+        return sp.vstack([rows, self.vertex_map[vertex]], format="csr")
 
     @cached_property
     def stiffness(self) -> sp.csr_matrix:
@@ -290,10 +345,20 @@ class PlateRaftModel:
     def total_mass(self) -> float:
         return float(self.stick.total_mass + self.vertex_masses[0].sum())
 
+    @property
+    def plate_beta(self) -> float:
+        """beta (s): the plate's stiffness-proportional damping coefficient 2 zeta / (2 pi f)."""
+        return 2.0 * self.plate.damping / (2.0 * np.pi * self.plate.damping_hz)
+
     def damping(self, damping=None) -> sp.csr_matrix:
-        """The sticks' structural damping on the global DOFs (the plate undamped)."""
+        """The sticks' structural damping on the global DOFs, plus the plate's own, beta G^T Kp
+        G (none at the default damping = 0: the matrix is then the sticks' alone, exactly)."""
         Ps = self.stick_map
-        return (Ps.T @ sp.csr_matrix(damping_matrix(self.stick, damping)) @ Ps).tocsr()
+        C = Ps.T @ sp.csr_matrix(damping_matrix(self.stick, damping)) @ Ps
+        if self.plate.damping > 0:
+            p, G = self.plate, self.plate_map
+            C = C + self.plate_beta * (G.T @ plate_stiffness(self.points, self.cells, p.E, p.thickness, p.nu) @ G)
+        return C.tocsr()
 
 
 class _PlateSoil(SoilInterface):
@@ -411,6 +476,29 @@ class PlateStepper(NewmarkStepper):
         T = (self.model.trace @ W.T).T
         return W.reshape(U.shape[:-1] + (-1,)), T.reshape(U.shape[:-1] + (-1,))
 
+    def plate_moments(self, U) -> np.ndarray:
+        """(..., N, 3) N m/m: the bending moments [Mx, My, Mxy] of each interface cell in the
+        states U (..., n_dof) (dynamic), the static state's added: the total moments."""
+        U = np.asarray(U)
+        Mm = (self.model.moment_operator @ (U.reshape(-1, self.n) + self.static.u).T).T
+        return Mm.reshape(U.shape[:-1] + (self.N, 3))
+
+    def plate_outputs(self, U) -> dict:
+        """The plate's records of the states U (nt, n_dof): plate_vertex_deflection (nt, m),
+        plate_deflection (nt, N) m, plate_moment (nt, n_base, 3) N m/m at the stick-base cells
+        (``PlateRaftModel.base_cells``) and plate_moment_peak (N, 3) N m/m: the largest |Mx|,
+        |My|, |Mxy| of each cell over the states (evaluated in blocks of 256 states)."""
+        U = np.asarray(U).reshape(-1, self.n)
+        W, T = self.plate_deflections(U)
+        base = self.model.base_cells
+        Mb = np.zeros((U.shape[0], base.size, 3))
+        peak = np.zeros((self.N, 3))
+        for k in range(0, U.shape[0], 256):
+            Mk = self.plate_moments(U[k:k + 256])
+            Mb[k:k + 256] = Mk[:, base]
+            peak = np.maximum(peak, np.abs(Mk).max(axis=0))
+        return dict(plate_vertex_deflection=W, plate_deflection=T, plate_moment=Mb, plate_moment_peak=peak)
+
     # ---- the hooks of the trace ------------------------------------------------------------
     def _embed_soil(self, K0):
         return sp.block_diag([sp.csr_matrix((self.ni, self.ni)), sp.csr_matrix(K0)], format="csr")
@@ -454,7 +542,7 @@ class PlateStepper(NewmarkStepper):
 
     def closed_histories(self, ag, Zh, H, dofs) -> dict:
         out = super().closed_histories(ag, Zh, H, dofs)
-        out["plate_vertex_deflection"], out["plate_deflection"] = self.plate_deflections(Zh[:, 0])
+        out.update(self.plate_outputs(Zh[:, 0]))
         return out
 
 

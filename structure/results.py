@@ -79,6 +79,11 @@ class RouteResult:
     plate_deflection : (nt, N) m, a plate raft's deflection at the interface nodes (dynamic, as
                        raft); plate_vertex_deflection : (nt, m) m, at its vertices; plate_vertices
                        (m, 2) m about the raft centre (None for a rigid raft)
+    plate_moment : (nt, n_base, 3) N m/m, a plate raft's bending moments [Mx, My, Mxy] per unit
+                   length (static + dynamic; positive: top fibre in tension) in the cells around
+                   the stick base, the interface nodes plate_moment_cells (n_base,);
+                   plate_moment_peak : (N, 3) N m/m, the largest |Mx|, |My|, |Mxy| of each cell
+                   over the run; plate_vertex_held : (m,) bool, the vertices of the held region
     """
     route: str
     time: np.ndarray
@@ -99,6 +104,10 @@ class RouteResult:
     plate_deflection: np.ndarray | None = None
     plate_vertex_deflection: np.ndarray | None = None
     plate_vertices: np.ndarray | None = None
+    plate_moment: np.ndarray | None = None
+    plate_moment_peak: np.ndarray | None = None
+    plate_moment_cells: np.ndarray | None = None
+    plate_vertex_held: np.ndarray | None = None
 
     def __post_init__(self):
         put = lambda name, value: object.__setattr__(self, name, value)
@@ -115,8 +124,11 @@ class RouteResult:
             put(name, MappingProxyType({str(k): _frozen(v) for k, v in getattr(self, name).items()}))
         put("newton_iters", _frozen(np.zeros(nt, int) if self.newton_iters is None else self.newton_iters, int))
         put("xy", None if self.xy is None else _frozen(self.xy))
-        for name in ("plate_deflection", "plate_vertex_deflection", "plate_vertices"):
+        for name in ("plate_deflection", "plate_vertex_deflection", "plate_vertices", "plate_moment",
+                     "plate_moment_peak"):
             put(name, None if getattr(self, name) is None else _frozen(getattr(self, name)))
+        for name, kind in (("plate_moment_cells", int), ("plate_vertex_held", bool)):
+            put(name, None if getattr(self, name) is None else _frozen(getattr(self, name), kind))
         put("status", Status(self.status))
         put("message", str(self.message))
         put("wall_s", float(self.wall_s))
@@ -157,7 +169,7 @@ class RouteResult:
                   info=None) -> RouteResult:
         """The first nt samples (results up to a failure), with the reason."""
         cut = lambda m: {k: v[:nt] for k, v in m.items()}
-        plate = {k: getattr(self, k)[:nt] for k in ("plate_deflection", "plate_vertex_deflection")
+        plate = {k: getattr(self, k)[:nt] for k in ("plate_deflection", "plate_vertex_deflection", "plate_moment")
                  if getattr(self, k) is not None}
         return dataclasses.replace(
             self, time=self.time[:nt], raft=self.raft[:nt], gap=self.gap[:nt],

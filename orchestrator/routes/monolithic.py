@@ -86,7 +86,8 @@ def run_monolithic(scene, motion=None, soil_model=None, *, soil_factory: str | N
         info["raft"] = {"kind": "plate", "thickness_m": p.thickness, "E_Pa": p.E, "nu": p.nu, "rho_kg_m3": p.rho,
                         "rigid_radius_m": p.rigid_radius, "vertices": model.n_vertices, "free_vertices": model.nf,
                         "plate_mass_kg": float(model.vertex_masses[0].sum()),
-                        "dropped_mass_coupling_m": model.mass_coupling}
+                        "dropped_mass_coupling_m": model.mass_coupling, "damping_ratio": p.damping,
+                        "damping_hz": p.damping_hz, "base_cells": int(model.base_cells.size)}
     return res.with_notes(info=info, warnings=warnings)
 
 
@@ -123,7 +124,8 @@ def step_scene(scene, model, soil, motion, *, route: str, progress=None, cache_d
                           folder, damping)
         else:
             res = simulate(model, soil, motion.acc, motion.dt, contact=scene.contact, damping=damping,
-                           output_nodes=scene.output.nodes, progress=progress, route=route)
+                           output_nodes=scene.output.nodes, progress=progress, route=route,
+                           raft_points=getattr(scene.output, "raft_points", None))
     except ConvergenceError as exc:
         res = exc.result
     if res.info.get("stepper") != "native":
