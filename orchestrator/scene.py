@@ -788,7 +788,7 @@ PLATE_ROUTES = ("monolithic", "cosim", "linear", "timefreq")
 #: the other fix a native FMU export of a plate raft is told (the Python FMUs carry a plate)
 NATIVE_PLATE_FIX = "export the Python FMUs (uplift export --kind python), which carry a plate"
 #: the keys of foundation.raft = { kind = "plate", ... } (rigid_radius, damping optional)
-PLATE_KEYS = ("kind", "thickness", "E", "nu", "rho", "rigid_radius", "damping")
+PLATE_KEYS = ("kind", "thickness", "E", "nu", "rho", "rigid_radius", "rigid_centre", "damping")
 #: the routes that give [output] raft_points (the Python stepper's plate vertices)
 RAFT_POINT_ROUTES = ("monolithic",)
 #: the routes whose plate has no damping of its own (the frequency-domain condensation)
@@ -853,6 +853,13 @@ def _raft(table, mesh: InterfaceMesh) -> PlateProperties | None:
                          f"(shape {mesh.kind!r})")
     if "damping" in table:
         values.update(_plate_damping(table["damping"]))
+    if "rigid_centre" in table:
+        c = table["rigid_centre"]
+        if (not isinstance(c, (list, tuple)) or len(c) != 2
+                or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in c)):
+            raise SceneError(f"foundation.raft.rigid_centre = {show(c)} must be [x, y] in m about the raft centre (the "
+                             "centre of the held region, the stick base), e.g. rigid_centre = [0.0, 0.0]")
+        values.update(rigid_x=float(c[0]), rigid_y=float(c[1]))
     return PlateProperties(rigid_radius=radius, **values)
 
 

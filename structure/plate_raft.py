@@ -66,7 +66,8 @@ DAMPING_RANGES = {"damping": (0.0, 1.0), "damping_hz": (1e-3, 1e3)}
 @dataclass(frozen=True)
 class PlateProperties:
     """The raft as a plate: thickness m, E Pa, nu (-), rho kg/m^3; rigid_radius m: the plate
-    vertices within it of the raft centre move rigidly with the raft master (the stick base);
+    vertices within it of the point (rigid_x, rigid_y) m (default the raft centre) move rigidly
+    with the raft master (the stick base);
     damping: the plate's stiffness-proportional damping ratio at damping_hz (Hz) (module notes)."""
     thickness: float
     E: float
@@ -75,6 +76,8 @@ class PlateProperties:
     rigid_radius: float
     damping: float = 0.0
     damping_hz: float = 10.0
+    rigid_x: float = 0.0
+    rigid_y: float = 0.0
 
     def __post_init__(self):
         for key, (lo, hi) in {**PLATE_RANGES, **DAMPING_RANGES}.items():
@@ -84,6 +87,10 @@ class PlateProperties:
         if not (isinstance(self.rigid_radius, (int, float)) and np.isfinite(self.rigid_radius)
                 and self.rigid_radius > 0):
             raise StructureError(f"raft.rigid_radius = {self.rigid_radius!r} must be a positive length in m")
+        for key in ("rigid_x", "rigid_y"):
+            v = getattr(self, key)
+            if not isinstance(v, (int, float)) or isinstance(v, bool) or not np.isfinite(v):
+                raise StructureError(f"raft.{key} = {v!r} must be a finite coordinate in m (about the raft centre)")
 
 
 def plate_cells(xy, cell=None, polygons=None):
@@ -153,12 +160,15 @@ class PlateRaftModel:
         m, N = self.points.shape[0], model.n_interface
         if self.trace.shape != (N, m):
             raise StructureError(f"plate trace weights {self.trace.shape} do not match {N} nodes and {m} vertices")
-        r = np.hypot(*self.points.T)
+        r = np.hypot(self.points[:, 0] - plate.rigid_x, self.points[:, 1] - plate.rigid_y)
         self.slaved = r <= plate.rigid_radius * (1 + 1e-9)
         if self.slaved.sum() < 3:
             raise StructureError(f"raft.rigid_radius = {plate.rigid_radius:g} m holds {int(self.slaved.sum())} plate "
                                  f"vertices: the stick base needs at least 3 (the nearest vertices are "
-                                 f"{np.sort(r)[2]:.3g} m from the centre); raise it")
+                                 f"{np.sort(r)[2]:.3g} m from its centre); raise it")
+        #: m: the held region's outermost vertex from its centre (on a coarse mesh well inside
+        #: rigid_radius: the region that is held is then smaller than the radius says)
+        self.held_reach = float(r[self.slaved].max())
         self.free = np.flatnonzero(~self.slaved)
         self.nf = nf = self.free.size
         ns = model.n_struct

@@ -84,23 +84,36 @@ def run_monolithic(scene, motion=None, soil_model=None, *, soil_factory: str | N
     if isinstance(model, PlateRaftModel):
         p = model.plate
         info["raft"] = {"kind": "plate", "thickness_m": p.thickness, "E_Pa": p.E, "nu": p.nu, "rho_kg_m3": p.rho,
-                        "rigid_radius_m": p.rigid_radius, "vertices": model.n_vertices, "free_vertices": model.nf,
+                        "rigid_radius_m": p.rigid_radius, "rigid_centre_m": [p.rigid_x, p.rigid_y],
+                        "held_reach_m": model.held_reach, "vertices": model.n_vertices, "free_vertices": model.nf,
                         "plate_mass_kg": float(model.vertex_masses[0].sum()),
                         "dropped_mass_coupling_m": model.mass_coupling, "damping_ratio": p.damping,
                         "damping_hz": p.damping_hz, "base_cells": int(model.base_cells.size)}
     return res.with_notes(info=info, warnings=warnings)
 
 
+#: a held region whose outermost vertex lies within this fraction of raft.rigid_radius is said
+#: to be coarser than its radius (a 6 m radius on a 4 m grid holds the 4 m central square: 2.83 m)
+HELD_REACH = 0.75
+
+
 def plate_warnings(model: PlateRaftModel, radius: float) -> list:
     """What a run of the plate raft ``model`` (on a raft of ``radius`` m) says in notes.warnings:
     a held region whose mass centre is off the raft centre (its dropped mass coupling)."""
+    out = []
+    p = model.plate
+    if model.held_reach < HELD_REACH * p.rigid_radius:
+        out.append(f"the plate's held region is coarser than raft.rigid_radius = {p.rigid_radius:g} m: its outermost "
+                   f"held vertex is {model.held_reach:.3g} m from its centre (the mesh's vertices within the radius "
+                   "are held, no more), so the stick base is smaller and the plate softer than the radius says "
+                   "(docs/formulation.md, 'Flexible raft'): refine the mesh or set the radius to a ring of vertices")
     off = model.mass_coupling
     if off <= 1e-3 * radius:
-        return []
-    return [f"the plate's held region (within {model.plate.rigid_radius:g} m of the raft centre) has its "
-            f"mass centre {off:.3g} m off the raft centre: its uz-rx, uz-ry mass coupling is left out of "
-            "the lumped mass (docs/formulation.md, 'Flexible raft'); a region symmetric about the centre "
-            "has none"]
+        return out
+    return out + [f"the plate's held region (within {p.rigid_radius:g} m of ({p.rigid_x:g}, {p.rigid_y:g}) m) has its "
+                  f"mass centre {off:.3g} m off the raft centre: its uz-rx, uz-ry mass coupling is left out of "
+                  "the lumped mass (docs/formulation.md, 'Flexible raft'); a region symmetric about the centre "
+                  "has none"]
 
 
 def step_scene(scene, model, soil, motion, *, route: str, progress=None, cache_dir=None, stepper: str = "native",

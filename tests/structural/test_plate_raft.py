@@ -87,21 +87,28 @@ class CoupledSoil(SoilInterface):
         return self.K
 
 
+@pytest.mark.slow
 def test_rigid_limit_on_a_soil_that_couples_the_nodes():
     """The rigid limit on the BEM's vertical stiffness (every node coupled to every other, stiff
-    under the edge): the same 1/E convergence, but the plate 1000 x stiffer than concrete still
-    bends by 1.4 % of the uplift with a 6 m stick base (0.55 % with 10 m): 10^4 x is within 0.5 %."""
+    under the edge), on a mesh that resolves the 6 m stick base better (2.86 m cells: its outermost
+    held vertex 4.5 m out; on the 4 m grid a 6 m radius holds the central 4 m square only, 2.8 m
+    out, and 1000 x was 1.52 % off): a plate 1000 x stiffer than concrete is 0.58 % off the rigid raft on max
+    uplift and rotation, 2000 x is within 0.5 % (0.29 %), the distance falling as 1/E. The
+    constant is the plate's compliance under the BEM's edge tractions (physical: the static
+    first-order check of test_plate_results.py predicts it)."""
     mo = pulse_motion(0.005, 1.5)
-    mesh, pm = reactor_plate(stiffening=1e3)
+    mesh, pm = reactor_plate(element_size=2.86, stiffening=1e3)
+    assert pm.held_reach > 0.75 * 6.0
     soil = CoupledSoil(mesh)
     u0, r0 = peaks(simulate(rigid_equivalent(pm), soil, mo.acc, mo.dt))
     assert u0 > 1e-2
     errs = []
-    for s in (1e3, 1e4):
-        u, r = peaks(simulate(reactor_plate(stiffening=s)[1], soil, mo.acc, mo.dt))
+    for s in (1e3, 2e3):
+        u, r = peaks(simulate(reactor_plate(element_size=2.86, stiffening=s)[1], soil, mo.acc, mo.dt))
         errs.append(max(abs(u / u0 - 1), abs(r / r0 - 1)))
-    assert errs[1] < 5e-3, errs                                      # measured 1.52 %, 0.151 %
-    assert 9 < errs[0] / errs[1] < 11, errs
+    assert 5e-3 < errs[0] < 7e-3, errs                              # measured 0.584 %
+    assert errs[1] < 5e-3, errs                                      # measured 0.292 %
+    assert 1.8 < errs[0] / errs[1] < 2.2, errs                       # 1/E
 
 
 def test_rigid_equivalent_has_the_plate_mass():

@@ -16,6 +16,7 @@ from structure import ContactSettings, StructureError, simulate
 from structure.damping import damping_matrix
 from structure.model import G_ACC
 from structure.plate import bending_matrix, flexural_rigidity, moment_operator, plate_stiffness, pressure_load
+from structure.model import vertical_trace
 from structure.plate_raft import PlateProperties, PlateStepper
 from test_plate import square
 from test_plate_raft import reactor_plate
@@ -172,3 +173,86 @@ def test_the_plate_damping_is_stiffness_proportional_at_its_ratio():
     assert np.allclose(zeta, 0.04 * f / 8.0, rtol=1e-9), (f, zeta)
     with pytest.raises(StructureError, match="raft.damping"):
         PlateProperties(1.0, 30e9, 0.2, 2500.0, 6.0, damping=1.5)
+
+
+def test_a_held_region_off_the_centre_and_one_coarser_than_its_radius_are_said():
+    """rigid_x, rigid_y move the held region (the vertices within rigid_radius of that point); the
+    monolithic route says when the mesh holds a region well inside the radius (a 6 m radius on
+    the 4 m grid: the central 4 m square, its outermost vertex 2.83 m out) and when the region's
+    mass centre is off the raft centre."""
+    from orchestrator.routes.monolithic import plate_warnings
+    mesh, pm = reactor_plate(element_size=4.0, rigid_radius=6.0)
+    assert np.isclose(pm.held_reach, np.hypot(2.0, 2.0)) and pm.slaved.sum() == 4
+    assert any("coarser than raft.rigid_radius = 6 m" in w for w in plate_warnings(pm, 20.0))
+    _, fine = reactor_plate(element_size=2.0, rigid_radius=6.0)
+    assert not plate_warnings(fine, 20.0)
+    off = type(pm)(pm.stick, dataclasses.replace(pm.plate, rigid_radius=6.5, rigid_x=4.0, rigid_y=-2.0), pm.points,
+                   pm.cells, pm.trace)
+    r = np.hypot(pm.points[:, 0] - 4.0, pm.points[:, 1] + 2.0)
+    assert np.array_equal(off.slaved, r <= 6.5) and off.mass_coupling > 1.0
+    assert any("mass centre" in w and "(4, -2) m" in w for w in plate_warnings(off, 20.0))
+    # the off-centre held region still moves rigidly about the raft centre: a rigid motion of q
+    # is the plate's rigid motion, without strain
+    u = np.zeros(off.n_dof)
+    u[off.i_q[3]] = 1e-3
+    u[off.i_t] = 1e-3 * off.points[off.free, 1]
+    u[off.ns_struct - 6 + 2 * np.arange(off.nf)] = 1e-3
+    Kp = off.stiffness - off.stick_map.T @ off.stick.stiffness @ off.stick_map
+    assert np.abs(Kp @ u).max() < 1e-12 * abs(Kp).max() * 1e-3
+    with pytest.raises(StructureError, match="raft.rigid_x"):
+        PlateProperties(1.0, 30e9, 0.2, 2500.0, 6.0, rigid_x=float("nan"))
+
+
+def _static_rocking(pm, Kww):
+    """(exact, first order) relative excess of the plate raft's static rocking rotation over the
+    rigid raft's on the vertical soil stiffness Kww (N, N) (the plate's nodes bonded to the soil,
+    a unit moment about y on the stick base), and the rigid raft's node forces (N,). First order:
+    the rigid raft's soil tractions laid on the plate, its held region clamped: the complementary
+    energy F^T Kp^-1 F over the rigid raft's M theta0 (the plate's compliance in series)."""
+    m, x, y = pm.n_vertices, pm.points[:, 0], pm.points[:, 1]
+    Kp = plate_stiffness(pm.points, pm.cells, pm.plate.E, pm.plate.thickness, pm.plate.nu).toarray()
+    s, f = np.flatnonzero(pm.slaved), pm.free
+    T = np.zeros((3 * m, 3 + 3 * f.size))                  # [uz, rx, ry of the base | w, θx, θy free]
+    T[3 * s, 0], T[3 * s, 1], T[3 * s, 2], T[3 * s + 1, 1], T[3 * s + 2, 2] = 1.0, y[s], -x[s], 1.0, 1.0
+    for j, k in enumerate(f):
+        T[3 * k:3 * k + 3, 3 + 3 * j:6 + 3 * j] = np.eye(3)
+    Kpl = T.T @ Kp @ T
+    W = pm.trace.toarray() @ T[0::3]
+    theta = np.linalg.solve(Kpl + W.T @ Kww @ W, np.eye(Kpl.shape[0])[2])[2]
+    Bq = vertical_trace(pm.stick.raft.xy)[:, 2:5]
+    q0 = np.linalg.solve(Bq.T @ Kww @ Bq, [0.0, 0.0, 1.0])
+    t = Kww @ (Bq @ q0)
+    F = np.zeros(3 * f.size)
+    F[0::3] = (pm.trace.T @ t)[f]
+    return theta / q0[2] - 1, F @ np.linalg.solve(Kpl[3:, 3:], F) / q0[2], t
+
+
+def test_the_rigid_limit_constant_is_the_plate_compliance_under_the_soil_tractions():
+    """The 1/E distance of a stiff plate from the rigid raft, statically: the exact bonded rocking
+    rotation against the first-order prediction (the rigid punch's soil tractions on the plate,
+    unit-E compliance): equal to 1e-3 of the constant, on Winkler springs and on the BEM half-space
+    (relaxed K(0)). The BEM's tractions peak at the edge (4.2 x their mean, Winkler's 2.1 x), so
+    the same plate is 2.8 x farther from rigid there: physical, not an artefact of the trace
+    weights or masses (no masses here). The coarse grid's artefact: a 6 m radius on 4 m cells
+    holds the central 4 m square only, and the distance is 2.7 x the resolved mesh's."""
+    from soil_impedance.bem import SurfaceBem
+    from soil_impedance.profile import Material, SoilProfile
+    from helpers.winkler import NU, RHO, VS
+    out = {}
+    for h in (4.0, 2.86):
+        mesh, pm = reactor_plate(element_size=h, stiffening=1e3)
+        bem = SurfaceBem(SoilProfile((), Material(vs=VS, rho=RHO, nu=NU, damping=0.0)), mesh,
+                         "relaxed").impedance(0.0).real[2::3, 2::3]
+        soils = {"winkler": rock_winkler(mesh.xy, mesh.area).static_stiffness().toarray()[6:, 6:],
+                 "bem": 0.5 * (bem + bem.T)}
+        for name, K in soils.items():
+            exact, first, t = _static_rocking(pm, K)
+            stiffer = _static_rocking(reactor_plate(element_size=h, stiffening=1e4)[1], K)[0]
+            assert abs(first / exact - 1) < 1e-3, (h, name, exact, first)
+            assert abs(exact / stiffer / 10 - 1) < 5e-3, (h, name, exact, stiffer)      # 1/E
+            out[h, name] = exact, np.abs(t).max() / np.abs(t).mean()
+    # measured (1000 x concrete, 6 m base): h = 2.86: Winkler 0.296 %, BEM 0.840 %; h = 4: 0.819 %, 2.31 %
+    assert 2.5 < out[2.86, "bem"][0] / out[2.86, "winkler"][0] < 3.1, out
+    assert out[2.86, "bem"][1] > 1.8 * out[2.86, "winkler"][1], out
+    assert 0.007 < out[2.86, "bem"][0] < 0.0095, out
+    assert out[4.0, "bem"][0] > 2.4 * out[2.86, "bem"][0], out
