@@ -92,23 +92,32 @@ def test_rigid_limit_on_a_soil_that_couples_the_nodes():
     """The rigid limit on the BEM's vertical stiffness (every node coupled to every other, stiff
     under the edge), on a mesh that resolves the 6 m stick base better (2.86 m cells: its outermost
     held vertex 4.5 m out; on the 4 m grid a 6 m radius holds the central 4 m square only, 2.8 m
-    out, and 1000 x was 1.52 % off): a plate 1000 x stiffer than concrete is 0.58 % off the rigid raft on max
-    uplift and rotation, 2000 x is within 0.5 % (0.29 %), the distance falling as 1/E. The
-    constant is the plate's compliance under the BEM's edge tractions (physical: the static
-    first-order check of test_plate_results.py predicts it)."""
+    out, and 1000 x was 1.52 % off): a plate 1000 x stiffer than concrete is 0.58 % off the rigid
+    raft on max uplift and rotation and 0.96 % on the floor-spectrum peaks (x at the top); 2000 x
+    is 0.29 % and 0.50 %, the distance falling as 1/E. The constant is the plate's compliance
+    under the BEM's edge tractions (physical: the static first-order check of
+    test_plate_results.py predicts it)."""
+    from orchestrator.spectra import floor_spectra
     mo = pulse_motion(0.005, 1.5)
     mesh, pm = reactor_plate(element_size=2.86, stiffening=1e3)
     assert pm.held_reach > 0.75 * 6.0
     soil = CoupledSoil(mesh)
-    u0, r0 = peaks(simulate(rigid_equivalent(pm), soil, mo.acc, mo.dt))
+    peak = lambda res: np.fmax.reduce(floor_spectra(res.acc, mo.dt), axis=2)[:, [0, 2]]    # x and z
+    rigid = simulate(rigid_equivalent(pm), soil, mo.acc, mo.dt)
+    u0, r0 = peaks(rigid)
+    s0 = peak(rigid)
     assert u0 > 1e-2
-    errs = []
+    errs, spectra = [], []
     for s in (1e3, 2e3):
-        u, r = peaks(simulate(reactor_plate(element_size=2.86, stiffening=s)[1], soil, mo.acc, mo.dt))
+        res = simulate(reactor_plate(element_size=2.86, stiffening=s)[1], soil, mo.acc, mo.dt)
+        u, r = peaks(res)
         errs.append(max(abs(u / u0 - 1), abs(r / r0 - 1)))
+        spectra.append(np.abs(peak(res) / s0 - 1).max())
     assert 5e-3 < errs[0] < 7e-3, errs                              # measured 0.584 %
     assert errs[1] < 5e-3, errs                                      # measured 0.292 %
     assert 1.8 < errs[0] / errs[1] < 2.2, errs                       # 1/E
+    assert 8e-3 < spectra[0] < 1.1e-2, spectra                       # measured 0.958 %
+    assert spectra[1] < 5.5e-3, spectra                              # measured 0.497 %
 
 
 def test_rigid_equivalent_has_the_plate_mass():
