@@ -256,3 +256,22 @@ def test_the_rigid_limit_constant_is_the_plate_compliance_under_the_soil_tractio
     assert out[2.86, "bem"][1] > 1.8 * out[2.86, "winkler"][1], out
     assert 0.007 < out[2.86, "bem"][0] < 0.0095, out
     assert out[4.0, "bem"][0] > 2.4 * out[2.86, "bem"][0], out
+
+
+def test_the_closed_contact_march_gives_the_newton_path_s_moments_and_raft_points():
+    """A plate that does not lift: the closed-contact march's moments, their peaks and the raft
+    points' motion (computed over the whole history at the end) equal the step-by-step Newton
+    path's (contact.precheck = false: recorded step by step) to round-off."""
+    mesh, pm = reactor_plate(rigid_radius=12.0)             # 6.6 m: every node in contact at rest
+    mo = pulse_motion(0.005, 0.5, pga=0.3)
+    pts = {"edge": (18.0, 0.0), "held": (2.0, 2.0)}
+    closed, newton = (simulate(pm, rock_winkler(mesh.xy, mesh.area), mo.acc, mo.dt, contact=ContactSettings(
+        precheck=pre), raft_points=pts) for pre in (True, False))
+    assert "no tension" in closed.notes.precheck and newton.newton_iters.sum() > 0
+    assert closed.max_uplift() == newton.max_uplift() == 0.0
+    scale = np.abs(newton.plate_moment).max()
+    assert np.abs(closed.plate_moment - newton.plate_moment).max() < 1e-9 * scale
+    assert np.abs(closed.plate_moment_peak - newton.plate_moment_peak).max() < 1e-9 * scale
+    for name in pts:
+        a = np.abs(newton.acc[name]).max()
+        assert np.abs(closed.acc[name] - newton.acc[name]).max() < 1e-9 * a, name
