@@ -8,7 +8,7 @@ import numpy as np
 from uplift_common.files import atomic_folder, save_figure
 
 from orchestrator.motion import G
-from orchestrator.results_file import patch_polygons
+from orchestrator.results_file import contact_pressure, patch_polygons, peak_uplift_step
 from orchestrator.spectra import FLOOR_DAMPING, FLOOR_FREQUENCIES_HZ, excited, floor_spectra, response_spectrum
 
 RIGID_GROUPS = (("ux", "horizontal"), ("uz", "vertical"), ("rx", "rocking"), ("rz", "torsion"))
@@ -294,7 +294,7 @@ def _held_outline(res):
     the result does not say which vertices are held."""
     if res.plate_vertex_held is None or res.plate_vertices is None or res.plate_vertex_held.sum() < 3:
         return None
-    from scipy.spatial import ConvexHull
+    from scipy.spatial import ConvexHull  # scipy.spatial (~0.2 s): only a plate's report pays it
     p = res.plate_vertices[res.plate_vertex_held]
     hull = p[ConvexHull(p).vertices]
     return np.vstack([hull, hull[:1]])
@@ -309,7 +309,6 @@ def plate_map_figures(results: dict, polygons, area, scene_name: str):
     the route gives it. ``polygons`` (N, 4, 2) m, ``area`` (N,) m² of the interface cells. The
     caller closes the figures."""
     from matplotlib.collections import PolyCollection  # with pyplot: only the commands that draw pay it
-    from orchestrator.results_file import contact_pressure, peak_uplift_step
     polygons, area = np.asarray(polygons, float), np.asarray(area, float)
     out = []
     plt = None

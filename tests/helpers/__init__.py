@@ -17,6 +17,8 @@
   passive_models passive RationalModels from mechanical building blocks
   roundoff       the round-off spread of a run (its input scaled by 1 + k 1e-14) and the
                  comparison of two steppers within it (``from helpers.roundoff import ...``)
+  plates         plate rafts: a square plate mesh, the reactor's sticks on a concrete plate, the
+                 route tests' small plate scene (``from helpers.plates import ...``)
 """
 from pathlib import Path
 

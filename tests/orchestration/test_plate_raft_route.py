@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from helpers import pulse_motion, soil_model, write_scene
-from helpers.winkler import NU, R, RHO
+from helpers.plates import PLATE, PLATE_SCENE
+from helpers.winkler import R
 from fmus.resources import DEFAULT_SOIL_FACTORY, soil_from_model
 from orchestrator.cli import main
 from orchestrator.export import export_scene
@@ -23,15 +24,7 @@ from structure import simulate
 from structure.model import vertical_trace
 from structure.plate_raft import PlateProperties, PlateRaftModel
 
-PLATE = {"kind": "plate", "thickness": 2.0, "E": 30e9, "nu": 0.2, "rho": 2500.0}
-SCENE = {
-    "soil": {"halfspace": {"vs": 1600.0, "nu": NU, "rho": RHO}},
-    "foundation": {"shape": "circle", "radius": R, "element_size": 5.0, "raft": PLATE},
-    "structure": {"model": "reactor", "damping": {"modal": 0.07}},
-    "contact": {"enabled": True},
-    "analysis": {"dt": 0.005, "routes": ["monolithic"]},
-    "output": {"nodes": ["top_outer", "internals_37m"]},
-}
+SCENE = PLATE_SCENE
 
 
 def scene(**foundation):

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from helpers import pulse_motion, soil_model, write_scene
+from helpers.plates import PLATE_SCENE as SCENE
 from orchestrator.cli import main
 from orchestrator.oncurve import scene_key
 from orchestrator.report import write_report
@@ -16,7 +17,6 @@ from orchestrator.routes.monolithic import run_monolithic
 from orchestrator.scene import SceneError, scene_from_dict
 from orchestrator.scene_file import scene_toml
 from structure.model import G_ACC
-from test_plate_raft_route import SCENE
 
 POINTS = {"edge": [18.0, 0.0], "mid": [-10.0, 5.0]}
 

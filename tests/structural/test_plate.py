@@ -4,21 +4,10 @@ import numpy as np
 import pytest
 import scipy.sparse.linalg as spl
 
+from helpers.plates import square
 from structure.plate import bending_matrix, dkt_stiffness, flexural_rigidity, plate_stiffness, pressure_load
 
 E, T, NU = 30e9, 0.1, 0.3
-
-
-def square(n, a=1.0, jitter=0.0, seed=0):
-    """(n + 1)² points of the square [0, a]², n² quads; interior points moved by up to jitter·h."""
-    x = np.linspace(0.0, a, n + 1)
-    X, Y = np.meshgrid(x, x, indexing="ij")
-    pts = np.column_stack([X.ravel(), Y.ravel()])
-    inner = (pts > 1e-12).all(axis=1) & (pts < a - 1e-12).all(axis=1)
-    pts[inner] += jitter * (a / n) * np.random.default_rng(seed).uniform(-1, 1, (inner.sum(), 2))
-    idx = lambda i, j: i * (n + 1) + j
-    quads = [[idx(i, j), idx(i + 1, j), idx(i + 1, j + 1), idx(i, j + 1)] for i in range(n) for j in range(n)]
-    return pts, quads
 
 
 def navier_centre(a, q, D, terms=201):

@@ -1,38 +1,19 @@
 """The plate raft in the Newmark stepper (structure.plate_raft): the rigid limit, the static
 preload of a flexible plate on the BEM half-space, the stepper's consistency checks on a plate."""
-import dataclasses
 
 import numpy as np
 import pytest
 import scipy.sparse as sp
 
 from helpers.cases import pulse_motion
+from helpers.plates import peaks, reactor_plate
 from helpers.winkler import rock_winkler
 from soil_impedance.mesh import circle_mesh, cells_mesh
 from structure import ContactSettings, StructureError, simulate
 from structure.model import G_ACC, Node, Raft, StructureModel, vertical_trace
 from structure.plate import plate_stiffness
 from structure.plate_raft import PlateProperties, PlateRaftModel, PlateStepper, plate_cells, rigid_equivalent
-from structure.spec import model_from_spec
 from structure.soil_interface import SoilInterface
-
-CONCRETE = dict(E=30e9, nu=0.2, rho=2500.0)
-
-
-def reactor_plate(element_size=4.0, stiffening=1.0, rigid_radius=6.0, thickness=None):
-    """(mesh, PlateRaftModel): the reactor sticks on a 20 m concrete plate of the raft's mass
-    (thickness = raft mass / (rho A)), E ``stiffening`` times the concrete's."""
-    mesh = circle_mesh(20.0, element_size)
-    stick = model_from_spec({"model": "reactor", "damping": {"modal": 0.07}}, mesh.xy, mesh.area)
-    t = thickness or stick.raft.m / (CONCRETE["rho"] * mesh.area.sum())
-    stick = dataclasses.replace(stick, raft=dataclasses.replace(stick.raft, m=0.0, inertia=(0.0, 0.0, 0.0)))
-    plate = PlateProperties(t, CONCRETE["E"] * stiffening, CONCRETE["nu"], CONCRETE["rho"], rigid_radius)
-    return mesh, PlateRaftModel(stick, plate, *plate_cells(mesh.xy, mesh.cell))
-
-
-def peaks(res):
-    return res.max_uplift(), np.abs(res.raft[:, 3:5]).max()
-
 
 def test_plate_cells_trace_reproduces_the_rigid_trace():
     # grid squares and a mesh file's triangles and quadrilaterals (a trapezoid: the inverse bilinear map)

@@ -11,6 +11,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spl
 
 from helpers.cases import pulse_motion
+from helpers.plates import reactor_plate, square
 from helpers.winkler import rock_winkler
 from structure import ContactSettings, StructureError, simulate
 from structure.damping import damping_matrix
@@ -18,8 +19,6 @@ from structure.model import G_ACC
 from structure.plate import bending_matrix, flexural_rigidity, moment_operator, plate_stiffness, pressure_load
 from structure.model import vertical_trace
 from structure.plate_raft import PlateProperties, PlateStepper
-from test_plate import square
-from test_plate_raft import reactor_plate
 
 E, T, NU = 30e9, 0.1, 0.3
 
