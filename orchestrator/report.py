@@ -139,7 +139,8 @@ def write_report(results_path, directory, reference: str | None = None, pushover
                  "nodes and directions.</p>", _table(COMPARISON_HEADER, comparison_rows(cmp)),
                  "<h2>Figures</h2><p>Per route: uplift at the raft edges along x and y, the raft's vertical "
                  "displacements (edges and centre) and its rocking about x and y with the magnitude "
-                 "sqrt(rx² + ry²) (paper fig. 3-4), floor response spectra in x, y and z (fig. 5-6); dashed: "
+                 "sqrt(rx² + ry²) (paper fig. 3-4), floor response spectra in x, y and z (fig. 5-6; a plate raft's "
+                 "<code>[output] raft_points</code> among them, under their names); dashed: "
                  "the <code>linear</code> route (no uplift) when present.</p>"]
         parts += _images(figures)
         if uplift_map:
