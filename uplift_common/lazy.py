@@ -76,7 +76,9 @@ def defer_modules(names=UNUSED_NUMPY) -> list[str]:
         if name in sys.modules:
             continue
         parent, _, child = name.rpartition(".")
-        package = importlib.import_module(parent) if parent else None
+        if parent:
+            __import__(parent)                 # (as an import statement: ``-X importtime`` lists it)
+        package = sys.modules[parent] if parent else None
         spec = importlib.util.find_spec(name)
         if spec is None or spec.loader is None or not hasattr(spec.loader, "exec_module"):
             continue
