@@ -101,7 +101,7 @@ def settle(shared):
         fit = shared.soil_fit()
     except (UserInputError, ComputationError):
         return
-    from orchestrator.standin import constrained_fit
+    from orchestrator.standin import constrained_fit      # the native host and the fit stack: only when settled
     shared.made["timefreq"] = constrained_fit(shared.tables["gap"], fit.model, cache_dir=shared.cache_dir)
 
 
