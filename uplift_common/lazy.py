@@ -70,7 +70,8 @@ def defer_modules(names=UNUSED_NUMPY) -> list[str]:
     the module object is in ``sys.modules`` and on its parent package, its code runs when one of
     its attributes is first read): a module that is only listed, never used, is never run. Its
     parent package is imported. Modules already imported (or not installed) are left as they are.
-    Returns the names deferred."""
+    Returns the names deferred. Only for modules a computation never uses: Python 3.11's lazy
+    module is not safe against two threads making its first use at once."""
     done = []
     for name in names:
         if name in sys.modules:
