@@ -9,6 +9,8 @@ API::
 """
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 
 from uplift_common.errors import ComputationError, UserInputError
@@ -94,15 +96,13 @@ def run(ctx, progress=None):
 def settle(shared):
     """An ensemble's set-up (``SharedRun.settle``): the scene's fit and the stand-in's constrained
     fit of its gap table, made once here instead of in every worker (``shared.made["timefreq"]``).
-    Nothing for a plate raft (no stand-in), nor when the fit fails (each run says why)."""
+    Nothing for a plate raft (no stand-in), nor when a fit fails (each run tries and says why)."""
     if getattr(shared.scene, "raft", None) is not None or "gap" not in shared.tables:
         return
-    try:
-        fit = shared.soil_fit()
-    except (UserInputError, ComputationError):
-        return
     from orchestrator.standin import constrained_fit      # the native host and the fit stack: only when settled
-    shared.made["timefreq"] = constrained_fit(shared.tables["gap"], fit.model, cache_dir=shared.cache_dir)
+    with contextlib.suppress(UserInputError, ComputationError):
+        shared.made["timefreq"] = constrained_fit(shared.tables["gap"], shared.soil_fit().model,
+                                                  cache_dir=shared.cache_dir)
 
 
 ROUTE = register(Route(

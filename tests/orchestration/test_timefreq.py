@@ -345,6 +345,7 @@ def test_an_ensembles_set_up_makes_the_constrained_fit_once_for_its_workers(monk
     import orchestrator.standin as standin
     from helpers import small_reactor
     from orchestrator.run import prepare_run, run_scene
+    from uplift_common.errors import ComputationError
     from orchestrator.scene import scene_from_dict
 
     scene = scene_from_dict(small_reactor(soil=LAYERED, motion={"duration_s": 1.0},
@@ -355,6 +356,11 @@ def test_an_ensembles_set_up_makes_the_constrained_fit_once_for_its_workers(monk
     shared.settle()
     made = shared.made["timefreq"]
     assert shared.fit is not None and made.passive and not made.cached
+
+    def failing(*args, **kwargs):
+        raise ComputationError("no constrained fit here")
+    monkeypatch.setattr(standin, "continuation_fit", failing)         # a failure is each run's to say
+    assert dataclasses.replace(shared, made={}).settle().made == {}
 
     def refused(*args, **kwargs):
         raise AssertionError("a cell fitted the constrained fit again")
