@@ -44,7 +44,12 @@ Rows (one small function each, registered with ``@row``; add one the same way):
 --busy runs every row beside one CPU-burning process (``python -c "while True: pass"``,
 started and stopped here): the machine has two cores, so a route that uses both feels it.
 
-    python benchmarks/speed.py [--repeat 3] [--busy] [--only ROW ...] [--json]
+    python benchmarks/speed.py [--repeat 3] [--busy] [--only ROW ...] [--json] [--before CHECKOUT]
+
+--before CHECKOUT measures the same rows on another checkout first (this file run in a child
+process with PYTHONPATH=CHECKOUT, the same cache), then on this one, and prints them side by
+side (before -> after: wall, ratio to each run's own kernel, CPU), beside the busy process too
+with --busy; under load, compare the CPU columns.
 
 The code measured is the one imported (PYTHONPATH), also by the ``uplift run`` row: the same
 file measures another checkout with PYTHONPATH=<checkout>. The machine may be shared: idle means nothing else of ours runs, not that the cores are free;
@@ -402,17 +407,50 @@ def format_rows(rows, busy: bool) -> str:
     return "\n".join(lines)
 
 
+def format_pairs(before, after, busy: bool) -> str:
+    """The rows of two runs side by side: before -> after (wall s, x kernel, CPU s), the note after."""
+    head = (f"{'what':<24} {'wall s':>15} {'x kernel':>15} {'cpu s':>13}  "
+            f"(before -> after, {'beside one busy process' if busy else 'idle'})")
+    old = {r["row"]: r for r in before}
+    lines = [head, "-" * len(head)]
+    for r in after:
+        b = old.get(r["row"])
+        pair = (lambda k, f: f"{format(b[k], f):>6} -> {format(r[k], f):<6}") if b else \
+            (lambda k, f: f"{'':>6}    {format(r[k], f):<6}")
+        lines.append(f"{r['row']:<24} {pair('wall_s', '.3f')} {pair('ratio', '.2f')} {pair('cpu_s', '.2f')}  {r['note']}")
+    return "\n".join(lines)
+
+
+def measure_before(checkout, names, repeat: int, busy: bool) -> list:
+    """The rows measured on ``checkout`` (this file in a child process importing that checkout)."""
+    env = dict(os.environ, PYTHONPATH=str(Path(checkout).resolve()))
+    cmd = [sys.executable, str(Path(__file__).resolve()), "--json", "--repeat", str(repeat), "--only", *names]
+    done = subprocess.run(cmd + (["--busy"] if busy else []), env=env, capture_output=True, text=True)
+    if done.returncode:
+        raise SystemExit(f"speed.py --before {checkout}: the run on it failed: {done.stderr[-2000:]}")
+    return json.loads(done.stdout)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeat", type=int, default=3, help="runs per row, best kept (default 3)")
     ap.add_argument("--busy", action="store_true", help="beside one CPU-burning process")
     ap.add_argument("--only", nargs="+", choices=list(ROWS), help="these rows only (and the kernel)")
     ap.add_argument("--json", action="store_true", help="print the rows as JSON")
+    ap.add_argument("--before", metavar="CHECKOUT", type=Path,
+                    help="measure the rows on this checkout first and print before -> after")
     a = ap.parse_args(argv)
     if a.repeat < 1:
         ap.error("--repeat must be >= 1")
-    rows = measure(a.only or list(ROWS), a.repeat, a.busy)
-    print(json.dumps(rows, indent=1) if a.json else format_rows(rows, a.busy))
+    if a.before is not None and not (a.before / "orchestrator").is_dir():
+        ap.error(f"--before {a.before}: not a checkout of the project (no orchestrator/ folder in it)")
+    names = a.only or list(ROWS)
+    before = measure_before(a.before, names, a.repeat, a.busy) if a.before is not None else None
+    rows = measure(names, a.repeat, a.busy)
+    if a.json:
+        print(json.dumps(rows if before is None else {"before": before, "after": rows}, indent=1))
+    else:
+        print(format_rows(rows, a.busy) if before is None else format_pairs(before, rows, a.busy))
 
 
 if __name__ == "__main__":

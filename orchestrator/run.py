@@ -278,7 +278,8 @@ class SharedRun:
     it is refused or stopped with the reason); dt_check : a step-doubling check (``step_doubling``)
     standing for every run, or None: each run checks its own motion (as a single run does);
     scene_key : ``oncurve.scene_key`` of the scene (what a pushover of it depends on; each
-    route's ``info`` carries it: ``uplift report`` draws the run on that pushover).
+    route's ``info`` carries it: ``uplift report`` draws the run on that pushover); made :
+    {route: what its ``Route.settle`` made in advance} (``settle``; empty for a single run).
     """
     scene: object
     routes: tuple
@@ -292,6 +293,7 @@ class SharedRun:
     dt_check: Mapping | None = None
     fit_progress: Callable | None = None
     scene_key: str = ""
+    made: dict = dataclasses.field(default_factory=dict)
 
     def soil_fit(self):
         """The rational fit of the gap table (``fit``): made here on first need (``scene_fit`` on
@@ -312,13 +314,18 @@ class SharedRun:
 
     def settle(self) -> SharedRun:
         """Make now what a route would make on first need (the fit, when a route needs it; its
-        error kept, not raised): before copies of this object are sent to other processes (an
-        ensemble's workers), so that it is made once for all of them. Returns self."""
+        error kept, not raised; and what each route's ``settle`` makes in advance): before copies
+        of this object are sent to other processes (an ensemble's workers), so that it is made
+        once for all of them. Returns self."""
         if any(get_route(r).needs_fit for r in self.routes) and "gap" in self.tables:
             try:
                 self.soil_fit()
             except (*USER_INPUT, *STOPPED):
                 pass                                 # kept in fit_error, raised in each route that needs it
+        for name in self.routes:
+            route = get_route(name)
+            if route.settle is not None and name not in self.made:
+                route.settle(self)
         return self
 
     def __getstate__(self):

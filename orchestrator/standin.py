@@ -96,12 +96,19 @@ class NativeStandIn:
                        wall_s=time.perf_counter() - t0)
 
 
-def stand_in_factory(table, fit_model, *, cache_dir=None, damping=None):
+def constrained_fit(table, fit_model, *, cache_dir=None):
+    """The stand-in's fit: ``table`` constrained to the route's continuation on ``fit_model``'s
+    poles (``continuation_fit``, cached in ``cache_dir``)."""
+    return continuation_fit(table, fit_model.poles, cache_dir=cache_dir)
+
+
+def stand_in_factory(table, fit_model, *, cache_dir=None, damping=None, constrained=None):
     """callable(prob) -> (NativeStandIn or None, reason): the constrained fit of ``table`` on
-    ``fit_model``'s poles (cached in ``cache_dir``), marched natively, or None and why not (the
-    fit not passive, no native library here)."""
+    ``fit_model``'s poles (``constrained`` when made already, else ``constrained_fit``, cached in
+    ``cache_dir``), marched natively, or None and why not (the fit not passive, no native library
+    here)."""
     def make(prob):
-        fit = continuation_fit(table, fit_model.poles, cache_dir=cache_dir)
+        fit = constrained if constrained is not None else constrained_fit(table, fit_model, cache_dir=cache_dir)
         if not fit.passive:
             return None, (f"the fit constrained to the route's continuation ({fit_model.order} poles) is not "
                           f"passive (margin {fit.margin:.2e})")

@@ -55,6 +55,11 @@ class Route:
                      the BEM table itself; monolithic 2; cosim 1, equal to it to round-off)
     uplift : the raft may lift off (False: bonded, e.g. linear; never a reference of uplift
              quantities, and its own max uplift is not compared)
+    settle : callable(shared: orchestrator.run.SharedRun) or None: what ``run`` would make on
+             first need that does not depend on the motion (e.g. timefreq's constrained fit),
+             made once by ``SharedRun.settle`` before an ensemble's workers receive the run; it
+             keeps it in ``shared.made[name]`` (``run`` reads ``ctx.prepared.made``); its errors
+             are the route's to report in each run (settle must not raise them)
     """
     name: str
     summary: str
@@ -68,6 +73,7 @@ class Route:
     quick: Mapping[str, Mapping[str, tuple]] = field(default_factory=dict)
     reference_rank: int = 0
     uplift: bool = True
+    settle: Callable | None = None
 
     def __post_init__(self):
         unknown = {k for knobs in (*self.bench.values(), *self.quick.values()) for k in knobs} \

@@ -9,6 +9,8 @@ API::
 """
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 
 from uplift_common.errors import ComputationError, UserInputError
@@ -24,7 +26,7 @@ SOLVE_KEYWORDS = ("damping", "static", "route")
 
 
 def run_timefreq(motion, model, table_gap, *, contact, output_nodes, max_seconds=None, progress=None,
-                 fit=None, cache_dir=None, **overrides):
+                 fit=None, cache_dir=None, constrained=None, **overrides):
     """RouteResult of ``solve`` on the BEM gap table ``table_gap`` (ImpedanceTable, 6+N) for
     ``motion`` (orchestrator.motion.Motion: acc (nt, 3) m/s^2, dt s), the structure ``model``,
     the ContactSettings ``contact`` and the output node names.
@@ -38,7 +40,8 @@ def run_timefreq(motion, model, table_gap, *, contact, output_nodes, max_seconds
     the causal stand-in (orchestrator/standin.py: the fit's poles constrained to the route's
     continuation above the table, cached in ``cache_dir``, on the native stepper) when that is
     passive, else the table's own kernel (and notes.warnings says why); info["march"] says which.
-    The answer is the table's either way (the residual is the table's).
+    The answer is the table's either way (the residual is the table's). constrained : that
+    constrained fit when made already (``constrained_fit``, once for an ensemble: ``settle``), or None.
     """
     # the solver's imports (pyfftw, scipy.interpolate: ~0.7 s) when the route runs, not with the registry
     from orchestrator.timefreq import GridOptions, SolveOptions, solve, with_overrides
@@ -53,7 +56,7 @@ def run_timefreq(motion, model, table_gap, *, contact, output_nodes, max_seconds
         # the native host and the constrained fit only when a fit is given
         from orchestrator.standin import stand_in_factory
         stand_in = stand_in_factory(table_gap, getattr(fit, "model", fit), cache_dir=cache_dir,
-                                    damping=rest.get("damping"))
+                                    damping=rest.get("damping"), constrained=constrained)
     return solve(model, table_gap, motion.acc, motion.dt, contact=contact, output_nodes=output_nodes,
                  grid=grid, options=options, monitor=decades_bar(progress, options.tol or TOL), stand_in=stand_in,
                  **rest)
@@ -80,13 +83,26 @@ def run(ctx, progress=None):
             fit = ctx.fit()             # the scene's fit: the stand-in's poles (cached, shared with the TD routes)
         except (UserInputError, ComputationError) as exc:   # none: the march on the table's own kernel (said in the notes)
             why = str(exc).splitlines()[0]
+    constrained = getattr(ctx.prepared, "made", {}).get("timefreq") if fit is not None else None
     res = run_timefreq(ctx.motion, route_model(ctx), ctx.tables["gap"], contact=ctx.scene.contact,
                        output_nodes=ctx.scene.output.nodes, max_seconds=ctx.scene.analysis.timefreq_max_s,
-                       progress=progress, fit=fit, cache_dir=ctx.cache_dir, **ctx.options)
+                       progress=progress, fit=fit, cache_dir=ctx.cache_dir, constrained=constrained, **ctx.options)
     if why:
         said = f"no causal stand-in (the scene's fit failed: {why}); the march on the table's own kernel ran"
         res = res.with_notes(warnings=[said])
     return res
+
+
+def settle(shared):
+    """An ensemble's set-up (``SharedRun.settle``): the scene's fit and the stand-in's constrained
+    fit of its gap table, made once here instead of in every worker (``shared.made["timefreq"]``).
+    Nothing for a plate raft (no stand-in), nor when a fit fails (each run tries and says why)."""
+    if getattr(shared.scene, "raft", None) is not None or "gap" not in shared.tables:
+        return
+    from orchestrator.standin import constrained_fit      # the native host and the fit stack: only when settled
+    with contextlib.suppress(UserInputError, ComputationError):
+        shared.made["timefreq"] = constrained_fit(shared.tables["gap"], shared.soil_fit().model,
+                                                  cache_dir=shared.cache_dir)
 
 
 ROUTE = register(Route(
@@ -100,4 +116,5 @@ ROUTE = register(Route(
            "reactor": {"dt": (0.01, 0.005), "pad_s": (0.25, 2.0), "element_size": (4.0, 2.28)}},
     quick={"disk-halfspace": {"dt": (0.01, 0.005)}},
     reference_rank=3,
+    settle=settle,
 ))

@@ -337,6 +337,40 @@ def test_a_run_of_the_route_marches_the_stand_in(tmp_path):
     assert not res.notes.warnings
 
 
+def test_an_ensembles_set_up_makes_the_constrained_fit_once_for_its_workers(monkeypatch):
+    """``prepare_run(...).settle()`` (an ensemble's set-up, before the run is sent to its workers)
+    makes the scene's fit and the stand-in's constrained fit, without a cache folder too; a cell
+    run on that shared run marches the stand-in without fitting again (continuation_fit refused
+    there) and gives a single run's answer to the bit."""
+    import orchestrator.standin as standin
+    from helpers import small_reactor
+    from orchestrator.run import prepare_run, run_scene
+    from uplift_common.errors import ComputationError
+    from orchestrator.scene import scene_from_dict
+
+    scene = scene_from_dict(small_reactor(soil=LAYERED, motion={"duration_s": 1.0},
+                                          analysis={"routes": ["timefreq"]}), name="ens")
+    single, _ = run_scene(scene, cache_dir=None)
+    shared = prepare_run(scene, cache_dir=None)
+    assert shared.fit is None and shared.made == {}          # nothing made before settle (timefreq needs no fit)
+    shared.settle()
+    made = shared.made["timefreq"]
+    assert shared.fit is not None and made.passive and not made.cached
+
+    def failing(*args, **kwargs):
+        raise ComputationError("no constrained fit here")
+    monkeypatch.setattr(standin, "continuation_fit", failing)         # a failure is each run's to say
+    assert dataclasses.replace(shared, made={}).settle().made == {}
+
+    def refused(*args, **kwargs):
+        raise AssertionError("a cell fitted the constrained fit again")
+    monkeypatch.setattr(standin, "continuation_fit", refused)
+    cell, _ = run_scene(scene, cache_dir=None, shared=shared)
+    res = cell["timefreq"]
+    assert res.converged and res.info["march"] == "stand-in", res.notes.warnings
+    assert np.array_equal(res.gap, single["timefreq"].gap)
+
+
 def test_the_constrained_fit_is_cached_by_its_inputs(tmp_path):
     """continuation_fit's cache: the second call reads the same model (its digest), passivity and
     error; other poles are another entry; the model's D and E are the route's continuation."""

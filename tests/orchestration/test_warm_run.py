@@ -9,8 +9,10 @@ import sys
 import pytest
 from helpers import ROOT
 
-#: modules a run of a scene without soil cases or design spectra does not need
-NOT_NEEDED = ("orchestrator.design", "orchestrator.site_response", "scipy.spatial", "scipy.constants")
+#: modules a run of a scene without soil cases or design spectra does not need (numpy's Fortran
+#: wrapper generator and test utilities: scipy's import lists them, the command defers them)
+NOT_NEEDED = ("orchestrator.design", "orchestrator.site_response", "scipy.spatial", "scipy.constants",
+              "numpy.f2py.f2py2e", "numpy.testing._private.utils", "unittest")
 
 
 def test_a_plain_run_loads_neither_the_design_run_nor_scipy_spatial(tmp_path):
@@ -23,6 +25,24 @@ def test_a_plain_run_loads_neither_the_design_run_nor_scipy_spatial(tmp_path):
     assert proc.returncode == 2 and "no-such-folder" in proc.stderr, proc.stderr[-2000:]
     assert {"orchestrator.run", "orchestrator.results_file", "soil_impedance.mesh", "scipy.sparse"} <= names
     assert not names & set(NOT_NEEDED), f"a plain run imported {sorted(names & set(NOT_NEEDED))}"
+
+
+def test_deferred_modules_load_on_first_use_only():
+    """``uplift_common.lazy.defer_modules`` in a fresh process: scipy's import (which lists every
+    name of numpy) runs neither numpy.f2py nor numpy.testing; both work on first use, as imported
+    (``from numpy.testing import ...``, ``numpy.f2py.<attr>``); a module loaded already is left as
+    it is."""
+    code = ("import sys\n"
+            "from uplift_common.lazy import defer_modules\n"
+            "print(defer_modules(('numpy.f2py', 'numpy.testing', 'os')))\n"
+            "import numpy, scipy.linalg, scipy.sparse\n"
+            "print(sorted(m for m in ('numpy.f2py.f2py2e', 'numpy.testing._private.utils', 'unittest') if m in sys.modules))\n"
+            "from numpy.testing import assert_array_equal\n"
+            "assert_array_equal(numpy.arange(3), [0, 1, 2])\n"
+            "print(numpy.testing.assert_allclose.__name__, callable(numpy.f2py.run_main), 'numpy.f2py.f2py2e' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True,
+                         env={**os.environ, "PYTHONPATH": str(ROOT)}).stdout.splitlines()
+    assert out == ["['numpy.f2py', 'numpy.testing']", "[]", "assert_allclose True True"]
 
 
 def test_is_design_is_the_design_modules():
