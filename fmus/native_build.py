@@ -328,11 +328,38 @@ def stepper_records(st, node_dofs) -> dict:
                          f"{contact.max_iter} be >= 1")
     ns = st.ns
     dense = lambda a: np.asarray(a[:ns, :ns].toarray(), float)
+    plate = st.Bq3 is None                      # structure.plate_raft.PlateStepper: a plate raft
     return {"ns": float(ns), "N": float(st.N), "alpha": st.alpha,
             "contact_enabled": float(contact.enabled), "contact_tol": float(contact.tol),
             "contact_max_iter": float(contact.max_iter), "contact_max_subdiv": float(contact.max_subdiv),
-            "M": st.M, "Ks": dense(st.Ks), "Cs": dense(st.Cs), "Mr": st.Mr[:ns], "Bq3": st.Bq3, "kp": st.kp,
-            "P0": st.P0, "delta0": st.delta0, "node_dofs": np.array(node_dofs, np.int64).reshape(-1, 3)}
+            "M": st.M, "Ks": dense(st.Ks), "Cs": dense(st.Cs), "Mr": st.Mr[:ns],
+            "Bq3": np.zeros((st.N, 3)) if plate else st.Bq3, "kp": st.kp,
+            "P0": st.P0, "delta0": st.delta0, "node_dofs": np.array(node_dofs, np.int64).reshape(-1, 3),
+            **(plate_records(st) if plate else {})}
+
+
+def plate_records(st) -> dict:
+    """A plate raft's records (``structure.plate_raft.PlateStepper``): ``plate_nf`` the free
+    vertices (their deflections t in the boundary block [q, t, w]), ``plate_trace_col`` int64 and
+    ``plate_trace_val`` float64 (N, w): each node's trace on [q, t] (the slaved vertices through
+    q[2:5], the free ones through t; column -1 pads), the contact d_i = trace_i - w_i (the rows of
+    ``st.Bc``, whose part on w must be -I)."""
+    Bc = st.Bc.tocsr()
+    Bc.sum_duplicates()
+    nq = 6 + st.model.nf
+    rows = []
+    for i in range(st.N):
+        c, v = Bc.indices[Bc.indptr[i]:Bc.indptr[i + 1]], Bc.data[Bc.indptr[i]:Bc.indptr[i + 1]]
+        on = c < nq
+        if not (np.array_equal(c[~on], [nq + i]) and np.array_equal(v[~on], [-1.0])):
+            raise ValueError(f"the plate's contact operator's row {i} is not (trace on [q, t]) - w_{i}")
+        rows.append((c[on], v[on]))
+    width = max([len(c) for c, _ in rows] + [1])
+    col = np.full((st.N, width), -1, np.int64)
+    val = np.zeros((st.N, width))
+    for i, (c, v) in enumerate(rows):
+        col[i, :len(c)], val[i, :len(c)] = c, v
+    return {"plate_nf": float(st.model.nf), "plate_trace_col": col, "plate_trace_val": val}
 
 
 # ---- the model description ---------------------------------------------------------------------

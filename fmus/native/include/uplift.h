@@ -308,6 +308,15 @@ typedef struct {
     int last_halved;          /* 1 when the last step was halved */
     long n_factorisations;    /* LU factorisations of Newton matrices so far (bases and capacitances) */
     char *err;                /* message of a failed step */
+    /* a plate raft (structure/plate_raft.py, PlateStepper; record nf): the boundary block is
+       x = [q, t, w] (nb = 6 + nf + N), t the free plate vertices' deflections, the soil on
+       [q, w] only (nsoil = 6 + N; its vectors fs, Kx, h held in the soil's order); the contact
+       d_i = sum_k bc_val[k] x[bc_col[k]] (k in bc_ptr[i] .. bc_ptr[i + 1]: the trace on [q, t])
+       - w_i. A rigid raft: nf = 0, nsoil = nb, no bc_* (d = Bq3 q[2:5] - w) */
+    int nf, nsoil;
+    int *bc_ptr, *bc_col;
+    double *bc_val;
+    double *xs, *vs;          /* (nsoil) work: x and xdot in the soil's order */
 } UpStepper;
 
 int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, char *err);

@@ -1,0 +1,102 @@
+"""A plate raft on the native stepper (fmus/native/stepper.c's plate trace: the boundary block
+[q, t, w], the contact d = Bc [q, t, w] through each node's few vertex weights, the soil on
+[q, w] only) against the Python plate stepper (structure.plate_raft.PlateStepper), its reference.
+
+Scene: the reactor sticks on a 2 m concrete plate (61 interface nodes, 80 plate vertices, the
+held region within 10 m of the centre) over the rock's springs and dashpots with two Maxwell
+terms, a pulse along x, y and z that lifts 87 % of the raft by up to 7 cm. "Equal": each history (raft, gap,
+contact force, soil, nodes, energies and the plate's deflections at its vertices and nodes)
+within max(1e-10, 100 x its round-off spread), the spread measured on the Python stepper under
+the motion scaled by 1 + k 1e-14 (tests/helpers/roundoff.py); the Newton counts and the halved
+steps identical. With Newton limited to 3 iterations, 5 steps are halved (the state saved and
+restored, the soil's levels): the same steps (with 2 iterations a step at t = 0.94 s converges in
+2 on one stepper and not on the other, a choice at round-off that no tolerance can follow). Bonded (contact off, linear): 1e-10 (measured
+5e-12: the plate's stiff bending against the soil conditions the solves worse than a rigid raft's;
+under test_cosim_plate.py's stronger pulse, pga 6 m/s^2, the two differ by 1.8e-9 on soil w, twice
+that tolerance: the two steppers' per-step round-off, amplified by 88 % uplift).
+
+About 8 s (the library compiled once per content hash into the cache folder).
+"""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from helpers import pulse_motion, rel, soil_model
+from helpers.roundoff import assert_within_spread, histories, roundoff_spread
+from helpers.winkler import NU, R, RHO
+from fmus import native_stepper
+from fmus.native_build import stepper_records
+from fmus.resources import soil_from_model
+from orchestrator.routes.monolithic import run_monolithic
+from orchestrator.scene import scene_from_dict
+from structure.plate_raft import PlateStepper
+
+PLATE = {"kind": "plate", "thickness": 2.0, "E": 30e9, "nu": 0.2, "rho": 2500.0}
+SCENE = scene_from_dict({
+    "soil": {"halfspace": {"vs": 1600.0, "nu": NU, "rho": RHO}},
+    "foundation": {"shape": "circle", "radius": R, "element_size": 4.6, "raft": PLATE},
+    "structure": {"model": "reactor", "damping": {"modal": 0.07}},
+    "contact": {"enabled": True},
+    "analysis": {"dt": 0.005, "routes": ["monolithic"]},
+    "output": {"nodes": ["top_outer", "internals_37m"]},
+}, name="plate")
+MODEL = soil_model(SCENE)
+MOTION = pulse_motion(0.005, 1.0, pga=4.0, tp=0.5, y=0.5)
+
+pytestmark = pytest.mark.skipif(native_stepper.library() is None, reason="no C compiler for the native stepper")
+
+
+def plate_histories(res) -> dict:
+    """The compared histories with the plate's deflections."""
+    return {**histories(res), "plate_deflection": res.plate_deflection,
+            "plate_vertex_deflection": res.plate_vertex_deflection}
+
+
+def run(stepper, contact=None, ag=None):
+    sc = SCENE if contact is None else dataclasses.replace(SCENE, contact=contact)
+    motion = MOTION if ag is None else dataclasses.replace(MOTION, acc=ag)
+    return run_monolithic(sc, motion, MODEL, stepper=stepper)
+
+
+def test_the_plate_s_records_are_its_trace():
+    """The records the C stepper reads: the plate's DOFs in ns, its free vertices, each node's
+    trace on [q, t] (at most 3 on q and 4 vertices), Bq3 unused (zero)."""
+    pm = SCENE.plate_model()
+    st = PlateStepper(pm, soil_from_model(MODEL, MOTION.dt), MOTION.dt, contact=SCENE.contact, external_soil=True)
+    recs = stepper_records(st, [])
+    assert recs["ns"] == pm.n_dof - pm.n_interface and recs["plate_nf"] == pm.nf
+    col, val = recs["plate_trace_col"], recs["plate_trace_val"]
+    assert col.shape[1] <= 7 and col.max() < 6 + pm.nf and not recs["Bq3"].any()
+    Bc = np.zeros((pm.n_interface, pm.nb))
+    for i in range(pm.n_interface):
+        on = col[i] >= 0
+        Bc[i, col[i, on]] = val[i, on]
+        Bc[i, 6 + pm.nf + i] = -1.0
+    assert np.array_equal(Bc, pm.boundary_trace.toarray())
+
+
+@pytest.mark.parametrize("max_iter", [50, 3])
+def test_native_plate_stepper_equals_the_python_plate_stepper(max_iter):
+    contact = dataclasses.replace(SCENE.contact, max_iter=max_iter, precheck=False)
+    ref = run("python", contact)
+    fast = run("native", contact)
+    assert ref.info["stepper"] == "python" and fast.info["stepper"] == "native" and not fast.notes.warnings
+    assert ref.converged and fast.converged and ref.max_uplift() > 1e-2
+    halved = ref.info["subdivided_steps"]
+    assert fast.info["subdivided_steps"] == halved and (halved > 0) == (max_iter == 3)
+    assert np.array_equal(fast.newton_iters, ref.newton_iters)
+    spread = roundoff_spread(lambda ag: plate_histories(run("python", contact, ag)), MOTION.acc,
+                             base=plate_histories(ref))
+    checks = assert_within_spread(plate_histories(fast), plate_histories(ref), spread)
+    # measured 5e-10 (max_iter 50), 2.6e-8 (3: the halved steps' larger spread)
+    assert checks["plate_vertex_deflection"][0] < (1e-8 if max_iter == 50 else 1e-6)
+    assert fast.plate_vertices.shape == (SCENE.plate_model().n_vertices, 2)
+
+
+def test_bonded_native_plate_equals_python_to_1e10():
+    contact = dataclasses.replace(SCENE.contact, enabled=False)
+    ref, fast = run("python", contact), run("native", contact)
+    assert fast.info["stepper"] == "native"
+    for name, a in plate_histories(ref).items():
+        assert rel(plate_histories(fast)[name], a) <= 1e-10, name
