@@ -280,9 +280,6 @@ def model_records(data: FmuData, newton: dict | None = None) -> dict:
     if data.soil_factory != DEFAULT_SOIL_FACTORY:
         raise ValueError(f"soil factory {data.soil_factory!r}: native FMUs run the recursive convolution of the "
                          f"rational model ({DEFAULT_SOIL_FACTORY}) only; export with kind = 'python' for another soil")
-    if getattr(data, "plate", None) is not None:
-        raise ValueError("a plate raft: the native FMUs step a rigid raft only; export with kind = 'python' "
-                         "(fmus.build.build_fmus carries the plate)")
     unknown = set(newton or {}) - set(NEWTON_KEYS)
     if unknown:
         raise ValueError(f"newton keys {sorted(unknown)}: allowed {', '.join(NEWTON_KEYS)}")
@@ -293,8 +290,13 @@ def model_records(data: FmuData, newton: dict | None = None) -> dict:
     soil = soil_from_model(data.soil_model, dt, DEFAULT_SOIL_FACTORY, data.soil_kwargs)     # verifies passivity
     contact = dataclasses.replace(contact_from_spec(data.contact), **(newton or {}))
     model = model_from_spec(data.structure, data.xy, data.area)
-    st = NewmarkStepper(model, soil, dt, contact=contact, damping=data.damping, alpha=float(data.alpha),
-                        external_soil=True)
+    cls = NewmarkStepper
+    if getattr(data, "plate", None) is not None:        # a plate raft: the PlateRaftModel the Python FMU rebuilds
+        from fmus.build import plate_arrays
+        from fmus.stepper import plate_model
+        from structure.plate_raft import PlateStepper
+        model, cls = plate_model(model, data.plate["properties"], plate_arrays(data.plate)), PlateStepper
+    st = cls(model, soil, dt, contact=contact, damping=data.damping, alpha=float(data.alpha), external_soil=True)
     nodes = [model.dofs(model.node_by_name(nm).id)[:3] for nm in data.output_nodes]
     common = soil_records(data.soil_model, dt)
     stepper = {**common, **stepper_records(st, nodes)}

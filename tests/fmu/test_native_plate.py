@@ -100,3 +100,52 @@ def test_bonded_native_plate_equals_python_to_1e10():
     assert fast.info["stepper"] == "native"
     for name, a in plate_histories(ref).items():
         assert rel(plate_histories(fast)[name], a) <= 1e-10, name
+
+
+# ---- the native FMUs of a plate ------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def native_mono():
+    """(the monolithic route's native run, its round-off spread on the native stepper)."""
+    mono = run("native")
+    assert mono.converged and mono.info["stepper"] == "native" and mono.max_uplift() > 1e-2
+    return mono, roundoff_spread(lambda ag: plate_histories(run("native", None, ag)), MOTION.acc,
+                                 base=plate_histories(mono))
+
+
+def test_cosim_route_runs_the_native_pair_on_a_plate(native_mono):
+    from orchestrator.routes.cosim import run_cosim
+    mono, spread = native_mono
+    cos = run_cosim(SCENE, MOTION, MODEL, schedule="jacobi")
+    assert cos.info["fmu_kind"] == "native" and cos.converged and not cos.notes.warnings
+    checks = assert_within_spread(cos, mono, spread)
+    assert max(d for d, _ in checks.values()) < 1e-9            # measured 1.9e-10 (contact force)
+    assert np.array_equal(cos.newton_iters, mono.newton_iters)
+    assert cos.info["fmu_max_uplift"] == pytest.approx(mono.max_uplift(), rel=1e-9)
+
+
+@pytest.mark.slow            # an export of three FMUs (the runtime compiled for this machine), validated and run
+@pytest.mark.parametrize("fmi_version", [2, 3])
+def test_exported_native_fmus_of_a_plate_validate_and_equal_monolithic(native_mono, fmi_version, tmp_path):
+    from fmpy import simulate_fmu
+    from fmpy.validation import validate_fmu
+    from orchestrator.export import export_scene
+    from orchestrator.master import cosimulate
+    mono, spread = native_mono
+    exp = export_scene(SCENE, tmp_path / "fmus", MODEL, motion=MOTION, fmi_version=fmi_version)
+    for fmu in (exp.structure, exp.soil, exp.coupled):
+        assert validate_fmu(str(fmu)) == [], fmu
+    cos = cosimulate(exp.structure, exp.soil, MOTION.acc, MOTION.dt, schedule="gauss-seidel")
+    assert cos.converged and np.array_equal(cos.newton_iters, mono.newton_iters)
+    assert_within_spread(cos, mono, spread)
+    # the coupled FMU (the plate and the soil in one FMU, its bundled motion): the monolithic route
+    if fmi_version == 3:                      # the interface vectors are arrays
+        res = simulate_fmu(str(exp.coupled), output=["x_raft_u", "x_raft_r", "gap", "max_uplift"])
+        raft, gap = np.hstack([res["x_raft_u"], res["x_raft_r"]]), res["gap"]
+    else:
+        N = SCENE.mesh.n
+        res = simulate_fmu(str(exp.coupled), output=["max_uplift"] + [f"x[{i}]" for i in range(6)]
+                           + [f"gap[{i}]" for i in range(N)])
+        raft = np.column_stack([res[f"x[{i}]"] for i in range(6)])
+        gap = np.column_stack([res[f"gap[{i}]"] for i in range(N)])
+    assert rel(raft, mono.raft) <= spread.tol("raft") and rel(gap, mono.gap) <= spread.tol("gap")
+    assert res["max_uplift"][-1] == pytest.approx(mono.max_uplift(), rel=1e-9)
