@@ -25,6 +25,15 @@
    equations: the histories equal the dense path's to round-off. No allocation after
    up_stepper_init.
 
+   A plate raft (structure/plate_raft.py, PlateStepper; resource record plate_nf): the boundary
+   block is x = [q, t, w] (nb = 6 + nf + N), t the free plate vertices' deflections; the contact
+   direction of node i is its trace on [q, t] (a few vertex weights, the held vertices' through
+   q[2:5]) and -1 on w_i (UpStepper.bc_*), used wherever a rigid raft uses Bq3; the soil acts on
+   [q, w] only: its matrices, history force and state vectors (fs, Kx, h) keep the soil's order
+   (nsoil = 6 + N), gathered from x around each product (soil_gather, soil_dof). The springs'
+   node-by-node elimination is a rigid raft's only. Without plate_nf every line a rigid raft
+   runs is the one it ran before the plate (the same bits).
+
    The reference is structure/newmark.py (NewmarkStepper: the readable Python stepper); this
    file and soil.c are what runs by default. A change to the physics is made there first, then
    here, step for step. The two are held equal by tests/fmu/test_native_stepper.py,
@@ -231,6 +240,12 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
         y->K0Cd = (double *)malloc(((size_t)nb + 30) * sizeof(double));
         y->S0d = (double *)malloc(((size_t)nb + 30) * sizeof(double));
         ok = y->AII && y->AIIp && y->ABI && y->X && y->S0 && y->Sq && y->K0C && y->K0Cp && y->K0Cd && y->S0d;
+        if (ok && s->nf) {
+            size_t nq = 6 + (size_t)s->nf;
+            y->Sqt = (double *)malloc(nq * nq * sizeof(double));
+            y->Sqtp = (double *)malloc(nq * (nq + 1) / 2 * sizeof(double));
+            ok = y->Sqt && y->Sqtp;
+        }
         for (int c = 0; ok && c < 2; c++) {
             y->Jb[c] = (double *)malloc((size_t)nb * nb * sizeof(double));
             y->Jp[c] = (double *)malloc(((size_t)nb * (nb + 1) / 2 + 1) * sizeof(double));
@@ -295,6 +310,8 @@ void up_stepper_free(UpStepper *s)
         free(y->K0Cp);
         free(y->K0Cd);
         free(y->S0d);
+        free(y->Sqt);
+        free(y->Sqtp);
         for (int c = 0; c < 2; c++) {
             free(y->Jb[c]);
             free(y->Jp[c]);
@@ -518,6 +535,21 @@ static const UpSystem *system_at(UpStepper *s, int lev)
         y->K0C[i] = sl->D0[i] + y->c1 * s->soil->E[i];
     up_pack_sym(y->K0C, nso, y->K0Cp);                    /* symmetric when E is (D0 is) */
     compact(y->K0C, nso, y->K0Cd);
+    if (nf) {                                             /* a plate: S0's structural part on [q, t] */
+        int nq = 6 + nf;
+        for (int i = 0; i < nq; i++)
+            for (int j = 0; j < nq; j++)
+                y->Sqt[(size_t)i * nq + j] = (S0[(size_t)i * nb + j]
+                                              - (i < 6 && j < 6 ? (1 + al) * y->K0C[(size_t)i * nso + j] : 0.0))
+                                             - (i == j ? y->c0 * s->M[ni + i] : 0.0);
+        if (s->sym) {
+            for (int i = 0; i < nq; i++)
+                for (int j = i + 1; j < nq; j++)
+                    y->Sqt[(size_t)i * nq + j] = y->Sqt[(size_t)j * nq + i]
+                        = 0.5 * (y->Sqt[(size_t)i * nq + j] + y->Sqt[(size_t)j * nq + i]);
+            up_pack_sym(y->Sqt, nq, y->Sqtp);
+        }
+    }
     compact(S0, nb, y->S0d);
     y->base_ok[0] = y->base_ok[1] = 0;                    /* built when first needed (base) */
     y->ready = 1;
@@ -965,8 +997,21 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
         /* S0 x = (1 + al) K0C x + c0 M_B x + Sq x[0:6], K0C x from the step that left x (the
            soil force's product) when it was at this level, else computed here (in fs_new's
            work, free until the iteration ends: the state is written only by a step that succeeds) */
-        if (s->nf) {                                      /* a plate: the structure touches [q, t] */
-            up_matvec(y->S0, nb, nb, uB, Sx);
+        if (s->nf) {
+            /* a plate: S0 x = (1 + al) K0C x on the soil's DOFs + c0 M_B x + Sqt x on [q, t] */
+            const double *Kx = s->Kx, *cM = y->Sq + 36;
+            if (*s->kx_lev != (double)lev) {
+                soil_gather(s, uB, s->xs);
+                soil_product(s, y->K0C, s->soil->Ep ? y->K0Cp : NULL, y->K0Cd, s->xs, s->w_nb[6]);
+                Kx = s->w_nb[6];
+            }
+            int nq = 6 + s->nf;
+            double *St = s->w_nb[3];                      /* dx, free until the iteration */
+            up_symv(y->Sqt, s->sym ? y->Sqtp : NULL, nq, uB, St);
+            for (int i = 0; i < nb; i++)
+                Sx[i] = (i < nq ? St[i] : 0.0) + cM[i] * uB[i];
+            for (int i = 0; i < s->nsoil; i++)
+                Sx[soil_dof(s, i)] += (1 + al) * Kx[i];
         } else {
             const double *Kx = s->Kx;
             if (*s->kx_lev != (double)lev) {

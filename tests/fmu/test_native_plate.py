@@ -15,7 +15,9 @@ restored, the soil's levels): the same steps (with 2 iterations a step at t = 0.
 under test_cosim_plate.py's stronger pulse, pga 6 m/s^2, the two differ by 1.8e-9 on soil w, twice
 that tolerance: the two steppers' per-step round-off, amplified by 88 % uplift).
 
-About 8 s (the library compiled once per content hash into the cache folder).
+About 50 s on two busy cores, most of it compiling the runtime three times (the in-process
+library, the FMI 2.0 runtime of the cosim route, the FMI 3.0 one; each once per process or build);
+the native runs take 0.3 s, the Python stepper's 1.3 s.
 """
 import dataclasses
 
@@ -54,9 +56,10 @@ def plate_histories(res) -> dict:
 
 
 def run(stepper, contact=None, ag=None):
+    """The monolithic route on ``stepper`` (None: its default)."""
     sc = SCENE if contact is None else dataclasses.replace(SCENE, contact=contact)
     motion = MOTION if ag is None else dataclasses.replace(MOTION, acc=ag)
-    return run_monolithic(sc, motion, MODEL, stepper=stepper)
+    return run_monolithic(sc, motion, MODEL, **({} if stepper is None else {"stepper": stepper}))
 
 
 def test_the_plate_s_records_are_its_trace():
@@ -76,7 +79,7 @@ def test_the_plate_s_records_are_its_trace():
     assert np.array_equal(Bc, pm.boundary_trace.toarray())
 
 
-@pytest.mark.parametrize("max_iter", [50, 3])
+@pytest.mark.parametrize("max_iter", [50, 3])          # 2 s each: the Python stepper's 4 runs (the spread)
 def test_native_plate_stepper_equals_the_python_plate_stepper(max_iter):
     contact = dataclasses.replace(SCENE.contact, max_iter=max_iter, precheck=False)
     ref = run("python", contact)
@@ -105,13 +108,15 @@ def test_bonded_native_plate_equals_python_to_1e10():
 # ---- the native FMUs of a plate ------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def native_mono():
-    """(the monolithic route's native run, its round-off spread on the native stepper)."""
-    mono = run("native")
+    """(the monolithic route's native run (its default for a plate too), its round-off spread on
+    the native stepper)."""
+    mono = run(None)
     assert mono.converged and mono.info["stepper"] == "native" and mono.max_uplift() > 1e-2
     return mono, roundoff_spread(lambda ag: plate_histories(run("native", None, ag)), MOTION.acc,
                                  base=plate_histories(mono))
 
 
+@pytest.mark.slow            # the FMU runtime compiled for this machine (once per process), the pair's export
 def test_cosim_route_runs_the_native_pair_on_a_plate(native_mono):
     from orchestrator.routes.cosim import run_cosim
     mono, spread = native_mono
@@ -123,27 +128,36 @@ def test_cosim_route_runs_the_native_pair_on_a_plate(native_mono):
     assert cos.info["fmu_max_uplift"] == pytest.approx(mono.max_uplift(), rel=1e-9)
 
 
-@pytest.mark.slow            # an export of three FMUs (the runtime compiled for this machine), validated and run
+@pytest.mark.slow            # three FMUs built (FMI 3.0: the runtime compiled for this machine), validated and run
 @pytest.mark.parametrize("fmi_version", [2, 3])
 def test_exported_native_fmus_of_a_plate_validate_and_equal_monolithic(native_mono, fmi_version, tmp_path):
+    """The export's FMUs (``export_scene`` builds them so, for every platform) for this machine
+    only: FMI 2.0 on the runtime the cosim route compiles and caches, FMI 3.0 compiled by cc."""
     from fmpy import simulate_fmu
     from fmpy.validation import validate_fmu
-    from orchestrator.export import export_scene
+    from fmus.native_build import build_native_fmus
+    from orchestrator.export import fmu_data
     from orchestrator.master import cosimulate
     mono, spread = native_mono
-    exp = export_scene(SCENE, tmp_path / "fmus", MODEL, motion=MOTION, fmi_version=fmi_version)
-    for fmu in (exp.structure, exp.soil, exp.coupled):
+    data = fmu_data(SCENE, MODEL, MOTION.dt, MOTION)
+    if fmi_version == 2:
+        bins = native_stepper.fmu_binaries()
+        fmus = build_native_fmus(data, tmp_path, coupled=True, platforms=tuple(bins), binaries=bins)
+    else:
+        fmus = build_native_fmus(data, tmp_path, coupled=True, fmi_version=3, platforms=("x86_64-linux",),
+                                 compiler="cc")
+    for fmu in fmus.values():
         assert validate_fmu(str(fmu)) == [], fmu
-    cos = cosimulate(exp.structure, exp.soil, MOTION.acc, MOTION.dt, schedule="gauss-seidel")
+    cos = cosimulate(fmus["structure"], fmus["soil"], MOTION.acc, MOTION.dt, schedule="gauss-seidel")
     assert cos.converged and np.array_equal(cos.newton_iters, mono.newton_iters)
     assert_within_spread(cos, mono, spread)
     # the coupled FMU (the plate and the soil in one FMU, its bundled motion): the monolithic route
     if fmi_version == 3:                      # the interface vectors are arrays
-        res = simulate_fmu(str(exp.coupled), output=["x_raft_u", "x_raft_r", "gap", "max_uplift"])
+        res = simulate_fmu(str(fmus["coupled"]), output=["x_raft_u", "x_raft_r", "gap", "max_uplift"])
         raft, gap = np.hstack([res["x_raft_u"], res["x_raft_r"]]), res["gap"]
     else:
         N = SCENE.mesh.n
-        res = simulate_fmu(str(exp.coupled), output=["max_uplift"] + [f"x[{i}]" for i in range(6)]
+        res = simulate_fmu(str(fmus["coupled"]), output=["max_uplift"] + [f"x[{i}]" for i in range(6)]
                            + [f"gap[{i}]" for i in range(N)])
         raft = np.column_stack([res[f"x[{i}]"] for i in range(6)])
         gap = np.column_stack([res[f"gap[{i}]"] for i in range(N)])

@@ -266,6 +266,9 @@ typedef struct {
     double *Z[2];             /* (N, nb) row i: base^-1 b_i, b_i node i's contact direction */
     double *W[2];             /* (N, N) b_i . Z_j */
     int base_ok[2];           /* 1 built, -1 singular, 0 not built yet (built when first needed) */
+    /* a plate (UpStepper.nf > 0): the structure's part of S0 on [q, t] (6 + nf square: S0 less
+       (1 + al) K0C on q and diag(c0 M_B) there), and packed when sym; NULL for a rigid raft */
+    double *Sqt, *Sqtp;
 } UpSystem;
 
 typedef struct {
