@@ -14,6 +14,9 @@ Rows (one small function each, registered with ``@row``; add one the same way):
                              convolution
   monolithic route           ``run_monolithic``'s default: the C runtime in process, 200 steps
                              per call (its wall_s: the stepper's set-up included)
+  monolithic, plate raft     the same on a 4 m concrete plate raft (``PLATE``: 241 nodes, 276
+                             vertices, 216 free), the note its ratio to the rigid run made in the
+                             same call (issue 38: at most 5x)
   native coupled.fmu         the exported native coupled FMU under a plain C program (the
                              project's test host, tests/fmu/native/host.c), the whole process: load,
                              instantiate, 2000 steps of the bundled motion
@@ -194,6 +197,35 @@ def monolithic_route(case: Case):
     from orchestrator.routes.monolithic import run_monolithic
     res = run_monolithic(case.scene, case.motion, case.fit.model, model=case.model)
     return res.wall_s, f"max uplift {1e3 * res.max_uplift():.4f} mm ({res.info['stepper']} stepper)"
+
+
+#: the plate raft of the row "monolithic, plate raft": 4 m of concrete (a real basemat; under the
+#: reactor's 10 s motion a 2 m plate's uplift grows without bound on either stepper), held rigid
+#: within half the raft's radius (the scene's default)
+PLATE = dict(thickness=4.0, E=30e9, nu=0.2, rho=2500.0)
+
+
+@row("monolithic, plate raft")
+def monolithic_plate(case: Case):
+    """The reactor on a plate raft (its 241 interface nodes the plate's cells), the monolithic
+    route's native stepper, against the rigid reactor's run in the same call: (the plate's wall
+    s, a note with the ratios of wall and CPU times to the rigid run's, the plate run's CPU s)."""
+    import dataclasses
+
+    from orchestrator.routes.monolithic import run_monolithic
+    from structure.plate_raft import PlateProperties
+    sc = case.scene
+    plate = dataclasses.replace(sc, analysis=dataclasses.replace(sc.analysis, routes=("monolithic",)),
+                                raft=PlateProperties(rigid_radius=0.5 * sc.mesh.radius, **PLATE))
+    pm = plate.plate_model(case.model)
+    c0 = _cpu()
+    rigid = run_monolithic(sc, case.motion, case.fit.model, model=case.model)
+    c1 = _cpu()
+    res = run_monolithic(plate, case.motion, case.fit.model, model=pm)
+    cpu = _cpu() - c1
+    return res.wall_s, (f"{res.wall_s / rigid.wall_s:.2f} x the rigid run's wall ({rigid.wall_s:.2f} s), "
+                        f"{cpu / (c1 - c0):.2f} x its CPU; {pm.nf} free vertices, max uplift "
+                        f"{1e3 * res.max_uplift():.2f} mm ({res.info['stepper']} stepper)"), cpu
 
 
 @row("native coupled.fmu")
@@ -377,7 +409,7 @@ def measure(names, repeat: int, busy: bool, case: Case | None = None) -> list:
         for name in names:
             if name == "native coupled.fmu":
                 case.coupled, case.host                 # noqa: B018  (the export and the host built untimed)
-            if name == "monolithic route":              # the process's C runtime compiled untimed: its
+            if name in ("monolithic route", "monolithic, plate raft"):   # the C runtime compiled untimed: its
                 from fmus.native_stepper import library  # compiler's CPU time would count in the first run
                 library()
             runs = []

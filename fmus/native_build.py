@@ -280,9 +280,6 @@ def model_records(data: FmuData, newton: dict | None = None) -> dict:
     if data.soil_factory != DEFAULT_SOIL_FACTORY:
         raise ValueError(f"soil factory {data.soil_factory!r}: native FMUs run the recursive convolution of the "
                          f"rational model ({DEFAULT_SOIL_FACTORY}) only; export with kind = 'python' for another soil")
-    if getattr(data, "plate", None) is not None:
-        raise ValueError("a plate raft: the native FMUs step a rigid raft only; export with kind = 'python' "
-                         "(fmus.build.build_fmus carries the plate)")
     unknown = set(newton or {}) - set(NEWTON_KEYS)
     if unknown:
         raise ValueError(f"newton keys {sorted(unknown)}: allowed {', '.join(NEWTON_KEYS)}")
@@ -293,8 +290,13 @@ def model_records(data: FmuData, newton: dict | None = None) -> dict:
     soil = soil_from_model(data.soil_model, dt, DEFAULT_SOIL_FACTORY, data.soil_kwargs)     # verifies passivity
     contact = dataclasses.replace(contact_from_spec(data.contact), **(newton or {}))
     model = model_from_spec(data.structure, data.xy, data.area)
-    st = NewmarkStepper(model, soil, dt, contact=contact, damping=data.damping, alpha=float(data.alpha),
-                        external_soil=True)
+    cls = NewmarkStepper
+    if getattr(data, "plate", None) is not None:        # a plate raft: the PlateRaftModel the Python FMU rebuilds
+        from fmus.build import plate_arrays
+        from fmus.stepper import plate_model
+        from structure.plate_raft import PlateStepper
+        model, cls = plate_model(model, data.plate["properties"], plate_arrays(data.plate)), PlateStepper
+    st = cls(model, soil, dt, contact=contact, damping=data.damping, alpha=float(data.alpha), external_soil=True)
     nodes = [model.dofs(model.node_by_name(nm).id)[:3] for nm in data.output_nodes]
     common = soil_records(data.soil_model, dt)
     stepper = {**common, **stepper_records(st, nodes)}
@@ -328,11 +330,38 @@ def stepper_records(st, node_dofs) -> dict:
                          f"{contact.max_iter} be >= 1")
     ns = st.ns
     dense = lambda a: np.asarray(a[:ns, :ns].toarray(), float)
+    plate = st.Bq3 is None                      # structure.plate_raft.PlateStepper: a plate raft
     return {"ns": float(ns), "N": float(st.N), "alpha": st.alpha,
             "contact_enabled": float(contact.enabled), "contact_tol": float(contact.tol),
             "contact_max_iter": float(contact.max_iter), "contact_max_subdiv": float(contact.max_subdiv),
-            "M": st.M, "Ks": dense(st.Ks), "Cs": dense(st.Cs), "Mr": st.Mr[:ns], "Bq3": st.Bq3, "kp": st.kp,
-            "P0": st.P0, "delta0": st.delta0, "node_dofs": np.array(node_dofs, np.int64).reshape(-1, 3)}
+            "M": st.M, "Ks": dense(st.Ks), "Cs": dense(st.Cs), "Mr": st.Mr[:ns],
+            "Bq3": np.zeros((st.N, 3)) if plate else st.Bq3, "kp": st.kp,
+            "P0": st.P0, "delta0": st.delta0, "node_dofs": np.array(node_dofs, np.int64).reshape(-1, 3),
+            **(plate_records(st) if plate else {})}
+
+
+def plate_records(st) -> dict:
+    """A plate raft's records (``structure.plate_raft.PlateStepper``): ``plate_nf`` the free
+    vertices (their deflections t in the boundary block [q, t, w]), ``plate_trace_col`` int64 and
+    ``plate_trace_val`` float64 (N, w): each node's trace on [q, t] (the slaved vertices through
+    q[2:5], the free ones through t; column -1 pads), the contact d_i = trace_i - w_i (the rows of
+    ``st.Bc``, whose part on w must be -I)."""
+    Bc = st.Bc.tocsr()
+    Bc.sum_duplicates()
+    nq = 6 + st.model.nf
+    rows = []
+    for i in range(st.N):
+        c, v = Bc.indices[Bc.indptr[i]:Bc.indptr[i + 1]], Bc.data[Bc.indptr[i]:Bc.indptr[i + 1]]
+        on = c < nq
+        if not (np.array_equal(c[~on], [nq + i]) and np.array_equal(v[~on], [-1.0])):
+            raise ValueError(f"the plate's contact operator's row {i} is not (trace on [q, t]) - w_{i}")
+        rows.append((c[on], v[on]))
+    width = max([len(c) for c, _ in rows] + [1])
+    col = np.full((st.N, width), -1, np.int64)
+    val = np.zeros((st.N, width))
+    for i, (c, v) in enumerate(rows):
+        col[i, :len(c)], val[i, :len(c)] = c, v
+    return {"plate_nf": float(st.model.nf), "plate_trace_col": col, "plate_trace_val": val}
 
 
 # ---- the model description ---------------------------------------------------------------------

@@ -170,13 +170,26 @@ def springs_soil(soil, dt: float):
 CHUNK = 200
 
 
-def encode_run(st, output_nodes=()) -> bytes:
+def encode_run(st, output_nodes=(), extra_dofs=()) -> bytes:
     """The resource records of a run of the stepper ``st`` (its matrices, static state, contact
-    settings, soil model, step) with acc/disp histories of the nodes ``output_nodes``: what the
-    C runtime reads (``simulate_native``, ``native_max_uplift``; also a cache key of its answer)."""
+    settings, soil model, step) with acc/disp histories of the nodes ``output_nodes`` (then of the
+    DOF triples ``extra_dofs``: ``plate_dofs``): what the C runtime reads (``simulate_native``,
+    ``native_max_uplift``; also a cache key of its answer)."""
     model = st.model
-    dofs = [model.dofs(model.node_by_name(nm).id)[:3] for nm in output_nodes]
-    return encode_resources({**soil_records(st.soil.model, st.dt), **stepper_records(st, dofs)})
+    dofs = [model.dofs(model.node_by_name(nm).id)[:3] for nm in output_nodes] + list(extra_dofs)
+    soil = getattr(st.soil, "soil", st.soil)       # a plate stepper's soil: the wrapper of the soil's own
+    return encode_resources({**soil_records(soil.model, st.dt), **stepper_records(st, dofs)})
+
+
+def plate_dofs(st) -> list:
+    """A plate raft's free vertex deflections t (``st.model.i_t``) as DOF triples (the last one
+    repeated to fill the last triple): recorded as the displacements of pseudo output nodes, so
+    the C runtime's rows carry them; [] for a rigid raft."""
+    i_t = getattr(st.model, "i_t", None)
+    if st.Bq3 is not None or i_t is None or not len(i_t):
+        return []
+    t = np.concatenate([i_t, np.full(-len(i_t) % 3, i_t[-1])])
+    return [tuple(int(k) for k in t[j:j + 3]) for j in range(0, len(t), 3)]
 
 
 def _stepped(lib, blob: bytes, ag, take, chunk: int = CHUNK, progress=None):
@@ -226,6 +239,18 @@ def _checked(ag, lib):
     return ag, lib
 
 
+def _plate_histories(st, q, t3) -> dict:
+    """A plate raft's deflections from the raft's q (nt, 6) and the pseudo nodes' displacements
+    t3 (nt, k, 3) (``plate_dofs``), as ``structure.simulate`` records them: vertex deflections
+    (nt, m) and their trace at the interface nodes (nt, N), m; the vertices' coordinates."""
+    pm = st.model
+    t = t3.reshape(t3.shape[0], -1)[:, :pm.nf]
+    G = pm.vertex_map.tocsc()
+    W = (G[:, pm.i_q] @ q.T + G[:, pm.i_t] @ t.T).T
+    return {"plate_vertex_deflection": W, "plate_deflection": (pm.trace @ W.T).T,
+            "plate_vertices": np.array(pm.points)}
+
+
 def native_max_uplift(st, ag, lib=None, blob: bytes | None = None) -> float:
     """Max gap (m) of ``simulate_native(st, ag, [])``, NaN when a step's Newton iteration fails:
     only the gaps are read, a chunk at a time (the time-step check's run). blob: ``encode_run(st)``
@@ -265,7 +290,8 @@ def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None, 
     ag, lib = _checked(ag, lib)
     model = st.model
     names = [n.name for n in model.nodes if n.name] if output_nodes is None else list(output_nodes)
-    nt, N, m = ag.shape[0], st.N, len(names)
+    extra = plate_dofs(st)                         # a plate: its free deflections t as pseudo nodes
+    nt, N, m = ag.shape[0], st.N, len(names) + len(extra)
     at = row_slices(N, m)                          # the row layout of simulate.c (uplift_schema.h)
     rows = np.empty((nt, row_width(N, m)))
     iters = np.empty(nt, np.int64)
@@ -273,7 +299,7 @@ def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None, 
     def take(k0, chunk_rows, chunk_iters):
         rows[k0:k0 + len(chunk_rows)] = chunk_rows
         iters[k0:k0 + len(chunk_iters)] = chunk_iters
-    stats, message = _stepped(lib, encode_run(st, names), ag, take, chunk, progress)
+    stats, message = _stepped(lib, encode_run(st, names, extra), ag, take, chunk, progress)
     rows, iters = rows[:int(stats[0])], iters[:int(stats[0])]
     nt = rows.shape[0]
     node = rows[:, at["nodes"]].reshape(nt, m, 6)
@@ -291,7 +317,8 @@ def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None, 
                       disp={nm: node[:, j, 3:].copy() for j, nm in enumerate(names)},
                       energy={k: energy[:, j].copy() for j, k in enumerate(ENERGY_TERMS)},
                       newton_iters=iters.astype(int), wall_s=time.perf_counter() - t0, xy=np.array(model.raft.xy),
-                      notes=RunNotes(precheck=precheck), info=info)
+                      notes=RunNotes(precheck=precheck), info=info,
+                      **(_plate_histories(st, rows[:, at["raft"]], node[:, len(names):, 3:]) if extra else {}))
     if message:
         exc = ConvergenceError(message, nt * st.dt, -1, float("nan"))
         exc.result = res.truncated(nt, Status.STOPPED, message)

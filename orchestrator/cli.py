@@ -730,7 +730,7 @@ def cmd_export(args) -> int:
     from orchestrator.crosscheck import model_folder, write_cross_check     # fmpy
     from orchestrator.export import export_scene                            # fmpy, pythonfmu
     from orchestrator.results_file import check_output_folder               # h5py
-    from orchestrator.scene import NATIVE_PLATE_FIX, load_scene             # numpy, the mesh, the structure
+    from orchestrator.scene import load_scene             # numpy, the mesh, the structure
     scene = load_scene(args.scene)
     if scene.structure is None:
         raise SceneError(f"scene {scene.name!r} has no [structure]: nothing to export "
@@ -739,8 +739,6 @@ def cmd_export(args) -> int:
         raise SceneError(f"scene {scene.name!r} has no layered soil: the soil FMU carries the BEM impedance "
                          "of [soil] (add halfspace = { vs = ..., nu = ..., rho = ... } and any layers)")
     check_output_folder(args.output, EXPORT_FILES)
-    if args.kind == "native":              # before the fit: the native runtime steps a rigid raft only
-        scene.check_rigid_raft("the native FMU export (the C runtime)", NATIVE_PLATE_FIX)
     if args.cross_check is not None:
         check_output_folder(args.cross_check, (), "--cross-check")
         for model in ("structure", "soil", "coupled"):

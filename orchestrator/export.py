@@ -44,7 +44,6 @@ from structure.spec import contact_table
 
 from orchestrator.impedance import scene_fit
 from orchestrator.motion import make_motion
-from orchestrator.scene import NATIVE_PLATE_FIX
 from orchestrator.settings import FMU_KINDS
 
 #: the kinds of FMU export_scene writes: pythonfmu, or the native C runtime (fmus/native_build.py)
@@ -119,9 +118,9 @@ def export_scene(scene, outdir, soil_model=None, *, dt: float | None = None, mot
     dt : s (default: the scene's [analysis] dt); motion : Motion (default: the scene's)
     soil_factory : "module:callable" building the soil from (model, dt, **soil_kwargs)
     kind : "native" (default: the C runtime of fmus/native compiled for linux64, win64 and
-           darwin64, no Python in the host; the default soil factory only; a rigid raft only) or
-           "python" (pythonfmu: the host needs Python with numpy and scipy; a plate raft too: the
-           structure and coupled FMUs carry it); the same variables and the same answers
+           darwin64, no Python in the host; the default soil factory only) or "python" (pythonfmu:
+           the host needs Python with numpy and scipy); both carry a plate raft (the structure
+           and coupled FMUs); the same variables and the same answers
     fmi_version : 2 (default) or 3: FMI 3.0 co-simulation FMUs of the native runtime (the
                   interface vectors as arrays, binaries for x86_64-linux, x86_64-windows,
                   x86_64-darwin and aarch64-darwin), the same answers; the pair's system.ssd
@@ -131,8 +130,6 @@ def export_scene(scene, outdir, soil_model=None, *, dt: float | None = None, mot
     """
     if kind not in KINDS:
         raise ValueError(f"kind = {kind!r}: use one of {', '.join(KINDS)}")
-    if kind == "native":
-        scene.check_rigid_raft("the native FMU export (the C runtime)", NATIVE_PLATE_FIX)
     if fmi_version not in FMI_VERSIONS:
         raise ValueError(f"fmi_version = {fmi_version!r}: use one of {', '.join(map(str, FMI_VERSIONS))}")
     if fmi_version == 3 and kind != "native":

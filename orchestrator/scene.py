@@ -356,9 +356,9 @@ class Scene:
             if other:
                 raise SceneError(
                     f"foundation.raft.kind = \"plate\" runs on the route{'s' if len(PLATE_ROUTES) > 1 else ''} "
-                    f"{', '.join(PLATE_ROUTES)} only (the Python stepper and FMUs, the frequency-domain routes); "
+                    f"{', '.join(PLATE_ROUTES)} only (the time-stepped routes on either stepper, the frequency-domain routes); "
                     f"route{'s' if len(other) > 1 else ''} {', '.join(other)} cannot carry a plate yet (a rigid "
-                    "raft only: no plate in the native runtime and the Winkler route): drop them from "
+                    "raft only: the Winkler route's springs): drop them from "
                     "analysis.routes, or use raft.kind = \"rigid\"")
         f = np.array(self.frequencies_hz, float)
         f.setflags(write=False)
@@ -785,8 +785,6 @@ def _foundation(table: dict, base_dir: Path):
 
 #: the routes that run a plate raft (foundation.raft.kind = "plate")
 PLATE_ROUTES = ("monolithic", "cosim", "linear", "timefreq")
-#: the other fix a native FMU export of a plate raft is told (the Python FMUs carry a plate)
-NATIVE_PLATE_FIX = "export the Python FMUs (uplift export --kind python), which carry a plate"
 #: the keys of foundation.raft = { kind = "plate", ... } (rigid_radius, damping optional)
 PLATE_KEYS = ("kind", "thickness", "E", "nu", "rho", "rigid_radius", "rigid_centre", "damping")
 #: the routes that give [output] raft_points (the Python stepper's plate vertices)

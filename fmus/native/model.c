@@ -27,14 +27,22 @@ static void track_maxima(UpInstance *I)
     *rot = *rot >= r ? *rot : r;
 }
 
+/* xs (n = 6 + N) <- the soil's DOFs [q, w] of the stepper's boundary block x: x itself for a rigid
+   raft, x without the plate's deflections t ([q, t, w]) for a plate */
+static void soil_part(const UpStepper *st, const double *x, double *xs, int n)
+{
+    memcpy(xs, x, 6 * sizeof(double));
+    memcpy(xs + 6, x + 6 + st->nf, (size_t)(n - 6) * sizeof(double));
+}
+
 /* every output of the stepper: at the end of a communication step (its inner steps track the
    maxima only: the other outputs are overwritten before anyone reads them) */
 static void publish_stepper(UpInstance *I)
 {
     UpStepper *st = &I->st;
     int n = I->n, N = I->N;
-    memcpy(up_var(I, S_X), st->u + st->ni, (size_t)n * sizeof(double));
-    memcpy(up_var(I, S_XDOT), st->v + st->ni, (size_t)n * sizeof(double));
+    soil_part(st, st->u + st->ni, up_var(I, S_X), n);
+    soil_part(st, st->v + st->ni, up_var(I, S_XDOT), n);
     memcpy(up_var(I, S_P), st->P, (size_t)N * sizeof(double));
     double *node = up_var(I, S_NODES);
     for (int k = 0; k < I->nnodes; k++)
@@ -166,6 +174,12 @@ int up_step(UpInstance *I, double t, int last)
             return UP_REFUSED;
         const double *x = st->u + st->ni, *xd = st->v + st->ni;
         double *Gx = st->w_n[8], *Gv = st->w_n[9];          /* work of the stepper, free between steps */
+        if (st->nf) {                                        /* a plate: the soil's DOFs [q, w] of [q, t, w] */
+            soil_part(st, x, st->xs, n);
+            soil_part(st, xd, st->vs, n);
+            x = st->xs;
+            xd = st->vs;
+        }
         up_symv(I->Gx, I->Gxp, n, x, Gx);
         if (I->Gv_zero) {
             for (int i = 0; i < n; i++)

@@ -25,6 +25,15 @@
    equations: the histories equal the dense path's to round-off. No allocation after
    up_stepper_init.
 
+   A plate raft (structure/plate_raft.py, PlateStepper; resource record plate_nf): the boundary
+   block is x = [q, t, w] (nb = 6 + nf + N), t the free plate vertices' deflections; the contact
+   direction of node i is its trace on [q, t] (a few vertex weights, the held vertices' through
+   q[2:5]) and -1 on w_i (UpStepper.bc_*), used wherever a rigid raft uses Bq3; the soil acts on
+   [q, w] only: its matrices, history force and state vectors (fs, Kx, h) keep the soil's order
+   (nsoil = 6 + N), gathered from x around each product (soil_gather, soil_dof). The springs'
+   node-by-node elimination is a rigid raft's only. Without plate_nf every line a rigid raft
+   runs is the one it ran before the plate (the same bits).
+
    The reference is structure/newmark.py (NewmarkStepper: the readable Python stepper); this
    file and soil.c are what runs by default. A change to the physics is made there first, then
    here, step for step. The two are held equal by tests/fmu/test_native_stepper.py,
@@ -99,6 +108,68 @@ static int symmetric(const double *A, int n)
     return off <= 1e-13 * big;
 }
 
+/* a plate raft's records: plate_nf (the free vertices: the deflections t of the boundary block
+   [q, t, w]), plate_trace_col / plate_trace_val int64 / float64 (N, w) the trace of each node on
+   [q, t] (column -1: none), compressed here; ns (read before) counts the plate's DOFs */
+static int plate_init(UpStepper *s, const UpRes *r, char *err)
+{
+    double nf;
+    int64_t dims[2] = {s->N, -1};
+    if (scalar_in(r, "plate_nf", 0, 1e6, &nf, err))
+        return -1;
+    s->nf = (int)nf;
+    s->ni = s->ns - 6 - s->nf;
+    s->nb = 6 + s->nf + s->N;
+    if (s->ni < 0) {
+        snprintf(err, UP_MSG, "resource file %s: plate_nf = %d does not fit ns = %d: export the FMU again", r->path,
+                 s->nf, s->ns);
+        return -1;
+    }
+    const int64_t *col = up_res_i64(r, "plate_trace_col", 2, dims, err);
+    const double *val = col ? up_res_f64(r, "plate_trace_val", 2, dims, err) : NULL;
+    if (!val)
+        return -1;
+    int w = (int)dims[1];
+    s->bc_ptr = (int *)calloc((size_t)s->N + 1, sizeof(int));
+    s->bc_col = (int *)malloc(((size_t)s->N * w + 1) * sizeof(int));
+    s->bc_val = (double *)malloc(((size_t)s->N * w + 1) * sizeof(double));
+    if (!s->bc_ptr || !s->bc_col || !s->bc_val) {
+        snprintf(err, UP_MSG, "out of memory for the plate's trace (%d nodes)", s->N);
+        return -1;
+    }
+    int k = 0;
+    for (int i = 0; i < s->N; i++) {
+        for (int j = 0; j < w; j++) {
+            int64_t c = col[(size_t)i * w + j];
+            double v = val[(size_t)i * w + j];
+            if (c < 0)
+                continue;
+            if (c >= 6 + s->nf || !isfinite(v)) {
+                snprintf(err, UP_MSG, "resource file %s: plate_trace_col[%d] = %lld is not a DOF of [q, t] (or its "
+                         "weight is not finite): export the FMU again", r->path, i, (long long)c);
+                return -1;
+            }
+            s->bc_col[k] = (int)c;
+            s->bc_val[k++] = v;
+        }
+        s->bc_ptr[i + 1] = k;
+    }
+    return 0;
+}
+
+/* the soil's DOF j (of [q, w]) in the boundary block ([q, t, w]) */
+static inline int soil_dof(const UpStepper *s, int j)
+{
+    return j < 6 ? j : j + s->nf;
+}
+
+/* xs (nsoil) <- the soil's part [q, w] of x (nb) */
+static void soil_gather(const UpStepper *s, const double *x, double *xs)
+{
+    memcpy(xs, x, 6 * sizeof(double));
+    memcpy(xs + 6, x + 6 + s->nf, (size_t)s->N * sizeof(double));
+}
+
 int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, char *err)
 {
     memset(s, 0, sizeof *s);
@@ -115,6 +186,9 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
     s->n = s->ns + s->N;
     s->ni = s->ns - 6;
     s->nb = 6 + s->N;
+    s->nsoil = s->nb;
+    if (up_res_find(r, "plate_nf") && plate_init(s, r, err))
+        return -1;
     s->enabled = enabled != 0.0;
     s->max_iter = (int)max_iter;
     s->max_subdiv = (int)max_subdiv;
@@ -123,9 +197,9 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
     s->gamma = 0.5 - s->alpha;
     s->soil = soil;
     s->external = external;
-    if (soil->n != s->nb) {
+    if (soil->n != s->nsoil) {
         snprintf(err, UP_MSG, "resource file %s: the soil model has %d DOFs, the raft needs 6 + N = %d: "
-                 "export the FMU again", r->path, soil->n, s->nb);
+                 "export the FMU again", r->path, soil->n, s->nsoil);
         return -1;
     }
     int n = s->n, ns_ = s->ns, Ni = s->N, nb = s->nb, ni = s->ni;
@@ -151,7 +225,7 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
             return -1;
         }
     s->sym = symmetric(s->Ks, ns_) && symmetric(s->Cs, ns_) && soil->Ep != NULL;
-    s->diag = diagonal_soil(soil);
+    s->diag = !s->nf && diagonal_soil(soil);     /* a plate's contact couples w to t: the dense path */
     int ok = up_sparse_init(&s->Ks_sp, s->Ks, ns_, ns_) == 0 && up_sparse_init(&s->Cs_sp, s->Cs, ns_, ns_) == 0;
     for (int l = 0; ok && l < s->nlev; l++) {
         UpSystem *y = &s->sys[l];
@@ -166,6 +240,12 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
         y->K0Cd = (double *)malloc(((size_t)nb + 30) * sizeof(double));
         y->S0d = (double *)malloc(((size_t)nb + 30) * sizeof(double));
         ok = y->AII && y->AIIp && y->ABI && y->X && y->S0 && y->Sq && y->K0C && y->K0Cp && y->K0Cd && y->S0d;
+        if (ok && s->nf) {
+            size_t nq = 6 + (size_t)s->nf;
+            y->Sqt = (double *)malloc(nq * nq * sizeof(double));
+            y->Sqtp = (double *)malloc(nq * (nq + 1) / 2 * sizeof(double));
+            ok = y->Sqt && y->Sqtp;
+        }
         for (int c = 0; ok && c < 2; c++) {
             y->Jb[c] = (double *)malloc((size_t)nb * nb * sizeof(double));
             y->Jp[c] = (double *)malloc(((size_t)nb * (nb + 1) / 2 + 1) * sizeof(double));
@@ -202,10 +282,12 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
         s->act = (unsigned char *)calloc((size_t)Ni + 1, 1);
         s->act_new = (unsigned char *)calloc((size_t)Ni + 1, 1);
         s->Ed = (double *)malloc(((size_t)nb + 30) * sizeof(double));
-        ok = s->lu && s->rhs && s->lu_piv && s->hbuf && s->act && s->act_new && s->Ed;
+        s->xs = (double *)calloc((size_t)nb, sizeof(double));
+        s->vs = (double *)calloc((size_t)nb, sizeof(double));
+        ok = s->lu && s->rhs && s->lu_piv && s->hbuf && s->act && s->act_new && s->Ed && s->xs && s->vs;
     }
     if (ok)
-        compact(soil->E, nb, s->Ed);
+        compact(soil->E, s->nsoil, s->Ed);
     if (!ok) {
         up_stepper_free(s);
         snprintf(err, UP_MSG, "out of memory for the structure (%d DOFs, %d step levels)", n, s->nlev);
@@ -228,6 +310,8 @@ void up_stepper_free(UpStepper *s)
         free(y->K0Cp);
         free(y->K0Cd);
         free(y->S0d);
+        free(y->Sqt);
+        free(y->Sqtp);
         for (int c = 0; c < 2; c++) {
             free(y->Jb[c]);
             free(y->Jp[c]);
@@ -259,6 +343,11 @@ void up_stepper_free(UpStepper *s)
     free(s->act);
     free(s->act_new);
     free(s->Ed);
+    free(s->xs);
+    free(s->vs);
+    free(s->bc_ptr);
+    free(s->bc_col);
+    free(s->bc_val);
     memset(s, 0, sizeof *s);
 }
 
@@ -298,7 +387,15 @@ static void load(const UpStepper *s, const double *ag, double *F)
     }
     for (int i = s->ns; i < s->n; i++)
         F[i] = 0.0;
-    if (s->src) {                     /* the source W: P - P0 + W is the interface force, so B^T W a load */
+    if (s->src && s->nf) {            /* a plate: B^T W on [q, t, w] through its trace */
+        double *Fx = F + s->ni, *Fw = F + s->ni + 6 + s->nf;
+        for (int i = 0; i < s->N; i++) {
+            double w = s->src[i];
+            for (int k = s->bc_ptr[i]; k < s->bc_ptr[i + 1]; k++)
+                Fx[s->bc_col[k]] += s->bc_val[k] * w;
+            Fw[i] -= w;
+        }
+    } else if (s->src) {              /* the source W: P - P0 + W is the interface force, so B^T W a load */
         double *Fq = F + s->ni, *Fw = F + s->ni + 6;
         for (int i = 0; i < s->N; i++) {
             const double *b = s->Bq3 + 3 * (size_t)i;
@@ -357,10 +454,13 @@ static const UpSystem *system_at(UpStepper *s, int lev)
             y->ABI[(size_t)i * ni + j] = (1 + al) * (k + y->c1 * c);
         }
     double *S0 = y->S0;
+    int nso = s->nsoil, nf = s->nf;
     for (int i = 0; i < nb; i++)
         for (int j = 0; j < nb; j++) {
             int gi = ni + i, gj = ni + j;
-            double k = sl->D0[(size_t)i * nb + j], c = s->soil->E[(size_t)i * nb + j];
+            int si = i < 6 ? i : i - nf, sj = j < 6 ? j : j - nf;    /* the soil's DOFs, when not a plate's t */
+            int on = (i < 6 || i >= 6 + nf) && (j < 6 || j >= 6 + nf);
+            double k = on ? sl->D0[(size_t)si * nso + sj] : 0.0, c = on ? s->soil->E[(size_t)si * nso + sj] : 0.0;
             if (gi < ns && gj < ns) {
                 k += s->Ks[(size_t)gi * ns + gj];
                 c += s->Cs[(size_t)gi * ns + gj];
@@ -430,28 +530,45 @@ static const UpSystem *system_at(UpStepper *s, int lev)
             for (int j = i + 1; j < 6; j++)
                 Sq[6 * i + j] = Sq[6 * j + i] = 0.5 * (Sq[6 * i + j] + Sq[6 * j + i]);
     }
-    for (size_t i = 0; i < (size_t)nb * nb; i++)
+    /* on the soil's DOFs [q, w] (nsoil; a rigid raft: nb) */
+    for (size_t i = 0; i < (size_t)nso * nso; i++)
         y->K0C[i] = sl->D0[i] + y->c1 * s->soil->E[i];
-    up_pack_sym(y->K0C, nb, y->K0Cp);                     /* symmetric when E is (D0 is) */
-    compact(y->K0C, nb, y->K0Cd);
+    up_pack_sym(y->K0C, nso, y->K0Cp);                    /* symmetric when E is (D0 is) */
+    compact(y->K0C, nso, y->K0Cd);
+    if (nf) {                                             /* a plate: S0's structural part on [q, t] */
+        int nq = 6 + nf;
+        for (int i = 0; i < nq; i++)
+            for (int j = 0; j < nq; j++)
+                y->Sqt[(size_t)i * nq + j] = (S0[(size_t)i * nb + j]
+                                              - (i < 6 && j < 6 ? (1 + al) * y->K0C[(size_t)i * nso + j] : 0.0))
+                                             - (i == j ? y->c0 * s->M[ni + i] : 0.0);
+        if (s->sym) {
+            for (int i = 0; i < nq; i++)
+                for (int j = i + 1; j < nq; j++)
+                    y->Sqt[(size_t)i * nq + j] = y->Sqt[(size_t)j * nq + i]
+                        = 0.5 * (y->Sqt[(size_t)i * nq + j] + y->Sqt[(size_t)j * nq + i]);
+            up_pack_sym(y->Sqt, nq, y->Sqtp);
+        }
+    }
     compact(S0, nb, y->S0d);
     y->base_ok[0] = y->base_ok[1] = 0;                    /* built when first needed (base) */
     y->ready = 1;
     return y;
 }
 
-/* y = A x for a soil matrix A (nb, nb) of the level (K0C, E) at x = [q, w]: dense (packed when P is not
+/* y = A x for a soil matrix A (nsoil, nsoil) of the level (K0C, E) at x = [q, w] (nsoil: a plate's
+   x gathered first, soil_gather): dense (packed when P is not
    NULL), or from c, A compact (compact), for a diagonal soil */
 static void soil_product(const UpStepper *s, const double *A, const double *P, const double *c, const double *x,
                          double *y)
 {
     if (!s->diag) {
-        up_symv(A, P, s->nb, x, y);
+        up_symv(A, P, s->nsoil, x, y);
         return;
     }
     for (int i = 0; i < 6; i++)
         y[i] = up_dot(c + 6 * i, x, 6);
-    for (int i = 6; i < s->nb; i++)
+    for (int i = 6; i < s->nsoil; i++)
         y[i] = c[30 + i] * x[i];
 }
 
@@ -459,6 +576,16 @@ static void soil_product(const UpStepper *s, const double *A, const double *P, c
 /* d = Bq3 x[2:5] - x[6:] for x = [q, w] */
 static void relative(const UpStepper *s, const double *x, double *d)
 {
+    if (s->nf) {                                          /* a plate: d_i = trace_i . [q, t] - w_i */
+        const double *w = x + 6 + s->nf;
+        for (int i = 0; i < s->N; i++) {
+            double t = 0.0;
+            for (int k = s->bc_ptr[i]; k < s->bc_ptr[i + 1]; k++)
+                t += s->bc_val[k] * x[s->bc_col[k]];
+            d[i] = t - w[i];
+        }
+        return;
+    }
     for (int i = 0; i < s->N; i++) {
         const double *b = s->Bq3 + 3 * (size_t)i;
         d[i] = (b[0] * x[2] + b[1] * x[3] + b[2] * x[4]) - x[6 + i];
@@ -470,6 +597,24 @@ static void contact(const UpStepper *s, const double *x, double *P, unsigned cha
 {
     double *d = s->w_N[5], f2 = 0.0, f3 = 0.0, f4 = 0.0;    /* fc[2:5], summed in registers */
     relative(s, x, d);
+    if (s->nf) {                                          /* a plate: fc = -Bc^T (P - P0) */
+        memset(fc, 0, (size_t)s->nb * sizeof(double));
+        for (int i = 0; i < s->N; i++) {
+            if (s->enabled) {
+                double pen = s->delta0[i] - d[i];
+                act[i] = pen > 0;
+                P[i] = act[i] ? s->kp[i] * pen : 0.0;
+            } else {
+                act[i] = 1;
+                P[i] = s->P0[i] - s->kp[i] * d[i];
+            }
+            double dp = P[i] - s->P0[i];
+            for (int k = s->bc_ptr[i]; k < s->bc_ptr[i + 1]; k++)
+                fc[s->bc_col[k]] -= s->bc_val[k] * dp;
+            fc[6 + s->nf + i] = dp;
+        }
+        return;
+    }
     for (int i = 0; i < s->N; i++) {
         if (s->enabled) {
             double pen = s->delta0[i] - d[i];
@@ -515,6 +660,12 @@ static void residual(const UpStepper *s, const double *Sx, const double *x, cons
    active set only, never on what the cache held before: a replayed step is the same bit for bit. */
 static double along(const UpStepper *s, int i, const double *x)
 {
+    if (s->nf) {
+        double t = 0.0;
+        for (int k = s->bc_ptr[i]; k < s->bc_ptr[i + 1]; k++)
+            t += s->bc_val[k] * x[s->bc_col[k]];
+        return t - x[6 + s->nf + i];
+    }
     const double *b = s->Bq3 + 3 * (size_t)i;
     return ((b[0] * x[2] + b[1] * x[3]) + b[2] * x[4]) - x[6 + i];
 }
@@ -525,7 +676,21 @@ static int base_at(UpStepper *s, UpSystem *y, int c)
     int N = s->N, nb = s->nb;
     double *J = s->lu, *Ji = y->Jb[c];
     memcpy(J, y->S0, (size_t)nb * nb * sizeof(double));
-    for (int i = 0; c == 0 && i < N; i++) {
+    for (int i = 0; c == 0 && s->nf && i < N; i++) {       /* a plate: s_i b_i b_i^T, b_i its trace and -1 on w_i */
+        double si = (1 + s->alpha) * s->kp[i];
+        int w = 6 + s->nf + i;
+        for (int k = s->bc_ptr[i]; k < s->bc_ptr[i + 1]; k++) {
+            int r = s->bc_col[k];
+            double br = s->bc_val[k];
+            for (int l = s->bc_ptr[i]; l < s->bc_ptr[i + 1]; l++)
+                J[(size_t)r * nb + s->bc_col[l]] += br * (si * s->bc_val[l]);
+            double cross = -(si * br);
+            J[(size_t)w * nb + r] += cross;
+            J[(size_t)r * nb + w] += cross;
+        }
+        J[(size_t)w * nb + w] += si;
+    }
+    for (int i = 0; c == 0 && !s->nf && i < N; i++) {
         double si = (1 + s->alpha) * s->kp[i];
         const double *b = s->Bq3 + 3 * (size_t)i;
         for (int r = 0; r < 3; r++) {
@@ -557,7 +722,12 @@ static int base_at(UpStepper *s, UpSystem *y, int c)
        the inverse's columns would lose digits: the penalty couples them strongly) */
     double *B = s->rhs;                                   /* (nb, N): column i is b_i */
     memset(B, 0, (size_t)nb * N * sizeof(double));
-    for (int i = 0; i < N; i++) {
+    for (int i = 0; s->nf && i < N; i++) {
+        for (int k = s->bc_ptr[i]; k < s->bc_ptr[i + 1]; k++)
+            B[(size_t)s->bc_col[k] * N + i] += s->bc_val[k];
+        B[(size_t)(6 + s->nf + i) * N + i] = -1.0;
+    }
+    for (int i = 0; !s->nf && i < N; i++) {
         const double *b = s->Bq3 + 3 * (size_t)i;
         for (int r = 0; r < 3; r++)
             B[(size_t)(2 + r) * N + i] = b[r];
@@ -765,9 +935,14 @@ static void damp(const UpStepper *s, const double *v, double *out, double *Ev)
     up_sparse_matvec(&s->Cs_sp, v, out);
     for (int i = s->ns; i < s->n; i++)
         out[i] = 0.0;
-    soil_product(s, s->soil->E, s->soil->Ep, s->Ed, v + s->ni, Ev);      /* E v on x, kept for the soil force */
-    for (int i = 0; i < s->nb; i++)
-        out[s->ni + i] += Ev[i];
+    const double *vx = v + s->ni;
+    if (s->nf) {                                          /* a plate: the soil's part [q, w] of x */
+        soil_gather(s, vx, s->vs);
+        vx = s->vs;
+    }
+    soil_product(s, s->soil->E, s->soil->Ep, s->Ed, vx, Ev);      /* E v on x, kept for the soil force */
+    for (int i = 0; i < s->nsoil; i++)
+        out[s->ni + soil_dof(s, i)] += Ev[i];
 }
 
 static int advance(UpStepper *s, int lev, const double *ag_new, const double *h, int *iters, Failure *fail)
@@ -793,8 +968,8 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
     damp(s, v_hat, Cv, Ev);
     for (int i = 0; i < n; i++)
         rhs[i] = (((-s->M[i] * a_hat[i] - (1 + al) * Cv[i]) + al * s->R[i]) + (1 + al) * F_new[i]) - al * s->F[i];
-    for (int i = 0; i < nb; i++)
-        rhs[ni + i] -= (1 + al) * h[i];
+    for (int i = 0; i < s->nsoil; i++)                   /* h on the soil's DOFs [q, w] */
+        rhs[ni + soil_dof(s, i)] -= (1 + al) * h[i];
     /* condensation: y = A_II^-1 rhs_I, r_hat = rhs_B - A_BI y */
     double *yI = u_new, *r_hat = s->w_nb[0], *uB = s->w_nb[1], *gv = s->w_nb[2], *dx = s->w_nb[3];
     double *xn = s->w_nb[4], *gn = s->w_nb[5];
@@ -822,16 +997,33 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
         /* S0 x = (1 + al) K0C x + c0 M_B x + Sq x[0:6], K0C x from the step that left x (the
            soil force's product) when it was at this level, else computed here (in fs_new's
            work, free until the iteration ends: the state is written only by a step that succeeds) */
-        const double *Kx = s->Kx;
-        if (*s->kx_lev != (double)lev) {
-            soil_product(s, y->K0C, s->soil->Ep ? y->K0Cp : NULL, y->K0Cd, uB, s->w_nb[6]);
-            Kx = s->w_nb[6];
+        if (s->nf) {
+            /* a plate: S0 x = (1 + al) K0C x on the soil's DOFs + c0 M_B x + Sqt x on [q, t] */
+            const double *Kx = s->Kx, *cM = y->Sq + 36;
+            if (*s->kx_lev != (double)lev) {
+                soil_gather(s, uB, s->xs);
+                soil_product(s, y->K0C, s->soil->Ep ? y->K0Cp : NULL, y->K0Cd, s->xs, s->w_nb[6]);
+                Kx = s->w_nb[6];
+            }
+            int nq = 6 + s->nf;
+            double *St = s->w_nb[3];                      /* dx, free until the iteration */
+            up_symv(y->Sqt, s->sym ? y->Sqtp : NULL, nq, uB, St);
+            for (int i = 0; i < nb; i++)
+                Sx[i] = (i < nq ? St[i] : 0.0) + cM[i] * uB[i];
+            for (int i = 0; i < s->nsoil; i++)
+                Sx[soil_dof(s, i)] += (1 + al) * Kx[i];
+        } else {
+            const double *Kx = s->Kx;
+            if (*s->kx_lev != (double)lev) {
+                soil_product(s, y->K0C, s->soil->Ep ? y->K0Cp : NULL, y->K0Cd, uB, s->w_nb[6]);
+                Kx = s->w_nb[6];
+            }
+            const double *Sq = y->Sq, *cM = y->Sq + 36;
+            for (int i = 0; i < nb; i++)
+                Sx[i] = (1 + al) * Kx[i] + cM[i] * uB[i];
+            for (int i = 0; i < 6; i++)
+                Sx[i] += up_dot(Sq + 6 * i, uB, 6);
         }
-        const double *Sq = y->Sq, *cM = y->Sq + 36;
-        for (int i = 0; i < nb; i++)
-            Sx[i] = (1 + al) * Kx[i] + cM[i] * uB[i];
-        for (int i = 0; i < 6; i++)
-            Sx[i] += up_dot(Sq + 6 * i, uB, 6);
         residual(s, Sx, uB, r_hat, gv, s->act);
         int conv = 0;
         for (int it = 0; it < s->max_iter; it++) {
@@ -845,8 +1037,15 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
             /* S0 dx = J dx - sum_active s_i b_i (b_i . dx), J dx = -g: no product with S0 */
             for (int i = 0; i < nb; i++)
                 Sdx[i] = -gv[i];
+            for (int i = 0; s->nf && i < N; i++)         /* a plate: b_i its trace on [q, t], -1 on w_i */
+                if (s->act[i]) {
+                    double c = ((1 + al) * s->kp[i]) * along(s, i, dx);
+                    for (int k = s->bc_ptr[i]; k < s->bc_ptr[i + 1]; k++)
+                        Sdx[s->bc_col[k]] -= c * s->bc_val[k];
+                    Sdx[6 + s->nf + i] += c;
+                }
             double S2 = Sdx[2], S3 = Sdx[3], S4 = Sdx[4];   /* summed in registers */
-            for (int i = 0; i < N; i++)
+            for (int i = 0; !s->nf && i < N; i++)
                 if (s->act[i]) {
                     double c = ((1 + al) * s->kp[i]) * along(s, i, dx);
                     const double *b = s->Bq3 + 3 * (size_t)i;
@@ -876,15 +1075,16 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
         if (!conv || !finite_all(uB, (size_t)nb)) {
             int node = -1, finite = 1;
             double best = -1.0;
+            const double *gw = gv + 6 + s->nf;           /* the residual on w */
             for (int i = 0; i < N; i++) {
-                double r = fabs(gv[6 + i]);
+                double r = fabs(gw[i]);
                 if (!isfinite(r))
                     finite = 0;
                 else if (r > best)
                     best = r;
             }
             for (int i = 0; i < N && node < 0; i++)      /* the first within round-off of the largest (ties) */
-                if (fabs(gv[6 + i]) >= best * (1 - 1e-9))
+                if (fabs(gw[i]) >= best * (1 - 1e-9))
                     node = i;
             fail->node = finite ? (N ? node : 0) : -1;
             fail->residual = up_norm(gv, nb);
@@ -911,8 +1111,15 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
     const double *x_new = u_new + ni, *xd_new = v_new + ni;
     /* the soil force K0 x + C0 xdot + h = (D0 + c1 E) x + E v_hat + h (xdot = c1 x + v_hat) */
     double *Kx_new = s->w_nb[3];                          /* dx, free after the Newton iteration */
-    soil_product(s, y->K0C, s->soil->Ep ? y->K0Cp : NULL, y->K0Cd, x_new, Kx_new);
-    for (int i = 0; i < nb; i++)
+    const double *xs_new = x_new, *xds_new = xd_new;      /* the soil's part [q, w] */
+    if (s->nf) {
+        soil_gather(s, x_new, s->xs);
+        soil_gather(s, xd_new, s->vs);
+        xs_new = s->xs;
+        xds_new = s->vs;
+    }
+    soil_product(s, y->K0C, s->soil->Ep ? y->K0Cp : NULL, y->K0Cd, xs_new, Kx_new);
+    for (int i = 0; i < s->nsoil; i++)
         fs_new[i] = (Kx_new[i] + Ev[i]) + h[i];
     if (al != 0.0) {
         /* R = Ks u + Cs v, plus fs + fc on x: the internal force the HHT average needs */
@@ -923,8 +1130,15 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
             R_new[i] += Cv_new[i];
         for (int i = ns; i < n; i++)
             R_new[i] = 0.0;
-        for (int i = 0; i < nb; i++)
-            R_new[ni + i] += fs_new[i] + fc_new[i];
+        if (s->nf) {
+            for (int i = 0; i < nb; i++)
+                R_new[ni + i] += fc_new[i];
+            for (int i = 0; i < s->nsoil; i++)
+                R_new[ni + soil_dof(s, i)] += fs_new[i];
+        } else {
+            for (int i = 0; i < nb; i++)
+                R_new[ni + i] += fs_new[i] + fc_new[i];
+        }
     } else {
         memset(R_new, 0, (size_t)n * sizeof(double));           /* not used by the average acceleration rule */
     }
@@ -939,10 +1153,19 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
     up_sparse_matvec(&s->Cs_sp, vm, Cvm);
     for (int i = 0; i < ns; i++)
         w_damp += (u_new[i] - u[i]) * Cvm[i];
-    for (int i = 0; i < nb; i++) {
-        double du = u_new[ni + i] - u[ni + i];
-        w_soil += du * (0.5 * (s->fs[i] + fs_new[i]));
-        w_contact += du * (0.5 * (s->fc[i] + fc_new[i]));
+    if (s->nf) {
+        for (int i = 0; i < s->nsoil; i++) {
+            int k = ni + soil_dof(s, i);
+            w_soil += (u_new[k] - u[k]) * (0.5 * (s->fs[i] + fs_new[i]));
+        }
+        for (int i = 0; i < nb; i++)
+            w_contact += (u_new[ni + i] - u[ni + i]) * (0.5 * (s->fc[i] + fc_new[i]));
+    } else {
+        for (int i = 0; i < nb; i++) {
+            double du = u_new[ni + i] - u[ni + i];
+            w_soil += du * (0.5 * (s->fs[i] + fs_new[i]));
+            w_contact += du * (0.5 * (s->fc[i] + fc_new[i]));
+        }
     }
     s->work[W_INPUT] += w_in;
     s->work[W_DAMPING] += w_damp;
@@ -952,16 +1175,16 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
     memcpy(s->v, v_new, (size_t)n * sizeof(double));
     memcpy(s->a, a_new, (size_t)n * sizeof(double));
     memcpy(s->P, P_new, (size_t)N * sizeof(double));
-    memcpy(s->fs, fs_new, (size_t)nb * sizeof(double));
+    memcpy(s->fs, fs_new, (size_t)s->nsoil * sizeof(double));
     memcpy(s->fc, fc_new, (size_t)nb * sizeof(double));
-    memcpy(s->Kx, Kx_new, (size_t)nb * sizeof(double));
+    memcpy(s->Kx, Kx_new, (size_t)s->nsoil * sizeof(double));
     *s->kx_lev = lev;
     memcpy(s->R, R_new, (size_t)n * sizeof(double));
     memcpy(s->F, F_new, (size_t)n * sizeof(double));
     *s->t += dt;
     memcpy(s->ag, ag_new, 3 * sizeof(double));
     if (!s->external)
-        up_soil_commit(s->soil, lev, x_new, xd_new, fs_new);
+        up_soil_commit(s->soil, lev, xs_new, xds_new, fs_new);
     return 0;
 }
 

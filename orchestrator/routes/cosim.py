@@ -4,9 +4,9 @@ in either order, Jacobi) equals the monolithic route to round-off.
 
 The pair is native by default (the C runtime, compiled for this machine once per content hash
 into the cache folder: fmus.native_stepper.fmu_binaries); ``kind="python"`` runs the pythonfmu
-pair. With a soil factory other than the default, a plate raft (foundation.raft.kind = "plate":
-the structure FMU steps structure.plate_raft.PlateStepper; the native runtime steps a rigid raft
-only), or where no C compiler is available, the Python pair runs and ``notes.warnings`` says
+pair. Both carry a plate raft (foundation.raft.kind = "plate": the native runtime's plate trace,
+the Python structure FMU's structure.plate_raft.PlateStepper). With a soil factory other than the
+default, or where no C compiler is available, the Python pair runs and ``notes.warnings`` says
 why.
 
 API::
@@ -61,11 +61,7 @@ def run_cosim(scene, motion=None, soil_model=None, *, schedule: str = "gauss-sei
         data = fmu_data(scene, soil_model, dt, None, soil_factory, soil_kwargs)
         if data.plate is not None:
             warnings += plate_warnings(scene.plate_model(), scene.mesh.radius)
-        if kind == "native" and data.plate is not None:
-            binaries, why = None, (f"a plate raft ({len(data.plate['points'])} vertices) runs in the Python FMUs: the "
-                                   "native pair steps a rigid raft only")
-        else:
-            binaries, why = _native_runtime(data, cache_dir) if kind == "native" else (None, "")
+        binaries, why = _native_runtime(data, cache_dir) if kind == "native" else (None, "")
         if binaries is not None:
             fmus = build_native_fmus(data, out, platforms=tuple(binaries), binaries=binaries)
         else:

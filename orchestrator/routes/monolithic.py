@@ -23,7 +23,7 @@ import time
 
 from fmus.resources import DEFAULT_SOIL_FACTORY, soil_from_model
 from structure import ConvergenceError, NewmarkStepper, simulate
-from structure.plate_raft import PlateRaftModel
+from structure.plate_raft import PlateRaftModel, PlateStepper
 
 from orchestrator.impedance import scene_fit
 from orchestrator.motion import make_motion
@@ -59,9 +59,10 @@ def run_monolithic(scene, motion=None, soil_model=None, *, soil_factory: str | N
     (default: the fit of the scene's gap table); soil_factory : "module:callable" building the
     soil as factory(model, dt, **soil_kwargs) (default: the recursive convolution); dt : s
     (default: the motion's, else the scene's [analysis] dt); model : the structure model
-    (default: built from the scene; a scene with a plate raft: ``scene.plate_model()``, stepped by
-    the Python stepper, ``notes.warnings`` saying so); stepper : "native" (the C runtime, falling back to
-    "python" with a warning where it cannot run) or "python" (``structure.simulate``).
+    (default: built from the scene; a scene with a plate raft: ``scene.plate_model()``, which
+    either stepper runs: the C runtime's plate trace, or structure.plate_raft.PlateStepper);
+    stepper : "native" (the C runtime, falling back to "python" with a warning where it cannot
+    run) or "python" (``structure.simulate``).
     Returns a RouteResult (``info["stepper"]``: the one that ran); a Newton failure returns the
     samples so far with status STOPPED.
     """
@@ -75,9 +76,6 @@ def run_monolithic(scene, motion=None, soil_model=None, *, soil_factory: str | N
     warnings = []
     if isinstance(model, PlateRaftModel):
         warnings += plate_warnings(model, scene.mesh.radius)
-        why = (f"a plate raft ({model.nf} free vertices, rigid within {model.plate.rigid_radius:g} m of the centre) "
-               "is stepped by the Python stepper: the native runtime steps a rigid raft only"
-               if stepper == "native" else "")
     res = step_scene(scene, model, soil, motion, route=route, progress=progress, cache_dir=cache_dir,
                      stepper=stepper, why=why)
     info = {"soil_model": soil_model.provenance}
@@ -151,8 +149,8 @@ def _native(model, soil, motion, scene, route, progress, folder, damping):
     includes the stepper's set-up."""
     from fmus.native_stepper import library, simulate_native   # the same: only when it steps
     t0 = time.perf_counter()
-    st = NewmarkStepper(model, soil, motion.dt, contact=scene.contact, damping=damping, external_soil=True,
-                        ag0=motion.acc[0])
+    cls = PlateStepper if isinstance(model, PlateRaftModel) else NewmarkStepper
+    st = cls(model, soil, motion.dt, contact=scene.contact, damping=damping, external_soil=True, ag0=motion.acc[0])
     try:
         res = simulate_native(st, motion.acc, scene.output.nodes, route=route, lib=library(folder),
                               progress=progress)

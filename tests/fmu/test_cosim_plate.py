@@ -1,7 +1,8 @@
 """A plate raft in co-simulation: the Python pair (the structure FMU steps
 structure.plate_raft.PlateStepper with the soil's history from the soil FMU) equals the monolithic
-plate route to round-off under Gauss-Seidel and Jacobi, run by the cosim route and from the
-``uplift export --kind python`` files (which pass fmpy's validation); the coupled FMU too.
+plate route on the same (Python) stepper to round-off under Gauss-Seidel and Jacobi, run by the
+cosim route (kind="python") and from the ``uplift export --kind python`` files (which pass fmpy's
+validation); the coupled FMU too. The native pair and FMUs of a plate: tests/fmu/test_native_plate.py.
 
 Scene: the reactor sticks on a 2 m concrete plate (61 interface nodes, 80 plate vertices, the
 held region within 10 m of the centre) over the rock's springs and dashpots with two Maxwell
@@ -21,7 +22,7 @@ from helpers.roundoff import assert_within_spread, roundoff_spread
 from helpers.winkler import NU, R, RHO
 from orchestrator.routes.cosim import run_cosim
 from orchestrator.routes.monolithic import run_monolithic
-from orchestrator.scene import SceneError, scene_from_dict
+from orchestrator.scene import scene_from_dict
 from structure.plate_raft import rigid_equivalent
 
 PLATE = {"kind": "plate", "thickness": 2.0, "E": 30e9, "nu": 0.2, "rho": 2500.0}
@@ -39,15 +40,15 @@ MOTION = pulse_motion(0.005, 1.0, pga=6.0, tp=0.5, y=0.5)
 
 @pytest.fixture(scope="module")
 def mono():
-    res = run_monolithic(SCENE, MOTION, MODEL)
+    res = run_monolithic(SCENE, MOTION, MODEL, stepper="python")     # the Python pair's own stepper
     assert res.converged and res.info["subdivided_steps"] == 0
     return res
 
 
 @pytest.fixture(scope="module")
 def spread(mono):
-    return roundoff_spread(lambda ag: run_monolithic(SCENE, dataclasses.replace(MOTION, acc=ag), MODEL), MOTION.acc,
-                           base=mono)
+    return roundoff_spread(lambda ag: run_monolithic(SCENE, dataclasses.replace(MOTION, acc=ag), MODEL,
+                                                     stepper="python"), MOTION.acc, base=mono)
 
 
 def test_case_lifts_rocks_and_bends(mono):
@@ -72,11 +73,10 @@ def assert_equal_runs(cos, ref, spread):
 
 @pytest.mark.parametrize("schedule", ["gauss-seidel", "jacobi"])
 def test_cosim_python_pair_equals_monolithic(mono, spread, schedule):
-    cos = run_cosim(SCENE, MOTION, MODEL, schedule=schedule)
+    cos = run_cosim(SCENE, MOTION, MODEL, schedule=schedule, kind="python")
     checks = assert_equal_runs(cos, mono, spread)
     assert max(d for d, _ in checks.values()) < 1e-9          # measured 6.3e-11 (acc), the rest below
-    assert cos.info["fmu_kind"] == "python"
-    assert any("plate raft" in w and "native pair steps a rigid raft only" in w for w in cos.notes.warnings)
+    assert cos.info["fmu_kind"] == "python" and not cos.notes.warnings
 
 
 @pytest.mark.slow            # 8 s: an export of three FMUs, the pair and the coupled FMU run
@@ -106,18 +106,6 @@ def test_exported_python_fmus_of_a_plate_validate_and_equal_monolithic(mono, spr
     assert rel(rows[:, :6], mono.raft) <= spread.tol("raft")
     assert rel(rows[:, 6:n], mono.soil_w) <= spread.tol("soil_w")
     assert rel(rows[:, n:], mono.gap) <= spread.tol("gap")
-
-
-def test_the_native_export_of_a_plate_is_refused_with_the_fix(tmp_path):
-    from orchestrator.export import export_scene
-    with pytest.raises(SceneError, match=r"native FMU export .* rigid raft only.*--kind python"):
-        export_scene(SCENE, tmp_path / "fmus", MODEL, motion=MOTION, kind="native")
-    assert not (tmp_path / "fmus").exists()
-    # the native builder itself refuses the plate's data (it would step a rigid raft)
-    from fmus.native_build import model_records
-    from orchestrator.export import fmu_data
-    with pytest.raises(ValueError, match="plate raft: the native FMUs step a rigid raft only"):
-        model_records(fmu_data(SCENE, MODEL, MOTION.dt))
 
 
 def test_plate_stepper_with_an_external_soil_is_the_in_process_stepper_bit_for_bit():

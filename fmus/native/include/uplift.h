@@ -266,6 +266,9 @@ typedef struct {
     double *Z[2];             /* (N, nb) row i: base^-1 b_i, b_i node i's contact direction */
     double *W[2];             /* (N, N) b_i . Z_j */
     int base_ok[2];           /* 1 built, -1 singular, 0 not built yet (built when first needed) */
+    /* a plate (UpStepper.nf > 0): the structure's part of S0 on [q, t] (6 + nf square: S0 less
+       (1 + al) K0C on q and diag(c0 M_B) there), and packed when sym; NULL for a rigid raft */
+    double *Sqt, *Sqtp;
 } UpSystem;
 
 typedef struct {
@@ -308,6 +311,15 @@ typedef struct {
     int last_halved;          /* 1 when the last step was halved */
     long n_factorisations;    /* LU factorisations of Newton matrices so far (bases and capacitances) */
     char *err;                /* message of a failed step */
+    /* a plate raft (structure/plate_raft.py, PlateStepper; record nf): the boundary block is
+       x = [q, t, w] (nb = 6 + nf + N), t the free plate vertices' deflections, the soil on
+       [q, w] only (nsoil = 6 + N; its vectors fs, Kx, h held in the soil's order); the contact
+       d_i = sum_k bc_val[k] x[bc_col[k]] (k in bc_ptr[i] .. bc_ptr[i + 1]: the trace on [q, t])
+       - w_i. A rigid raft: nf = 0, nsoil = nb, no bc_* (d = Bq3 q[2:5] - w) */
+    int nf, nsoil;
+    int *bc_ptr, *bc_col;
+    double *bc_val;
+    double *xs, *vs;          /* (nsoil) work: x and xdot in the soil's order */
 } UpStepper;
 
 int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, char *err);
