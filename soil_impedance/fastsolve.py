@@ -47,7 +47,7 @@ from .bem import _grid
 #: "auto" (dense below ``AUTO_NODES`` interface nodes or on an irregular mesh, else fast)
 SOLVERS = ("auto", "dense", "fast")
 #: default relative residual ||b - F x|| / ||b|| of every right-hand side of the fast solver
-DEFAULT_TOL = 1.0e-6
+DEFAULT_TOL = 1.0e-4
 #: the admissible range of the tolerance (below 1e-12 round-off of the FFTs stalls GMRES)
 TOL_RANGE = (1.0e-12, 1.0e-2)
 #: "auto" picks the fast solver from this many interface nodes of a grid mesh: the measured
