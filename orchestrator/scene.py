@@ -363,6 +363,8 @@ class Scene:
         f = np.array(self.frequencies_hz, float)
         f.setflags(write=False)
         _set(self, "frequencies_hz", f)
+        _choice("impedance.solver", self.solver, SOLVERS)
+        _number("impedance.solver_tol", self.solver_tol, *SOLVER_TOL_RANGE, lo_open=False)
         routes = self.analysis.routes
         if self.profile is None:
             need = [r for r in routes if get_route(r).tables(self)]      # routes that read a BEM table

@@ -15,9 +15,10 @@ formed (memory O(N) per vector).
 Solve: GMRES (F is complex symmetric, not Hermitian) preconditioned on the right by
 M⁻¹ = R C⁻¹ Rᵀ, the inverse of the same circulant restricted to the nodes (one more pair of
 FFTs; the symbols inverted mode by mode). It leaves only the truncation of the box to the mesh
-to be iterated on: measured 10 to 14 iterations for a relative residual of 1e-8 on the reactor's
-soil, independent of N (593 to 2500 nodes, circle and square grids, 0 to 25 Hz) against 43 to 51
-unpreconditioned. The right-hand sides are solved in batches (``batch_size``): the FFTs, the
+to be iterated on. Measured on the reactor's soil at 20 Hz, one vertical load, relative residual
+1e-8: 14 GMRES steps on 625- and 1225-node squares, 10 on a 1200-node circle, against 43 to 51
+unpreconditioned and 26 to 39 with block-Jacobi over 2x2 to 8x8 node clusters; in the sweep at
+1e-4, about 5 steps per batch at 0 Hz and 10 to 15 at 25 Hz, from 250 to 2500 nodes. The right-hand sides are solved in batches (``batch_size``): the FFTs, the
 Gram-Schmidt and the Givens rotations act on all the columns of a batch at once, each column with
 its own Krylov space; a batch stops when every column's residual meets the tolerance. Every
 column is then checked with its true residual ``||b - F x|| <= tol ||b||`` (2-norm), restarted if
@@ -26,8 +27,8 @@ not, and a column that does not converge raises ``FastSolveError``.
 Symmetry (an exact addition, not an approximation): the gap table needs F⁻¹ for a vertical
 unit load at every node. When the mesh is mapped onto itself by reflections of the plane about
 the raft centre or its quarter turns (x -> -x, y -> -y, and x <-> y for square cells: up to the
-8 maps of a square, ``mesh_symmetries``), the vertical response to a load at node g(j) is the response to the load
-at j with the nodes permuted by g (the soil is isotropic in the plane and a vertical load has no
+8 maps of a square, ``mesh_symmetries``), the vertical response to a load at node g(j) is the
+response to the load at j with the nodes permuted by g (the soil is isotropic in the plane and a vertical load has no
 direction there), so only one load per orbit is solved: about N/8 of them on a square or a
 circle grid.
 
@@ -51,8 +52,9 @@ DEFAULT_TOL = 1.0e-4
 #: the admissible range of the tolerance (below 1e-12 round-off of the FFTs stalls GMRES)
 TOL_RANGE = (1.0e-12, 1.0e-2)
 #: "auto" picks the fast solver from this many interface nodes of a grid mesh: the measured
-#: crossover of the gap sweep per frequency (docs/formulation.md: dense 0.88 s, fast 0.7 s
-#: at 593 nodes; the reactor's 241 nodes stay dense)
+#: crossover of one sweep frequency, CPU seconds dense / fast (benchmarks/impedance_sweep.py
+#: --solvers): 0.13 / 0.23 at 241 nodes (circle), 0.20 / 0.21 at 256 (square), 1.17 / 1.03 at
+#: 593, 1.02 / 1.02 at 576, 7.9 / 3.8 at 1201, 8.9 / 4.1 at 1225; the reactor's 241 stay dense
 AUTO_NODES = 500
 #: Arnoldi steps before a restart of GMRES, and restarts before giving up
 RESTART = 40

@@ -190,3 +190,6 @@ def test_scene_keys():
         bad["impedance"][key] = value
         with pytest.raises(SceneError, match=match):
             scene_from_dict(bad, scene.base_dir)
+    import dataclasses
+    with pytest.raises(SceneError, match="impedance.solver_tol"):
+        dataclasses.replace(scene, solver_tol=1.0)
