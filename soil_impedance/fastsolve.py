@@ -230,25 +230,32 @@ class GridSolver:
         """M⁻¹ x = R C⁻¹ Rᵀ x for the columns x (m, 3n)."""
         return self._convolve(x, self.inverse)
 
-    def solve(self, b):
-        """F⁻¹ b, b (3n, k) real or complex, in batches of ``batch_size(n)`` columns; (3n, k)."""
+    def solve(self, b, x0=None):
+        """F⁻¹ b, b (3n, k) real or complex, in batches of ``batch_size(n)`` columns; (3n, k).
+        x0 (3n, k) or None: a first guess (only the iterations depend on it, not the tolerance)."""
         b = np.asarray(b)
         out = np.empty(b.shape, dtype=complex)
         m = batch_size(self.n)
         for c0 in range(0, b.shape[1], m):
             c1 = min(b.shape[1], c0 + m)
-            out[:, c0:c1] = self._gmres(np.ascontiguousarray(b[:, c0:c1].T, dtype=complex)).T
+            guess = None if x0 is None else np.ascontiguousarray(x0[:, c0:c1].T, dtype=complex)
+            out[:, c0:c1] = self._gmres(np.ascontiguousarray(b[:, c0:c1].T, dtype=complex), guess).T
         return out
 
-    def _gmres(self, b):
-        """Right-preconditioned restarted GMRES on the rows of b (m, d): x with
-        ||b - F x|| <= tol ||b|| for every row (true residuals)."""
+    def _gmres(self, b, x0=None):
+        """Right-preconditioned restarted GMRES on the rows of b (m, d), from x0 (m, d) or zero:
+        x with ||b - F x|| <= tol ||b|| for every row (true residuals)."""
         m, d = b.shape
         bnorm = np.linalg.norm(b, axis=1)
         goal = self.tol * np.where(bnorm > 0, bnorm, 1.0)
-        x = np.zeros_like(b)
-        r = b.copy()
-        rnorm = bnorm.copy()
+        if x0 is None:
+            x = np.zeros_like(b)
+            r = b.copy()
+            rnorm = bnorm.copy()
+        else:
+            x = x0.copy()
+            r = b - self.matvec(x)
+            rnorm = np.linalg.norm(r, axis=1)
         for _ in range(MAX_RESTARTS):
             if np.all(rnorm <= goal):
                 return x
@@ -305,7 +312,7 @@ class GridSolver:
                              "set [impedance] solver = 'dense' (or a larger solver_tol)")
 
 
-def gap_and_rigid(bem, omega, outputs, tol, T, Th):
+def gap_and_rigid(bem, omega, outputs, tol, T, Th, guess=None):
     """The rigid (6×6, Tᵀ F⁻¹ T) and gap ((6+N)², Bᵀ F⁻¹ B, B = [T_h, Z]) impedances at ω
     by the fast solver, both symmetrised as the dense sweep's (``sweep._compute``).
 
@@ -314,12 +321,17 @@ def gap_and_rigid(bem, omega, outputs, tol, T, Th):
     symmetry the coupling block T_hᵀ F⁻¹ Z is the transpose of Zᵀ F⁻¹ T_h (vertical rows of
     the T solves).
 
-    Returns (dict output -> matrix, GridSolver) (the solver's counters for the record).
+    guess : None or the ``solutions`` of another frequency (dict "T", "Z" -> (3N, k)): first
+    guesses of GMRES (``_compute_fast``: extrapolated from the previous frequencies).
+
+    Returns (dict output -> matrix, GridSolver (its counters), solutions {"T", "Z"}).
     """
     mesh = bem.mesh
     n = mesh.n
+    guess = guess or {}
     solver = GridSolver(bem, omega, tol)
-    XT = solver.solve(T)
+    XT = solver.solve(T, guess.get("T"))
+    solutions = {"T": XT}
     out = {}
     if "rigid" in outputs:
         Kr = T.T @ XT
@@ -332,7 +344,8 @@ def gap_and_rigid(bem, omega, outputs, tol, T, Th):
         maps = maps[:len(supply)]
         Z = np.zeros((3 * n, reps.size))
         Z[2 + 3 * reps, np.arange(reps.size)] = 1.0
-        Xz = solver.solve(Z)[2::3]                        # (n, r): vertical response to each load
+        solutions["Z"] = solver.solve(Z, guess.get("Z"))
+        Xz = solutions["Z"][2::3]                         # (n, r): vertical response to each load
         Kzz = np.empty((n, n), dtype=complex)
         for p, (k, node) in zip(maps, supply):
             # K[p[i], p[rep]] = K[i, rep]: column p[rep] is column rep permuted by p
@@ -343,5 +356,5 @@ def gap_and_rigid(bem, omega, outputs, tol, T, Th):
         Kg[:6, 6:] = Xh[2::3].T
         Kg[6:, 6:] = Kzz
         out["gap"] = 0.5 * (Kg + Kg.T)
-    return out, solver
+    return out, solver, solutions
 
