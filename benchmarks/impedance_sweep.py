@@ -13,8 +13,8 @@ and rigid + gap (247×247). Budgets (docs/verification.md): < 60 s, < 4 GB, cach
 (R = 20 m) at the same counts: wall and CPU seconds per frequency, peak memory (VmHWM of a
 child process per run), the fast tables' error against dense (largest difference relative to
 the table's largest entry, at each frequency; the worst one printed) and the growth exponents
-of a least-squares fit of log time on log N over the sizes >= 600. Dense runs of more than 1200
-nodes wait for ``--lock`` (flock; the machine-wide lock of big runs) and use the first
+of a least-squares fit of log time on log N over the sizes >= 600. Runs of more than 1200
+nodes wait for ``--lock`` (flock; the machine-wide lock of big runs), dense ones use the first
 frequency only (``--dense-big-freqs``).
 
 BLAS threads: one per process unless OPENBLAS_NUM_THREADS is set. The per-frequency matrices
@@ -155,7 +155,7 @@ def solvers_table(nodes, freqs, tol, shapes, lock, dense_big_freqs, dense_max):
                 res = {}
                 if nn <= dense_max:
                     res["dense"] = _child(shape, nn, "dense", tol, fd, dense, lock if big else None)
-                res["fast"] = _child(shape, nn, "fast", tol, freqs, fast, lock if nn > 2500 else None)
+                res["fast"] = _child(shape, nn, "fast", tol, freqs, fast, lock if big else None)
                 for solver, r in res.items():
                     err = ("", "")
                     if solver == "fast" and "dense" in res:

@@ -106,14 +106,25 @@ def batch_size(n: int) -> int:
     return int(min(256, max(8, BASIS_BYTES // ((RESTART + 1) * 3 * n * 16))))
 
 
-def fast_memory(n: int, nx: int, ny: int) -> int:
+def fast_memory(n: int, nx: int, ny: int, rhs: int | None = None) -> int:
     """Peak bytes of the fast solver's work per frequency (no dense F): the symbols and their
     inverses (2 × 9 P Q complex), a batch's Krylov basis, its FFT grids (three of m × 3 P Q
-    complex) and vectors, and the N × N vertical block it fills (plus its transpose)."""
+    complex) and vectors, the N × N vertical block it fills (plus its transpose), and the
+    solutions of ``rhs`` right-hand sides (6 + one load per symmetry orbit; None: n/8 + 2 √n + 6,
+    a centred square or circle grid's) at three frequencies (the two previous ones are the
+    sweep's first guesses)."""
     P, Q = scipy.fft.next_fast_len(2 * nx - 1), scipy.fft.next_fast_len(2 * ny - 1)
     m = batch_size(n)
+    if rhs is None:
+        rhs = n // 8 + 2 * int(np.sqrt(n)) + 6
     return int(2 * 9 * 16 * P * Q + (RESTART + 1) * m * 3 * n * 16 + 3 * m * 3 * P * Q * 16
-               + 8 * m * 3 * n * 16 + 2 * 16 * n * n)
+               + 8 * m * 3 * n * 16 + 2 * 16 * n * n + 3 * 16 * 3 * n * rhs)
+
+
+def right_hand_sides(mesh) -> int:
+    """Right-hand sides the fast solver solves per frequency for the gap table: 6 + one vertical
+    load per orbit of the mesh's symmetries (``mesh_symmetries``)."""
+    return 6 + orbits(mesh_symmetries(mesh.xy, _grid(mesh)[1]), mesh.n)[0].size
 
 
 def mesh_symmetries(xy, h) -> list[np.ndarray]:

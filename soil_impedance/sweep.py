@@ -22,7 +22,7 @@ from uplift_common.code import code_digest
 from uplift_common.errors import UserInputError
 
 from .cache import read_entry, write_entry
-from .fastsolve import DEFAULT_TOL, check_solver, fast_memory, gap_and_rigid, resolve_solver
+from .fastsolve import DEFAULT_TOL, check_solver, fast_memory, gap_and_rigid, resolve_solver, right_hand_sides
 from .greens_rule import GreenRule
 from .profile import CAUSAL_CUTOFF_HZ, CAUSAL_REFERENCE_HZ
 from .reduction import RIGID_DOFS, gap_dofs, gap_transform, rigid_transform
@@ -135,7 +135,7 @@ MARGIN = 0.15
 
 
 def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = False, solver: str = "dense",
-                 box=None) -> dict[str, int]:
+                 box=None, rhs=None) -> dict[str, int]:
     """Estimated peak bytes of ``impedance_sweep`` by item (and ``"total"``), before allocating.
 
     Parameters
@@ -147,6 +147,8 @@ def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = Fal
     solver : "dense" or "fast" (resolved, ``fastsolve.resolve_solver``)
     box : (nx, ny)       the fast solver's grid box in nodes (None: a square of 2 sqrt(n / π)
                          nodes a side, a circle grid's, larger than a square grid's sqrt(n))
+    rhs : int            the fast solver's right-hand sides per frequency (None: a symmetric
+                         grid's, ``fastsolve.fast_memory``; ``fastsolve.right_hand_sides``)
 
     Items: ``F`` the flexibility (3n)² complex, factorised in place (LU); ``assembly``: grid
     meshes gather (n², 3, 3) complex blocks and transpose them (two more F-sized arrays),
@@ -167,7 +169,7 @@ def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = Fal
             side = int(math.ceil(2 * math.sqrt(n / math.pi))) + 1
             box = (side, side)
         held = [16 * n_freq * {"rigid": 6, "gap": 6 + n}[o] ** 2 for o in outputs]
-        items = {"F": 0, "assembly": 3 * 4 * n * 9 * 16, "work": fast_memory(n, *box),
+        items = {"F": 0, "assembly": 3 * 4 * n * 9 * 16, "work": fast_memory(n, *box, rhs=rhs),
                  "outputs": sum(held) + (max(held) // 2 if held else 0)}
         items["margin"] = int(MARGIN * sum(items.values()))
         items["base"] = BASE_BYTES
@@ -220,10 +222,11 @@ def check_sweep_memory(mesh, n_freq: int, outputs=("rigid", "gap"), solver="dens
     ``impedance_sweep``'s (resolved here: the fast solver's estimate holds no dense F)."""
     grid = _grid(mesh)
     solver = _solver_for(mesh, solver, solver_tol, outputs)
-    box = None
+    box = rhs = None
     if solver == "fast":
         box = tuple(int(v) for v in np.ptp(grid[0], axis=0) + 1)
-    est = sweep_memory(mesh.n, n_freq, outputs, grid=grid is not None, solver=solver, box=box)
+        rhs = right_hand_sides(mesh)
+    est = sweep_memory(mesh.n, n_freq, outputs, grid=grid is not None, solver=solver, box=box, rhs=rhs)
     avail = available_memory()
     if avail is not None and est["total"] > MEMORY_SHARE * avail:
         per = est["total"] - est["outputs"]
