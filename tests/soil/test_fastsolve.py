@@ -86,6 +86,23 @@ def test_symmetry_maps_are_the_meshs():
     assert len(mesh_symmetries(shifted, (2.0, 2.0))) == 1
 
 
+def test_a_grid_without_symmetry_solves_every_load():
+    """A circle grid moved off the raft centre keeps its grid (the FFT path) but loses its
+    symmetries: every vertical load is solved, and the gap table equals dense within the
+    tolerance there too; a half-disk keeps one reflection (2 maps)."""
+    import dataclasses
+    disk = circle_mesh(10.0, 1.5)
+    moved = dataclasses.replace(disk, xy=disk.xy + [0.4, 0.0])
+    assert len(mesh_symmetries(moved.xy, (1.5, 1.5))) == 1
+    assert fastsolve.right_hand_sides(moved) == 6 + moved.n
+    assert fastsolve.right_hand_sides(disk) < 6 + moved.n / 4       # 23 orbits of 137 nodes
+    dense = impedance_sweep(SOFT, moved, [4.0], outputs=("gap",))["gap"]
+    fast = impedance_sweep(SOFT, moved, [4.0], outputs=("gap",), solver="fast", solver_tol=1e-6)["gap"]
+    assert _errors(fast, dense) <= 1e-6
+    half = disk.xy[:, 1] > 0
+    assert len(mesh_symmetries(disk.xy[half], (1.5, 1.5))) == 2
+
+
 @pytest.fixture(scope="module")
 def reactor_tables():
     """The reactor's raft (241 nodes) on its soil at 0 and 25 Hz: the dense tables and
