@@ -22,7 +22,8 @@ def scene_impedance(scene, outputs=("rigid",), cache_dir=None, progress=None, st
             progress(done, total, label)
 
     tables = impedance_sweep(scene.profile, scene.mesh, scene.frequencies_hz, contact=scene.contact_kind,
-                             outputs=outputs, cache_dir=cache_dir, progress=counting)
+                             outputs=outputs, cache_dir=cache_dir, progress=counting, solver=scene.solver,
+                             solver_tol=scene.solver_tol)
     if stats is not None:
         stats.update(computed=len(solved), from_cache=cache_dir is not None and not solved)
     return tables
@@ -59,7 +60,8 @@ def cached_scene_fit(scene, cache_dir, options=None):
     change of any of them is a miss. The entry itself is verified on read (its checksum)."""
     if cache_dir is None:
         return None
-    key = table_key(scene.profile, scene.mesh, scene.frequencies_hz, scene.contact_kind, "gap")
+    key = table_key(scene.profile, scene.mesh, scene.frequencies_hz, scene.contact_kind, "gap",
+                    solver=scene.solver, solver_tol=scene.solver_tol)
     return cached_fit(key, options or _fit_options(scene, {}), cache_dir)
 
 

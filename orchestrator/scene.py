@@ -33,6 +33,7 @@ from orchestrator.routes import get_route, route_names
 from soil_impedance.mesh import InterfaceMesh, MeshError, circle_mesh, read_nodes_csv, rectangle_mesh
 from soil_impedance.mesh_file import MeshSource, read_mesh_source
 from soil_impedance.profile import DAMPING_MODELS, Layer, Material, SoilError, SoilProfile
+from soil_impedance.fastsolve import DEFAULT_TOL as SOLVER_TOL, SOLVERS, TOL_RANGE as SOLVER_TOL_RANGE
 from orchestrator.design_spectra import DesignSpectraConfig, SpectraConfigError, parse_design_spectra
 from orchestrator.soil_cases import (SoilCaseError, SoilCases, StrainCompatibleConfig, parse_cases,
                                      parse_strain_compatible)
@@ -349,6 +350,10 @@ class Scene:
     mesh_source: MeshSource | None = None
     #: [foundation] raft = { kind = "plate", ... }: the plate raft (structure.plate_raft); None: rigid
     raft: PlateProperties | None = None
+    #: [impedance] solver and solver_tol: the BEM sweep's solver ("auto", "dense", "fast") and the
+    #: fast solver's relative residual (soil_impedance.fastsolve; auto: dense below 500 nodes)
+    solver: str = "auto"
+    solver_tol: float = SOLVER_TOL
 
     def __post_init__(self):
         if self.raft is not None:
@@ -363,6 +368,8 @@ class Scene:
         f = np.array(self.frequencies_hz, float)
         f.setflags(write=False)
         _set(self, "frequencies_hz", f)
+        _choice("impedance.solver", self.solver, SOLVERS)
+        _number("impedance.solver_tol", self.solver_tol, *SOLVER_TOL_RANGE, lo_open=False)
         routes = self.analysis.routes
         if self.profile is None:
             need = [r for r in routes if get_route(r).tables(self)]      # routes that read a BEM table
@@ -586,6 +593,7 @@ def _scene(data, base_dir: Path, name: str, origin: str) -> Scene:
         mesh, contact_kind, mesh_source = _foundation(foundation, base_dir)
         raft = _raft(foundation.get("raft", {}), mesh)
         freqs = _frequencies(_table(data, "impedance"))
+        solver, solver_tol = _solver(_table(data, "impedance"))
         structure = parse_structure(data["structure"]) if "structure" in data else None
         contact = contact_from_spec(_table(data, "contact"))
         motion = _motion(_table(data, "motion"), base_dir)
@@ -599,7 +607,7 @@ def _scene(data, base_dir: Path, name: str, origin: str) -> Scene:
                      frequencies_hz=freqs, structure=structure, contact=contact, motion=motion,
                      analysis=analysis, output=output, winkler=winkler, source=copy.deepcopy(data),
                      soil_cases=cases, strain_compatible=strain_compatible, design_spectra=design_spectra,
-                     mesh_source=mesh_source, raft=raft)
+                     mesh_source=mesh_source, raft=raft, solver=solver, solver_tol=solver_tol)
     except (SceneError, StructureError, MotionError, SoilError, MeshError, SoilCaseError, SpectraConfigError) as exc:
         raise SceneError(f"{origin}: {exc}") from None
 
@@ -861,8 +869,20 @@ def _raft(table, mesh: InterfaceMesh) -> PlateProperties | None:
     return PlateProperties(rigid_radius=radius, **values)
 
 
+def _solver(table: dict) -> tuple[str, float]:
+    """[impedance] solver ("auto": dense below 500 interface nodes or on a mesh file, else the fast
+    solver of grid meshes) and solver_tol (its relative residual)."""
+    solver = _choice("impedance.solver", table.get("solver", "auto"), SOLVERS,
+                     hint="auto: the fast solver on a circle or rectangle grid of 500 nodes or more, else dense; "
+                          "dense: one LU per frequency; fast: FFT products and GMRES (grid meshes)")
+    lo, hi = SOLVER_TOL_RANGE
+    tol = _number("impedance.solver_tol", table.get("solver_tol", SOLVER_TOL), lo, hi, lo_open=False,
+                  expect=f"a relative residual in [{lo:g}, {hi:g}] (default {SOLVER_TOL:g})")
+    return solver, float(tol)
+
+
 def _frequencies(table: dict) -> np.ndarray:
-    _check_keys(table, ("frequencies_hz", "range_hz"), "impedance")
+    _check_keys(table, ("frequencies_hz", "range_hz", "solver", "solver_tol"), "impedance")
     if "frequencies_hz" in table and "range_hz" in table:
         raise SceneError("impedance: give frequencies_hz or range_hz, not both")
     if "range_hz" in table:

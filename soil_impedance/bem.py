@@ -111,7 +111,9 @@ class SurfaceBem:
         box = ((di + span[0]) * width + (dj + span[1])).ravel()
         used, self._pair_index = np.unique(box, return_inverse=True)
         self._pair_index = self._pair_index.ravel()
-        self._off = np.column_stack([used // width - span[0], used % width - span[1]]) * (hx, hy)
+        self._ij = ij
+        self._off_int = np.column_stack([used // width - span[0], used % width - span[1]])
+        self._off = self._off_int * (hx, hy)
         hax = np.full(used.size, 0.5 * hx)
         hay = np.full(used.size, 0.5 * hy)
         self._static = static_patch_kernel(profile.top, self._off[:, 0], self._off[:, 1], hax, hay, 0.0)
@@ -140,12 +142,25 @@ class SurfaceBem:
         ----------
         omega : float, rad/s, >= 0
         """
-        if not np.isfinite(omega) or omega < 0:
-            raise BemError(f"omega = {omega!r} rad/s must be finite and >= 0 "
-                           "(use K(-ω) = conj K(ω) for negative frequencies)")
+        _check_omega(omega)
         if self._irregular is not None:
             self.regular_calls += 1
             return self._irregular.flexibility(float(omega))
+        blocks = self.offset_blocks(omega)
+        n = self.mesh.n
+        F = blocks[self._pair_index].reshape(n, n, 3, 3).transpose(0, 2, 1, 3).reshape(3 * n, 3 * n)
+        if not self._grid:
+            F = 0.5 * (F + F.T)   # unequal patches: collocation is not exactly reciprocal
+        return F
+
+    def offset_blocks(self, omega: float) -> np.ndarray:
+        """Grid meshes: the 3×3 blocks of F(ω) at the distinct integer offsets between nodes,
+        shape (n_off, 3, 3), complex, m/N; block k is F_ij for every pair whose integer grid offset
+        ``grid_index[i] - grid_index[j]`` is ``grid_offsets[k]``. F is gathered from
+        them (``flexibility``); the fast solver (``fastsolve``) convolves with them."""
+        if self._irregular is not None:
+            raise BemError("offset_blocks: an irregular mesh (node list or cells) has no grid offsets")
+        _check_omega(omega)
         A, B, C, D = _regular_green(self.profile, float(omega), self._radii, self.rule)
         self.regular_calls += 1
         k = self._radius_index
@@ -159,11 +174,17 @@ class SurfaceBem:
         if self.contact == "relaxed":
             blocks[:, 0:2, 2] = 0.0
             blocks[:, 2, 0:2] = 0.0
-        n = self.mesh.n
-        F = blocks[self._pair_index].reshape(n, n, 3, 3).transpose(0, 2, 1, 3).reshape(3 * n, 3 * n)
-        if not self._grid:
-            F = 0.5 * (F + F.T)   # unequal patches: collocation is not exactly reciprocal
-        return F
+        return blocks
+
+    @property
+    def grid_index(self) -> np.ndarray | None:
+        """Integer grid coordinates (n, 2) of the nodes (grid meshes; None otherwise)."""
+        return None if self._irregular is not None else self._ij
+
+    @property
+    def grid_offsets(self) -> np.ndarray | None:
+        """The distinct integer offsets (n_off, 2) of ``offset_blocks`` (grid meshes; else None)."""
+        return None if self._irregular is not None else self._off_int
 
     def solve(self, omega: float, rhs: np.ndarray) -> np.ndarray:
         """F(ω)⁻¹ rhs with one LU factorisation; rhs shape (3N, m)."""
@@ -175,6 +196,12 @@ class SurfaceBem:
         """Nodal impedance K(ω) = F(ω)⁻¹, shape (3N, 3N), complex, N/m, symmetrised."""
         K = sla.inv(self.flexibility(omega).T, overwrite_a=True, check_finite=False).T
         return 0.5 * (K + K.T)
+
+
+def _check_omega(omega):
+    if not np.isfinite(omega) or omega < 0:
+        raise BemError(f"omega = {omega!r} rad/s must be finite and >= 0 "
+                       "(use K(-ω) = conj K(ω) for negative frequencies)")
 
 
 def _grid(mesh):

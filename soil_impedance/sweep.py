@@ -22,6 +22,7 @@ from uplift_common.code import code_digest
 from uplift_common.errors import UserInputError
 
 from .cache import read_entry, write_entry
+from .fastsolve import DEFAULT_TOL, check_solver, fast_memory, gap_and_rigid, resolve_solver, right_hand_sides
 from .greens_rule import GreenRule
 from .profile import CAUSAL_CUTOFF_HZ, CAUSAL_REFERENCE_HZ
 from .reduction import RIGID_DOFS, gap_dofs, gap_transform, rigid_transform
@@ -31,6 +32,11 @@ OUTPUTS = ("rigid", "gap", "nodal")
 #: the code a table depends on: its digest is one of the table's inputs (a changed kernel misses the cache)
 CODE = ("soil_impedance.profile", "soil_impedance.patch", "soil_impedance.bem", "soil_impedance.greens",
         "soil_impedance.greens_layers", "soil_impedance.greens_rule", "soil_impedance.reduction", "soil_impedance.sweep")
+
+
+#: the fast solver's code: its digest is recorded in the provenance of the tables it computes
+#: only (a change to it misses the cache of fast tables, never of dense ones)
+FAST_CODE = ("soil_impedance.fastsolve",)
 
 
 def code_version() -> str:
@@ -57,13 +63,16 @@ def _mesh_dict(mesh) -> dict:
             "arrays_sha256": h.hexdigest()}
 
 
-def provenance(profile, mesh, contact, rule, output) -> dict:
+def provenance(profile, mesh, contact, rule, output, solver="dense", solver_tol=DEFAULT_TOL) -> dict:
     """The inputs of one sweep output, as a JSON-able dict (hashed with the frequencies).
 
     ``rule=None`` is recorded as the default ``GreenRule()`` it stands for (every field). An
     irregular mesh records the relative tolerance of its radial interpolation of the regular
     kernel (``bem.RADIAL_TOL``; also in the code digest) and its traction scheme
-    (``bem.edge_tractions``: "constant", or "sqrt-8" for the cells of a mesh file)."""
+    (``bem.edge_tractions``: "constant", or "sqrt-8" for the cells of a mesh file). A table of
+    the fast solver (``solver`` resolved by ``fastsolve.resolve_solver`` to "fast") records
+    ``solver = {"name": "fast", "tol": solver_tol, "code": digest of FAST_CODE}``; a dense
+    table records nothing more (its keys are those of the dense sweep before the option)."""
     prov = {"profile": {"layers": [_material_dict(l) for l in profile.layers],
                         "halfspace": _material_dict(profile.halfspace)},
             "mesh": _mesh_dict(mesh), "contact": contact,
@@ -73,14 +82,24 @@ def provenance(profile, mesh, contact, rule, output) -> dict:
     if _grid(mesh) is None:
         prov["radial_tol"] = RADIAL_TOL
         prov["tractions"] = edge_tractions(mesh)
+    if _solver_for(mesh, solver, solver_tol, (output,)) == "fast":
+        prov["solver"] = {"name": "fast", "tol": float(solver_tol), "code": code_digest(*FAST_CODE)[:12]}
     return prov
 
 
-def table_key(profile, mesh, frequencies_hz, contact="welded", output="gap", rule=None) -> str:
+def _solver_for(mesh, solver, solver_tol, outputs) -> str:
+    """The solver ("dense" or "fast") a sweep of ``outputs`` uses (``fastsolve.resolve_solver``)."""
+    check_solver(solver, solver_tol)
+    return resolve_solver(solver, mesh, _grid(mesh) is not None, outputs)
+
+
+def table_key(profile, mesh, frequencies_hz, contact="welded", output="gap", rule=None,
+              solver="dense", solver_tol=DEFAULT_TOL) -> str:
     """The cache key of one sweep output (``ImpedanceTable.hash``: its inputs and the BEM code's
     digest, ``provenance`` + frequencies), from the inputs alone: nothing is swept or read. What
     is derived from a table and keyed by its hash (a rational fit) can be found with it."""
-    return content_hash(provenance(profile, mesh, contact, rule, output), _frequencies(frequencies_hz))
+    return content_hash(provenance(profile, mesh, contact, rule, output, solver, solver_tol),
+                        _frequencies(frequencies_hz))
 
 
 def _frequencies(frequencies_hz) -> np.ndarray:
@@ -115,7 +134,8 @@ MEMORY_SHARE = 0.9
 MARGIN = 0.15
 
 
-def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = False) -> dict[str, int]:
+def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = False, solver: str = "dense",
+                 box=None, rhs=None) -> dict[str, int]:
     """Estimated peak bytes of ``impedance_sweep`` by item (and ``"total"``), before allocating.
 
     Parameters
@@ -124,6 +144,11 @@ def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = Fal
     n_freq : int         frequencies swept (the outputs hold one matrix per frequency)
     outputs : iterable   among "rigid", "gap", "nodal"
     grid : bool          circle/rectangle grid meshes (assembly by distinct offsets), else irregular
+    solver : "dense" or "fast" (resolved, ``fastsolve.resolve_solver``)
+    box : (nx, ny)       the fast solver's grid box in nodes (None: a square of 2 sqrt(n / π)
+                         nodes a side, a circle grid's, larger than a square grid's sqrt(n))
+    rhs : int            the fast solver's right-hand sides per frequency (None: a symmetric
+                         grid's, ``fastsolve.fast_memory``; ``fastsolve.right_hand_sides``)
 
     Items: ``F`` the flexibility (3n)² complex, factorised in place (LU); ``assembly``: grid
     meshes gather (n², 3, 3) complex blocks and transpose them (two more F-sized arrays),
@@ -133,8 +158,23 @@ def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = Fal
     ``outputs``: the tables held, n_freq matrices each, plus half the largest for the h5 copy of
     its real or imaginary part; ``margin``: ``MARGIN`` of all these (the allocator keeps part of
     the freed temporaries); ``base``: the interpreter and libraries.
+
+    The fast solver (grid meshes) holds no F: ``F`` is 0, ``assembly`` the blocks at the distinct
+    offsets (at most 4 n of 3×3 complex, three copies), ``work`` ``fastsolve.fast_memory`` (the
+    FFT symbols, one batch's Krylov basis and grids, the N × N vertical block).
     """
     m = 3 * n
+    if solver == "fast":
+        if box is None:
+            side = int(math.ceil(2 * math.sqrt(n / math.pi))) + 1
+            box = (side, side)
+        held = [16 * n_freq * {"rigid": 6, "gap": 6 + n}[o] ** 2 for o in outputs]
+        items = {"F": 0, "assembly": 3 * 4 * n * 9 * 16, "work": fast_memory(n, *box, rhs=rhs),
+                 "outputs": sum(held) + (max(held) // 2 if held else 0)}
+        items["margin"] = int(MARGIN * sum(items.values()))
+        items["base"] = BASE_BYTES
+        items["total"] = sum(items.values())
+        return items
     fsize = 16 * m * m
     sizes = {"rigid": 6, "gap": 6 + n, "nodal": m}
     outputs = tuple(outputs)
@@ -175,25 +215,35 @@ def _gib(b: float) -> str:
     return f"{b / 2 ** 30:.2f} GiB"
 
 
-def check_sweep_memory(mesh, n_freq: int, outputs=("rigid", "gap")) -> dict[str, int]:
+def check_sweep_memory(mesh, n_freq: int, outputs=("rigid", "gap"), solver="dense",
+                       solver_tol=DEFAULT_TOL) -> dict[str, int]:
     """Refuse (SweepMemoryError, exit 2) a sweep whose ``sweep_memory`` estimate exceeds
-    ``MEMORY_SHARE`` of ``available_memory()``; returns the estimate otherwise."""
-    est = sweep_memory(mesh.n, n_freq, outputs, grid=_grid(mesh) is not None)
+    ``MEMORY_SHARE`` of ``available_memory()``; returns the estimate otherwise. ``solver`` as
+    ``impedance_sweep``'s (resolved here: the fast solver's estimate holds no dense F)."""
+    grid = _grid(mesh)
+    solver = _solver_for(mesh, solver, solver_tol, outputs)
+    box = rhs = None
+    if solver == "fast":
+        box = tuple(int(v) for v in np.ptp(grid[0], axis=0) + 1)
+        rhs = right_hand_sides(mesh)
+    est = sweep_memory(mesh.n, n_freq, outputs, grid=grid is not None, solver=solver, box=box, rhs=rhs)
     avail = available_memory()
     if avail is not None and est["total"] > MEMORY_SHARE * avail:
         per = est["total"] - est["outputs"]
+        hint = "" if solver == "fast" or grid is None else "; a grid of 500 nodes or more may use [impedance] solver = 'fast'"
         raise SweepMemoryError(
             f"the impedance sweep of {mesh.n} interface nodes at {n_freq} frequenc{'y' if n_freq == 1 else 'ies'} (outputs "
             f"{', '.join(outputs)}) needs about {_gib(est['total'])} (flexibility {_gib(est['F'])}, "
             f"tables {_gib(est['outputs'])}) but the machine has {_gib(avail)} available "
             f"(MemAvailable): use a coarser mesh (larger foundation.element_size, fewer cells: memory "
-            f"grows like N²) or fewer frequencies ([impedance].range_hz; the tables alone take "
+            f"grows like N² with the dense solver{hint}) or fewer frequencies ([impedance].range_hz; the tables alone take "
             f"{_gib(est['outputs'] / max(n_freq, 1))} per frequency, the rest {_gib(per)})")
     return est
 
 
 def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("rigid", "gap"),
-                    cache_dir=None, progress=None, rule=None) -> dict[str, ImpedanceTable]:
+                    cache_dir=None, progress=None, rule=None, solver="dense",
+                    solver_tol=DEFAULT_TOL) -> dict[str, ImpedanceTable]:
     """Impedance of ``mesh`` on ``profile`` at each frequency, reduced as asked.
 
     Parameters
@@ -207,6 +257,11 @@ def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("r
                                          (None: no cache, always compute)
     progress : callable(done, total, label) or None, called after each frequency (label: "2.5 Hz")
     rule : passed to ``greens.regular_green``
+    solver : "dense" (one LU of F per frequency), "fast" (grid meshes: FFT products and GMRES,
+             ``fastsolve``; rigid and gap outputs) or "auto" (fast on a grid of at least
+             ``fastsolve.AUTO_NODES`` nodes, except for "nodal"; else dense)
+    solver_tol : the fast solver's relative residual ||b - F x|| / ||b|| per right-hand side
+             (recorded in the provenance of its tables; ignored by the dense solver)
 
     Raises SweepMemoryError (a UserInputError) before computing when the estimated peak memory
     (``sweep_memory``) does not fit in the machine's available memory.
@@ -214,7 +269,8 @@ def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("r
     Returns
     -------
     dict output -> ImpedanceTable; DOFs ``RIGID_DOFS``, ``gap_dofs(N)`` or ``nodal_dofs(N)``.
-    One LU factorisation of F per frequency; K_out = Bᵀ F⁻¹ B (symmetrised).
+    One LU factorisation of F per frequency (dense), or the solves of ``fastsolve.gap_and_rigid``
+    (fast); K_out = Bᵀ F⁻¹ B (symmetrised).
 
     Performance: the matrices are small (723×723 for 241 nodes); run with one BLAS thread
     (the orchestrator does): threaded BLAS is no faster on them and several times slower
@@ -230,7 +286,7 @@ def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("r
     if f.size == 0 or not np.all(np.isfinite(f)) or np.any(f < 0) or np.any(np.diff(f) <= 0):
         raise BemError("frequencies_hz must be a non-empty, strictly increasing list of finite "
                        "values >= 0 Hz")
-    provs = {o: provenance(profile, mesh, contact, rule, o) for o in outputs}
+    provs = {o: provenance(profile, mesh, contact, rule, o, solver, solver_tol) for o in outputs}
     tables = {}
     if cache_dir is not None:
         for o in outputs:
@@ -240,8 +296,15 @@ def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("r
                 tables[o] = table
     todo = [o for o in outputs if o not in tables]
     if todo:
-        check_sweep_memory(mesh, f.size, todo)          # before anything large is allocated
-        computed = _compute(SurfaceBem(profile, mesh, contact, rule), f, todo, progress)
+        check_sweep_memory(mesh, f.size, todo, solver, solver_tol)     # before anything large is allocated
+        bem = SurfaceBem(profile, mesh, contact, rule)
+        fast = [o for o in todo if "solver" in provs[o]]
+        dense = [o for o in todo if o not in fast]
+        computed = {}
+        if dense:
+            computed.update(_compute(bem, f, dense, progress))
+        if fast:
+            computed.update(_compute_fast(bem, f, fast, progress, solver_tol))
         dofs = {"rigid": RIGID_DOFS, "gap": gap_dofs(mesh.n), "nodal": nodal_dofs(mesh.n)}
         for o in todo:
             tables[o] = ImpedanceTable(f, computed[o], dofs[o], provs[o])
@@ -284,6 +347,33 @@ def _compute(bem, f, outputs, progress) -> dict[str, np.ndarray]:
             Kg[:6] = Th.T @ X
             Kg[6:] = X[2::3]
             out["gap"][k] = 0.5 * (Kg + Kg.T)
+        if progress is not None:
+            progress(k + 1, f.size, f"{fk:.3g} Hz")
+    return out
+
+
+def _compute_fast(bem, f, outputs, progress, tol) -> dict[str, np.ndarray]:
+    """The rigid and gap outputs by the fast solver (``fastsolve.gap_and_rigid``), frequency by
+    frequency: the same matrices as ``_compute`` within the relative residual ``tol``. GMRES
+    starts from the solutions of the previous frequencies, extrapolated linearly in frequency
+    (fewer iterations on a fine frequency list; every solve still meets ``tol``)."""
+    n = bem.mesh.n
+    T = rigid_transform(bem.mesh)
+    Th = T.copy()
+    Th[2::3, :] = 0.0
+    sizes = {"rigid": 6, "gap": 6 + n}
+    out = {o: np.empty((f.size, sizes[o], sizes[o]), dtype=complex) for o in outputs}
+    past = []                                   # (f, solutions) of the last two frequencies
+    for k, fk in enumerate(f):
+        guess = past[-1][1] if past else None
+        if len(past) == 2:
+            (f0, s0), (f1, s1) = past
+            w = (fk - f1) / (f1 - f0)
+            guess = {key: s1[key] + w * (s1[key] - s0[key]) for key in s1}
+        mats, _, solutions = gap_and_rigid(bem, 2 * math.pi * fk, outputs, tol, T, Th, guess)
+        past = (past + [(fk, solutions)])[-2:]
+        for o in outputs:
+            out[o][k] = mats[o]
         if progress is not None:
             progress(k + 1, f.size, f"{fk:.3g} Hz")
     return out

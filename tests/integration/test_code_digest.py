@@ -14,7 +14,7 @@ from uplift_common.code import PACKAGES, MissingSourceError, code_digest, source
 from helpers import ROOT, small_reactor, write_scene
 
 #: every list of sources a cache is keyed on: (module, attribute)
-CACHE_SOURCES = [("soil_impedance.sweep", "CODE"), ("soil_impedance.fit.options", "CODE"),
+CACHE_SOURCES = [("soil_impedance.sweep", "CODE"), ("soil_impedance.sweep", "FAST_CODE"), ("soil_impedance.fit.options", "CODE"),
                  ("orchestrator.run", "DT_CHECK_CODE"), ("orchestrator.run", "MOTION_CODE"), ("uplift_common.code", "PACKAGES")]
 
 
