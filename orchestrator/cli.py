@@ -181,6 +181,9 @@ def _parser() -> argparse.ArgumentParser:
                      help="time step, s: replaces [analysis].dt (recorded likewise)")
     run.add_argument("--duration", type=_positive, default=None, metavar="S",
                      help="length of the synthetic motion, s: replaces [motion].duration_s (recorded likewise)")
+    run.add_argument("--dry-run", action="store_true",
+                     help="compute nothing: load the scene, print each stage's estimated peak memory (sweep, fit, "
+                          "stepping, ...) against the machine's available memory, exit 2 if the run would be refused")
     no_cache(run)
     run.set_defaults(func=cmd_run)
 
@@ -513,6 +516,8 @@ def cmd_run(args) -> int:
     from orchestrator.scene_file import scene_toml                               # (same)
     from structure.results import Status                                         # (same)
     scene = load_scene(args.scene, max_pga_g=args.max_pga, pga_g=args.pga, dt=args.dt, duration_s=args.duration)
+    if args.dry_run:
+        return _dry_run(scene, args.routes)
     out = check_output_path(args.output or Path(f"{scene.name}_results.h5"))
     if args.plot_dir is not None:
         check_output_folder(args.plot_dir, _pngs(args.plot_dir), "--plot-dir")
@@ -560,6 +565,21 @@ def cmd_run(args) -> int:
     if Status.REFUSED in statuses:
         return EXIT_INPUT
     return EXIT_FAILED if Status.STOPPED in statuses else EXIT_OK
+
+
+def _dry_run(scene, routes) -> int:
+    """``uplift run --dry-run``: the run's stages and their estimated peak memory (stdout), then
+    the memory guard's verdict (its refusal raises: exit 2)."""
+    from orchestrator.memory_guard import check_run_memory, memory_lines, run_memory   # start-up cost: only here
+    from orchestrator.run import _chosen_routes                                        # (same)
+    from soil_impedance.sweep import available_memory                                  # (same)
+    scene, _ = _chosen_routes(scene, routes)
+    _out(f"scene {scene.name}: {scene.mesh.n} interface nodes, {scene.frequencies_hz.size} frequencies, routes "
+         f"{', '.join(scene.analysis.routes)}; estimated peak memory per stage:")
+    _out(*(f"  {line}" for line in memory_lines(run_memory(scene), available_memory())))
+    check_run_memory(scene)
+    _out("the run fits in the available memory (nothing was computed)")
+    return EXIT_OK
 
 
 def _run_design(args, scene, out: Path) -> int:

@@ -155,6 +155,12 @@ def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = Fal
     return items
 
 
+def mesh_sweep_memory(mesh, n_freq: int, outputs=("rigid", "gap")) -> dict[str, int]:
+    """``sweep_memory`` of a sweep of ``mesh`` (its node count and whether it is a grid), the
+    estimate ``check_sweep_memory`` checks; the run-level guard (``orchestrator.memory_guard``) uses it."""
+    return sweep_memory(mesh.n, n_freq, outputs, grid=_grid(mesh) is not None)
+
+
 def available_memory() -> int | None:
     """Bytes the machine can give a new allocation: MemAvailable of /proc/meminfo, else the free
     physical pages (os.sysconf); None if neither is known."""
@@ -178,7 +184,7 @@ def _gib(b: float) -> str:
 def check_sweep_memory(mesh, n_freq: int, outputs=("rigid", "gap")) -> dict[str, int]:
     """Refuse (SweepMemoryError, exit 2) a sweep whose ``sweep_memory`` estimate exceeds
     ``MEMORY_SHARE`` of ``available_memory()``; returns the estimate otherwise."""
-    est = sweep_memory(mesh.n, n_freq, outputs, grid=_grid(mesh) is not None)
+    est = mesh_sweep_memory(mesh, n_freq, outputs)
     avail = available_memory()
     if avail is not None and est["total"] > MEMORY_SHARE * avail:
         per = est["total"] - est["outputs"]
