@@ -508,6 +508,8 @@ def _print_json(value):
 
 
 def cmd_run(args) -> int:
+    if args.dry_run:
+        return _dry_run(args)
     # start-up cost: what a run uses loads in it (the other commands do not pay it)
     from orchestrator.motion import G                                            # (same)
     from orchestrator.results_file import check_output_folder, check_output_path, summary, write_results  # (same)
@@ -516,8 +518,6 @@ def cmd_run(args) -> int:
     from orchestrator.scene_file import scene_toml                               # (same)
     from structure.results import Status                                         # (same)
     scene = load_scene(args.scene, max_pga_g=args.max_pga, pga_g=args.pga, dt=args.dt, duration_s=args.duration)
-    if args.dry_run:
-        return _dry_run(scene, args.routes)
     out = check_output_path(args.output or Path(f"{scene.name}_results.h5"))
     if args.plot_dir is not None:
         check_output_folder(args.plot_dir, _pngs(args.plot_dir), "--plot-dir")
@@ -567,13 +567,16 @@ def cmd_run(args) -> int:
     return EXIT_FAILED if Status.STOPPED in statuses else EXIT_OK
 
 
-def _dry_run(scene, routes) -> int:
-    """``uplift run --dry-run``: the run's stages and their estimated peak memory (stdout), then
-    the memory guard's verdict (its refusal raises: exit 2)."""
+def _dry_run(args) -> int:
+    """``uplift run --dry-run``: the scene loaded (with the options that change it), the run's
+    stages and their estimated peak memory (stdout), then the memory guard's verdict (its
+    refusal raises: exit 2). Loads neither the run nor the routes' solvers (under 2 s)."""
     from orchestrator.memory_guard import check_run_memory, memory_lines, run_memory   # start-up cost: only here
-    from orchestrator.run import _chosen_routes                                        # (same)
+    from orchestrator.scene import load_scene                                          # (same)
     from soil_impedance.sweep import available_memory                                  # (same)
-    scene, _ = _chosen_routes(scene, routes)
+    scene = load_scene(args.scene, max_pga_g=args.max_pga, pga_g=args.pga, dt=args.dt, duration_s=args.duration)
+    if args.routes:
+        scene = scene.with_routes(args.routes)
     _out(f"scene {scene.name}: {scene.mesh.n} interface nodes, {scene.frequencies_hz.size} frequencies, routes "
          f"{', '.join(scene.analysis.routes)}; estimated peak memory per stage:")
     _out(*(f"  {line}" for line in memory_lines(run_memory(scene), available_memory())))
