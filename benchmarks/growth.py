@@ -274,6 +274,12 @@ def main(argv=None) -> int:
     ns = [r["n_nodes"] for r in rows]
     print(f"{'exp.':>5s} " + " ".join(
         f"{'-' if (e := exponent(ns, [r.get(c[0]) for r in rows])) is None else f'N^{e:.2f}':>14s}" for c in cols))
+    for stage in ("sweep", "fit", "step"):
+        pairs = [(r["n_nodes"], r[f"{stage}_est"] / r[f"{stage}_peak"]) for r in rows
+                 if r.get(f"{stage}_peak", 0) > 0 and f"{stage}_est" in r]
+        if pairs:
+            print(f"{stage}: the guard's estimate over the measured peak: "
+                  + ", ".join(f"{ratio:.2f} at {n} nodes" for n, ratio in pairs))
     if "sweep_s" in rows[-1]:
         big = rows[-1]
         print(f"extrapolated: the sweep of {big['n_nodes']} nodes at {args.freqs} frequencies ~ "

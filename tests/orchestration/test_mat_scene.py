@@ -156,13 +156,13 @@ def test_full_mat_refused_with_its_largest_stage_and_dry_run(capsys, monkeypatch
 
 def test_memory_estimates_grow_as_stated(tmp_path):
     # the stages' estimates against their closed forms: the gap table held, 16 F (6+N)^2 bytes,
-    # is in the sweep's, the fit adds its measured ~7 copies; the stepping stage's history
+    # is in the sweep's, the fit holds it and its measured ~7 copies; the stepping stage's history
     # matrix is m (6+N)^2 doubles with m the most poles a fit of 101 frequencies may have (30)
     stages = {s.name: s for s in run_memory(load_scene("mat"))}
     nb, F = 2506, 101
     table = 16 * F * nb * nb
     assert table < stages["sweep"].bytes < 2.5 * table
-    assert 7 * table < stages["fit"].bytes < 9 * table
+    assert 8 * table < stages["fit"].bytes < 9.5 * table
     assert f"history matrix 30 x {nb}^2 doubles" in stages["stepping"].detail
     # the same mat at 25 x 25 cells (631 DOFs): the fit's estimate scales like (6+N)^2 (the
     # interpreter's fixed allowance aside)
