@@ -1,9 +1,11 @@
 """Benchmark: how each stage of a run grows with the raft, on the mat of the scene "mat"
 (100 m x 100 m on the reactor's rock) meshed at 6.25, 4, 2.94 and 2 m: 256, 625, 1156 and 2500
 interface nodes (n = 6 + N DOFs of the gap model). Per size, each stage in a child process of
-its own (its time, and its peak memory as ru_maxrss over what the process held before it):
+its own (its time, and its peak memory as ru_maxrss over what the process held before it).
+Times are the process's CPU seconds (one BLAS thread: CPU time is the work, and it stays
+meaningful on a machine shared with other jobs, where the wall time is not):
 
-  sweep        one frequency (5 Hz) of the BEM sweep, rigid + gap outputs: seconds, peak; the
+  sweep        one frequency (5 Hz) of the BEM sweep, rigid + gap outputs: CPU s, peak; the
                scene's F frequencies take F times as long (extrapolated, said so)
   table        bytes of the gap table at the scene's F frequencies, 16 F n^2 (computed)
   fit          the rational fit of the gap table swept at --fit-freqs frequencies (0 to 25 Hz):
@@ -124,11 +126,11 @@ def stage_sweep(cells, args):
     from soil_impedance.sweep import mesh_sweep_memory
     scene = scene_at(cells)
     base = _maxrss()
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     SWEEPS[args.sweep](scene, [FREQ])
-    wall = time.perf_counter() - t0
+    cpu = time.process_time() - t0
     est = mesh_sweep_memory(scene.mesh, 1, ("rigid", "gap"))
-    return {"n_nodes": scene.mesh.n, "sweep_s": wall, "sweep_peak": _maxrss() - base,
+    return {"n_nodes": scene.mesh.n, "sweep_s": cpu, "sweep_peak": _maxrss() - base,
             "sweep_est": est["total"] - est["base"]}
 
 
@@ -139,12 +141,12 @@ def stage_fit(cells, args):
     freqs = np.linspace(0.0, 25.0, args.fit_freqs)
     table = SWEEPS[args.sweep](scene, freqs)["gap"]
     base = _maxrss()
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     result = FITS[args.fit](scene, table)
-    wall = time.perf_counter() - t0
+    cpu = time.process_time() - t0
     nb = table.n_dof
     est = fit_memory(nb, freqs.size, max_poles(scene, freqs.size))
-    return {"n_nodes": scene.mesh.n, "fit_s": wall, "fit_peak": _maxrss() - base, "fit_est": est["total"],
+    return {"n_nodes": scene.mesh.n, "fit_s": cpu, "fit_peak": _maxrss() - base, "fit_est": est["total"],
             "fit_poles": int(result.model.order), "fit_freqs": int(freqs.size)}
 
 
@@ -157,11 +159,11 @@ def stage_history(cells, args):
     soil.history()
     soil.commit(x[0], x[1])                          # warm
     reps = max(5, min(200, int(2e8 / (args.poles * n * n))))
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     for k in range(reps):
         soil.history()
         soil.commit(x[k % 8], x[(k + 1) % 8])
-    return {"n_nodes": cells * cells, "history_ms": 1e3 * (time.perf_counter() - t0) / reps}
+    return {"n_nodes": cells * cells, "history_ms": 1e3 * (time.process_time() - t0) / reps}
 
 
 def stage_step(cells, args):
@@ -178,20 +180,20 @@ def stage_step(cells, args):
     ag = np.zeros((t.size, 3))
     ag[:, 0] = 0.5 * np.sin(2 * np.pi * 3.0 * t)
     base = _maxrss()
-    t0 = time.perf_counter()
+    t0 = time.process_time()
     model = synthetic_model(n, args.poles)
     soil = RecursiveConvolutionSoil(model, 0.005, checked=True)
     st = NewmarkStepper(structure, soil, 0.005, contact=scene.contact, external_soil=True, ag0=ag[0])
-    setup = time.perf_counter() - t0
-    t1 = time.perf_counter()
+    setup = time.process_time() - t0
+    t1 = time.process_time()
     simulate_native(st, ag[:1], scene.output.nodes, lib=lib)                 # records encoded and opened, 1 step
-    first = time.perf_counter() - t1
-    t1 = time.perf_counter()
+    first = time.process_time() - t1
+    t1 = time.process_time()
     simulate_native(st, ag[:1], scene.output.nodes, lib=lib)                 # again, the library warm
-    first = min(first, time.perf_counter() - t1)
-    t2 = time.perf_counter()
+    first = min(first, time.process_time() - t1)
+    t2 = time.process_time()
     res = simulate_native(st, ag, scene.output.nodes, lib=lib)
-    run = time.perf_counter() - t2
+    run = time.process_time() - t2
     est = stepping_memory(n, args.poles, t.size)
     return {"n_nodes": scene.mesh.n, "setup_s": setup + first, "step_ms": 1e3 * (run - first) / args.steps,
             "step_peak": _maxrss() - base, "step_est": est["total"] - est["base"],
