@@ -182,6 +182,9 @@ def _parser() -> argparse.ArgumentParser:
                      help="time step, s: replaces [analysis].dt (recorded likewise)")
     run.add_argument("--duration", type=_positive, default=None, metavar="S",
                      help="length of the synthetic motion, s: replaces [motion].duration_s (recorded likewise)")
+    run.add_argument("--dry-run", action="store_true",
+                     help="compute nothing: load the scene, print each stage's estimated peak memory (sweep, fit, "
+                          "stepping, ...) against the machine's available memory, exit 2 if the run would be refused")
     no_cache(run)
     run.set_defaults(func=cmd_run)
 
@@ -508,6 +511,8 @@ def _print_json(value):
 
 
 def cmd_run(args) -> int:
+    if args.dry_run:
+        return _dry_run(args)
     # start-up cost: what a run uses loads in it (the other commands do not pay it)
     from orchestrator.motion import G                                            # (same)
     from orchestrator.results_file import check_output_folder, check_output_path, summary, write_results  # (same)
@@ -563,6 +568,24 @@ def cmd_run(args) -> int:
     if Status.REFUSED in statuses:
         return EXIT_INPUT
     return EXIT_FAILED if Status.STOPPED in statuses else EXIT_OK
+
+
+def _dry_run(args) -> int:
+    """``uplift run --dry-run``: the scene loaded (with the options that change it), the run's
+    stages and their estimated peak memory (stdout), then the memory guard's verdict (its
+    refusal raises: exit 2). Loads neither the run nor the routes' solvers (under 2 s)."""
+    from orchestrator.memory_guard import check_run_memory, memory_lines, run_memory   # start-up cost: only here
+    from orchestrator.scene import load_scene                                          # (same)
+    from soil_impedance.sweep import available_memory                                  # (same)
+    scene = load_scene(args.scene, max_pga_g=args.max_pga, pga_g=args.pga, dt=args.dt, duration_s=args.duration)
+    if args.routes:
+        scene = scene.with_routes(args.routes)
+    _out(f"scene {scene.name}: {scene.mesh.n} interface nodes, {scene.frequencies_hz.size} frequencies, routes "
+         f"{', '.join(scene.analysis.routes)}; estimated peak memory per stage:")
+    _out(*(f"  {line}" for line in memory_lines(run_memory(scene), available_memory())))
+    check_run_memory(scene)
+    _out("the run fits in the available memory (nothing was computed)")
+    return EXIT_OK
 
 
 def _run_design(args, scene, out: Path) -> int:

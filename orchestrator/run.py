@@ -6,8 +6,9 @@ result: converged, stopped (the histories so far and the reason) or refused (the
 What the run reuses or skips (cache hits, interface reductions) is in each result's notes.
 
 One sequence, in two parts. ``prepare_run(scene)`` does what does not depend on the motion
-(the routes, the structure model, the proxy springs and the time-step check, the cached fit,
-the sweep) and returns a ``SharedRun``, which makes the fit when a route first needs it.
+(the routes, the memory guard, the structure model, the proxy springs and the time-step check,
+the cached fit, the sweep) and returns a ``SharedRun``, which makes the fit when a route first
+needs it.
 ``run_scene`` prepares its own run (or takes ``shared=``, a ``prepare_run`` made once for many
 runs of one scene under different motions: an ensemble of records, ``orchestrator.ensemble``,
 which ``settle``s it first, the fit made once for every cell) and runs the per-motion part: the
@@ -35,6 +36,7 @@ from structure.winkler import modes_on_soil, springs_from_rigid_impedance
 
 from orchestrator.exit_codes import STOPPED, USER_INPUT
 from orchestrator.impedance import cached_scene_fit, scene_fit, scene_impedance, scene_static
+from orchestrator.memory_guard import check_run_memory
 from orchestrator.motion import Motion, make_motion
 from orchestrator.oncurve import scene_key
 from orchestrator.routes import RouteInputError, RunContext, get_route
@@ -347,13 +349,15 @@ def _chosen_routes(scene, routes):
 def prepare_run(scene, routes=None, cache_dir=None, sweep_progress=None, fit_progress=None) -> SharedRun:
     """What the runs of ``scene`` with ``routes`` (default: the scene's) share whatever their
     motion: the only place that chooses the routes (a scene without [structure] for routes that
-    need one raises), makes the proxy springs and checks the time step (raises), finds the
-    cached fit and sweeps: once for all routes, and not at all when the routes need only the
+    need one raises), refuses a run whose estimated peak memory exceeds the machine's
+    (``orchestrator.memory_guard.check_run_memory``: RunMemoryError, exit 2), makes the proxy springs
+    and checks the time step (raises), finds the cached fit and sweeps: once for all routes, and not at all when the routes need only the
     fit and it was found in the cache by the table's inputs (the sweep's errors raise here).
     The fit itself is made on first need (``SharedRun.soil_fit``; ``settle`` makes it now).
     ``sweep_progress`` follows the sweep, ``fit_progress`` the fit (progress protocol)."""
     scene, chosen = _chosen_routes(scene, routes)
     outputs = tuple(dict.fromkeys(t for r in chosen for t in r.tables(scene)))    # their union, in route order
+    check_run_memory(scene)                 # every stage's peak against the machine, before anything large
     with compute_threads():
         springs = proxy_springs(scene, bool(outputs), cache_dir)
         model = scene.model()
@@ -391,6 +395,8 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
         raise ValueError(f"run_scene: shared was prepared for analysis.dt = {shared.scene.analysis.dt:g} s, "
                          f"not {scene.analysis.dt:g} s (its time-step check): call prepare_run on this scene")
     dt = scene.analysis.dt
+    if shared is None:
+        check_run_memory(scene)             # before the motion is made (prepare_run checks again: cheap)
     motion = scene_motion(scene.motion, dt, cache_dir) if motion is None else motion.resampled(dt)   # before any computation
     run = shared if shared is not None else prepare_run(scene, cache_dir=cache_dir, sweep_progress=sweep_progress,
                                                         fit_progress=fit_progress)

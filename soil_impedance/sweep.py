@@ -151,8 +151,8 @@ def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = Fal
                          grid's, ``fastsolve.fast_memory``; ``fastsolve.right_hand_sides``)
 
     Items: ``F`` the flexibility (3n)² complex, factorised in place (LU); ``assembly``: grid
-    meshes gather (n², 3, 3) complex blocks and transpose them (two more F-sized arrays),
-    irregular ones hold the six static basis integrals per pair (48 n² bytes) and row blocks of
+    meshes gather (n², 3, 3) complex blocks and transpose them into F (one more F-sized array,
+    freed before the solves: counted beyond ``work`` only), irregular ones hold the six static basis integrals per pair (48 n² bytes) and row blocks of
     ``CHUNK_PAIRS`` pairs; ``work``: per frequency, ``nodal`` inverts a copy of F and symmetrises
     (three more), ``gap`` solves for 6 + n right-hand sides (B real, X complex, K_g twice);
     ``outputs``: the tables held, n_freq matrices each, plus half the largest for the h5 copy of
@@ -186,6 +186,13 @@ def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = Fal
     if "gap" in outputs:
         g = 6 + n
         work += 24 * m * g + 3 * 16 * g * g
+    if grid:
+        # a grid's gathered blocks (one F-sized copy beside F while it is transposed into it) are
+        # freed before the factorisation: the assembly and the solves' work do not coexist, so
+        # only what the assembly holds beyond the work counts (benchmarks/growth.py, one frequency:
+        # 625 and 1156 grid nodes peaked at 2.57 F and 2.53 F over the interpreter, estimated at
+        # 1.00 and 1.01 times that; the sum of all three overestimated them by 1.8 and 1.6 times)
+        assembly = max(0, fsize + 8 * n * n - work)
     held = [16 * n_freq * sizes[o] ** 2 for o in outputs]
     items = {"F": fsize, "assembly": assembly, "work": work,
              "outputs": sum(held) + (max(held) // 2 if held else 0)}
@@ -193,6 +200,20 @@ def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = Fal
     items["base"] = BASE_BYTES
     items["total"] = sum(items.values())
     return items
+
+
+def mesh_sweep_memory(mesh, n_freq: int, outputs=("rigid", "gap"), solver="dense",
+                      solver_tol=DEFAULT_TOL) -> dict[str, int]:
+    """``sweep_memory`` of a sweep of ``mesh`` (its node count, whether it is a grid, and the
+    fast solver's grid box and right-hand sides when ``solver`` resolves to it), the estimate
+    ``check_sweep_memory`` checks; the run-level guard (``orchestrator.memory_guard``) uses it."""
+    grid = _grid(mesh)
+    solver = _solver_for(mesh, solver, solver_tol, outputs)
+    box = rhs = None
+    if solver == "fast":
+        box = tuple(int(v) for v in np.ptp(grid[0], axis=0) + 1)
+        rhs = right_hand_sides(mesh)
+    return sweep_memory(mesh.n, n_freq, outputs, grid=grid is not None, solver=solver, box=box, rhs=rhs)
 
 
 def available_memory() -> int | None:
@@ -220,13 +241,7 @@ def check_sweep_memory(mesh, n_freq: int, outputs=("rigid", "gap"), solver="dens
     """Refuse (SweepMemoryError, exit 2) a sweep whose ``sweep_memory`` estimate exceeds
     ``MEMORY_SHARE`` of ``available_memory()``; returns the estimate otherwise. ``solver`` as
     ``impedance_sweep``'s (resolved here: the fast solver's estimate holds no dense F)."""
-    grid = _grid(mesh)
-    solver = _solver_for(mesh, solver, solver_tol, outputs)
-    box = rhs = None
-    if solver == "fast":
-        box = tuple(int(v) for v in np.ptp(grid[0], axis=0) + 1)
-        rhs = right_hand_sides(mesh)
-    est = sweep_memory(mesh.n, n_freq, outputs, grid=grid is not None, solver=solver, box=box, rhs=rhs)
+    est = mesh_sweep_memory(mesh, n_freq, outputs, solver, solver_tol)
     avail = available_memory()
     if avail is not None and est["total"] > MEMORY_SHARE * avail:
         per = est["total"] - est["outputs"]

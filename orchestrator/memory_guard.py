@@ -1,0 +1,166 @@
+"""The run-level memory guard: before a run allocates anything large, the peak memory of each
+stage it will run is estimated from the scene alone, and the run is refused (``RunMemoryError``,
+exit 2) when the largest does not fit in the machine's available memory, naming the stage, its
+estimate, what is available and the key to change. Never a MemoryError halfway through a run.
+
+Stages (each estimate is the peak while that stage runs: what the run still holds included):
+
+  static    K(0) of the rigid raft, one BEM frequency (the time-step check's proxy springs):
+            ``soil_impedance.sweep.sweep_memory``
+  sweep     the BEM sweep over [impedance]'s frequencies, the tables of the routes run
+            (``sweep_memory``: flexibility, assembly, solves and the tables themselves)
+  fit       the swept tables held + the rational fit of the gap table
+            (``soil_impedance.fit.peak_memory.fit_memory``)
+  stepping  the tables held + the fitted model + the time stepper: the recursive convolution's
+            history matrix, m x (6+N)^2 doubles for m poles, and its copies (the model's residues,
+            their split by pole kind, the native runtime's records and its own copy), the base
+            system (a few dense (6+N)^2 matrices) and the histories kept (``stepping_memory``)
+  timefreq  the tables held + the table on the FFT grid's frequencies up to its last one, one
+            (6+N)^2 complex matrix per grid frequency (the timefreq and linear routes)
+
+The number of poles is not known before the fit: the estimate takes the most the fit may use
+(``max_poles``: [analysis]'s fit options, at most F - 2 for F frequencies). Whether a table or
+fit is in the cache is not asked: the estimate is that of a cold run (a warm one needs less).
+``uplift run SCENE --dry-run`` prints the stages and exits (``run_memory``, ``memory_lines``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import soil_impedance.sweep as sweep_module
+from soil_impedance.fit.peak_memory import fit_memory
+from soil_impedance.fit.options import FitOptions
+from soil_impedance.fit.search import max_pairs
+from uplift_common.errors import UserInputError
+
+from orchestrator.routes import get_route
+
+#: share of the available memory a run may plan to use (the sweep's own guard uses the same)
+MEMORY_SHARE = sweep_module.MEMORY_SHARE
+#: bytes the stepping stage holds besides its matrices: the interpreter and libraries, the
+#: structure model, the motion (as the sweep's estimate: ``sweep.BASE_BYTES``)
+BASE_BYTES = sweep_module.BASE_BYTES
+#: copies of the history matrix (8 m n^2 bytes) alive at the stepping stage's peak: the model's
+#: complex residues (2), its real coefficients kept from the fit (1), the residues split by pole
+#: kind (1), the history matrix H (1), the native runtime's records of the pair residues (1) and
+#: their encoded blob (1), the C runtime's own copy (1); measured against ru_maxrss by
+#: benchmarks/growth.py --memory (see docs: README "Scenes")
+HISTORY_COPIES = 8.0
+#: dense (6+N)^2 doubles of the stepper's base system: D0, E, K(0), the Schur complement S0, its
+#: factorisations cached by active set, the sparse embeddings of D0 and E (12 bytes a value)
+BASE_SYSTEM_COPIES = 12.0
+#: frequencies of the FFT grid of the frequency-domain routes: padding added to the motion, s
+#: (their default, ``GridOptions.pad_s`` None: at least 1 s, 3 s for the reactor's decay)
+PAD_S = 3.0
+
+
+class RunMemoryError(UserInputError):
+    """A run whose estimated peak memory exceeds the machine's available memory, refused before
+    anything large is allocated; the message names the stage, the estimate and the fix."""
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One stage of a run: name, estimated peak bytes, what the estimate is made of (text), and
+    the scene keys that change it (text)."""
+    name: str
+    bytes: int
+    detail: str
+    fix: str
+
+
+def _gib(b: float) -> str:
+    return f"{b / 2 ** 30:.2f} GiB"
+
+
+def max_poles(scene, n_freq: int) -> int:
+    """The most poles the scene's fit may have: 2 x ``fit.search.max_pairs`` of its options."""
+    return 2 * max_pairs(FitOptions.make(tol=scene.analysis.fit_tol), n_freq)
+
+
+def stepping_memory(n_dof: int, poles: int, n_steps: int) -> dict[str, int]:
+    """Estimated peak bytes of stepping a rigid raft of n_dof = 6 + N interface DOFs on a
+    rational soil of ``poles`` poles over ``n_steps`` steps (the tables not counted), by item:
+    ``history`` HISTORY_COPIES x 8 poles n_dof^2, ``system`` BASE_SYSTEM_COPIES x 8 n_dof^2,
+    ``histories`` the gaps, contact forces and soil displacements kept, twice (the runtime's rows
+    and the result's arrays), ``base`` BASE_BYTES; and ``total``."""
+    n2 = n_dof * n_dof
+    N = n_dof - 6
+    items = {"history": int(HISTORY_COPIES * 8 * poles * n2), "system": int(BASE_SYSTEM_COPIES * 8 * n2),
+             "histories": 2 * 8 * n_steps * (3 * N + 64), "base": BASE_BYTES}
+    items["total"] = sum(items.values())
+    return items
+
+
+def run_memory(scene, routes=None) -> list[Stage]:
+    """The stages a run of ``scene`` with ``routes`` (default: the scene's) will run, each with its
+    estimated peak bytes (module docstring), in the order they run."""
+    names = tuple(routes or scene.analysis.routes)
+    chosen = [get_route(r) for r in names]
+    outputs = tuple(dict.fromkeys(t for r in chosen for t in r.tables(scene)))
+    mesh, F = scene.mesh, scene.frequencies_hz.size
+    n = mesh.n
+    nb = 6 + n
+    size = ("foundation.element_size" if scene.mesh_source is None else "foundation.mesh (fewer cells)")
+    stages = []
+    if not outputs:
+        return stages
+    static = sweep_module.mesh_sweep_memory(mesh, 1, ("rigid",))
+    stages.append(Stage("static", static["total"], f"K(0) of the rigid raft, {n} interface nodes "
+                        f"(flexibility {_gib(static['F'])})", size))
+    sweep = sweep_module.mesh_sweep_memory(mesh, F, outputs, scene.solver, scene.solver_tol)
+    held = sweep["outputs"] - 16 * F * max({"rigid": 36, "gap": nb * nb, "nodal": 9 * n * n}[o] for o in outputs) // 2
+    stages.append(Stage("sweep", sweep["total"], f"BEM sweep of {n} nodes at {F} frequencies, tables "
+                        f"{', '.join(outputs)} ({_gib(held)} held; flexibility {_gib(sweep['F'])})",
+                        f"{size}, [impedance] frequencies"))
+    if "gap" not in outputs:
+        return stages
+    poles = max_poles(scene, F)
+    if any(r.needs_fit for r in chosen):
+        fit = fit_memory(nb, F, poles)
+        stages.append(Stage("fit", held + fit["total"] + BASE_BYTES,
+                            f"rational fit of the {nb} x {nb} gap table at {F} frequencies ({_gib(held)} held "
+                            f"+ {_gib(fit['total'])} of copies)", f"{size}, [impedance] frequencies"))
+    steps = int(round(scene.motion.length_s / scene.analysis.dt)) + 1
+    if any(r.needs_fit and r.time_stepped for r in chosen):
+        step = stepping_memory(nb, poles, steps)
+        stages.append(Stage("stepping", held + step["total"],
+                            f"time stepper on the fitted soil, at most {poles} poles: history matrix "
+                            f"{poles} x {nb}^2 doubles ({_gib(8 * poles * nb * nb)}) and its copies "
+                            f"{_gib(step['history'])}, {steps} steps", f"{size}, analysis.routes"))
+    frequency_domain = [r.name for r in chosen if "gap" in r.tables(scene) and not r.needs_fit]
+    if frequency_domain:
+        band = int(scene.frequencies_hz[-1] * (scene.motion.length_s + PAD_S)) + 1
+        tf = 16 * band * nb * nb
+        stages.append(Stage("timefreq", held + tf + BASE_BYTES,
+                            f"routes {', '.join(frequency_domain)}: the gap table at {band} FFT grid frequencies "
+                            f"({_gib(tf)})", f"{size}, analysis.routes (drop {', '.join(frequency_domain)})"))
+    return stages
+
+
+def check_run_memory(scene, routes=None) -> list[Stage]:
+    """``run_memory``'s stages, or RunMemoryError when the largest exceeds ``MEMORY_SHARE`` of
+    the machine's available memory (``soil_impedance.sweep.available_memory``; unknown: no check)."""
+    stages = run_memory(scene, routes)
+    avail = sweep_module.available_memory()
+    if not stages or avail is None:
+        return stages
+    worst = max(stages, key=lambda s: s.bytes)
+    if worst.bytes > MEMORY_SHARE * avail:
+        raise RunMemoryError(
+            f"scene {scene.name!r}: the {worst.name} stage needs about {_gib(worst.bytes)} ({worst.detail}) but "
+            f"the machine has {_gib(avail)} available (MemAvailable; a run plans on {100 * MEMORY_SHARE:.0f} % of "
+            f"it): change {worst.fix} (memory grows like N^2 in the interface nodes and like the frequency "
+            f"count); `uplift run {scene.name} --dry-run` lists every stage")
+    return stages
+
+
+def memory_lines(stages, available: int | None = None) -> list[str]:
+    """The lines of ``uplift run --dry-run``: one per stage (its estimate and what it holds) and
+    the machine's available memory."""
+    out = [f"{s.name:9s} {_gib(s.bytes):>11s}  {s.detail}" for s in stages] or \
+        ["no stage needs the BEM: nothing large is allocated"]
+    if available is not None:
+        out.append(f"available {_gib(available):>11s}  MemAvailable; a run plans on {100 * MEMORY_SHARE:.0f} % "
+                   f"of it ({_gib(MEMORY_SHARE * available)})")
+    return out

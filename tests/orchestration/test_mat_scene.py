@@ -1,0 +1,171 @@
+"""The industrial mat scenes (issue 37): ``mat`` (100 m x 100 m at 2 m, 2500 nodes) and
+``mat-mesh`` (the same mat as an irregular gmsh mesh) parse and build as stated, a coarse copy
+runs end to end, and the run-level memory guard (orchestrator.memory_guard) refuses a run whose
+largest stage would not fit, with the stage and its estimate, before computing anything."""
+import re
+
+import numpy as np
+import pytest
+
+from orchestrator.cli import main
+from orchestrator.memory_guard import run_memory, stepping_memory
+from orchestrator.scene import load_scene
+from orchestrator.scene_base import builtin_scenes
+from structure.damping import fixed_base_modes
+from structure.model import G_ACC
+from structure.spec import build_model, parse_structure
+
+#: the mat's stated design: 300 kPa average bearing pressure over 100 m x 100 m
+PRESSURE, SIDE = 300e3, 100.0
+#: the scale of the reactor's sticks (masses and section properties) stated in mat.toml
+SCALE = 1.857
+
+
+def _coarse(tmp_path, element_size=10.0, freqs=26, extra=""):
+    """A copy of mat.toml with another element size and frequency count (and ``extra`` text
+    appended to it), returned as a path."""
+    from importlib import resources
+    text = (resources.files("orchestrator.scenes") / "mat.toml").read_text(encoding="utf-8")
+    text, k = re.subn(r"(?m)^element_size = 2\.0 ", f"element_size = {element_size:g} ", text)
+    assert k == 1
+    text, k = re.subn(r"(?m)^range_hz = \[0\.0, 25\.0, 101\]", f"range_hz = [0.0, 25.0, {freqs}]", text)
+    assert k == 1
+    path = tmp_path / "mat_coarse.toml"
+    path.write_text(text + extra, encoding="utf-8")
+    return path
+
+
+def test_mat_scene_has_2500_nodes_and_the_stated_mass():
+    scene = load_scene("mat")
+    assert "mat" in builtin_scenes() and "mat-mesh" in builtin_scenes()
+    assert scene.mesh.n == 2500 and scene.mesh.kind == "rectangle" and scene.mesh.cell == pytest.approx(2.0)
+    assert np.ptp(scene.mesh.xy, axis=0) == pytest.approx([98.0, 98.0])       # cell centres, 2 m cells
+    assert scene.mesh.area.sum() == pytest.approx(SIDE * SIDE)
+    model = scene.model()
+    # the total weight over the mat's area is the stated bearing pressure (to the rounding of
+    # the masses written with 6 digits)
+    assert model.total_mass * G_ACC / SIDE ** 2 == pytest.approx(PRESSURE, rel=1e-5)
+    assert scene.frequencies_hz.size == load_scene("reactor").frequencies_hz.size
+    # same soil as the reactor's
+    assert scene.profile == load_scene("reactor").profile
+
+
+def test_mat_sticks_are_the_reactors_scaled():
+    # masses and stiffnesses scaled alike: the same fixed-base frequencies as the reactor's
+    # (computed on both models, independently of the file's numbers), the stick mass s times
+    reactor = parse_structure({"model": "reactor"})
+    mat = load_scene("mat").structure
+    xy, area = np.zeros((1, 2)), np.ones(1)
+    f_r = fixed_base_modes(build_model(reactor, xy, area)).freq[:6]
+    f_m = fixed_base_modes(build_model(mat, xy, area)).freq[:6]
+    assert f_m == pytest.approx(f_r, rel=1e-5)
+    assert f_r[0] == pytest.approx(6.2, abs=0.1)
+    stick = lambda spec: sum(m.m for m in spec.masses)
+    assert stick(mat) / stick(reactor) == pytest.approx(SCALE, rel=2e-4)
+    assert [n.xyz for n in mat.nodes] == [n.xyz for n in reactor.nodes]      # the same heights
+
+
+def test_mat_mesh_scene_is_the_same_mat_irregular():
+    scene = load_scene("mat-mesh")
+    n = scene.mesh.n
+    assert 2300 <= n <= 2700                       # "about 2500 cells", one interface node each
+    assert scene.mesh.cells is not None and scene.mesh.cell is None           # irregular
+    assert scene.mesh.area.sum() == pytest.approx(SIDE * SIDE, rel=1e-9)
+    assert np.abs(scene.mesh.xy).max() < SIDE / 2                             # centred on the mat centre
+    assert np.ptp(scene.mesh.area) > 0.2 * scene.mesh.area.mean()            # unequal cells
+    assert scene.model().total_mass == pytest.approx(load_scene("mat").model().total_mass)
+
+
+def test_coarse_mat_runs_end_to_end_on_the_monolithic_route(tmp_path, capsys):
+    # the same file at 10 m cells (10 x 10 = 100 nodes) and 11 frequencies, 2 s of its motion:
+    # sweep, fit and the native stepper, exit 0
+    path = _coarse(tmp_path, freqs=11)
+    assert load_scene(path).mesh.n == 100
+    out = tmp_path / "mat.h5"
+    code = main(["run", str(path), "--route", "monolithic", "--duration", "2", "-o", str(out), "--json",
+                 "--no-cache"])
+    assert code == 0, capsys.readouterr().err
+    import json
+    summary = json.loads(capsys.readouterr().out)["routes"]["monolithic"]
+    assert summary["converged"] and np.isfinite(summary["max_raft_rotation_rad"])
+    assert summary["max_raft_rotation_rad"] > 0 and out.is_file()
+
+
+def _refusal(capsys):
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("uplift: error: "), err
+    return err[0]
+
+
+def _gib(text: str) -> float:
+    return float(re.search(r"needs about ([0-9.]+) GiB", text).group(1))
+
+
+def test_memory_guard_refuses_the_sweep_stage(tmp_path, capsys, monkeypatch):
+    # the winkler route alone needs the rigid table only: the sweep is the largest stage; on a
+    # machine with 4 MiB available the run is refused (exit 2) with that stage, its estimate and
+    # the keys to change, before any BEM is built
+    path = _coarse(tmp_path, element_size=5.0, freqs=101)
+    monkeypatch.setattr("soil_impedance.sweep.available_memory", lambda: 4 * 2 ** 20)
+    monkeypatch.setattr("soil_impedance.sweep.SurfaceBem", lambda *a, **k: pytest.fail("allocated before refusing"))
+    assert main(["run", str(path), "--route", "winkler", "--no-cache"]) == 2
+    line = _refusal(capsys)
+    stages = {s.name: s for s in run_memory(load_scene(path).with_routes(["winkler"]))}
+    assert max(stages.values(), key=lambda s: s.bytes).name == "sweep"
+    assert "the sweep stage needs about" in line and "0.00 GiB available" in line
+    assert _gib(line) == pytest.approx(stages["sweep"].bytes / 2 ** 30, abs=0.006)
+    assert "foundation.element_size" in line and "[impedance] frequencies" in line
+
+
+def test_memory_guard_refuses_the_stepping_stage(tmp_path, capsys, monkeypatch):
+    # a 1000 s motion at 5 ms: the histories the stepper keeps (200 001 steps of 100 gaps,
+    # contact forces and soil displacements) make stepping the largest stage; refused before
+    # the motion is made or the BEM built
+    path = _coarse(tmp_path, freqs=26)
+    monkeypatch.setattr("soil_impedance.sweep.available_memory", lambda: 64 * 2 ** 20)
+    monkeypatch.setattr("soil_impedance.sweep.SurfaceBem", lambda *a, **k: pytest.fail("allocated before refusing"))
+    monkeypatch.setattr("orchestrator.run.scene_motion", lambda *a, **k: pytest.fail("motion made before refusing"))
+    assert main(["run", str(path), "--route", "monolithic", "--duration", "1000", "--no-cache"]) == 2
+    line = _refusal(capsys)
+    scene = load_scene(path, duration_s=1000.0).with_routes(["monolithic"])
+    stages = {s.name: s for s in run_memory(scene)}
+    assert max(stages.values(), key=lambda s: s.bytes).name == "stepping"
+    assert "the stepping stage needs about" in line and "0.06 GiB available" in line
+    assert _gib(line) == pytest.approx(stages["stepping"].bytes / 2 ** 30, abs=0.006)
+    # its histories: 2 copies x 8 bytes x 200 001 steps x (3 x 100 + 64) values
+    assert stepping_memory(106, 24, 200_001)["histories"] == 2 * 8 * 200_001 * 364
+
+
+def test_full_mat_refused_with_its_largest_stage_and_dry_run(capsys, monkeypatch):
+    # the full mat on a 24 GiB machine today: the dense fit holds ~7 copies of its 9.5 GiB gap
+    # table, refused (exit 2) by the fit stage; `--dry-run` lists every stage first, computes
+    # nothing, and passes on a machine that holds the run (faked: 1 TiB)
+    monkeypatch.setattr("soil_impedance.sweep.available_memory", lambda: 24 * 2 ** 30)
+    monkeypatch.setattr("soil_impedance.sweep.SurfaceBem", lambda *a, **k: pytest.fail("allocated before refusing"))
+    assert main(["run", "mat", "--dry-run"]) == 2
+    captured = capsys.readouterr()
+    assert "the fit stage needs about" in captured.err
+    for stage in ("static", "sweep", "fit", "stepping"):
+        assert re.search(rf"(?m)^  {stage} +[0-9.]+ GiB", captured.out), captured.out
+    assert main(["run", "mat", "--no-cache"]) == 2
+    assert "the fit stage needs about" in _refusal(capsys)
+    monkeypatch.setattr("soil_impedance.sweep.available_memory", lambda: 2 ** 40)
+    assert main(["run", "mat", "--dry-run"]) == 0
+    assert "the run fits in the available memory (nothing was computed)" in capsys.readouterr().out
+
+
+def test_memory_estimates_grow_as_stated(tmp_path):
+    # the stages' estimates against their closed forms: the gap table held, 16 F (6+N)^2 bytes,
+    # is in the sweep's, the fit holds it and its measured ~7 copies; the stepping stage's history
+    # matrix is m (6+N)^2 doubles with m the most poles a fit of 101 frequencies may have (30)
+    stages = {s.name: s for s in run_memory(load_scene("mat"))}
+    nb, F = 2506, 101
+    table = 16 * F * nb * nb
+    assert table < stages["sweep"].bytes < 2.5 * table
+    assert 8 * table < stages["fit"].bytes < 9.5 * table
+    assert f"history matrix 30 x {nb}^2 doubles" in stages["stepping"].detail
+    # the same mat at 25 x 25 cells (631 DOFs): the fit's estimate scales like (6+N)^2 (the
+    # interpreter's fixed allowance aside)
+    small = {s.name: s.bytes for s in run_memory(load_scene(_coarse(tmp_path, element_size=4.0, freqs=101)))}
+    base = 200 * 2 ** 20
+    assert (small["fit"] - base) / (stages["fit"].bytes - base) == pytest.approx((631 / nb) ** 2, rel=1e-3)
