@@ -245,7 +245,8 @@ def check_sweep_memory(mesh, n_freq: int, outputs=("rigid", "gap"), solver="dens
     avail = available_memory()
     if avail is not None and est["total"] > MEMORY_SHARE * avail:
         per = est["total"] - est["outputs"]
-        hint = "" if solver == "fast" or grid is None else "; a grid of 500 nodes or more may use [impedance] solver = 'fast'"
+        fast = _solver_for(mesh, solver, solver_tol, outputs) == "fast"
+        hint = "" if fast or _grid(mesh) is None else "; a grid of 500 nodes or more may use [impedance] solver = 'fast'"
         raise SweepMemoryError(
             f"the impedance sweep of {mesh.n} interface nodes at {n_freq} frequenc{'y' if n_freq == 1 else 'ies'} (outputs "
             f"{', '.join(outputs)}) needs about {_gib(est['total'])} (flexibility {_gib(est['F'])}, "

@@ -195,15 +195,15 @@ def test_a_solve_that_does_not_converge_raises(monkeypatch):
 
 def test_memory_estimate_of_the_fast_solver(monkeypatch):
     """No dense F in the fast estimate (it grows like N², from its tables, not 144 N² bytes of
-    F and its copies); the guard uses it: a machine of 3 GiB refuses the dense gap sweep of a
+    F and its copies); the guard uses it: a machine of 2.5 GiB refuses the dense gap sweep of a
     2500-node mat at 3 frequencies but lets the fast one through."""
     dense = sweep_memory(2500, 3, ("rigid", "gap"), grid=True)
     fast = sweep_memory(2500, 3, ("rigid", "gap"), grid=True, solver="fast", box=(50, 50))
     assert fast["F"] == 0 and dense["F"] == 16 * 7500 ** 2
-    assert fast["total"] < 0.4 * dense["total"]
+    assert fast["total"] < 0.6 * dense["total"]
     assert fast["work"] >= 2 * 16 * 2500 ** 2                 # the N × N vertical block at least
     mat = rectangle_mesh(100.0, 100.0, 2.0)
-    monkeypatch.setattr(sweep_module, "available_memory", lambda: 3 * 2 ** 30)
+    monkeypatch.setattr(sweep_module, "available_memory", lambda: 2.5 * 2 ** 30)
     with pytest.raises(SweepMemoryError, match="solver = 'fast'"):
         check_sweep_memory(mat, 3, ("rigid", "gap"), solver="dense")
     assert check_sweep_memory(mat, 3, ("rigid", "gap"), solver="auto")["F"] == 0
