@@ -8,6 +8,7 @@ discarded with a ``CacheWarning`` and recomputed, never reported as an input err
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import math
@@ -17,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import scipy.linalg as sla
 
+from .blocked import STREAM_BYTES, BlockedTable, TableWriter, table_bytes
 from .bem import CHUNK_PAIRS, CONTACTS, RADIAL_TOL, BemError, SurfaceBem, _grid, edge_tractions, nodal_dofs
 from uplift_common.code import code_digest
 from uplift_common.errors import UserInputError
@@ -91,15 +93,17 @@ def _cache_path(cache_dir, output, key) -> Path:
     return Path(cache_dir) / f"impedance_{output}_{key[:20]}.h5"
 
 
-def _read_cached(path, key):
+def _read_cached(path, key, blocked=False):
     """The table cached at ``path`` for inputs hash ``key``, or None (absent, or damaged: then
-    moved aside with a CacheWarning, see ``cache.read_entry``)."""
-    def reader(h, data):
-        table = ImpedanceTable.from_hdf5(h, path, data)     # as read_entry verified it: read once
+    moved aside with a CacheWarning, see ``cache.read_entry``). blocked: a ``BlockedTable`` (the
+    matrices left on disk, read in blocks), else an ``ImpedanceTable`` in memory."""
+    def reader(h, data=None):
+        # read_entry verified the checksum; an ImpedanceTable is read once, as it verified it
+        table = BlockedTable.open(path, checksum=False) if blocked else ImpedanceTable.from_hdf5(h, path, data)
         if table.hash != key:
             raise TableError(f"holds the table of inputs {table.hash[:20]}, not {key[:20]}")
         return table
-    return read_entry(path, reader, keep=True)
+    return read_entry(path, reader, keep=not blocked)
 
 
 class SweepMemoryError(UserInputError):
@@ -115,7 +119,8 @@ MEMORY_SHARE = 0.9
 MARGIN = 0.15
 
 
-def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = False) -> dict[str, int]:
+def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = False,
+                 streamed=()) -> dict[str, int]:
     """Estimated peak bytes of ``impedance_sweep`` by item (and ``"total"``), before allocating.
 
     Parameters
@@ -124,6 +129,8 @@ def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = Fal
     n_freq : int         frequencies swept (the outputs hold one matrix per frequency)
     outputs : iterable   among "rigid", "gap", "nodal"
     grid : bool          circle/rectangle grid meshes (assembly by distinct offsets), else irregular
+    streamed : iterable  outputs written to disk frequency by frequency (``blocked.TableWriter``):
+                         one matrix each is held, not n_freq
 
     Items: ``F`` the flexibility (3n)² complex, factorised in place (LU); ``assembly``: grid
     meshes gather (n², 3, 3) complex blocks and transpose them (two more F-sized arrays),
@@ -146,7 +153,7 @@ def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = Fal
     if "gap" in outputs:
         g = 6 + n
         work += 24 * m * g + 3 * 16 * g * g
-    held = [16 * n_freq * sizes[o] ** 2 for o in outputs]
+    held = [16 * (1 if o in streamed else n_freq) * sizes[o] ** 2 for o in outputs]
     items = {"F": fsize, "assembly": assembly, "work": work,
              "outputs": sum(held) + (max(held) // 2 if held else 0)}
     items["margin"] = int(MARGIN * sum(items.values()))
@@ -175,10 +182,10 @@ def _gib(b: float) -> str:
     return f"{b / 2 ** 30:.2f} GiB"
 
 
-def check_sweep_memory(mesh, n_freq: int, outputs=("rigid", "gap")) -> dict[str, int]:
+def check_sweep_memory(mesh, n_freq: int, outputs=("rigid", "gap"), streamed=()) -> dict[str, int]:
     """Refuse (SweepMemoryError, exit 2) a sweep whose ``sweep_memory`` estimate exceeds
     ``MEMORY_SHARE`` of ``available_memory()``; returns the estimate otherwise."""
-    est = sweep_memory(mesh.n, n_freq, outputs, grid=_grid(mesh) is not None)
+    est = sweep_memory(mesh.n, n_freq, outputs, grid=_grid(mesh) is not None, streamed=streamed)
     avail = available_memory()
     if avail is not None and est["total"] > MEMORY_SHARE * avail:
         per = est["total"] - est["outputs"]
@@ -214,6 +221,10 @@ def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("r
     Returns
     -------
     dict output -> ImpedanceTable; DOFs ``RIGID_DOFS``, ``gap_dofs(N)`` or ``nodal_dofs(N)``.
+    With a cache_dir, an output larger than ``blocked.STREAM_BYTES`` (e.g. the gap table of 600
+    nodes at 101 frequencies, 0.6 GB) is written to its cache entry as it is computed and returned
+    as a ``blocked.BlockedTable`` (the matrices read in blocks from disk); the file is the same
+    as ``ImpedanceTable.save`` would write (same datasets, digests and checksum), chunked.
     One LU factorisation of F per frequency; K_out = Bᵀ F⁻¹ B (symmetrised).
 
     Performance: the matrices are small (723×723 for 241 nodes); run with one BLAS thread
@@ -231,26 +242,39 @@ def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("r
         raise BemError("frequencies_hz must be a non-empty, strictly increasing list of finite "
                        "values >= 0 Hz")
     provs = {o: provenance(profile, mesh, contact, rule, o) for o in outputs}
+    dofs = {"rigid": RIGID_DOFS, "gap": gap_dofs(mesh.n), "nodal": nodal_dofs(mesh.n)}
+    # large outputs (more than blocked.STREAM_BYTES) stay on disk: written to their cache entry frequency
+    # by frequency (blocked.TableWriter) and returned as a BlockedTable
+    large = {o for o in outputs if cache_dir is not None and table_bytes(f.size, len(dofs[o])) > STREAM_BYTES}
     tables = {}
     if cache_dir is not None:
         for o in outputs:
             key = content_hash(provs[o], f)
-            table = _read_cached(_cache_path(cache_dir, o, key), key)
+            table = _read_cached(_cache_path(cache_dir, o, key), key, blocked=o in large)
             if table is not None:
                 tables[o] = table
     todo = [o for o in outputs if o not in tables]
     if todo:
-        check_sweep_memory(mesh, f.size, todo)          # before anything large is allocated
-        computed = _compute(SurfaceBem(profile, mesh, contact, rule), f, todo, progress)
-        dofs = {"rigid": RIGID_DOFS, "gap": gap_dofs(mesh.n), "nodal": nodal_dofs(mesh.n)}
+        streamed = [o for o in todo if o in large]
+        check_sweep_memory(mesh, f.size, todo, streamed)          # before anything large is allocated
+        with contextlib.ExitStack() as stack:
+            sinks = {}
+            for o in streamed:
+                Path(cache_dir).mkdir(parents=True, exist_ok=True)
+                sinks[o] = stack.enter_context(TableWriter(_cache_path(cache_dir, o, content_hash(provs[o], f)),
+                                                           f, dofs[o], provs[o]))
+            computed = _compute(SurfaceBem(profile, mesh, contact, rule), f, todo, progress, sinks)
         for o in todo:
+            if o in sinks:
+                tables[o] = BlockedTable.open(sinks[o].path, verify=False)      # just written
+                continue
             tables[o] = ImpedanceTable(f, computed[o], dofs[o], provs[o])
             if cache_dir is not None:
                 write_entry(_cache_path(cache_dir, o, tables[o].hash), tables[o].save)
     return {o: tables[o] for o in outputs}
 
 
-def _compute(bem, f, outputs, progress) -> dict[str, np.ndarray]:
+def _compute(bem, f, outputs, progress, sinks=None) -> dict[str, np.ndarray]:
     """Loop over frequencies: one flexibility F and one LU factorisation per frequency.
 
     Each output is computed the same way whatever else is requested, so that a cached table
@@ -258,6 +282,8 @@ def _compute(bem, f, outputs, progress) -> dict[str, np.ndarray]:
     columns), gap = Bᵀ F⁻¹ G (6 + N columns; Bᵀ X uses the structure of B, Z is a row
     selection), nodal = F⁻¹ (``SurfaceBem.impedance``), all symmetrised. (Condensing the rigid
     6×6 from the gap one, Pᵀ K_g P, is exact in theory but differs by round-off, 3e-16.)
+    sinks : {output: blocked.TableWriter}, the outputs written there frequency by frequency
+    (``sink[k] = K``) instead of held in memory.
     """
     mesh = bem.mesh
     n = mesh.n
@@ -266,7 +292,8 @@ def _compute(bem, f, outputs, progress) -> dict[str, np.ndarray]:
     Th[2::3, :] = 0.0
     G = gap_transform(mesh)
     sizes = {"rigid": 6, "gap": 6 + n, "nodal": 3 * n}
-    out = {o: np.empty((f.size, sizes[o], sizes[o]), dtype=complex) for o in outputs}
+    sinks = sinks or {}
+    out = {o: sinks[o] if o in sinks else np.empty((f.size, sizes[o], sizes[o]), dtype=complex) for o in outputs}
     for k, fk in enumerate(f):
         F = bem.flexibility(2 * math.pi * fk)
         if "nodal" in outputs:                # as SurfaceBem.impedance, keeping F
