@@ -342,6 +342,9 @@ class Scene:
     #: where a [foundation] mesh = FILE was read from (the file, its SHA-256, the group, the
     #: raft centre in its coordinates: ``soil_impedance.mesh_file.MeshSource``); None otherwise
     mesh_source: MeshSource | None = None
+    #: [impedance] frequency_tol: sweep a thinned subset of the frequencies, interpolating the rest
+    #: where held-out frequencies show an error within it (soil_impedance.frequencies); None: all
+    frequency_tol: float | None = None
     #: [foundation] raft = { kind = "plate", ... }: the plate raft (structure.plate_raft); None: rigid
     raft: PlateProperties | None = None
 
@@ -560,6 +563,7 @@ def _scene(data, base_dir: Path, name: str, origin: str) -> Scene:
         mesh, contact_kind, mesh_source = _foundation(foundation, base_dir)
         raft = _raft(foundation.get("raft", {}), mesh)
         freqs = _frequencies(_table(data, "impedance"))
+        frequency_tol = _frequency_tol(_table(data, "impedance"))
         structure = parse_structure(data["structure"]) if "structure" in data else None
         contact = contact_from_spec(_table(data, "contact"))
         motion = _motion(_table(data, "motion"), base_dir)
@@ -573,7 +577,7 @@ def _scene(data, base_dir: Path, name: str, origin: str) -> Scene:
                      frequencies_hz=freqs, structure=structure, contact=contact, motion=motion,
                      analysis=analysis, output=output, winkler=winkler, source=copy.deepcopy(data),
                      soil_cases=cases, strain_compatible=strain_compatible, design_spectra=design_spectra,
-                     mesh_source=mesh_source, raft=raft)
+                     mesh_source=mesh_source, raft=raft, frequency_tol=frequency_tol)
     except (SceneError, StructureError, MotionError, SoilError, MeshError, SoilCaseError, SpectraConfigError) as exc:
         raise SceneError(f"{origin}: {exc}") from None
 
@@ -794,8 +798,16 @@ def _raft(table, mesh: InterfaceMesh) -> PlateProperties | None:
     return PlateProperties(rigid_radius=radius, **values)
 
 
+def _frequency_tol(table: dict) -> float | None:
+    """[impedance] frequency_tol (relative interpolation error allowed where frequencies are thinned), or None."""
+    if "frequency_tol" not in table:
+        return None
+    return _number("impedance.frequency_tol", table["frequency_tol"], 0.0, 0.5,
+                   expect="a relative error in (0, 0.5], e.g. 1e-3 (or leave it out: every frequency swept)")
+
+
 def _frequencies(table: dict) -> np.ndarray:
-    _check_keys(table, ("frequencies_hz", "range_hz"), "impedance")
+    _check_keys(table, ("frequencies_hz", "range_hz", "frequency_tol"), "impedance")
     if "frequencies_hz" in table and "range_hz" in table:
         raise SceneError("impedance: give frequencies_hz or range_hz, not both")
     if "range_hz" in table:
