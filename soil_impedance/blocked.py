@@ -41,6 +41,12 @@ CHUNK = 128
 STREAM_BYTES = 256 * 2 ** 20
 
 
+def chunk_edge(n: int, chunk: int = CHUNK) -> int:
+    """The chunk edge for n DOFs: at most ``chunk``, tiling n with the fewest chunks as evenly as possible
+    (HDF5 stores a partial edge chunk whole: 599 DOFs in chunks of 128 took 14 % more disk, of 120 0.3 %)."""
+    return -(-n // -(-n // max(1, int(chunk)))) if n else 1
+
+
 def table_bytes(n_freq: int, n_dof: int) -> int:
     """Bytes of the complex matrices of a table (F, n, n)."""
     return 16 * n_freq * n_dof * n_dof
@@ -65,7 +71,7 @@ class TableWriter:
         self.provenance = dict(provenance)
         self.notes = notes
         self.n = len(self.dofs)
-        self.chunk = int(min(chunk, self.n))
+        self.chunk = chunk_edge(self.n, chunk)
         self._stack = None
         self._next = 0
 
@@ -136,6 +142,7 @@ class BlockedTable:
         self.frequencies_hz = f
         self.dofs = list(dofs)
         self.provenance = dict(provenance)
+        self.chunk = None               # the chunk edge of the file's matrices (None: not chunked by frequency)
 
     @classmethod
     def open(cls, path, verify: bool = True, checksum: bool | None = None) -> BlockedTable:
@@ -169,6 +176,9 @@ class BlockedTable:
             except KeyError as exc:
                 raise TableError(f"{path}: missing dataset or attribute {exc}") from None
             table = cls(path, f, dofs, prov)
+            chunks = h["matrices_real"].chunks
+            if chunks is not None and chunks[0] == 1 and chunks[1] == chunks[2]:
+                table.chunk = int(chunks[1])
             if table.hash != stored:
                 raise TableError(f"{path}: stored hash does not match the content: delete it and recompute")
             if verify:
@@ -222,9 +232,11 @@ class BlockedTable:
         with h5py.File(self.path, "r") as h:
             return self._read(h, k)
 
-    def blocks(self, size: int = CHUNK, upper: bool = True):
+    def blocks(self, size: int | None = None, upper: bool = True):
         """(rows, cols) slices of the blocks of edge ``size`` tiling the matrix, row block by row block
-        (the upper triangle's blocks, diagonal ones included, when ``upper``)."""
+        (the upper triangle's blocks, diagonal ones included, when ``upper``). Default size: the file's
+        chunk edge (each block is then whole chunks), else ``CHUNK``."""
+        size = size or self.chunk or CHUNK
         n = self.n_dof
         starts = range(0, n, size)
         for i in starts:

@@ -32,7 +32,8 @@ from ..vectfit import real_basis, vector_fit, initial_poles, canonical_poles
 from .options import POLE_CAP, RIGID, WEIGHTINGS
 from .target import causal_cutoff, hysteretic_part
 
-#: block edge (entries) of the streamed passes: a block is F × BLOCK² complex (26 MB at 101 frequencies)
+#: block edge (entries) of the streamed passes when the file is not chunked by frequency (else its chunk
+#: edge, at most ``blocked.CHUNK`` = 128: aligned reads): a block is F × BLOCK² complex (26 MB at 101 frequencies)
 BLOCK = 128
 #: columns kept by the compression (as ``vectfit.compress``)
 MAX_COLUMNS, COMPRESS_RTOL = 24, 1e-8
@@ -66,7 +67,7 @@ class StreamedProblem:
         f = table.frequencies_hz
         if f.size < 4:
             raise FitError(f"table has {f.size} frequencies: a rational fit needs at least 4 (recompute the sweep)")
-        block = BLOCK if block is None else block
+        block = block or getattr(table, "chunk", None) or BLOCK        # the file's chunks: aligned reads
         if block < len(RIGID):
             raise FitError(f"block = {block}: at least {len(RIGID)} (the rigid DOFs in one block)")
         self.table, self.f, self.block, self.weighting = table, f, int(block), weighting

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from soil_impedance import ImpedanceTable, circle_mesh, impedance_sweep, sweep
-from soil_impedance.blocked import BlockedTable, TableWriter
+from soil_impedance.blocked import BlockedTable, TableWriter, chunk_edge
 from soil_impedance.cache import CacheWarning
 from soil_impedance.fit import FitOptions, streamed
 from soil_impedance.fit.pipeline import fit
@@ -40,7 +40,7 @@ def test_written_file_is_the_saved_file_chunked(gap_table, tmp_path):
     gap_table.save(tmp_path / "whole.h5")
     _write(gap_table, tmp_path / "blocked.h5")
     with h5py.File(tmp_path / "whole.h5") as a, h5py.File(tmp_path / "blocked.h5") as b:
-        assert b["matrices_real"].chunks == (1, 8, 8) and a["matrices_real"].chunks is None
+        assert b["matrices_real"].chunks == (1, 7, 7) and a["matrices_real"].chunks is None   # 35 = 5 x 7
         for key in ("sha256", "data_sha256", "hash"):
             assert a.attrs[key] == b.attrs[key]
     again = ImpedanceTable.load(tmp_path / "blocked.h5")
@@ -49,6 +49,7 @@ def test_written_file_is_the_saved_file_chunked(gap_table, tmp_path):
     assert isinstance(lazy, BlockedTable) and lazy.hash == gap_table.hash and lazy.dofs == gap_table.dofs
     assert np.array_equal(lazy.block(slice(3, 19), slice(8, 35)), gap_table.matrices[:, 3:19, 8:35])
     assert np.array_equal(lazy.frequency(7), gap_table.matrices[7])
+    assert (chunk_edge(599), chunk_edge(256), chunk_edge(257), chunk_edge(5)) == (120, 128, 86, 5)
     tiles = list(lazy.blocks(16))
     assert len(tiles) == 6 and all(c.start >= r.start for r, c in tiles)        # 3 x 3 tiles, upper half
 
@@ -117,22 +118,25 @@ def _compare(a, b, rtol):
     assert np.array_equal(ra.rel_error.shape, rb.rel_error.shape)
 
 
-def test_the_streamed_fit_equals_the_fit_in_memory(gap_table, tmp_path, monkeypatch):
-    """Blocks of 12 (the rigid DOFs and the first w ones in one, 6 blocks): the same orders, poles and
-    coefficients within 1e-9 (round-off: the sums run per block, the compression by a QR of the blocks
-    instead of an SVD), the same errors, rigid-raft errors and passivity verdict."""
-    monkeypatch.setattr(streamed, "BLOCK", 12)
-    lazy = BlockedTable.open(_write(gap_table, tmp_path / "t.h5"))
+def test_the_streamed_fit_equals_the_fit_in_memory(gap_table, tmp_path):
+    """Blocks of 12 (the file's chunks: the rigid DOFs and the first w ones in one, 6 blocks): the same
+    orders, poles and coefficients within 1e-9 (round-off: the sums run per block, the compression by a QR
+    of the blocks instead of an SVD), the same errors, rigid-raft errors and passivity verdict."""
+    lazy = BlockedTable.open(_write(gap_table, tmp_path / "t.h5", chunk=12))
+    assert lazy.chunk == 12 and len(list(lazy.blocks())) == 6
     opt = FitOptions(tol=0.02)
     _compare(fit(gap_table, opt), fit(lazy, opt), 1e-9)
 
 
 def test_the_streamed_fit_of_a_hysteretic_table_equals_the_fit_in_memory(tmp_path, monkeypatch):
-    """A hysteretic table (the causal target fades Im K(0⁺) out below f_causal, the error floor): the same."""
+    """A hysteretic table (the causal target fades Im K(0⁺) out below f_causal, the error floor), in blocks of
+    16 of a contiguous file (no chunks to follow: streamed.BLOCK): the same."""
     monkeypatch.setattr(streamed, "BLOCK", 16)
     table = impedance_sweep(_profile("hysteretic"), circle_mesh(10, 3.3), np.linspace(0, 25, 21),
                             outputs=("gap",))["gap"]
-    lazy = BlockedTable.open(_write(table, tmp_path / "t.h5"))
+    table.save(tmp_path / "t.h5")
+    lazy = BlockedTable.open(tmp_path / "t.h5")
+    assert lazy.chunk is None
     opt = FitOptions(tol=0.03, max_order=4, patience=None)
     with pytest.warns(RuntimeWarning, match="hysteretic"):
         a, b = fit(table, opt), fit(lazy, opt)
