@@ -78,7 +78,11 @@ def child(mode: str, path: str, out: str) -> None:
     t0 = time.perf_counter()
     table = ImpedanceTable.load(path) if mode == "memory" else BlockedTable.open(path)
     t_read = time.perf_counter() - t0
-    result = fit(table, FitOptions())
+    def trace(done, total, label):       # each order fitted and each passivity test: time and peak so far
+        u = resource.getrusage(resource.RUSAGE_SELF)
+        print(f"  [{mode}] {label} {done}/{total}: {time.perf_counter() - t0:.0f} s, cpu {u.ru_utime + u.ru_stime:.0f} s, "
+              f"peak {u.ru_maxrss / 1024:.0f} MB", file=sys.stderr, flush=True)
+    result = fit(table, FitOptions(), progress=trace)
     wall = time.perf_counter() - t0
     r, m = result.report, result.model
     np.savez(out + ".npz", poles=m.poles, C=m.coefficients)
