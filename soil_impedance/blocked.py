@@ -254,3 +254,10 @@ class BlockedTable:
         """All the matrices, complex (F, n, n): reads the whole table (small tables, tests)."""
         return self.block(slice(None), slice(None))
 
+
+
+def in_memory(table):
+    """``table`` as an ``ImpedanceTable`` in memory: a ``BlockedTable`` is read whole (``load``), anything
+    else is returned as it is. For the consumers that need every matrix at once (the frequency-domain
+    routes: their bands hold K at every frequency of the grid)."""
+    return table.load() if isinstance(table, BlockedTable) else table

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from soil_impedance import ImpedanceTable, circle_mesh, impedance_sweep, sweep
-from soil_impedance.blocked import BlockedTable, TableWriter, chunk_edge
+from soil_impedance.blocked import BlockedTable, TableWriter, chunk_edge, in_memory
 from soil_impedance.cache import CacheWarning
 from soil_impedance.fit import FitOptions, streamed
 from soil_impedance.fit.pipeline import fit
@@ -49,6 +49,9 @@ def test_written_file_is_the_saved_file_chunked(gap_table, tmp_path):
     assert isinstance(lazy, BlockedTable) and lazy.hash == gap_table.hash and lazy.dofs == gap_table.dofs
     assert np.array_equal(lazy.block(slice(3, 19), slice(8, 35)), gap_table.matrices[:, 3:19, 8:35])
     assert np.array_equal(lazy.frequency(7), gap_table.matrices[7])
+    whole = in_memory(lazy)                     # for the routes that need every matrix at once
+    assert isinstance(whole, ImpedanceTable) and np.array_equal(whole.matrices, gap_table.matrices)
+    assert in_memory(gap_table) is gap_table
     assert (chunk_edge(599), chunk_edge(256), chunk_edge(257), chunk_edge(5)) == (120, 128, 86, 5)
     tiles = list(lazy.blocks(16))
     assert len(tiles) == 6 and all(c.start >= r.start for r, c in tiles)        # 3 x 3 tiles, upper half
