@@ -145,3 +145,21 @@ def test_the_streamed_fit_of_a_hysteretic_table_equals_the_fit_in_memory(tmp_pat
         a, b = fit(table, opt), fit(lazy, opt)
     assert a.report.f_causal_hz > 0
     _compare(a, b, 1e-9)
+
+
+def test_the_passivity_test_evaluates_fewer_frequencies_at_once_for_large_models(monkeypatch):
+    """G(ν) is evaluated for a chunk of frequencies at once, capped so that a chunk stays below CHUNK_BYTES
+    (64 × 2506² doubles would be 3.2 GB): the cap changes how many at once, not the values, nor the verdict."""
+    from soil_impedance import passivity
+    from tests.helpers.passive_models import random_passive_model
+    model = random_passive_model(12, 3, seed=2)
+    sc = model.scaled
+    nu = np.linspace(0.01, 3.0, 150)
+    free = passivity._lmin(sc, nu)
+    assert passivity._chunk(sc, 64) == 64
+    monkeypatch.setattr(passivity, "CHUNK_BYTES", 8 * 12 ** 2 * 5)            # 5 matrices at once
+    assert passivity._chunk(sc, 64) == 5 and passivity._chunk(sc, 3) == 3
+    assert np.allclose(passivity._lmin(sc, nu), free, rtol=0, atol=1e-14 * np.abs(free).max())
+    monkeypatch.setattr(passivity, "CHUNK_BYTES", 1)
+    assert passivity._chunk(sc, 64) == 1
+    assert passivity._assess(sc)["passive"]
