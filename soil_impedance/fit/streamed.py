@@ -20,8 +20,9 @@ frequencies, upper triangle) for each pass:
 What stays whole: the model's coefficients, (m + 2) (6+N)² doubles (the residues of a dense history are
 that size), and its passivity test and enforcement (``passivity``: they work on the coefficients, never
 on the table; at m · (6+N) above ``passivity.MAX_PENCIL`` the test is the certified sweep, whose working
-set is the G(ν) of up to 64 frequencies, capped at ``passivity.CHUNK_BYTES``). The results equal ``Problem``'s up to round-off: the sums run in another
-order (per block), the compressed columns come from a QR instead of an SVD.
+set is the G(ν) of up to 64 frequencies, capped at ``passivity.CHUNK_BYTES``). The results equal
+``Problem``'s up to round-off: the sums run in another order (per block), the compressed columns come
+from a QR instead of an SVD.
 """
 from __future__ import annotations
 
