@@ -13,6 +13,7 @@ import dataclasses
 import hashlib
 import math
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -22,8 +23,9 @@ from .blocked import STREAM_BYTES, BlockedTable, TableWriter, table_bytes
 from .bem import CHUNK_PAIRS, CONTACTS, RADIAL_TOL, BemError, SurfaceBem, _grid, edge_tractions, nodal_dofs
 from uplift_common.code import code_digest
 from uplift_common.errors import UserInputError
+from uplift_common.files import OutputWriteError
 
-from .cache import read_entry, write_entry
+from .cache import CacheWarning, read_entry, write_entry
 from .greens_rule import GreenRule
 from .profile import CAUSAL_CUTOFF_HZ, CAUSAL_REFERENCE_HZ
 from .reduction import RIGID_DOFS, gap_dofs, gap_transform, rigid_transform
@@ -255,21 +257,25 @@ def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("r
                 tables[o] = table
     todo = [o for o in outputs if o not in tables]
     if todo:
-        streamed = [o for o in todo if o in large]
-        check_sweep_memory(mesh, f.size, todo, streamed)          # before anything large is allocated
         with contextlib.ExitStack() as stack:
             sinks = {}
-            for o in streamed:
-                Path(cache_dir).mkdir(parents=True, exist_ok=True)
-                sinks[o] = stack.enter_context(TableWriter(_cache_path(cache_dir, o, content_hash(provs[o], f)),
-                                                           f, dofs[o], provs[o]))
+            for o in (o for o in todo if o in large):
+                try:
+                    Path(cache_dir).mkdir(parents=True, exist_ok=True)
+                    sinks[o] = stack.enter_context(TableWriter(_cache_path(cache_dir, o, content_hash(provs[o], f)),
+                                                               f, dofs[o], provs[o]))
+                except (OSError, OutputWriteError) as exc:      # a cache that cannot be written only warns
+                    why = exc.reason if isinstance(exc, OutputWriteError) else exc
+                    warnings.warn(CacheWarning(f"cannot write the {o} table's cache entry in {cache_dir} ({why}): "
+                                               "it is held in memory"), stacklevel=2)
+            check_sweep_memory(mesh, f.size, todo, list(sinks))          # before anything large is allocated
             computed = _compute(SurfaceBem(profile, mesh, contact, rule), f, todo, progress, sinks)
         for o in todo:
             if o in sinks:
                 tables[o] = BlockedTable.open(sinks[o].path, verify=False)      # just written
                 continue
             tables[o] = ImpedanceTable(f, computed[o], dofs[o], provs[o])
-            if cache_dir is not None:
+            if cache_dir is not None and o not in large:          # (a large one's writer already warned)
                 write_entry(_cache_path(cache_dir, o, tables[o].hash), tables[o].save)
     return {o: tables[o] for o in outputs}
 

@@ -98,6 +98,12 @@ def test_the_sweep_streams_a_large_output_to_its_cache_entry(gap_table, tmp_path
     with pytest.warns(CacheWarning, match="damaged"):
         fresh = impedance_sweep(_profile("causal"), mesh, f, outputs=("gap",), cache_dir=tmp_path)["gap"]
     assert np.array_equal(fresh.matrices, gap_table.matrices)
+    blocked_dir = tmp_path / "a-file"
+    blocked_dir.write_text("not a folder")                  # a cache that cannot be written: warned, held in memory
+    with pytest.warns(CacheWarning, match="held in memory") as caught:
+        held_here = impedance_sweep(_profile("causal"), mesh, f, outputs=("gap",), cache_dir=blocked_dir)["gap"]
+    assert len(caught) == 1
+    assert isinstance(held_here, ImpedanceTable) and np.array_equal(held_here.matrices, gap_table.matrices)
     g = 6 + 2500                                  # the table, plus half of it for the h5 copy of one part
     assert sweep.sweep_memory(2500, 101, ("gap",), grid=True)["outputs"] == 101 * 24 * g * g
     assert sweep.sweep_memory(2500, 101, ("gap",), grid=True, streamed=("gap",))["outputs"] == 24 * g * g
