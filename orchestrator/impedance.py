@@ -5,6 +5,7 @@ import numpy as np
 
 from soil_impedance import impedance_sweep, static_impedance
 from soil_impedance.discretisation import static_error_estimate
+from soil_impedance.frequencies import thinned_sweep
 from soil_impedance.fit import FitOptions, cached_fit, fit_table
 from soil_impedance.sweep import table_key
 
@@ -13,7 +14,9 @@ def scene_impedance(scene, outputs=("rigid",), cache_dir=None, progress=None, st
     """``{output: ImpedanceTable}`` over the scene's frequencies (cached when cache_dir is set).
 
     stats : dict or None, filled with ``computed`` (frequencies solved by the BEM in this call:
-    0 when every output was read from the cache) and ``from_cache`` (True in that case)."""
+    0 when every output was read from the cache) and ``from_cache`` (True in that case); with
+    ``[impedance] frequency_tol`` also ``thinning``: the run notes' lines of the thinned sweep
+    (``soil_impedance.frequencies.thinned_sweep``: the tables interpolated onto the scene's grid)."""
     solved = []
 
     def counting(done, total, label=""):
@@ -21,9 +24,16 @@ def scene_impedance(scene, outputs=("rigid",), cache_dir=None, progress=None, st
         if progress is not None:
             progress(done, total, label)
 
-    tables = impedance_sweep(scene.profile, scene.mesh, scene.frequencies_hz, contact=scene.contact_kind,
-                             outputs=outputs, cache_dir=cache_dir, progress=counting, solver=scene.solver,
-                             solver_tol=scene.solver_tol)
+    tol = getattr(scene, "frequency_tol", None)
+    sweep = dict(contact=scene.contact_kind, outputs=outputs, cache_dir=cache_dir, progress=counting,
+                 solver=scene.solver, solver_tol=scene.solver_tol)
+    if tol is not None:
+        tables, report = thinned_sweep(lambda f: impedance_sweep(scene.profile, scene.mesh, f, **sweep),
+                                       scene.frequencies_hz, tol)
+        if stats is not None:
+            stats["thinning"] = report.lines()
+    else:
+        tables = impedance_sweep(scene.profile, scene.mesh, scene.frequencies_hz, **sweep)
     if stats is not None:
         stats.update(computed=len(solved), from_cache=cache_dir is not None and not solved)
     return tables
@@ -58,8 +68,8 @@ def cached_scene_fit(scene, cache_dir, options=None):
     mesh, contact and frequencies and the BEM code's digest) with the fit's options (default:
     the scene's) and the fit code's digest: the 100 MB table is neither swept nor read, and a
     change of any of them is a miss. The entry itself is verified on read (its checksum)."""
-    if cache_dir is None:
-        return None
+    if cache_dir is None or getattr(scene, "frequency_tol", None) is not None:
+        return None                     # a thinned table's key is known once it is swept
     key = table_key(scene.profile, scene.mesh, scene.frequencies_hz, scene.contact_kind, "gap",
                     solver=scene.solver, solver_tol=scene.solver_tol)
     return cached_fit(key, options or _fit_options(scene, {}), cache_dir)

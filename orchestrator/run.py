@@ -448,6 +448,7 @@ def _shared_skips(scene, route, run: SharedRun) -> list:
     elif tables and sweep.get("computed") and scene.profile.is_homogeneous and scene.frequencies_hz[0] == 0.0:
         out.append("homogeneous half-space: K(0) from the closed-form static kernels "
                    "(no wavenumber integral at 0 Hz)")
+    out += list(sweep.get("thinning", ()))
     if "gap" in tables:
         n = scene.mesh.n
         what = "rigid raft" if scene.raft is None else "plate raft, rigid in its plane"

@@ -348,6 +348,9 @@ class Scene:
     #: where a [foundation] mesh = FILE was read from (the file, its SHA-256, the group, the
     #: raft centre in its coordinates: ``soil_impedance.mesh_file.MeshSource``); None otherwise
     mesh_source: MeshSource | None = None
+    #: [impedance] frequency_tol: sweep a thinned subset of the frequencies, interpolating the rest
+    #: where held-out frequencies show an error within it (soil_impedance.frequencies); None: all
+    frequency_tol: float | None = None
     #: [foundation] raft = { kind = "plate", ... }: the plate raft (structure.plate_raft); None: rigid
     raft: PlateProperties | None = None
     #: [impedance] solver and solver_tol: the BEM sweep's solver ("auto", "dense", "fast") and the
@@ -594,6 +597,7 @@ def _scene(data, base_dir: Path, name: str, origin: str) -> Scene:
         raft = _raft(foundation.get("raft", {}), mesh)
         freqs = _frequencies(_table(data, "impedance"))
         solver, solver_tol = _solver(_table(data, "impedance"))
+        frequency_tol = _frequency_tol(_table(data, "impedance"))
         structure = parse_structure(data["structure"]) if "structure" in data else None
         contact = contact_from_spec(_table(data, "contact"))
         motion = _motion(_table(data, "motion"), base_dir)
@@ -607,7 +611,8 @@ def _scene(data, base_dir: Path, name: str, origin: str) -> Scene:
                      frequencies_hz=freqs, structure=structure, contact=contact, motion=motion,
                      analysis=analysis, output=output, winkler=winkler, source=copy.deepcopy(data),
                      soil_cases=cases, strain_compatible=strain_compatible, design_spectra=design_spectra,
-                     mesh_source=mesh_source, raft=raft, solver=solver, solver_tol=solver_tol)
+                     mesh_source=mesh_source, raft=raft, solver=solver, solver_tol=solver_tol,
+                     frequency_tol=frequency_tol)
     except (SceneError, StructureError, MotionError, SoilError, MeshError, SoilCaseError, SpectraConfigError) as exc:
         raise SceneError(f"{origin}: {exc}") from None
 
@@ -869,6 +874,7 @@ def _raft(table, mesh: InterfaceMesh) -> PlateProperties | None:
     return PlateProperties(rigid_radius=radius, **values)
 
 
+
 def _solver(table: dict) -> tuple[str, float]:
     """[impedance] solver ("auto": dense below 500 interface nodes or on a mesh file, else the fast
     solver of grid meshes) and solver_tol (its relative residual)."""
@@ -881,8 +887,16 @@ def _solver(table: dict) -> tuple[str, float]:
     return solver, float(tol)
 
 
+def _frequency_tol(table: dict) -> float | None:
+    """[impedance] frequency_tol (relative interpolation error allowed where frequencies are thinned), or None."""
+    if "frequency_tol" not in table:
+        return None
+    return _number("impedance.frequency_tol", table["frequency_tol"], 0.0, 0.5,
+                   expect="a relative error in (0, 0.5], e.g. 1e-3 (or leave it out: every frequency swept)")
+
+
 def _frequencies(table: dict) -> np.ndarray:
-    _check_keys(table, ("frequencies_hz", "range_hz", "solver", "solver_tol"), "impedance")
+    _check_keys(table, ("frequencies_hz", "range_hz", "frequency_tol", "solver", "solver_tol"), "impedance")
     if "frequencies_hz" in table and "range_hz" in table:
         raise SceneError("impedance: give frequencies_hz or range_hz, not both")
     if "range_hz" in table:

@@ -77,6 +77,7 @@ REPORT_CACHE_SIZE = 64     # passivity reports kept (by model content)
 MAX_PLANES = 600           # enforcement: cutting planes added per iteration at most (the deepest)
 RANK_ONE_PLANES = 16       # enforcement, per sample: one plane per eigenvector below the margin up to this many
 ROUND_OFF = 1e-12          # a margin (scaled model) down to −ROUND_OFF is round-off, no violation
+CHUNK_BYTES = 256 * 2 ** 20  # G(ν) is evaluated for at most this many bytes of frequencies at once
 
 
 @dataclass(frozen=True)
@@ -144,10 +145,17 @@ def _G(sc: ScaledModel, nu) -> np.ndarray:
     return (Phi @ sc.columns.T).reshape(nu.size, sc.na, sc.na)     # symmetric: C is
 
 
+def _chunk(sc: ScaledModel, chunk: int) -> int:
+    """Frequencies per evaluation of G: ``chunk``, fewer when ``chunk`` matrices of na² doubles would pass
+    ``CHUNK_BYTES`` (64 at the reactor's 247 DOFs and up to 631; 5 at 2506 DOFs, where 64 would be 3.2 GB)."""
+    return int(max(1, min(chunk, CHUNK_BYTES // (8 * max(sc.na, 1) ** 2))))
+
+
 def _lmin(sc: ScaledModel, nu, chunk=64) -> np.ndarray:
     """λ_min(G(ν)) for each ν (not divided by ν)."""
     nu = np.atleast_1d(np.asarray(nu, float))
     out = np.empty(nu.size)
+    chunk = _chunk(sc, chunk)
     for i in range(0, nu.size, chunk):
         out[i:i + chunk] = np.linalg.eigvalsh(_G(sc, nu[i:i + chunk]))[:, 0]
     return out
@@ -160,6 +168,7 @@ def _positive_definite(sc: ScaledModel, nu, chunk=64, shift=0.0) -> np.ndarray:
     nu = np.asarray(nu, float)
     out = np.empty(nu.size, bool)
     diag = np.arange(sc.na)
+    chunk = _chunk(sc, chunk)
     for i in range(0, out.size, chunk):
         for j, G in enumerate(_G(sc, nu[i:i + chunk])):
             G[diag, diag] += shift * nu[i + j]
@@ -541,6 +550,7 @@ def _planes(sc: ScaledModel, bands, margin, n_samples=9, limit=MAX_PLANES, rank_
     pts = np.array(pts)
     na = sc.na
     nu1, V, size1, nud, N, sized, worst = [], [], [], [], [], [], (np.inf, np.nan)
+    chunk = _chunk(sc, chunk)
     for i in range(0, pts.size, chunk):
         lam, vec = np.linalg.eigh(_G(sc, pts[i:i + chunk]))
         for nu, lv, X in zip(pts[i:i + chunk], lam, vec):

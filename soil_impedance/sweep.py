@@ -8,20 +8,24 @@ discarded with a ``CacheWarning`` and recomputed, never reported as an input err
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import math
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
 import scipy.linalg as sla
 
+from .blocked import STREAM_BYTES, BlockedTable, TableWriter, table_bytes
 from .bem import CHUNK_PAIRS, CONTACTS, RADIAL_TOL, BemError, SurfaceBem, _grid, edge_tractions, nodal_dofs
 from uplift_common.code import code_digest
 from uplift_common.errors import UserInputError
+from uplift_common.files import OutputWriteError
 
-from .cache import read_entry, write_entry
+from .cache import CacheWarning, read_entry, write_entry
 from .fastsolve import DEFAULT_TOL, check_solver, fast_memory, gap_and_rigid, resolve_solver, right_hand_sides
 from .greens_rule import GreenRule
 from .profile import CAUSAL_CUTOFF_HZ, CAUSAL_REFERENCE_HZ
@@ -110,15 +114,17 @@ def _cache_path(cache_dir, output, key) -> Path:
     return Path(cache_dir) / f"impedance_{output}_{key[:20]}.h5"
 
 
-def _read_cached(path, key):
+def _read_cached(path, key, blocked=False):
     """The table cached at ``path`` for inputs hash ``key``, or None (absent, or damaged: then
-    moved aside with a CacheWarning, see ``cache.read_entry``)."""
-    def reader(h, data):
-        table = ImpedanceTable.from_hdf5(h, path, data)     # as read_entry verified it: read once
+    moved aside with a CacheWarning, see ``cache.read_entry``). blocked: a ``BlockedTable`` (the
+    matrices left on disk, read in blocks), else an ``ImpedanceTable`` in memory."""
+    def reader(h, data=None):
+        # read_entry verified the checksum; an ImpedanceTable is read once, as it verified it
+        table = BlockedTable.open(path, checksum=False) if blocked else ImpedanceTable.from_hdf5(h, path, data)
         if table.hash != key:
             raise TableError(f"holds the table of inputs {table.hash[:20]}, not {key[:20]}")
         return table
-    return read_entry(path, reader, keep=True)
+    return read_entry(path, reader, keep=not blocked)
 
 
 class SweepMemoryError(UserInputError):
@@ -135,7 +141,7 @@ MARGIN = 0.15
 
 
 def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = False, solver: str = "dense",
-                 box=None, rhs=None) -> dict[str, int]:
+                 box=None, rhs=None, streamed=()) -> dict[str, int]:
     """Estimated peak bytes of ``impedance_sweep`` by item (and ``"total"``), before allocating.
 
     Parameters
@@ -149,6 +155,8 @@ def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = Fal
                          nodes a side, a circle grid's, larger than a square grid's sqrt(n))
     rhs : int            the fast solver's right-hand sides per frequency (None: a symmetric
                          grid's, ``fastsolve.fast_memory``; ``fastsolve.right_hand_sides``)
+    streamed : iterable  outputs written to disk frequency by frequency (``blocked.TableWriter``):
+                         one matrix each is held, not n_freq
 
     Items: ``F`` the flexibility (3n)² complex, factorised in place (LU); ``assembly``: grid
     meshes gather (n², 3, 3) complex blocks and transpose them into F (one more F-sized array,
@@ -168,7 +176,7 @@ def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = Fal
         if box is None:
             side = int(math.ceil(2 * math.sqrt(n / math.pi))) + 1
             box = (side, side)
-        held = [16 * n_freq * {"rigid": 6, "gap": 6 + n}[o] ** 2 for o in outputs]
+        held = [16 * (1 if o in streamed else n_freq) * {"rigid": 6, "gap": 6 + n}[o] ** 2 for o in outputs]
         items = {"F": 0, "assembly": 3 * 4 * n * 9 * 16, "work": fast_memory(n, *box, rhs=rhs),
                  "outputs": sum(held) + (max(held) // 2 if held else 0)}
         items["margin"] = int(MARGIN * sum(items.values()))
@@ -193,7 +201,7 @@ def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = Fal
         # 625 and 1156 grid nodes peaked at 2.57 F and 2.53 F over the interpreter, estimated at
         # 1.00 and 1.01 times that; the sum of all three overestimated them by 1.8 and 1.6 times)
         assembly = max(0, fsize + 8 * n * n - work)
-    held = [16 * n_freq * sizes[o] ** 2 for o in outputs]
+    held = [16 * (1 if o in streamed else n_freq) * sizes[o] ** 2 for o in outputs]
     items = {"F": fsize, "assembly": assembly, "work": work,
              "outputs": sum(held) + (max(held) // 2 if held else 0)}
     items["margin"] = int(MARGIN * sum(items.values()))
@@ -203,7 +211,7 @@ def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = Fal
 
 
 def mesh_sweep_memory(mesh, n_freq: int, outputs=("rigid", "gap"), solver="dense",
-                      solver_tol=DEFAULT_TOL) -> dict[str, int]:
+                      solver_tol=DEFAULT_TOL, streamed=()) -> dict[str, int]:
     """``sweep_memory`` of a sweep of ``mesh`` (its node count, whether it is a grid, and the
     fast solver's grid box and right-hand sides when ``solver`` resolves to it), the estimate
     ``check_sweep_memory`` checks; the run-level guard (``orchestrator.memory_guard``) uses it."""
@@ -213,7 +221,8 @@ def mesh_sweep_memory(mesh, n_freq: int, outputs=("rigid", "gap"), solver="dense
     if solver == "fast":
         box = tuple(int(v) for v in np.ptp(grid[0], axis=0) + 1)
         rhs = right_hand_sides(mesh)
-    return sweep_memory(mesh.n, n_freq, outputs, grid=grid is not None, solver=solver, box=box, rhs=rhs)
+    return sweep_memory(mesh.n, n_freq, outputs, grid=grid is not None, solver=solver, box=box, rhs=rhs,
+                        streamed=streamed)
 
 
 def available_memory() -> int | None:
@@ -236,12 +245,14 @@ def _gib(b: float) -> str:
     return f"{b / 2 ** 30:.2f} GiB"
 
 
+
 def check_sweep_memory(mesh, n_freq: int, outputs=("rigid", "gap"), solver="dense",
-                       solver_tol=DEFAULT_TOL) -> dict[str, int]:
+                       solver_tol=DEFAULT_TOL, streamed=()) -> dict[str, int]:
     """Refuse (SweepMemoryError, exit 2) a sweep whose ``sweep_memory`` estimate exceeds
     ``MEMORY_SHARE`` of ``available_memory()``; returns the estimate otherwise. ``solver`` as
-    ``impedance_sweep``'s (resolved here: the fast solver's estimate holds no dense F)."""
-    est = mesh_sweep_memory(mesh, n_freq, outputs, solver, solver_tol)
+    ``impedance_sweep``'s (resolved here: the fast solver's estimate holds no dense F); ``streamed``
+    the outputs written to disk frequency by frequency (one matrix each held)."""
+    est = mesh_sweep_memory(mesh, n_freq, outputs, solver, solver_tol, streamed)
     avail = available_memory()
     if avail is not None and est["total"] > MEMORY_SHARE * avail:
         per = est["total"] - est["outputs"]
@@ -285,6 +296,11 @@ def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("r
     Returns
     -------
     dict output -> ImpedanceTable; DOFs ``RIGID_DOFS``, ``gap_dofs(N)`` or ``nodal_dofs(N)``.
+    With a cache_dir, an output larger than ``blocked.STREAM_BYTES`` (e.g. the gap table of 600
+    nodes at 101 frequencies, 0.6 GB) is written to its cache entry as it is computed and returned
+    as a ``blocked.BlockedTable`` (the matrices read in blocks from disk); the file is the same
+    as ``ImpedanceTable.save`` would write (same datasets, digests and checksum), chunked.
+
     One LU factorisation of F per frequency (dense), or the solves of ``fastsolve.gap_and_rigid``
     (fast); K_out = Bᵀ F⁻¹ B (symmetrised).
 
@@ -302,34 +318,52 @@ def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("r
     if f.size == 0 or not np.all(np.isfinite(f)) or np.any(f < 0) or np.any(np.diff(f) <= 0):
         raise BemError("frequencies_hz must be a non-empty, strictly increasing list of finite "
                        "values >= 0 Hz")
+
     provs = {o: provenance(profile, mesh, contact, rule, o, solver, solver_tol) for o in outputs}
+    dofs = {"rigid": RIGID_DOFS, "gap": gap_dofs(mesh.n), "nodal": nodal_dofs(mesh.n)}
+    # large outputs (more than blocked.STREAM_BYTES) stay on disk: written to their cache entry frequency
+    # by frequency (blocked.TableWriter) and returned as a BlockedTable
+    large = {o for o in outputs if cache_dir is not None and table_bytes(f.size, len(dofs[o])) > STREAM_BYTES}
     tables = {}
     if cache_dir is not None:
         for o in outputs:
             key = content_hash(provs[o], f)
-            table = _read_cached(_cache_path(cache_dir, o, key), key)
+            table = _read_cached(_cache_path(cache_dir, o, key), key, blocked=o in large)
             if table is not None:
                 tables[o] = table
     todo = [o for o in outputs if o not in tables]
     if todo:
-        check_sweep_memory(mesh, f.size, todo, solver, solver_tol)     # before anything large is allocated
-        bem = SurfaceBem(profile, mesh, contact, rule)
-        fast = [o for o in todo if "solver" in provs[o]]
-        dense = [o for o in todo if o not in fast]
-        computed = {}
-        if dense:
-            computed.update(_compute(bem, f, dense, progress))
-        if fast:
-            computed.update(_compute_fast(bem, f, fast, progress, solver_tol))
-        dofs = {"rigid": RIGID_DOFS, "gap": gap_dofs(mesh.n), "nodal": nodal_dofs(mesh.n)}
+        with contextlib.ExitStack() as stack:
+            sinks = {}
+            for o in (o for o in todo if o in large):
+                try:
+                    Path(cache_dir).mkdir(parents=True, exist_ok=True)
+                    sinks[o] = stack.enter_context(TableWriter(_cache_path(cache_dir, o, content_hash(provs[o], f)),
+                                                               f, dofs[o], provs[o]))
+                except (OSError, OutputWriteError) as exc:      # a cache that cannot be written only warns
+                    why = exc.reason if isinstance(exc, OutputWriteError) else exc
+                    warnings.warn(CacheWarning(f"cannot write the {o} table's cache entry in {cache_dir} ({why}): "
+                                               "it is held in memory"), stacklevel=2)
+            check_sweep_memory(mesh, f.size, todo, solver, solver_tol, list(sinks))   # before anything large
+            bem = SurfaceBem(profile, mesh, contact, rule)
+            fast = [o for o in todo if "solver" in provs[o]]
+            dense = [o for o in todo if o not in fast]
+            computed = {}
+            if dense:
+                computed.update(_compute(bem, f, dense, progress, sinks))
+            if fast:
+                computed.update(_compute_fast(bem, f, fast, progress, solver_tol, sinks))
         for o in todo:
+            if o in sinks:
+                tables[o] = BlockedTable.open(sinks[o].path, verify=False)      # just written
+                continue
             tables[o] = ImpedanceTable(f, computed[o], dofs[o], provs[o])
-            if cache_dir is not None:
+            if cache_dir is not None and o not in large:          # (a large one's writer already warned)
                 write_entry(_cache_path(cache_dir, o, tables[o].hash), tables[o].save)
     return {o: tables[o] for o in outputs}
 
 
-def _compute(bem, f, outputs, progress) -> dict[str, np.ndarray]:
+def _compute(bem, f, outputs, progress, sinks=None) -> dict[str, np.ndarray]:
     """Loop over frequencies: one flexibility F and one LU factorisation per frequency.
 
     Each output is computed the same way whatever else is requested, so that a cached table
@@ -337,6 +371,8 @@ def _compute(bem, f, outputs, progress) -> dict[str, np.ndarray]:
     columns), gap = Bᵀ F⁻¹ G (6 + N columns; Bᵀ X uses the structure of B, Z is a row
     selection), nodal = F⁻¹ (``SurfaceBem.impedance``), all symmetrised. (Condensing the rigid
     6×6 from the gap one, Pᵀ K_g P, is exact in theory but differs by round-off, 3e-16.)
+    sinks : {output: blocked.TableWriter}, the outputs written there frequency by frequency
+    (``sink[k] = K``) instead of held in memory.
     """
     mesh = bem.mesh
     n = mesh.n
@@ -345,7 +381,8 @@ def _compute(bem, f, outputs, progress) -> dict[str, np.ndarray]:
     Th[2::3, :] = 0.0
     G = gap_transform(mesh)
     sizes = {"rigid": 6, "gap": 6 + n, "nodal": 3 * n}
-    out = {o: np.empty((f.size, sizes[o], sizes[o]), dtype=complex) for o in outputs}
+    sinks = sinks or {}
+    out = {o: sinks[o] if o in sinks else np.empty((f.size, sizes[o], sizes[o]), dtype=complex) for o in outputs}
     for k, fk in enumerate(f):
         F = bem.flexibility(2 * math.pi * fk)
         if "nodal" in outputs:                # as SurfaceBem.impedance, keeping F
@@ -368,17 +405,19 @@ def _compute(bem, f, outputs, progress) -> dict[str, np.ndarray]:
     return out
 
 
-def _compute_fast(bem, f, outputs, progress, tol) -> dict[str, np.ndarray]:
+def _compute_fast(bem, f, outputs, progress, tol, sinks=None) -> dict[str, np.ndarray]:
     """The rigid and gap outputs by the fast solver (``fastsolve.gap_and_rigid``), frequency by
     frequency: the same matrices as ``_compute`` within the relative residual ``tol``. GMRES
     starts from the solutions of the previous frequencies, extrapolated linearly in frequency
-    (fewer iterations on a fine frequency list; every solve still meets ``tol``)."""
+    (fewer iterations on a fine frequency list; every solve still meets ``tol``). sinks: as
+    ``_compute``'s."""
     n = bem.mesh.n
     T = rigid_transform(bem.mesh)
     Th = T.copy()
     Th[2::3, :] = 0.0
     sizes = {"rigid": 6, "gap": 6 + n}
-    out = {o: np.empty((f.size, sizes[o], sizes[o]), dtype=complex) for o in outputs}
+    sinks = sinks or {}
+    out = {o: sinks[o] if o in sinks else np.empty((f.size, sizes[o], sizes[o]), dtype=complex) for o in outputs}
     past = []                                   # (f, solutions) of the last two frequencies
     for k, fk in enumerate(f):
         guess = past[-1][1] if past else None

@@ -188,6 +188,13 @@ class ImpedanceTable:
             return cls.from_hdf5(h, path)
 
     @classmethod
+    def open(cls, path):
+        """The table in ``path`` read lazily, in blocks (``blocked.BlockedTable``: the matrices stay on
+        disk; for tables too large to hold), verified as ``load`` verifies it."""
+        from .blocked import BlockedTable
+        return BlockedTable.open(path)
+
+    @classmethod
     def from_hdf5(cls, h, path, data: dict | None = None) -> ImpedanceTable:
         """Read the table in the open h5py file ``h`` (``path`` names it in errors); checks the
         format, the whole-file checksum and the hash and data digest. data: the file's datasets as

@@ -10,6 +10,7 @@ API::
 from __future__ import annotations
 
 from orchestrator.routes.base import Route, register, route_model
+from soil_impedance.blocked import in_memory
 
 #: keyword overrides that are not GridOptions fields
 LINEAR_KEYWORDS = ("damping", "threads", "route")
@@ -35,7 +36,7 @@ def run_linear(motion, model, table_gap, *, contact, output_nodes, **overrides):
 
 
 def run(ctx, progress=None):
-    return run_linear(ctx.motion, route_model(ctx), ctx.tables["gap"], contact=ctx.scene.contact,
+    return run_linear(ctx.motion, route_model(ctx), in_memory(ctx.tables["gap"]), contact=ctx.scene.contact,
                       output_nodes=ctx.scene.output.nodes, **ctx.options)
 
 

@@ -16,6 +16,7 @@ import numpy as np
 from uplift_common.errors import ComputationError, UserInputError
 
 from orchestrator.routes.base import Route, register, route_model
+from soil_impedance.blocked import in_memory
 
 #: default tolerance on the relative whole-range residual: the reactor's max uplift and raft
 #: rotation move by < 1e-6 relative from there to 1e-8 (one more sweep), far below the 0.1 %
@@ -84,7 +85,7 @@ def run(ctx, progress=None):
         except (UserInputError, ComputationError) as exc:   # none: the march on the table's own kernel (said in the notes)
             why = str(exc).splitlines()[0]
     constrained = getattr(ctx.prepared, "made", {}).get("timefreq") if fit is not None else None
-    res = run_timefreq(ctx.motion, route_model(ctx), ctx.tables["gap"], contact=ctx.scene.contact,
+    res = run_timefreq(ctx.motion, route_model(ctx), in_memory(ctx.tables["gap"]), contact=ctx.scene.contact,
                        output_nodes=ctx.scene.output.nodes, max_seconds=ctx.scene.analysis.timefreq_max_s,
                        progress=progress, fit=fit, cache_dir=ctx.cache_dir, constrained=constrained, **ctx.options)
     if why:

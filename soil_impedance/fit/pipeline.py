@@ -9,12 +9,14 @@ from pathlib import Path
 
 import numpy as np
 
+from ..blocked import BlockedTable
 from ..passivity import PassivityReport, check_passive, with_verified_passivity
 from ..rational import FitError
 from .io import read_fit, save_fit
 from .options import RIGID, FitOptions, code_version
 from .result import FitReport, FitResult
 from .rigid import rigid_errors, rigid_projection
+from .streamed import StreamedProblem
 from .search import OrderSearch, candidates, enforce_candidates, miss_message
 from .target import Problem, dof_blocks, hysteretic_floor, rel_errors
 
@@ -85,7 +87,11 @@ def fit(table, options: FitOptions, progress=None) -> FitResult:
     """The fit itself (no cache): ``fit_table`` with its options given whole."""
     t0 = time.perf_counter()
     P = _projection(table, options)
-    prob = Problem(table, options.weighting, options.f_causal_hz)
+    streamed = isinstance(table, BlockedTable)
+    if streamed:                           # the table on disk, read in blocks (fit.streamed)
+        prob = StreamedProblem(table, options.weighting, options.f_causal_hz, P)
+    else:
+        prob = Problem(table, options.weighting, options.f_causal_hz)
     floor = hysteretic_floor(prob)
     settings = dict(options.settings(), rigid_corrected=P is not None)
     prov = {"source_table_hash": table.hash, "f_max_hz": float(table.frequencies_hz[-1]),
@@ -107,10 +113,12 @@ def fit(table, options: FitOptions, progress=None) -> FitResult:
     message = miss_message(search, best, stop, notes, floor)
     if message:
         warnings.warn(message, RuntimeWarning, stacklevel=3)
-    report = _report(prob, model, prep, err_fit, search.history, settings, time.perf_counter() - t0)
+    report = (_report_streamed if streamed else _report)(prob, model, prep, err_fit, search.history, settings,
+                                                           time.perf_counter() - t0)
+    rigid = {} if P is None else (rigid_errors(model, None, prob.f, P, prob.band, Kt=prob.rigid_raw[prob.band])
+                                  if streamed else rigid_errors(model, table.matrices, prob.f, P, prob.band))
     report = replace(report, tol_reached=bool(err_after <= options.tol), message=message, error_floor=float(floor),
-                     stop_reason=stop, enforcement_attempts=[list(a) for a in attempts],
-                     rigid_errors={} if P is None else rigid_errors(model, table.matrices, prob.f, P, prob.band))
+                     stop_reason=stop, enforcement_attempts=[list(a) for a in attempts], rigid_errors=rigid)
     model = model.with_provenance(dict(model.provenance, **({"enforcement_fallback": failures} if failures else {}),
                                        max_rel_error=report.max_rel_error, passive=report.passive,
                                        passivity_margin=report.passivity_margin))
@@ -149,6 +157,28 @@ def _report(prob, model, prep: PassivityReport, err_fit, history, settings, wall
         own = np.linalg.norm(prob.Ks[:, r][:, :, c].reshape(prob.f.size, -1), axis=1)
         blocks[name] = {"own": float(np.max(d[sel] / np.where(own[sel] > 0, own[sel], 1.0))),
                         "total": float(np.max(d[sel] / tot[sel]))}
+    return FitReport(order=int(model.order), max_rel_error=float(np.max(e_t[prob.band])),
+                     rel_error=e_t, freq_hz=prob.f.copy(),
+                     max_rel_error_fit=float(err_fit), max_rel_error_unscaled=float(np.max(e_un[prob.band])),
+                     low_freq_error=float(e_t[low].max()) if low.any() else 0.0, f_causal_hz=float(prob.f_c),
+                     block_errors=blocks, passive=bool(prep.passive), passivity_margin=float(prep.margin),
+                     passivity=prep.to_dict(), order_history=history, settings=settings, wall_s=float(wall))
+
+
+def _report_streamed(prob, model, prep: PassivityReport, err_fit, history, settings, wall):
+    """``_report`` of a ``StreamedProblem``: the same measures, summed block by block."""
+    e_t, e_un, parts = prob.report_errors(model)
+    low = ~prob.band
+    sel = prob.band
+    tot2 = prob.norm_Ks[sel] ** 2
+    blocks = {}
+    if parts is None:
+        blocks["all"] = {"own": float(np.max(e_t[sel])), "total": float(np.max(e_t[sel]))}
+    else:
+        for name, (d2, o2) in parts.items():
+            d, own = np.sqrt(d2[sel]), np.sqrt(o2[sel])
+            blocks[name] = {"own": float(np.max(d / np.where(own > 0, own, 1.0))),
+                            "total": float(np.max(d / np.sqrt(tot2)))}
     return FitReport(order=int(model.order), max_rel_error=float(np.max(e_t[prob.band])),
                      rel_error=e_t, freq_hz=prob.f.copy(),
                      max_rel_error_fit=float(err_fit), max_rel_error_unscaled=float(np.max(e_un[prob.band])),

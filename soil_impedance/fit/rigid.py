@@ -62,7 +62,7 @@ def rigid_model(model, P) -> RationalModel:
                          list(RIGID))
 
 
-def rigid_errors(model, target, freq_hz, P, band):
+def rigid_errors(model, target, freq_hz, P, band, Kt=None):
     """Per rigid DOF d, max over ``band`` (bool mask of freq_hz) of the relative errors of the
     rigid-raft impedance Pᵀ K P, model against target (F, n, n): {d: {"re", "im", "abs"}} with
     re = |ΔRe K_dd|/|Re K_dd|, im = |ΔIm K_dd|/max(|Im K_dd|, RIGID_IM_FLOOR·|K_dd|),
@@ -71,8 +71,10 @@ def rigid_errors(model, target, freq_hz, P, band):
     and does not ask for the relative accuracy of a negligible damping: a loss factor Im K/|K| below
     1 % (soil damping ratio < 0.5 %, e.g. the rocking radiation damping of an undamped soil at low
     frequency, 0.1 % at a0 = 0.25) weighs nothing beside the structure's 5-7 %; a causal 3 % rock
-    has Im K/|K| ≥ 6 % at every f > 0, where the floor never acts."""
-    Kt = P.T @ target[band] @ P
+    has Im K/|K| ≥ 6 % at every f > 0, where the floor never acts.
+    Kt : Pᵀ target[band] P (F_band, 6, 6) when the caller has it (a table read in blocks), else None."""
+    if Kt is None:
+        Kt = P.T @ target[band] @ P
     Km = rigid_model(model, P).frequency_response(np.asarray(freq_hz)[band])
     dt, dm = np.einsum("faa->fa", Kt), np.einsum("faa->fa", Km)
     out = {}
@@ -91,8 +93,11 @@ def rigid_protection(prob, P) -> np.ndarray:
     and ref_d = RIGID_IM_FLOOR · min over the band of |(Pᵀ K P)_dd| (the smallest error scale of
     ``rigid_errors``), so that a change of the rigid-raft impedance costs about as much as its
     relative error in the order-selection criterion."""
-    KP = prob.table.matrices[prob.band] @ P
-    ref = RIGID_IM_FLOOR * np.abs(np.einsum("ia,fia->fa", P, KP)).min(axis=0)
+    if getattr(prob, "streamed", False):                  # Pᵀ K P taken in the problem's first pass
+        ref = RIGID_IM_FLOOR * np.abs(np.einsum("faa->fa", prob.rigid_raw[prob.band])).min(axis=0)
+    else:
+        KP = prob.table.matrices[prob.band] @ P
+        ref = RIGID_IM_FLOOR * np.abs(np.einsum("ia,fia->fa", P, KP)).min(axis=0)
     kappa = 1.0 / prob.w_rel.min()
     return P * np.sqrt(np.divide(kappa, ref, out=np.ones_like(ref), where=ref > 0))[None, :]
 
@@ -102,7 +107,7 @@ def rigid_error(errors) -> float:
     return max((max(e["re"], e["im"]) for e in errors.values()), default=0.0)
 
 
-def rigid_correct(model, target, freq_hz, P, floor=0.02, f_c=0.0) -> RationalModel:
+def rigid_correct(model, target, freq_hz, P, floor=0.02, f_c=0.0, Kt=None) -> RationalModel:
     """``model`` + Q Δ(s) Qᵀ: the rigid-raft impedance Pᵀ K P corrected to follow the target's.
 
     Δ(s) = D_Δ + Σ_k R_Δk/(s − p_k) (the model's poles, no s term so E is untouched, symmetric
@@ -115,10 +120,12 @@ def rigid_correct(model, target, freq_hz, P, floor=0.02, f_c=0.0) -> RationalMod
     target : (F, n, n) complex, the (causal) target at ``freq_hz``. f_c : below it (where the
     target's Im K is the faded hysteretic one) Im K is weighted like Re K, relative to |K_ij|.
     Weights with a zero denominator (an entry identically zero) are dropped.
+    Kt : Pᵀ target P (F, 6, 6) when the caller has it (a table read in blocks; target is then unused).
     """
     f = np.asarray(freq_hz, float)
     w_ref = 2 * np.pi * float(model.provenance.get("f_max_hz") or f[-1])
-    Kt = P.T @ target @ P
+    if Kt is None:
+        Kt = P.T @ target @ P
     Delta = Kt - rigid_model(model, P).frequency_response(f)
     A = real_basis(2j * np.pi * f / w_ref, model.poles / w_ref, const=True, linear=False)
     diag = np.abs(np.einsum("faa->fa", Kt))

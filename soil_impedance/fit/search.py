@@ -77,15 +77,23 @@ class OrderSearch:
         model = self.prob.model(poles, C, self.prov)
         if self.P is None or not corrected:
             return model
+        if getattr(self.prob, "streamed", False):         # Pᵀ target P taken in the problem's first pass
+            return rigid_correct(model, None, self.prob.f, self.P, f_c=self.prob.f_c, Kt=self.prob.rigid_target)
         return rigid_correct(model, self.prob.unscaled_target, self.prob.f, self.P, f_c=self.prob.f_c)
 
     def rigid_error(self, model) -> float:
         if self.P is None:
             return 0.0
+        if getattr(self.prob, "streamed", False):
+            return rigid_error(rigid_errors(model, None, self.prob.f, self.P, self.prob.band,
+                                            Kt=self.prob.rigid_raw[self.prob.band]))
         return rigid_error(rigid_errors(model, self.prob.table.matrices, self.prob.f, self.P, self.prob.band))
 
     def criterion(self, model) -> float:
         """The selection criterion of a model (e.g. after enforcement)."""
+        if getattr(self.prob, "streamed", False):
+            band_error = float(np.max(self.prob.response_errors(model)[self.prob.band]))
+            return max(band_error, self.rigid_error(model))
         band_error = float(np.max(rel_errors(self.prob.scaled_response(model), self.prob.Ks)[self.prob.band]))
         return max(band_error, self.rigid_error(model))
 

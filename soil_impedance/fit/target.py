@@ -177,6 +177,9 @@ class Problem:
 
 
 def fit_order(prob, n_pairs, n_iter):
+    if getattr(prob, "streamed", False):                  # a table read in blocks (fit.streamed)
+        from .streamed import fit_order_streamed
+        return fit_order_streamed(prob, n_pairs, n_iter)
     poles = vector_fit(prob.s, prob.Y, prob.w_rel, initial_poles(n_pairs, 1.0), n_iter=n_iter)
     keep = np.abs(poles) <= POLE_CAP
     poles = canonical_poles(poles[keep])
@@ -189,6 +192,8 @@ def fit_order(prob, n_pairs, n_iter):
 def hysteretic_floor(prob) -> float:
     """A-priori estimate of the band error floor of a causal fit: ≈ 1.1 ξ with the loss factor
     2ξ = ‖H0‖_F/‖Re K(f_0)‖_F (scaled), H0 = Im K(0⁺); 0 when the table is not hysteretic."""
+    if getattr(prob, "streamed", False):
+        return prob.hysteretic_floor()
     if prob.f_c <= 0:
         return 0.0
     H0 = hysteretic_part(prob.f, prob.Ks)

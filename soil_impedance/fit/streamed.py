@@ -1,0 +1,303 @@
+"""The fit of a table read in blocks (``blocked.BlockedTable``): ``StreamedProblem``, the same least
+squares as ``target.Problem`` without holding the table (docs/formulation.md, "The fit's memory").
+
+``Problem`` holds the table, its scaled copy S K S, the causal target, the upper-triangle columns X and
+the model's response: five to seven arrays of the table's size (F (6+N)² complex: 0.6 GB each at 600
+nodes and 101 frequencies). ``StreamedProblem`` holds the frequencies, the DOF scaling S, the hysteretic
+offset H0 (n²), per-frequency norms, the rigid-raft projections Pᵀ K P (F × 6 × 6) and the compressed
+columns Y (F × ≤ 24), and reads the table block by block (``BLOCK`` × ``BLOCK`` entries across all
+frequencies, upper triangle) for each pass:
+
+* construction: two passes (the row maxima and diagonals that give S; then the target's norms, the
+  rigid-raft projections and the R factor of the columns, by a tall-skinny QR of the stacked blocks);
+* the compressed columns from that R: [Re X; Im X] = Rᵀ Qᵀ, so the SVD of Rᵀ gives the singular values
+  and the combinations Y = X V of ``vectfit.compress`` without forming V (same singular values, the
+  combinations up to their signs, which vector fitting does not see);
+* per fitted order: one pass for the residues (one QR of the fixed-pole basis, applied to each block;
+  a second one when E must be projected on the PSD cone) and one for the per-frequency error;
+* per model (criterion, report): one pass evaluating the model on each block.
+
+What stays whole: the model's coefficients, (m + 2) (6+N)² doubles (the residues of a dense history are
+that size), and its passivity test and enforcement (``passivity``: they work on the coefficients, never
+on the table; at m · (6+N) above ``passivity.MAX_PENCIL`` the test is the certified sweep, whose working
+set is the G(ν) of up to 64 frequencies, capped at ``passivity.CHUNK_BYTES``). The results equal
+``Problem``'s up to round-off: the sums run in another order (per block), the compressed columns come
+from a QR instead of an SVD.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..rational import FitError
+from ..vectfit import real_basis, vector_fit, initial_poles, canonical_poles
+from .options import POLE_CAP, RIGID, WEIGHTINGS
+from .target import causal_cutoff, hysteretic_part
+
+#: block edge (entries) of the streamed passes when the file is not chunked by frequency (else its chunk
+#: edge, at most ``blocked.CHUNK`` = 128: aligned reads): a block is F × BLOCK² complex (26 MB at 101 frequencies)
+BLOCK = 128
+#: columns kept by the compression (as ``vectfit.compress``)
+MAX_COLUMNS, COMPRESS_RTOL = 24, 1e-8
+
+
+class _Frequencies:
+    """Ks[k] (scaled, (n, n)) read on demand for ``hysteretic_part`` and ``causal_cutoff``."""
+
+    def __init__(self, table, S):
+        self.table, self.S, self._got = table, S, {}
+
+    def __getitem__(self, k):
+        if k not in self._got:
+            K = self.table.frequency(int(k))
+            self._got[k] = K * self.S[:, None] * self.S[None, :]
+        return self._got[k]
+
+
+class StreamedProblem:
+    """``target.Problem`` of a ``BlockedTable``: the same attributes f, S, idx, f_c, w_ref, s, band,
+    w_rel, w, Y, weighting, table, and the passes the fit needs (``coefficients``, ``order_error``,
+    ``response_errors``, ``model``, ``report_errors``). P : the rigid-raft projection (n, 6) of a gap
+    table, or None: its projections of the table and of the causal target are taken in the first pass.
+    """
+
+    streamed = True
+
+    def __init__(self, table, weighting, f_causal_hz, P=None, block=None):
+        if weighting not in WEIGHTINGS:
+            raise FitError(f"weighting {weighting!r} unknown: use one of {WEIGHTINGS}")
+        f = table.frequencies_hz
+        if f.size < 4:
+            raise FitError(f"table has {f.size} frequencies: a rational fit needs at least 4 (recompute the sweep)")
+        block = block or getattr(table, "chunk", None) or BLOCK        # the file's chunks: aligned reads
+        if block < len(RIGID):
+            raise FitError(f"block = {block}: at least {len(RIGID)} (the rigid DOFs in one block)")
+        self.table, self.f, self.block, self.weighting = table, f, int(block), weighting
+        n = table.n_dof
+        F = f.size
+        # pass 1: row maxima and diagonals (table_scaling)
+        rowmax, diag = np.zeros(n), np.empty((F, n), complex)
+        for r, c in table.blocks(self.block):
+            K = table.block(r, c)
+            a = np.abs(K).max(axis=0)
+            rowmax[r] = np.maximum(rowmax[r], a.max(axis=1))
+            rowmax[c] = np.maximum(rowmax[c], a.max(axis=0))
+            if r == c:
+                diag[:, r] = np.einsum("fii->fi", K)
+        self.idx = np.nonzero(rowmax > 0)[0]
+        if self.idx.size == 0:
+            raise FitError("table is identically zero: nothing to fit")
+        active = rowmax > 0
+        d = np.abs(diag[0].real)
+        fallback = np.max(np.abs(diag), axis=0)
+        d = np.where(d > 1e-9 * fallback, d, fallback)
+        # a DOF whose row is zero (a gap table's horizontal rows) gets S = 0: its entries are zero in
+        # every pass, as Problem leaves it out; Sd is S with 1 there (a safe divisor)
+        self.S = np.where(active, 1.0 / np.sqrt(np.where(active, d, 1.0)), 0.0)
+        self.Sd = np.where(active, self.S, 1.0)
+        self.Ks = _Frequencies(table, self.S)                 # Ks[k] on demand (a few frequencies)
+        self.f_c = causal_cutoff(table, self.Ks, f_causal_hz)
+        self.H0 = hysteretic_part(f, self.Ks) if self.f_c > 0 else None
+        self.w_ref = 2 * np.pi * f[-1]
+        self.s = 1j * 2 * np.pi * f / self.w_ref
+        self.band = f >= self.f_c
+        self.P = P
+        # pass 2: norms, projections, the R factor of the stacked columns [Re X; Im X]
+        t2, k2, u2 = np.zeros(F), np.zeros(F), np.zeros(F)
+        xmax = 0.0
+        R = np.zeros((0, 2 * F))
+        if P is not None:
+            self.rigid_raw = np.zeros((F, 6, 6), complex)       # Pᵀ K P
+            self.rigid_target = np.zeros((F, 6, 6), complex)    # Pᵀ (causal target, SI) P
+        for r, c, K, Ks, T, sel in self._passes(raw=True):
+            wgt = 1.0 if r == c else 2.0
+            t2 += wgt * _sq(T)
+            k2 += wgt * _sq(Ks)
+            u2 += wgt * _sq(K)
+            X = T[:, sel[0], sel[1]] * sel[2]
+            xmax = max(xmax, float(np.abs(X).max()))
+            R = np.linalg.qr(np.vstack([R, np.concatenate([X.real, X.imag]).T]), mode="r")
+            if P is not None:
+                Tu = T / self.Sd[r, None] / self.Sd[None, c]
+                for out, A in ((self.rigid_raw, K), (self.rigid_target, Tu)):
+                    out += np.einsum("ia,fij,jb->fab", P[r], A, P[c])
+                    if r != c:
+                        out += np.einsum("ia,fij,jb->fab", P[c], A.transpose(0, 2, 1), P[r])
+        self.norm_target, self.norm_Ks, self.norm_K = np.sqrt(t2), np.sqrt(k2), np.sqrt(u2)
+        self.w_rel = 1.0 / np.maximum(self.norm_target, 1e-300)
+        self.w = self.w_rel if weighting != "uniform" else np.full(F, 1.0 / xmax)
+        self.Y = self._compress(R)
+
+    # ---- the passes ----------------------------------------------------------------------------
+    def _passes(self, raw=False):
+        """Per upper-triangle block: (rows, cols, K or None, Ks, target, (i, j, ew)): the block's raw, scaled
+        and causal-target matrices (F, r, c) and its upper-triangle entries (local indices, weights √2
+        off the diagonal, as ``Problem``'s columns)."""
+        S, f = self.S, self.f
+        low = f < self.f_c
+        fade = ((1 - f[low] / self.f_c) ** 2) if self.f_c > 0 else None
+        for r, c in self.table.blocks(self.block):
+            K = self.table.block(r, c)
+            Ks = K * S[r, None] * S[None, c]
+            if not raw:
+                del K
+                K = None
+            T = Ks
+            if self.f_c > 0:
+                T = Ks.copy()
+                T[low] = T[low] - 1j * fade[:, None, None] * self.H0[None, r, c]
+            yield r, c, K, Ks, T, self._entries(r, c)
+
+    def _entries(self, r, c):
+        nr, nc = r.stop - r.start, c.stop - c.start
+        if r != c:
+            i, j = np.divmod(np.arange(nr * nc), nc)
+            return i, j, np.full(i.size, np.sqrt(2.0))
+        i, j = np.triu_indices(nr)
+        return i, j, np.where(i == j, 1.0, np.sqrt(2.0))
+
+    def _compress(self, R):
+        """``vectfit.compress`` of the columns whose stacked [Re X; Im X] (2F × M) is Rᵀ Qᵀ."""
+        F = self.f.size
+        D = np.concatenate([self.w_rel, self.w_rel])
+        u, sv, _ = np.linalg.svd(R.T * D[:, None] if R.shape[0] else np.zeros((2 * F, 0)), full_matrices=False)
+        q = int(min(MAX_COLUMNS, np.sum(sv > COMPRESS_RTOL * sv[0])))
+        Z = (u[:, :q] * sv[:q]) / D[:, None]                  # [Re; Im] of X V, unweighted
+        return Z[:F] + 1j * Z[F:]
+
+    def _basis_solver(self, poles, linear):
+        A = real_basis(self.s, poles, const=True, linear=linear) * self.w[:, None]
+        Ar = np.concatenate([A.real, A.imag])
+        col = np.linalg.norm(Ar, axis=0)
+        col[col == 0] = 1.0
+        Q, Rr = np.linalg.qr(Ar / col)
+        return A.shape[1], Q, Rr, col
+
+    def _solve_block(self, solver, poles, X, linear):
+        """Coefficients (nb, q) of the columns X (F, q): ``Problem._solve`` on one block."""
+        if self.weighting != "entry":
+            nb, Q, Rr, col = solver
+            WX = self.w[:, None] * X
+            return np.linalg.lstsq(Rr, Q.T @ np.concatenate([WX.real, WX.imag]), rcond=None)[0] / col[:, None]
+        mag = np.abs(X)
+        we = 1.0 / np.maximum(mag, 1e-3 * mag.max(axis=0, keepdims=True) + 1e-300)
+        A = real_basis(self.s, poles, const=True, linear=linear)
+        out = np.empty((A.shape[1], X.shape[1]))
+        for j in range(X.shape[1]):
+            Aw = A * we[:, j:j + 1]
+            out[:, j] = np.linalg.lstsq(np.concatenate([Aw.real, Aw.imag]),
+                                        np.concatenate([(we[:, j] * X[:, j]).real, (we[:, j] * X[:, j]).imag]),
+                                        rcond=None)[0]
+        return out
+
+    def coefficients(self, poles):
+        """The coefficient matrices (nb, n, n) (symmetric; ``Problem.coefficients`` as matrices: its
+        columns divided by their √2 weights), E projected on the PSD cone."""
+        n, m = self.table.n_dof, poles.size
+        C = np.zeros((m + 2, n, n))
+        solver = self._basis_solver(poles, True)
+        for r, c, _, _, T, (i, j, ew) in self._passes():
+            cb = self._solve_block(solver, poles, T[:, i, j] * ew, True) / ew
+            C[:, r.start + i, c.start + j] = cb
+            C[:, c.start + j, r.start + i] = cb
+        lam, vec = np.linalg.eigh(C[-1])
+        if lam[0] < 0:
+            Ep = (vec * np.maximum(lam, 0)) @ vec.T
+            C[-1] = np.triu(Ep) + np.triu(Ep, 1).T          # Problem keeps the upper triangle
+            solver = self._basis_solver(poles, False)
+            for r, c, _, _, T, (i, j, ew) in self._passes():
+                ep = Ep[r.start + i, c.start + j] * ew
+                cb = self._solve_block(solver, poles, T[:, i, j] * ew - self.s[:, None] * ep[None], False) / ew
+                C[:-1, r.start + i, c.start + j] = cb
+                C[:-1, c.start + j, r.start + i] = cb
+        return C
+
+    def order_error(self, poles, C) -> float:
+        """Max over the band of the relative Frobenius error of the fit ``C`` to the target
+        (``target.fit_order``'s: the upper triangle, √2 weights)."""
+        B = real_basis(self.s, poles)
+        num = np.zeros(self.f.size)
+        for r, c, _, _, T, (i, j, ew) in self._passes():
+            res = (B @ C[:, r.start + i, c.start + j] - T[:, i, j]) * ew
+            num += _sq(res)
+        err = np.sqrt(num) / np.maximum(self.norm_target, 1e-300)
+        return float(err[self.band].max())
+
+    def model(self, poles, C, provenance):
+        """Unscaled, full-size RationalModel (``Problem.model``)."""
+        from ..rational import RationalModel
+        m = poles.size
+        mats = C.copy()
+        mats[:m] *= self.w_ref
+        mats[m + 1] /= self.w_ref
+        mats /= self.Sd[None, :, None]
+        mats /= self.Sd[None, None, :]
+        mats = 0.5 * (mats + mats.transpose(0, 2, 1))
+        off = self.S == 0
+        mats[:, off] = 0.0
+        mats[:, :, off] = 0.0
+        return RationalModel.from_coefficients(poles * self.w_ref, mats, self.table.dofs, provenance)
+
+    # ---- the model against the table -----------------------------------------------------------
+    def _model_passes(self, model):
+        s = 2j * np.pi * self.f
+        inv = 1.0 / (s[:, None] - model.poles[None, :])
+        for r, c, K, Ks, _, _ in self._passes(raw=True):
+            Km = model.D[None, r, c] + s[:, None, None] * model.E[None, r, c] \
+                + np.einsum("fk,kij->fij", inv, model.residues[:, r, c])
+            yield r, c, K, Ks, Km
+
+    def response_errors(self, model) -> np.ndarray:
+        """Per frequency, the relative Frobenius error of the scaled model against S K S (F,)."""
+        num = np.zeros(self.f.size)
+        for r, c, _, Ks, Km in self._model_passes(model):
+            num += (1.0 if r == c else 2.0) * _sq(Km * self.S[r, None] * self.S[None, c] - Ks)
+        return np.sqrt(num) / np.where(self.norm_Ks > 0, self.norm_Ks, 1.0)
+
+    def report_errors(self, model):
+        """(scaled errors (F,), unscaled errors (F,), {dof block: (err² (F,), own² (F,))}) for the report
+        (``pipeline._report``'s e_t, e_un and its blocks rigid / rigid-w / w of ``target.dof_blocks``)."""
+        F = self.f.size
+        num, un = np.zeros(F), np.zeros(F)
+        parts = {k: [np.zeros(F), np.zeros(F)] for k in ("rigid", "rigid-w", "w")}
+        nr = len(RIGID)
+        gap = list(self.table.dofs[:nr]) == list(RIGID) and self.table.n_dof > nr
+        for r, c, K, Ks, Km in self._model_passes(model):
+            D = Km * self.S[r, None] * self.S[None, c] - Ks
+            dd, oo = np.abs(D) ** 2, np.abs(Ks) ** 2
+            wgt = 1.0 if r == c else 2.0
+            num += wgt * dd.reshape(F, -1).sum(axis=1)
+            un += wgt * _sq(Km - K)
+            if not gap:
+                continue
+            gi = np.arange(r.start, r.stop)[:, None]
+            gj = np.arange(c.start, c.stop)[None, :]
+            masks = {"rigid": (gi < nr) & (gj < nr), "rigid-w": (gi < nr) & (gj >= nr),
+                     "w": (gi >= nr) & (gj >= nr)}
+            for k, mk in masks.items():
+                if mk.any():
+                    mult = 2.0 if (k == "w" and r != c) else 1.0
+                    parts[k][0] += mult * dd[:, mk].sum(axis=1)
+                    parts[k][1] += mult * oo[:, mk].sum(axis=1)
+        e_t = np.sqrt(num) / np.where(self.norm_Ks > 0, self.norm_Ks, 1.0)
+        e_un = np.sqrt(un) / np.where(self.norm_K > 0, self.norm_K, 1.0)
+        return e_t, e_un, (parts if gap else None)
+
+    def hysteretic_floor(self) -> float:
+        """``target.hysteretic_floor`` from the frequencies it reads."""
+        if self.f_c <= 0:
+            return 0.0
+        return float(1.1 * 0.5 * np.linalg.norm(self.H0) / max(np.linalg.norm(self.Ks[0].real), 1e-300))
+
+
+def _sq(A) -> np.ndarray:
+    """Per frequency, the sum of |A|² over the block (F,)."""
+    return (A.real ** 2 + A.imag ** 2).reshape(A.shape[0], -1).sum(axis=1)
+
+
+def fit_order_streamed(prob: StreamedProblem, n_pairs, n_iter):
+    """``target.fit_order`` on a ``StreamedProblem``."""
+    poles = vector_fit(prob.s, prob.Y, prob.w_rel, initial_poles(n_pairs, 1.0), n_iter=n_iter)
+    keep = np.abs(poles) <= POLE_CAP
+    poles = canonical_poles(poles[keep])
+    C = prob.coefficients(poles)
+    return poles, C, prob.order_error(poles, C)
