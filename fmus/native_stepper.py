@@ -176,7 +176,9 @@ def encode_run(st, output_nodes=()) -> bytes:
     C runtime reads (``simulate_native``, ``native_max_uplift``; also a cache key of its answer)."""
     model = st.model
     dofs = [model.dofs(model.node_by_name(nm).id)[:3] for nm in output_nodes]
-    return encode_resources({**soil_records(st.soil.model, st.dt), **stepper_records(st, dofs)})
+    soil = st.soil
+    return encode_resources({**soil_records(soil.model, st.dt, getattr(soil, "compressed", None)),
+                             **stepper_records(st, dofs)})
 
 
 def _stepped(lib, blob: bytes, ag, take, chunk: int = CHUNK, progress=None):
