@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .hhistory import DEFAULT_TOL, HMATRIX_MIN_NODES, compress_history
+from .hhistory import DEFAULT_LEAF, DEFAULT_TOL, HMATRIX_MIN_NODES, compress_history
 from .passivity import VERIFIED, require_passive
 from .rational import FitError, RationalModel
 
@@ -96,6 +96,7 @@ class RecursiveConvolutionSoil:
     xy : (N, 2) array, m, or None  the interface nodes (the cluster tree of "hmatrix")
     history_tol : float            relative truncation of the compressed blocks (default 1e-4);
                                    recorded in ``model.provenance["history"]``
+    history_leaf : int             the largest cluster held as a leaf, nodes (default 32)
 
     Per step: ``instantaneous(dt)`` -> (K0, C0) = (D0, E) dense (n, n); ``history()`` -> h_n
     (n,), N; ``commit(x, xdot)`` with the converged x_n, m and xdot_n, m/s. ``step(x, xdot=None)``
@@ -105,14 +106,15 @@ class RecursiveConvolutionSoil:
     """
 
     def __init__(self, model: RationalModel, dt: float, force: bool = False, checked: bool = False,
-                 history: str = "auto", xy=None, history_tol: float = DEFAULT_TOL):
+                 history: str = "auto", xy=None, history_tol: float = DEFAULT_TOL,
+                 history_leaf: int = DEFAULT_LEAF):
         if not dt > 0:
             raise ValueError(f"time step dt = {dt!r} must be > 0")
         self.source_model = model
         self.compressed = None
         self.history_kind = history_kind(history, model.n, xy)
         if self.history_kind == "hmatrix":
-            self.compressed, model = compressed_model(model, xy, history_tol)
+            self.compressed, model = compressed_model(model, xy, history_tol, history_leaf)
         if not checked:
             require_passive(model, force)
         self.model = model
@@ -282,7 +284,7 @@ def history_blocks(model: RationalModel) -> np.ndarray:
     return np.concatenate([Rr, pairs]).reshape(-1, model.n, model.n)
 
 
-def compressed_model(model: RationalModel, xy, tol: float = DEFAULT_TOL):
+def compressed_model(model: RationalModel, xy, tol: float = DEFAULT_TOL, leaf: int = DEFAULT_LEAF):
     """(CompressedHistory, M̃): the history blocks of ``model`` compressed over the nodes xy
     (hhistory.compress_history) and the rational model whose residues are the compressed
     blocks assembled (real poles first, then each pair's pole and its conjugate: vectfit's canonical order), D and E as the
@@ -292,7 +294,7 @@ def compressed_model(model: RationalModel, xy, tol: float = DEFAULT_TOL):
     if xy.ndim != 2 or xy.shape != (model.n - 6, 2):
         raise FitError(f"soil option xy has shape {xy.shape}: give the (N, 2) coordinates of the N = "
                        f"{model.n - 6} interface nodes, m")
-    hist = compress_history(history_blocks(model), xy, tol)
+    hist = compress_history(history_blocks(model), xy, tol, int(leaf))
     pr, _, pc, _ = model.pole_split
     mr, mc = pr.size, pc.size
     Ht = np.array([hist.dense(b) for b in range(hist.nh)])
