@@ -42,9 +42,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-#: history product default: held dense below this many interface nodes, compressed from it on
-#: (the crossover measured in the native runtime, benchmarks/soil_step.py --hmatrix)
-HMATRIX_MIN_NODES = 400
+#: history product default: held dense below this many interface nodes, compressed from it on:
+#: the crossover measured in the native runtime (benchmarks/soil_step.py --hmatrix, 8 poles):
+#: 401 nodes 1.9x slower than dense, 497 nodes 1.7x slower (no admissible block yet), 593 nodes
+#: even (1.25 against 1.39 ms), 1201 nodes 1.7 to 2.8x faster
+HMATRIX_MIN_NODES = 600
 #: truncation of the admissible blocks, relative to the 2-norm of their history block
 DEFAULT_TOL = 1e-4
 #: the largest cluster held as a leaf, nodes

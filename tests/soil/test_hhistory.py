@@ -25,7 +25,7 @@ import pytest
 
 from helpers import kernel_passive_model
 from soil_impedance.convolution import (RecursiveConvolutionSoil, compressed_model, history_blocks,
-                                        stacked_columns)
+                                        history_kind, stacked_columns)
 from soil_impedance.hhistory import BORDER, HMATRIX_MIN_NODES, compress_history, partition
 from soil_impedance.mesh import circle_mesh
 from soil_impedance.passivity import check_passive
@@ -127,11 +127,10 @@ def test_auto_is_dense_below_the_crossover_and_without_coordinates():
     dense = RecursiveConvolutionSoil(model, DT, history="dense", checked=True)
     assert auto.history_kind == "dense" and auto.model is model and auto.compressed is None
     assert np.array_equal(run(auto), run(dense))                       # bit for bit
-    big = raft(20.0 * np.sqrt(np.pi / (HMATRIX_MIN_NODES + 40)))
-    assert big.shape[0] >= HMATRIX_MIN_NODES
-    bigm = kernel_passive_model(big, 0, 1, seed=0)
-    assert RecursiveConvolutionSoil(bigm, DT, xy=big, checked=True).history_kind == "hmatrix"
-    assert RecursiveConvolutionSoil(bigm, DT, checked=True).history_kind == "dense"
+    n = 6 + HMATRIX_MIN_NODES
+    big = np.zeros((HMATRIX_MIN_NODES, 2))
+    assert history_kind("auto", n, big) == "hmatrix" and history_kind("auto", n - 1, big[:-1]) == "dense"
+    assert history_kind("auto", n, None) == "dense" and history_kind("dense", n, big) == "dense"
 
 
 @pytest.mark.parametrize("kwargs, words", [
