@@ -15,7 +15,8 @@ far blocks at this size). Checked:
 - the native FMUs (FMI 2.0 and 3.0, compiled by zig for this host: its cache holds the runtime
   of the other exports) exported with the compressed soil: the records hm_* in the
   resources with its tolerance, fmpy's validator finds nothing, the coupled FMU under
-  fmpy.simulate_fmu equals the in-process native run to 1e-10;
+  fmpy.simulate_fmu and (FMI 2.0) the structure and soil FMUs under the project's master (the
+  soil FMU stepped alone) equal the in-process native run to 1e-10;
 - a resource file whose compressed history does not add up is refused with a message naming it.
 
 About 30 s (the FMUs' validation 7 s; the runtime compiled by zig once, then from its cache).
@@ -107,6 +108,10 @@ def test_native_fmus_carry_the_compressed_history(fast, tmp_path, fmi_version):
     got = np.column_stack([np.asarray(res[name]).reshape(res.shape[0], -1) for name in raft])
     assert rel(got, fast.raft) <= 1e-10
     assert res["max_uplift"][-1] == pytest.approx(fast.max_uplift(), rel=1e-10)
+    if fmi_version == 2:                     # the soil FMU stepped alone (its history of the step after next)
+        from orchestrator.master import cosimulate
+        pair = cosimulate(fmus["structure"], fmus["soil"], MOTION.acc, DT)
+        assert rel(pair.raft, fast.raft) <= 1e-10 and rel(pair.gap, fast.gap) <= 1e-10
 
 def test_an_inconsistent_compressed_history_is_refused():
     st = NewmarkStepper(SCENE.model(), soil(), DT, contact=CONTACT, external_soil=True, ag0=MOTION.acc[0])
