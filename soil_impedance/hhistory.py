@@ -45,7 +45,7 @@ import numpy as np
 #: history product default: held dense below this many interface nodes, compressed from it on:
 #: the crossover measured in the native runtime (benchmarks/soil_step.py --hmatrix, 8 poles):
 #: 401 nodes 1.9x slower than dense, 497 nodes 1.7x slower (no admissible block yet), 593 nodes
-#: even (1.25 against 1.39 ms), 1201 nodes 1.7 to 2.8x faster
+#: even (1.25 against 1.39 ms) to 2x faster, 1201 nodes 1.7 to 2.9x, 2501 nodes 6.6x (docs/native.md)
 HMATRIX_MIN_NODES = 600
 #: truncation of the admissible blocks, relative to the 2-norm of their history block
 DEFAULT_TOL = 1e-4
