@@ -90,20 +90,15 @@ def gemv_per_step(n: int, m: int = POLES, steps: int = 50) -> float:
 
 
 def clusters(xy, idx, leaf=LEAF):
-    """Binary cluster tree by bisection along the longer side: list of (indices, children)."""
-    if idx.size <= leaf:
-        return (idx, ())
-    p = xy[idx]
-    axis = int(np.argmax(p.max(axis=0) - p.min(axis=0)))
-    order = idx[np.argsort(p[:, axis], kind="stable")]
-    half = order.size // 2
-    return (idx, (clusters(xy, order[:half], leaf), clusters(xy, order[half:], leaf)))
+    """Binary cluster tree by bisection along the longer side: (indices, children)
+    (soil_impedance.hhistory.clusters, the compressed history's)."""
+    from soil_impedance.hhistory import clusters as tree
+    return tree(xy, idx, leaf)
 
 
 def _box(xy, idx):
-    p = xy[idx]
-    c = 0.5 * (p.max(axis=0) + p.min(axis=0))
-    return c, float(np.linalg.norm(p.max(axis=0) - p.min(axis=0)))
+    from soil_impedance.hhistory import box
+    return box(xy, idx)
 
 
 def hmatrix(K, xy, tol):

@@ -298,7 +298,7 @@ def model_records(data: FmuData, newton: dict | None = None) -> dict:
         model, cls = plate_model(model, data.plate["properties"], plate_arrays(data.plate)), PlateStepper
     st = cls(model, soil, dt, contact=contact, damping=data.damping, alpha=float(data.alpha), external_soil=True)
     nodes = [model.dofs(model.node_by_name(nm).id)[:3] for nm in data.output_nodes]
-    common = soil_records(data.soil_model, dt)
+    common = soil_records(soil.model, dt, soil.compressed)        # the model the soil runs (compressed or not)
     stepper = {**common, **stepper_records(st, nodes)}
     if data.motion is not None:
         stepper["motion"] = np.asarray(data.motion, float).reshape(-1, 3)
@@ -309,15 +309,20 @@ def model_records(data: FmuData, newton: dict | None = None) -> dict:
             "coupled": {**stepper, "role": role["coupled"]}}
 
 
-def soil_records(soil_model, dt: float) -> dict:
+def soil_records(soil_model, dt: float, compressed=None) -> dict:
     """The soil's records (every role): dt, n_dof, the poles split into real poles and one pole
-    per conjugate pair, their residues, D and E."""
+    per conjugate pair, their residues, D and E; with ``compressed`` (a
+    soil_impedance.hhistory.CompressedHistory of ``soil_model``'s history blocks: a soil built
+    with history = "hmatrix") its records hm_*, from which the runtime takes the history product."""
     n = soil_model.n
     pr, Rr, pc, Rc = soil_model.pole_split
-    return {"dt": float(dt), "n_dof": float(n), "poles_real": pr,
-            "poles_pair": np.stack([pc.real, pc.imag], -1).reshape(-1, 2),
-            "residues_real": Rr, "residues_pair": np.stack([Rc.real, Rc.imag], -1).reshape(-1, n, n, 2),
-            "D": soil_model.D, "E": soil_model.E}
+    out = {"dt": float(dt), "n_dof": float(n), "poles_real": pr,
+           "poles_pair": np.stack([pc.real, pc.imag], -1).reshape(-1, 2),
+           "residues_real": Rr, "residues_pair": np.stack([Rc.real, Rc.imag], -1).reshape(-1, n, n, 2),
+           "D": soil_model.D, "E": soil_model.E}
+    if compressed is not None:
+        out.update(compressed.records())
+    return out
 
 
 def stepper_records(st, node_dofs) -> dict:

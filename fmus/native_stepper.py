@@ -176,9 +176,11 @@ def encode_run(st, output_nodes=(), extra_dofs=()) -> bytes:
     DOF triples ``extra_dofs``: ``plate_dofs``): what the C runtime reads (``simulate_native``,
     ``native_max_uplift``; also a cache key of its answer)."""
     model = st.model
+
     dofs = [model.dofs(model.node_by_name(nm).id)[:3] for nm in output_nodes] + list(extra_dofs)
     soil = getattr(st.soil, "soil", st.soil)       # a plate stepper's soil: the wrapper of the soil's own
-    return encode_resources({**soil_records(soil.model, st.dt), **stepper_records(st, dofs)})
+    return encode_resources({**soil_records(soil.model, st.dt, getattr(soil, "compressed", None)),
+                             **stepper_records(st, dofs)})
 
 
 def plate_dofs(st) -> list:

@@ -27,13 +27,22 @@ step mid-values exactly. It includes recoverable (spring, pole-state) energy.
 Complex poles are carried once per conjugate pair (the partner contributes the complex
 conjugate): h = H g with one real matrix H (n, (m_r + 2 m_c) n) stacking R_k of the real poles
 and [2 Re R_k, −2 Im R_k] of the pairs, so one history update is one GEMV, m n^2 flops.
+On a large interface (``history="hmatrix"``, or ``"auto"`` from HMATRIX_MIN_NODES nodes on when
+the nodes' coordinates are given) the blocks of H are held as hierarchical matrices
+(soil_impedance/hhistory.py): the soil then runs the compressed model M̃ (the residues
+assembled from the compressed blocks, within ``history_tol`` of the fit's), whose passivity
+is tested as a fit's.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from .passivity import require_passive
-from .rational import RationalModel
+from .hhistory import DEFAULT_LEAF, DEFAULT_TOL, HMATRIX_MIN_NODES, compress_history
+from .passivity import VERIFIED, require_passive
+from .rational import FitError, RationalModel
+
+#: the forms of the history product (``RecursiveConvolutionSoil(history=...)``)
+HISTORY_KINDS = ("auto", "dense", "hmatrix")
 
 
 # ---- bilinear map and the recursion's z-transform ----------------------------------------
@@ -80,6 +89,14 @@ class RecursiveConvolutionSoil:
                                    FitError naming the violation bands and the fix)
     checked : bool                 the caller has verified passivity already (an exported FMU:
                                    verified once at export), the test is not run again
+    history : str                  "dense" (H held whole), "hmatrix" (its blocks compressed:
+                                   hhistory.compress_history over xy) or "auto" (default):
+                                   "hmatrix" when xy is given and N >= HMATRIX_MIN_NODES, else
+                                   "dense" (the reactor's 241 nodes: dense)
+    xy : (N, 2) array, m, or None  the interface nodes (the cluster tree of "hmatrix")
+    history_tol : float            relative truncation of the compressed blocks (default 1e-4);
+                                   recorded in ``model.provenance["history"]``
+    history_leaf : int             the largest cluster held as a leaf, nodes (default 32)
 
     Per step: ``instantaneous(dt)`` -> (K0, C0) = (D0, E) dense (n, n); ``history()`` -> h_n
     (n,), N; ``commit(x, xdot)`` with the converged x_n, m and xdot_n, m/s. ``step(x, xdot=None)``
@@ -88,9 +105,16 @@ class RecursiveConvolutionSoil:
     u_{n−1}, u'_{n−1}, f_{n−1}, work, dt; ``get_state``/``set_state`` copy numpy arrays.
     """
 
-    def __init__(self, model: RationalModel, dt: float, force: bool = False, checked: bool = False):
+    def __init__(self, model: RationalModel, dt: float, force: bool = False, checked: bool = False,
+                 history: str = "auto", xy=None, history_tol: float = DEFAULT_TOL,
+                 history_leaf: int = DEFAULT_LEAF):
         if not dt > 0:
             raise ValueError(f"time step dt = {dt!r} must be > 0")
+        self.source_model = model
+        self.compressed = None
+        self.history_kind = history_kind(history, model.n, xy)
+        if self.history_kind == "hmatrix":
+            self.compressed, model = compressed_model(model, xy, history_tol, history_leaf)
         if not checked:
             require_passive(model, force)
         self.model = model
@@ -100,10 +124,14 @@ class RecursiveConvolutionSoil:
         self._pr, self._pc = pr, pc
         self._Rr, self._Rc = Rr, Rc
         mr, mc = pr.size, pc.size
-        Hr = np.transpose(Rr, (1, 0, 2)).reshape(n, mr * n)
-        Hc = np.stack([2 * Rc.real, -2 * Rc.imag], axis=-1)         # (mc, n, n, 2)
-        Hc = np.transpose(Hc, (1, 0, 2, 3)).reshape(n, 2 * mc * n)   # (re, im) interleaved
-        self._H = np.ascontiguousarray(np.hstack([Hr, Hc]))
+        if self.compressed is None:
+            Hr = np.transpose(Rr, (1, 0, 2)).reshape(n, mr * n)
+            Hc = np.stack([2 * Rc.real, -2 * Rc.imag], axis=-1)         # (mc, n, n, 2)
+            Hc = np.transpose(Hc, (1, 0, 2, 3)).reshape(n, 2 * mc * n)   # (re, im) interleaved
+            self._H = np.ascontiguousarray(np.hstack([Hr, Hc]))
+        else:
+            self._H = None
+            self._ops = self.compressed.operator(stacked_columns(n, mr, mc))
         # g = [a y + b u] stacked; the complex block viewed as interleaved (re, im) pairs
         self._g = np.zeros((mr + 2 * mc) * n)
         self._gr = self._g[: mr * n].reshape(mr, n)
@@ -151,7 +179,11 @@ class RecursiveConvolutionSoil:
             self._gr += self._br[:, None] * u
             np.multiply(self._ac[:, None], self._yc, out=self._gc)
             self._gc += self._bc[:, None] * u
-            self._h = self._H @ self._g
+            if self._H is not None:
+                self._h = self._H @ self._g
+            else:
+                near, U, V = self._ops
+                self._h = near @ self._g + U @ (V @ self._g)
         return self._h.copy()
 
     def commit(self, x, xdot) -> None:
@@ -219,3 +251,59 @@ class RecursiveConvolutionSoil:
         self._f = np.array(s["f"], float, copy=True)
         self._work = float(s["work"])
         self._set_dt(float(s["dt"]))
+
+
+# ---- the compressed history ------------------------------------------------------------------
+def history_kind(history: str, n: int, xy) -> str:
+    """"dense" or "hmatrix": the form of the history product asked (``history``, one of
+    HISTORY_KINDS) for n DOFs and the nodes xy (None: not given)."""
+    if history not in HISTORY_KINDS:
+        raise FitError(f"soil option history = {history!r}: use one of {', '.join(map(repr, HISTORY_KINDS))}")
+    if history == "hmatrix" and xy is None:
+        raise FitError("soil option history = 'hmatrix' needs the interface nodes' coordinates: pass xy "
+                       "(N, 2), m, with it (or history = 'dense')")
+    if history == "auto":
+        return "hmatrix" if xy is not None and n - 6 >= HMATRIX_MIN_NODES else "dense"
+    return history
+
+
+def stacked_columns(n: int, mr: int, mc: int) -> np.ndarray:
+    """(mr + 2 mc, n) index in the stacked pole input g of (history block, DOF): the real poles'
+    blocks first, then each pair's (re, im) interleaved per DOF."""
+    j = np.arange(n)
+    real = [b * n + j for b in range(mr)]
+    pair = [mr * n + (k * n + j) * 2 + im for k in range(mc) for im in (0, 1)]
+    return np.array(real + pair, np.int64).reshape(mr + 2 * mc, n)
+
+
+def history_blocks(model: RationalModel) -> np.ndarray:
+    """(mr + 2 mc, n, n) the history blocks of ``model``: R_k of the real poles, then per
+    conjugate pair 2 Re R_k and −2 Im R_k."""
+    pr, Rr, pc, Rc = model.pole_split
+    pairs = np.stack([2 * Rc.real, -2 * Rc.imag], axis=1).reshape(-1, model.n, model.n)
+    return np.concatenate([Rr, pairs]).reshape(-1, model.n, model.n)
+
+
+def compressed_model(model: RationalModel, xy, tol: float = DEFAULT_TOL, leaf: int = DEFAULT_LEAF):
+    """(CompressedHistory, M̃): the history blocks of ``model`` compressed over the nodes xy
+    (hhistory.compress_history) and the rational model whose residues are the compressed
+    blocks assembled (real poles first, then each pair's pole and its conjugate: vectfit's canonical order), D and E as the
+    model's. ``M̃.provenance["history"]`` records the tolerance, the partition's settings, the
+    storage ratio and the largest discarded singular value, and the source model's digest."""
+    xy = np.asarray(xy, float)
+    if xy.ndim != 2 or xy.shape != (model.n - 6, 2):
+        raise FitError(f"soil option xy has shape {xy.shape}: give the (N, 2) coordinates of the N = "
+                       f"{model.n - 6} interface nodes, m")
+    hist = compress_history(history_blocks(model), xy, tol, int(leaf))
+    pr, _, pc, _ = model.pole_split
+    mr, mc = pr.size, pc.size
+    Ht = np.array([hist.dense(b) for b in range(hist.nh)])
+    Rr = Ht[:mr].astype(complex)
+    Rc = 0.5 * Ht[mr::2] - 0.5j * Ht[mr + 1::2]
+    prov = {k: v for k, v in model.provenance.items() if k != VERIFIED}
+    prov["history"] = {"kind": "hmatrix", **hist.settings, "source_digest": model.digest}
+    poles = np.concatenate([pr.astype(complex), np.stack([pc, pc.conj()], 1).reshape(-1)])
+    residues = np.concatenate([Rr, np.stack([Rc, Rc.conj()], 1).reshape(2 * mc, model.n, model.n)])
+    new = RationalModel(poles, residues.reshape(mr + 2 * mc, model.n, model.n), model.D, model.E,
+                        list(model.dofs), prov)
+    return hist, new

@@ -23,7 +23,12 @@
    E u' + h, sum du . ((E u' + h)_n + (E u' + h)_{n-1}) / 2. The part D0 u telescopes (D0 is
    symmetric): sum du_n . D0 (u_n + u_{n-1}) / 2 = u_n . D0 u_n / 2 from rest. So D0 u_n, the force
    and the total work are computed only when read (up_soil_outputs): two n x n products a step
-   instead of three; the force bit for bit as when it was computed every step, the work to round-off. */
+   instead of three; the force bit for bit as when it was computed every step, the work to round-off.
+
+   On a large interface H is held compressed (records hm_*: soil_impedance/hhistory.py): its blocks
+   as hierarchical matrices, dense near blocks and low-rank far blocks over one cluster tree of the
+   nodes; the residues of the resource file are then those of the compressed model (D0 and the
+   history gain from them), so the product is that model's to round-off. */
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -42,11 +47,63 @@ static double block_entry(const UpSoil *s, int b, int i, int j)
     return im ? -2.0 * v : 2.0 * v;
 }
 
-/* the history matrix: packed symmetric blocks when every residue is symmetric (as the fit makes
-   them), else H transposed; 0 when out of memory */
+/* the compressed history of the resource file (records hm_*), when it has one: read and checked
+   (a permutation, blocks inside the matrix and upper, ranks and values of the blocks' sizes); 0 when
+   absent or read, -1 with a message when malformed or out of memory */
+static int compressed_history(UpSoil *s, const UpRes *r, char *err)
+{
+    if (!up_res_find(r, "hm_perm"))
+        return 0;
+    int n = s->n, nb = s->mr + 2 * s->mc;
+    int64_t dp[1] = {n}, db[2] = {-1, 4}, dr[2] = {nb, -1}, dd[1] = {-1};
+    if (!(s->hm_perm = up_res_i64(r, "hm_perm", 1, dp, err)) || !(s->hm_blocks = up_res_i64(r, "hm_blocks", 2, db, err)))
+        return -1;
+    dr[1] = db[0];
+    if (!(s->hm_ranks = up_res_i64(r, "hm_ranks", 2, dr, err)) || !(s->hm_data = up_res_f64(r, "hm_data", 1, dd, err)))
+        return -1;
+    s->hm_nblk = (int)db[0];
+    s->hm_x = (double *)calloc(3 * (size_t)n + 1, sizeof(double));
+    if (!s->hm_x) {
+        snprintf(err, UP_MSG, "out of memory for the compressed soil history (%d DOFs)", n);
+        return -1;
+    }
+    s->hm_y = s->hm_x + n;
+    s->hm_t = s->hm_y + n;
+    int ok = 1;
+    unsigned char *seen = (unsigned char *)calloc((size_t)n + 1, 1);
+    for (int p = 0; ok && seen && p < n; p++) {
+        int64_t q = s->hm_perm[p];
+        ok = q >= 0 && q < n && !seen[q];
+        if (ok)
+            seen[q] = 1;
+    }
+    free(seen);
+    uint64_t total = 0;
+    for (int j = 0; ok && j < s->hm_nblk; j++) {
+        const int64_t *b = s->hm_blocks + 4 * (size_t)j;
+        ok = b[0] >= 0 && b[1] > 0 && b[2] >= b[0] && b[3] > 0 && b[0] + b[1] <= n && b[2] + b[3] <= n
+             && (b[0] != b[2] || b[1] == b[3]);
+        for (int k = 0; ok && k < nb; k++) {
+            int64_t rk = s->hm_ranks[(size_t)k * s->hm_nblk + j];
+            ok = rk >= -1 && rk <= n;
+            total += rk < 0 ? (uint64_t)(b[1] * b[3]) : (uint64_t)(rk * (b[1] + b[3]));
+        }
+    }
+    if (!ok || total != (uint64_t)dd[0]) {
+        snprintf(err, UP_MSG, "resource file %s: the compressed soil history (records hm_*) is inconsistent: "
+                 "export the FMU again with this version of uplift", r->path);
+        return -1;
+    }
+    return 0;
+}
+
+/* the history matrix: none when compressed (compressed_history); packed symmetric blocks when every
+   residue is symmetric (as the fit makes them), else H transposed; 0 when out of memory */
 static int history_matrix(UpSoil *s)
 {
     int n = s->n, nb = s->mr + 2 * s->mc, sym = 1;
+    if (s->hm_perm)
+        return 1;
     for (int b = 0; sym && b < nb; b++)
         for (int i = 0; sym && i < n; i++)
             for (int j = i + 1; sym && j < n; j++)
@@ -85,6 +142,206 @@ static const double *block_input(const UpSoil *s, const double *g, int b, double
     return v;
 }
 
+/* The compressed product's loops: along contiguous rows, with no reduction or with eight fixed
+   partial sums (folded in a fixed order), so that the compiler vectorises them without
+   reassociating anything: the same result at every vector width. On x86-64 with GCC or clang,
+   AVX2 and AVX-512 versions of the product beside the baseline, the widest the CPU has called
+   (up_vector_level, linalg.c's test), as linalg.c's kernels. */
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(UP_BASELINE_ONLY)
+#define HM_DISPATCH 1
+#define HM_BODY static inline __attribute__((always_inline))
+#else
+#define HM_BODY static inline
+#endif
+
+HM_BODY double hm_fold8(const double *s)
+{
+    return ((s[0] + s[1]) + (s[2] + s[3])) + ((s[4] + s[5]) + (s[6] + s[7]));
+}
+
+/* y[i] += A_i . x for the rows of A (rows, cols), eight partial sums each; four rows in one pass
+   (x loaded once per four rows) */
+HM_BODY void hm_rows_dot(const double *restrict A, int rows, int cols, const double *restrict x, double *restrict y)
+{
+    int i = 0;
+    for (; i + 4 <= rows; i += 4) {
+        const double *restrict a0 = A + (size_t)i * cols, *restrict a1 = a0 + cols, *restrict a2 = a1 + cols,
+                     *restrict a3 = a2 + cols;
+        double s0[8] = {0.0}, s1[8] = {0.0}, s2[8] = {0.0}, s3[8] = {0.0};
+        int j = 0;
+        for (; j + 8 <= cols; j += 8)
+            for (int k = 0; k < 8; k++) {
+                double xv = x[j + k];
+                s0[k] += a0[j + k] * xv;
+                s1[k] += a1[j + k] * xv;
+                s2[k] += a2[j + k] * xv;
+                s3[k] += a3[j + k] * xv;
+            }
+        for (int k = 0; j < cols; j++, k++) {
+            s0[k] += a0[j] * x[j];
+            s1[k] += a1[j] * x[j];
+            s2[k] += a2[j] * x[j];
+            s3[k] += a3[j] * x[j];
+        }
+        y[i] += hm_fold8(s0);
+        y[i + 1] += hm_fold8(s1);
+        y[i + 2] += hm_fold8(s2);
+        y[i + 3] += hm_fold8(s3);
+    }
+    for (; i < rows; i++) {
+        const double *restrict a = A + (size_t)i * cols;
+        double s[8] = {0.0};
+        int j = 0;
+        for (; j + 8 <= cols; j += 8)
+            for (int k = 0; k < 8; k++)
+                s[k] += a[j + k] * x[j + k];
+        for (int k = 0; j < cols; j++, k++)
+            s[k] += a[j] * x[j];
+        y[i] += hm_fold8(s);
+    }
+}
+
+/* y += A^T t for A (rows, cols): t_i times row i, in the order of the rows, four rows in one pass
+   (y loaded and stored once per four rows) */
+HM_BODY void hm_rows_axpy(const double *restrict A, int rows, int cols, const double *restrict t, double *restrict y)
+{
+    int i = 0;
+    for (; i + 4 <= rows; i += 4) {
+        const double *restrict a0 = A + (size_t)i * cols, *restrict a1 = a0 + cols, *restrict a2 = a1 + cols,
+                     *restrict a3 = a2 + cols;
+        double t0 = t[i], t1 = t[i + 1], t2 = t[i + 2], t3 = t[i + 3];
+        for (int j = 0; j < cols; j++)
+            y[j] = (((y[j] + t0 * a0[j]) + t1 * a1[j]) + t2 * a2[j]) + t3 * a3[j];
+    }
+    for (; i < rows; i++) {
+        const double *restrict a = A + (size_t)i * cols;
+        double ti = t[i];
+        for (int j = 0; j < cols; j++)
+            y[j] += ti * a[j];
+    }
+}
+
+/* a block off the diagonal and its mirror in one pass over A (rows, cols): yr += A xc (eight
+   partial sums per row) and yc += A^T xr (in the order of the rows); four rows at a time, so that
+   xc is loaded and yc loaded and stored once per four rows; yr and yc are disjoint */
+HM_BODY void hm_pair(const double *restrict A, int rows, int cols, const double *restrict xc, const double *restrict xr,
+                     double *restrict yr, double *restrict yc)
+{
+    int i = 0;
+    for (; i + 4 <= rows; i += 4) {
+        const double *restrict a0 = A + (size_t)i * cols, *restrict a1 = a0 + cols, *restrict a2 = a1 + cols,
+                     *restrict a3 = a2 + cols;
+        double x0 = xr[i], x1 = xr[i + 1], x2 = xr[i + 2], x3 = xr[i + 3];
+        double s0[8] = {0.0}, s1[8] = {0.0}, s2[8] = {0.0}, s3[8] = {0.0};
+        int j = 0;
+        for (; j + 8 <= cols; j += 8)
+            for (int k = 0; k < 8; k++) {
+                double v0 = a0[j + k], v1 = a1[j + k], v2 = a2[j + k], v3 = a3[j + k], xv = xc[j + k];
+                s0[k] += v0 * xv;
+                s1[k] += v1 * xv;
+                s2[k] += v2 * xv;
+                s3[k] += v3 * xv;
+                yc[j + k] = (((yc[j + k] + x0 * v0) + x1 * v1) + x2 * v2) + x3 * v3;
+            }
+        for (int k = 0; j < cols; j++, k++) {
+            double v0 = a0[j], v1 = a1[j], v2 = a2[j], v3 = a3[j], xv = xc[j];
+            s0[k] += v0 * xv;
+            s1[k] += v1 * xv;
+            s2[k] += v2 * xv;
+            s3[k] += v3 * xv;
+            yc[j] = (((yc[j] + x0 * v0) + x1 * v1) + x2 * v2) + x3 * v3;
+        }
+        yr[i] += hm_fold8(s0);
+        yr[i + 1] += hm_fold8(s1);
+        yr[i + 2] += hm_fold8(s2);
+        yr[i + 3] += hm_fold8(s3);
+    }
+    for (; i < rows; i++) {
+        const double *restrict a = A + (size_t)i * cols;
+        double s[8] = {0.0}, xi = xr[i];
+        int j = 0;
+        for (; j + 8 <= cols; j += 8)
+            for (int k = 0; k < 8; k++) {
+                double v = a[j + k];
+                s[k] += v * xc[j + k];
+                yc[j + k] += xi * v;
+            }
+        for (int k = 0; j < cols; j++, k++) {
+            s[k] += a[j] * xc[j];
+            yc[j] += xi * a[j];
+        }
+        yr[i] += hm_fold8(s);
+    }
+}
+
+/* h = H g through the compressed history: per history block (in order) its input permuted, then
+   each block of the partition (in order): a dense block A adds A x to its rows and, off the
+   diagonal, A^T x to its columns (one pass); a low-rank one U^T V adds U^T (V x) and, always off
+   the diagonal, V^T (U x). The permuted product scattered back at the end */
+HM_BODY void compressed_product_k(UpSoil *s, const double *g, double *h)
+{
+    int n = s->n, nb = s->mr + 2 * s->mc, nblk = s->hm_nblk;
+    double *x = s->hm_x, *y = s->hm_y, *t = s->hm_t, *v = s->fbuf + 3 * (size_t)n;
+    const int64_t *perm = s->hm_perm;
+    const double *d = s->hm_data;
+    memset(y, 0, (size_t)n * sizeof(double));
+    for (int b = 0; b < nb; b++) {
+        const double *gb = block_input(s, g, b, v);
+        for (int p = 0; p < n; p++)
+            x[p] = gb[perm[p]];
+        const int64_t *rank = s->hm_ranks + (size_t)b * nblk;
+        for (int j = 0; j < nblk; j++) {
+            const int64_t *bl = s->hm_blocks + 4 * (size_t)j;
+            int r0 = (int)bl[0], nr = (int)bl[1], c0 = (int)bl[2], nc = (int)bl[3], r = (int)rank[j];
+            if (r < 0) {
+                if (r0 == c0)
+                    hm_rows_dot(d, nr, nc, x + c0, y + r0);
+                else
+                    hm_pair(d, nr, nc, x + c0, x + r0, y + r0, y + c0);
+                d += (size_t)nr * nc;
+            } else {
+                const double *U = d, *V = d + (size_t)r * nr;
+                memset(t, 0, (size_t)r * sizeof(double));
+                hm_rows_dot(V, r, nc, x + c0, t);
+                hm_rows_axpy(U, r, nr, t, y + r0);
+                memset(t, 0, (size_t)r * sizeof(double));
+                hm_rows_dot(U, r, nr, x + r0, t);
+                hm_rows_axpy(V, r, nc, t, y + c0);
+                d += (size_t)r * (nr + nc);
+            }
+        }
+    }
+    for (int p = 0; p < n; p++)
+        h[perm[p]] = y[p];
+}
+
+#ifdef HM_DISPATCH
+__attribute__((target("avx512f"))) static void compressed_product_avx512(UpSoil *s, const double *g, double *h)
+{
+    compressed_product_k(s, g, h);
+}
+__attribute__((target("avx2"))) static void compressed_product_avx2(UpSoil *s, const double *g, double *h)
+{
+    compressed_product_k(s, g, h);
+}
+#endif
+
+static void compressed_product(UpSoil *s, const double *g, double *h)
+{
+#ifdef HM_DISPATCH
+    int level = up_vector_level();
+    if (level == 2) {
+        compressed_product_avx512(s, g, h);
+        return;
+    }
+    if (level == 1) {
+        compressed_product_avx2(s, g, h);
+        return;
+    }
+#endif
+    compressed_product_k(s, g, h);
+}
+
 /* h = H g. Packed: each block's product into its own part of s->part, the parts summed in the
    blocks' order, so the result does not depend on the order the blocks are read in; that order
    alternates from one product to the next, so the blocks read last (still in cache) are read
@@ -92,6 +349,10 @@ static const double *block_input(const UpSoil *s, const double *g, int b, double
 static void history_product(UpSoil *s, const double *g, double *h)
 {
     int n = s->n;
+    if (s->hm_perm) {
+        compressed_product(s, g, h);
+        return;
+    }
     if (!s->Hs) {
         up_gemv_t(s->H, (int)s->L, n, g, h);
         return;
@@ -143,6 +404,10 @@ int up_soil_init(UpSoil *s, const UpRes *r, int n, int nlev, int stepped, char *
     if (stepped && ok) {
         s->g = (double *)calloc(s->L + 1, sizeof(double));
         s->part = (double *)calloc(s->L + 1, sizeof(double));
+        if (compressed_history(s, r, err) < 0) {
+            up_soil_free(s);
+            return -1;
+        }
         ok = s->g && s->part && history_matrix(s);
     }
     if (stepped == 2 && ok) {
@@ -185,6 +450,7 @@ void up_soil_free(UpSoil *s)
     free(s->Gx);
     free(s->Gxp);
     free(s->fbuf);
+    free(s->hm_x);
     for (int l = 0; l < UP_MAXLEV; l++) {
         free(s->lev[l].ar);
         free(s->lev[l].D0);

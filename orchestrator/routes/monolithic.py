@@ -57,7 +57,9 @@ def run_monolithic(scene, motion=None, soil_model=None, *, soil_factory: str | N
 
     motion : Motion (default: the scene's [motion] at dt); soil_model : RationalModel
     (default: the fit of the scene's gap table); soil_factory : "module:callable" building the
-    soil as factory(model, dt, **soil_kwargs) (default: the recursive convolution); dt : s
+    soil as factory(model, dt, **soil_kwargs) (default: the recursive convolution, given the
+    interface nodes ``xy``: its history product compressed from HMATRIX_MIN_NODES nodes on,
+    soil_impedance/hhistory.py; ``soil_kwargs={"history": "dense"}`` keeps it whole); dt : s
     (default: the motion's, else the scene's [analysis] dt); model : the structure model
     (default: built from the scene; a scene with a plate raft: ``scene.plate_model()``, which
     either stepper runs: the C runtime's plate trace, or structure.plate_raft.PlateStepper);
@@ -69,6 +71,9 @@ def run_monolithic(scene, motion=None, soil_model=None, *, soil_factory: str | N
     _check_stepper(stepper)                 # before the fit is read or computed
     motion, soil_model, dt = route_inputs(scene, motion, soil_model, dt, cache_dir)
     factory = soil_factory or DEFAULT_SOIL_FACTORY
+    if factory == DEFAULT_SOIL_FACTORY and "xy" not in (soil_kwargs or {}):
+        # the interface nodes: the history product compressed on a large raft (history = "auto")
+        soil_kwargs = {**(soil_kwargs or {}), "xy": scene.mesh.xy}
     soil = soil_from_model(soil_model, dt, factory, soil_kwargs)
     model = model or (scene.plate_model() if getattr(scene, "raft", None) is not None else scene.model())
     why = (f"the soil factory {factory} has no native runtime: the Python stepper ran"
@@ -78,7 +83,7 @@ def run_monolithic(scene, motion=None, soil_model=None, *, soil_factory: str | N
         warnings += plate_warnings(model, scene.mesh.radius)
     res = step_scene(scene, model, soil, motion, route=route, progress=progress, cache_dir=cache_dir,
                      stepper=stepper, why=why)
-    info = {"soil_model": soil_model.provenance}
+    info = {"soil_model": getattr(soil, "model", soil_model).provenance}     # a compressed history: its tolerance
     if isinstance(model, PlateRaftModel):
         p = model.plate
         info["raft"] = {"kind": "plate", "thickness_m": p.thickness, "E_Pa": p.E, "nu": p.nu, "rho_kg_m3": p.rho,

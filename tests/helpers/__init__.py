@@ -25,7 +25,7 @@ from pathlib import Path
 from .cases import EXPORT_MOTION, pulse_motion, rocks_about_both_axes, small_scene, soil_model, winkler
 from .checks import assert_pair_rolls_back, rel
 from .motions import broadband, smooth_pulse, stepper_pulse
-from .passive_models import oscillator_model, random_passive_model
+from .passive_models import kernel_passive_model, oscillator_model, random_passive_model, with_kernel_terms
 from .results import route_result
 from .scenes import SMALL_REACTOR, TOWER, changed, edited, export_tower, small_reactor, toml_text, tower, write_scene
 from .soil_double import TrapezoidRationalSoil, winkler_rational
@@ -37,6 +37,6 @@ DATA = ROOT / "tests" / "data"
 
 __all__ = ["COARSE_RAFT", "DATA", "EXPORT_MOTION", "FINE_RAFT", "ROOT", "SMALL_REACTOR", "TOWER", "RockCase", "TrapezoidRationalSoil",
            "assert_pair_rolls_back",
-           "broadband", "changed", "edited", "export_tower", "hysteretic_table", "oscillator_model", "pulse_motion", "random_passive_model", "rel",
+           "broadband", "changed", "edited", "export_tower", "hysteretic_table", "kernel_passive_model", "oscillator_model", "pulse_motion", "random_passive_model", "rel",
            "rock_winkler", "rocks_about_both_axes", "route_result", "small_reactor", "small_scene", "smooth_pulse", "soil_model", "stepper_pulse",
-           "toml_text", "tower", "winkler", "winkler_rational", "write_scene"]
+           "toml_text", "tower", "winkler", "winkler_rational", "with_kernel_terms", "write_scene"]

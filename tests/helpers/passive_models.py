@@ -56,3 +56,77 @@ def random_passive_model(n: int, n_pairs: int, n_real: int = 0, seed: int = 0,
     maxwell = [(rng.uniform(0.5, 2.0), rng.uniform(0.5, 2.0) / (2 * np.pi * f), psd())
                for f in np.geomspace(*f_range, max(n_real, 1))[:n_real]]
     return oscillator_model(psd(), 0.02 * psd(), terms, maxwell)
+
+
+def kernel_passive_model(xy, n_pairs: int, n_real: int = 0, seed: int = 0, f_range=(0.5, 20.0)) -> RationalModel:
+    """A passive model of a raft on nodes xy (N, 2), m, with n = 6 + N DOFs [q, w] whose shapes
+    have the soil kernel's structure: W = Tᵀ G T + 0.05 I, T = [B | I] (B the nodes' vertical
+    traces of uz, rx, ry), G_ij = h exp(−r_ij / λ) / sqrt(r_ij² + h²) (PSD: a product of PSD
+    kernels), h the mean node spacing and λ from h to the raft's size, one per term: its
+    blocks between well-separated node groups are numerically of low rank, as a fit's residues
+    (an oscillator per pair, a Maxwell element per real pole, as ``random_passive_model``)."""
+    xy = np.asarray(xy, float)
+    N = xy.shape[0]
+    rng = np.random.default_rng(seed)
+    T = np.zeros((N, 6 + N))
+    T[:, 2], T[:, 3], T[:, 4] = 1.0, xy[:, 1], -xy[:, 0]
+    T[:, 6:] = np.eye(N)
+    r = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+    size = float(np.ptp(xy, axis=0).max())
+    h = np.sqrt(np.ptp(xy[:, 0]) * np.ptp(xy[:, 1]) / N)
+    lams = iter(np.geomspace(h, size, n_pairs + n_real + 1)[::-1])
+
+    def shape():
+        lam = next(lams)
+        G = h * np.exp(-r / lam) / np.sqrt(r ** 2 + h ** 2)
+        W = T.T @ G @ T / N
+        W[np.arange(3), np.arange(3)] += 1.0
+        W[5, 5] += 1.0
+        return 0.5 * (W + W.T) + 0.05 * np.eye(6 + N)
+
+    fr = np.geomspace(*f_range, max(n_pairs, 1))[:n_pairs]
+    terms = []
+    for f in fr:
+        w0, zeta = 2 * np.pi * f, rng.uniform(0.05, 0.4)
+        k = rng.uniform(0.5, 2.0)
+        m = k / w0 ** 2
+        terms.append((k, 2 * zeta * np.sqrt(k * m), m, shape()))
+    maxwell = [(rng.uniform(0.5, 2.0), rng.uniform(0.5, 2.0) / (2 * np.pi * f), shape())
+               for f in np.geomspace(*f_range, max(n_real, 1))[:n_real]]
+    D = shape()
+    return oscillator_model(D, 0.02 * D, terms, maxwell)
+
+
+def with_kernel_terms(model: RationalModel, xy, n_terms: int = 2, share: float = 0.3, f_range=(1.0, 10.0),
+                      pairs: bool = True) -> RationalModel:
+    """``model`` (n = 6 + N DOFs [q, w] on the nodes xy (N, 2), m; passive) with ``n_terms``
+    passive terms of the soil kernel's structure added: shapes W = Tᵀ S G S T, T = [B | I] (B
+    the nodes' vertical traces of uz, rx, ry), S = diag(sqrt(K(0)_ww)) of the model, G_ij =
+    exp(−r_ij / λ) h / sqrt(r_ij² + h²) (PSD: a product of PSD kernels; h the mean node spacing,
+    λ from the raft's size down), each worth ``share`` of the model's static node stiffness: an
+    oscillator (a conjugate pair, ``pairs``) or a Maxwell element (a real pole) per term, with
+    resonance or corner frequencies over f_range, Hz. Its history blocks between well-separated
+    node groups are numerically of low rank, as a fit's residues."""
+    xy = np.asarray(xy, float)
+    N, n = xy.shape[0], model.n
+    T = np.zeros((N, n))
+    T[:, 2], T[:, 3], T[:, 4] = 1.0, xy[:, 1], -xy[:, 0]
+    T[:, 6:] = np.eye(N)
+    s = np.sqrt(np.diag(model.static)[6:])
+    r = np.hypot(*(xy[:, None, :] - xy[None, :, :]).transpose(2, 0, 1))
+    h = float(np.sqrt(np.ptp(xy[:, 0]) * np.ptp(xy[:, 1]) / N))
+    lams = np.geomspace(float(np.ptp(xy, axis=0).max()), 2 * h, max(n_terms, 1))
+    terms, maxwell = [], []
+    for lam, f in zip(lams, np.geomspace(*f_range, max(n_terms, 1))):
+        G = h * np.exp(-r / lam) / np.sqrt(r ** 2 + h ** 2)
+        W = T.T @ (s[:, None] * G * s[None, :]) @ T
+        W = share * 0.5 * (W + W.T)
+        w0 = 2 * np.pi * f
+        if pairs:
+            terms.append((1.0, 2 * 0.3 / w0, 1.0 / w0 ** 2, W))    # k = 1, damping ratio 0.3
+        else:
+            maxwell.append((1.0, 1.0 / w0, W))
+    extra = oscillator_model(np.zeros((n, n)), None, terms, maxwell)
+    return RationalModel(np.concatenate([model.poles, extra.poles]),
+                         np.concatenate([model.residues, extra.residues]), model.D + extra.D, model.E,
+                         dofs=list(model.dofs), provenance={"source": "with_kernel_terms"})

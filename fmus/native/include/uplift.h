@@ -220,6 +220,16 @@ typedef struct {
     int flip;                 /* the order the blocks were read in last (no effect on the product) */
     double *Gx, *Gxp;         /* (n, n) history gain at level 0 and packed (NULL if not symmetric): a soil
                                  stepped alone (up_soil_init's stepped = 2) only */
+    /* the compressed history (soil_impedance/hhistory.py; records hm_*), when the resource file has
+       it: H's blocks as hierarchical matrices over one partition, in the permuted order hm_perm (n);
+       hm_blocks (hm_nblk, 4): row start, rows, column start, columns of the upper blocks (off the
+       diagonal: used for their mirror too); hm_ranks (L / n, hm_nblk): -1 dense, else the rank r of
+       U (r, rows), V (r, columns), the block U^T V; hm_data the values in that order. H and Hs are
+       then NULL */
+    const int64_t *hm_perm, *hm_blocks, *hm_ranks;
+    const double *hm_data;
+    int hm_nblk;
+    double *hm_x, *hm_y, *hm_t; /* (n) work: the permuted input, the permuted product, U x or V x */
     UpSoilLevel lev[UP_MAXLEV];
     /* state, inside the instance's state block. f: the force committed last, work: the work done on
        the soil (a soil stepped alone: f unused, work that of the force's part E u' + h; gq, gp the

@@ -1,0 +1,289 @@
+"""The recursive convolution's history product through hierarchical matrices.
+
+The history of the trapezoidal recursive convolution (soil_impedance/convolution.py) is
+h = Σ_b H_b g_b: one real symmetric (n, n) block per real pole (R_k) and two per conjugate pair
+(2 Re R_k and −2 Im R_k), g_b the block's part of the stacked pole input, n = 6 + N. Dense, one
+product is m n² flops and as many bytes read (m = the blocks' count): 10 ms a step at 1200
+nodes. The residues have the structure of the soil's kernel at complex frequencies, so the
+parts of H_b that couple two well-separated groups of nodes are numerically of low rank.
+
+``compress_history`` builds, over the interface nodes' coordinates, one cluster tree (recursive
+bisection of the nodes' bounding box along its longer side, leaves of at most ``leaf`` nodes)
+and one block partition shared by every H_b:
+
+- the 6 rigid DOFs are a dense border: the (6, 6) block and the (6, N) block of the raft rows;
+- the (N, N) node block is split recursively; a pair of clusters is *admissible* when the
+  distance between their bounding boxes exceeds ``eta`` times the larger diagonal (and both
+  have more than 4 nodes); admissible blocks are held as U Vᵀ, the others (leaves) dense.
+
+Per H_b an admissible block keeps the singular values above ``tol`` ||H_b,ww||₂, the 2-norm of
+H_b's node block (not of the whole H_b, whose rigid rows can be orders of magnitude larger:
+the node block's own accuracy is what the gaps need; U carries the singular values,
+V is orthonormal) and is held dense when the factors would be larger. The upper blocks only
+are stored: a block off the diagonal serves for its mirror through its transpose, so the
+compressed H̃_b is exactly symmetric, as H_b.
+
+The compressed history is the history of another rational model, M̃ = (poles, R̃_k, D, E) with
+R̃_k assembled from the H̃_b (``CompressedHistory.model``): the soil runs M̃ exactly (its D0, its
+history gains and its history all from R̃_k), and M̃'s passivity is tested like any fit's
+(``soil_impedance.passivity.require_passive`` on M̃, on the same grid and exact test): the
+compression is a perturbation of the fitted residues, ||R̃_k − R_k||₂ ≲ tol ||R_k||₂ summed over
+the admissible blocks (``stats``: the measured relative error of each block), against a fit
+tolerance of 1e-2; the re-test, not a bound, is what keeps passivity.
+
+The product holds in ``CompressedHistory``: ``matvec`` (numpy/scipy: three sparse products
+over the stacked input, the reference) and ``records`` (the arrays the native runtime reads,
+fmus/native/soil.c: the same blocks, dense near blocks and U Vᵀ far blocks in the permuted
+order of the cluster tree).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: history product default: held dense below this many interface nodes, compressed from it on:
+#: the crossover measured in the native runtime (benchmarks/soil_step.py --hmatrix, 8 poles):
+#: 401 nodes 1.9x slower than dense, 497 nodes 1.7x slower (no admissible block yet), 593 nodes
+#: even (1.25 against 1.39 ms) to 2x faster, 1201 nodes 1.7 to 2.9x, 2501 nodes 6.6x (docs/native.md)
+HMATRIX_MIN_NODES = 600
+#: truncation of the admissible blocks, relative to the 2-norm of their history block
+DEFAULT_TOL = 1e-4
+#: the largest cluster held as a leaf, nodes
+DEFAULT_LEAF = 32
+#: admissibility: distance > ETA x the larger cluster diagonal
+DEFAULT_ETA = 1.0
+#: the border: the raft's rigid DOFs ahead of the nodes' w DOFs
+BORDER = 6
+
+
+# ---- the cluster tree (as benchmarks/scaling.py measured it) -------------------------------------
+def clusters(xy, idx, leaf=DEFAULT_LEAF):
+    """Binary cluster tree of the nodes ``idx`` (indices into xy (N, 2), m) by bisection of
+    their bounding box along its longer side (stable order: ties keep the index order):
+    a tree (indices, children), children () for a leaf."""
+    if idx.size <= leaf:
+        return (idx, ())
+    p = xy[idx]
+    axis = int(np.argmax(p.max(axis=0) - p.min(axis=0)))
+    order = idx[np.argsort(p[:, axis], kind="stable")]
+    half = order.size // 2
+    return (idx, (clusters(xy, order[:half], leaf), clusters(xy, order[half:], leaf)))
+
+
+def box(xy, idx):
+    """(centre (2,), diagonal) of the bounding box of the nodes idx, m."""
+    p = xy[idx]
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    return 0.5 * (lo + hi), float(np.linalg.norm(hi - lo))
+
+
+def partition(xy, leaf=DEFAULT_LEAF, eta=DEFAULT_ETA):
+    """(perm (N,), blocks) of nodes xy (N, 2): perm lists the nodes in the order of the tree's
+    leaves (each cluster a contiguous range of it), blocks the upper blocks of the (N, N) node
+    block as (row start, rows, column start, columns, admissible) over that order, row start
+    <= column start; a block with row start == column start is on the diagonal."""
+    xy = np.asarray(xy, float)
+    root = clusters(xy, np.arange(xy.shape[0]), leaf)
+    perm, start = [], {}
+
+    def number(c):
+        idx, kids = c
+        start[id(c)] = sum(len(p) for p in perm)
+        if not kids:
+            perm.append(idx)
+        for k in kids:
+            number(k)
+    number(root)
+    blocks = []
+
+    def off(a, b):
+        (ia, ka), (ib, kb) = a, b
+        (xa, da), (xb, db) = box(xy, ia), box(xy, ib)
+        dist = np.linalg.norm(xa - xb) - 0.5 * (da + db)
+        if dist > eta * max(da, db) and min(ia.size, ib.size) > 4:
+            blocks.append((start[id(a)], ia.size, start[id(b)], ib.size, True))
+        elif not ka or not kb:
+            blocks.append((start[id(a)], ia.size, start[id(b)], ib.size, False))
+        else:
+            for x in ka:
+                for y in kb:
+                    off(x, y)
+
+    def diag(a):
+        idx, kids = a
+        if not kids:
+            blocks.append((start[id(a)], idx.size, start[id(a)], idx.size, False))
+            return
+        diag(kids[0])
+        off(kids[0], kids[1])
+        diag(kids[1])
+    diag(root)
+    return np.concatenate(perm).astype(np.int64), blocks
+
+
+def _norm2(A) -> float:
+    """||A||₂ of a symmetric (n, n) A: the largest |eigenvalue| by Lanczos (exact for small n)."""
+    if not np.any(A):
+        return 0.0
+    if A.shape[0] <= 300:
+        return float(np.abs(np.linalg.eigvalsh(A)).max(initial=0.0))
+    from scipy.sparse.linalg import eigsh
+    v0 = np.random.default_rng(0).standard_normal(A.shape[0])       # fixed: the same ranks every time
+    return float(abs(eigsh(A, k=1, which="LM", v0=v0, tol=1e-6, return_eigenvectors=False)[0]))
+
+
+@dataclass(frozen=True, eq=False)
+class CompressedHistory:
+    """The history blocks H_b (nh, n, n) as hierarchical matrices over one partition.
+
+    n : int                  DOFs (6 + N)
+    perm : (n,) int64        DOF at each position of the permuted order (the border first, then
+                             the nodes' w DOFs in the cluster tree's leaf order)
+    blocks : (nblk, 4) int64 (row start, rows, column start, columns) over the permuted order,
+                             upper blocks only; off the diagonal a block serves for its mirror
+    ranks : (nh, nblk) int64 -1: held dense (rows x columns, row-major); r >= 0: U (r, rows)
+                             then V (r, columns), the block = Uᵀ V, both row-major
+    data : (total,) float    the blocks' values, history block by history block, block by block
+    settings : dict          tol, leaf, eta and the measured storage and errors
+    """
+    n: int
+    perm: np.ndarray
+    blocks: np.ndarray
+    ranks: np.ndarray
+    data: np.ndarray
+    settings: dict = field(default_factory=dict)
+
+    @property
+    def nh(self) -> int:
+        return self.ranks.shape[0]
+
+    def offsets(self) -> np.ndarray:
+        """(nh, nblk) start of each block's values in ``data``."""
+        rows, cols = self.blocks[:, 1], self.blocks[:, 3]
+        size = np.where(self.ranks < 0, rows * cols, self.ranks * (rows + cols)).reshape(-1)
+        start = np.concatenate([[0], np.cumsum(size)[:-1]]) if size.size else size
+        return start.astype(np.int64).reshape(self.ranks.shape)
+
+    def pieces(self, b: int):
+        """Yield (r0, nr, c0, nc, A, U, V) of history block b: A the dense block or None, U (r, nr)
+        and V (r, nc) the factors of a low-rank one."""
+        off = self.offsets()[b]
+        for (r0, nr, c0, nc), r, o in zip(self.blocks, self.ranks[b], off):
+            if r < 0:
+                yield r0, nr, c0, nc, self.data[o:o + nr * nc].reshape(nr, nc), None, None
+            else:
+                U = self.data[o:o + r * nr].reshape(r, nr)
+                V = self.data[o + r * nr:o + r * (nr + nc)].reshape(r, nc)
+                yield r0, nr, c0, nc, None, U, V
+
+    def dense(self, b: int) -> np.ndarray:
+        """H̃_b (n, n) assembled, exactly symmetric."""
+        Hp = np.zeros((self.n, self.n))
+        for r0, nr, c0, nc, A, U, V in self.pieces(b):
+            if A is None:
+                A = U.T @ V
+            Hp[r0:r0 + nr, c0:c0 + nc] = A
+            if r0 != c0:
+                Hp[c0:c0 + nc, r0:r0 + nr] = A.T
+        out = np.empty_like(Hp)
+        out[np.ix_(self.perm, self.perm)] = Hp
+        return out
+
+    @property
+    def stored(self) -> int:
+        """Values held (the product reads each once)."""
+        return int(self.data.size)
+
+    def operator(self, columns):
+        """The product as scipy sparse matrices (near (n, L), U (n, T), V (T, L)): h = near g +
+        U (V g) for g the stacked input (L,); ``columns`` (nh, n): g's index of (block, DOF)."""
+        from scipy.sparse import csr_matrix
+        n, perm = self.n, self.perm
+        L = int(columns.max()) + 1 if columns.size else 0
+        near_r, near_c, near_v = [], [], []
+        u_r, u_c, u_v, v_r, v_c, v_v = [], [], [], [], [], []
+        t = 0
+        for b in range(self.nh):
+            col = columns[b]
+            for r0, nr, c0, nc, A, U, V in self.pieces(b):
+                rows, cols = perm[r0:r0 + nr], perm[c0:c0 + nc]
+                mirror = r0 != c0
+                if A is not None:
+                    near_r.append(np.repeat(rows, nc))
+                    near_c.append(np.tile(col[cols], nr))
+                    near_v.append(A.reshape(-1))
+                    if mirror:
+                        near_r.append(np.tile(cols, nr))
+                        near_c.append(np.repeat(col[rows], nc))
+                        near_v.append(A.reshape(-1))
+                    continue
+                r = U.shape[0]
+                for (P, tgt), (Q, src) in (((U, rows), (V, cols)),) + ((((V, cols), (U, rows)),) if mirror else ()):
+                    ks = t + np.arange(r)
+                    v_r.append(np.repeat(ks, src.size))
+                    v_c.append(np.tile(col[src], r))
+                    v_v.append(Q.reshape(-1))
+                    u_r.append(np.tile(tgt, r))
+                    u_c.append(np.repeat(ks, tgt.size))
+                    u_v.append(P.reshape(-1))
+                    t += r
+        cat = lambda parts, dt=float: np.concatenate(parts).astype(dt) if parts else np.zeros(0, dt)
+        near = csr_matrix((cat(near_v), (cat(near_r, np.int64), cat(near_c, np.int64))), shape=(n, L))
+        Um = csr_matrix((cat(u_v), (cat(u_r, np.int64), cat(u_c, np.int64))), shape=(n, t))
+        Vm = csr_matrix((cat(v_v), (cat(v_r, np.int64), cat(v_c, np.int64))), shape=(t, L))
+        return near, Um, Vm
+
+    def records(self) -> dict:
+        """The resource records of the native runtime (fmus/native/soil.c, README.md there)."""
+        return {"hm_perm": self.perm.astype(np.int64), "hm_blocks": self.blocks.astype(np.int64).reshape(-1, 4),
+                "hm_ranks": self.ranks.astype(np.int64).reshape(self.nh, -1), "hm_data": self.data,
+                "hm_tol": float(self.settings.get("tol", DEFAULT_TOL))}
+
+
+def compress_history(H, xy, tol: float = DEFAULT_TOL, leaf: int = DEFAULT_LEAF,
+                     eta: float = DEFAULT_ETA) -> CompressedHistory:
+    """The hierarchical form of the symmetric history blocks H (nh, n, n), n = 6 + N, over the
+    interface nodes xy (N, 2), m (module docstring). The upper blocks are compressed and the
+    lower ones taken as their transposes: H_b is symmetrised first ((H + Hᵀ) / 2, a no-op on a
+    fitted model's residues)."""
+    H = np.asarray(H, float)
+    xy = np.asarray(xy, float)
+    nh, n = H.shape[0], H.shape[1]
+    N = n - BORDER
+    if xy.shape != (N, 2):
+        raise ValueError(f"xy has shape {xy.shape}: the history blocks have {n} DOFs, (6 + N) for N = {N} nodes "
+                         "of (x, y)")
+    if not (0 < tol < 1):
+        raise ValueError(f"history tolerance {tol!r} must lie in (0, 1)")
+    node_perm, node_blocks = partition(xy, leaf, eta)
+    perm = np.concatenate([np.arange(BORDER), BORDER + node_perm]).astype(np.int64)
+    blocks = [(0, BORDER, 0, BORDER, False), (0, BORDER, BORDER, N, False)] + \
+        [(BORDER + r0, nr, BORDER + c0, nc, adm) for r0, nr, c0, nc, adm in node_blocks]
+    ranks = np.full((nh, len(blocks)), -1, np.int64)
+    data, errors = [], []
+    for b in range(nh):
+        Hb = H[b][np.ix_(perm, perm)]
+        Hb = 0.5 * (Hb + Hb.T)
+        scale = _norm2(Hb[BORDER:, BORDER:])
+        for j, (r0, nr, c0, nc, adm) in enumerate(blocks):
+            A = Hb[r0:r0 + nr, c0:c0 + nc]
+            if adm:
+                W, s, Vt = np.linalg.svd(A, full_matrices=False)
+                r = int(np.sum(s > tol * scale))
+                if r * (nr + nc) < nr * nc:
+                    ranks[b, j] = r
+                    data += [np.ascontiguousarray((W[:, :r] * s[:r]).T).reshape(-1),
+                             np.ascontiguousarray(Vt[:r]).reshape(-1)]
+                    errors.append(float(s[r] / scale) if r < s.size and scale > 0 else 0.0)
+                    continue
+            data.append(np.ascontiguousarray(A).reshape(-1))
+    blk = np.array([b[:4] for b in blocks], np.int64)
+    hist = CompressedHistory(n, perm, blk, ranks, np.concatenate(data) if data else np.zeros(0),
+                             {"tol": float(tol), "leaf": int(leaf), "eta": float(eta)})
+    far = ranks >= 0
+    hist.settings.update(storage_ratio=hist.stored / max(nh * n * n, 1),
+                         packed_ratio=hist.stored / max(nh * n * (n + 1) / 2, 1),
+                         blocks=len(blocks), far_blocks=int(sum(b[4] for b in blocks)),
+                         max_rank=int(ranks[far].max(initial=0)), max_block_error=max(errors, default=0.0))
+    return hist
