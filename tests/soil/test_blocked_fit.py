@@ -157,7 +157,7 @@ def test_the_passivity_test_evaluates_fewer_frequencies_at_once_for_large_models
     """G(ν) is evaluated for a chunk of frequencies at once, capped so that a chunk stays below CHUNK_BYTES
     (64 × 2506² doubles would be 3.2 GB): the cap changes how many at once, not the values, nor the verdict."""
     from soil_impedance import passivity
-    from tests.helpers.passive_models import random_passive_model
+    from helpers.passive_models import random_passive_model
     model = random_passive_model(12, 3, seed=2)
     sc = model.scaled
     nu = np.linspace(0.01, 3.0, 150)
