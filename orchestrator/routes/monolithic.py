@@ -153,7 +153,7 @@ def _native(model, soil, motion, scene, route, progress, folder, damping):
     st = cls(model, soil, motion.dt, contact=scene.contact, damping=damping, external_soil=True, ag0=motion.acc[0])
     try:
         res = simulate_native(st, motion.acc, scene.output.nodes, route=route, lib=library(folder),
-                              progress=progress)
+                              progress=progress, raft_points=getattr(scene.output, "raft_points", None))
     except ConvergenceError as exc:
         exc.result = dataclasses.replace(exc.result, wall_s=time.perf_counter() - t0)
         raise
