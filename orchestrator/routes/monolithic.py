@@ -169,7 +169,7 @@ def contact_energy_warning(res) -> str:
     fed = np.asarray(e["contact_potential"]) - np.asarray(e["contact"])
     ref = float(np.abs(e["input"]).max())
     top = float(np.nanmax(fed))
-    if not top > CONTACT_ENERGY_SHARE * ref:
+    if not (ref > 0 and top > CONTACT_ENERGY_SHARE * ref):     # no input work (at rest): nothing to weigh
         return ""
     k = int(np.nanargmax(fed))
     return (f"the contact fed {top:.3g} J into the run by t = {res.time[k]:.3g} s, {top / max(ref, 1e-300):.3g} x the "

@@ -79,6 +79,9 @@ def test_a_run_whose_contact_returns_what_it_stored_has_no_warning():
     res = run_monolithic(sc, pulse_motion(0.005, 1.0, pga=4.0, tp=0.5, y=0.5), MODEL)
     assert res.max_uplift() > 1e-2 and 0 < fed(res) < CONTACT_ENERGY_SHARE        # measured 0.010
     assert not [w for w in res.notes.warnings if "the contact fed" in w]
+    # at rest (no input work) there is nothing to weigh the contact's energy against: no warning
+    still = run_monolithic(sc, dataclasses.replace(MOTION, acc=np.zeros((50, 3))), MODEL)
+    assert np.abs(still.energy["input"]).max() == 0 and not still.notes.warnings
 
 
 @needs_native
