@@ -184,14 +184,14 @@ def encode_run(st, output_nodes=(), extra_dofs=()) -> bytes:
 
 
 def plate_dofs(st) -> list:
-    """A plate raft's free vertex deflections t (``st.model.i_t``) as DOF triples (the last one
-    repeated to fill the last triple): recorded as the displacements of pseudo output nodes, so
-    the C runtime's rows carry them; [] for a rigid raft."""
-    i_t = getattr(st.model, "i_t", None)
-    if st.Bq3 is not None or i_t is None or not len(i_t):
+    """A plate raft's DOFs that its results read (``PlateRaftModel.plate_columns``: q, the free
+    vertices' rotations and deflections t, 6 + 3 nf, ascending) as DOF triples: recorded as the
+    pseudo output nodes' displacements and accelerations, so the C runtime's rows carry them;
+    [] for a rigid raft."""
+    cols = getattr(st.model, "plate_columns", None)
+    if st.Bq3 is not None or cols is None:
         return []
-    t = np.concatenate([i_t, np.full(-len(i_t) % 3, i_t[-1])])
-    return [tuple(int(k) for k in t[j:j + 3]) for j in range(0, len(t), 3)]
+    return [tuple(int(k) for k in cols[j:j + 3]) for j in range(0, len(cols), 3)]
 
 
 def _stepped(lib, blob: bytes, ag, take, chunk: int = CHUNK, progress=None):
@@ -241,16 +241,26 @@ def _checked(ag, lib):
     return ag, lib
 
 
-def _plate_histories(st, q, t3) -> dict:
-    """A plate raft's deflections from the raft's q (nt, 6) and the pseudo nodes' displacements
-    t3 (nt, k, 3) (``plate_dofs``), as ``structure.simulate`` records them: vertex deflections
-    (nt, m) and their trace at the interface nodes (nt, N), m; the vertices' coordinates."""
+def _plate_histories(st, node, ag, raft_points, names) -> dict:
+    """A plate raft's records as ``structure.simulate`` gives them, from the pseudo nodes'
+    rows ``node`` (nt, k, 6) (absolute accelerations, then displacements, of the DOF triples
+    ``plate_dofs``) and the motion ``ag`` (nt, 3): the plate's deflections and moments
+    (``PlateStepper.plate_outputs`` on the recorded columns, after the run), the vertices, the
+    held ones, the stick-base cells; with ``raft_points`` ({name: (x, y)}), their acc (absolute)
+    and disp histories and info (``structure.driver.raft_point_operators``)."""
+    from structure.driver import raft_point_operators
     pm = st.model
-    t = t3.reshape(t3.shape[0], -1)[:, :pm.nf]
-    G = pm.vertex_map.tocsc()
-    W = (G[:, pm.i_q] @ q.T + G[:, pm.i_t] @ t.T).T
-    return {"plate_vertex_deflection": W, "plate_deflection": (pm.trace @ W.T).T,
-            "plate_vertices": np.array(pm.points)}
+    cols = pm.plate_columns
+    nt = node.shape[0]
+    U = node[:, :, 3:].reshape(nt, -1)
+    out = {**st.plate_outputs(U, cols), "plate_vertices": np.array(pm.points),
+           "plate_moment_cells": pm.base_cells.copy(), "plate_vertex_held": pm.slaved.copy()}
+    ops, info = raft_point_operators(pm, raft_points, names)
+    if ops:
+        A = (node[:, :, :3] - ag[:nt, None, :]).reshape(nt, -1)     # relative accelerations
+        out["points"] = ({nm: (P[:, cols] @ A.T).T + ag[:nt] for nm, P in ops.items()},
+                         {nm: (P[:, cols] @ U.T).T for nm, P in ops.items()}, info)
+    return out
 
 
 def native_max_uplift(st, ag, lib=None, blob: bytes | None = None) -> float:
@@ -268,19 +278,22 @@ def native_max_uplift(st, ag, lib=None, blob: bytes | None = None) -> float:
 
 
 def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None, progress=None,
-                    chunk: int = CHUNK):
+                    chunk: int = CHUNK, raft_points=None):
     """``structure.simulate`` through the C runtime: the same histories to round-off.
 
     st : structure.NewmarkStepper at rest (external_soil=True), built on the soil and the model
          to run: its matrices, static state, penalty and contact settings are what the C stepper
          steps; its soil must be a RecursiveConvolutionSoil (``st.soil.model``: the rational model)
     ag : (nt, 3) m/s^2 at k dt; output_nodes : node names with acc/disp histories (None: every
-    named node, as ``simulate``)
+    named node, as ``simulate``); raft_points : {name: (x, y) m} of a plate raft, as ``simulate``
+    takes them (their acc and disp join the nodes'; ``info["raft_points"]``)
     lib : the library (default ``library()``: a temporary folder of the process; it must be available)
     progress : callable(done, total) or None, called after every ``chunk`` samples (done of
     total = nt samples computed, as ``simulate``); the run is stepped ``chunk`` samples per call
     of the C runtime, the same bits whatever ``chunk``; an exception raised between two calls
     (KeyboardInterrupt, or one raised by ``progress``) propagates, the run's memory freed.
+    A plate raft's deflections, bending moments and raft points are computed from the recorded
+    columns after the run (``PlateStepper.plate_outputs``), as ``simulate`` gives them.
     Returns a RouteResult (notes: the precheck is not run: every step is a Newton step, one
     product with a cached inverse while the active set holds); a Newton failure raises
     ConvergenceError with ``.result`` holding the samples so far, as ``simulate`` does.
@@ -292,7 +305,11 @@ def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None, 
     ag, lib = _checked(ag, lib)
     model = st.model
     names = [n.name for n in model.nodes if n.name] if output_nodes is None else list(output_nodes)
-    extra = plate_dofs(st)                         # a plate: its free deflections t as pseudo nodes
+    extra = plate_dofs(st)                         # a plate: the DOFs its results read as pseudo nodes
+    if raft_points and not extra:
+        from structure import StructureError
+        raise StructureError("raft points need a plate raft (a rigid raft's motion is its master's: ask for the "
+                             "raft node instead)")
     nt, N, m = ag.shape[0], st.N, len(names) + len(extra)
     at = row_slices(N, m)                          # the row layout of simulate.c (uplift_schema.h)
     rows = np.empty((nt, row_width(N, m)))
@@ -312,15 +329,21 @@ def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None, 
                 subdivided_steps=int(stats[2]), stepper="native")
     precheck = ("not run: the native stepper takes a Newton step at every step (one product with a cached "
                 "inverse while the active set holds)" if enabled else "not needed: contact disabled (bonded raft, linear)")
+    plate = _plate_histories(st, node[:, len(names):], ag, raft_points, names) if extra else {}
+    acc = {nm: node[:, j, :3].copy() for j, nm in enumerate(names)}
+    disp = {nm: node[:, j, 3:].copy() for j, nm in enumerate(names)}
+    if "points" in plate:
+        p_acc, p_disp, info["raft_points"] = plate.pop("points")
+        acc.update(p_acc)
+        disp.update(p_disp)
     res = RouteResult(route=route, time=st.dt * np.arange(nt), raft=rows[:, at["raft"]].copy(),
                       gap=rows[:, at["gap"]].copy(), contact_force=rows[:, at["contact_force"]].copy(),
                       soil_w=rows[:, at["soil_w"]].copy(),
-                      acc={nm: node[:, j, :3].copy() for j, nm in enumerate(names)},
-                      disp={nm: node[:, j, 3:].copy() for j, nm in enumerate(names)},
+                      acc=acc, disp=disp,
                       energy={k: energy[:, j].copy() for j, k in enumerate(ENERGY_TERMS)},
                       newton_iters=iters.astype(int), wall_s=time.perf_counter() - t0, xy=np.array(model.raft.xy),
                       notes=RunNotes(precheck=precheck), info=info,
-                      **(_plate_histories(st, rows[:, at["raft"]], node[:, len(names):, 3:]) if extra else {}))
+                      **plate)
     if message:
         exc = ConvergenceError(message, nt * st.dt, -1, float("nan"))
         exc.result = res.truncated(nt, Status.STOPPED, message)

@@ -94,7 +94,8 @@ def fmu_data(scene, soil_model, dt: float, motion=None, soil_factory: str | None
                    dt=float(dt), output_nodes=list(nodes),
                    motion=None if motion is None else np.asarray(motion.acc, float),
                    soil_factory=factory, soil_kwargs=dict(soil_kwargs or {}),
-                   extra_modules=tuple(extra_modules) + factory_modules(factory), plate=plate_data(scene))
+                   extra_modules=tuple(extra_modules) + factory_modules(factory), plate=plate_data(scene),
+                   alpha=float(getattr(getattr(scene, "analysis", None), "hht_alpha", 0.0)))
 
 
 def plate_data(scene) -> dict | None:

@@ -211,13 +211,17 @@ class AnalysisConfig:
     """[analysis]: routes (names from orchestrator.routes.route_names(), each once), dt (s, in
     (0, 0.05]), fit_tol (relative error of the rational soil fit, in (0, 1), see FIT_TOL),
     timefreq_max_s (time budget of the timefreq route, s; past it the best iterate is kept, flagged),
-    max_pga_g (the largest peak ground acceleration a motion may have, g; see MAX_PGA_G)."""
+    max_pga_g (the largest peak ground acceleration a motion may have, g; see MAX_PGA_G),
+    hht_alpha (the time-stepped routes' HHT-alpha, in [-1/3, 0]: 0 the average acceleration rule,
+    the default; below 0 it damps the frequencies near the step's Nyquist frequency, the stiff
+    penalty contact's: see ``HHT_ROUTES`` and docs/formulation.md, 'Flexible raft')."""
 
     routes: tuple[str, ...] = ("winkler",)
     dt: float = 0.005
     fit_tol: float = FIT_TOL
     timefreq_max_s: float = TIMEFREQ_MAX_S
     max_pga_g: float = MAX_PGA_G
+    hht_alpha: float = 0.0
 
     def __post_init__(self):
         _set(self, "routes", check_routes(self.routes))
@@ -230,6 +234,15 @@ class AnalysisConfig:
                                              expect="a positive number of seconds, e.g. 600"))
         _set(self, "max_pga_g", _number("analysis.max_pga_g", self.max_pga_g, 0.0,
                                         expect=f"a peak ground acceleration limit > 0 g, e.g. {MAX_PGA_G:g}"))
+        _set(self, "hht_alpha", _number("analysis.hht_alpha", self.hht_alpha, -1.0 / 3.0, 0.0, lo_open=False,
+                                        expect="an HHT alpha in [-1/3, 0]: 0 (the default, no numerical "
+                                               "damping) or e.g. -0.05"))
+        other = [r for r in self.routes if r not in HHT_ROUTES]
+        if self.hht_alpha != 0 and other:
+            raise SceneError(f"analysis.hht_alpha = {self.hht_alpha:g} is a time step's rule of the routes "
+                             f"{', '.join(HHT_ROUTES)}; route{'s' if len(other) > 1 else ''} {', '.join(other)} "
+                             f"solve{'' if len(other) > 1 else 's'} the equations without it: set hht_alpha = 0 or "
+                             "drop them from analysis.routes")
 
 
 @dataclass(frozen=True)
@@ -796,6 +809,9 @@ def _foundation(table: dict, base_dir: Path):
         raise SceneError(f"foundation.file = {file!r}: cannot read it as a UTF-8 CSV x,y,area: {exc}") from None
 
 
+#: the routes that step with analysis.hht_alpha (the Newmark steppers, native and Python, and the
+#: FMUs' pair); the frequency-domain routes have no time step's rule and refuse a non-zero alpha
+HHT_ROUTES = ("monolithic", "cosim", "winkler")
 #: the routes that run a plate raft (foundation.raft.kind = "plate")
 PLATE_ROUTES = ("monolithic", "cosim", "linear", "timefreq")
 #: the keys of foundation.raft = { kind = "plate", ... } (rigid_radius, damping optional)

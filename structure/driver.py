@@ -57,10 +57,15 @@ def simulate(model: StructureModel, soil, ag, dt: float, contact: ContactSetting
                          route, static, raft_points)
 
 
-def _raft_points(model, raft_points) -> tuple:
-    """({name: P (3, n_dof)}, {name: info}) of the raft points asked for (``simulate``)."""
+def raft_point_operators(model, raft_points, names=()) -> tuple:
+    """({name: P (3, n_dof)}, {name: info}) of the raft points asked for (``simulate``; the native
+    stepper's run too): P the displacement of the point's vertex from the global DOFs; a point
+    named as one of the output nodes ``names`` raises StructureError."""
     if not raft_points:
         return {}, {}
+    clash = sorted(set(raft_points) & set(names))
+    if clash:
+        raise StructureError(f"raft point {clash[0]!r} has the name of a structure output node: rename it")
     if not isinstance(model, PlateRaftModel):
         raise StructureError("raft points need a plate raft (a rigid raft's motion is its master's: ask for the "
                              "raft node instead)")
@@ -85,10 +90,7 @@ def _simulate(model, soil, ag, dt, contact, damping, alpha, output_nodes, progre
                                                       alpha=alpha, static=static, ag0=ag[0])
     names = [n.name for n in model.nodes if n.name] if output_nodes is None else list(output_nodes)
     dofs = {nm: model.dofs(model.node_by_name(nm).id)[:3] for nm in names}
-    points, points_info = _raft_points(model, raft_points)
-    clash = sorted(set(points) & set(names))
-    if clash:
-        raise StructureError(f"raft point {clash[0]!r} has the name of a structure output node: rename it")
+    points, points_info = raft_point_operators(model, raft_points, names)
     nt, N = ag.shape[0], model.n_interface
     res = SimpleNamespace(      # history buffers, filled in place, frozen into a RouteResult at the end
         raft=np.zeros((nt, 6)), gap=np.zeros((nt, N)), contact_force=np.zeros((nt, N)), soil_w=np.zeros((nt, N)),

@@ -300,6 +300,14 @@ class PlateRaftModel:
         return sp.vstack([rows, self.vertex_map[vertex]], format="csr")
 
     @cached_property
+    def plate_columns(self) -> np.ndarray:
+        """The global DOFs the plate's results read (ascending, 6 + 3 nf of them): the raft's q,
+        each free vertex's rotations θx, θy and deflection t; ``moment_operator``, ``vertex_map``
+        and every ``point_operator`` are zero off them (the native stepper records these alone)."""
+        i_rot = self.ns_struct - 6 + np.arange(2 * self.nf)
+        return np.sort(np.concatenate([i_rot, self.i_q, self.i_t]))
+
+    @cached_property
     def stiffness(self) -> sp.csr_matrix:
         """K (n_dof, n_dof): the sticks (Ps^T K Ps) and the plate (G^T Kp G); no soil."""
         p = self.plate
@@ -493,18 +501,26 @@ class PlateStepper(NewmarkStepper):
         Mm = (self.model.moment_operator @ (U.reshape(-1, self.n) + self.static.u).T).T
         return Mm.reshape(U.shape[:-1] + (self.N, 3))
 
-    def plate_outputs(self, U) -> dict:
-        """The plate's records of the states U (nt, n_dof): plate_vertex_deflection (nt, m),
-        plate_deflection (nt, N) m, plate_moment (nt, n_base, 3) N m/m at the stick-base cells
-        (``PlateRaftModel.base_cells``) and plate_moment_peak (N, 3) N m/m: the largest |Mx|,
-        |My|, |Mxy| of each cell over the states (evaluated in blocks of 256 states)."""
-        U = np.asarray(U).reshape(-1, self.n)
-        W, T = self.plate_deflections(U)
-        base = self.model.base_cells
+    def plate_outputs(self, U, cols=None) -> dict:
+        """The plate's records of the states U (nt, n_dof), or of their global DOFs ``cols``
+        alone (U (nt, len(cols)); ``cols`` ascending, holding ``model.plate_columns``: the native
+        stepper's records): plate_vertex_deflection (nt, m), plate_deflection (nt, N) m,
+        plate_moment (nt, n_base, 3) N m/m at the stick-base cells (``PlateRaftModel.base_cells``;
+        static + dynamic, as ``plate_moments``) and plate_moment_peak (N, 3) N m/m: the largest
+        |Mx|, |My|, |Mxy| of each cell over the states (evaluated in blocks of 256 states)."""
+        pm = self.model
+        cols = np.arange(self.n) if cols is None else np.asarray(cols, np.int64)
+        if cols.size != self.n and (np.any(np.diff(cols) <= 0) or not np.isin(pm.plate_columns, cols).all()):
+            raise StructureError("plate_outputs: cols must be ascending and hold the plate's columns")
+        Gw, Mop, u0 = pm.vertex_map[:, cols], pm.moment_operator[:, cols], self.static.u[cols]
+        U = np.asarray(U).reshape(-1, cols.size)
+        W = (Gw @ U.T).T
+        T = (pm.trace @ W.T).T
+        base = pm.base_cells
         Mb = np.zeros((U.shape[0], base.size, 3))
         peak = np.zeros((self.N, 3))
         for k in range(0, U.shape[0], 256):
-            Mk = self.plate_moments(U[k:k + 256])
+            Mk = (Mop @ (U[k:k + 256] + u0).T).T.reshape(-1, self.N, 3)
             Mb[k:k + 256] = Mk[:, base]
             peak = np.maximum(peak, np.abs(Mk).max(axis=0))
         return dict(plate_vertex_deflection=W, plate_deflection=T, plate_moment=Mb, plate_moment_peak=peak)

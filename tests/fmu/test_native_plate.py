@@ -35,14 +35,15 @@ from orchestrator.scene import scene_from_dict
 from structure.plate_raft import PlateStepper
 
 PLATE = {"kind": "plate", "thickness": 2.0, "E": 30e9, "nu": 0.2, "rho": 2500.0}
-SCENE = scene_from_dict({
+RIGID = {
     "soil": {"halfspace": {"vs": 1600.0, "nu": NU, "rho": RHO}},
-    "foundation": {"shape": "circle", "radius": R, "element_size": 4.6, "raft": PLATE},
+    "foundation": {"shape": "circle", "radius": R, "element_size": 4.6},
     "structure": {"model": "reactor", "damping": {"modal": 0.07}},
     "contact": {"enabled": True},
     "analysis": {"dt": 0.005, "routes": ["monolithic"]},
     "output": {"nodes": ["top_outer", "internals_37m"]},
-}, name="plate")
+}
+SCENE = scene_from_dict({**RIGID, "foundation": {**RIGID["foundation"], "raft": PLATE}}, name="plate")
 MODEL = soil_model(SCENE)
 MOTION = pulse_motion(0.005, 1.0, pga=4.0, tp=0.5, y=0.5)
 
@@ -103,6 +104,62 @@ def test_bonded_native_plate_equals_python_to_1e10():
     assert fast.info["stepper"] == "native"
     for name, a in plate_histories(ref).items():
         assert rel(plate_histories(fast)[name], a) <= 1e-10, name
+
+
+# ---- the plate's results on the native stepper: moments, raft points, pressures, its damping -----
+POINTS = {"edge": (18.0, 0.0), "mid": (-10.0, 5.0)}
+
+
+def results_scene(ratio):
+    """SCENE with the plate's damping ``ratio`` (at 10 Hz) and two raft points."""
+    return dataclasses.replace(SCENE, raft=dataclasses.replace(SCENE.raft, damping=ratio),
+                               output=dataclasses.replace(SCENE.output, raft_points=POINTS))
+
+
+def result_histories(res) -> dict:
+    """The compared histories with the plate's deflections, moments (at the stick base, their
+    peaks over the plate) and the raft points' acc and disp (in ``histories``)."""
+    return {**plate_histories(res), "plate_moment": res.plate_moment, "plate_moment_peak": res.plate_moment_peak}
+
+
+def test_native_plate_results_equal_the_python_ones_on_a_damped_plate():
+    """The native run's moments (static part included), raft points and contact forces (the
+    pressures' numerators) against the Python stepper's within the round-off criterion, on a plate
+    with its own damping 0.05 at 10 Hz: the damping reaches the C runtime (the undamped plate
+    differs from it by far more than the tolerance)."""
+    sc = results_scene(0.05)
+    contact = dataclasses.replace(sc.contact, precheck=False)
+    sc = dataclasses.replace(sc, contact=contact)
+    go = lambda stepper, ag=MOTION.acc: run_monolithic(sc, dataclasses.replace(MOTION, acc=ag), MODEL,
+                                                       stepper=stepper)
+    ref, fast = go("python"), go("native")
+    assert fast.info["stepper"] == "native" and not fast.notes.warnings and fast.converged
+    assert ref.max_uplift() > 1e-2 and fast.info["raft_points"] == ref.info["raft_points"]
+    for name in ("plate_vertices", "plate_moment_cells", "plate_vertex_held"):
+        assert np.array_equal(getattr(fast, name), getattr(ref, name)), name
+    spread = roundoff_spread(lambda ag: result_histories(go("python", ag)), MOTION.acc, base=result_histories(ref))
+    checks = assert_within_spread(result_histories(fast), result_histories(ref), spread)
+    # measured: moments 2.1e-9 (tolerance 4.5e-9), raft point 'edge' acc 8.1e-9 (4.6e-8), contact force
+    # 9.7e-9 (2.1e-8); the undamped plate's moments differ from the damped ones by 5.8e-2
+    assert max(checks["plate_moment"][0], checks["acc.edge"][0], checks["contact_force"][0]) < 1e-7
+    # the moments at rest are the static state's (independent: the moment operator on the static
+    # solution), not zero
+    pm = sc.plate_model()
+    st = PlateStepper(pm, soil_from_model(MODEL, MOTION.dt), MOTION.dt, contact=contact)
+    M0 = (pm.moment_operator @ st.static.u).reshape(-1, 3)[pm.base_cells]
+    assert np.abs(M0).max() > 1e3 and rel(fast.plate_moment[0], M0) < 1e-10
+    # the plate's damping is in the native run: undamped, the moments move by far more
+    bare = run_monolithic(dataclasses.replace(sc, raft=SCENE.raft), MOTION, MODEL, stepper="native")
+    assert rel(bare.plate_moment, fast.plate_moment) > 1e3 * checks["plate_moment"][1]
+
+
+def test_raft_points_of_a_rigid_raft_are_refused_by_the_native_stepper():
+    from structure import NewmarkStepper, StructureError
+    sc = scene_from_dict({**RIGID, "output": {"nodes": ["top_outer"]}}, name="rigid")
+    st = NewmarkStepper(sc.model(), soil_from_model(MODEL, MOTION.dt), MOTION.dt, contact=sc.contact,
+                        external_soil=True)
+    with pytest.raises(StructureError, match="raft points need a plate raft"):
+        native_stepper.simulate_native(st, MOTION.acc[:10], ["top_outer"], raft_points={"e": (1.0, 0.0)})
 
 
 # ---- the native FMUs of a plate ------------------------------------------------------------------
