@@ -180,8 +180,15 @@ class AffineSplit:
         self.op.n_apply += 1
         Y = np.empty_like(X)
         self._beyond_inf(X, Y)
-        Y += self.Aw @ X
-        Y += self.op.s * (self.Bw @ X)
+        # A and B are real: their products on X's floats (real GEMMs, A and B not cast to complex:
+        # 0.053 -> 0.030 s per application on the reactor; equal to round-off)
+        if all(np.issubdtype(M.dtype, np.floating) for M in (self.Aw, self.Bw)):
+            Xf = _real_view(X)
+            Y += np.ascontiguousarray(self.Aw @ Xf).view(complex)
+            Y += self.op.s * np.ascontiguousarray(self.Bw @ Xf).view(complex)
+        else:
+            Y += self.Aw @ X
+            Y += self.op.s * (self.Bw @ X)
         return Y
 
     @cached_property
