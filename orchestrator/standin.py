@@ -56,7 +56,7 @@ class NativeStandIn:
         self.at = row_slices(st.N, 0)
         self.width = row_width(st.N, 0)
         self.n_factor = self.n_factor_total = 0
-        self._handle, self._close = None, None
+        self._handle, self._close, self._rows = None, None, None
 
     def _run(self, ag0):
         """The native run at rest under ag0 (3): opened on the first call, rewound after."""
@@ -92,7 +92,9 @@ class NativeStandIn:
         ag[1:] = lam * self.ag
         src = np.zeros((nt, N))
         src[1:] = np.asarray(source, float).T
-        rows = np.empty((nt, self.width))
+        if self._rows is None or self._rows.shape[0] != nt:     # the rows' buffer of every march
+            self._rows = np.empty((nt, self.width))
+        rows = self._rows
         iters = np.empty(nt, np.int64)
         stats = np.zeros(3, np.int64)
         err = ctypes.create_string_buffer(1024)
