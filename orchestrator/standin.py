@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import ctypes
 import time
+import weakref
 
 import numpy as np
 
@@ -36,7 +37,13 @@ from structure.newmark import NewmarkStepper
 class NativeStandIn:
     """A marcher of ``defect_correction``: the contact problem ``prob``'s structure, static state
     and penalty on the rational soil ``model`` (passive), stepped by the native runtime with a
-    source. ``march(lam, W, deadline)`` -> (d (N, nt) m the dynamic relative displacement, info)."""
+    source. ``march(lam, W, deadline)`` -> (d (N, nt) m the dynamic relative displacement, info).
+
+    One native run serves every march: opened by the first, rewound to rest by the next
+    (``up_sim_rewind``: the stepper's systems, Newton bases and capacitance matrices kept, whose
+    numbers depend on the step size and the active set only, so a march is the same bits as on a
+    new run; on the reactor the records' parse and the bases cost ~25 ms of a march's ~0.4 s CPU),
+    closed with the marcher (``close``, or when it is collected)."""
 
     def __init__(self, prob, model, lib, damping=None):
         dt = prob.grid.dt
@@ -48,7 +55,26 @@ class NativeStandIn:
         self.ag = np.ascontiguousarray(prob.ag, float)
         self.at = row_slices(st.N, 0)
         self.width = row_width(st.N, 0)
-        self.n_factor = 0
+        self.n_factor = self.n_factor_total = 0
+        self._handle, self._close, self._rows = None, None, None
+
+    def _run(self, ag0):
+        """The native run at rest under ag0 (3): opened on the first call, rewound after."""
+        if self._handle is not None:
+            self.lib.up_sim_rewind(self._handle, ag0.ctypes.data)
+            return self._handle
+        err = ctypes.create_string_buffer(1024)
+        h = self.lib.up_sim_open(self.blob, len(self.blob), ag0.ctypes.data, err)
+        if not h:
+            raise NativeBuildError(f"the native stepper refused the stand-in: {err.value.decode(errors='replace')}")
+        self._handle, self._close = h, weakref.finalize(self, self.lib.up_sim_close, h)
+        return h
+
+    def close(self):
+        """Free the native run (the next march opens a new one)."""
+        if self._close is not None:
+            self._close()
+        self._handle, self._close = None, None
 
     def march(self, lam, source, deadline=None):
         """One march: the stand-in's contact equations under lam x the motion with the source
@@ -66,33 +92,31 @@ class NativeStandIn:
         ag[1:] = lam * self.ag
         src = np.zeros((nt, N))
         src[1:] = np.asarray(source, float).T
-        rows = np.empty((nt, self.width))
+        if self._rows is None or self._rows.shape[0] != nt:     # the rows' buffer of every march
+            self._rows = np.empty((nt, self.width))
+        rows = self._rows
         iters = np.empty(nt, np.int64)
         stats = np.zeros(3, np.int64)
         err = ctypes.create_string_buffer(1024)
-        h = lib.up_sim_open(self.blob, len(self.blob), ag.ctypes.data, err)
-        if not h:
-            raise NativeBuildError(f"the native stepper refused the stand-in: {err.value.decode(errors='replace')}")
-        k = 0
-        try:
-            while k < nt:
-                k1 = min(k + CHUNK, nt)
-                rc = lib.up_sim_steps_src(h, ag.ctypes.data, src.ctypes.data, k, k1, rows[k:].ctypes.data,
-                                          iters[k:].ctypes.data, stats.ctypes.data, err)
-                if rc != 0:                      # a step's Newton failed: this stand-in cannot go on
-                    raise MarchDiverged((int(stats[0]) - 1) * self.dt, N)
-                k = k1
-                if deadline is not None and time.perf_counter() > deadline and k < nt:
-                    break
-        finally:
-            lib.up_sim_close(h)
+        h = self._run(ag[0])
+        k, factors0 = 0, self.n_factor_total
+        while k < nt:
+            k1 = min(k + CHUNK, nt)
+            rc = lib.up_sim_steps_src(h, ag.ctypes.data, src.ctypes.data, k, k1, rows[k:].ctypes.data,
+                                      iters[k:].ctypes.data, stats.ctypes.data, err)
+            if rc != 0:                          # a step's Newton failed: this stand-in cannot go on
+                raise MarchDiverged((int(stats[0]) - 1) * self.dt, N)
+            k = k1
+            if deadline is not None and time.perf_counter() > deadline and k < nt:
+                break
         q, w = rows[1:k, self.at["raft"]], rows[1:k, self.at["soil_w"]]
         d = np.zeros((N, nt - 1))
         d[:, :k - 1] = (q[:, 2:5] @ self.Bq3.T - w).T
         if k > 1 and not np.abs(d[:, k - 2]).max() < DIVERGED_M:
             raise MarchDiverged((k - 2) * self.dt, N)
-        self.n_factor = int(stats[1])
-        return d, dict(newton=int(iters[:k].sum()), factors=int(stats[1]), steps=int(k - 1),
+        self.n_factor_total = int(stats[1])            # the run's, since it was opened
+        self.n_factor = self.n_factor_total - factors0
+        return d, dict(newton=int(iters[:k].sum()), factors=self.n_factor, steps=int(k - 1),
                        wall_s=time.perf_counter() - t0)
 
 

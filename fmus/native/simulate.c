@@ -29,6 +29,12 @@
      the step to sample k adds to its contact equations (P - P0 + W the dynamic interface force,
      UpStepper.src; row 0 not read: sample 0 is the state at rest). The time-frequency route's
      defect correction marches its causal stand-in this way (orchestrator/timefreq/standin.py).
+   up_sim_rewind(handle, ag0)
+     the run back at rest under ag0 (3), its next sample 0 again, as up_sim_open leaves it, but
+     with what the stepper built kept: the systems of each step size, the Newton bases and the
+     capacitance matrices of the active sets seen (their numbers depend on the step size and the
+     active set only: the samples are the same bits as a new handle's). The stand-in's marches,
+     one per sweep of the defect correction, rewind one handle instead of opening a new one.
    up_sim_close(handle)  frees the handle (NULL: nothing)
    up_simulate(res, size, ag, nt, rows, iters, stats, err)
      the whole motion in one call (open, the nt samples, close); returns 0, 1 or -1 as above. */
@@ -180,6 +186,15 @@ UP_API int up_sim_steps_src(UpSim *h, const double *ag, const double *src, int64
                             int64_t *iters, int64_t *stats, char *err)
 {
     return steps(h, ag, src, k0, k1, rows, iters, stats, err);
+}
+
+UP_API void up_sim_rewind(UpSim *h, const double *ag0)
+{
+    up_stepper_rest(&h->st, ag0);
+    h->next = 0;
+    h->halved = 0;
+    h->failed = 0;
+    h->err[0] = '\0';
 }
 
 UP_API int up_simulate(const unsigned char *res, uint64_t size, const double *ag, int64_t nt, double *rows,

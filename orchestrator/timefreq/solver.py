@@ -135,8 +135,12 @@ def _on_stand_in(prob, stand_in, options, monitor, deadline):
     if marcher is None:
         return None, {}, [f"no causal stand-in ({why}); the march on the table's own kernel ran "
                           "(the same answer, at its cost)"]
-    out = defect_correction(prob, tol=options.tol or 1e-10, max_sweeps=options.max_iter or 60, monitor=monitor,
-                            deadline=deadline, stand_in=marcher)
+    try:
+        out = defect_correction(prob, tol=options.tol or 1e-10, max_sweeps=options.max_iter or 60, monitor=monitor,
+                                deadline=deadline, stand_in=marcher)
+    finally:
+        if hasattr(marcher, "close"):          # its native run, kept from one march to the next
+            marcher.close()
     if out.converged or out.status is SolverStatus.STOPPED:
         return out, dict(march="stand-in", stand_in=why), []
     return None, {}, [f"the stand-in's sweeps ended {out.status.value} ({why}; {len(out.history)} "

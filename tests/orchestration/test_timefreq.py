@@ -1,6 +1,7 @@
 """Time-frequency route with uplift vs the Newmark route, and its two solvers."""
 import dataclasses
 import importlib.util
+import time
 
 import numpy as np
 import pytest
@@ -319,6 +320,44 @@ def test_native_march_with_a_source_is_the_grids_causal_march():
         assert np.abs(d_grid).max() > 1e-4 and (d_grid > prob.static.delta0[:, None]).any()     # lifted
         assert rel(d_native, d_grid) < 1e-7
     assert rel(native.march(1.0, W)[0], native.march(1.0, np.zeros((N, nt)))[0]) > 1e-2   # the source acts
+
+
+def test_a_rewound_native_run_marches_the_same_bits_as_a_new_one():
+    """NativeStandIn keeps one native run for all its marches (up_sim_rewind: back at rest, the
+    stepper's systems, Newton bases and capacitance matrices kept): a march on the rewound run,
+    after another source's march or after one stopped by its deadline after a chunk, is the same
+    bits as the first march of a new run, with fewer factorisations (the bases are not built
+    again); close() frees the run, and the next march opens a new one, the same bits again."""
+    from helpers import oscillator_model
+    from fmus.native_stepper import library
+    from orchestrator.standin import NativeStandIn
+    from orchestrator.timefreq import prepare
+    from soil_impedance.convolution import RecursiveConvolutionSoil
+
+    if library() is None:
+        pytest.skip("no C compiler here")
+    w = soil()
+    K = w.static_stiffness().toarray()
+    model = oscillator_model(K, w.instantaneous(0.005)[1].toarray(), terms=[(0.3, 0.02, 0.3 / (2 * np.pi * 6.0) ** 2, K)],
+                             maxwell=[(0.2, 0.2 / (2 * np.pi * 15.0), K)])
+    prob = prepare(MODEL, RecursiveConvolutionSoil(model, 0.005), motion(0.35, duration=2.0), 0.005, contact=UPLIFT,
+                   grid=GridOptions(bilinear=True, wrap_tol=1e-10, pad_s=20.0).resolved(bilinear=True, window=True))
+    N, nt = prob.f.shape
+    W = 0.3 * np.abs(prob.f).max() * np.sin(2 * np.pi * 1.3 * 0.005 * np.arange(nt))[None, :] * np.linspace(-1, 1, N)[:, None]
+    zero = np.zeros((N, nt))
+    native = NativeStandIn(prob, model, library())
+    d_w, first = native.march(1.0, W)                      # a new run
+    d_0, _ = native.march(1.0, zero)                       # rewound
+    part, stopped = native.march(1.0, W, deadline=time.perf_counter() - 1.0)
+    assert stopped["steps"] < nt - 1                       # stopped after its first chunk
+    again, info = native.march(1.0, W)                     # rewound after a stopped march
+    assert (d_w > prob.static.delta0[:, None]).any() and rel(d_w, d_0) > 1e-2     # lifted; the source acts
+    assert np.array_equal(again, d_w) and np.array_equal(part[:, :stopped["steps"]], d_w[:, :stopped["steps"]])
+    assert info["newton"] == first["newton"] and 0 <= info["factors"] < first["factors"]
+    assert np.array_equal(NativeStandIn(prob, model, library()).march(1.0, zero)[0], d_0)      # a new run's
+    native.close()
+    assert native._handle is None and np.array_equal(native.march(1.0, W)[0], d_w)
+    native.close()
 
 
 def test_a_run_of_the_route_marches_the_stand_in(tmp_path):

@@ -350,6 +350,7 @@ UP_API int up_sim_steps(UpSim *h, const double *ag, int64_t k0, int64_t k1, doub
                         int64_t *stats, char *err);
 UP_API int up_sim_steps_src(UpSim *h, const double *ag, const double *src, int64_t k0, int64_t k1, double *rows,
                             int64_t *iters, int64_t *stats, char *err);
+UP_API void up_sim_rewind(UpSim *h, const double *ag0);
 UP_API void up_sim_close(UpSim *h);
 UP_API int up_simulate(const unsigned char *res, uint64_t size, const double *ag, int64_t nt, double *rows,
                        int64_t *iters, int64_t *stats, char *err);
