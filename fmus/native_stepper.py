@@ -248,8 +248,8 @@ def _plate_histories(st, node, ag, raft_points, names) -> dict:
     ``plate_dofs``) and the motion ``ag`` (nt, 3): the plate's deflections and moments
     (``PlateStepper.plate_outputs`` on the recorded columns, after the run), the vertices, the
     held ones, the stick-base cells; with ``raft_points`` ({name: (x, y)}), their acc (absolute)
-    and disp histories and info (``structure.driver.raft_point_operators``)."""
-    from structure.driver import raft_point_operators
+    and disp histories and info (``structure.plate_raft.raft_point_operators``)."""
+    from structure.plate_raft import raft_point_operators
     pm = st.model
     cols = pm.plate_columns
     nt = node.shape[0]

@@ -18,7 +18,7 @@ from .contact import ContactSettings
 from .errors import ConvergenceError, StructureError
 from .model import StructureModel
 from .newmark import ENERGY_TERMS, NewmarkStepper
-from .plate_raft import PlateRaftModel, PlateStepper
+from .plate_raft import PlateRaftModel, PlateStepper, raft_point_operators
 from .preload import StaticState
 from .results import RouteResult, RunNotes, Status
 
@@ -55,27 +55,6 @@ def simulate(model: StructureModel, soil, ag, dt: float, contact: ContactSetting
     with single_threaded_blas():
         return _simulate(model, soil, ag, dt, contact, damping, alpha, output_nodes, progress,
                          route, static, raft_points)
-
-
-def raft_point_operators(model, raft_points, names=()) -> tuple:
-    """({name: P (3, n_dof)}, {name: info}) of the raft points asked for (``simulate``; the native
-    stepper's run too): P the displacement of the point's vertex from the global DOFs; a point
-    named as one of the output nodes ``names`` raises StructureError."""
-    if not raft_points:
-        return {}, {}
-    clash = sorted(set(raft_points) & set(names))
-    if clash:
-        raise StructureError(f"raft point {clash[0]!r} has the name of a structure output node: rename it")
-    if not isinstance(model, PlateRaftModel):
-        raise StructureError("raft points need a plate raft (a rigid raft's motion is its master's: ask for the "
-                             "raft node instead)")
-    ops, info = {}, {}
-    for name, (x, y) in raft_points.items():
-        k = model.nearest_vertex(float(x), float(y))
-        ops[name] = model.point_operator(k)
-        info[name] = {"x_m": float(x), "y_m": float(y), "vertex": k, "vertex_x_m": float(model.points[k, 0]),
-                      "vertex_y_m": float(model.points[k, 1])}
-    return ops, info
 
 
 def _simulate(model, soil, ag, dt, contact, damping, alpha, output_nodes, progress, route, static, raft_points):
