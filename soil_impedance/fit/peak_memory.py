@@ -48,9 +48,9 @@ STREAM_BLOCKS = 4
 #: (the hysteretic part and the causal cut-off: up to three) and the hysteretic offset H0
 PROBLEM_COPIES = 4
 #: models of m poles alive at the streamed fit's peak, each its coefficients (m + 2) n^2 doubles and
-#: residues m n^2 complex: the order's model, its rigid-raft corrected copy, the enforcement's output
-#: (measured, see ``streamed_fit_memory``)
-MODEL_COPIES = 3
+#: residues m n^2 complex: the order's rigid-raft corrected model and the enforcement's output (the
+#: plain model is dropped once corrected); measured, see ``streamed_fit_memory``
+MODEL_COPIES = 2
 #: (m + 2) n^2 double arrays of the enforcement beside the models: the scaled coefficients, the
 #: corrected ones and their symmetrised copy
 ENFORCE_COPIES = 3
@@ -71,6 +71,12 @@ def streamed_fit_memory(n_dof: int, n_freq: int, max_poles: int, block: int | No
     ``ENFORCE_COPIES`` coefficient arrays of the enforcement; ``passivity`` the certified sweep's
     G(nu) block (``PASSIVITY_FREQS`` n^2 doubles, at most ``PASSIVITY_BYTES``) and the eigenvalue
     solver's two n^2.
+
+    Measured peaks over what the process held before the fit (``benchmarks/growth.py --fit streamed``,
+    the mat's soil at 8 frequencies; ``benchmarks/fit_memory.py`` at 21, ru_maxrss of the process,
+    the interpreter's ``BASE_BYTES`` added to the estimate), estimate at the order reached / measured:
+    262 DOFs 5 poles 0.075 / 0.097 GiB, 631 DOFs 6 poles 0.47 / 0.57 GiB, 1207 DOFs 6 poles
+    (21 frequencies) 1.46 / 1.32 GiB.
     """
     n2 = n_dof * n_dof
     edge = int(block or chunk_edge(n_dof))

@@ -190,7 +190,7 @@ def test_a_streamed_table_is_estimated_on_disk_and_fitted_streamed(tmp_path, mon
     fit = streamed_fit_memory(nb, F, m)
     assert disk["fit"].bytes == rigid + fit["total"] + BASE_BYTES
     assert fit["search"] == 8 * nb * nb * sum(2 * k + 2 for k in range(1, m // 2 + 1))
-    assert fit["models"] == (3 * (8 * (m + 2) + 16 * m) + 3 * 8 * (m + 2)) * nb * nb
+    assert fit["models"] == (2 * (8 * (m + 2) + 16 * m) + 3 * 8 * (m + 2)) * nb * nb
     assert fit["blocks"] == 4 * 16 * F * chunk_edge(nb) ** 2 and chunk_edge(nb) <= 128
     assert fit["passivity"] == 256 * 2 ** 20 + 16 * nb * nb            # 64 G(nu) would pass 256 MB here
     assert disk["stepping"].bytes == held["stepping"].bytes - table         # the table is not held
