@@ -100,7 +100,10 @@ def stepping_memory(n_dof: int, poles: int, n_steps: int) -> dict[str, int]:
 
 def streamed_outputs(scene, outputs, cached: bool = True) -> tuple[str, ...]:
     """The outputs among ``outputs`` the sweep of ``scene`` writes to disk (``blocked.TableWriter``):
-    with a cache folder (``cached``), those whose matrices take more than ``blocked.STREAM_BYTES``."""
+    with a cache folder (``cached``), those whose matrices take more than ``blocked.STREAM_BYTES``;
+    none with ``[impedance] frequency_tol`` (the thinned sweep's tables are interpolated in memory)."""
+    if getattr(scene, "frequency_tol", None) is not None:
+        return ()
     n, F = scene.mesh.n, scene.frequencies_hz.size
     size = {"rigid": 6, "gap": 6 + n, "nodal": 3 * n}
     return tuple(o for o in outputs if cached and table_bytes(F, size[o]) > STREAM_BYTES)

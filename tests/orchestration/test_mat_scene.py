@@ -3,6 +3,7 @@
 runs end to end, and the run-level memory guard (orchestrator.memory_guard) refuses a run whose
 largest stage would not fit, with the stage and its estimate, before computing anything."""
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -215,3 +216,8 @@ def test_the_guard_passes_a_streamed_fit_it_refuses_in_memory(tmp_path, monkeypa
     stages = {s.name: s.bytes for s in check_run_memory(scene)}
     assert max(stages.values()) < 0.9 * 4 * 2 ** 30
     assert main(["run", str(tmp_path / "mat_coarse.toml"), "--route", "monolithic", "--dry-run"]) == 0
+    # a thinned sweep (frequency_tol) interpolates its tables onto the grid in memory: not streamed
+    thinned = load_scene(_coarse(tmp_path, element_size=4.0, freqs=101)).with_routes(["monolithic"])
+    thinned = replace(thinned, frequency_tol=1e-3)
+    with pytest.raises(RunMemoryError, match="the fit stage needs about .*rational fit of the 631 x 631"):
+        check_run_memory(thinned)
