@@ -26,8 +26,11 @@ excluded), and the growth exponent of each column is fitted over the sizes (leas
 log value on log N).
 
 Variants by name, so that other methods are measured by the same script: ``--sweep``,
-``--fit``, ``--history`` choose among SWEEPS, FITS, HISTORIES (today: "dense" each); a new
-method adds a function to its table.
+``--fit``, ``--history`` choose among SWEEPS ("dense", "fast": the FFT/Krylov solver of grid
+meshes), FITS ("dense": the table in memory, "streamed": the table written to a chunked file by
+one process and fitted read in blocks by another, whose peak is the fit's own) and HISTORIES
+("dense"); a new method adds a function to its table. The fit's "(est. @m)" column is the guard's
+estimate at the order the fit reached (its "(est.)" one at the most poles it may use).
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/growth.py [--sizes 16 25 34 50] [--stages sweep fit history setup step]
     # at 2500 nodes (50) the sweep and the stepper need ~3-4 GB: under the machine's big-run lock
@@ -77,6 +80,14 @@ def sweep_dense(scene, freqs):
     return impedance_sweep(scene.profile, scene.mesh, freqs, contact=scene.contact_kind, outputs=("rigid", "gap"))
 
 
+def sweep_fast(scene, freqs):
+    """The fast BEM solver of grid meshes (``[impedance] solver = "fast"``, soil_impedance.fastsolve:
+    FFT products and a Krylov solve to the scene's solver_tol): {output: ImpedanceTable}."""
+    from soil_impedance.sweep import impedance_sweep
+    return impedance_sweep(scene.profile, scene.mesh, freqs, contact=scene.contact_kind, outputs=("rigid", "gap"),
+                           solver="fast", solver_tol=scene.solver_tol)
+
+
 def fit_dense(scene, table):
     """The project's fit (``fit_table`` at the scene's tolerance, on the mat's node coordinates)."""
     from soil_impedance.fit import fit_table
@@ -89,8 +100,14 @@ def history_dense(model, dt):
     return RecursiveConvolutionSoil(model, dt, checked=True)
 
 
-SWEEPS = {"dense": sweep_dense}
-FITS = {"dense": fit_dense}
+def fit_streamed(scene, table):
+    """The streamed fit (soil_impedance.fit.streamed) of a ``BlockedTable`` on disk (``stage_fit``
+    writes the swept table to a chunked file and opens it in a fresh process first)."""
+    return fit_dense(scene, table)
+
+
+SWEEPS = {"dense": sweep_dense, "fast": sweep_fast}
+FITS = {"dense": fit_dense, "streamed": fit_streamed}
 HISTORIES = {"dense": history_dense}
 
 
@@ -129,25 +146,51 @@ def stage_sweep(cells, args):
     t0 = time.process_time()
     SWEEPS[args.sweep](scene, [FREQ])
     cpu = time.process_time() - t0
-    est = mesh_sweep_memory(scene.mesh, 1, ("rigid", "gap"))
+    est = mesh_sweep_memory(scene.mesh, 1, ("rigid", "gap"), solver=args.sweep, solver_tol=scene.solver_tol)
     return {"n_nodes": scene.mesh.n, "sweep_s": cpu, "sweep_peak": _maxrss() - base,
             "sweep_est": est["total"] - est["base"]}
 
 
-def stage_fit(cells, args):
-    from soil_impedance.fit.peak_memory import fit_memory
-    from orchestrator.memory_guard import max_poles
+def _table_file(cells, args) -> Path:
+    return Path(args.cache) / f"growth-gap-{cells}-{args.fit_freqs}-{args.sweep}.h5"
+
+
+def stage_table(cells, args):
+    """The gap table swept at --fit-freqs frequencies, written to a chunked file (blocked.TableWriter)
+    for the streamed fit's own process."""
+    from soil_impedance.blocked import TableWriter
     scene = scene_at(cells)
     freqs = np.linspace(0.0, 25.0, args.fit_freqs)
     table = SWEEPS[args.sweep](scene, freqs)["gap"]
+    Path(args.cache).mkdir(parents=True, exist_ok=True)
+    with TableWriter(_table_file(cells, args), table.frequencies_hz, table.dofs, table.provenance) as w:
+        for k in range(freqs.size):
+            w[k] = table.matrices[k]
+    return {"n_nodes": scene.mesh.n}
+
+
+def stage_fit(cells, args):
+    from soil_impedance.fit.peak_memory import fit_memory, streamed_fit_memory
+    from orchestrator.memory_guard import max_poles
+    scene = scene_at(cells)
+    freqs = np.linspace(0.0, 25.0, args.fit_freqs)
+    if args.fit == "streamed":               # the table on disk, read in blocks; swept in another process
+        from soil_impedance.blocked import BlockedTable
+        if not _table_file(cells, args).exists():
+            child("table", cells, args)
+        table = BlockedTable.open(_table_file(cells, args))
+    else:
+        table = SWEEPS[args.sweep](scene, freqs)["gap"]
     base = _maxrss()
     t0 = time.process_time()
     result = FITS[args.fit](scene, table)
     cpu = time.process_time() - t0
     nb = table.n_dof
-    est = fit_memory(nb, freqs.size, max_poles(scene, freqs.size))
+    estimate = streamed_fit_memory if args.fit == "streamed" else fit_memory
+    est = estimate(nb, freqs.size, max_poles(scene, freqs.size))
+    at = estimate(nb, freqs.size, int(result.model.order))
     return {"n_nodes": scene.mesh.n, "fit_s": cpu, "fit_peak": _maxrss() - base, "fit_est": est["total"],
-            "fit_poles": int(result.model.order), "fit_freqs": int(freqs.size)}
+            "fit_est_at_order": at["total"], "fit_poles": int(result.model.order), "fit_freqs": int(freqs.size)}
 
 
 def stage_history(cells, args):
@@ -201,6 +244,7 @@ def stage_step(cells, args):
 
 
 STAGES = {"sweep": stage_sweep, "fit": stage_fit, "history": stage_history, "step": stage_step}
+CHILD_STAGES = dict(STAGES, table=stage_table)
 
 
 def child(stage, cells, args) -> dict:
@@ -227,9 +271,10 @@ def exponent(n, v):
 COLUMNS = [("sweep_s", "sweep s/freq", "{:.3g}"), ("sweep_peak", "sweep peak GiB", "{:.3g}"),
            ("sweep_est", "(est.)", "{:.3g}"), ("table", "table GiB @F", "{:.3g}"), ("fit_s", "fit s", "{:.3g}"),
            ("fit_peak", "fit peak GiB", "{:.3g}"), ("fit_est", "(est.)", "{:.3g}"),
+           ("fit_est_at_order", "(est. @m)", "{:.3g}"),
            ("history_ms", "history ms", "{:.3g}"), ("setup_s", "setup s", "{:.3g}"), ("step_ms", "step ms", "{:.3g}"),
            ("step_peak", "step peak GiB", "{:.3g}"), ("step_est", "(est.)", "{:.3g}")]
-GIB = {"sweep_peak", "sweep_est", "table", "fit_peak", "fit_est", "step_peak", "step_est"}
+GIB = {"sweep_peak", "sweep_est", "table", "fit_peak", "fit_est", "fit_est_at_order", "step_peak", "step_est"}
 
 
 def main(argv=None) -> int:
@@ -250,7 +295,7 @@ def main(argv=None) -> int:
     p.add_argument("--child", nargs=2, metavar=("STAGE", "CELLS"), help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.child:
-        print(json.dumps(STAGES[args.child[0]](int(args.child[1]), args)))
+        print(json.dumps(CHILD_STAGES[args.child[0]](int(args.child[1]), args)))
         return 0
     rows = []
     for cells in args.sizes:

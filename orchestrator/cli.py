@@ -582,8 +582,9 @@ def _dry_run(args) -> int:
         scene = scene.with_routes(args.routes)
     _out(f"scene {scene.name}: {scene.mesh.n} interface nodes, {scene.frequencies_hz.size} frequencies, routes "
          f"{', '.join(scene.analysis.routes)}; estimated peak memory per stage:")
-    _out(*(f"  {line}" for line in memory_lines(run_memory(scene), available_memory())))
-    check_run_memory(scene)
+    cached = not getattr(args, "no_cache", False)          # large tables are streamed to the cache folder
+    _out(*(f"  {line}" for line in memory_lines(run_memory(scene, cached=cached), available_memory())))
+    check_run_memory(scene, cached=cached)
     _out("the run fits in the available memory (nothing was computed)")
     return EXIT_OK
 

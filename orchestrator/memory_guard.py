@@ -9,8 +9,10 @@ Stages (each estimate is the peak while that stage runs: what the run still hold
             ``soil_impedance.sweep.sweep_memory``
   sweep     the BEM sweep over [impedance]'s frequencies, the tables of the routes run
             (``sweep_memory``: flexibility, assembly, solves and the tables themselves)
-  fit       the swept tables held + the rational fit of the gap table
-            (``soil_impedance.fit.peak_memory.fit_memory``)
+  fit       the swept tables held + the rational fit of the gap table: in memory
+            (``soil_impedance.fit.peak_memory.fit_memory``), or, for a table above
+            ``blocked.STREAM_BYTES`` (on disk: the run's cache folder), the streamed fit
+            (``streamed_fit_memory``: blocks, the models' coefficients, the passivity sweep)
   stepping  the tables held + the fitted model + the time stepper: the recursive convolution's
             history matrix, m x (6+N)^2 doubles for m poles, and its copies (the model's residues,
             their split by pole kind, the native runtime's records and its own copy), the base
@@ -20,7 +22,10 @@ Stages (each estimate is the peak while that stage runs: what the run still hold
 
 The number of poles is not known before the fit: the estimate takes the most the fit may use
 (``max_poles``: [analysis]'s fit options, at most F - 2 for F frequencies). Whether a table or
-fit is in the cache is not asked: the estimate is that of a cold run (a warm one needs less).
+fit is in the cache is not asked: the estimate is that of a cold run (a warm one needs less). A run
+with a cache folder writes each table above ``blocked.STREAM_BYTES`` to disk as it is swept (one
+matrix held, ``mesh_sweep_memory(..., streamed=)``): the later stages do not hold it (the timefreq
+and linear routes read it whole).
 ``uplift run SCENE --dry-run`` prints the stages and exits (``run_memory``, ``memory_lines``).
 """
 from __future__ import annotations
@@ -28,7 +33,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import soil_impedance.sweep as sweep_module
-from soil_impedance.fit.peak_memory import fit_memory
+from soil_impedance.blocked import STREAM_BYTES, table_bytes
+from soil_impedance.fit.peak_memory import fit_memory, streamed_fit_memory
 from soil_impedance.fit.options import FitOptions
 from soil_impedance.fit.search import max_pairs
 from uplift_common.errors import UserInputError
@@ -92,9 +98,21 @@ def stepping_memory(n_dof: int, poles: int, n_steps: int) -> dict[str, int]:
     return items
 
 
-def run_memory(scene, routes=None) -> list[Stage]:
+def streamed_outputs(scene, outputs, cached: bool = True) -> tuple[str, ...]:
+    """The outputs among ``outputs`` the sweep of ``scene`` writes to disk (``blocked.TableWriter``):
+    with a cache folder (``cached``), those whose matrices take more than ``blocked.STREAM_BYTES``;
+    none with ``[impedance] frequency_tol`` (the thinned sweep's tables are interpolated in memory)."""
+    if getattr(scene, "frequency_tol", None) is not None:
+        return ()
+    n, F = scene.mesh.n, scene.frequencies_hz.size
+    size = {"rigid": 6, "gap": 6 + n, "nodal": 3 * n}
+    return tuple(o for o in outputs if cached and table_bytes(F, size[o]) > STREAM_BYTES)
+
+
+def run_memory(scene, routes=None, cached: bool = True) -> list[Stage]:
     """The stages a run of ``scene`` with ``routes`` (default: the scene's) will run, each with its
-    estimated peak bytes (module docstring), in the order they run."""
+    estimated peak bytes (module docstring), in the order they run. ``cached``: the run has a cache
+    folder (large tables are then streamed to disk)."""
     names = tuple(routes or scene.analysis.routes)
     chosen = [get_route(r) for r in names]
     outputs = tuple(dict.fromkeys(t for r in chosen for t in r.tables(scene)))
@@ -105,22 +123,31 @@ def run_memory(scene, routes=None) -> list[Stage]:
     stages = []
     if not outputs:
         return stages
+    streamed = streamed_outputs(scene, outputs, cached)
     static = sweep_module.mesh_sweep_memory(mesh, 1, ("rigid",))
     stages.append(Stage("static", static["total"], f"K(0) of the rigid raft, {n} interface nodes "
                         f"(flexibility {_gib(static['F'])})", size))
-    sweep = sweep_module.mesh_sweep_memory(mesh, F, outputs, scene.solver, scene.solver_tol)
-    held = sweep["outputs"] - 16 * F * max({"rigid": 36, "gap": nb * nb, "nodal": 9 * n * n}[o] for o in outputs) // 2
+    sweep = sweep_module.mesh_sweep_memory(mesh, F, outputs, scene.solver, scene.solver_tol, streamed)
+    dims = {"rigid": 6, "gap": nb, "nodal": 3 * n}
+    held = sum(table_bytes(F, dims[o]) for o in outputs if o not in streamed)
+    on_disk = f"; {', '.join(streamed)} on disk, one matrix held" if streamed else ""
     stages.append(Stage("sweep", sweep["total"], f"BEM sweep of {n} nodes at {F} frequencies, tables "
-                        f"{', '.join(outputs)} ({_gib(held)} held; flexibility {_gib(sweep['F'])})",
+                        f"{', '.join(outputs)} ({_gib(held)} held{on_disk}; flexibility {_gib(sweep['F'])})",
                         f"{size}, [impedance] frequencies"))
     if "gap" not in outputs:
         return stages
     poles = max_poles(scene, F)
     if any(r.needs_fit for r in chosen):
-        fit = fit_memory(nb, F, poles)
-        stages.append(Stage("fit", held + fit["total"] + BASE_BYTES,
-                            f"rational fit of the {nb} x {nb} gap table at {F} frequencies ({_gib(held)} held "
-                            f"+ {_gib(fit['total'])} of copies)", f"{size}, [impedance] frequencies"))
+        if "gap" in streamed:
+            fit = streamed_fit_memory(nb, F, poles)
+            what = (f"streamed fit of the {nb} x {nb} gap table at {F} frequencies on disk, at most {poles} poles "
+                    f"({_gib(held)} held + {_gib(fit['total'])}: the orders' coefficients {_gib(fit['search'])}, "
+                    f"the models {_gib(fit['models'])}, the passivity sweep {_gib(fit['passivity'])})")
+        else:
+            fit = fit_memory(nb, F, poles)
+            what = (f"rational fit of the {nb} x {nb} gap table at {F} frequencies ({_gib(held)} held "
+                    f"+ {_gib(fit['total'])} of copies)")
+        stages.append(Stage("fit", held + fit["total"] + BASE_BYTES, what, f"{size}, [impedance] frequencies"))
     steps = int(round(scene.motion.length_s / scene.analysis.dt)) + 1
     if any(r.needs_fit and r.time_stepped for r in chosen):
         step = stepping_memory(nb, poles, steps)
@@ -131,17 +158,17 @@ def run_memory(scene, routes=None) -> list[Stage]:
     frequency_domain = [r.name for r in chosen if "gap" in r.tables(scene) and not r.needs_fit]
     if frequency_domain:
         band = int(scene.frequencies_hz[-1] * (scene.motion.length_s + PAD_S)) + 1
-        tf = 16 * band * nb * nb
+        tf = 16 * band * nb * nb + (table_bytes(F, nb) if "gap" in streamed else 0)    # read whole
         stages.append(Stage("timefreq", held + tf + BASE_BYTES,
                             f"routes {', '.join(frequency_domain)}: the gap table at {band} FFT grid frequencies "
                             f"({_gib(tf)})", f"{size}, analysis.routes (drop {', '.join(frequency_domain)})"))
     return stages
 
 
-def check_run_memory(scene, routes=None) -> list[Stage]:
+def check_run_memory(scene, routes=None, cached: bool = True) -> list[Stage]:
     """``run_memory``'s stages, or RunMemoryError when the largest exceeds ``MEMORY_SHARE`` of
     the machine's available memory (``soil_impedance.sweep.available_memory``; unknown: no check)."""
-    stages = run_memory(scene, routes)
+    stages = run_memory(scene, routes, cached)
     avail = sweep_module.available_memory()
     if not stages or avail is None:
         return stages

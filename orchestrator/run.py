@@ -357,7 +357,7 @@ def prepare_run(scene, routes=None, cache_dir=None, sweep_progress=None, fit_pro
     ``sweep_progress`` follows the sweep, ``fit_progress`` the fit (progress protocol)."""
     scene, chosen = _chosen_routes(scene, routes)
     outputs = tuple(dict.fromkeys(t for r in chosen for t in r.tables(scene)))    # their union, in route order
-    check_run_memory(scene)                 # every stage's peak against the machine, before anything large
+    check_run_memory(scene, cached=cache_dir is not None)   # every stage's peak, before anything large
     with compute_threads():
         springs = proxy_springs(scene, bool(outputs), cache_dir)
         model = scene.model()
@@ -396,7 +396,7 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
                          f"not {scene.analysis.dt:g} s (its time-step check): call prepare_run on this scene")
     dt = scene.analysis.dt
     if shared is None:
-        check_run_memory(scene)             # before the motion is made (prepare_run checks again: cheap)
+        check_run_memory(scene, cached=cache_dir is not None)   # before the motion (prepare_run checks again)
     motion = scene_motion(scene.motion, dt, cache_dir) if motion is None else motion.resampled(dt)   # before any computation
     run = shared if shared is not None else prepare_run(scene, cache_dir=cache_dir, sweep_progress=sweep_progress,
                                                         fit_progress=fit_progress)

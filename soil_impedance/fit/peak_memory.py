@@ -12,8 +12,15 @@ every numpy array), the table itself not counted, over the table's bytes 16 F n^
 
 The model's coefficient and residue arrays, (m + 2) n^2 reals and m n^2 complex for m poles,
 are added separately: they matter when the fit has many poles and few frequencies.
+
+A table above ``blocked.STREAM_BYTES`` is on disk and its fit is the streamed fit
+(``fit.streamed``, ``streamed_fit_memory``): it never holds the table, and its peak is that of
+the model's coefficients and their copies, not of the table (docs/formulation.md, "The fit's
+memory").
 """
 from __future__ import annotations
+
+from ..blocked import chunk_edge
 
 #: peak of the fit's own allocations over the table's bytes (measured, see the module docstring)
 FIT_COPIES = 7.2
@@ -30,5 +37,55 @@ def fit_memory(n_dof: int, n_freq: int, max_poles: int) -> dict[str, int]:
     table = 16 * n_freq * n_dof * n_dof
     model = 2 * (8 * (max_poles + 2) + 16 * max_poles) * n_dof * n_dof
     items = {"work": int(FIT_COPIES * table), "model": model}
+    items["total"] = sum(items.values())
+    return items
+
+
+#: blocks of F x edge^2 complex entries alive at once in a streamed pass (the block read, its
+#: scaled copy, the model's response on it and the difference)
+STREAM_BLOCKS = 4
+#: (6+N)^2 complex arrays of the streamed problem itself: the frequencies read whole on demand
+#: (the hysteretic part and the causal cut-off: up to three) and the hysteretic offset H0
+PROBLEM_COPIES = 4
+#: models of m poles alive at the streamed fit's peak, each its coefficients (m + 2) n^2 doubles and
+#: residues m n^2 complex: the order's rigid-raft corrected model and the enforcement's output (the
+#: plain model is dropped once corrected); measured, see ``streamed_fit_memory``
+MODEL_COPIES = 2
+#: (m + 2) n^2 double arrays of the enforcement beside the models: the scaled coefficients, the
+#: corrected ones and their symmetrised copy
+ENFORCE_COPIES = 3
+#: the certified passivity sweep's G(nu) block: at most 64 frequencies of n^2 doubles and at most
+#: this many bytes (``passivity.CHUNK_BYTES``), plus two n^2 doubles of the eigenvalue solver
+PASSIVITY_FREQS, PASSIVITY_BYTES = 64, 256 * 2 ** 20
+
+
+def streamed_fit_memory(n_dof: int, n_freq: int, max_poles: int, block: int | None = None) -> dict[str, int]:
+    """Estimated peak bytes of the streamed fit (``fit.streamed.StreamedProblem``) of a table of
+    ``n_freq`` (n_dof, n_dof) complex matrices on disk with at most ``max_poles`` poles, by item
+    (and ``"total"``); the table is not held (it is read in blocks) and the interpreter is not counted.
+
+    Items: ``blocks`` ``STREAM_BLOCKS`` x 16 n_freq edge^2 (edge: ``block`` or the file's chunk
+    edge, ``blocked.chunk_edge``); ``problem`` ``PROBLEM_COPIES`` x 16 n^2; ``search`` every fitted
+    order's coefficients, kept by the order search (one pole pair more each: 8 n^2 sum over k of
+    (2k + 2) for k = 1 .. max_poles / 2); ``models`` ``MODEL_COPIES`` models of max_poles poles and
+    ``ENFORCE_COPIES`` coefficient arrays of the enforcement; ``passivity`` the certified sweep's
+    G(nu) block (``PASSIVITY_FREQS`` n^2 doubles, at most ``PASSIVITY_BYTES``) and the eigenvalue
+    solver's two n^2.
+
+    Measured peaks over what the process held before the fit (``benchmarks/growth.py --fit streamed``,
+    the mat's soil at 8 frequencies; ``benchmarks/fit_memory.py`` at 21, ru_maxrss of the process,
+    the interpreter's ``BASE_BYTES`` added to the estimate), estimate at the order reached / measured:
+    262 DOFs 5 poles 0.075 / 0.097 GiB, 631 DOFs 6 poles 0.47 / 0.57 GiB, 1207 DOFs 6 poles
+    (21 frequencies) 1.46 / 1.32 GiB.
+    """
+    n2 = n_dof * n_dof
+    edge = int(block or chunk_edge(n_dof))
+    m = int(max_poles)
+    pairs = max(1, m // 2)
+    items = {"blocks": STREAM_BLOCKS * 16 * n_freq * edge * edge,
+             "problem": PROBLEM_COPIES * 16 * n2,
+             "search": 8 * n2 * pairs * (pairs + 3),
+             "models": (MODEL_COPIES * (8 * (m + 2) + 16 * m) + ENFORCE_COPIES * 8 * (m + 2)) * n2,
+             "passivity": min(PASSIVITY_FREQS * 8 * n2, PASSIVITY_BYTES) + 2 * 8 * n2}
     items["total"] = sum(items.values())
     return items

@@ -3,12 +3,13 @@
 runs end to end, and the run-level memory guard (orchestrator.memory_guard) refuses a run whose
 largest stage would not fit, with the stage and its estimate, before computing anything."""
 import re
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from orchestrator.cli import main
-from orchestrator.memory_guard import run_memory, stepping_memory
+from orchestrator.memory_guard import RunMemoryError, check_run_memory, run_memory, stepping_memory
 from orchestrator.scene import load_scene
 from orchestrator.scene_base import builtin_scenes
 from structure.damping import fixed_base_modes
@@ -158,7 +159,7 @@ def test_memory_estimates_grow_as_stated(tmp_path):
     # the stages' estimates against their closed forms: the gap table held, 16 F (6+N)^2 bytes,
     # is in the sweep's, the fit holds it and its measured ~7 copies; the stepping stage's history
     # matrix is m (6+N)^2 doubles with m the most poles a fit of 101 frequencies may have (30)
-    stages = {s.name: s for s in run_memory(load_scene("mat"))}
+    stages = {s.name: s for s in run_memory(load_scene("mat"), cached=False)}       # no cache: all in memory
     nb, F = 2506, 101
     table = 16 * F * nb * nb
     assert table < stages["sweep"].bytes < 2.5 * table
@@ -166,6 +167,57 @@ def test_memory_estimates_grow_as_stated(tmp_path):
     assert f"history matrix 30 x {nb}^2 doubles" in stages["stepping"].detail
     # the same mat at 25 x 25 cells (631 DOFs): the fit's estimate scales like (6+N)^2 (the
     # interpreter's fixed allowance aside)
-    small = {s.name: s.bytes for s in run_memory(load_scene(_coarse(tmp_path, element_size=4.0, freqs=101)))}
+    small = {s.name: s.bytes for s in run_memory(load_scene(_coarse(tmp_path, element_size=4.0, freqs=101)),
+                                                  cached=False)}
     base = 200 * 2 ** 20
     assert (small["fit"] - base) / (stages["fit"].bytes - base) == pytest.approx((631 / nb) ** 2, rel=1e-3)
+
+
+def test_a_streamed_table_is_estimated_on_disk_and_fitted_streamed(tmp_path, monkeypatch):
+    # with a cache folder the mat's gap table (9.5 GiB, above blocked.STREAM_BYTES) is written to disk
+    # as it is swept (one matrix held) and fitted streamed: the sweep holds no table, the fit's estimate
+    # is streamed_fit_memory's (its items against their closed forms here), and later stages hold no table
+    from soil_impedance.blocked import STREAM_BYTES, chunk_edge
+    from soil_impedance.fit.peak_memory import fit_memory, streamed_fit_memory
+    from soil_impedance.sweep import BASE_BYTES, mesh_sweep_memory
+    scene = load_scene("mat")
+    nb, F, m = 2506, 101, 30
+    table, rigid = 16 * F * nb * nb, 16 * F * 36
+    disk = {s.name: s for s in run_memory(scene)}
+    held = {s.name: s for s in run_memory(scene, cached=False)}
+    est = mesh_sweep_memory(scene.mesh, F, ("rigid", "gap"), scene.solver, scene.solver_tol, ("gap",))
+    assert disk["sweep"].bytes == est["total"] < table < held["sweep"].bytes
+    assert "gap on disk, one matrix held" in disk["sweep"].detail
+    fit = streamed_fit_memory(nb, F, m)
+    assert disk["fit"].bytes == rigid + fit["total"] + BASE_BYTES
+    assert fit["search"] == 8 * nb * nb * sum(2 * k + 2 for k in range(1, m // 2 + 1))
+    assert fit["models"] == (2 * (8 * (m + 2) + 16 * m) + 3 * 8 * (m + 2)) * nb * nb
+    assert fit["blocks"] == 4 * 16 * F * chunk_edge(nb) ** 2 and chunk_edge(nb) <= 128
+    assert fit["passivity"] == 256 * 2 ** 20 + 16 * nb * nb            # 64 G(nu) would pass 256 MB here
+    assert disk["stepping"].bytes == held["stepping"].bytes - table         # the table is not held
+    assert "streamed fit" in disk["fit"].detail and "at most 30 poles" in disk["fit"].detail
+    # a table below STREAM_BYTES (the 631-DOF mat at 26 frequencies, 166 MB) stays in memory: fit_memory
+    small = load_scene(_coarse(tmp_path, element_size=4.0, freqs=26))
+    assert STREAM_BYTES > 16 * 26 * 631 ** 2
+    st = {s.name: s for s in run_memory(small)}
+    assert st == {s.name: s for s in run_memory(small, cached=False)}
+    sm = 16 * 26 * (631 ** 2 + 36)
+    assert st["fit"].bytes == sm + fit_memory(631, 26, 2 * (24 // 2))["total"] + BASE_BYTES
+
+
+def test_the_guard_passes_a_streamed_fit_it_refuses_in_memory(tmp_path, monkeypatch):
+    # the 631-DOF mat at 101 frequencies (a 643 MB gap table): on a machine of 4 GiB available (faked)
+    # the fit in memory (the table and ~7 copies, ~5.3 GiB) is refused with the fit stage; with a cache
+    # folder the table is streamed and its fit (the models' coefficients at most 30 poles) fits
+    scene = load_scene(_coarse(tmp_path, element_size=4.0, freqs=101)).with_routes(["monolithic"])
+    monkeypatch.setattr("soil_impedance.sweep.available_memory", lambda: 4 * 2 ** 30)
+    with pytest.raises(RunMemoryError, match="the fit stage needs about .* GiB .*rational fit of the 631 x 631"):
+        check_run_memory(scene, cached=False)
+    stages = {s.name: s.bytes for s in check_run_memory(scene)}
+    assert max(stages.values()) < 0.9 * 4 * 2 ** 30
+    assert main(["run", str(tmp_path / "mat_coarse.toml"), "--route", "monolithic", "--dry-run"]) == 0
+    # a thinned sweep (frequency_tol) interpolates its tables onto the grid in memory: not streamed
+    thinned = load_scene(_coarse(tmp_path, element_size=4.0, freqs=101)).with_routes(["monolithic"])
+    thinned = replace(thinned, frequency_tol=1e-3)
+    with pytest.raises(RunMemoryError, match="the fit stage needs about .*rational fit of the 631 x 631"):
+        check_run_memory(thinned)
