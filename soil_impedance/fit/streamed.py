@@ -31,7 +31,7 @@ import numpy as np
 from ..rational import FitError
 from ..vectfit import real_basis, vector_fit, initial_poles, canonical_poles
 from .options import POLE_CAP, RIGID, WEIGHTINGS
-from .target import causal_cutoff, hysteretic_part
+from .target import causal_cutoff, entry_weighted_coefficients, hysteretic_part
 
 #: block edge (entries) of the streamed passes when the file is not chunked by frequency (else its chunk
 #: edge, at most ``blocked.CHUNK`` = 128: aligned reads): a block is F × BLOCK² complex (26 MB at 101 frequencies)
@@ -178,16 +178,7 @@ class StreamedProblem:
             nb, Q, Rr, col = solver
             WX = self.w[:, None] * X
             return np.linalg.lstsq(Rr, Q.T @ np.concatenate([WX.real, WX.imag]), rcond=None)[0] / col[:, None]
-        mag = np.abs(X)
-        we = 1.0 / np.maximum(mag, 1e-3 * mag.max(axis=0, keepdims=True) + 1e-300)
-        A = real_basis(self.s, poles, const=True, linear=linear)
-        out = np.empty((A.shape[1], X.shape[1]))
-        for j in range(X.shape[1]):
-            Aw = A * we[:, j:j + 1]
-            out[:, j] = np.linalg.lstsq(np.concatenate([Aw.real, Aw.imag]),
-                                        np.concatenate([(we[:, j] * X[:, j]).real, (we[:, j] * X[:, j]).imag]),
-                                        rcond=None)[0]
-        return out
+        return entry_weighted_coefficients(self.s, X, poles, linear)
 
     def coefficients(self, poles):
         """The coefficient matrices (nb, n, n) (symmetric; ``Problem.coefficients`` as matrices: its

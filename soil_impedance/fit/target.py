@@ -90,6 +90,21 @@ def rel_errors(Km, Kt):
     return num / np.where(den > 0, den, 1.0)
 
 
+def entry_weighted_coefficients(s, X, poles, linear):
+    """Coefficients (nb, q) of the columns X (F, q) at s = 2πif with the "entry" weighting: each
+    column fitted alone, weighted by 1 / max(|X|, 1e-3 max|X| of its column) (relative error)."""
+    mag = np.abs(X)
+    we = 1.0 / np.maximum(mag, 1e-3 * mag.max(axis=0, keepdims=True) + 1e-300)
+    A = real_basis(s, poles, const=True, linear=linear)
+    out = np.empty((A.shape[1], X.shape[1]))
+    for j in range(X.shape[1]):
+        Aw = A * we[:, j:j + 1]
+        out[:, j] = np.linalg.lstsq(np.concatenate([Aw.real, Aw.imag]),
+                                    np.concatenate([(we[:, j] * X[:, j]).real, (we[:, j] * X[:, j]).imag]),
+                                    rcond=None)[0]
+    return out
+
+
 class Problem:
     """The table in fit form: upper-triangle entries of S K S, weights, normalised s."""
 
@@ -133,16 +148,7 @@ class Problem:
     def _solve(self, poles, X, linear):
         if self.weighting != "entry":
             return fit_coefficients(self.s, X, self.w, poles, const=True, linear=linear)
-        mag = np.abs(X)
-        we = 1.0 / np.maximum(mag, 1e-3 * mag.max(axis=0, keepdims=True) + 1e-300)
-        A = real_basis(self.s, poles, const=True, linear=linear)
-        out = np.empty((A.shape[1], X.shape[1]))
-        for j in range(X.shape[1]):
-            Aw = A * we[:, j:j + 1]
-            out[:, j] = np.linalg.lstsq(np.concatenate([Aw.real, Aw.imag]),
-                                        np.concatenate([(we[:, j] * X[:, j]).real, (we[:, j] * X[:, j]).imag]),
-                                        rcond=None)[0]
-        return out
+        return entry_weighted_coefficients(self.s, X, poles, linear)
 
     def _matrix(self, v):
         na = self.idx.size
