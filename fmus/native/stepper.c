@@ -592,6 +592,19 @@ static void relative(const UpStepper *s, const double *x, double *d)
     }
 }
 
+/* the contact force P_i of node i at the relative displacement d_i, and whether it is active:
+   the penalty law, or the bonded spring around the static force P0 when contact is disabled */
+static double node_force(const UpStepper *s, int i, double di, unsigned char *act)
+{
+    if (s->enabled) {
+        double pen = s->delta0[i] - di;
+        *act = pen > 0;
+        return *act ? s->kp[i] * pen : 0.0;
+    }
+    *act = 1;
+    return s->P0[i] - s->kp[i] * di;
+}
+
 /* P (N), active (N) and the contact internal force fc (nb) at x = [q, w] */
 static void contact(const UpStepper *s, const double *x, double *P, unsigned char *act, double *fc)
 {
@@ -600,14 +613,7 @@ static void contact(const UpStepper *s, const double *x, double *P, unsigned cha
     if (s->nf) {                                          /* a plate: fc = -Bc^T (P - P0) */
         memset(fc, 0, (size_t)s->nb * sizeof(double));
         for (int i = 0; i < s->N; i++) {
-            if (s->enabled) {
-                double pen = s->delta0[i] - d[i];
-                act[i] = pen > 0;
-                P[i] = act[i] ? s->kp[i] * pen : 0.0;
-            } else {
-                act[i] = 1;
-                P[i] = s->P0[i] - s->kp[i] * d[i];
-            }
+            P[i] = node_force(s, i, d[i], &act[i]);
             double dp = P[i] - s->P0[i];
             for (int k = s->bc_ptr[i]; k < s->bc_ptr[i + 1]; k++)
                 fc[s->bc_col[k]] -= s->bc_val[k] * dp;
@@ -616,14 +622,7 @@ static void contact(const UpStepper *s, const double *x, double *P, unsigned cha
         return;
     }
     for (int i = 0; i < s->N; i++) {
-        if (s->enabled) {
-            double pen = s->delta0[i] - d[i];
-            act[i] = pen > 0;
-            P[i] = act[i] ? s->kp[i] * pen : 0.0;
-        } else {
-            act[i] = 1;
-            P[i] = s->P0[i] - s->kp[i] * d[i];
-        }
+        P[i] = node_force(s, i, d[i], &act[i]);
         double dp = P[i] - s->P0[i];
         const double *b = s->Bq3 + 3 * (size_t)i;
         f2 -= b[0] * dp;
