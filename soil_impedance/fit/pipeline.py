@@ -146,7 +146,6 @@ def _report(prob, model, prep: PassivityReport, err_fit, history, settings, wall
     Kfull = model.frequency_response(prob.f)
     Km = Kfull[:, prob.idx][:, :, prob.idx] * prob.S[None, :, None] * prob.S[None, None, :]
     e_t = rel_errors(Km, prob.Ks)
-    low = ~prob.band
     e_un = rel_errors(Kfull, prob.table.matrices)
     blocks = {}
     dofs = [prob.table.dofs[i] for i in prob.idx]
@@ -157,18 +156,12 @@ def _report(prob, model, prep: PassivityReport, err_fit, history, settings, wall
         own = np.linalg.norm(prob.Ks[:, r][:, :, c].reshape(prob.f.size, -1), axis=1)
         blocks[name] = {"own": float(np.max(d[sel] / np.where(own[sel] > 0, own[sel], 1.0))),
                         "total": float(np.max(d[sel] / tot[sel]))}
-    return FitReport(order=int(model.order), max_rel_error=float(np.max(e_t[prob.band])),
-                     rel_error=e_t, freq_hz=prob.f.copy(),
-                     max_rel_error_fit=float(err_fit), max_rel_error_unscaled=float(np.max(e_un[prob.band])),
-                     low_freq_error=float(e_t[low].max()) if low.any() else 0.0, f_causal_hz=float(prob.f_c),
-                     block_errors=blocks, passive=bool(prep.passive), passivity_margin=float(prep.margin),
-                     passivity=prep.to_dict(), order_history=history, settings=settings, wall_s=float(wall))
+    return _fit_report(prob, model, e_t, e_un, blocks, prep, err_fit, history, settings, wall)
 
 
 def _report_streamed(prob, model, prep: PassivityReport, err_fit, history, settings, wall):
     """``_report`` of a ``StreamedProblem``: the same measures, summed block by block."""
     e_t, e_un, parts = prob.report_errors(model)
-    low = ~prob.band
     sel = prob.band
     tot2 = prob.norm_Ks[sel] ** 2
     blocks = {}
@@ -179,6 +172,13 @@ def _report_streamed(prob, model, prep: PassivityReport, err_fit, history, setti
             d, own = np.sqrt(d2[sel]), np.sqrt(o2[sel])
             blocks[name] = {"own": float(np.max(d / np.where(own > 0, own, 1.0))),
                             "total": float(np.max(d / np.sqrt(tot2)))}
+    return _fit_report(prob, model, e_t, e_un, blocks, prep, err_fit, history, settings, wall)
+
+
+def _fit_report(prob, model, e_t, e_un, blocks, prep: PassivityReport, err_fit, history, settings, wall):
+    """The FitReport of ``model`` from its relative errors per frequency (scaled ``e_t``,
+    unscaled ``e_un``) and per DOF block (``blocks``), measured over the problem's band."""
+    low = ~prob.band
     return FitReport(order=int(model.order), max_rel_error=float(np.max(e_t[prob.band])),
                      rel_error=e_t, freq_hz=prob.f.copy(),
                      max_rel_error_fit=float(err_fit), max_rel_error_unscaled=float(np.max(e_un[prob.band])),
