@@ -33,6 +33,11 @@ from soil_impedance.convolution import RecursiveConvolutionSoil
 from soil_impedance.fit.continuation import continuation_fit
 from structure.newmark import NewmarkStepper
 
+#: the marches after the first in correction form (``up_sim_correction``, soil.c): the history as
+#: the last march's plus the change's in single precision (on the reactor, CPU s per march: see
+#: docs/native.md); its rounding is relative to the change, and the fixed point stays the residual's
+SINGLE = True
+
 
 class NativeStandIn:
     """A marcher of ``defect_correction``: the contact problem ``prob``'s structure, static state
@@ -45,7 +50,7 @@ class NativeStandIn:
     new run; on the reactor the records' parse and the bases cost ~25 ms of a march's ~0.4 s CPU),
     closed with the marcher (``close``, or when it is collected)."""
 
-    def __init__(self, prob, model, lib, damping=None):
+    def __init__(self, prob, model, lib, damping=None, single: bool = False):
         dt = prob.grid.dt
         st = NewmarkStepper(prob.model, RecursiveConvolutionSoil(model, dt, checked=True), dt,
                             contact=prob.contact, damping=damping, static=prob.static)
@@ -57,6 +62,7 @@ class NativeStandIn:
         self.width = row_width(st.N, 0)
         self.n_factor = self.n_factor_total = 0
         self._handle, self._close, self._rows = None, None, None
+        self.single = bool(single)
 
     def _run(self, ag0):
         """The native run at rest under ag0 (3): opened on the first call, rewound after."""
@@ -99,6 +105,12 @@ class NativeStandIn:
         stats = np.zeros(3, np.int64)
         err = ctypes.create_string_buffer(1024)
         h = self._run(ag[0])
+        mode = 0
+        if self.single:          # 2: in correction form; -1 when no whole march is recorded (or none can be)
+            mode = lib.up_sim_correction(h, nt, 2)
+            mode = mode if mode == 2 else max(0, lib.up_sim_correction(h, nt, 1))
+        else:
+            lib.up_sim_correction(h, nt, 0)
         k, factors0 = 0, self.n_factor_total
         while k < nt:
             k1 = min(k + CHUNK, nt)
@@ -117,7 +129,7 @@ class NativeStandIn:
         self.n_factor_total = int(stats[1])            # the run's, since it was opened
         self.n_factor = self.n_factor_total - factors0
         return d, dict(newton=int(iters[:k].sum()), factors=self.n_factor, steps=int(k - 1),
-                       wall_s=time.perf_counter() - t0)
+                       wall_s=time.perf_counter() - t0, correction=mode == 2)
 
 
 def constrained_fit(table, fit_model, *, cache_dir=None):
@@ -139,6 +151,6 @@ def stand_in_factory(table, fit_model, *, cache_dir=None, damping=None, constrai
         lib = library(cache_folder(cache_dir))
         if lib is None:
             return None, library_note(cache_folder(cache_dir))
-        return NativeStandIn(prob, fit.model, lib, damping), (f"stand-in: the fit constrained to the route's continuation ({fit_model.order} poles, "
+        return NativeStandIn(prob, fit.model, lib, damping, single=SINGLE), (f"stand-in: the fit constrained to the route's continuation ({fit_model.order} poles, "
                          f"{fit.max_rel_error:.1e} on the table), native march")
     return make

@@ -35,6 +35,13 @@
      capacitance matrices of the active sets seen (their numbers depend on the step size and the
      active set only: the samples are the same bits as a new handle's). The stand-in's marches,
      one per sweep of the defect correction, rewind one handle instead of opening a new one.
+   up_sim_correction(handle, nt, mode) -> the mode set, or -1
+     the next run of nt samples (after up_sim_open or up_sim_rewind) in the correction form of
+     soil.c (up_soil_corr_mode): 1 its soil history and states recorded per sample, 2 its history
+     as the last recorded run's plus the history of the change from that run's states in single
+     precision (recorded in turn), 0 neither. -1: not available (a soil history that is not packed
+     symmetric, out of memory) or, for 2, no whole run of nt samples recorded without a halved
+     step: the host asks for 1 then. The defect correction's later marches (orchestrator/standin.py).
    up_sim_close(handle)  frees the handle (NULL: nothing)
    up_simulate(res, size, ag, nt, rows, iters, stats, err)
      the whole motion in one call (open, the nt samples, close); returns 0, 1 or -1 as above. */
@@ -156,6 +163,7 @@ static int steps(UpSim *h, const double *ag, const double *src, int64_t k0, int6
         if (k > 0) {
             memcpy(st->ag_next, ag + 3 * k, 3 * sizeof(double));
             st->src = src ? src + (size_t)k * (size_t)st->N : NULL;
+            up_soil_corr_sample(&h->soil, k);
             int failed = up_stepper_step(st);
             st->src = NULL;
             if (failed) {
@@ -195,6 +203,11 @@ UP_API void up_sim_rewind(UpSim *h, const double *ag0)
     h->halved = 0;
     h->failed = 0;
     h->err[0] = '\0';
+}
+
+UP_API int up_sim_correction(UpSim *h, int64_t nt, int mode)
+{
+    return up_soil_corr_mode(&h->soil, nt, mode);
 }
 
 UP_API int up_simulate(const unsigned char *res, uint64_t size, const double *ag, int64_t nt, double *rows,

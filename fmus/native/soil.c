@@ -36,6 +36,17 @@
 
 #include "uplift.h"
 
+/* a run in correction form (up_soil_corr_mode, at the end of this file) */
+struct UpSoilCorr {
+    int mode, broken;
+    int64_t nt, k, recorded;  /* samples; the sample of the step under way; nt when the records hold a run */
+    float *Hs32;              /* the packed blocks in single precision */
+    float *g32, *part32;      /* (L) the change's stacked input, each block's product */
+    double *hrec, *urec;      /* (nt, n) per sample: the history the step used, the state it committed */
+    double *dy, *du, *gd, *dx; /* (L) the change's pole states, (n) its last committed state, (L) its input,
+                                 (n) work */
+};
+
 /* entry (i, j) of history block b (a real pole's R_k; a pair's 2 Re R_k, then -2 Im R_k) */
 static double block_entry(const UpSoil *s, int b, int i, int j)
 {
@@ -440,8 +451,11 @@ int up_soil_init(UpSoil *s, const UpRes *r, int n, int nlev, int stepped, char *
     return 0;
 }
 
+static void corr_free(struct UpSoilCorr *c);
+
 void up_soil_free(UpSoil *s)
 {
+    corr_free(s->corr);
     free(s->H);
     free(s->Hs);
     free(s->Ep);
@@ -577,8 +591,15 @@ static void stack(const UpSoil *s, const UpSoilLevel *lv, const double *yr, cons
     }
 }
 
+static void corr_history(UpSoil *s, int lev, double *h);
+static void corr_commit(UpSoil *s, int lev, const double *x);
+
 void up_soil_history(UpSoil *s, int lev, double *h)
 {
+    if (s->corr && s->corr->mode) {                   /* a run in correction form (below) */
+        corr_history(s, lev, h);
+        return;
+    }
     stack(s, &s->lev[lev], s->yr, s->yc, s->u, s->g);
     history_product(s, s->g, h);
 }
@@ -622,6 +643,8 @@ void up_soil_commit(UpSoil *s, int lev, const double *x, const double *xd, const
     for (int i = 0; i < n; i++)
         w += (x[i] - s->u[i]) * (0.5 * (f[i] + s->f[i]));
     *s->work += w;
+    if (s->corr && s->corr->mode)
+        corr_commit(s, lev, x);
     advance_states(s, &s->lev[lev], x, s->u, s->yr, s->yc);
     memcpy(s->u, x, (size_t)n * sizeof(double));
     memcpy(s->ud, xd, (size_t)n * sizeof(double));
@@ -700,4 +723,248 @@ void up_soil_outputs(UpSoil *s, int lev, double *f, double *work)
     }
     *work = *s->work + 0.5 * e;
     *s->stale = 0.0;
+}
+
+/* ---- the correction form of repeated runs (the time-frequency route's marches) ---------------
+
+   The defect correction (orchestrator/timefreq/march.py) marches the same causal stand-in again
+   and again from rest, each march with another source; from one march to the next the contact
+   history x changes less and less (by the residual's size). In the correction form a march takes
+   its history as the last march's (recorded per sample, float64) plus the history of the change
+   dx = x - x_last, through single-precision copies of the packed blocks (half the memory traffic
+   of the product, which bounds a step): h_k = h_last_k + H32 g(dy, du), dy the pole states of dx
+   (float64, the same recursion as the soil's own). Its rounding error is relative to the change,
+   not to x; what is summed is recorded in turn, so the history a march steps is the first march's
+   (float64) plus the single-precision histories of every change since. The marches' fixed point is
+   the route's whole-range residual's (float64): the form changes what the sweeps cost, not the
+   answer. Only at the full step (level 0): a halved step marks the run broken (its later steps
+   take the float64 product of the soil's own states; the host marches the next run in mode 1). */
+
+
+/* y += P x for a symmetric (n, n) P packed by rows, in single precision: up_spmv_add_k's loops and
+   sums (the same order at every vector width) on floats */
+HM_BODY void spmv32_add_k(const float *restrict P, int n, const float *restrict x, float *restrict y)
+{
+    int i = 0;
+    for (; i + 4 <= n; i += 4) {
+        int len = n - i;
+        const float *r0 = P, *r1 = r0 + len, *r2 = r1 + len - 1, *r3 = r2 + len - 2;
+        float x0 = x[i], x1 = x[i + 1], x2 = x[i + 2], x3 = x[i + 3];
+        float d0 = ((r0[0] * x0 + r0[1] * x1) + r0[2] * x2) + r0[3] * x3;
+        float d1 = (r1[0] * x1 + r1[1] * x2) + r1[2] * x3;
+        float d2 = r2[0] * x2 + r2[1] * x3;
+        float d3 = r3[0] * x3;
+        float y1 = y[i + 1] + x0 * r0[1];
+        float y2 = (y[i + 2] + x0 * r0[2]) + x1 * r1[1];
+        float y3 = ((y[i + 3] + x0 * r0[3]) + x1 * r1[2]) + x2 * r2[1];
+        const float *restrict a0 = r0 + 4, *restrict a1 = r1 + 3, *restrict a2 = r2 + 2, *restrict a3 = r3 + 1;
+        const float *restrict xr = x + i + 4;
+        float *restrict yr = y + i + 4;
+        float s0[8] = {0.0f}, s1[8] = {0.0f}, s2[8] = {0.0f}, s3[8] = {0.0f};
+        int m = len - 4, j = 0;
+        for (; j + 8 <= m; j += 8)
+            for (int k = 0; k < 8; k++) {
+                float xv = xr[j + k], v0 = a0[j + k], v1 = a1[j + k], v2 = a2[j + k], v3 = a3[j + k];
+                s0[k] += v0 * xv;
+                s1[k] += v1 * xv;
+                s2[k] += v2 * xv;
+                s3[k] += v3 * xv;
+                float t = yr[j + k];
+                t += x0 * v0;
+                t += x1 * v1;
+                t += x2 * v2;
+                t += x3 * v3;
+                yr[j + k] = t;
+            }
+        for (; j < m; j++) {
+            float xv = xr[j], v0 = a0[j], v1 = a1[j], v2 = a2[j], v3 = a3[j];
+            s0[0] += v0 * xv;
+            s1[0] += v1 * xv;
+            s2[0] += v2 * xv;
+            s3[0] += v3 * xv;
+            float t = yr[j];
+            t += x0 * v0;
+            t += x1 * v1;
+            t += x2 * v2;
+            t += x3 * v3;
+            yr[j] = t;
+        }
+        y[i] += d0 + (((s0[0] + s0[1]) + (s0[2] + s0[3])) + ((s0[4] + s0[5]) + (s0[6] + s0[7])));
+        y[i + 1] = y1 + (d1 + (((s1[0] + s1[1]) + (s1[2] + s1[3])) + ((s1[4] + s1[5]) + (s1[6] + s1[7]))));
+        y[i + 2] = y2 + (d2 + (((s2[0] + s2[1]) + (s2[2] + s2[3])) + ((s2[4] + s2[5]) + (s2[6] + s2[7]))));
+        y[i + 3] = y3 + (d3 + (((s3[0] + s3[1]) + (s3[2] + s3[3])) + ((s3[4] + s3[5]) + (s3[6] + s3[7]))));
+        P = r3 + len - 3;
+    }
+    for (; i < n; i++) {
+        int len = n - i;
+        float xi = x[i], d = 0.0f;
+        for (int j = 0; j < len; j++)
+            d += P[j] * x[i + j];
+        y[i] += d;
+        for (int j = 1; j < len; j++)
+            y[i + j] += xi * P[j];
+        P += len;
+    }
+}
+
+#ifdef HM_DISPATCH
+__attribute__((target("avx512f"))) static void spmv32_add_avx512(const float *P, int n, const float *x, float *y)
+{
+    spmv32_add_k(P, n, x, y);
+}
+__attribute__((target("avx2"))) static void spmv32_add_avx2(const float *P, int n, const float *x, float *y)
+{
+    spmv32_add_k(P, n, x, y);
+}
+#endif
+
+static void spmv32_add(const float *P, int n, const float *x, float *y)
+{
+#ifdef HM_DISPATCH
+    int level = up_vector_level();
+    if (level == 2) {
+        spmv32_add_avx512(P, n, x, y);
+        return;
+    }
+    if (level == 1) {
+        spmv32_add_avx2(P, n, x, y);
+        return;
+    }
+#endif
+    spmv32_add_k(P, n, x, y);
+}
+
+static void corr_free(struct UpSoilCorr *c)
+{
+    if (!c)
+        return;
+    free(c->Hs32);
+    free(c->g32);
+    free(c->hrec);
+    free(c->dy);
+    free(c);
+}
+
+int up_soil_corr_mode(UpSoil *s, int64_t nt, int mode)
+{
+    struct UpSoilCorr *c = s->corr;
+    if (mode == 0) {
+        if (c)
+            c->mode = 0;
+        return 0;
+    }
+    if (!s->Hs || s->hm_perm || nt < 1 || mode < 0 || mode > 2)
+        return -1;                                    /* not packed symmetric: no correction form */
+    int n = s->n, nb = s->mr + 2 * s->mc;
+    size_t packed = (size_t)n * (n + 1) / 2;
+    if (!c) {
+        if (!(c = (struct UpSoilCorr *)calloc(1, sizeof *c)))
+            return -1;
+        c->Hs32 = (float *)malloc((nb * packed + 1) * sizeof(float));
+        c->g32 = (float *)malloc((2 * s->L + 1) * sizeof(float));
+        c->dy = (double *)malloc((2 * s->L + 2 * (size_t)n + 1) * sizeof(double));
+        if (!c->Hs32 || !c->g32 || !c->dy) {
+            corr_free(c);
+            return -1;
+        }
+        for (size_t q = 0; q < nb * packed; q++)
+            c->Hs32[q] = (float)s->Hs[q];
+        c->part32 = c->g32 + s->L;
+        c->gd = c->dy + s->L;
+        c->du = c->gd + s->L;
+        c->dx = c->du + n;
+        s->corr = c;
+    }
+    if (c->nt != nt) {
+        free(c->hrec);
+        c->hrec = (double *)malloc((2 * (size_t)nt * n + 1) * sizeof(double));
+        if (!c->hrec) {
+            c->nt = c->recorded = 0;
+            c->mode = 0;
+            return -1;
+        }
+        c->urec = c->hrec + (size_t)nt * n;
+        c->nt = nt;
+        c->recorded = 0;
+    }
+    if (mode == 2 && c->recorded != nt)
+        return -1;                                    /* no whole run recorded to correct */
+    c->mode = mode;
+    c->broken = 0;
+    c->k = 0;
+    c->recorded = 0;                                  /* the records are this run's from now on */
+    memset(c->dy, 0, s->L * sizeof(double));
+    memset(c->du, 0, (size_t)n * sizeof(double));
+    return mode;
+}
+
+void up_soil_corr_sample(UpSoil *s, int64_t k)
+{
+    struct UpSoilCorr *c = s->corr;
+    if (!c || !c->mode)
+        return;
+    c->k = k;
+}
+
+int up_soil_corr_broken(const UpSoil *s)
+{
+    return s->corr && s->corr->mode && s->corr->broken;
+}
+
+/* the history h (n) of the step to sample c->k: the last run's plus H32 g(dy, du) (mode 2), recorded */
+static void corr_history(UpSoil *s, int lev, double *h)
+{
+    struct UpSoilCorr *c = s->corr;
+    int n = s->n, nb = s->mr + 2 * s->mc;
+    int in = lev == 0 && c->k > 0 && c->k < c->nt;
+    if (!in)
+        c->broken = 1;
+    if (c->mode == 1 || c->broken) {
+        stack(s, &s->lev[lev], s->yr, s->yc, s->u, s->g);
+        history_product(s, s->g, h);
+    } else {
+        size_t packed = (size_t)n * (n + 1) / 2;
+        const double *hl = c->hrec + (size_t)c->k * n;
+        stack(s, &s->lev[0], c->dy, c->dy + (size_t)s->mr * n, c->du, c->gd);
+        for (int b = 0; b < nb; b++) {                /* each block's input as floats, in g32's block order */
+            const double *gb = block_input(s, c->gd, b, s->fbuf + 3 * (size_t)n);
+            float *xb = c->g32 + (size_t)b * n;
+            for (int j = 0; j < n; j++)
+                xb[j] = (float)gb[j];
+        }
+        memset(c->part32, 0, s->L * sizeof(float));
+        for (int b = 0; b < nb; b++)
+            spmv32_add(c->Hs32 + (size_t)b * packed, n, c->g32 + (size_t)b * n, c->part32 + (size_t)b * n);
+        for (int i = 0; i < n; i++) {
+            double d = 0.0;
+            for (int b = 0; b < nb; b++)
+                d += (double)c->part32[(size_t)b * n + i];
+            h[i] = hl[i] + d;
+        }
+    }
+    if (in)
+        memcpy(c->hrec + (size_t)c->k * n, h, (size_t)n * sizeof(double));
+}
+
+/* before the soil's commit of x (s->u still the last state): the change's states advanced (mode 2),
+   x recorded */
+static void corr_commit(UpSoil *s, int lev, const double *x)
+{
+    struct UpSoilCorr *c = s->corr;
+    int n = s->n;
+    if (lev != 0 || c->k <= 0 || c->k >= c->nt) {
+        c->broken = 1;
+        return;
+    }
+    double *ul = c->urec + (size_t)c->k * n;
+    if (c->mode == 2 && !c->broken) {
+        double *dx = c->dx;
+        for (int i = 0; i < n; i++)
+            dx[i] = x[i] - ul[i];
+        advance_states(s, &s->lev[0], dx, c->du, c->dy, c->dy + (size_t)s->mr * n);
+        memcpy(c->du, dx, (size_t)n * sizeof(double));
+    }
+    memcpy(ul, x, (size_t)n * sizeof(double));
+    if (c->k == c->nt - 1 && !c->broken)
+        c->recorded = c->nt;                          /* a whole run recorded, no step halved */
 }

@@ -236,6 +236,8 @@ typedef struct {
        histories published, ev = E u', hn = h of the commit, stale = 1 when its outputs are not
        computed yet: up_soil_outputs) */
     double *yr, *yc, *u, *ud, *f, *work, *gq, *gp, *ev, *hn, *stale;
+    /* the correction form of a sequence of marches (up_soil_corr_mode; NULL until asked for) */
+    struct UpSoilCorr *corr;
 } UpSoil;
 
 /* stepped: 0 the history is given (a structure FMU), 1 stepped by the stepper, 2 stepped alone (a soil
@@ -253,6 +255,13 @@ void up_soil_ahead(UpSoil *s, int lev, double *g);       /* history of the step 
 void up_soil_step(UpSoil *s, int lev, const double *x, const double *xd, double *g);  /* commit x, then g */
 /* a soil stepped alone: its force f (n) and the work done on it, of the state committed last */
 void up_soil_outputs(UpSoil *s, int lev, double *f, double *work);
+/* the correction form of repeated runs from rest (the time-frequency route's marches): mode 0 off,
+   1 the run's history and states recorded per sample, 2 the history as the last recorded run's plus
+   the change from it in single precision (recorded in turn); nt samples; returns the mode set, or -1
+   (a history that is not packed symmetric, no record of nt samples for mode 2, out of memory) */
+int up_soil_corr_mode(UpSoil *s, int64_t nt, int mode);
+void up_soil_corr_sample(UpSoil *s, int64_t k);          /* the sample the next step computes */
+int up_soil_corr_broken(const UpSoil *s);                /* 1: a step of this run was halved */
 
 /* ---- stepper.c: Newmark-contact stepper ---------------------------------------------------- */
 typedef struct {
@@ -351,6 +360,7 @@ UP_API int up_sim_steps(UpSim *h, const double *ag, int64_t k0, int64_t k1, doub
 UP_API int up_sim_steps_src(UpSim *h, const double *ag, const double *src, int64_t k0, int64_t k1, double *rows,
                             int64_t *iters, int64_t *stats, char *err);
 UP_API void up_sim_rewind(UpSim *h, const double *ag0);
+UP_API int up_sim_correction(UpSim *h, int64_t nt, int mode);  /* soil.c's correction form, next run */
 UP_API void up_sim_close(UpSim *h);
 UP_API int up_simulate(const unsigned char *res, uint64_t size, const double *ag, int64_t nt, double *rows,
                        int64_t *iters, int64_t *stats, char *err);
