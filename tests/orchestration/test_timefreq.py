@@ -426,3 +426,46 @@ def test_the_constrained_fit_is_cached_by_its_inputs(tmp_path):
     assert not other.cached and len(list(tmp_path.glob("standin-*.h5"))) == 2
     A, B = continuation(table)
     assert np.array_equal(first.model.D, A) and np.array_equal(first.model.E, B)
+
+
+def test_native_marches_in_correction_form_differ_by_single_precision_of_the_change():
+    """NativeStandIn(single=True) (up_sim_correction, soil.c): its first march records the history
+    it steps (the same bits as a plain march), a later march takes that history plus the change's
+    in single precision. With the same source the change is zero: the same bits again; with
+    another source it equals the plain float64 march of that source to 1e-6 of the change between
+    the two sources' histories (float32 rounding of the change, not of the history). A march
+    stopped by its deadline leaves no whole record: the next one is plain again, the same bits."""
+    from helpers import oscillator_model
+    from fmus.native_stepper import library
+    from orchestrator.standin import NativeStandIn
+    from orchestrator.timefreq import prepare
+    from soil_impedance.convolution import RecursiveConvolutionSoil
+
+    if library() is None:
+        pytest.skip("no C compiler here")
+    w = soil()
+    K = w.static_stiffness().toarray()
+    model = oscillator_model(K, w.instantaneous(0.005)[1].toarray(), terms=[(0.3, 0.02, 0.3 / (2 * np.pi * 6.0) ** 2, K)],
+                             maxwell=[(0.2, 0.2 / (2 * np.pi * 15.0), K)])
+    prob = prepare(MODEL, RecursiveConvolutionSoil(model, 0.005), motion(0.35, duration=2.0), 0.005, contact=UPLIFT,
+                   grid=GridOptions(bilinear=True, wrap_tol=1e-10, pad_s=20.0).resolved(bilinear=True, window=True))
+    N, nt = prob.f.shape
+    W = 0.05 * np.abs(prob.f).max() * np.sin(2 * np.pi * 1.3 * 0.005 * np.arange(nt))[None, :] * np.linspace(-1, 1, N)[:, None]
+    zero = np.zeros((N, nt))
+    plain = NativeStandIn(prob, model, library())
+    p0, p_w = plain.march(1.0, zero)[0], plain.march(1.0, W)[0]
+    corr = NativeStandIn(prob, model, library(), single=True)
+    d0, first = corr.march(1.0, zero)
+    again, second = corr.march(1.0, zero)
+    d_w, third = corr.march(1.0, W)
+    assert not first["correction"] and second["correction"] and third["correction"]
+    assert np.array_equal(d0, p0) and np.array_equal(again, p0)
+    assert (p_w > prob.static.delta0[:, None]).any() and rel(p_w, p0) > 1e-3          # lifted; the source acts
+    change = np.abs(p_w - p0).max()
+    assert 0 < np.abs(d_w - p_w).max() < 1e-6 * change              # measured 2.8e-9
+    part, stopped = corr.march(1.0, W, deadline=time.perf_counter() - 1.0)
+    assert stopped["steps"] < nt - 1 and stopped["correction"]
+    d_0, after = corr.march(1.0, zero)                    # no whole record: a plain march
+    assert not after["correction"] and np.array_equal(d_0, p0)
+    corr.close()
+    plain.close()
