@@ -33,10 +33,16 @@ from soil_impedance.convolution import RecursiveConvolutionSoil
 from soil_impedance.fit.continuation import continuation_fit
 from structure.newmark import NewmarkStepper
 
-#: the marches after the first in correction form (``up_sim_correction``, soil.c): the history as
-#: the last march's plus the change's in single precision (on the reactor, CPU s per march: see
-#: docs/native.md); its rounding is relative to the change, and the fixed point stays the residual's
+#: the stand-in's marches in correction form (``up_sim_correction``, soil.c): the history as the
+#: last march's plus the change's in single precision; its rounding is relative to the change, and
+#: the fixed point stays the residual's (on the reactor a march 0.42 -> 0.32 s CPU, the same
+#: residuals to 4 digits, max uplift 9e-14 relative apart: docs/native.md)
 SINGLE = True
+#: the first march too (the change from rest: the whole history in single precision, ~1e-7 of it;
+#: that error is the same in every later march's recorded history, a fixed offset the source W
+#: absorbs, so the sweeps and the fixed point are unchanged: reactor residuals the same to 4
+#: digits, max uplift 1.7e-13 relative apart); False: the first march in float64
+SINGLE_FIRST = True
 
 
 class NativeStandIn:
@@ -48,7 +54,11 @@ class NativeStandIn:
     (``up_sim_rewind``: the stepper's systems, Newton bases and capacitance matrices kept, whose
     numbers depend on the step size and the active set only, so a march is the same bits as on a
     new run; on the reactor the records' parse and the bases cost ~25 ms of a march's ~0.4 s CPU),
-    closed with the marcher (``close``, or when it is collected)."""
+    closed with the marcher (``close``, or when it is collected).
+
+    single : the marches in correction form (``SINGLE``, ``SINGLE_FIRST``; simulate.c's
+    ``up_sim_correction``): each march's soil history is the last whole march's (recorded) plus the
+    history of the change from it in single precision; info["correction"] says when it was."""
 
     def __init__(self, prob, model, lib, damping=None, single: bool = False):
         dt = prob.grid.dt
@@ -106,9 +116,10 @@ class NativeStandIn:
         err = ctypes.create_string_buffer(1024)
         h = self._run(ag[0])
         mode = 0
-        if self.single:          # 2: in correction form; -1 when no whole march is recorded (or none can be)
-            mode = lib.up_sim_correction(h, nt, 2)
-            mode = mode if mode == 2 else max(0, lib.up_sim_correction(h, nt, 1))
+        if self.single:     # 2: the change from the last whole march; without one (-1), the change from
+            mode = lib.up_sim_correction(h, nt, 2)          # rest (3, set as 2) or a float64 march (1)
+            if mode != 2:
+                mode = max(0, lib.up_sim_correction(h, nt, 3 if SINGLE_FIRST else 1))
         else:
             lib.up_sim_correction(h, nt, 0)
         k, factors0 = 0, self.n_factor_total

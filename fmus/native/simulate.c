@@ -39,9 +39,10 @@
      the next run of nt samples (after up_sim_open or up_sim_rewind) in the correction form of
      soil.c (up_soil_corr_mode): 1 its soil history and states recorded per sample, 2 its history
      as the last recorded run's plus the history of the change from that run's states in single
-     precision (recorded in turn), 0 neither. -1: not available (a soil history that is not packed
+     precision (recorded in turn), 3 as 2 from a run at rest recorded (the whole history in single
+     precision; returns 2), 0 neither. -1: not available (a soil history that is not packed
      symmetric, out of memory) or, for 2, no whole run of nt samples recorded without a halved
-     step: the host asks for 1 then. The defect correction's later marches (orchestrator/standin.py).
+     step: the host asks for 3 or 1 then. The defect correction's marches (orchestrator/standin.py).
    up_sim_close(handle)  frees the handle (NULL: nothing)
    up_simulate(res, size, ag, nt, rows, iters, stats, err)
      the whole motion in one call (open, the nt samples, close); returns 0, 1 or -1 as above. */

@@ -735,10 +735,14 @@ void up_soil_outputs(UpSoil *s, int lev, double *f, double *work)
    of the product, which bounds a step): h_k = h_last_k + H32 g(dy, du), dy the pole states of dx
    (float64, the same recursion as the soil's own). Its rounding error is relative to the change,
    not to x; what is summed is recorded in turn, so the history a march steps is the first march's
-   (float64) plus the single-precision histories of every change since. The marches' fixed point is
-   the route's whole-range residual's (float64): the form changes what the sweeps cost, not the
-   answer. Only at the full step (level 0): a halved step marks the run broken (its later steps
-   take the float64 product of the soil's own states; the host marches the next run in mode 1). */
+   plus the single-precision histories of every change since. The first march is either float64
+   recording itself (mode 1) or the change from a run at rest (mode 3: its whole history in single
+   precision, an error of ~1e-7 of it that every later march inherits unchanged: a fixed offset of
+   the stand-in, which the defect correction's source absorbs). The marches' fixed point is the
+   route's whole-range residual's (float64): the form changes what the sweeps cost, not the answer.
+   Only at the full step (level 0): a halved step marks the run broken (its later steps take the
+   float64 product of the soil's own states, and the run is not a record: the host's next run
+   starts again in mode 3 or 1). */
 
 
 /* y += P x for a symmetric (n, n) P packed by rows, in single precision: up_spmv_add_k's loops and
@@ -853,7 +857,7 @@ int up_soil_corr_mode(UpSoil *s, int64_t nt, int mode)
             c->mode = 0;
         return 0;
     }
-    if (!s->Hs || s->hm_perm || nt < 1 || mode < 0 || mode > 2)
+    if (!s->Hs || s->hm_perm || nt < 1 || mode < 0 || mode > 3)
         return -1;                                    /* not packed symmetric: no correction form */
     int n = s->n, nb = s->mr + 2 * s->mc;
     size_t packed = (size_t)n * (n + 1) / 2;
@@ -889,6 +893,10 @@ int up_soil_corr_mode(UpSoil *s, int64_t nt, int mode)
     }
     if (mode == 2 && c->recorded != nt)
         return -1;                                    /* no whole run recorded to correct */
+    if (mode == 3) {                                  /* the change from a run at rest: x itself */
+        memset(c->hrec, 0, 2 * (size_t)nt * n * sizeof(double));
+        mode = 2;
+    }
     c->mode = mode;
     c->broken = 0;
     c->k = 0;

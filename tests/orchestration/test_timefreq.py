@@ -428,14 +428,17 @@ def test_the_constrained_fit_is_cached_by_its_inputs(tmp_path):
     assert np.array_equal(first.model.D, A) and np.array_equal(first.model.E, B)
 
 
-def test_native_marches_in_correction_form_differ_by_single_precision_of_the_change():
-    """NativeStandIn(single=True) (up_sim_correction, soil.c): its first march records the history
-    it steps (the same bits as a plain march), a later march takes that history plus the change's
-    in single precision. With the same source the change is zero: the same bits again; with
-    another source it equals the plain float64 march of that source to 1e-6 of the change between
-    the two sources' histories (float32 rounding of the change, not of the history). A march
-    stopped by its deadline leaves no whole record: the next one is plain again, the same bits."""
+def test_native_marches_in_correction_form_differ_by_single_precision_of_the_change(monkeypatch):
+    """NativeStandIn(single=True) (up_sim_correction, soil.c). With SINGLE_FIRST off its first march
+    records the history it steps (the same bits as a plain march), a later march takes that history
+    plus the change's in single precision. With the same source the change is zero: the same bits
+    again; with another source it equals the plain float64 march of that source to 1e-6 of the
+    change between the two sources' histories (float32 rounding of the change, not of the history).
+    A march stopped by its deadline leaves no whole record: the next one is plain again, the same
+    bits. With SINGLE_FIRST (the default) the first march is the change from rest, the whole history
+    in single precision: within 1e-6 of the plain march, and the same source again the same bits."""
     from helpers import oscillator_model
+    import orchestrator.standin as standin
     from fmus.native_stepper import library
     from orchestrator.standin import NativeStandIn
     from orchestrator.timefreq import prepare
@@ -454,13 +457,21 @@ def test_native_marches_in_correction_form_differ_by_single_precision_of_the_cha
     zero = np.zeros((N, nt))
     plain = NativeStandIn(prob, model, library())
     p0, p_w = plain.march(1.0, zero)[0], plain.march(1.0, W)[0]
+    assert (p_w > prob.static.delta0[:, None]).any() and rel(p_w, p0) > 1e-3          # lifted; the source acts
+
+    first32 = NativeStandIn(prob, model, library(), single=True)                       # SINGLE_FIRST
+    d32, info32 = first32.march(1.0, zero)
+    assert info32["correction"] and 0 < rel(d32, p0) < 1e-6
+    assert np.array_equal(first32.march(1.0, zero)[0], d32)
+    first32.close()
+
+    monkeypatch.setattr(standin, "SINGLE_FIRST", False)
     corr = NativeStandIn(prob, model, library(), single=True)
     d0, first = corr.march(1.0, zero)
     again, second = corr.march(1.0, zero)
     d_w, third = corr.march(1.0, W)
     assert not first["correction"] and second["correction"] and third["correction"]
     assert np.array_equal(d0, p0) and np.array_equal(again, p0)
-    assert (p_w > prob.static.delta0[:, None]).any() and rel(p_w, p0) > 1e-3          # lifted; the source acts
     change = np.abs(p_w - p0).max()
     assert 0 < np.abs(d_w - p_w).max() < 1e-6 * change              # measured 2.8e-9
     part, stopped = corr.march(1.0, W, deadline=time.perf_counter() - 1.0)

@@ -257,7 +257,8 @@ void up_soil_step(UpSoil *s, int lev, const double *x, const double *xd, double 
 void up_soil_outputs(UpSoil *s, int lev, double *f, double *work);
 /* the correction form of repeated runs from rest (the time-frequency route's marches): mode 0 off,
    1 the run's history and states recorded per sample, 2 the history as the last recorded run's plus
-   the change from it in single precision (recorded in turn); nt samples; returns the mode set, or -1
+   the change from it in single precision (recorded in turn), 3 as 2 from a run at rest (returns 2);
+   nt samples; returns the mode set, or -1
    (a history that is not packed symmetric, no record of nt samples for mode 2, out of memory) */
 int up_soil_corr_mode(UpSoil *s, int64_t nt, int mode);
 void up_soil_corr_sample(UpSoil *s, int64_t k);          /* the sample the next step computes */
