@@ -99,7 +99,9 @@ class NativeStandIn:
         sample n of the march is the native run's sample n + 1, so that sample 0 is a step with
         its own contact equations and source, as in the grid's march (a run whose sample 0 is
         the state at rest cannot follow a source there: the residual stalled at 9e-5 on the small
-        reactor at 0.9 g). Returns (d (N, nt), info: newton, factors, steps, wall_s); steps < nt
+        reactor at 0.9 g). Returns (d (N, nt), info: newton, factors, steps, wall_s, correction (the
+        change from the last march), single (the history in single precision: that, or the change
+        from rest), halved (steps halved)); steps < nt
         when ``deadline`` (perf_counter) passed between two chunks."""
         t0 = time.perf_counter()
         lib, N = self.lib, self.N
@@ -115,10 +117,11 @@ class NativeStandIn:
         stats = np.zeros(3, np.int64)
         err = ctypes.create_string_buffer(1024)
         h = self._run(ag[0])
-        mode = 0
+        mode, last = 0, False
         if self.single:     # 2: the change from the last whole march; without one (-1), the change from
             mode = lib.up_sim_correction(h, nt, 2)          # rest (3, set as 2) or a float64 march (1)
-            if mode != 2:
+            last = mode == 2
+            if not last:
                 mode = max(0, lib.up_sim_correction(h, nt, 3 if SINGLE_FIRST else 1))
         else:
             lib.up_sim_correction(h, nt, 0)
@@ -140,7 +143,8 @@ class NativeStandIn:
         self.n_factor_total = int(stats[1])            # the run's, since it was opened
         self.n_factor = self.n_factor_total - factors0
         return d, dict(newton=int(iters[:k].sum()), factors=self.n_factor, steps=int(k - 1),
-                       wall_s=time.perf_counter() - t0, correction=mode == 2)
+                       wall_s=time.perf_counter() - t0, correction=last, single=mode == 2,
+                       halved=int(stats[2]))
 
 
 def constrained_fit(table, fit_model, *, cache_dir=None):

@@ -436,7 +436,8 @@ def test_native_marches_in_correction_form_differ_by_single_precision_of_the_cha
     change between the two sources' histories (float32 rounding of the change, not of the history).
     A march stopped by its deadline leaves no whole record: the next one is plain again, the same
     bits. With SINGLE_FIRST (the default) the first march is the change from rest, the whole history
-    in single precision: within 1e-6 of the plain march, and the same source again the same bits."""
+    in single precision: within 1e-6 of the plain march, and the same source again the same bits;
+    a march whose steps halve is no record either (the next is from rest again)."""
     from helpers import oscillator_model
     import orchestrator.standin as standin
     from fmus.native_stepper import library
@@ -461,7 +462,7 @@ def test_native_marches_in_correction_form_differ_by_single_precision_of_the_cha
 
     first32 = NativeStandIn(prob, model, library(), single=True)                       # SINGLE_FIRST
     d32, info32 = first32.march(1.0, zero)
-    assert info32["correction"] and 0 < rel(d32, p0) < 1e-6
+    assert info32["single"] and not info32["correction"] and 0 < rel(d32, p0) < 1e-6
     assert np.array_equal(first32.march(1.0, zero)[0], d32)
     first32.close()
 
@@ -470,7 +471,7 @@ def test_native_marches_in_correction_form_differ_by_single_precision_of_the_cha
     d0, first = corr.march(1.0, zero)
     again, second = corr.march(1.0, zero)
     d_w, third = corr.march(1.0, W)
-    assert not first["correction"] and second["correction"] and third["correction"]
+    assert not first["single"] and second["correction"] and third["correction"]
     assert np.array_equal(d0, p0) and np.array_equal(again, p0)
     change = np.abs(p_w - p0).max()
     assert 0 < np.abs(d_w - p_w).max() < 1e-6 * change              # measured 2.8e-9
@@ -480,3 +481,15 @@ def test_native_marches_in_correction_form_differ_by_single_precision_of_the_cha
     assert not after["correction"] and np.array_equal(d_0, p0)
     corr.close()
     plain.close()
+
+    # halved steps (Newton capped at 2 solves): a march from rest whose steps halve takes the float64
+    # product of the soil's own states from the first halving on and leaves no record
+    monkeypatch.setattr(standin, "SINGLE_FIRST", True)
+    halving = dataclasses.replace(prob, contact=dataclasses.replace(prob.contact, max_iter=2, max_subdiv=20))
+    h64 = NativeStandIn(halving, model, library()).march(1.0, W)[0]
+    halves = NativeStandIn(halving, model, library(), single=True)
+    h32, once = halves.march(1.0, W)
+    h32_again, twice = halves.march(1.0, W)
+    assert once["halved"] > 0 and once["single"] and twice["single"] and not twice["correction"]   # no record
+    assert 0 < rel(h32, h64) < 1e-6 and np.array_equal(h32_again, h32)
+    halves.close()
