@@ -125,20 +125,21 @@ class _Deferred(types.ModuleType):
     ``importlib.util.module_from_spec`` sets them): an ``import`` statement that finds it in
     ``sys.modules`` binds it without running it (``importlib.util.LazyLoader``'s module runs on any
     attribute read, and Python 3.11's import statement reads ``__spec__``). Its first use runs
-    under a lock (two threads run it once); while it runs, a missing name is missing (the import
-    system's ``hasattr`` of a submodule about to be imported)."""
+    under a lock (two threads run it once, the second waiting for the first); while it runs, a name
+    it lacks is missing to the thread running it (the import system's ``hasattr`` of a submodule
+    about to be imported)."""
 
     def __getattr__(self, attr: str):
         state = self.__dict__.get("_deferred_state")
-        if state is None or state["running"]:
+        if state is None or state["runner"] == threading.get_ident():
             raise AttributeError(f"module {self.__name__!r} has no attribute {attr!r}")
         with state["lock"]:
             if not state["done"]:
-                state["running"] = True
+                state["runner"] = threading.get_ident()
                 try:
                     self.__spec__.loader.exec_module(self)
                 finally:
-                    state["running"] = False
+                    state["runner"] = None
                 state["done"] = True
         return getattr(self, attr) if attr in self.__dict__ else super().__getattribute__(attr)
 
@@ -162,7 +163,7 @@ def defer_modules(names=UNUSED_NUMPY) -> list[str]:
             continue
         module = importlib.util.module_from_spec(spec)
         module.__class__ = _Deferred
-        module.__dict__["_deferred_state"] = {"lock": threading.RLock(), "running": False, "done": False}
+        module.__dict__["_deferred_state"] = {"lock": threading.Lock(), "runner": None, "done": False}
         sys.modules[name] = module
         if package is not None:
             setattr(package, child, module)    # ``package.child`` finds it (no __getattr__ import)

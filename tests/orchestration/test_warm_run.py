@@ -238,7 +238,8 @@ def test_literal_constants_are_the_module_s_values_read_without_importing_it():
     """``uplift_common.lazy.literal_constants`` in a fresh process: the fast solver's constants
     read from its source (the module, and scipy.fft, not imported), equal to the imported module's;
     a ``lazy_module`` stand-in imports on the first read of a name, and a deferred module bound by
-    an import statement does not run before a name of it is read."""
+    an import statement does not run before a name of it is read (four threads reading one at once
+    get it, the module run once)."""
     code = ("import sys\n"
             "from uplift_common.lazy import defer_modules, lazy_module, literal_constants\n"
             "names = ('SOLVERS', 'DEFAULT_TOL', 'TOL_RANGE', 'AUTO_NODES')\n"
@@ -250,7 +251,11 @@ def test_literal_constants_are_the_module_s_values_read_without_importing_it():
             "import numpy.testing\n"
             "print(sla.cholesky.__module__.startswith('scipy.linalg'), 'scipy.linalg' in sys.modules)\n"
             "print('numpy.testing._private.utils' in sys.modules)\n"
-            "numpy.testing.assert_array_equal([1], [1])\n"
+            "import threading\n"
+            "seen = []\n"
+            "threads = [threading.Thread(target=lambda: seen.append(numpy.testing.assert_array_equal)) for _ in range(4)]\n"
+            "[t.start() for t in threads]; [t.join() for t in threads]\n"
+            "assert len(seen) == 4 and len(set(seen)) == 1, seen        # four first uses at once: it ran once\n"
             "import soil_impedance.fastsolve as f\n"
             "print(read == tuple(getattr(f, n) for n in names), read)\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, check=True,
