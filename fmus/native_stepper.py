@@ -23,12 +23,14 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
+import json
 import os
 import shutil
 import subprocess
 import sys
 import threading
 import time
+import types
 from pathlib import Path
 
 import numpy as np
@@ -36,8 +38,9 @@ import numpy as np
 from fmus.native_build import (CFLAGS, SOURCES, NativeBuildError, compile_runtime,
                                encode_resources, host_platform, soil_records, stepper_records)
 from fmus.schema import ENERGY_TERMS, row_slices, row_width
+from soil_impedance.cache import feed, read_entry, write_entry
 from uplift_common.code import code_digest
-from uplift_common.files import atomic_output
+from uplift_common.files import atomic_output, hdf5_output, stamp_checksum
 
 #: the C files of the in-process library (the numerics and simulate.c; no FMI side)
 HOST_SOURCES = ("simulate.c", "stepper.c", "soil.c", "linalg.c", "resources.c")
@@ -176,13 +179,94 @@ def encode_run(st, output_nodes=(), extra_dofs=()) -> bytes:
     """The resource records of a run of the stepper ``st`` (its matrices, static state, contact
     settings, soil model, step) with acc/disp histories of the nodes ``output_nodes`` (then of the
     DOF triples ``extra_dofs``: ``plate_dofs``): what the C runtime reads (``simulate_native``,
-    ``native_max_uplift``; also a cache key of its answer)."""
+    ``native_max_uplift``; also a cache key of its answer). ``st`` may be a ``CachedStepper``
+    (its records read back from the cache: the same bytes)."""
     model = st.model
 
     dofs = [model.dofs(model.node_by_name(nm).id)[:3] for nm in output_nodes] + list(extra_dofs)
     soil = getattr(st.soil, "soil", st.soil)       # a plate stepper's soil: the wrapper of the soil's own
-    return encode_resources({**soil_records(soil.model, st.dt, getattr(soil, "compressed", None)),
-                             **stepper_records(st, dofs)})
+    cached = getattr(st, "records", None)
+    mine = stepper_records(st, dofs) if cached is None else \
+        {**cached, "node_dofs": np.array(dofs, np.int64).reshape(-1, 3)}
+    return encode_resources({**soil_records(soil.model, st.dt, getattr(soil, "compressed", None)), **mine})
+
+
+#: what a rigid raft stepper's records depend on besides its inputs: the code that makes them (the
+#: structure's matrices, damping, static state and penalty; their records) and this module's keys
+STEPPER_CODE = ("structure", "fmus.native_build", "fmus.native_stepper")
+
+
+class CachedStepper:
+    """What the C runtime and ``simulate_native`` read of a rigid raft's ``structure.NewmarkStepper``,
+    read back from the cache (``rigid_stepper``): its records (``fmus.native_build.stepper_records``,
+    their order kept), the model, the soil, the step, the contact settings and the static state."""
+
+    def __init__(self, model, soil, dt: float, contact, records: dict, settlement: float):
+        self.model, self.soil, self.dt, self.contact, self.records = model, soil, float(dt), contact, records
+        self.alpha = float(records["alpha"])
+        self.ns, self.N = int(records["ns"]), int(records["N"])
+        self.Bq3, self.kp, self.P0, self.delta0 = records["Bq3"], records["kp"], records["P0"], records["delta0"]
+        self.static = types.SimpleNamespace(settlement=settlement)
+
+
+def rigid_stepper(model, soil, dt: float, contact=None, damping=None, alpha: float = 0.0, ag0=(0.0, 0.0, 0.0),
+                  cache_dir=None):
+    """``structure.NewmarkStepper(model, soil, dt, contact, damping, alpha, external_soil=True,
+    ag0=ag0)`` for ``simulate_native``, its records kept in the cache folder ``cache_dir``
+    (``stepper-<key>.h5``, checksummed, verified on read) under the key of what the stepper reads
+    (``stepper_key``): a warm run gets a ``CachedStepper`` instead, no matrix assembled, no static
+    solve, no modal damping (scipy is not imported), the same records to the bit. Without a cache
+    folder, or with inputs the key cannot digest, the stepper itself."""
+    from structure import NewmarkStepper
+    key = None if cache_dir is None else stepper_key(model, soil, dt, contact, damping, alpha)
+    path = None if key is None else Path(cache_dir) / f"stepper-{key[:24]}.h5"
+    if path is not None:
+        hit = read_entry(path, lambda f: CachedStepper(model, soil, dt, contact or _contact(), *_read_records(f)))
+        if hit is not None:
+            return hit
+    st = NewmarkStepper(model, soil, dt, contact=contact, damping=damping, alpha=alpha, external_soil=True, ag0=ag0)
+    if path is not None:
+        records = stepper_records(st, np.zeros((0, 3), np.int64))
+
+        def writer(p):
+            with hdf5_output(p) as f:
+                for name, value in records.items():
+                    f.create_dataset(f"records/{name}", data=value)
+                f.attrs["order"] = json.dumps(list(records))
+                f.attrs["settlement"] = float(st.static.settlement)
+                stamp_checksum(f)
+        write_entry(path, writer)
+    return st
+
+
+def _contact():
+    from structure import ContactSettings          # the default settings, as NewmarkStepper makes them
+    return ContactSettings()
+
+
+def _read_records(f) -> tuple:
+    """(records in their order, settlement) of a ``rigid_stepper`` entry."""
+    order = json.loads(f.attrs["order"])
+    group = f["records"]
+    if sorted(order) != sorted(group):
+        raise ValueError(f"records {sorted(group)} do not match their order {order}")
+    return {name: group[name][()] for name in order}, float(f.attrs["settlement"])
+
+
+def stepper_key(model, soil, dt: float, contact, damping, alpha: float) -> str | None:
+    """SHA-256 of what a rigid raft's NewmarkStepper reads to make its records: ``STEPPER_CODE``,
+    the structure model (every field), the soil's size and static stiffness (its penalty and
+    static state), the step, the contact settings, the damping and the HHT alpha; None when one
+    of them has no digest (``feed`` raises TypeError: nothing is kept)."""
+    h = hashlib.sha256(code_digest(*STEPPER_CODE).encode())
+    K = soil.static_stiffness()
+    try:
+        for part in (model, int(soil.n_dof), np.asarray(K.toarray() if hasattr(K, "toarray") else K, float),
+                     float(dt), contact, damping, float(alpha)):
+            feed(h, part)
+    except TypeError:
+        return None
+    return h.hexdigest()
 
 
 def plate_dofs(st) -> list:

@@ -25,13 +25,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from soil_impedance.cache import read_entry, write_entry
+from soil_impedance.cache import feed, read_entry, write_entry
 from uplift_common.code import code_digest
 from uplift_common.files import hdf5_output, stamp_checksum
 
 from structure import ConvergenceError, simulate
 from structure.results import RouteResult, Status
 from structure.spec import winkler_from_moduli
+from structure.soil_interface import WinklerSoil
 from structure.winkler import modes_on_soil, springs_from_rigid_impedance
 
 from orchestrator.exit_codes import STOPPED, USER_INPUT
@@ -136,51 +137,27 @@ def _dt_check_key(lib, model, soil, contact, motion) -> str:
     """SHA-256 of what a check's native run is made of, taken before its stepper is built (a
     warm run builds none): the compiled library (its file name is the digest of its C sources,
     compiler, flags and platform), ``DT_CHECK_CODE``'s sources, the structure model (every field,
-    its arrays' bytes: ``_feed``), the springs as the stepper reads them (their instantaneous
-    stiffness and damping matrices at the motion's step), the contact settings, the step and the
+    its arrays' bytes: ``soil_impedance.cache.feed``), the springs as the stepper reads them
+    (``_springs_inputs``: a WinklerSoil's constants, else its instantaneous stiffness and damping
+    matrices at the motion's step), the contact settings, the step and the
     ground acceleration."""
     h = hashlib.sha256(Path(lib._name).name.encode() + b"\0")
     h.update(code_digest(*DT_CHECK_CODE).encode())
-    K, C = soil.instantaneous(motion.dt)
-    dense = lambda a: np.asarray(a.toarray() if hasattr(a, "toarray") else a, float)
-    for part in (model, (dense(K), dense(C)), contact, float(motion.dt), np.asarray(motion.acc, float)):
-        _feed(h, part)
+    for part in (model, _springs_inputs(soil, motion.dt), contact, float(motion.dt), np.asarray(motion.acc, float)):
+        feed(h, part)
     return h.hexdigest()
 
 
-def _feed(h, value) -> None:
-    """Feed ``value`` into hash ``h`` unambiguously (each item typed and delimited): dataclasses
-    (their type and every field), tuples and lists, dicts (sorted), numpy arrays (dtype, shape,
-    bytes) and scalars (exact ``repr``); any other type raises TypeError (a key must not miss an input)."""
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        h.update(f"<{type(value).__module__}.{type(value).__qualname__}".encode())
-        for f in dataclasses.fields(value):
-            h.update(f" {f.name}=".encode())
-            _feed(h, getattr(value, f.name))
-        h.update(b">")
-    elif isinstance(value, (tuple, list)):
-        h.update(f"[{len(value)}".encode())
-        for item in value:
-            h.update(b",")
-            _feed(h, item)
-        h.update(b"]")
-    elif isinstance(value, dict):
-        h.update(f"{{{len(value)}".encode())
-        for key in sorted(value, key=repr):
-            _feed(h, key)
-            h.update(b":")
-            _feed(h, value[key])
-        h.update(b"}")
-    elif isinstance(value, np.ndarray):
-        a = np.ascontiguousarray(value)
-        if a.dtype.kind not in "biufc":
-            raise TypeError(f"_feed: no digest for an array of dtype {a.dtype}")
-        h.update(f"(array {a.dtype.str} {a.shape})".encode())
-        h.update(memoryview(a.reshape(-1)).cast("B"))
-    elif value is None or isinstance(value, (bool, int, float, complex, str, np.generic)):
-        h.update(f"({type(value).__name__} {value!r})".encode())
-    else:
-        raise TypeError(f"_feed: no digest for a {type(value).__name__}")
+def _springs_inputs(soil, dt: float):
+    """What the matrices of the proxy springs ``soil`` are made of, for a cache key: a WinklerSoil's
+    nodes and constants (its sparse matrices are assembled from them by the structure's code, which
+    every such key digests: a warm run assembles nothing), else its instantaneous (K, C) at ``dt``
+    as dense arrays."""
+    if isinstance(soil, WinklerSoil):
+        return ("winkler", soil.xy, soil.kv, soil.kx, soil.ky, soil.cv, soil.cx, soil.cy)
+    K, C = soil.instantaneous(dt)
+    dense = lambda a: np.asarray(a.toarray() if hasattr(a, "toarray") else a, float)
+    return dense(K), dense(C)
 
 
 #: what a synthetic motion depends on besides its [motion] keys and the step: the code that makes
@@ -251,14 +228,46 @@ def step_doubling_warning(check: dict) -> str | None:
             f"{100 * check['tolerance']:g} %): rerun with dt <= {check['dt'] / 2:g} s and compare")
 
 
-def check_time_step(model, soil, dt: float) -> float:
+def check_time_step(model, soil, dt: float, cache_dir=None) -> float:
     """Refuse a step that does not resolve the first soil-structure mode (of the structure
-    ``model`` on the springs ``soil``, see ``proxy_springs``); returns its frequency."""
-    f1 = float(modes_on_soil(model, soil).freq[0])
+    ``model`` on the springs ``soil``, see ``proxy_springs``: ``first_frequency``, kept in the
+    cache folder ``cache_dir``); returns its frequency."""
+    f1 = first_frequency(model, soil, cache_dir)
     if dt * f1 * MIN_STEPS_PER_PERIOD > 1.0 + 1e-9:
         raise SceneError(f"analysis.dt = {dt:g} s gives {1 / (dt * f1):.1f} steps per period of the first "
                          f"soil-structure mode ({f1:.3g} Hz): not resolved (at least {MIN_STEPS_PER_PERIOD} "
                          f"needed); use dt <= {1 / (MIN_STEPS_PER_PERIOD * f1):.3g} s")
+    return f1
+
+
+#: what the first soil-structure frequency depends on besides the structure and the springs: the
+#: code that assembles their matrices and solves the modes, and the one that keys it
+MODES_CODE = ("structure", "orchestrator.run")
+
+
+def first_frequency(model, soil, cache_dir=None) -> float:
+    """The first frequency (Hz) of the structure ``model`` on the springs ``soil``
+    (``structure.winkler.modes_on_soil``). With a cache folder and Winkler springs it is kept there
+    (``modes-<key>.h5``, checksummed, verified on read) under the key of its inputs (the structure
+    model, every field; the springs' nodes and constants, ``_springs_inputs``; ``MODES_CODE``): a
+    warm run reads it back instead of assembling the matrices and solving the eigenproblem (scipy
+    is not imported)."""
+    if cache_dir is None or not isinstance(soil, WinklerSoil):
+        return float(modes_on_soil(model, soil).freq[0])
+    h = hashlib.sha256(code_digest(*MODES_CODE).encode())
+    for part in (model, _springs_inputs(soil, 1.0)):
+        feed(h, part)
+    path = Path(cache_dir) / f"modes-{h.hexdigest()[:24]}.h5"
+    hit = read_entry(path, lambda f: float(f.attrs["f1_hz"]))
+    if hit is not None:
+        return hit
+    f1 = float(modes_on_soil(model, soil).freq[0])
+
+    def writer(p):
+        with hdf5_output(p) as f:
+            f.attrs["f1_hz"] = f1
+            stamp_checksum(f)
+    write_entry(path, writer)
     return f1
 
 
@@ -361,7 +370,7 @@ def prepare_run(scene, routes=None, cache_dir=None, sweep_progress=None, fit_pro
     with compute_threads():
         springs = proxy_springs(scene, bool(outputs), cache_dir)
         model = scene.model()
-        check_time_step(model, springs, scene.analysis.dt)
+        check_time_step(model, springs, scene.analysis.dt, cache_dir)
         fit = cached_scene_fit(scene, cache_dir) if outputs and any(r.needs_fit for r in chosen) else None
         reads_tables = any(r.tables(scene) and not r.needs_fit for r in chosen)   # not only through the fit
         sweep, tables = {}, {}

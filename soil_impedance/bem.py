@@ -48,10 +48,13 @@ from __future__ import annotations
 import importlib
 
 import numpy as np
-import scipy.linalg as sla
+from uplift_common.lazy import lazy_module
 
 from .patch import radial_to_cartesian, static_patch_kernel
 from uplift_common.errors import UserInputError
+
+# scipy loads on first use (uplift_common.lazy): a warm run reads what it would compute
+sla = lazy_module("scipy.linalg")
 
 CONTACTS = ("welded", "relaxed")
 

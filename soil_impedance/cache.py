@@ -13,11 +13,13 @@ Usage::
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 import warnings
 from pathlib import Path
 
 import h5py
+import numpy as np
 
 from uplift_common.files import ComplexPairs, OutputWriteError, verify_checksum
 
@@ -87,3 +89,38 @@ def write_entry(path, writer) -> None:
         why = exc.reason if isinstance(exc, OutputWriteError) else exc
         warnings.warn(CacheWarning(f"could not write cache entry {path} ({why}); continuing without it"),
                       stacklevel=3)
+
+
+def feed(h, value) -> None:
+    """Feed ``value`` into hash ``h`` unambiguously, for a cache key of a value's inputs (each item
+    typed and delimited): dataclasses (their type and every field), tuples and lists, dicts (sorted), numpy arrays (dtype, shape,
+    bytes) and scalars (exact ``repr``); any other type raises TypeError (a key must not miss an input)."""
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        h.update(f"<{type(value).__module__}.{type(value).__qualname__}".encode())
+        for f in dataclasses.fields(value):
+            h.update(f" {f.name}=".encode())
+            feed(h, getattr(value, f.name))
+        h.update(b">")
+    elif isinstance(value, (tuple, list)):
+        h.update(f"[{len(value)}".encode())
+        for item in value:
+            h.update(b",")
+            feed(h, item)
+        h.update(b"]")
+    elif isinstance(value, dict):
+        h.update(f"{{{len(value)}".encode())
+        for key in sorted(value, key=repr):
+            feed(h, key)
+            h.update(b":")
+            feed(h, value[key])
+        h.update(b"}")
+    elif isinstance(value, np.ndarray):
+        a = np.ascontiguousarray(value)
+        if a.dtype.kind not in "biufc":
+            raise TypeError(f"_feed: no digest for an array of dtype {a.dtype}")
+        h.update(f"(array {a.dtype.str} {a.shape})".encode())
+        h.update(memoryview(a.reshape(-1)).cast("B"))
+    elif value is None or isinstance(value, (bool, int, float, complex, str, np.generic)):
+        h.update(f"({type(value).__name__} {value!r})".encode())
+    else:
+        raise TypeError(f"_feed: no digest for a {type(value).__name__}")

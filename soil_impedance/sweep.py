@@ -17,7 +17,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-import scipy.linalg as sla
+from uplift_common.lazy import lazy_module, literal_constants
 
 from .blocked import STREAM_BYTES, BlockedTable, TableWriter, table_bytes
 from .bem import CHUNK_PAIRS, CONTACTS, RADIAL_TOL, BemError, SurfaceBem, _grid, edge_tractions, nodal_dofs
@@ -26,11 +26,17 @@ from uplift_common.errors import UserInputError
 from uplift_common.files import OutputWriteError
 
 from .cache import CacheWarning, read_entry, write_entry
-from .fastsolve import DEFAULT_TOL, check_solver, fast_memory, gap_and_rigid, resolve_solver, right_hand_sides
 from .greens_rule import GreenRule
 from .profile import CAUSAL_CUTOFF_HZ, CAUSAL_REFERENCE_HZ
 from .reduction import RIGID_DOFS, gap_dofs, gap_transform, rigid_transform
 from .table import ImpedanceTable, TableError, content_hash
+
+# scipy loads on first use (uplift_common.lazy): a warm run reads what it would compute
+sla = lazy_module("scipy.linalg")
+# the fast solver too, its default tolerance read from its source; it imports scipy.fft at its top,
+# which the solver's checks (every run's memory guard) do not use: deferred to a fast sweep's first FFT
+fastsolve = lazy_module("soil_impedance.fastsolve", defer=("scipy.fft",))
+(DEFAULT_TOL,) = literal_constants("soil_impedance.fastsolve", ("DEFAULT_TOL",))
 
 OUTPUTS = ("rigid", "gap", "nodal")
 #: the code a table depends on: its digest is one of the table's inputs (a changed kernel misses the cache)
@@ -93,8 +99,8 @@ def provenance(profile, mesh, contact, rule, output, solver="dense", solver_tol=
 
 def _solver_for(mesh, solver, solver_tol, outputs) -> str:
     """The solver ("dense" or "fast") a sweep of ``outputs`` uses (``fastsolve.resolve_solver``)."""
-    check_solver(solver, solver_tol)
-    return resolve_solver(solver, mesh, _grid(mesh) is not None, outputs)
+    fastsolve.check_solver(solver, solver_tol)
+    return fastsolve.resolve_solver(solver, mesh, _grid(mesh) is not None, outputs)
 
 
 def table_key(profile, mesh, frequencies_hz, contact="welded", output="gap", rule=None,
@@ -177,7 +183,7 @@ def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = Fal
             side = int(math.ceil(2 * math.sqrt(n / math.pi))) + 1
             box = (side, side)
         held = [16 * (1 if o in streamed else n_freq) * {"rigid": 6, "gap": 6 + n}[o] ** 2 for o in outputs]
-        items = {"F": 0, "assembly": 3 * 4 * n * 9 * 16, "work": fast_memory(n, *box, rhs=rhs),
+        items = {"F": 0, "assembly": 3 * 4 * n * 9 * 16, "work": fastsolve.fast_memory(n, *box, rhs=rhs),
                  "outputs": sum(held) + (max(held) // 2 if held else 0)}
         items["margin"] = int(MARGIN * sum(items.values()))
         items["base"] = BASE_BYTES
@@ -220,7 +226,7 @@ def mesh_sweep_memory(mesh, n_freq: int, outputs=("rigid", "gap"), solver="dense
     box = rhs = None
     if solver == "fast":
         box = tuple(int(v) for v in np.ptp(grid[0], axis=0) + 1)
-        rhs = right_hand_sides(mesh)
+        rhs = fastsolve.right_hand_sides(mesh)
     return sweep_memory(mesh.n, n_freq, outputs, grid=grid is not None, solver=solver, box=box, rhs=rhs,
                         streamed=streamed)
 
@@ -425,7 +431,7 @@ def _compute_fast(bem, f, outputs, progress, tol, sinks=None) -> dict[str, np.nd
             (f0, s0), (f1, s1) = past
             w = (fk - f1) / (f1 - f0)
             guess = {key: s1[key] + w * (s1[key] - s0[key]) for key in s1}
-        mats, _, solutions = gap_and_rigid(bem, 2 * math.pi * fk, outputs, tol, T, Th, guess)
+        mats, _, solutions = fastsolve.gap_and_rigid(bem, 2 * math.pi * fk, outputs, tol, T, Th, guess)
         past = (past + [(fk, solutions)])[-2:]
         for o in outputs:
             out[o][k] = mats[o]

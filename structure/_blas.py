@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import functools
 
-import scipy.linalg  # noqa: F401  (load scipy's BLAS before the controller lists the libraries)
-from threadpoolctl import ThreadpoolController
-
 
 @functools.lru_cache(maxsize=1)
-def _controller() -> ThreadpoolController:
-    # listing the loaded libraries costs ~1 ms; limiting through a listed controller ~40 us
+def _controller():
+    # listing the loaded libraries costs ~1 ms; limiting through a listed controller ~40 us.
+    # Imported here, on the first stepper made, not with this module: a warm run makes none
+    import scipy.linalg  # noqa: F401  (scipy's BLAS loaded before the controller lists the libraries)
+    from threadpoolctl import ThreadpoolController
     return ThreadpoolController()
 
 

@@ -10,9 +10,12 @@ history (nt, n), the stepper's step-by-step sums vectorised over time.
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg as sla
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
+from uplift_common.lazy import lazy_module
+
+# scipy loads on first use (uplift_common.lazy): a warm run reads what it would compute
+sla = lazy_module("scipy.linalg")
+sp = lazy_module("scipy.sparse")
+spla = lazy_module("scipy.sparse.linalg")
 
 
 class ClosedSolver:

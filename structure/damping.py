@@ -15,10 +15,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg as sla
+from uplift_common.lazy import lazy_module
 
 from .errors import StructureError
 from .model import StructureModel
+
+# scipy loads on first use (uplift_common.lazy): a warm run reads what it would compute
+sla = lazy_module("scipy.linalg")
 
 
 @dataclass(frozen=True, eq=False)

@@ -16,11 +16,14 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
-import scipy.sparse as sp
 from uplift_common.interface import interface_points
+from uplift_common.lazy import lazy_module
 
 from .beams import global_stiffness
 from .errors import StructureError
+
+# scipy loads on first use (uplift_common.lazy): a warm run reads what it would compute
+sp = lazy_module("scipy.sparse")
 
 G_ACC = 9.81  # m/s^2, gravity acts along -z
 

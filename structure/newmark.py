@@ -40,9 +40,7 @@ from __future__ import annotations
 from collections import OrderedDict
 
 import numpy as np
-import scipy.linalg as sla
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
+from uplift_common.lazy import lazy_module
 
 from ._blas import single_threaded_blas
 from .closed_contact import ClosedSolver, MatVec, quad, work
@@ -51,6 +49,11 @@ from .damping import damping_matrix
 from .errors import ConvergenceError, StructureError
 from .model import StructureModel
 from .preload import StaticState, embed, interface_operator, solve_static
+
+# scipy loads on first use (uplift_common.lazy): a warm run reads what it would compute
+sla = lazy_module("scipy.linalg")
+sp = lazy_module("scipy.sparse")
+spla = lazy_module("scipy.sparse.linalg")
 
 
 class _NewtonFailure(Exception):

@@ -17,10 +17,13 @@ Units: SI (m, N, Pa); DOF ordering vertex-interleaved ``[w0, θx0, θy0, w1, ...
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
+from uplift_common.lazy import lazy_module
 
 from .errors import StructureError
 
+
+# scipy loads on first use (uplift_common.lazy): a warm run reads what it would compute
+sp = lazy_module("scipy.sparse")
 #: three-point (degree 2) rule on the reference triangle: points (ξ, η), weights summing to 1/2
 _GAUSS = (np.array([[1 / 6, 1 / 6], [2 / 3, 1 / 6], [1 / 6, 2 / 3]]), np.full(3, 1 / 6))
 

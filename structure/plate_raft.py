@@ -45,8 +45,7 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
-import scipy.linalg as sla
-import scipy.sparse as sp
+from uplift_common.lazy import lazy_module
 
 from .contact import contact_force, penalty_stiffness
 from .damping import damping_matrix
@@ -57,6 +56,10 @@ from .plate import moment_operator, plate_stiffness
 from .preload import solve_static_system
 from .soil_interface import SoilInterface
 
+
+# scipy loads on first use (uplift_common.lazy): a warm run reads what it would compute
+sla = lazy_module("scipy.linalg")
+sp = lazy_module("scipy.sparse")
 #: ranges accepted for the plate's properties (SI): thickness m, E Pa, nu -, rho kg/m^3
 PLATE_RANGES = {"thickness": (1e-3, 50.0), "E": (1e6, 1e15), "nu": (0.0, 0.499), "rho": (0.0, 2e4)}
 #: ranges of the plate's damping: ratio (-) at the frequency damping_hz (Hz)

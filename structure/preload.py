@@ -10,11 +10,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.sparse as sp
-import scipy.sparse.linalg as spla
+from uplift_common.lazy import lazy_module
 
 from .errors import ConvergenceError, StructureError
 from .model import StructureModel
+
+# scipy loads on first use (uplift_common.lazy): a warm run reads what it would compute
+sp = lazy_module("scipy.sparse")
+spla = lazy_module("scipy.sparse.linalg")
 
 
 @dataclass(frozen=True, eq=False)

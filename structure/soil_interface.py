@@ -21,10 +21,15 @@ Contract (what a stepper does with a soil, per step t_n -> t_{n+1}):
 """
 from __future__ import annotations
 
+from functools import cached_property
+
 import numpy as np
-import scipy.sparse as sp
+from uplift_common.lazy import lazy_module
 
 from .errors import StructureError
+
+# scipy loads on first use (uplift_common.lazy): a warm run reads what it would compute
+sp = lazy_module("scipy.sparse")
 
 
 class SoilInterface:
@@ -80,9 +85,16 @@ class WinklerSoil(SoilInterface):
         self.cx = _positive("ch", ch, n)
         self.cy = self.cx.copy() if cy is None else _positive("cy", cy, n)
         self.n_dof = 6 + n
-        self._K = self._assemble(self.kv, self.kx, self.ky)
-        self._C = self._assemble(self.cv, self.cx, self.cy)
         self._dt = None
+
+    @cached_property
+    def _K(self):
+        """The stiffness matrix, assembled on first use (a warm run's checks read their answers)."""
+        return self._assemble(self.kv, self.kx, self.ky)
+
+    @cached_property
+    def _C(self):
+        return self._assemble(self.cv, self.cx, self.cy)
 
     def _assemble(self, v, hx, hy):
         x, y = self.xy[:, 0], self.xy[:, 1]

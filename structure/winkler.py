@@ -23,11 +23,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg as sla
+from uplift_common.lazy import lazy_module
 
 from .errors import StructureError
 from .model import StructureModel
 from .soil_interface import WinklerSoil, _rigid
+
+# scipy loads on first use (uplift_common.lazy): a warm run reads what it would compute
+sla = lazy_module("scipy.linalg")
 
 
 def disk_static_stiffness(G: float, nu: float, R: float) -> np.ndarray:

@@ -21,13 +21,22 @@ every name of ``numpy.__all__`` and so imports numpy's Fortran-wrapper generator
 utilities (``UNUSED_NUMPY``) with what they import in turn (unittest, email, importlib.metadata,
 charset_normalizer): about 0.2 s of a command's start that no computation of the project uses.
 The command line defers them (``orchestrator.cli``): they load on first use, as before.
+
+``lazy_module`` stands for a module of another package that a module uses in some functions only
+(``sla = lazy_module("scipy.linalg")`` instead of ``import scipy.linalg as sla``): the module is
+imported when one of its names is first read, so that a run whose path does not call it (a warm
+run, its structure read from the cache) never imports it. ``literal_constants`` reads constants
+of a module from its source, without importing it (and its imports).
 """
 from __future__ import annotations
 
 import ast
+import contextlib
 import importlib
 import importlib.util
 import sys
+import threading
+import types
 from pathlib import Path
 
 
@@ -59,19 +68,88 @@ def exported_names(init: Path) -> dict[str, str]:
     return {}
 
 
+class lazy_module:                      # lower case: it stands for a module
+    """A stand-in for the module ``name``: imported on the first read of one of its names
+    (``importlib.import_module``, under the import lock: two threads import it once), each name
+    then kept on the stand-in (later reads are plain attribute reads). defer: modules that ``name``
+    imports at its top but whose names the caller's uses of it do not read (``defer_modules``,
+    made just before ``name`` is imported: they run on their own first use)."""
+
+    def __init__(self, name: str, defer: tuple[str, ...] = ()):
+        object.__setattr__(self, "_lazy_name", name)
+        object.__setattr__(self, "_lazy_defer", tuple(defer))
+
+    def __getattr__(self, attr: str):
+        if attr.startswith("__"):                    # copy, pickle, inspect: not the module's names
+            raise AttributeError(attr)
+        if self._lazy_defer and self._lazy_name not in sys.modules:
+            defer_modules(self._lazy_defer)
+        value = getattr(importlib.import_module(self._lazy_name), attr)
+        object.__setattr__(self, attr, value)
+        return value
+
+    def __repr__(self) -> str:
+        return f"<lazy module {self._lazy_name!r}{' (imported)' if self._lazy_name in sys.modules else ''}>"
+
+
+def literal_constants(module: str, names: tuple[str, ...]) -> tuple:
+    """The values of ``names``, each assigned a literal at the top level of ``module`` (a dotted
+    name), read from its source without running it (``ast.literal_eval``); from the module itself
+    when it is imported already. A name not assigned a literal there raises LookupError."""
+    if module in sys.modules:
+        return tuple(getattr(sys.modules[module], n) for n in names)
+    spec = importlib.util.find_spec(module)
+    tree = ast.parse(Path(spec.origin).read_text(encoding="utf-8"))
+    found = {}
+    for node in tree.body:
+        targets = node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(node, ast.AnnAssign) else []
+        for t in targets:
+            if isinstance(t, ast.Name) and t.id in names and node.value is not None:
+                with contextlib.suppress(ValueError):     # not a literal: reported missing below
+                    found[t.id] = ast.literal_eval(node.value)
+    missing = [n for n in names if n not in found]
+    if missing:
+        raise LookupError(f"{module}: {', '.join(missing)} not assigned a literal at its top level")
+    return tuple(found[n] for n in names)
+
+
 #: numpy's submodules that the project's computations never use, but which importing scipy loads
 #: (its array-API shim reads every name of ``numpy.__all__``): the Fortran-wrapper generator and
 #: the test utilities
 UNUSED_NUMPY = ("numpy.f2py", "numpy.testing")
 
 
+class _Deferred(types.ModuleType):
+    """A module whose code runs on the first read of a name it does not have yet (its import
+    attributes ``__name__``, ``__spec__``, ``__path__``... are set when it is made, as
+    ``importlib.util.module_from_spec`` sets them): an ``import`` statement that finds it in
+    ``sys.modules`` binds it without running it (``importlib.util.LazyLoader``'s module runs on any
+    attribute read, and Python 3.11's import statement reads ``__spec__``). Its first use runs
+    under a lock (two threads run it once, the second waiting for the first); while it runs, a name
+    it lacks is missing to the thread running it (the import system's ``hasattr`` of a submodule
+    about to be imported)."""
+
+    def __getattr__(self, attr: str):
+        state = self.__dict__.get("_deferred_state")
+        if state is None or state["runner"] == threading.get_ident():
+            raise AttributeError(f"module {self.__name__!r} has no attribute {attr!r}")
+        with state["lock"]:
+            if not state["done"]:
+                state["runner"] = threading.get_ident()
+                try:
+                    self.__spec__.loader.exec_module(self)
+                finally:
+                    state["runner"] = None
+                state["done"] = True
+        return getattr(self, attr) if attr in self.__dict__ else super().__getattribute__(attr)
+
+
 def defer_modules(names=UNUSED_NUMPY) -> list[str]:
-    """Make each module of ``names`` not imported yet load on first use (``importlib.util.LazyLoader``:
-    the module object is in ``sys.modules`` and on its parent package, its code runs when one of
-    its attributes is first read): a module that is only listed, never used, is never run. Its
+    """Make each module of ``names`` not imported yet load on first use (``_Deferred``: the module
+    object is in ``sys.modules`` and on its parent package, its code runs when a name of it is
+    first read): a module that is only listed, or imported and never used, is never run. Its
     parent package is imported. Modules already imported (or not installed) are left as they are.
-    Returns the names deferred. Only for modules a computation never uses: Python 3.11's lazy
-    module is not safe against two threads making its first use at once."""
+    Returns the names deferred."""
     done = []
     for name in names:
         if name in sys.modules:
@@ -83,10 +161,10 @@ def defer_modules(names=UNUSED_NUMPY) -> list[str]:
         spec = importlib.util.find_spec(name)
         if spec is None or spec.loader is None or not hasattr(spec.loader, "exec_module"):
             continue
-        spec.loader = importlib.util.LazyLoader(spec.loader)
         module = importlib.util.module_from_spec(spec)
+        module.__class__ = _Deferred
+        module.__dict__["_deferred_state"] = {"lock": threading.Lock(), "runner": None, "done": False}
         sys.modules[name] = module
-        spec.loader.exec_module(module)        # only arms the module: its code runs on first use
         if package is not None:
             setattr(package, child, module)    # ``package.child`` finds it (no __getattr__ import)
         done.append(name)

@@ -24,7 +24,7 @@ import time
 import numpy as np
 
 from fmus.resources import DEFAULT_SOIL_FACTORY, soil_from_model
-from structure import ConvergenceError, NewmarkStepper, simulate
+from structure import ConvergenceError, simulate
 from structure.plate_raft import PlateRaftModel, PlateStepper
 
 from orchestrator.impedance import scene_fit
@@ -140,7 +140,7 @@ def step_scene(scene, model, soil, motion, *, route: str, progress=None, cache_d
     try:
         if stepper == "native" and not why:
             res = _native(model, as_native(soil, motion.dt) if as_native else soil, motion, scene, route, progress,
-                          folder, damping, alpha)
+                          folder, damping, alpha, cache_dir)
         else:
             res = simulate(model, soil, motion.acc, motion.dt, contact=scene.contact, damping=damping, alpha=alpha,
                            output_nodes=scene.output.nodes, progress=progress, route=route,
@@ -185,14 +185,18 @@ def contact_energy_warning(res) -> str:
             "'Flexible raft')")
 
 
-def _native(model, soil, motion, scene, route, progress, folder, damping, alpha=0.0):
+def _native(model, soil, motion, scene, route, progress, folder, damping, alpha=0.0, cache_dir=None):
     """The run through the C runtime (fmus.native_stepper, the library in ``folder``); wall_s
-    includes the stepper's set-up."""
-    from fmus.native_stepper import library, simulate_native   # the same: only when it steps
+    includes the stepper's set-up: a rigid raft's records read from the cache folder ``cache_dir``
+    when they are there (``fmus.native_stepper.rigid_stepper``), a plate raft's stepper built."""
+    from fmus.native_stepper import library, rigid_stepper, simulate_native   # the same: only when it steps
     t0 = time.perf_counter()
-    cls = PlateStepper if isinstance(model, PlateRaftModel) else NewmarkStepper
-    st = cls(model, soil, motion.dt, contact=scene.contact, damping=damping, alpha=alpha, external_soil=True,
-             ag0=motion.acc[0])
+    if isinstance(model, PlateRaftModel):
+        st = PlateStepper(model, soil, motion.dt, contact=scene.contact, damping=damping, alpha=alpha,
+                          external_soil=True, ag0=motion.acc[0])
+    else:
+        st = rigid_stepper(model, soil, motion.dt, contact=scene.contact, damping=damping, alpha=alpha,
+                           ag0=motion.acc[0], cache_dir=cache_dir)
     try:
         res = simulate_native(st, motion.acc, scene.output.nodes, route=route, lib=library(folder),
                               progress=progress, raft_points=getattr(scene.output, "raft_points", None))
