@@ -30,8 +30,11 @@
    direction of node i is its trace on [q, t] (a few vertex weights, the held vertices' through
    q[2:5]) and -1 on w_i (UpStepper.bc_*), used wherever a rigid raft uses Bq3; the soil acts on
    [q, w] only: its matrices, history force and state vectors (fs, Kx, h) keep the soil's order
-   (nsoil = 6 + N), gathered from x around each product (soil_gather, soil_dof). The springs'
-   node-by-node elimination is a rigid raft's only. Without plate_nf every line a rigid raft
+   (nsoil = 6 + N), gathered from x around each product (soil_gather, soil_dof). A plate's
+   interior (the sticks and the free vertices' rotations) is condensed by a banded Cholesky with
+   sparse couplings A_BI, A_IB when it is symmetric and narrow (plate_band_init, band_factor,
+   band_solve): a step solves it twice by substitution instead of multiplying by A_II^-1 and X.
+   The springs' node-by-node elimination is a rigid raft's only. Without plate_nf every line a rigid raft
    runs is the one it ran before the plate (the same bits).
 
    The reference is structure/newmark.py (NewmarkStepper: the readable Python stepper); this
