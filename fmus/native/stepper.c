@@ -30,8 +30,11 @@
    direction of node i is its trace on [q, t] (a few vertex weights, the held vertices' through
    q[2:5]) and -1 on w_i (UpStepper.bc_*), used wherever a rigid raft uses Bq3; the soil acts on
    [q, w] only: its matrices, history force and state vectors (fs, Kx, h) keep the soil's order
-   (nsoil = 6 + N), gathered from x around each product (soil_gather, soil_dof). The springs'
-   node-by-node elimination is a rigid raft's only. Without plate_nf every line a rigid raft
+   (nsoil = 6 + N), gathered from x around each product (soil_gather, soil_dof). A plate's
+   interior (the sticks and the free vertices' rotations) is condensed by a banded Cholesky with
+   sparse couplings A_BI, A_IB when it is symmetric and narrow (plate_band_init, band_factor,
+   band_solve): a step solves it twice by substitution instead of multiplying by A_II^-1 and X.
+   The springs' node-by-node elimination is a rigid raft's only. Without plate_nf every line a rigid raft
    runs is the one it ran before the plate (the same bits).
 
    The reference is structure/newmark.py (NewmarkStepper: the readable Python stepper); this
@@ -170,6 +173,117 @@ static void soil_gather(const UpStepper *s, const double *x, double *xs)
     memcpy(xs + 6, x + 6 + s->nf, (size_t)s->N * sizeof(double));
 }
 
+/* ---- a plate's interior: A_II banded ------------------------------------------------------
+   The interior of a plate raft is the sticks' DOFs and the free vertices' rotations: the two do
+   not couple (the sticks hang on q) and each is sparse with a narrow band (a vertex couples to
+   its cell neighbours'), so A_II = c0 M_I + (1 + al)(Ks + c1 Cs)_II is factorised by a banded
+   Cholesky and a step's two interior solves (y = A_II^-1 rhs_I, then u_I = A_II^-1 (rhs_I -
+   A_IB uB)) are banded substitutions with the sparse couplings A_BI, A_IB: about 2 (band + 1)
+   ni values read twice instead of ni (ni + 1) / 2 of the packed inverse and the dense ni x nb
+   X = A_II^-1 A_IB (X is still formed, once per level, for S0 = A_BB - A_BI X). Taken when the
+   system is symmetric and 4 (band + 1) <= ni; a level whose A_II is not positive definite takes
+   the dense path. */
+
+/* the pattern (non-zeros of Ks or Cs) of the block rows r0.., cols c0.. (rows x cols) of the
+   structure's matrices, as a sparse matrix of ones */
+static int pattern_init(const UpStepper *s, UpSparse *S, int r0, int rows, int c0, int cols)
+{
+    double *P = (double *)calloc((size_t)rows * cols + 1, sizeof(double));
+    if (!P)
+        return -1;
+    for (int i = 0; i < rows; i++)
+        for (int j = 0; j < cols; j++) {
+            int gi = r0 + i, gj = c0 + j;
+            if (gi < s->ns && gj < s->ns
+                && (s->Ks[(size_t)gi * s->ns + gj] != 0.0 || s->Cs[(size_t)gi * s->ns + gj] != 0.0))
+                P[(size_t)i * cols + j] = 1.0;
+        }
+    int rc = up_sparse_init(S, P, rows, cols);
+    free(P);
+    return rc;
+}
+
+/* s->band (0: the dense path) and the coupling patterns; 0, or -1 out of memory */
+static int plate_band_init(UpStepper *s)
+{
+    int ni = s->ni, ns = s->ns, b = 0;
+    s->band = 0;
+    if (!s->nf || !s->sym || ni < 8)
+        return 0;
+    for (int i = 0; i < ni; i++)
+        for (int j = 0; j < i; j++)
+            if ((s->Ks[(size_t)i * ns + j] != 0.0 || s->Cs[(size_t)i * ns + j] != 0.0) && i - j > b)
+                b = i - j;
+    if (4 * (b + 1) > ni)
+        return 0;
+    if (pattern_init(s, &s->bi_pat, ni, s->nb, 0, ni) || pattern_init(s, &s->ib_pat, 0, ni, ni, s->nb))
+        return -1;
+    s->band = b;
+    return 0;
+}
+
+/* the level's values of A_BI, A_IB on their patterns, A_II's band and its Cholesky factor Lb;
+   1 when A_II is positive definite (y->banded), else 0 */
+static int band_factor(const UpStepper *s, UpSystem *y)
+{
+    int ni = s->ni, ns = s->ns, b = s->band;
+    double al = s->alpha, c1 = y->c1;
+    const UpSparse *P = &s->bi_pat, *Q = &s->ib_pat;
+    for (int i = 0; i < P->rows; i++)
+        for (int q = P->ptr[i]; q < P->ptr[i + 1]; q++) {
+            size_t k = (size_t)(ni + i) * ns + P->col[q];
+            y->bi_val[q] = (1 + al) * (s->Ks[k] + c1 * s->Cs[k]);
+        }
+    for (int i = 0; i < Q->rows; i++)
+        for (int q = Q->ptr[i]; q < Q->ptr[i + 1]; q++) {
+            size_t k = (size_t)i * ns + ni + Q->col[q];
+            y->ib_val[q] = (1 + al) * (s->Ks[k] + c1 * s->Cs[k]);
+        }
+    double *L = y->Lb;
+    for (int i = 0; i < ni; i++) {
+        int j0 = i - b > 0 ? i - b : 0;
+        double *li = L + (size_t)i * b + b;                  /* li[j]: L_ij (row i starts at i w) */
+        for (int j = j0; j <= i; j++) {
+            size_t k = (size_t)i * ns + j;
+            double a = (1 + al) * (s->Ks[k] + c1 * s->Cs[k]) + (i == j ? y->c0 * s->M[i] : 0.0);
+            const double *lj = L + (size_t)j * b + b;
+            for (int m = j0; m < j; m++)                      /* L_jm = 0 below j - b <= j0 */
+                a -= li[m] * lj[m];
+            if (j < i) {
+                li[j] = a / lj[j];
+            } else {
+                if (!(a > 0.0) || !isfinite(a))
+                    return 0;
+                li[i] = sqrt(a);
+            }
+        }
+    }
+    return 1;
+}
+
+/* x <- A_II^-1 x from the level's banded Cholesky factor (L L^T x = x) */
+static void band_solve(const UpStepper *s, const UpSystem *y, double *x)
+{
+    int ni = s->ni, b = s->band;
+    const double *L = y->Lb;
+    for (int i = 0; i < ni; i++) {
+        int j0 = i - b > 0 ? i - b : 0;
+        const double *li = L + (size_t)i * b + b;
+        double t = x[i];
+        for (int j = j0; j < i; j++)
+            t -= li[j] * x[j];
+        x[i] = t / li[i];
+    }
+    for (int i = ni - 1; i >= 0; i--) {
+        int j0 = i - b > 0 ? i - b : 0;
+        const double *li = L + (size_t)i * b + b;
+        double xi = x[i] / li[i];
+        x[i] = xi;
+        for (int j = j0; j < i; j++)
+            x[j] -= li[j] * xi;
+    }
+}
+
 int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, char *err)
 {
     memset(s, 0, sizeof *s);
@@ -226,7 +340,8 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
         }
     s->sym = symmetric(s->Ks, ns_) && symmetric(s->Cs, ns_) && soil->Ep != NULL;
     s->diag = !s->nf && diagonal_soil(soil);     /* a plate's contact couples w to t: the dense path */
-    int ok = up_sparse_init(&s->Ks_sp, s->Ks, ns_, ns_) == 0 && up_sparse_init(&s->Cs_sp, s->Cs, ns_, ns_) == 0;
+    int ok = up_sparse_init(&s->Ks_sp, s->Ks, ns_, ns_) == 0 && up_sparse_init(&s->Cs_sp, s->Cs, ns_, ns_) == 0
+             && plate_band_init(s) == 0;
     for (int l = 0; ok && l < s->nlev; l++) {
         UpSystem *y = &s->sys[l];
         y->AII = (double *)malloc(((size_t)ni * ni + 1) * sizeof(double));
@@ -245,6 +360,12 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
             y->Sqt = (double *)malloc(nq * nq * sizeof(double));
             y->Sqtp = (double *)malloc(nq * (nq + 1) / 2 * sizeof(double));
             ok = y->Sqt && y->Sqtp;
+        }
+        if (ok && s->band) {
+            y->Lb = (double *)malloc(((size_t)ni * (s->band + 1) + 1) * sizeof(double));
+            y->bi_val = (double *)malloc(((size_t)s->bi_pat.ptr[s->bi_pat.rows] + 1) * sizeof(double));
+            y->ib_val = (double *)malloc(((size_t)s->ib_pat.ptr[s->ib_pat.rows] + 1) * sizeof(double));
+            ok = y->Lb && y->bi_val && y->ib_val;
         }
         for (int c = 0; ok && c < 2; c++) {
             y->Jb[c] = (double *)malloc((size_t)nb * nb * sizeof(double));
@@ -312,6 +433,9 @@ void up_stepper_free(UpStepper *s)
         free(y->S0d);
         free(y->Sqt);
         free(y->Sqtp);
+        free(y->Lb);
+        free(y->bi_val);
+        free(y->ib_val);
         for (int c = 0; c < 2; c++) {
             free(y->Jb[c]);
             free(y->Jp[c]);
@@ -322,6 +446,8 @@ void up_stepper_free(UpStepper *s)
     }
     up_sparse_free(&s->Ks_sp);
     up_sparse_free(&s->Cs_sp);
+    up_sparse_free(&s->bi_pat);
+    up_sparse_free(&s->ib_pat);
     free(s->cache_lu);
     free(s->cache_piv);
     free(s->cache_nodes);
@@ -467,7 +593,8 @@ static const UpSystem *system_at(UpStepper *s, int lev)
             }
             S0[(size_t)i * nb + j] = (1 + al) * (k + y->c1 * c) + (i == j ? y->c0 * s->M[gi] : 0.0);
         }
-    if (ni > 0 && up_lu(LU, s->lu_piv, ni))
+    y->banded = s->band && band_factor(s, y);               /* a plate: A_II banded (band_solve) */
+    if (ni > 0 && !y->banded && up_lu(LU, s->lu_piv, ni))
         return NULL;
     /* X = A_II^-1 A_IB, column by column; only the columns of the raft DOFs are not zero */
     memset(y->X, 0, (size_t)ni * nb * sizeof(double));
@@ -481,12 +608,15 @@ static const UpSystem *system_at(UpStepper *s, int lev)
         }
         if (!any)
             continue;
-        up_lu_solve(LU, s->lu_piv, ni, col);
+        if (y->banded)
+            band_solve(s, y, col);
+        else
+            up_lu_solve(LU, s->lu_piv, ni, col);
         for (int i = 0; i < ni; i++)
             y->X[(size_t)i * nb + j] = col[i];
     }
     /* A_II^-1 itself: a step's solve is then one product (packed: half the memory traffic) */
-    if (ni > 0)
+    if (ni > 0 && !y->banded)
         up_inverse(LU, s->lu_piv, ni, y->AII, s->sym ? y->AIIp : NULL);
     y->abi_rows = y->x_cols = 0;
     for (int i = 0; i < nb; i++)
@@ -972,11 +1102,23 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
     /* condensation: y = A_II^-1 rhs_I, r_hat = rhs_B - A_BI y */
     double *yI = u_new, *r_hat = s->w_nb[0], *uB = s->w_nb[1], *gv = s->w_nb[2], *dx = s->w_nb[3];
     double *xn = s->w_nb[4], *gn = s->w_nb[5];
-    if (ni > 0)
-        up_symv(y->AII, s->sym ? y->AIIp : NULL, ni, rhs, yI);
-    up_matvec(y->ABI, y->abi_rows, ni, yI, r_hat);
-    for (int i = 0; i < nb; i++)
-        r_hat[i] = rhs[ni + i] - (i < y->abi_rows ? r_hat[i] : 0.0);
+    if (y->banded) {                                     /* a plate, A_II banded: A_BI sparse */
+        const UpSparse *P = &s->bi_pat;
+        memcpy(yI, rhs, (size_t)ni * sizeof(double));
+        band_solve(s, y, yI);
+        for (int i = 0; i < nb; i++) {
+            double t = 0.0;
+            for (int q = P->ptr[i]; q < P->ptr[i + 1]; q++)
+                t += y->bi_val[q] * yI[P->col[q]];
+            r_hat[i] = rhs[ni + i] - t;
+        }
+    } else {
+        if (ni > 0)
+            up_symv(y->AII, s->sym ? y->AIIp : NULL, ni, rhs, yI);
+        up_matvec(y->ABI, y->abi_rows, ni, yI, r_hat);
+        for (int i = 0; i < nb; i++)
+            r_hat[i] = rhs[ni + i] - (i < y->abi_rows ? r_hat[i] : 0.0);
+    }
     *iters = 0;
     if (!s->enabled) {
         /* bonded: the contact is linear, x = J(all closed)^-1 r_hat */
@@ -1090,11 +1232,22 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
             return -1;
         }
     }
-    /* u_new = [y - X uB, uB] */
-    double *XuB = s->w_n[8];
-    up_matvec_ld(y->X, ni, y->x_cols, nb, uB, XuB);
-    for (int i = 0; i < ni; i++)
-        u_new[i] = yI[i] - XuB[i];
+    /* u_new = [y - X uB, uB]; a banded plate: [A_II^-1 (rhs_I - A_IB uB), uB] */
+    if (y->banded) {
+        const UpSparse *Q = &s->ib_pat;
+        for (int i = 0; i < ni; i++) {
+            double t = 0.0;
+            for (int q = Q->ptr[i]; q < Q->ptr[i + 1]; q++)
+                t += y->ib_val[q] * uB[Q->col[q]];
+            u_new[i] = rhs[i] - t;
+        }
+        band_solve(s, y, u_new);
+    } else {
+        double *XuB = s->w_n[8];
+        up_matvec_ld(y->X, ni, y->x_cols, nb, uB, XuB);
+        for (int i = 0; i < ni; i++)
+            u_new[i] = yI[i] - XuB[i];
+    }
     memcpy(u_new + ni, uB, (size_t)nb * sizeof(double));
     if (!finite_all(u_new, (size_t)n)) {
         fail->node = -1;

@@ -80,6 +80,26 @@ def test_the_plate_s_records_are_its_trace():
     assert np.array_equal(Bc, pm.boundary_trace.toarray())
 
 
+def test_the_test_plate_takes_the_banded_interior():
+    """stepper.c condenses a plate's interior (the sticks, the free vertices' rotations) by a
+    banded Cholesky when Ks and Cs are symmetric and 4 (band + 1) <= ni (plate_band_init): this
+    file's scene is such a plate, so the equalities below hold the banded path to the Python
+    stepper (its sparse LU). The interior's two blocks do not couple and are narrow."""
+    pm = SCENE.plate_model()
+    st = PlateStepper(pm, soil_from_model(MODEL, MOTION.dt), MOTION.dt, contact=SCENE.contact, external_soil=True)
+    recs = stepper_records(st, [])
+    ns, nf = int(recs["ns"]), int(recs["plate_nf"])
+    ni = ns - 6 - nf
+    Ks, Cs = recs["Ks"], recs["Cs"]
+    for A in (Ks, Cs):                                # symmetric to round-off (stepper.c's symmetric())
+        assert np.abs(A - A.T).max() <= 1e-13 * np.abs(A).max()
+    rows, cols = np.nonzero((Ks[:ni, :ni] != 0) | (Cs[:ni, :ni] != 0))
+    band = int(np.max(rows - cols))
+    assert 4 * (band + 1) <= ni, (band, ni)
+    sticks = ni - 2 * nf                              # the sticks' DOFs, then the rotations
+    assert not Ks[:sticks, sticks:ni].any() and not Cs[:sticks, sticks:ni].any()
+
+
 @pytest.mark.parametrize("max_iter", [50, 3])          # 2 s each: the Python stepper's 4 runs (the spread)
 def test_native_plate_stepper_equals_the_python_plate_stepper(max_iter):
     contact = dataclasses.replace(SCENE.contact, max_iter=max_iter, precheck=False)

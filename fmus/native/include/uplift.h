@@ -289,6 +289,12 @@ typedef struct {
     /* a plate (UpStepper.nf > 0): the structure's part of S0 on [q, t] (6 + nf square: S0 less
        (1 + al) K0C on q and diag(c0 M_B) there), and packed when sym; NULL for a rigid raft */
     double *Sqt, *Sqtp;
+    /* a plate whose A_II is banded (UpStepper.band > 0) and positive definite at this level: its
+       Cholesky factor Lb (ni, band + 1; row i holds L_ij, j = i - band .. i), and the values of
+       A_BI and A_IB on their patterns (UpStepper.bi_pat, ib_pat); AII, AIIp are then unused and a
+       step's interior solves are two banded substitutions (banded = 1), else the dense path */
+    double *Lb, *bi_val, *ib_val;
+    int banded;
 } UpSystem;
 
 typedef struct {
@@ -340,6 +346,10 @@ typedef struct {
     int *bc_ptr, *bc_col;
     double *bc_val;
     double *xs, *vs;          /* (nsoil) work: x and xdot in the soil's order */
+    int band;                 /* a plate, sym: the half bandwidth of A_II (the sticks' and the plate
+                                 rotations' blocks: sparse and banded) when two banded solves cost less
+                                 than one dense product with A_II^-1, else 0 (the dense path) */
+    UpSparse bi_pat, ib_pat;  /* the patterns of A_BI (nb, ni) and A_IB (ni, nb): Ks's or Cs's non-zeros */
 } UpStepper;
 
 int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, char *err);
