@@ -180,27 +180,39 @@ class StreamedProblem:
             return np.linalg.lstsq(Rr, Q.T @ np.concatenate([WX.real, WX.imag]), rcond=None)[0] / col[:, None]
         return entry_weighted_coefficients(self.s, X, poles, linear)
 
-    def coefficients(self, poles):
+    def coefficients(self, poles, error=False):
         """The coefficient matrices (nb, n, n) (symmetric; ``Problem.coefficients`` as matrices: its
-        columns divided by their √2 weights), E projected on the PSD cone."""
+        columns divided by their √2 weights), E projected on the PSD cone. ``error``: also
+        ``order_error(poles, C)``, summed in the same pass as the coefficients (each block is read once
+        per order, not once more for the error; the same sums in the same order: the same value)."""
         n, m = self.table.n_dof, poles.size
         C = np.zeros((m + 2, n, n))
         solver = self._basis_solver(poles, True)
+        B = real_basis(self.s, poles) if error else None
+        num = np.zeros(self.f.size)
         for r, c, _, _, T, (i, j, ew) in self._passes():
             cb = self._solve_block(solver, poles, T[:, i, j] * ew, True) / ew
             C[:, r.start + i, c.start + j] = cb
             C[:, c.start + j, r.start + i] = cb
+            if error:
+                num += _sq((B @ C[:, r.start + i, c.start + j] - T[:, i, j]) * ew)
         lam, vec = np.linalg.eigh(C[-1])
         if lam[0] < 0:
             Ep = (vec * np.maximum(lam, 0)) @ vec.T
             C[-1] = np.triu(Ep) + np.triu(Ep, 1).T          # Problem keeps the upper triangle
             solver = self._basis_solver(poles, False)
+            num = np.zeros(self.f.size)
             for r, c, _, _, T, (i, j, ew) in self._passes():
                 ep = Ep[r.start + i, c.start + j] * ew
                 cb = self._solve_block(solver, poles, T[:, i, j] * ew - self.s[:, None] * ep[None], False) / ew
                 C[:-1, r.start + i, c.start + j] = cb
                 C[:-1, c.start + j, r.start + i] = cb
-        return C
+                if error:
+                    num += _sq((B @ C[:, r.start + i, c.start + j] - T[:, i, j]) * ew)
+        if not error:
+            return C
+        err = np.sqrt(num) / np.maximum(self.norm_target, 1e-300)
+        return C, float(err[self.band].max())
 
     def order_error(self, poles, C) -> float:
         """Max over the band of the relative Frobenius error of the fit ``C`` to the target
@@ -290,5 +302,5 @@ def fit_order_streamed(prob: StreamedProblem, n_pairs, n_iter):
     poles = vector_fit(prob.s, prob.Y, prob.w_rel, initial_poles(n_pairs, 1.0), n_iter=n_iter)
     keep = np.abs(poles) <= POLE_CAP
     poles = canonical_poles(poles[keep])
-    C = prob.coefficients(poles)
-    return poles, C, prob.order_error(poles, C)
+    C, err = prob.coefficients(poles, error=True)
+    return poles, C, err
