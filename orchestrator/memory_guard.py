@@ -5,14 +5,16 @@ estimate, what is available and the key to change. Never a MemoryError halfway t
 
 Stages (each estimate is the peak while that stage runs: what the run still holds included):
 
-  static    K(0) of the rigid raft, one BEM frequency (the time-step check's proxy springs):
-            ``soil_impedance.sweep.sweep_memory``
+  static    K(0) of the rigid raft, one BEM frequency (the time-step check's proxy springs), by
+            the scene's solver (the fast one on a large grid: no flexibility matrix):
+            ``soil_impedance.sweep.mesh_sweep_memory``
   sweep     the BEM sweep over [impedance]'s frequencies, the tables of the routes run
             (``sweep_memory``: flexibility, assembly, solves and the tables themselves)
   fit       the swept tables held + the rational fit of the gap table: in memory
             (``soil_impedance.fit.peak_memory.fit_memory``), or, for a table above
             ``blocked.STREAM_BYTES`` (on disk: the run's cache folder), the streamed fit
-            (``streamed_fit_memory``: blocks, the models' coefficients, the passivity sweep)
+            (``streamed_fit_memory``: blocks, the coefficients of two orders (the order search keeps
+            the best order's only), the models, the passivity sweep)
   stepping  the tables held + the fitted model + the time stepper: the recursive convolution's
             history matrix, m x (6+N)^2 doubles for m poles, and its copies (the model's residues,
             their split by pole kind, the native runtime's records and its own copy), the base
@@ -124,9 +126,10 @@ def run_memory(scene, routes=None, cached: bool = True) -> list[Stage]:
     if not outputs:
         return stages
     streamed = streamed_outputs(scene, outputs, cached)
-    static = sweep_module.mesh_sweep_memory(mesh, 1, ("rigid",))
-    stages.append(Stage("static", static["total"], f"K(0) of the rigid raft, {n} interface nodes "
-                        f"(flexibility {_gib(static['F'])})", size))
+    static = sweep_module.mesh_sweep_memory(mesh, 1, ("rigid",), scene.solver, scene.solver_tol)
+    how = (f"flexibility {_gib(static['F'])}" if static["F"] else
+           f"fast solver, no flexibility matrix; work {_gib(static['work'])}")
+    stages.append(Stage("static", static["total"], f"K(0) of the rigid raft, {n} interface nodes ({how})", size))
     sweep = sweep_module.mesh_sweep_memory(mesh, F, outputs, scene.solver, scene.solver_tol, streamed)
     dims = {"rigid": 6, "gap": nb, "nodal": 3 * n}
     held = sum(table_bytes(F, dims[o]) for o in outputs if o not in streamed)
@@ -141,7 +144,8 @@ def run_memory(scene, routes=None, cached: bool = True) -> list[Stage]:
         if "gap" in streamed:
             fit = streamed_fit_memory(nb, F, poles)
             what = (f"streamed fit of the {nb} x {nb} gap table at {F} frequencies on disk, at most {poles} poles "
-                    f"({_gib(held)} held + {_gib(fit['total'])}: the orders' coefficients {_gib(fit['search'])}, "
+                    f"({_gib(held)} held + {_gib(fit['total'])}: the order search's coefficients (the best order and "
+                    f"the one fitted) {_gib(fit['search'])}, "
                     f"the models {_gib(fit['models'])}, the passivity sweep {_gib(fit['passivity'])})")
         else:
             fit = fit_memory(nb, F, poles)
