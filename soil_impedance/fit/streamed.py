@@ -192,10 +192,9 @@ class StreamedProblem:
         num = np.zeros(self.f.size)
         for r, c, _, _, T, (i, j, ew) in self._passes():
             cb = self._solve_block(solver, poles, T[:, i, j] * ew, True) / ew
-            C[:, r.start + i, c.start + j] = cb
-            C[:, c.start + j, r.start + i] = cb
-            if error:
-                num += _sq((B @ C[:, r.start + i, c.start + j] - T[:, i, j]) * ew)
+            _put(C, slice(None), r, c, i, j, cb)
+            if error:                                          # cb: the values just put in C
+                num += _sq((B @ cb - T[:, i, j]) * ew)
         lam, vec = np.linalg.eigh(C[-1])
         if lam[0] < 0:
             Ep = (vec * np.maximum(lam, 0)) @ vec.T
@@ -205,10 +204,9 @@ class StreamedProblem:
             for r, c, _, _, T, (i, j, ew) in self._passes():
                 ep = Ep[r.start + i, c.start + j] * ew
                 cb = self._solve_block(solver, poles, T[:, i, j] * ew - self.s[:, None] * ep[None], False) / ew
-                C[:-1, r.start + i, c.start + j] = cb
-                C[:-1, c.start + j, r.start + i] = cb
-                if error:
-                    num += _sq((B @ C[:, r.start + i, c.start + j] - T[:, i, j]) * ew)
+                _put(C, slice(None, -1), r, c, i, j, cb)
+                if error:                                      # C's column: cb and the projected E's entries
+                    num += _sq((B @ np.concatenate([cb, C[-1:, r.start + i, c.start + j]]) - T[:, i, j]) * ew)
         if not error:
             return C
         err = np.sqrt(num) / np.maximum(self.norm_target, 1e-300)
@@ -290,6 +288,18 @@ class StreamedProblem:
         if self.f_c <= 0:
             return 0.0
         return float(1.1 * 0.5 * np.linalg.norm(self.H0) / max(np.linalg.norm(self.Ks[0].real), 1e-300))
+
+
+def _put(C, rows, r, c, i, j, cb) -> None:
+    """C[rows] at a block's upper-triangle entries (local i, j, as ``_entries``) and at their mirror
+    images: an off-diagonal block (every entry, row-major) by slices, a diagonal one by indices."""
+    if r != c:
+        blk = cb.reshape(cb.shape[0], r.stop - r.start, c.stop - c.start)
+        C[rows, r, c] = blk
+        C[rows, c, r] = blk.transpose(0, 2, 1)
+        return
+    C[rows, r.start + i, c.start + j] = cb
+    C[rows, c.start + j, r.start + i] = cb
 
 
 def _sq(A) -> np.ndarray:
