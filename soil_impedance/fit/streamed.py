@@ -191,10 +191,11 @@ class StreamedProblem:
         B = real_basis(self.s, poles) if error else None
         num = np.zeros(self.f.size)
         for r, c, _, _, T, (i, j, ew) in self._passes():
-            cb = self._solve_block(solver, poles, T[:, i, j] * ew, True) / ew
+            X = _columns(T, r, c, i, j)
+            cb = self._solve_block(solver, poles, X * ew, True) / ew
             _put(C, slice(None), r, c, i, j, cb)
             if error:                                          # cb: the values just put in C
-                num += _sq((B @ cb - T[:, i, j]) * ew)
+                num += _sq((B @ cb - X) * ew)
         lam, vec = np.linalg.eigh(C[-1])
         if lam[0] < 0:
             Ep = (vec * np.maximum(lam, 0)) @ vec.T
@@ -203,10 +204,11 @@ class StreamedProblem:
             num = np.zeros(self.f.size)
             for r, c, _, _, T, (i, j, ew) in self._passes():
                 ep = Ep[r.start + i, c.start + j] * ew
-                cb = self._solve_block(solver, poles, T[:, i, j] * ew - self.s[:, None] * ep[None], False) / ew
+                X = _columns(T, r, c, i, j)
+                cb = self._solve_block(solver, poles, X * ew - self.s[:, None] * ep[None], False) / ew
                 _put(C, slice(None, -1), r, c, i, j, cb)
                 if error:                                      # C's column: cb and the projected E's entries
-                    num += _sq((B @ np.concatenate([cb, C[-1:, r.start + i, c.start + j]]) - T[:, i, j]) * ew)
+                    num += _sq((B @ np.concatenate([cb, C[-1:, r.start + i, c.start + j]]) - X) * ew)
         if not error:
             return C
         err = np.sqrt(num) / np.maximum(self.norm_target, 1e-300)
@@ -288,6 +290,11 @@ class StreamedProblem:
         if self.f_c <= 0:
             return 0.0
         return float(1.1 * 0.5 * np.linalg.norm(self.H0) / max(np.linalg.norm(self.Ks[0].real), 1e-300))
+
+
+def _columns(T, r, c, i, j) -> np.ndarray:
+    """T[:, i, j] (F, entries): an off-diagonal block's entries are all of it, row-major (a view)."""
+    return T.reshape(T.shape[0], -1) if r != c else T[:, i, j]
 
 
 def _put(C, rows, r, c, i, j, cb) -> None:
