@@ -16,6 +16,10 @@ shared machine).
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/fit_memory.py --nodes 250 600 [--freqs 101]
     nice flock /tmp/big.lock python benchmarks/fit_memory.py --nodes 1200 --freqs 51
+    # the order search's memory: tol out of reach, every order up to max_order fitted (the table swept fast)
+    nice python benchmarks/fit_memory.py --nodes 600 1200 --freqs 21 --solver fast --modes streamed --tol 1e-4 --max-order 16
+
+The "est. MB" column is the memory guard's estimate of the child's peak at the largest order fitted.
 """
 from __future__ import annotations
 
@@ -37,8 +41,9 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 
 
-def table_path(nodes: int, n_freq: int) -> Path:
-    """The cache entry of the gap table of the reactor's soil under a disk of about ``nodes`` nodes."""
+def table_path(nodes: int, n_freq: int, solver: str = "dense") -> Path:
+    """The cache entry of the gap table of the reactor's soil under a disk of about ``nodes`` nodes
+    (swept by ``solver``: "fast" for large disks, within its default residual)."""
     sys.path.insert(0, str(HERE))
     from scaling import mesh_for
     from orchestrator.scene import load_scene
@@ -48,8 +53,9 @@ def table_path(nodes: int, n_freq: int) -> Path:
     mesh = mesh_for(nodes)
     f = np.linspace(0.0, 25.0, n_freq)
     impedance_sweep(scene.profile, mesh, f, contact=scene.contact_kind, outputs=("gap",),
-                    cache_dir=default_cache_dir())
-    return _cache_path(default_cache_dir(), "gap", table_key(scene.profile, mesh, f, scene.contact_kind, "gap"))
+                    cache_dir=default_cache_dir(), solver=solver)
+    return _cache_path(default_cache_dir(), "gap", table_key(scene.profile, mesh, f, scene.contact_kind, "gap",
+                                                             solver=solver))
 
 
 def blocked_copy(path: Path) -> Path:
@@ -68,7 +74,7 @@ def blocked_copy(path: Path) -> Path:
     return out
 
 
-def child(mode: str, path: str, out: str) -> None:
+def child(mode: str, path: str, out: str, options: str = "{}") -> None:
     """One fit in this process; its measures written as JSON to ``out``."""
     import resource
     from soil_impedance.blocked import BlockedTable
@@ -82,7 +88,7 @@ def child(mode: str, path: str, out: str) -> None:
         u = resource.getrusage(resource.RUSAGE_SELF)
         print(f"  [{mode}] {label} {done}/{total}: {time.perf_counter() - t0:.0f} s, cpu {u.ru_utime + u.ru_stime:.0f} s, "
               f"peak {u.ru_maxrss / 1024:.0f} MB", file=sys.stderr, flush=True)
-    result = fit(table, FitOptions(), progress=trace)
+    result = fit(table, FitOptions(**json.loads(options)), progress=trace)
     wall = time.perf_counter() - t0
     r, m = result.report, result.model
     np.savez(out + ".npz", poles=m.poles, C=m.coefficients)
@@ -90,44 +96,59 @@ def child(mode: str, path: str, out: str) -> None:
         "mode": mode, "n_dof": len(table.dofs), "n_freq": int(table.frequencies_hz.size), "read_s": t_read,
         "wall_s": wall, "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
         "cpu_s": sum(resource.getrusage(resource.RUSAGE_SELF)[:2]),
-        "order": int(m.order), "max_rel_error": r.max_rel_error, "passive": r.passive,
+        "order": int(m.order), "max_fitted": int(max(h[0] for h in r.order_history)), "max_rel_error": r.max_rel_error, "passive": r.passive,
         "margin": r.passivity_margin, "passivity_method": r.passivity.get("method"),
         "passivity_evals": r.passivity.get("evaluations"), "history": r.order_history,
         "attempts": r.enforcement_attempts}))
 
 
-def run(path: Path, modes) -> dict:
+def run(path: Path, modes, options: str = "{}") -> dict:
     out = {}
     tmp = tempfile.mkdtemp()
     for mode in modes:
         src = blocked_copy(path) if mode == "streamed" else path
         res = Path(tmp) / f"{mode}.json"
-        subprocess.run([sys.executable, __file__, "--child", mode, str(src), str(res)], check=True)
+        subprocess.run([sys.executable, __file__, "--child", mode, str(src), str(res), options], check=True)
         out[mode] = json.loads(res.read_text())
         out[mode]["arrays"] = dict(np.load(str(res) + ".npz"))
     return out
+
+
+def estimate(r: dict) -> float:
+    """The memory guard's estimate of the run's peak (bytes): ``streamed_fit_memory`` (or ``fit_memory``
+    and the table itself, held) at the largest order the search fitted, and the interpreter (``sweep.BASE_BYTES``)."""
+    from soil_impedance.fit.peak_memory import fit_memory, streamed_fit_memory
+    from soil_impedance.sweep import BASE_BYTES
+    n, F, m = r["n_dof"], r["n_freq"], r["max_fitted"]
+    if r["mode"] == "streamed":
+        return streamed_fit_memory(n, F, m)["total"] + BASE_BYTES
+    return fit_memory(n, F, m)["total"] + 16 * F * n * n + BASE_BYTES
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--nodes", type=int, nargs="*", default=[250, 600])
     ap.add_argument("--freqs", type=int, default=101)
+    ap.add_argument("--solver", default="dense", choices=("dense", "fast"), help="the sweep's solver")
     ap.add_argument("--table", nargs="*", default=[], help="ImpedanceTable files to fit instead")
     ap.add_argument("--modes", nargs="*", default=["memory", "streamed"])
-    ap.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
+    ap.add_argument("--tol", type=float, default=None, help="the fit's tol (default FitOptions'; small: more orders)")
+    ap.add_argument("--max-order", type=int, default=None, help="the fit's max_order (default FitOptions')")
+    ap.add_argument("--child", nargs=4, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.child:
         child(*a.child)
         return
-    paths = [Path(p) for p in a.table] or [table_path(n, a.freqs) for n in a.nodes]
+    options = json.dumps({k: v for k, v in (("tol", a.tol), ("max_order", a.max_order)) if v is not None})
+    paths = [Path(p) for p in a.table] or [table_path(n, a.freqs, a.solver) for n in a.nodes]
     print(f"{'n dof':>6} {'F':>4} {'mode':>9} {'read s':>7} {'wall s':>7} {'cpu s':>7} {'peak MB':>8} {'poles':>5} "
-          f"{'max err':>9} {'passive':>7} {'method':>11} {'evals':>6}")
+          f"{'max err':>9} {'passive':>7} {'method':>11} {'evals':>6} {'est. MB':>8}")
     for p in paths:
-        res = run(p, a.modes)
+        res = run(p, a.modes, options)
         for mode, r in res.items():
             print(f"{r['n_dof']:6d} {r['n_freq']:4d} {mode:>9} {r['read_s']:7.1f} {r['wall_s']:7.1f} {r['cpu_s']:7.1f} "
                   f"{r['peak_mb']:8.0f} {r['order']:5d} {r['max_rel_error']:9.2e} {r['passive']!s:>7} "
-                  f"{r['passivity_method']!s:>11} {r['passivity_evals']!s:>6}", flush=True)
+                  f"{r['passivity_method']!s:>11} {r['passivity_evals']!s:>6} {estimate(r) / 2 ** 20:8.0f}", flush=True)
         if len(res) == 2:
             a1, a2 = (res[m]["arrays"] for m in a.modes)
             if a1["poles"].shape == a2["poles"].shape:

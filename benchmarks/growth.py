@@ -19,7 +19,9 @@ meaningful on a machine shared with other jobs, where the wall time is not):
 
 The soil of the history, set-up and step columns is a synthetic rational model of --poles poles
 (real and complex pairs, residues a fixed SPD matrix times stable weights): the same sizes and
-operations as a fit's, without the fit (which the dense code cannot make at 2500 nodes here).
+operations as a fit's, without the fit (which the dense code cannot make at 2500 nodes here); in
+the step column it holds the cached forms a fitted model comes with (its real coefficients, from
+the fit, and their scaled view, from the passivity test), as the run's model does.
 Each stage's peak is printed beside the memory guard's estimate of it (orchestrator.memory_guard:
 ``mesh_sweep_memory``, ``fit_memory``, ``stepping_memory``, the interpreter's allowance
 excluded), and the growth exponent of each column is fitted over the sizes (least squares of
@@ -225,6 +227,7 @@ def stage_step(cells, args):
     base = _maxrss()
     t0 = time.process_time()
     model = synthetic_model(n, args.poles)
+    _ = (model.coefficients, model.scaled)           # the cached forms a fitted model holds (the fit's, its test's)
     soil = RecursiveConvolutionSoil(model, 0.005, checked=True)
     st = NewmarkStepper(structure, soil, 0.005, contact=scene.contact, external_soil=True, ag0=ag[0])
     setup = time.process_time() - t0

@@ -5,18 +5,21 @@ estimate, what is available and the key to change. Never a MemoryError halfway t
 
 Stages (each estimate is the peak while that stage runs: what the run still holds included):
 
-  static    K(0) of the rigid raft, one BEM frequency (the time-step check's proxy springs):
-            ``soil_impedance.sweep.sweep_memory``
+  static    K(0) of the rigid raft, one BEM frequency (the time-step check's proxy springs), by
+            the scene's solver (the fast one on a large grid: no flexibility matrix):
+            ``soil_impedance.sweep.mesh_sweep_memory``
   sweep     the BEM sweep over [impedance]'s frequencies, the tables of the routes run
             (``sweep_memory``: flexibility, assembly, solves and the tables themselves)
   fit       the swept tables held + the rational fit of the gap table: in memory
             (``soil_impedance.fit.peak_memory.fit_memory``), or, for a table above
             ``blocked.STREAM_BYTES`` (on disk: the run's cache folder), the streamed fit
-            (``streamed_fit_memory``: blocks, the models' coefficients, the passivity sweep)
-  stepping  the tables held + the fitted model + the time stepper: the recursive convolution's
-            history matrix, m x (6+N)^2 doubles for m poles, and its copies (the model's residues,
-            their split by pole kind, the native runtime's records and its own copy), the base
-            system (a few dense (6+N)^2 matrices) and the histories kept (``stepping_memory``)
+            (``streamed_fit_memory``: blocks, the coefficients of two orders (the order search keeps
+            the best order's only), the models, the passivity sweep)
+  stepping  the tables held + the fitted model + the time stepper: m x (6+N)^2 doubles for m poles
+            (the history's size) in about 8 copies (``HISTORY_COPIES``: the model's residues,
+            coefficients and their scaled view, the split by pole kind, the native runtime's
+            records encoded), the base system (a few dense (6+N)^2 matrices) and the histories
+            kept (``stepping_memory``)
   timefreq  the tables held + the table on the FFT grid's frequencies up to its last one, one
             (6+N)^2 complex matrix per grid frequency (the timefreq and linear routes)
 
@@ -46,11 +49,16 @@ MEMORY_SHARE = sweep_module.MEMORY_SHARE
 #: bytes the stepping stage holds besides its matrices: the interpreter and libraries, the
 #: structure model, the motion (as the sweep's estimate: ``sweep.BASE_BYTES``)
 BASE_BYTES = sweep_module.BASE_BYTES
-#: copies of the history matrix (8 m n^2 bytes) alive at the stepping stage's peak: the model's
-#: complex residues (2), its real coefficients kept from the fit (1), the residues split by pole
-#: kind (1), the history matrix H (1), the native runtime's records of the pair residues (1) and
-#: their encoded blob (1), the C runtime's own copy (1); measured against ru_maxrss by
-#: benchmarks/growth.py --memory (see docs: README "Scenes")
+#: copies of the history matrix (8 m n^2 bytes for m poles) alive at the stepping stage's peak, which is
+#: the encoding of the native run's records (``fmus.native_build.encode_resources``): held, the fitted
+#: model's complex residues (2), its real coefficients from the fit (1) and their scaled view from the
+#: passivity test (1), the residues split by pole kind (1); transient, the pair residues stacked for their
+#: record (up to 1) and the encoded bytes three times (the growing buffer, its bytes() copy and the blob
+#: with its header); once open, the C runtime's copy of the blob (1) and its packed symmetric history (1/2)
+#: stay below that. The Python stepper's own history matrix is built at its first product only (the native
+#: run never builds it). Measured with benchmarks/growth.py (step column, a synthetic model holding the
+#: fit's cached forms) at 1156 nodes and 16 poles: 1.40 GiB over the interpreter, the estimate 1.41
+#: (1.55 GiB before the history matrix was made lazy)
 HISTORY_COPIES = 8.0
 #: dense (6+N)^2 doubles of the stepper's base system: D0, E, K(0), the Schur complement S0, its
 #: factorisations cached by active set, the sparse embeddings of D0 and E (12 bytes a value)
@@ -124,9 +132,10 @@ def run_memory(scene, routes=None, cached: bool = True) -> list[Stage]:
     if not outputs:
         return stages
     streamed = streamed_outputs(scene, outputs, cached)
-    static = sweep_module.mesh_sweep_memory(mesh, 1, ("rigid",))
-    stages.append(Stage("static", static["total"], f"K(0) of the rigid raft, {n} interface nodes "
-                        f"(flexibility {_gib(static['F'])})", size))
+    static = sweep_module.mesh_sweep_memory(mesh, 1, ("rigid",), scene.solver, scene.solver_tol)
+    how = (f"flexibility {_gib(static['F'])}" if static["F"] else
+           f"fast solver, no flexibility matrix; work {_gib(static['work'])}")
+    stages.append(Stage("static", static["total"], f"K(0) of the rigid raft, {n} interface nodes ({how})", size))
     sweep = sweep_module.mesh_sweep_memory(mesh, F, outputs, scene.solver, scene.solver_tol, streamed)
     dims = {"rigid": 6, "gap": nb, "nodal": 3 * n}
     held = sum(table_bytes(F, dims[o]) for o in outputs if o not in streamed)
@@ -141,7 +150,8 @@ def run_memory(scene, routes=None, cached: bool = True) -> list[Stage]:
         if "gap" in streamed:
             fit = streamed_fit_memory(nb, F, poles)
             what = (f"streamed fit of the {nb} x {nb} gap table at {F} frequencies on disk, at most {poles} poles "
-                    f"({_gib(held)} held + {_gib(fit['total'])}: the orders' coefficients {_gib(fit['search'])}, "
+                    f"({_gib(held)} held + {_gib(fit['total'])}: the order search's coefficients (the best order and "
+                    f"the one fitted) {_gib(fit['search'])}, "
                     f"the models {_gib(fit['models'])}, the passivity sweep {_gib(fit['passivity'])})")
         else:
             fit = fit_memory(nb, F, poles)

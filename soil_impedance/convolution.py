@@ -124,13 +124,11 @@ class RecursiveConvolutionSoil:
         self._pr, self._pc = pr, pc
         self._Rr, self._Rc = Rr, Rc
         mr, mc = pr.size, pc.size
-        if self.compressed is None:
-            Hr = np.transpose(Rr, (1, 0, 2)).reshape(n, mr * n)
-            Hc = np.stack([2 * Rc.real, -2 * Rc.imag], axis=-1)         # (mc, n, n, 2)
-            Hc = np.transpose(Hc, (1, 0, 2, 3)).reshape(n, 2 * mc * n)   # (re, im) interleaved
-            self._H = np.ascontiguousarray(np.hstack([Hr, Hc]))
-        else:
-            self._H = None
+        # the dense history matrix H (n, m n doubles: as large as the residues) is built at the first
+        # history product (``_history_matrix``), not here: a native run (fmus.native_stepper) takes the
+        # residues from the model and builds its own, and never holds this one
+        self._H = None
+        if self.compressed is not None:
             self._ops = self.compressed.operator(stacked_columns(n, mr, mc))
         # g = [a y + b u] stacked; the complex block viewed as interleaved (re, im) pairs
         self._g = np.zeros((mr + 2 * mc) * n)
@@ -179,12 +177,23 @@ class RecursiveConvolutionSoil:
             self._gr += self._br[:, None] * u
             np.multiply(self._ac[:, None], self._yc, out=self._gc)
             self._gc += self._bc[:, None] * u
-            if self._H is not None:
+            if self.compressed is None:
+                if self._H is None:
+                    self._H = self._history_matrix()
                 self._h = self._H @ self._g
             else:
                 near, U, V = self._ops
                 self._h = near @ self._g + U @ (V @ self._g)
         return self._h.copy()
+
+    def _history_matrix(self) -> np.ndarray:
+        """H (n, (m_r + 2 m_c) n): the real residues, then each pair's (2 Re R, -2 Im R) interleaved."""
+        n, Rr, Rc = self.n_dof, self._Rr, self._Rc
+        mr, mc = Rr.shape[0], Rc.shape[0]
+        Hr = np.transpose(Rr, (1, 0, 2)).reshape(n, mr * n)
+        Hc = np.stack([2 * Rc.real, -2 * Rc.imag], axis=-1)         # (mc, n, n, 2)
+        Hc = np.transpose(Hc, (1, 0, 2, 3)).reshape(n, 2 * mc * n)   # (re, im) interleaved
+        return np.ascontiguousarray(np.hstack([Hr, Hc]))
 
     def commit(self, x, xdot) -> None:
         """Accept x_n (n,), m and xdot_n (n,), m/s: advance the pole states and the work."""

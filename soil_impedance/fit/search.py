@@ -19,6 +19,11 @@ def _round_up(x, digits=2) -> float:
     return float(np.ceil(x / 10 ** e - 1e-9) * 10 ** e)
 
 
+def _rank(criterion) -> float:
+    """A criterion for comparison: NaN (a failed error measure) ranks last."""
+    return criterion if np.isfinite(criterion) else np.inf
+
+
 def candidates(errs, tol, floor):
     """(first, up, down) indices into the fitted orders (selection criterion ``errs``, by increasing
     order) for passivity enforcement.
@@ -61,20 +66,41 @@ def max_pairs(options: FitOptions, n_freq: int) -> int:
 class OrderSearch:
     """The fitted orders of one fit, by increasing order (one more pole pair each), and their
     selection criterion before enforcement: the band error, and for gap tables with the rigid-raft
-    correction max(band error, rigid-raft Re/Im error)."""
+    correction max(band error, rigid-raft Re/Im error).
+
+    Memory: an order's coefficients are (m + 2) n² doubles (1.6 GB for 30 poles at 2506 DOFs), so
+    only those of the order with the best criterion so far are kept (``fits[i][1]``, None for the
+    others); the others keep their poles and errors, and their coefficients are fitted again when
+    the enforcement asks for them (``coefficients``: the same deterministic least squares on the
+    same poles, hence the same arrays bit for bit). At most two orders' coefficients are alive at
+    once: the kept one and the order being fitted (or refitted)."""
 
     def __init__(self, prob, options: FitOptions, P, prov, progress):
         self.prob, self.options, self.P, self.prov = prob, options, P, prov
         self.max_pairs = max_pairs(options, prob.f.size)
         self.protect = None if P is None else rigid_protection(prob, P)
-        self.fits = []            # (poles, C, max_rel_error, criterion)
+        self.fits = []            # (poles, C or None (not kept), max_rel_error, criterion)
         self.history = []         # report.order_history
+        self.refits = 0           # coefficients fitted again on demand (``coefficients``)
         self.progress = progress
 
-    def build(self, i, corrected=True) -> RationalModel:
-        """The model of fitted order i (rigid-corrected unless ``corrected`` is False)."""
+    def coefficients(self, i) -> np.ndarray:
+        """The coefficients of fitted order i: the kept ones, or fitted again from its poles."""
         poles, C = self.fits[i][:2]
-        model = self.prob.model(poles, C, self.prov)
+        if C is None:
+            self.refits += 1
+            C = self.prob.coefficients(poles)
+        return C
+
+    def held(self) -> int:
+        """How many orders' coefficients the search holds (at most 1 between two calls)."""
+        return sum(fit[1] is not None for fit in self.fits)
+
+    def build(self, i, corrected=True, C=None) -> RationalModel:
+        """The model of fitted order i (rigid-corrected unless ``corrected`` is False); ``C`` its
+        coefficients when the caller has them (else ``coefficients(i)``)."""
+        poles = self.fits[i][0]
+        model = self.prob.model(poles, self.coefficients(i) if C is None else C, self.prov)
         if self.P is None or not corrected:
             return model
         if getattr(self.prob, "streamed", False):         # Pᵀ target P taken in the problem's first pass
@@ -98,15 +124,24 @@ class OrderSearch:
         return max(band_error, self.rigid_error(model))
 
     def fit_next(self) -> float:
-        """Fit the next order; its criterion (before enforcement)."""
+        """Fit the next order; its criterion (before enforcement). Its coefficients are kept when
+        its criterion is the best so far (strictly lower: the first of equals), and those of the
+        order kept before are dropped."""
         poles, C, err = fit_order(self.prob, len(self.fits) + 1, self.options.n_iter)
+        kept = [i for i, fit in enumerate(self.fits) if fit[1] is not None]
         self.fits.append((poles, C, err, err))
         if self.P is None:
             self.history.append((int(poles.size), err))
         else:
-            rig = self.rigid_error(self.build(len(self.fits) - 1))
+            rig = self.rigid_error(self.build(len(self.fits) - 1, C=C))
             self.fits[-1] = (poles, C, err, max(err, rig))
             self.history.append((int(poles.size), err, rig))
+        if not kept or _rank(self.fits[-1][3]) < _rank(self.fits[kept[0]][3]):
+            for i in kept:
+                self.fits[i] = (self.fits[i][0], None) + self.fits[i][2:]
+        else:
+            self.fits[-1] = (poles, None) + self.fits[-1][2:]
+        del C
         if self.progress is not None:
             self.progress(len(self.fits), self.max_pairs, "order search")
         return self.fits[-1][3]
@@ -146,12 +181,13 @@ def enforce_candidates(search: OrderSearch, stop: str, floor: float, progress):
         budget[0] -= 1
         poles, err_fit = search.fits[i][0], search.fits[i][2]
         stage = f"passivity {poles.size} poles"
+        C = search.coefficients(i)             # once for both variants (fitted again if not kept)
         for corrected in ((True, False) if search.P is not None else (False,)):
             what = "rigid-corrected " if corrected else ""
             tick = None if progress is None else (lambda done, total, s=stage + (" (plain fit)" if not corrected and
                                                   search.P is not None else ""): progress(done, total, s))
             try:
-                model, rep, it = enforce_passivity(search.build(i, corrected), prob.f, prob.w_rel, margin=opt.margin,
+                model, rep, it = enforce_passivity(search.build(i, corrected, C), prob.f, prob.w_rel, margin=opt.margin,
                                                    method=opt.passivity_method, max_iter=opt.enforce_iter,
                                                    progress=tick, protect=search.protect)
                 break

@@ -180,27 +180,39 @@ class StreamedProblem:
             return np.linalg.lstsq(Rr, Q.T @ np.concatenate([WX.real, WX.imag]), rcond=None)[0] / col[:, None]
         return entry_weighted_coefficients(self.s, X, poles, linear)
 
-    def coefficients(self, poles):
+    def coefficients(self, poles, error=False):
         """The coefficient matrices (nb, n, n) (symmetric; ``Problem.coefficients`` as matrices: its
-        columns divided by their √2 weights), E projected on the PSD cone."""
+        columns divided by their √2 weights), E projected on the PSD cone. ``error``: also
+        ``order_error(poles, C)``, summed in the same pass as the coefficients (each block is read once
+        per order, not once more for the error; the same sums in the same order: the same value)."""
         n, m = self.table.n_dof, poles.size
         C = np.zeros((m + 2, n, n))
         solver = self._basis_solver(poles, True)
+        B = real_basis(self.s, poles) if error else None
+        num = np.zeros(self.f.size)
         for r, c, _, _, T, (i, j, ew) in self._passes():
-            cb = self._solve_block(solver, poles, T[:, i, j] * ew, True) / ew
-            C[:, r.start + i, c.start + j] = cb
-            C[:, c.start + j, r.start + i] = cb
+            X = _columns(T, r, c, i, j)
+            cb = self._solve_block(solver, poles, X * ew, True) / ew
+            _put(C, slice(None), r, c, i, j, cb)
+            if error:                                          # cb: the values just put in C
+                num += _sq((B @ cb - X) * ew)
         lam, vec = np.linalg.eigh(C[-1])
         if lam[0] < 0:
             Ep = (vec * np.maximum(lam, 0)) @ vec.T
             C[-1] = np.triu(Ep) + np.triu(Ep, 1).T          # Problem keeps the upper triangle
             solver = self._basis_solver(poles, False)
+            num = np.zeros(self.f.size)
             for r, c, _, _, T, (i, j, ew) in self._passes():
                 ep = Ep[r.start + i, c.start + j] * ew
-                cb = self._solve_block(solver, poles, T[:, i, j] * ew - self.s[:, None] * ep[None], False) / ew
-                C[:-1, r.start + i, c.start + j] = cb
-                C[:-1, c.start + j, r.start + i] = cb
-        return C
+                X = _columns(T, r, c, i, j)
+                cb = self._solve_block(solver, poles, X * ew - self.s[:, None] * ep[None], False) / ew
+                _put(C, slice(None, -1), r, c, i, j, cb)
+                if error:                                      # C's column: cb and the projected E's entries
+                    num += _sq((B @ np.concatenate([cb, C[-1:, r.start + i, c.start + j]]) - X) * ew)
+        if not error:
+            return C
+        err = np.sqrt(num) / np.maximum(self.norm_target, 1e-300)
+        return C, float(err[self.band].max())
 
     def order_error(self, poles, C) -> float:
         """Max over the band of the relative Frobenius error of the fit ``C`` to the target
@@ -280,6 +292,23 @@ class StreamedProblem:
         return float(1.1 * 0.5 * np.linalg.norm(self.H0) / max(np.linalg.norm(self.Ks[0].real), 1e-300))
 
 
+def _columns(T, r, c, i, j) -> np.ndarray:
+    """T[:, i, j] (F, entries): an off-diagonal block's entries are all of it, row-major (a view)."""
+    return T.reshape(T.shape[0], -1) if r != c else T[:, i, j]
+
+
+def _put(C, rows, r, c, i, j, cb) -> None:
+    """C[rows] at a block's upper-triangle entries (local i, j, as ``_entries``) and at their mirror
+    images: an off-diagonal block (every entry, row-major) by slices, a diagonal one by indices."""
+    if r != c:
+        blk = cb.reshape(cb.shape[0], r.stop - r.start, c.stop - c.start)
+        C[rows, r, c] = blk
+        C[rows, c, r] = blk.transpose(0, 2, 1)
+        return
+    C[rows, r.start + i, c.start + j] = cb
+    C[rows, c.start + j, r.start + i] = cb
+
+
 def _sq(A) -> np.ndarray:
     """Per frequency, the sum of |A|² over the block (F,)."""
     return (A.real ** 2 + A.imag ** 2).reshape(A.shape[0], -1).sum(axis=1)
@@ -290,5 +319,5 @@ def fit_order_streamed(prob: StreamedProblem, n_pairs, n_iter):
     poles = vector_fit(prob.s, prob.Y, prob.w_rel, initial_poles(n_pairs, 1.0), n_iter=n_iter)
     keep = np.abs(poles) <= POLE_CAP
     poles = canonical_poles(poles[keep])
-    C = prob.coefficients(poles)
-    return poles, C, prob.order_error(poles, C)
+    C, err = prob.coefficients(poles, error=True)
+    return poles, C, err

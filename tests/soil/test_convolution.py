@@ -233,3 +233,21 @@ def test_change_of_dt_mid_run():
     assert err("mixed", *fine_window) < 0.5 * err("coarse", *fine_window)   # 0.38 measured: the
     # coarse first 0.5 s leaves its error in the pole states
     assert err("mixed", 0, 4) <= err("coarse", 0, 4) < 2e-3
+
+
+def test_the_history_matrix_is_built_at_the_first_product_only():
+    """The dense history matrix H (as large as the residues) is not held until the first history
+    product (a native run never asks for it: it builds its own from the model); the product then
+    equals the sum over the poles written out, sum_k Re-part of R_k g_k (independent of H's layout)."""
+    dt = 0.01
+    soil = RecursiveConvolutionSoil(MODEL, dt)
+    assert soil._H is None
+    rng = np.random.default_rng(3)
+    for _ in range(3):
+        soil.step(rng.standard_normal(3), rng.standard_normal(3))
+    assert soil._H is not None and soil._H.shape == (3, MODEL.order * 3)
+    # h = sum over real poles R g + over pairs 2 Re(R g), with g the states the product used
+    h = soil.history()
+    pr, Rr, pc, Rc = MODEL.pole_split
+    want = np.einsum("kij,kj->i", Rr, soil._gr) + 2 * np.einsum("kij,kj->i", Rc, soil._gc).real
+    assert np.abs(h - want).max() <= 1e-12 * np.abs(want).max()
