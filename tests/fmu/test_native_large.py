@@ -22,7 +22,8 @@ the former eager path, whatever nodes are solved together and in whatever order.
   handle on every row and Newton count, with and without step halving: every number depends on
   the level and the active set only, not on what the stepper's caches held before.
 
-About 8 s of CPU (the Python stepper's four runs 3 s, the kernels' compile 2 s).
+About 22 s of CPU with the imports on a busy machine (the Python stepper's four runs 3 s, the
+kernels' compile 2 s).
 """
 import ctypes
 import dataclasses
