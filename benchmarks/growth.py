@@ -15,7 +15,10 @@ meaningful on a machine shared with other jobs, where the wall time is not):
   setup        the run's set-up on that soil: the time stepper (static preload, the base
                system, its factorisation) and the native runtime's records opened
   step         one step of the whole native run (the C runtime: history, Newton step, outputs),
-               over --steps steps after the set-up
+               over --steps steps after the set-up, the closed Newton base included (built at
+               the first Newton solve: a one-off of the step size, and of each halving level,
+               spread over the --steps steps); "open s" the run at rest alone (the native records
+               encoded and opened, the step size's system), which the step column leaves out
 
 The soil of the history, set-up and step columns is a synthetic rational model of --poles poles
 (real and complex pairs, residues a fixed SPD matrix times stable weights): the same sizes and
@@ -31,7 +34,10 @@ Variants by name, so that other methods are measured by the same script: ``--swe
 ``--fit``, ``--history`` choose among SWEEPS ("dense", "fast": the FFT/Krylov solver of grid
 meshes), FITS ("dense": the table in memory, "streamed": the table written to a chunked file by
 one process and fitted read in blocks by another, whose peak is the fit's own) and HISTORIES
-("dense"); a new method adds a function to its table. The fit's "(est. @m)" column is the guard's
+("dense"; "hmatrix": the step stage's soil a model whose residues have the soil kernel's structure
+over the mat's nodes, tests/helpers ``with_kernel_terms`` on the rock's springs, its history
+compressed from 600 nodes on as a run compresses it, and a pulse of --step-pga m/s^2 that lifts
+a part of the mat); a new method adds a function to its table. The fit's "(est. @m)" column is the guard's
 estimate at the order the fit reached (its "(est.)" one at the most poles it may use).
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/growth.py [--sizes 16 25 34 50] [--stages sweep fit history setup step]
@@ -102,6 +108,12 @@ def history_dense(model, dt):
     return RecursiveConvolutionSoil(model, dt, checked=True)
 
 
+def history_hmatrix(model, dt, xy=None):
+    """The soil's history compressed over the nodes xy (``history="auto"``: from 600 nodes on)."""
+    from soil_impedance.convolution import RecursiveConvolutionSoil
+    return RecursiveConvolutionSoil(model, dt, checked=True, history="auto", xy=xy)
+
+
 def fit_streamed(scene, table):
     """The streamed fit (soil_impedance.fit.streamed) of a ``BlockedTable`` on disk (``stage_fit``
     writes the swept table to a chunked file and opens it in a fresh process first)."""
@@ -110,7 +122,7 @@ def fit_streamed(scene, table):
 
 SWEEPS = {"dense": sweep_dense, "fast": sweep_fast}
 FITS = {"dense": fit_dense, "streamed": fit_streamed}
-HISTORIES = {"dense": history_dense}
+HISTORIES = {"dense": history_dense, "hmatrix": history_hmatrix}
 
 
 # ---- the synthetic soil ---------------------------------------------------------------------
@@ -195,10 +207,25 @@ def stage_fit(cells, args):
             "fit_est_at_order": at["total"], "fit_poles": int(result.model.order), "fit_freqs": int(freqs.size)}
 
 
+def step_soil(scene, args):
+    """The soil of the history, set-up and step columns: the synthetic model, or (--history hmatrix)
+    the rock's springs with the kernel-structured terms, compressed over the mat's nodes."""
+    if args.history != "hmatrix":
+        model = synthetic_model(6 + scene.mesh.n, args.poles)
+        _ = (model.coefficients, model.scaled)       # the cached forms a fitted model holds (the fit's, its test's)
+        return HISTORIES[args.history](model, 0.005)
+    sys.path.insert(0, str(ROOT / "tests"))
+    from helpers import with_kernel_terms
+    from helpers.soil_double import winkler_rational
+    from helpers.winkler import rock_winkler
+    xy = np.asarray(scene.mesh.xy)
+    model = with_kernel_terms(winkler_rational(rock_winkler(xy, scene.mesh.area, match="rocking", ky=True)), xy)
+    return history_hmatrix(model, 0.005, xy)
+
+
 def stage_history(cells, args):
     n = 6 + cells * cells
-    model = synthetic_model(n, args.poles)
-    soil = HISTORIES[args.history](model, 0.005)
+    soil = step_soil(scene_at(cells), args)
     rng = np.random.default_rng(0)
     x = rng.standard_normal((8, n)) * 1e-4
     soil.history()
@@ -215,7 +242,6 @@ def stage_step(cells, args):
     """Set-up and steps of the native run on the synthetic soil; the stepping stage's peak."""
     from fmus.native_stepper import library, simulate_native
     from orchestrator.memory_guard import stepping_memory
-    from soil_impedance.convolution import RecursiveConvolutionSoil
     from structure import NewmarkStepper
     scene = scene_at(cells)
     structure = scene.model()
@@ -223,13 +249,19 @@ def stage_step(cells, args):
     lib = library(Path(args.cache) / "native")
     t = np.arange(args.steps + 1) * 0.005
     ag = np.zeros((t.size, 3))
-    ag[:, 0] = 0.5 * np.sin(2 * np.pi * 3.0 * t)
+    contact = scene.contact
+    if args.history == "hmatrix":                  # the kernel-structured soil, compressed; a pulse lifting the mat
+        from dataclasses import replace
+        sys.path.insert(0, str(ROOT / "tests"))
+        from helpers import pulse_motion
+        ag[:] = pulse_motion(dt=0.005, T=args.steps * 0.005, pga=args.step_pga).acc[:t.size]
+        contact = replace(contact, precheck=False)
+    else:
+        ag[:, 0] = 0.5 * np.sin(2 * np.pi * 3.0 * t)
     base = _maxrss()
     t0 = time.process_time()
-    model = synthetic_model(n, args.poles)
-    _ = (model.coefficients, model.scaled)           # the cached forms a fitted model holds (the fit's, its test's)
-    soil = RecursiveConvolutionSoil(model, 0.005, checked=True)
-    st = NewmarkStepper(structure, soil, 0.005, contact=scene.contact, external_soil=True, ag0=ag[0])
+    soil = step_soil(scene, args)
+    st = NewmarkStepper(structure, soil, 0.005, contact=contact, external_soil=True, ag0=ag[0])
     setup = time.process_time() - t0
     t1 = time.process_time()
     simulate_native(st, ag[:1], scene.output.nodes, lib=lib)                 # records encoded and opened, 1 step
@@ -241,9 +273,11 @@ def stage_step(cells, args):
     res = simulate_native(st, ag, scene.output.nodes, lib=lib)
     run = time.process_time() - t2
     est = stepping_memory(n, args.poles, t.size)
-    return {"n_nodes": scene.mesh.n, "setup_s": setup + first, "step_ms": 1e3 * (run - first) / args.steps,
+    return {"n_nodes": scene.mesh.n, "setup_s": setup + first, "first_s": first,
+            "step_ms": 1e3 * (run - first) / args.steps,
             "step_peak": _maxrss() - base, "step_est": est["total"] - est["base"],
-            "max_gap_m": float(np.max(res.gap)) if res.gap.size else 0.0}
+            "max_gap_m": float(np.max(res.gap)) if res.gap.size else 0.0,
+            "lifted": float((res.gap > 0).mean(axis=1).max()) if res.gap.size else 0.0}
 
 
 STAGES = {"sweep": stage_sweep, "fit": stage_fit, "history": stage_history, "step": stage_step}
@@ -254,7 +288,7 @@ def child(stage, cells, args) -> dict:
     """Run one stage at one size in a fresh interpreter (its own peak); its JSON answer."""
     cmd = [sys.executable, __file__, "--child", stage, str(cells), "--sweep", args.sweep, "--fit", args.fit,
            "--history", args.history, "--poles", str(args.poles), "--fit-freqs", str(args.fit_freqs),
-           "--steps", str(args.steps), "--cache", args.cache]
+           "--steps", str(args.steps), "--step-pga", str(args.step_pga), "--cache", args.cache]
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     out = subprocess.run(cmd, capture_output=True, text=True, env=env)
     if out.returncode:
@@ -275,7 +309,8 @@ COLUMNS = [("sweep_s", "sweep s/freq", "{:.3g}"), ("sweep_peak", "sweep peak GiB
            ("sweep_est", "(est.)", "{:.3g}"), ("table", "table GiB @F", "{:.3g}"), ("fit_s", "fit s", "{:.3g}"),
            ("fit_peak", "fit peak GiB", "{:.3g}"), ("fit_est", "(est.)", "{:.3g}"),
            ("fit_est_at_order", "(est. @m)", "{:.3g}"),
-           ("history_ms", "history ms", "{:.3g}"), ("setup_s", "setup s", "{:.3g}"), ("step_ms", "step ms", "{:.3g}"),
+           ("history_ms", "history ms", "{:.3g}"), ("setup_s", "setup s", "{:.3g}"),
+           ("first_s", "open s", "{:.3g}"), ("step_ms", "step ms", "{:.3g}"), ("lifted", "lifted", "{:.2f}"),
            ("step_peak", "step peak GiB", "{:.3g}"), ("step_est", "(est.)", "{:.3g}")]
 GIB = {"sweep_peak", "sweep_est", "table", "fit_peak", "fit_est", "fit_est_at_order", "step_peak", "step_est"}
 
@@ -291,6 +326,8 @@ def main(argv=None) -> int:
     p.add_argument("--fit-freqs", type=int, default=11, help="frequencies of the fitted table (0 to 25 Hz)")
     p.add_argument("--fit-max-nodes", type=int, default=700, help="largest size whose fit is measured")
     p.add_argument("--steps", type=int, default=200, help="steps of the native run (step column)")
+    p.add_argument("--step-pga", type=float, default=20.0,
+                   help="the pulse of the step stage with --history hmatrix, m/s^2 (x, and 0.3 of it along z)")
     p.add_argument("--freqs", type=int, default=101, help="the scene's frequency count (table column, extrapolation)")
     p.add_argument("--cache", default=os.environ.get("UPLIFT_CACHE", "/tmp/uplift-growth"),
                    help="folder of the native library")

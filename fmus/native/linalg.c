@@ -75,6 +75,21 @@ static int cpu_level(void)
         else                                                                                       \
             name##_sse2 args;                                                                      \
     }
+/* the same, the dispatching function static (this file's own) */
+#define UP_KERNEL_STATIC(name, params, args)                                                       \
+    __attribute__((target("avx512f"))) static void name##_avx512 params { name##_k args; }         \
+    __attribute__((target("avx2"))) static void name##_avx2 params { name##_k args; }              \
+    static void name##_sse2 params { name##_k args; }                                              \
+    static void name params                                                                        \
+    {                                                                                              \
+        int level = cpu_level();                                                                   \
+        if (level == 2)                                                                            \
+            name##_avx512 args;                                                                    \
+        else if (level == 1)                                                                       \
+            name##_avx2 args;                                                                      \
+        else                                                                                       \
+            name##_sse2 args;                                                                      \
+    }
 #define UP_KERNEL_INT(name, params, args)                                                          \
     __attribute__((target("avx512f"))) static int name##_avx512 params { return name##_k args; }  \
     __attribute__((target("avx2"))) static int name##_avx2 params { return name##_k args; }       \
@@ -87,6 +102,7 @@ static int cpu_level(void)
 #else
 #define UP_KERNEL(name, params, args) void name params { name##_k args; }
 #define UP_KERNEL_INT(name, params, args) int name params { return name##_k args; }
+#define UP_KERNEL_STATIC(name, params, args) static void name params { name##_k args; }
 #endif
 
 /* the vector width the kernels run at: 2 AVX-512, 1 AVX2, 0 the baseline (SSE2 on x86-64) */
@@ -210,6 +226,25 @@ UP_BODY void up_lu_solve_k(const double *LU, const int *piv, int n, double *b)
 }
 UP_KERNEL(up_lu_solve, (const double *LU, const int *piv, int n, double *b), (LU, piv, n, b))
 
+/* B (n, k) <- L^-1 B, L the unit lower triangle of LU. ident: B is the identity, whose row i keeps
+   its entries from column i on (L^-1 is lower triangular: the updates there subtract exact zeros,
+   which leave every bit as it is), so only its first i columns are updated. */
+UP_BODY void forward_many(const double *LU, int n, double *B, int k, int ident)
+{
+    for (int i = 1; i < n; i++)
+        rows_update(B + (size_t)i * k, B, k, LU + (size_t)i * n, 0, i, ident ? i : k);
+}
+
+UP_BODY void backward_many(const double *LU, int n, double *B, int k)
+{
+    for (int i = n - 1; i >= 0; i--) {
+        double *bi = B + (size_t)i * k, d = LU[(size_t)i * n + i];
+        rows_update(bi, B, k, LU + (size_t)i * n, i + 1, n, k);
+        for (int j = 0; j < k; j++)
+            bi[j] /= d;
+    }
+}
+
 UP_BODY void up_lu_solve_many_k(const double *LU, const int *piv, int n, double *B, int k)
 {
     for (int i = 0; i < n; i++)
@@ -221,26 +256,40 @@ UP_BODY void up_lu_solve_many_k(const double *LU, const int *piv, int n, double 
                 b[j] = t;
             }
         }
-    for (int i = 1; i < n; i++)
-        rows_update(B + (size_t)i * k, B, k, LU + (size_t)i * n, 0, i, k);
-    for (int i = n - 1; i >= 0; i--) {
-        double *bi = B + (size_t)i * k, d = LU[(size_t)i * n + i];
-        rows_update(bi, B, k, LU + (size_t)i * n, i + 1, n, k);
-        for (int j = 0; j < k; j++)
-            bi[j] /= d;
-    }
+    forward_many(LU, n, B, k, 0);
+    backward_many(LU, n, B, k);
 }
 UP_KERNEL(up_lu_solve_many, (const double *LU, const int *piv, int n, double *B, int k), (LU, piv, n, B, k))
 
 /* inv <- A^-1 (n, n) from the LU of A (up_lu). With P not NULL (A symmetric), inv is made
    symmetric, (inv + inv^T) / 2, and packed into P (up_pack_sym): the round-off of the solves is
    the only asymmetry. */
-void up_inverse(const double *LU, const int *piv, int n, double *inv, double *P)
+UP_BODY void inverse_k(const double *LU, const int *piv, int n, double *inv)
 {
     for (int i = 0; i < n; i++)
         for (int j = 0; j < n; j++)
             inv[(size_t)i * n + j] = i == j ? 1.0 : 0.0;
-    up_lu_solve_many(LU, piv, n, inv, n);
+    forward_many(LU, n, inv, n, 1);
+    backward_many(LU, n, inv, n);
+    for (int i = n - 1; i >= 0; i--)                      /* A^-1 = U^-1 L^-1 P: the swaps on the columns */
+        if (piv[i] != i)
+            for (int r = 0; r < n; r++) {
+                double *row = inv + (size_t)r * n, t = row[i];
+                row[i] = row[piv[i]];
+                row[piv[i]] = t;
+            }
+}
+UP_KERNEL_STATIC(inverse, (const double *LU, const int *piv, int n, double *inv), (LU, piv, n, inv))
+
+/* inv <- A^-1 (n, n) from the LU of A (up_lu): U^-1 L^-1 of the identity, its columns then swapped
+   as the LU swapped the rows. Each column of U^-1 L^-1 is solved alone, in the operations
+   up_lu_solve_many takes on it, so inv is the same bits as up_lu_solve_many of the identity (its
+   rows swapped first), at 5/6 of its work. With P not NULL (A symmetric), inv is made
+   symmetric, (inv + inv^T) / 2, and packed into P (up_pack_sym): the round-off of the solves is
+   the only asymmetry. */
+void up_inverse(const double *LU, const int *piv, int n, double *inv, double *P)
+{
+    inverse(LU, piv, n, inv);
     if (!P)
         return;
     for (int i = 0; i < n; i++)

@@ -44,6 +44,9 @@
    history to 1e-10 on a mild (bonded) scene and, where uplift amplifies round-off, to
    max(1e-10, 100 x its round-off spread) measured on the Python stepper (tests/helpers/roundoff.py,
    docs/verification.md). */
+#ifdef UP_PROFILE
+#define _POSIX_C_SOURCE 199309L
+#endif
 #include <math.h>
 #include <stdio.h>
 #include <stdlib.h>
@@ -52,6 +55,38 @@
 #include "uplift.h"
 
 enum { W_INPUT, W_DAMPING, W_SOIL, W_CONTACT };
+
+/* A profiling build (-DUP_PROFILE, benchmarks/step_profile.py; never the FMUs' or the routes'
+   build) times the parts of a step in process CPU seconds: up_profile(t, n) copies the
+   totals and the call counts (inclusive: a solve's time holds its factorisation's). */
+enum { P_HISTORY, P_S0, P_SOLVE, P_CAPACITANCE, P_BASE, P_SYSTEM, P_STEP, P_UPDATE, P_NPROF };
+#ifdef UP_PROFILE
+#include <time.h>
+static double prof_t[P_NPROF];
+static int64_t prof_n[P_NPROF];
+static double prof_now(void)
+{
+    struct timespec t;
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+    return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+}
+static double prof_stack[16];                              /* the open timers, nested */
+static int prof_sp;
+#define PROF_BEGIN(k) (prof_stack[prof_sp++] = prof_now())
+#define PROF_END(k) (prof_t[k] += prof_now() - prof_stack[--prof_sp], prof_n[k]++)
+UP_API void up_profile(double *t, int64_t *n, int reset)
+{
+    for (int k = 0; k < P_NPROF; k++) {
+        t[k] = prof_t[k];
+        n[k] = prof_n[k];
+        if (reset)
+            prof_t[k] = 0.0, prof_n[k] = 0;
+    }
+}
+#else
+#define PROF_BEGIN(k) (void)0
+#define PROF_END(k) (void)0
+#endif
 
 static int scalar_in(const UpRes *r, const char *name, double lo, double hi, double *v, char *err)
 {
@@ -372,8 +407,10 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
             y->Jp[c] = (double *)malloc(((size_t)nb * (nb + 1) / 2 + 1) * sizeof(double));
             y->Jd[c] = (double *)malloc((size_t)nb * sizeof(double));
             y->Z[c] = (double *)malloc(((size_t)Ni * nb + 1) * sizeof(double));
-            y->W[c] = (double *)malloc(((size_t)Ni * Ni + 1) * sizeof(double));
-            ok = y->Jb[c] && y->Jp[c] && y->Jd[c] && y->Z[c] && y->W[c];
+            y->Jlu[c] = (double *)malloc((size_t)nb * nb * sizeof(double));
+            y->Jpiv[c] = (int *)malloc((size_t)nb * sizeof(int));
+            y->zdone[c] = (unsigned char *)calloc((size_t)Ni + 1, 1);
+            ok = y->Jb[c] && y->Jp[c] && y->Jd[c] && y->Z[c] && y->Jlu[c] && y->Jpiv[c] && y->zdone[c];
         }
     }
     s->cache_lu = (double *)malloc(((size_t)UP_NCACHE * Ni * Ni + 1) * sizeof(double));
@@ -441,7 +478,9 @@ void up_stepper_free(UpStepper *s)
             free(y->Jp[c]);
             free(y->Jd[c]);
             free(y->Z[c]);
-            free(y->W[c]);
+            free(y->Jlu[c]);
+            free(y->Jpiv[c]);
+            free(y->zdone[c]);
         }
     }
     up_sparse_free(&s->Ks_sp);
@@ -549,11 +588,20 @@ void up_stepper_rest(UpStepper *s, const double *ag0)
 
 /* ---- the per-level system ------------------------------------------------------------------ */
 static int base_at(UpStepper *s, UpSystem *y, int c);
+static const UpSystem *system_build(UpStepper *s, int lev);
 static const UpSystem *system_at(UpStepper *s, int lev)
 {
+    if (s->sys[lev].ready)
+        return &s->sys[lev];
+    PROF_BEGIN(P_SYSTEM);
+    const UpSystem *y = system_build(s, lev);
+    PROF_END(P_SYSTEM);
+    return y;
+}
+
+static const UpSystem *system_build(UpStepper *s, int lev)
+{
     UpSystem *y = &s->sys[lev];
-    if (y->ready)
-        return y;
     double dt = s->sys[0].dt;
     for (int l = 0; l < lev; l++)
         dt /= 2;                                          /* exact: a power of two */
@@ -780,7 +828,8 @@ static void residual(const UpStepper *s, const double *Sx, const double *x, cons
 /* ---- the Newton matrix J(act) = S0 + sum over the active nodes of s_i b_i b_i^T ----------------
    s_i = (1 + al) kp_i, b_i the contact direction of node i (Bq3_i on q[2:5], -1 on w_i). Two
    bases per level, each inverted once when first needed: every contact closed (Jc) and every
-   contact open (S0), with Z = base^-1 b_i for every node and W_ij = b_i . Z_j. J(act) differs from the nearer base by
+   contact open (S0), with Z_i = base^-1 b_i solved for node i when it first enters a capacitance
+   matrix (directions) and W_ij = b_i . Z_j. J(act) differs from the nearer base by
    the k = min(open, closed) nodes K: J = base + sigma U_K S_K U_K^T (sigma -1 from the closed
    base, +1 from the open one), so by Woodbury
        J^-1 r = y - Z_K C^-1 (U_K^T y),  y = base^-1 r,  C = sigma S_K^-1 + W_KK  (k, k).
@@ -799,11 +848,12 @@ static double along(const UpStepper *s, int i, const double *x)
     return ((b[0] * x[2] + b[1] * x[3]) + b[2] * x[4]) - x[6 + i];
 }
 
-/* base c of level lev: its inverse, Z and W; 0, or -1 when singular */
+/* base c of level lev: its LU and inverse (the directions Z when first needed: directions);
+   0, or -1 when singular */
 static int base_at(UpStepper *s, UpSystem *y, int c)
 {
     int N = s->N, nb = s->nb;
-    double *J = s->lu, *Ji = y->Jb[c];
+    double *J = y->Jlu[c], *Ji = y->Jb[c];
     memcpy(J, y->S0, (size_t)nb * nb * sizeof(double));
     for (int i = 0; c == 0 && s->nf && i < N; i++) {       /* a plate: s_i b_i b_i^T, b_i its trace and -1 on w_i */
         double si = (1 + s->alpha) * s->kp[i];
@@ -844,50 +894,74 @@ static int base_at(UpStepper *s, UpSystem *y, int c)
         for (int q = 0; q < nb; q++)
             J[(size_t)r * nb + q] *= d[r] * d[q];
     s->n_factorisations++;
-    if (up_lu(J, s->lu_piv, nb))
+    if (up_lu(J, y->Jpiv[c], nb))
         return -1;
-    up_inverse(J, s->lu_piv, nb, Ji, s->sym ? y->Jp[c] : NULL);
-    /* Z_i = base^-1 b_i, b_i = Bq3_i on q[2:5] and -1 on w_i: solved from the LU (a combination of
-       the inverse's columns would lose digits: the penalty couples them strongly) */
-    double *B = s->rhs;                                   /* (nb, N): column i is b_i */
-    memset(B, 0, (size_t)nb * N * sizeof(double));
-    for (int i = 0; s->nf && i < N; i++) {
-        for (int k = s->bc_ptr[i]; k < s->bc_ptr[i + 1]; k++)
-            B[(size_t)s->bc_col[k] * N + i] += s->bc_val[k];
-        B[(size_t)(6 + s->nf + i) * N + i] = -1.0;
-    }
-    for (int i = 0; !s->nf && i < N; i++) {
-        const double *b = s->Bq3 + 3 * (size_t)i;
-        for (int r = 0; r < 3; r++)
-            B[(size_t)(2 + r) * N + i] = b[r];
-        B[(size_t)(6 + i) * N + i] = -1.0;
+    up_inverse(J, y->Jpiv[c], nb, Ji, s->sym ? y->Jp[c] : NULL);
+    memset(y->zdone[c], 0, (size_t)N);                    /* no direction solved yet */
+    return 0;
+}
+
+/* Z_i = base^-1 b_i for the nodes K[0 .. k) of base c whose direction is not solved yet (b_i =
+   Bq3_i on q[2:5] and -1 on w_i): solved from the base's LU (a combination of the inverse's
+   columns would lose digits: the penalty couples them strongly), all of them in one solve with
+   many right-hand sides. Only the nodes that enter a capacitance matrix need their direction
+   (the lifting part of the raft from the closed base): 2 nb^2 flops a node when first needed,
+   instead of 2 nb^2 N for every node with the base. The solve treats each right-hand side
+   alone, in the same operations whichever others it is solved with (up_lu_solve_many), so a
+   direction has the same bits whenever, and with whichever nodes, it is solved: the numbers
+   depend on the level and the node only. */
+static void directions(UpStepper *s, UpSystem *y, int c, const int *K, int k)
+{
+    int nb = s->nb, m = 0;
+    int *todo = (int *)s->lu_piv;                         /* the set-up's pivots: free here (nb >= k) */
+    for (int a = 0; a < k; a++)
+        if (!y->zdone[c][K[a]])
+            todo[m++] = K[a];
+    if (m == 0)
+        return;
+    double *B = s->rhs, *d = y->Jd[c];                    /* (nb, m): column j is b_todo[j] */
+    memset(B, 0, (size_t)nb * m * sizeof(double));
+    for (int j = 0; j < m; j++) {
+        int i = todo[j];
+        if (s->nf) {
+            for (int q = s->bc_ptr[i]; q < s->bc_ptr[i + 1]; q++)
+                B[(size_t)s->bc_col[q] * m + j] += s->bc_val[q];
+            B[(size_t)(6 + s->nf + i) * m + j] = -1.0;
+        } else {
+            const double *b = s->Bq3 + 3 * (size_t)i;
+            for (int r = 0; r < 3; r++)
+                B[(size_t)(2 + r) * m + j] = b[r];
+            B[(size_t)(6 + i) * m + j] = -1.0;
+        }
     }
     for (int r = 0; r < nb; r++)
-        for (int i = 0; i < N; i++)
-            B[(size_t)r * N + i] *= d[r];
-    up_lu_solve_many(J, s->lu_piv, nb, B, N);
-    for (int i = 0; i < N; i++)
+        for (int j = 0; j < m; j++)
+            B[(size_t)r * m + j] *= d[r];
+    up_lu_solve_many(y->Jlu[c], y->Jpiv[c], nb, B, m);
+    for (int j = 0; j < m; j++) {
+        double *z = y->Z[c] + (size_t)todo[j] * nb;
         for (int r = 0; r < nb; r++)
-            y->Z[c][(size_t)i * nb + r] = d[r] * B[(size_t)r * N + i];
-    for (int i = 0; i < N; i++)
-        for (int j = 0; j < N; j++)
-            y->W[c][(size_t)i * N + j] = along(s, i, y->Z[c] + (size_t)j * nb);
-    return 0;
+            z[r] = d[r] * B[(size_t)r * m + j];
+        y->zdone[c][todo[j]] = 1;
+    }
 }
 
 /* 1 when base c of the level is usable, built on first use (its numbers are the same whenever
    it is built); 0 when it is singular */
 static int base(UpStepper *s, UpSystem *y, int c)
 {
-    if (y->base_ok[c] == 0)
+    if (y->base_ok[c] == 0) {
+        PROF_BEGIN(P_BASE);
         y->base_ok[c] = base_at(s, y, c) == 0 ? 1 : -1;
+        PROF_END(P_BASE);
+    }
     return y->base_ok[c] > 0;
 }
 
 /* the cache slot of (lev, act): its base, nodes K and the LU of C; -1 when singular */
 static int capacitance(UpStepper *s, int lev, const unsigned char *act)
 {
-    int N = s->N, slot = 0;
+    int N = s->N, nb = s->nb, slot = 0;
     UpSystem *y = &s->sys[lev];
     s->clock++;
     for (int k = 0; k < UP_NCACHE; k++) {
@@ -908,10 +982,11 @@ static int capacitance(UpStepper *s, int lev, const unsigned char *act)
     for (int i = 0; i < N; i++)
         if ((act[i] != 0) == (c == 1))
             K[k++] = i;
+    directions(s, y, c, K, k);
     double sigma = c == 1 ? 1.0 : -1.0, *C = s->cache_lu + (size_t)slot * N * N;
-    for (int a = 0; a < k; a++)
+    for (int a = 0; a < k; a++)                           /* W_KK: b_a . Z_b */
         for (int b = 0; b < k; b++)
-            C[(size_t)a * k + b] = y->W[c][(size_t)K[a] * N + K[b]]
+            C[(size_t)a * k + b] = along(s, K[a], y->Z[c] + (size_t)K[b] * nb)
                                    + (a == b ? sigma / ((1 + s->alpha) * s->kp[K[a]]) : 0.0);
     s->cache_lev[slot] = -1;
     if (k > 0) {
@@ -973,7 +1048,9 @@ static int newton_solve(UpStepper *s, int lev, const unsigned char *act, double 
 {
     if (s->diag)
         return newton_diag(s, lev, act, x);
+    PROF_BEGIN(P_CAPACITANCE);
     int slot = capacitance(s, lev, act);
+    PROF_END(P_CAPACITANCE);
     if (slot < 0)
         return -1;
     const UpSystem *y = &s->sys[lev];
@@ -1094,7 +1171,9 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
         v_hat[i] = (-c1 * u[i] + (1 - g / b) * v[i]) + dt * (1 - g / (2 * b)) * a[i];
     }
     double *Ev = s->w_nb[10], *Sx = s->w_nb[11], *Sdx = s->w_nb[8];
+    PROF_BEGIN(P_S0);
     damp(s, v_hat, Cv, Ev);
+    PROF_END(P_S0);
     for (int i = 0; i < n; i++)
         rhs[i] = (((-s->M[i] * a_hat[i] - (1 + al) * Cv[i]) + al * s->R[i]) + (1 + al) * F_new[i]) - al * s->F[i];
     for (int i = 0; i < s->nsoil; i++)                   /* h on the soil's DOFs [q, w] */
@@ -1156,7 +1235,9 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
         } else {
             const double *Kx = s->Kx;
             if (*s->kx_lev != (double)lev) {
+                PROF_BEGIN(P_S0);
                 soil_product(s, y->K0C, s->soil->Ep ? y->K0Cp : NULL, y->K0Cd, uB, s->w_nb[6]);
+                PROF_END(P_S0);
                 Kx = s->w_nb[6];
             }
             const double *Sq = y->Sq, *cM = y->Sq + 36;
@@ -1170,7 +1251,10 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
         for (int it = 0; it < s->max_iter; it++) {
             for (int i = 0; i < nb; i++)
                 dx[i] = gv[i];
-            if (newton_solve(s, lev, s->act, dx))
+            PROF_BEGIN(P_SOLVE);
+            int singular = newton_solve(s, lev, s->act, dx);
+            PROF_END(P_SOLVE);
+            if (singular)
                 break;
             for (int i = 0; i < nb; i++)
                 dx[i] = -dx[i];
@@ -1270,7 +1354,9 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
         xs_new = s->xs;
         xds_new = s->vs;
     }
+    PROF_BEGIN(P_S0);
     soil_product(s, y->K0C, s->soil->Ep ? y->K0Cp : NULL, y->K0Cd, xs_new, Kx_new);
+    PROF_END(P_S0);
     for (int i = 0; i < s->nsoil; i++)
         fs_new[i] = (Kx_new[i] + Ev[i]) + h[i];
     if (al != 0.0) {
@@ -1335,8 +1421,11 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
     memcpy(s->F, F_new, (size_t)n * sizeof(double));
     *s->t += dt;
     memcpy(s->ag, ag_new, 3 * sizeof(double));
-    if (!s->external)
+    if (!s->external) {
+        PROF_BEGIN(P_HISTORY);
         up_soil_commit(s->soil, lev, xs_new, xds_new, fs_new);
+        PROF_END(P_HISTORY);
+    }
     return 0;
 }
 
@@ -1349,7 +1438,9 @@ static int span(UpStepper *s, int depth, const double *ag0, const double *ag1, c
     if (!s->external) {
         double *hd = s->hbuf + (size_t)depth * s->nb;
         system_at(s, depth);                              /* the soil's coefficients at this dt */
+        PROF_BEGIN(P_HISTORY);
         up_soil_history(s->soil, depth, hd);
+        PROF_END(P_HISTORY);
         h = hd;
     }
     int it = 0;
@@ -1394,7 +1485,10 @@ int up_stepper_step(UpStepper *s)
     int iters = 0;
     s->last_iters = 0;
     s->last_halved = 0;
-    if (span(s, 0, ag0, ag1, s->external ? s->h_ext : NULL, &iters))
+    PROF_BEGIN(P_STEP);
+    int failed = span(s, 0, ag0, ag1, s->external ? s->h_ext : NULL, &iters);
+    PROF_END(P_STEP);
+    if (failed)
         return -1;                                        /* the state as it was */
     s->last_iters = iters;
     return 0;

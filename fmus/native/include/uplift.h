@@ -283,8 +283,11 @@ typedef struct {
     double *Jd[2];            /* (nb) their scaling, powers of two: d_r ~ |J_rr|^-1/2 */
     double *Jb[2];            /* (nb, nb) the inverses of the scaled bases, D J D (symmetrised when sym) */
     double *Jp[2];            /* the same packed, when sym */
-    double *Z[2];             /* (N, nb) row i: base^-1 b_i, b_i node i's contact direction */
-    double *W[2];             /* (N, N) b_i . Z_j */
+    double *Jlu[2];           /* (nb, nb) the LU of the scaled bases (pivots Jpiv): the directions' solves */
+    int *Jpiv[2];
+    double *Z[2];             /* (N, nb) row i: base^-1 b_i, b_i node i's contact direction, solved when node i
+                                 first enters a capacitance matrix (zdone[i] = 1 then; stepper.c: directions) */
+    unsigned char *zdone[2];
     int base_ok[2];           /* 1 built, -1 singular, 0 not built yet (built when first needed) */
     /* a plate (UpStepper.nf > 0): the structure's part of S0 on [q, t] (6 + nf square: S0 less
        (1 + al) K0C on q and diag(c0 M_B) there), and packed when sym; NULL for a rigid raft */
