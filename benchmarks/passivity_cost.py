@@ -14,7 +14,7 @@ Per model and sweep: the samples (factorisations and eigensolutions; the eigenva
 eigensolutions), CPU seconds in total and per sample, of which the residue-norm set-up (complex SVDs for the
 eigenvalue sweep, power iteration + Cholesky for the other), the verdict. ``--old-up-to N``: above N
 DOFs the eigenvalue sweep is not run; its time is estimated as (its sample count at the largest
-size run) × (the CPU time of 3 eigensolutions at this size) and printed as such ("est").
+size run, or ``--old-samples``) × (the CPU time of 3 eigensolutions at this size), printed as "est".
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/passivity_cost.py --dofs 606 1206
     nice flock /tmp/big.lock python benchmarks/passivity_cost.py --dofs 2506 --old-up-to 1300
@@ -127,6 +127,8 @@ def main(argv=None):
     ap.add_argument("--dofs", type=int, nargs="*", default=[606, 1206])
     ap.add_argument("--notch", action="store_true", help="also the models with a narrow violation")
     ap.add_argument("--old-up-to", type=int, default=1300)
+    ap.add_argument("--old-samples", type=int, default=None,
+                    help="the eigenvalue sweep's sample count for the estimate when no smaller size was run")
     ap.add_argument("--table", nargs="*", default=[], help="gap table files to fit and test")
     a = ap.parse_args(argv)
     models = []
@@ -140,7 +142,7 @@ def main(argv=None):
         models.append((f"fit {model.n}", model))
     print(f"{'model':>18} {'sweep':>9} {'samples':>8} {'eig':>5} {'cpu s':>8} {'s/sample':>9} {'set-up s':>9} "
           f"{'certified':>9} bands (Hz)", flush=True)
-    last_count = None
+    last_count = a.old_samples
     for name, model in models:
         sc = model.scaled
         hz = sc.w_ref / (2 * np.pi)
