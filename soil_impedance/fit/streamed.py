@@ -119,9 +119,9 @@ class StreamedProblem:
             if P is not None:
                 Tu = T / self.Sd[r, None] / self.Sd[None, c]
                 for out, A in ((self.rigid_raw, K), (self.rigid_target, Tu)):
-                    out += np.einsum("ia,fij,jb->fab", P[r], A, P[c])
+                    out += _project(P[r], A, P[c])
                     if r != c:
-                        out += np.einsum("ia,fij,jb->fab", P[c], A.transpose(0, 2, 1), P[r])
+                        out += _project(P[c], A.transpose(0, 2, 1), P[r])
         self.norm_target, self.norm_Ks, self.norm_K = np.sqrt(t2), np.sqrt(k2), np.sqrt(u2)
         self.w_rel = 1.0 / np.maximum(self.norm_target, 1e-300)
         self.w = self.w_rel if weighting != "uniform" else np.full(F, 1.0 / xmax)
@@ -246,7 +246,7 @@ class StreamedProblem:
         inv = 1.0 / (s[:, None] - model.poles[None, :])
         for r, c, K, Ks, _, _ in self._passes(raw=True):
             Km = model.D[None, r, c] + s[:, None, None] * model.E[None, r, c] \
-                + np.einsum("fk,kij->fij", inv, model.residues[:, r, c])
+                + (inv @ model.residues[:, r, c].reshape(inv.shape[1], -1)).reshape(s.size, r.stop - r.start, c.stop - c.start)
             yield r, c, K, Ks, Km
 
     def response_errors(self, model) -> np.ndarray:
@@ -307,6 +307,12 @@ def _put(C, rows, r, c, i, j, cb) -> None:
         return
     C[rows, r.start + i, c.start + j] = cb
     C[rows, c.start + j, r.start + i] = cb
+
+
+def _project(Pa, A, Pb) -> np.ndarray:
+    """Pa^T A_f Pb per frequency (F, 6, 6) of a complex block A (F, r, c) and real Pa (r, 6), Pb (c, 6):
+    real products on the real and imaginary parts (BLAS; a complex einsum over the block is ~30x slower)."""
+    return (Pa.T @ A.real @ Pb) + 1j * (Pa.T @ A.imag @ Pb)
 
 
 def _sq(A) -> np.ndarray:
