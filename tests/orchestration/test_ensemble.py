@@ -23,6 +23,7 @@ from orchestrator.results_file import read_results
 from orchestrator.scene import load_scene
 from orchestrator.spectra import response_spectrum
 from helpers import ROOT, changed, small_reactor, write_scene
+from helpers.native import seed_native
 
 SCENE = small_reactor()
 PGAS = (0.4, 0.8)
@@ -61,7 +62,7 @@ def case(tmp_path_factory):
     x 2 PGAs, monolithic) with a cache shared by the module."""
     tmp = tmp_path_factory.mktemp("ensemble")
     env = pytest.MonkeyPatch()
-    env.setenv("UPLIFT_CACHE", str(tmp / "cache"))
+    env.setenv("UPLIFT_CACHE", str(seed_native(tmp / "cache")))     # the C runtime compiled once for the tests
     scene = tmp / "small.toml"
     write_scene(scene, SCENE)
     records = _write_records(tmp / "records")

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import xarray as xr
 from helpers import changed, small_reactor, toml_text, write_scene
+from helpers.native import seed_native
 
 from orchestrator import ensemble as ens
 from orchestrator.cli import main
@@ -75,7 +76,7 @@ def case(tmp_path_factory):
     """`uplift ensemble SCENE --records A B --pga 0.4 0.8 --workers 1 --json`, a cache shared by the module."""
     tmp = tmp_path_factory.mktemp("triplets")
     env = pytest.MonkeyPatch()
-    env.setenv("UPLIFT_CACHE", str(tmp / "cache"))
+    env.setenv("UPLIFT_CACHE", str(seed_native(tmp / "cache")))     # the C runtime compiled once for the tests
     scene = tmp / "small.toml"
     write_scene(scene, SCENE)
     triplets = _write_triplets(tmp)

@@ -39,6 +39,7 @@ from soil_impedance.cache import CacheWarning, write_entry
 from uplift_common.files import OutputWriteError, atomic_folder, atomic_output, stamp_checksum, sweep_orphans
 from uplift_common.ranges import MAX_LAYERS, MAX_STRUCTURE_NODES, PLAUSIBLE, plausible_range
 from helpers import ROOT, changed, tower, write_scene
+from helpers.native import seed_native
 from helpers.scenes import export_tower
 
 POSIX = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals and resource limits")
@@ -48,7 +49,7 @@ OLD = b"a previous output, to be left as it was\n"
 
 
 def _env(tmp_path):
-    cache = os.environ.get("UPLIFT_CACHE") or str(tmp_path / "cache")      # the native library compiled once
+    cache = os.environ.get("UPLIFT_CACHE") or str(seed_native(tmp_path / "cache"))   # the C runtime compiled once
     return {**os.environ, "PYTHONPATH": str(ROOT), "UPLIFT_CACHE": cache, "OPENBLAS_NUM_THREADS": "1",
             "PYTHONDONTWRITEBYTECODE": "1"}
 
