@@ -146,10 +146,11 @@ def test_each_cell_equals_uplift_run(case, tmp_path, monkeypatch):
     assert summ["wall_s"] > summ["setup_s"] + summ["dt_check_s"] and summ["dt_check_s"] > 0
 
 
-def test_synthetic_seeds_on_one_worker_equal_uplift_run(case, tmp_path, monkeypatch):
-    """Without --records: the scene's synthetic motion at each seed and PGA (the API, 1 worker)."""
+def test_synthetic_seeds_on_one_worker_equal_uplift_run(case, tmp_path, monkeypatch, scheduler):
+    """Without --records: the scene's synthetic motion at each seed and PGA (the API, on the
+    session's scheduler of one worker)."""
     monkeypatch.setenv("UPLIFT_CACHE", str(case["tmp"] / "cache"))
-    ds = ens.run_ensemble(case["scene"], [0.5], seeds=[1, 2], workers=1, cache_dir=case["tmp"] / "cache")
+    ds = ens.run_ensemble(case["scene"], [0.5], seeds=[1, 2], scheduler=scheduler, cache_dir=case["tmp"] / "cache")
     assert list(ds["record"].values) == ["seed 1", "seed 2"] and list(ds["seed"].values) == [1, 2]
     for seed in (1, 2):
         path = tmp_path / "s.toml"
@@ -217,11 +218,12 @@ def test_killed_worker_missing_cells_reported_then_filled(case, tmp_path):
         np.testing.assert_array_equal(ds3["floor_spectrum"].values, ref["floor_spectrum"].values)
 
 
-def test_rerun_keeps_completed_cells_and_extends(case, capsys):
-    """Same -o with one more PGA: the 6 cells are kept, the 3 new ones computed."""
+def test_rerun_keeps_completed_cells_and_extends(case, capsys, scheduler):
+    """Same -o with one more PGA: the 6 cells are kept, the 3 new ones computed (on the
+    session's scheduler)."""
     out = case["tmp"] / "ens.h5"
     assert main(["ensemble", str(case["scene"]), "--records", *_files(case["tmp"], case["records"]), "--pga", "0.4", "0.8",
-                 "0.6", "--workers", "2", "-o", str(out), "--json"]) == 0
+                 "0.6", "--scheduler", scheduler, "-o", str(out), "--json"]) == 0
     summ = json.loads(capsys.readouterr().out)
     assert (summ["runs"], summ["computed"], summ["reused"]) == (9, 3, 6)
     ds = xr.open_dataset(out, engine="h5netcdf").load()

@@ -202,7 +202,7 @@ def test_a_cached_table_is_read_and_hashed_once(tmp_path, monkeypatch):
 
 
 @pytest.mark.slow
-def test_the_fit_is_made_once_on_first_need_and_a_failed_fit_refuses_only_its_routes(tmp_path, monkeypatch):
+def test_the_fit_is_made_once_on_first_need_and_a_failed_fit_refuses_only_its_routes(tmp_path, monkeypatch, scheduler):
     """One run sequence for a single run and an ensemble's cells: prepare_run sweeps but does not
     fit (a route's first need does, once); a fit that fails is tried once and every route that
     needs it is refused (or stopped) with the reason while the others run, in a single run as in
@@ -239,7 +239,8 @@ def test_the_fit_is_made_once_on_first_need_and_a_failed_fit_refuses_only_its_ro
     assert calls == ["fit"] * 2
     assert values["winkler"]["status"] == "converged" and np.isfinite(values["winkler"]["max_uplift"])
     assert values["monolithic"]["status"] == "refused" and values["monolithic"]["message"] == "no passive model for the test"
-    ds = run_ensemble(scene, [0.3], seeds=[1], routes=["winkler", "monolithic"], workers=1, cache_dir=tmp_path)
+    ds = run_ensemble(scene, [0.3], seeds=[1], routes=["winkler", "monolithic"], scheduler=scheduler,
+                      cache_dir=tmp_path)                                   # the session's scheduler
     assert calls == ["fit"] * 3                                              # made once, on the calling process
     assert list(ds["status"].values.ravel()) == ["converged", "refused"]
     assert "no passive model" in str(ds["message"].sel(route="monolithic").values.ravel()[0])

@@ -168,17 +168,17 @@ LIMITS = ("max_uplift > 2 mm", "min_contact_ratio < 75 %", "floor_spectrum[node=
 
 
 @pytest.fixture(scope="module")
-def ensemble(tmp_path_factory):
-    """`uplift ensemble` of the tower: 8 seeds x 6 PGAs on the winkler route, 1 worker (~7 s), on
-    a cache folder of its own holding the C runtime compiled once for the tests (its worker and
-    its time-step check load it instead of compiling it twice)."""
+def ensemble(tmp_path_factory, scheduler):
+    """`uplift ensemble` of the tower: 8 seeds x 6 PGAs on the winkler route, on the session's
+    scheduler (one worker), on a cache folder of its own holding the C runtime compiled once for
+    the tests (its worker and its time-step check load it instead of compiling it twice)."""
     tmp = tmp_path_factory.mktemp("fragility")
     write_scene(tmp / "tower.toml", TOWER)
     out = tmp / "ens.h5"
     with pytest.MonkeyPatch.context() as env, contextlib.redirect_stdout(io.StringIO()):
         env.setenv("UPLIFT_CACHE", str(seed_native(tmp / "cache")))
         code = main(["ensemble", str(tmp / "tower.toml"), "--seeds", *map(str, range(1, 9)), "--pga", *PGAS,
-                     "--workers", "1", "-o", str(out), "--json"])
+                     "--scheduler", scheduler, "-o", str(out), "--json"])
     assert code == 0
     return out
 

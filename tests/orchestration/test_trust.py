@@ -263,10 +263,9 @@ def test_full_disk_is_a_clean_error_of_every_writing_command(command, results, t
     assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before          # nothing partial
 
 
-@pytest.mark.slow                        # a local dask cluster: about 10 s
-def test_full_disk_at_the_ensemble_write(tmp_path, monkeypatch, capsys):
+def test_full_disk_at_the_ensemble_write(tmp_path, monkeypatch, capsys, scheduler):
     """The ensemble file cannot be written: exit 3, the old file as it was, the finished cells
-    kept in <output>.cells for a rerun."""
+    kept in <output>.cells for a rerun (the cells on the session's scheduler)."""
     import orchestrator.ensemble.dataset as dataset
     monkeypatch.chdir(tmp_path)
     write_scene(tmp_path / "s.toml", WINKLER)
@@ -278,7 +277,7 @@ def test_full_disk_at_the_ensemble_write(tmp_path, monkeypatch, capsys):
             m.setattr(os, "fsync", _enospc)
             return write_image(path, data)
     monkeypatch.setattr(dataset, "write_image", full)
-    argv = ["ensemble", "s.toml", "--seeds", "1", "--pga", "0.3", "--workers", "1", "-o", "e.h5"]
+    argv = ["ensemble", "s.toml", "--seeds", "1", "--pga", "0.3", "--scheduler", scheduler, "-o", "e.h5"]
     assert main(argv) == EXIT_WRITE
     err = capsys.readouterr().err
     assert "uplift: error: cannot write 'e.h5': no space left on device" in err and "Traceback" not in err
@@ -365,14 +364,15 @@ def test_ctrl_c_while_exiting_does_not_kill_by_the_signal(tmp_path):
 
 
 @POSIX
-@pytest.mark.slow                        # a local dask cluster: about 10 s
-def test_ctrl_c_at_the_ensemble_write_keeps_the_old_file_and_the_cells(tmp_path):
+def test_ctrl_c_at_the_ensemble_write_keeps_the_old_file_and_the_cells(tmp_path, scheduler):
+    """SIGINT as the ensemble file is stamped (its cells run on the session's scheduler, the
+    local cluster of an ensemble closed by then in any case)."""
     write_scene(tmp_path / "s.toml", WINKLER)
     (tmp_path / "e.h5").write_bytes(OLD)
     hook = ("import orchestrator.ensemble.dataset as d\nstamp = d.stamp_file\n"
             "d.stamp_file = lambda path: (sigint(), stamp(path))[1]\n")
-    p = _cli(SIGINT_SELF + hook, ["ensemble", "s.toml", "--seeds", "1", "2", "--pga", "0.3", "--workers", "1",
-                                  "-o", "e.h5"], tmp_path)
+    p = _cli(SIGINT_SELF + hook, ["ensemble", "s.toml", "--seeds", "1", "2", "--pga", "0.3", "--scheduler",
+                                  scheduler, "-o", "e.h5"], tmp_path)
     err = p.stderr.strip().splitlines()
     assert p.returncode == EXIT_INTERRUPTED, p.stderr
     assert err[-1].startswith("uplift: interrupted before the output was committed"), p.stderr
