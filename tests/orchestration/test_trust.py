@@ -263,6 +263,7 @@ def test_full_disk_is_a_clean_error_of_every_writing_command(command, results, t
     assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before          # nothing partial
 
 
+@pytest.mark.slow                        # a run on the session's scheduler (its start: seconds)
 def test_full_disk_at_the_ensemble_write(tmp_path, monkeypatch, capsys, scheduler):
     """The ensemble file cannot be written: exit 3, the old file as it was, the finished cells
     kept in <output>.cells for a rerun (the cells on the session's scheduler)."""
@@ -364,6 +365,7 @@ def test_ctrl_c_while_exiting_does_not_kill_by_the_signal(tmp_path):
 
 
 @POSIX
+@pytest.mark.slow                        # a child process, two runs on the session's scheduler
 def test_ctrl_c_at_the_ensemble_write_keeps_the_old_file_and_the_cells(tmp_path, scheduler):
     """SIGINT as the ensemble file is stamped (its cells run on the session's scheduler, the
     local cluster of an ensemble closed by then in any case)."""
