@@ -1,7 +1,8 @@
 """`uplift ensemble`: every cell equals `uplift run` of the same scene with that record and PGA;
 the fractiles; a killed worker (the ensemble completes, or reports the missing cells and a
 rerun fills them); resuming; bad input; the report. A small scene (reactor stick on a 21-node
-raft, 1.5 s records) on real LocalClusters of 2 worker processes."""
+raft, 1.5 s records) on real LocalClusters of 2 worker processes (the module's ensemble, the
+killed worker), the synthetic seeds and the rerun on the session's scheduler (conftest)."""
 import contextlib
 import io
 import json

@@ -3,7 +3,7 @@ told by PEER's file names or by a components.toml), scaled so that its stronger 
 reaches the PGA; every cell equals `uplift run` of the scene with those files and that scale;
 --seeds of a synthetic motion of three components; the components a folder cannot be told
 from are refused with the folder and the fix. The small scene of test_ensemble (reactor stick
-on a 21-node raft, 1.5 s records), one worker."""
+on a 21-node raft, 1.5 s records), on the session's scheduler of one worker (conftest)."""
 import contextlib
 import io
 import json
