@@ -28,3 +28,24 @@ def exported_native(tmp_path_factory):
     scene = small_scene()
     return export_scene(scene, tmp_path_factory.mktemp("export_native"), soil_model(scene), motion=EXPORT_MOTION,
                         kind="native")
+
+
+@pytest.fixture(scope="session")
+def scheduler():
+    """The address of a running dask scheduler with one worker process of one thread (the
+    local cluster of ``uplift ensemble --workers 1``, with its worker settings), started once for
+    the session: the ensembles whose test is about their cells and their files, not about
+    starting and stopping a local cluster, run on it (``--scheduler``) instead of paying a
+    cluster's start, its worker's imports and its shutdown each. The tests of the local cluster
+    itself (test_ensemble's two workers, a killed worker, Ctrl-C as it starts) keep their own."""
+    import logging
+
+    import dask
+    from dask.distributed import LocalCluster
+
+    from orchestrator.ensemble.cluster import LOCAL_WORKER_CONFIG
+    with dask.config.set(LOCAL_WORKER_CONFIG):
+        cluster = LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None,
+                               silence_logs=logging.CRITICAL)
+    with cluster:
+        yield cluster.scheduler_address

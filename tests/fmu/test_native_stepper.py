@@ -46,6 +46,7 @@ import numpy as np
 import pytest
 
 from helpers import pulse_motion, rel, small_reactor, small_scene, soil_model
+from helpers.native import seed_native
 from helpers.roundoff import assert_within_spread, roundoff_spread
 from fmus import native_stepper
 from fmus.native_build import NATIVE, NativeBuildError, encode_resources, soil_records, stepper_records
@@ -256,7 +257,8 @@ def test_without_a_compiler_the_python_stepper_runs_with_a_note(monkeypatch, tmp
 def test_an_unknown_stepper_is_refused_with_the_choices(tmp_path):
     scene = scene_from_dict(small_reactor(soil={"winkler": {"kv": 2.0e9, "kh": 1.5e9}}, impedance=None,
                                           analysis={"routes": ["winkler"]}), name="wk")
-    res = run_scene(scene, cache_dir=tmp_path, motion=MOTION, options={"winkler": {"stepper": "fast"}})[0]["winkler"]
+    res = run_scene(scene, cache_dir=seed_native(tmp_path), motion=MOTION,
+                    options={"winkler": {"stepper": "fast"}})[0]["winkler"]
     assert res.status is Status.REFUSED and "stepper = 'fast'" in res.message and "native, python" in res.message
 
 

@@ -12,6 +12,7 @@ import pytest
 
 from uplift_common.code import PACKAGES, MissingSourceError, code_digest, source_files
 from helpers import ROOT, small_reactor, write_scene
+from helpers.native import seed_native
 
 #: every list of sources a cache is keyed on: (module, attribute)
 CACHE_SOURCES = [("soil_impedance.sweep", "CODE"), ("soil_impedance.sweep", "FAST_CODE"), ("soil_impedance.fit.options", "CODE"),
@@ -55,8 +56,10 @@ def test_a_renamed_source_fails_with_its_name(tmp_path):
 @pytest.mark.slow
 def test_a_changed_c_source_recomputes_a_resumed_ensemble(tmp_path):
     """An ensemble in a copy of the packages; rerun as it is, its cells are reused; rerun after a
-    change to the C stepper (fmus/native/stepper.c), every cell is computed again."""
-    env = {**_copy(tmp_path), "UPLIFT_CACHE": str(tmp_path / "cache")}
+    change to the C stepper (fmus/native/stepper.c), every cell is computed again. The copy's
+    C runtime is the tree's (the same content hash): compiled once for the tests, copied into
+    its cache; the changed one is compiled there."""
+    env = {**_copy(tmp_path), "UPLIFT_CACHE": str(seed_native(tmp_path / "cache"))}
     scene = tmp_path / "small.toml"
     write_scene(scene, small_reactor(analysis={"routes": ["winkler"]}))
     args = [sys.executable, "-m", "orchestrator.cli", "ensemble", str(scene), "--pga", "0.4", "--seeds", "1", "2",

@@ -13,6 +13,7 @@ from orchestrator.run import run_scene
 from orchestrator.scene import load_scene
 from soil_impedance.convolution import RecursiveConvolutionSoil
 from structure import simulate
+from helpers.native import seed_native
 
 #: the reactor's sweep, fit and routes: about a minute
 pytestmark = pytest.mark.slow
@@ -20,7 +21,7 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def cache(tmp_path_factory):
-    return tmp_path_factory.mktemp("cache")
+    return seed_native(tmp_path_factory.mktemp("cache"))        # the C runtime compiled once for the tests
 
 
 @pytest.fixture(scope="module")

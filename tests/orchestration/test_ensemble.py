@@ -1,7 +1,8 @@
 """`uplift ensemble`: every cell equals `uplift run` of the same scene with that record and PGA;
 the fractiles; a killed worker (the ensemble completes, or reports the missing cells and a
 rerun fills them); resuming; bad input; the report. A small scene (reactor stick on a 21-node
-raft, 1.5 s records) on real LocalClusters of 2 worker processes."""
+raft, 1.5 s records) on real LocalClusters of 2 worker processes (the module's ensemble, the
+killed worker), the synthetic seeds and the rerun on the session's scheduler (conftest)."""
 import contextlib
 import io
 import json
@@ -23,6 +24,7 @@ from orchestrator.results_file import read_results
 from orchestrator.scene import load_scene
 from orchestrator.spectra import response_spectrum
 from helpers import ROOT, changed, small_reactor, write_scene
+from helpers.native import seed_native
 
 SCENE = small_reactor()
 PGAS = (0.4, 0.8)
@@ -61,7 +63,7 @@ def case(tmp_path_factory):
     x 2 PGAs, monolithic) with a cache shared by the module."""
     tmp = tmp_path_factory.mktemp("ensemble")
     env = pytest.MonkeyPatch()
-    env.setenv("UPLIFT_CACHE", str(tmp / "cache"))
+    env.setenv("UPLIFT_CACHE", str(seed_native(tmp / "cache")))     # the C runtime compiled once for the tests
     scene = tmp / "small.toml"
     write_scene(scene, SCENE)
     records = _write_records(tmp / "records")
@@ -145,10 +147,11 @@ def test_each_cell_equals_uplift_run(case, tmp_path, monkeypatch):
     assert summ["wall_s"] > summ["setup_s"] + summ["dt_check_s"] and summ["dt_check_s"] > 0
 
 
-def test_synthetic_seeds_on_one_worker_equal_uplift_run(case, tmp_path, monkeypatch):
-    """Without --records: the scene's synthetic motion at each seed and PGA (the API, 1 worker)."""
+def test_synthetic_seeds_on_one_worker_equal_uplift_run(case, tmp_path, monkeypatch, scheduler):
+    """Without --records: the scene's synthetic motion at each seed and PGA (the API, on the
+    session's scheduler of one worker)."""
     monkeypatch.setenv("UPLIFT_CACHE", str(case["tmp"] / "cache"))
-    ds = ens.run_ensemble(case["scene"], [0.5], seeds=[1, 2], workers=1, cache_dir=case["tmp"] / "cache")
+    ds = ens.run_ensemble(case["scene"], [0.5], seeds=[1, 2], scheduler=scheduler, cache_dir=case["tmp"] / "cache")
     assert list(ds["record"].values) == ["seed 1", "seed 2"] and list(ds["seed"].values) == [1, 2]
     for seed in (1, 2):
         path = tmp_path / "s.toml"
@@ -216,11 +219,12 @@ def test_killed_worker_missing_cells_reported_then_filled(case, tmp_path):
         np.testing.assert_array_equal(ds3["floor_spectrum"].values, ref["floor_spectrum"].values)
 
 
-def test_rerun_keeps_completed_cells_and_extends(case, capsys):
-    """Same -o with one more PGA: the 6 cells are kept, the 3 new ones computed."""
+def test_rerun_keeps_completed_cells_and_extends(case, capsys, scheduler):
+    """Same -o with one more PGA: the 6 cells are kept, the 3 new ones computed (on the
+    session's scheduler)."""
     out = case["tmp"] / "ens.h5"
     assert main(["ensemble", str(case["scene"]), "--records", *_files(case["tmp"], case["records"]), "--pga", "0.4", "0.8",
-                 "0.6", "--workers", "2", "-o", str(out), "--json"]) == 0
+                 "0.6", "--scheduler", scheduler, "-o", str(out), "--json"]) == 0
     summ = json.loads(capsys.readouterr().out)
     assert (summ["runs"], summ["computed"], summ["reused"]) == (9, 3, 6)
     ds = xr.open_dataset(out, engine="h5netcdf").load()

@@ -3,7 +3,7 @@ told by PEER's file names or by a components.toml), scaled so that its stronger 
 reaches the PGA; every cell equals `uplift run` of the scene with those files and that scale;
 --seeds of a synthetic motion of three components; the components a folder cannot be told
 from are refused with the folder and the fix. The small scene of test_ensemble (reactor stick
-on a 21-node raft, 1.5 s records), one worker."""
+on a 21-node raft, 1.5 s records), on the session's scheduler of one worker (conftest)."""
 import contextlib
 import io
 import json
@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import xarray as xr
 from helpers import changed, small_reactor, toml_text, write_scene
+from helpers.native import seed_native
 
 from orchestrator import ensemble as ens
 from orchestrator.cli import main
@@ -71,11 +72,12 @@ def _write_triplets(root):
 
 
 @pytest.fixture(scope="module")
-def case(tmp_path_factory):
-    """`uplift ensemble SCENE --records A B --pga 0.4 0.8 --workers 1 --json`, a cache shared by the module."""
+def case(tmp_path_factory, scheduler):
+    """`uplift ensemble SCENE --records A B --pga 0.4 0.8 --json` on the session's scheduler (one
+    worker), a cache shared by the module."""
     tmp = tmp_path_factory.mktemp("triplets")
     env = pytest.MonkeyPatch()
-    env.setenv("UPLIFT_CACHE", str(tmp / "cache"))
+    env.setenv("UPLIFT_CACHE", str(seed_native(tmp / "cache")))     # the C runtime compiled once for the tests
     scene = tmp / "small.toml"
     write_scene(scene, SCENE)
     triplets = _write_triplets(tmp)
@@ -83,7 +85,7 @@ def case(tmp_path_factory):
     stdout, stderr = io.StringIO(), io.StringIO()
     with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
         code = main(["ensemble", str(scene), "--records", str(tmp / "A"), str(tmp / "B"), "--pga", *map(str, PGAS),
-                     "--workers", "1", "-o", str(out), "--json"])
+                     "--scheduler", scheduler, "-o", str(out), "--json"])
     yield {"tmp": tmp, "scene": scene, "triplets": triplets, "out": out, "code": code, "log": stderr.getvalue(),
            "summary": json.loads(stdout.getvalue()), "ds": xr.open_dataset(out, engine="h5netcdf").load()}
     env.undo()
@@ -173,13 +175,13 @@ def test_scaled_vertical_over_the_intensity_limit_is_refused(case, capsys):
 
 
 @pytest.mark.slow
-def test_seeds_give_independent_synthetic_triplets(case, tmp_path, monkeypatch):
+def test_seeds_give_independent_synthetic_triplets(case, tmp_path, monkeypatch, scheduler):
     """A synthetic scene of three components: each seed a triplet; the cells equal `uplift run`."""
     monkeypatch.setenv("UPLIFT_CACHE", str(case["tmp"] / "cache"))
     scene_text = toml_text(changed(SCENE, motion={"components": ["x", "y", "z"], "vertical_ratio": 0.5}))
     scene = tmp_path / "syn.toml"
     scene.write_text(scene_text)
-    ds = ens.run_ensemble(scene, [0.5], seeds=[1, 2], workers=1, cache_dir=case["tmp"] / "cache")
+    ds = ens.run_ensemble(scene, [0.5], seeds=[1, 2], scheduler=scheduler, cache_dir=case["tmp"] / "cache")
     assert ds.attrs["components"] == "x y z" and ds.attrs["vertical_ratio"] == 0.5
     assert list(ds["seed"].values) == [1, 2]
     uplifts = []

@@ -13,6 +13,7 @@ from orchestrator.scene import scene_from_dict
 from soil_impedance.cache import CacheWarning
 from soil_impedance.sweep import table_key
 from helpers import small_reactor
+from helpers.native import seed_native
 
 #: the reactor's sticks on a coarse raft (17 nodes), 1.5 s at 5 ms: a fit in about a second
 SCENE = small_reactor(analysis={"routes": ["monolithic", "linear"]}, motion={"duration_s": 0.5})
@@ -28,6 +29,7 @@ def test_the_fit_is_found_by_the_tables_inputs_without_reading_it(tmp_path, monk
     here) and gives the same answer to the bit; a route that reads the table still gets it, swept
     once for the run. The fit entry is still verified: a damaged one is fitted again."""
     scene = scene_from_dict(SCENE, name="small")
+    seed_native(tmp_path)                               # the C runtime compiled once for the tests
     first, _ = run_scene(scene, cache_dir=tmp_path)
     calls = []
     real = impedance.impedance_sweep
@@ -112,6 +114,8 @@ def test_the_step_doubling_check_is_stepped_once_then_read(tmp_path, monkeypatch
         return real(*args, **kwargs)
 
     monkeypatch.setattr(native_stepper, "native_max_uplift", counted)
+    cells = tmp_path / "cells"
+    seed_native(tmp_path), seed_native(cells)          # the C runtime compiled once for the tests
 
     def check(scene):
         motion = make_motion(scene.motion, scene.analysis.dt)
@@ -138,7 +142,6 @@ def test_the_step_doubling_check_is_stepped_once_then_read(tmp_path, monkeypatch
             damaged, _ = check(_stiff_tower(dt))
         assert damaged == first and len(calls) == 2
     scene = _stiff_tower(0.005)              # keep=False (an ensemble cell's motion): stepped, not kept
-    cells = tmp_path / "cells"
     calls.clear()
     out = step_doubling(scene, scene.model(), proxy_springs(scene, False), make_motion(scene.motion, 0.005),
                         cells, keep=False)
@@ -199,7 +202,7 @@ def test_a_cached_table_is_read_and_hashed_once(tmp_path, monkeypatch):
 
 
 @pytest.mark.slow
-def test_the_fit_is_made_once_on_first_need_and_a_failed_fit_refuses_only_its_routes(tmp_path, monkeypatch):
+def test_the_fit_is_made_once_on_first_need_and_a_failed_fit_refuses_only_its_routes(tmp_path, monkeypatch, scheduler):
     """One run sequence for a single run and an ensemble's cells: prepare_run sweeps but does not
     fit (a route's first need does, once); a fit that fails is tried once and every route that
     needs it is refused (or stopped) with the reason while the others run, in a single run as in
@@ -220,6 +223,7 @@ def test_the_fit_is_made_once_on_first_need_and_a_failed_fit_refuses_only_its_ro
         raise FitError("no passive model for the test")
 
     monkeypatch.setattr(run, "scene_fit", failing)
+    seed_native(tmp_path)                                                    # the C runtime compiled once
     shared = prepare_run(scene, cache_dir=tmp_path)                          # lazy: swept, not fitted
     assert calls == [] and shared.fit is None and set(shared.tables) == {"rigid", "gap"}
     results, _ = run_scene(scene, cache_dir=tmp_path)
@@ -235,7 +239,8 @@ def test_the_fit_is_made_once_on_first_need_and_a_failed_fit_refuses_only_its_ro
     assert calls == ["fit"] * 2
     assert values["winkler"]["status"] == "converged" and np.isfinite(values["winkler"]["max_uplift"])
     assert values["monolithic"]["status"] == "refused" and values["monolithic"]["message"] == "no passive model for the test"
-    ds = run_ensemble(scene, [0.3], seeds=[1], routes=["winkler", "monolithic"], workers=1, cache_dir=tmp_path)
+    ds = run_ensemble(scene, [0.3], seeds=[1], routes=["winkler", "monolithic"], scheduler=scheduler,
+                      cache_dir=tmp_path)                                   # the session's scheduler
     assert calls == ["fit"] * 3                                              # made once, on the calling process
     assert list(ds["status"].values.ravel()) == ["converged", "refused"]
     assert "no passive model" in str(ds["message"].sel(route="monolithic").values.ravel()[0])

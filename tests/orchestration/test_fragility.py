@@ -18,6 +18,7 @@ from orchestrator.cli import main
 from orchestrator.ensemble import read_ensemble, write_ensemble
 from orchestrator.report import fragility_parts
 from helpers import tower, write_scene
+from helpers.native import seed_native
 
 # ---- the fit on arrays --------------------------------------------------------------------------
 
@@ -167,14 +168,17 @@ LIMITS = ("max_uplift > 2 mm", "min_contact_ratio < 75 %", "floor_spectrum[node=
 
 
 @pytest.fixture(scope="module")
-def ensemble(tmp_path_factory):
-    """`uplift ensemble` of the tower: 8 seeds x 6 PGAs on the winkler route, 1 worker (~7 s)."""
+def ensemble(tmp_path_factory, scheduler):
+    """`uplift ensemble` of the tower: 8 seeds x 6 PGAs on the winkler route, on the session's
+    scheduler (one worker), on a cache folder of its own holding the C runtime compiled once for
+    the tests (its worker and its time-step check load it instead of compiling it twice)."""
     tmp = tmp_path_factory.mktemp("fragility")
     write_scene(tmp / "tower.toml", TOWER)
     out = tmp / "ens.h5"
-    with contextlib.redirect_stdout(io.StringIO()):
+    with pytest.MonkeyPatch.context() as env, contextlib.redirect_stdout(io.StringIO()):
+        env.setenv("UPLIFT_CACHE", str(seed_native(tmp / "cache")))
         code = main(["ensemble", str(tmp / "tower.toml"), "--seeds", *map(str, range(1, 9)), "--pga", *PGAS,
-                     "--workers", "1", "--no-cache", "-o", str(out), "--json"])
+                     "--scheduler", scheduler, "-o", str(out), "--json"])
     assert code == 0
     return out
 
@@ -342,7 +346,7 @@ def test_the_readmes_recipe_in_small_gives_an_identifiable_curve(tmp_path, capsy
     winkler, 1 worker (a cache folder, so that the worker loads the native stepper the time-step
     check compiled); the limit lies inside the spread of the cells, so the counts straddle the
     PGAs and the fit is identified (measured: 0/6, 4/6, 5/6, 5/6; median 0.201 g, beta 0.480)."""
-    monkeypatch.setenv("UPLIFT_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("UPLIFT_CACHE", str(seed_native(tmp_path / "cache")))
     scene = write_scene(tmp_path / "tower.toml", TOWER)
     out = tmp_path / "ens.h5"
     assert main(["ensemble", scene, "--n-seeds", "6", "--pga", "0.1", "0.2", "0.3", "0.4", "--workers", "1",

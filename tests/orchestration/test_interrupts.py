@@ -21,6 +21,7 @@ from orchestrator.ensemble import CellStore, plan_ensemble
 from orchestrator.routes.monolithic import run_monolithic
 from orchestrator.scene import load_scene
 from helpers import ROOT, changed, pulse_motion, small_scene, soil_model, tower, write_scene
+from helpers.native import seed_native
 
 #: the tower on a 5 m disk, 21 frequencies to 20 Hz, no damping; soil, duration and step apart
 SCENE = tower(soil=None, foundation={"shape": "circle", "radius": 5.0, "lx": None, "ly": None},
@@ -53,10 +54,11 @@ def _restore_sigint():
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
-def _interrupt(argv, folder, trigger):
-    """Run ``uplift argv`` in ``folder``, send SIGINT at the first stderr line holding
-    ``trigger``; (exit code, stderr lines)."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "UPLIFT_CACHE": str(folder / "cache"), "OPENBLAS_NUM_THREADS": "1"}
+def _interrupt(argv, folder, trigger, cache=None):
+    """Run ``uplift argv`` in ``folder`` (with the cache folder ``cache``, outside it), send
+    SIGINT at the first stderr line holding ``trigger``; (exit code, stderr lines)."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "UPLIFT_CACHE": str(cache or folder / "cache"),
+           "OPENBLAS_NUM_THREADS": "1"}
     p = subprocess.Popen([sys.executable, "-m", "orchestrator.cli", *argv], cwd=folder, env=env, text=True,
                          stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                          preexec_fn=_restore_sigint)
@@ -87,15 +89,22 @@ def _check(code, lines, out, folder, expected):
     assert sorted(p.name for p in folder.iterdir()) == sorted(expected)        # no temporary left
 
 
+@pytest.fixture
+def cache(tmp_path_factory):
+    """A cache folder (beside the command's folder) holding the C runtime compiled once for the
+    tests: the command loads it instead of compiling it (in each process of an ensemble)."""
+    return seed_native(tmp_path_factory.mktemp("cache"))
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
-def test_run_interrupted(tmp_path):
+def test_run_interrupted(tmp_path, cache):
     """SIGINT at the route's first progress line (the first chunk of the native stepper done);
     the stick makes the steps dear enough that the run is far from its end."""
     write_scene(tmp_path / "s.toml", changed(_scene(WINKLER, 40.0, 0.002), structure=_stick(120)))
     out = tmp_path / "out.h5"
     out.write_bytes(OLD)
-    code, lines, _ = _interrupt(["run", "s.toml", "-o", "out.h5", "--no-cache"], tmp_path, "run s [winkler]:")
+    code, lines, _ = _interrupt(["run", "s.toml", "-o", "out.h5"], tmp_path, "run s [winkler]:", cache)
     _check(code, lines, out, tmp_path, ["s.toml", "out.h5"])
 
 
@@ -110,14 +119,14 @@ def test_impedance_interrupted(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals")
-def test_ensemble_interrupted_keeps_finished_runs(tmp_path):
+def test_ensemble_interrupted_keeps_finished_runs(tmp_path, cache):
     scene = tmp_path / "s.toml"
     write_scene(scene, _scene(WINKLER, 10.0, 0.004))
     out = tmp_path / "e.h5"
     out.write_bytes(OLD)
     seeds = ["1", "2", "3", "4"]
     code, lines, workers = _interrupt(["ensemble", "s.toml", "--seeds", *seeds, "--pga", "0.3", "--workers", "1", "-o",
-                              "e.h5", "--no-cache"], tmp_path, "(1/4)")
+                              "e.h5"], tmp_path, "(1/4)", cache)
     _check(code, lines, out, tmp_path, ["s.toml", "e.h5", "e.h5.cells"])
     assert workers >= 1                 # the local cluster's processes, all gone after the interrupt
     plan = plan_ensemble(load_scene(scene), [0.3], seeds=[int(s) for s in seeds])

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 
 from helpers import DATA, rel, route_result, tower, write_scene
+from helpers.native import seed_native
 from orchestrator.cli import main
 from orchestrator.impedance import scene_impedance
 from orchestrator.oncurve import scene_key
@@ -145,7 +146,7 @@ def test_the_l_raft_through_every_route_the_fmus_and_the_report(tmp_path, capsys
     from orchestrator.motion import make_motion
     from orchestrator.report import write_report
 
-    cache, out = tmp_path / "cache", tmp_path / "r.h5"
+    cache, out = seed_native(tmp_path / "cache", fmu=True), tmp_path / "r.h5"     # the C runtimes compiled once
     monkeypatch.setenv("UPLIFT_CACHE", str(cache))
     assert main(["run", "l_raft", "-o", str(out), "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)["routes"]

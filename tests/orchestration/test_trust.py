@@ -39,6 +39,7 @@ from soil_impedance.cache import CacheWarning, write_entry
 from uplift_common.files import OutputWriteError, atomic_folder, atomic_output, stamp_checksum, sweep_orphans
 from uplift_common.ranges import MAX_LAYERS, MAX_STRUCTURE_NODES, PLAUSIBLE, plausible_range
 from helpers import ROOT, changed, tower, write_scene
+from helpers.native import seed_native
 from helpers.scenes import export_tower
 
 POSIX = pytest.mark.skipif(sys.platform == "win32", reason="POSIX signals and resource limits")
@@ -48,7 +49,7 @@ OLD = b"a previous output, to be left as it was\n"
 
 
 def _env(tmp_path):
-    cache = os.environ.get("UPLIFT_CACHE") or str(tmp_path / "cache")      # the native library compiled once
+    cache = os.environ.get("UPLIFT_CACHE") or str(seed_native(tmp_path / "cache"))   # the C runtime compiled once
     return {**os.environ, "PYTHONPATH": str(ROOT), "UPLIFT_CACHE": cache, "OPENBLAS_NUM_THREADS": "1",
             "PYTHONDONTWRITEBYTECODE": "1"}
 
@@ -262,10 +263,10 @@ def test_full_disk_is_a_clean_error_of_every_writing_command(command, results, t
     assert sorted(p.relative_to(tmp_path) for p in tmp_path.rglob("*")) == before          # nothing partial
 
 
-@pytest.mark.slow                        # a local dask cluster: about 10 s
-def test_full_disk_at_the_ensemble_write(tmp_path, monkeypatch, capsys):
+@pytest.mark.slow                        # a run on the session's scheduler (its start: seconds)
+def test_full_disk_at_the_ensemble_write(tmp_path, monkeypatch, capsys, scheduler):
     """The ensemble file cannot be written: exit 3, the old file as it was, the finished cells
-    kept in <output>.cells for a rerun."""
+    kept in <output>.cells for a rerun (the cells on the session's scheduler)."""
     import orchestrator.ensemble.dataset as dataset
     monkeypatch.chdir(tmp_path)
     write_scene(tmp_path / "s.toml", WINKLER)
@@ -277,7 +278,7 @@ def test_full_disk_at_the_ensemble_write(tmp_path, monkeypatch, capsys):
             m.setattr(os, "fsync", _enospc)
             return write_image(path, data)
     monkeypatch.setattr(dataset, "write_image", full)
-    argv = ["ensemble", "s.toml", "--seeds", "1", "--pga", "0.3", "--workers", "1", "-o", "e.h5"]
+    argv = ["ensemble", "s.toml", "--seeds", "1", "--pga", "0.3", "--scheduler", scheduler, "-o", "e.h5"]
     assert main(argv) == EXIT_WRITE
     err = capsys.readouterr().err
     assert "uplift: error: cannot write 'e.h5': no space left on device" in err and "Traceback" not in err
@@ -364,14 +365,16 @@ def test_ctrl_c_while_exiting_does_not_kill_by_the_signal(tmp_path):
 
 
 @POSIX
-@pytest.mark.slow                        # a local dask cluster: about 10 s
-def test_ctrl_c_at_the_ensemble_write_keeps_the_old_file_and_the_cells(tmp_path):
+@pytest.mark.slow                        # a child process, two runs on the session's scheduler
+def test_ctrl_c_at_the_ensemble_write_keeps_the_old_file_and_the_cells(tmp_path, scheduler):
+    """SIGINT as the ensemble file is stamped (its cells run on the session's scheduler, the
+    local cluster of an ensemble closed by then in any case)."""
     write_scene(tmp_path / "s.toml", WINKLER)
     (tmp_path / "e.h5").write_bytes(OLD)
     hook = ("import orchestrator.ensemble.dataset as d\nstamp = d.stamp_file\n"
             "d.stamp_file = lambda path: (sigint(), stamp(path))[1]\n")
-    p = _cli(SIGINT_SELF + hook, ["ensemble", "s.toml", "--seeds", "1", "2", "--pga", "0.3", "--workers", "1",
-                                  "-o", "e.h5"], tmp_path)
+    p = _cli(SIGINT_SELF + hook, ["ensemble", "s.toml", "--seeds", "1", "2", "--pga", "0.3", "--scheduler",
+                                  scheduler, "-o", "e.h5"], tmp_path)
     err = p.stderr.strip().splitlines()
     assert p.returncode == EXIT_INTERRUPTED, p.stderr
     assert err[-1].startswith("uplift: interrupted before the output was committed"), p.stderr
