@@ -170,14 +170,13 @@ class StreamedProblem:
         col = np.linalg.norm(Ar, axis=0)
         col[col == 0] = 1.0
         Q, Rr = np.linalg.qr(Ar / col)
-        return A.shape[1], Q, Rr, col
+        return np.linalg.lstsq(Rr, Q.T, rcond=None)[0] / col[:, None]    # the basis' least-squares inverse, once per order
 
     def _solve_block(self, solver, poles, X, linear):
         """Coefficients (nb, q) of the columns X (F, q): ``Problem._solve`` on one block."""
         if self.weighting != "entry":
-            nb, Q, Rr, col = solver
             WX = self.w[:, None] * X
-            return np.linalg.lstsq(Rr, Q.T @ np.concatenate([WX.real, WX.imag]), rcond=None)[0] / col[:, None]
+            return solver @ np.concatenate([WX.real, WX.imag])
         return entry_weighted_coefficients(self.s, X, poles, linear)
 
     def coefficients(self, poles, error=False):
