@@ -24,8 +24,9 @@ NEVER_RUN = ("soil_impedance.fit_plot",)
 #: third-party module -> the requirement written to requirements.txt (pip format)
 REQUIREMENTS = {"numpy": "numpy>=1.24", "scipy": "scipy>=1.10", "h5py": "h5py>=3.8",
                 "threadpoolctl": "threadpoolctl>=3.1", "tomli": 'tomli>=2.0; python_version < "3.11"'}
-#: imported inside functions an FMU runs (structure.spec reads the reactor's TOML with tomli on 3.10)
-LAZY_REQUIREMENTS = ("tomli",)
+#: imported inside functions an FMU runs (structure.spec reads the reactor's TOML with tomli on 3.10;
+#: structure._blas limits the BLAS threads with threadpoolctl when the first stepper is built)
+LAZY_REQUIREMENTS = ("threadpoolctl", "tomli")
 #: provided by the FMU's own wrapper (pythonfmu bundles its package in the FMU)
 PROVIDED = ("pythonfmu",)
 
@@ -61,8 +62,9 @@ def module_file(name: str):
 
 
 def imported_names(path: Path, module: str, top_level: bool) -> list:
-    """Absolute names imported by a module (``from a import b`` gives a and a.b): anywhere in it,
-    or at module level only (also inside module-level try/if blocks)."""
+    """Absolute names imported by a module (``from a import b`` gives a and a.b; ``lazy_module("a",
+    defer=("b",))`` gives a and b): anywhere in it, or at module level only (also inside module-level
+    try/if blocks)."""
     tree = ast.parse(path.read_text(encoding="utf-8"))
     package = module if path.name == "__init__.py" else module.rpartition(".")[0]
     if top_level:
@@ -71,7 +73,11 @@ def imported_names(path: Path, module: str, top_level: bool) -> list:
         nodes = list(ast.walk(tree))
     out = []
     for node in nodes:
-        if isinstance(node, ast.Import):
+        if isinstance(node, ast.Assign) and isinstance(node.value, ast.Call):
+            node = node.value                                   # sla = lazy_module("scipy.linalg") at module level
+        if isinstance(node, ast.Call) and getattr(node.func, "id", getattr(node.func, "attr", None)) == "lazy_module":
+            out += [c.value for c in ast.walk(node) if isinstance(c, ast.Constant) and isinstance(c.value, str)]
+        elif isinstance(node, ast.Import):
             out += [a.name for a in node.names]
         elif isinstance(node, ast.ImportFrom):
             base = node.module or ""

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from soil_impedance import impedance_sweep
+from soil_impedance import impedance_sweep, static_impedance
 from soil_impedance.discretisation import static_error_estimate
 from soil_impedance.frequencies import thinned_sweep
 from soil_impedance.fit import FitOptions, cached_fit, fit_table
@@ -45,10 +45,9 @@ def scene_static(scene, output="rigid", cache_dir=None) -> np.ndarray:
     sweep's frequencies, its cache entry keyed by the solver and tolerance; a dense one's key is
     that of ``soil_impedance.sweep.static_impedance``); the nodal output (the full inverse) is
     always dense."""
-    # impedance_sweep at 0 Hz, as soil_impedance.sweep.static_impedance (dense) with the scene's solver
     solver = scene.solver if output != "nodal" else "dense"
-    return impedance_sweep(scene.profile, scene.mesh, [0.0], scene.contact_kind, (output,), cache_dir,
-                           solver=solver, solver_tol=scene.solver_tol)[output].matrices[0].copy()
+    return static_impedance(scene.profile, scene.mesh, contact=scene.contact_kind, output=output,
+                            cache_dir=cache_dir, solver=solver, solver_tol=scene.solver_tol)
 
 
 def scene_fit(scene, cache_dir=None, progress=None, table=None, fit_progress=None, **fit_options):

@@ -441,8 +441,8 @@ def _compute_fast(bem, f, outputs, progress, tol, sinks=None) -> dict[str, np.nd
 
 
 def static_impedance(profile, mesh, contact="welded", output="rigid", rule=None,
-                     cache_dir=None) -> np.ndarray:
+                     cache_dir=None, solver="dense", solver_tol=DEFAULT_TOL) -> np.ndarray:
     """K(0) (f = 0 exactly) for one output, shape (n, n), complex (Im from hysteretic damping;
-    real for the causal model)."""
-    return impedance_sweep(profile, mesh, [0.0], contact, (output,), cache_dir,
-                           rule=rule)[output].matrices[0].copy()
+    real for the causal model); solver, solver_tol as ``impedance_sweep``."""
+    return impedance_sweep(profile, mesh, [0.0], contact, (output,), cache_dir, rule=rule,
+                           solver=solver, solver_tol=solver_tol)[output].matrices[0].copy()
