@@ -138,10 +138,16 @@ def test_run_killed_while_writing_leaves_the_old_file_and_the_next_run_sweeps(tm
 
 
 def _cli(hook: str, argv, tmp_path, preexec=None):
-    """``uplift argv`` in a child process after ``hook`` (Python source run first: patches)."""
+    """``uplift argv`` in a child process after ``hook`` (Python source run first: patches), SIGINT
+    at its default (a child started from a shell's background job inherits it ignored) and then
+    ``preexec``."""
+    def setup():
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+        if preexec is not None:
+            preexec()
     code = f"{hook}\nimport sys\nfrom orchestrator.cli import main\nsys.argv = ['uplift', *sys.argv[1:]]\nsys.exit(main())"
     return subprocess.run([sys.executable, "-c", code, *argv], cwd=tmp_path, env=_env(tmp_path), text=True,
-                          capture_output=True, preexec_fn=preexec, timeout=300)
+                          capture_output=True, preexec_fn=setup, timeout=300)
 
 
 # ---- a full disk --------------------------------------------------------------------------------
@@ -502,6 +508,7 @@ def test_a_held_section_takes_sigint_after_its_end():
     """In process: a SIGINT inside ``held()`` is raised right after it, not inside; with
     ``defer`` it waits for ``raise_owed()``; either way ``received`` counts it."""
     from uplift_common import interrupts
+    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)   # ignored in a background job's worker
     previous = interrupts.install()
     try:
         done = []
@@ -520,6 +527,7 @@ def test_a_held_section_takes_sigint_after_its_end():
         interrupts.raise_owed()                         # nothing owed any more
     finally:
         interrupts.restore(previous)
+        signal.signal(signal.SIGINT, inherited)
 
 
 def test_started_as_reads_the_interpreters_command_line(monkeypatch):
