@@ -38,10 +38,27 @@ def default_cache_dir() -> Path:
     return folder()
 
 
+#: the variables a BLAS or OpenMP pool reads its size from when its library loads
+THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
 @contextmanager
 def compute_threads(n: int | None = None):
     """Run the block with BLAS and OpenMP thread pools limited to ``n`` (default
-    ``thread_count()``); the previous limits come back on exit."""
+    ``thread_count()``); the previous limits come back on exit. The pools loaded before the block
+    are limited by threadpoolctl; one loaded inside it (scipy's BLAS, imported on first use) reads
+    its size from the environment when it loads, so the block sets those variables to ``n`` too:
+    without them that pool would start at the machine's cores and the round-off would follow."""
     from threadpoolctl import threadpool_limits     # start-up cost: only a command that computes
-    with threadpool_limits(limits=n or thread_count()):
-        yield
+    n = n or thread_count()
+    saved = {k: os.environ.get(k) for k in THREAD_VARIABLES}
+    os.environ.update({k: str(n) for k in THREAD_VARIABLES})
+    try:
+        with threadpool_limits(limits=n):
+            yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
