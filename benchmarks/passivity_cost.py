@@ -36,6 +36,7 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
+sys.path.insert(0, str(HERE.parent / "tests"))       # helpers.passive_models
 
 
 def kernel_model(n, f_max=25.0):
@@ -63,17 +64,10 @@ def kernel_model(n, f_max=25.0):
                          {"f_max_hz": f_max})
 
 
-def with_notch(model, f0=13.0123, zeta=2e-4, depth=3.0):
+def notched(model, f0=13.0123, zeta=2e-4, depth=3.0):
     """``model`` plus a negative damping peak on the pattern cos(πx) (a narrow violation at f0)."""
-    from soil_impedance.rational import RationalModel
-    v = np.cos(np.pi * np.linspace(-1, 1, model.n))
-    v /= np.linalg.norm(v)
-    w0 = 2 * np.pi * f0
-    alpha = depth * (v @ model.frequency_response([f0])[0].imag @ v) * 2 * zeta
-    p = -zeta * w0 + 1j * w0 * np.sqrt(1 - zeta ** 2)
-    r = alpha * w0 ** 2 / (p - np.conj(p)) * np.outer(v, v)
-    return RationalModel(np.concatenate([model.poles, [p, np.conj(p)]]), np.concatenate([model.residues, [r, np.conj(r)]]),
-                         model.D, model.E, model.dofs, model.provenance)
+    from helpers.passive_models import with_notch
+    return with_notch(model, f0, zeta, depth, np.cos(np.pi * np.linspace(-1, 1, model.n)))
 
 
 def fitted_model(path):
@@ -135,7 +129,7 @@ def main(argv=None):
     for n in a.dofs:
         models.append((f"kernel {n}", kernel_model(n)))
         if a.notch:
-            models.append((f"kernel+notch {n}", with_notch(kernel_model(n))))
+            models.append((f"kernel+notch {n}", notched(kernel_model(n))))
     for path in a.table:
         model, fit_s = fitted_model(path)
         print(f"fit of {path}: {model.n} DOFs, {model.order} poles, {fit_s:.0f} CPU s", flush=True)

@@ -1,5 +1,5 @@
 """Passive RationalModels from mechanical building blocks: test and benchmark factories
-(``oscillator_model``, ``random_passive_model``). Import as ``from helpers import ...``
+(``oscillator_model``, ``random_passive_model``) and ``with_notch`` (a narrow violation added). Import as ``from helpers import ...``
 (tests/ is on the path under pytest; benchmarks add it)."""
 import numpy as np
 
@@ -130,3 +130,15 @@ def with_kernel_terms(model: RationalModel, xy, n_terms: int = 2, share: float =
     return RationalModel(np.concatenate([model.poles, extra.poles]),
                          np.concatenate([model.residues, extra.residues]), model.D + extra.D, model.E,
                          dofs=list(model.dofs), provenance={"source": "with_kernel_terms"})
+
+
+def with_notch(model: RationalModel, f0: float, zeta: float, depth: float, v) -> RationalModel:
+    """``model`` plus a negative damping peak α ω0²/(s² + 2ζω0 s + ω0²) v vᵀ at f0 (half-width ≈ ζ f0), α
+    such that its Im is ``depth`` × vᵀ Im K(f0) v at f0: a violation band about 2ζ f0 wide at f0."""
+    v = np.asarray(v, float) / np.linalg.norm(v)
+    w0 = 2 * np.pi * f0
+    alpha = depth * (v @ model.frequency_response([f0])[0].imag @ v) * 2 * zeta
+    p = -zeta * w0 + 1j * w0 * np.sqrt(1 - zeta ** 2)
+    r = alpha * w0 ** 2 / (p - np.conj(p)) * np.outer(v, v)
+    return RationalModel(np.concatenate([model.poles, [p, np.conj(p)]]), np.concatenate([model.residues, [r, np.conj(r)]]),
+                         model.D, model.E, model.dofs, model.provenance)

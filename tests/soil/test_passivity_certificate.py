@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import soil_impedance.passivity as pv
+from helpers.passive_models import with_notch
 from soil_impedance.rational import RationalModel
 
 F_MAX = 25.0
@@ -35,18 +36,6 @@ def _kernel_model(n, seed=0, f_max=F_MAX):
     static = np.real(np.sum(-res / poles[:, None, None], axis=0))
     return RationalModel(poles, res, 3 * S() - static, rng.uniform(0.01, 0.05) / w_ref * S(),
                          [f"d{i}" for i in range(n)], {"f_max_hz": f_max})
-
-
-def _with_notch(model, f0, zeta, depth, v):
-    """``model`` plus a negative damping peak α ω0²/(s² + 2ζω0 s + ω0²) v vᵀ at f0 (half-width ≈ ζ f0), α
-    such that its Im is ``depth`` × vᵀ Im K(f0) v at f0: a violation band about 2ζ f0 wide at f0."""
-    v = np.asarray(v, float) / np.linalg.norm(v)
-    w0 = 2 * np.pi * f0
-    alpha = depth * (v @ model.frequency_response([f0])[0].imag @ v) * 2 * zeta
-    p = -zeta * w0 + 1j * w0 * np.sqrt(1 - zeta ** 2)
-    r = alpha * w0 ** 2 / (p - np.conj(p)) * np.outer(v, v)
-    return RationalModel(np.concatenate([model.poles, [p, np.conj(p)]]), np.concatenate([model.residues, [r, np.conj(r)]]),
-                         model.D, model.E, model.dofs, model.provenance)
 
 
 def _exact(model):
@@ -106,7 +95,7 @@ def test_narrow_violations_are_found_like_the_exact_test(seed):
     f0s = np.sort(rng.uniform(1.0, 24.0, 1 + seed % 2))
     f0s[1:] = np.maximum(f0s[1:], f0s[0] + 2.0)
     for f0 in f0s:
-        model = _with_notch(model, f0, 10 ** rng.uniform(-4, -2.5), rng.uniform(1.5, 4.0), rng.standard_normal(n))
+        model = with_notch(model, f0, 10 ** rng.uniform(-4, -2.5), rng.uniform(1.5, 4.0), rng.standard_normal(n))
     exact = _exact(model)
     assert not exact["passive"] and len(exact["bands"]) == f0s.size
     a = _cholesky(model)
@@ -181,7 +170,7 @@ def test_cost_with_a_narrow_violation(monkeypatch):
     points = []
     monkeypatch.setattr(pv, "_lmin", lambda sc, nu, chunk=64: points.append(np.atleast_1d(nu).size) or real_l(sc, nu, chunk))
     monkeypatch.setattr(pv, "CHOLESKY_SWEEP_NA", 200)
-    model = _with_notch(_kernel_model(200, seed=4), 13.0123, 2e-4, 3.0, np.ones(200))
+    model = with_notch(_kernel_model(200, seed=4), 13.0123, 2e-4, 3.0, np.ones(200))
     a = pv._assess(model.scaled, method="sweep")
     assert not a["passive"] and len(a["bands"]) == 1
     lo, hi = a["bands"][0]
