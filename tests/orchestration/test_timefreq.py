@@ -322,26 +322,33 @@ def test_native_march_with_a_source_is_the_grids_causal_march():
     assert rel(native.march(1.0, W)[0], native.march(1.0, np.zeros((N, nt)))[0]) > 1e-2   # the source acts
 
 
-def test_a_rewound_native_run_marches_the_same_bits_as_a_new_one():
-    """NativeStandIn keeps one native run for all its marches (up_sim_rewind: back at rest, the
-    stepper's systems, Newton bases and capacitance matrices kept): a march on the rewound run,
-    after another source's march or after one stopped by its deadline after a chunk, is the same
-    bits as the first march of a new run, with fewer factorisations (the bases are not built
-    again); close() frees the run, and the next march opens a new one, the same bits again."""
+def _standin_problem():
+    """(model, problem) of the stand-in's march tests: the springs with an oscillator and a Maxwell
+    term (a soil with memory), the reactor's structure lifting under 0.35 g for 2 s."""
     from helpers import oscillator_model
-    from fmus.native_stepper import library
-    from orchestrator.standin import NativeStandIn
     from orchestrator.timefreq import prepare
     from soil_impedance.convolution import RecursiveConvolutionSoil
-
-    if library() is None:
-        pytest.skip("no C compiler here")
     w = soil()
     K = w.static_stiffness().toarray()
     model = oscillator_model(K, w.instantaneous(0.005)[1].toarray(), terms=[(0.3, 0.02, 0.3 / (2 * np.pi * 6.0) ** 2, K)],
                              maxwell=[(0.2, 0.2 / (2 * np.pi * 15.0), K)])
     prob = prepare(MODEL, RecursiveConvolutionSoil(model, 0.005), motion(0.35, duration=2.0), 0.005, contact=UPLIFT,
                    grid=GridOptions(bilinear=True, wrap_tol=1e-10, pad_s=20.0).resolved(bilinear=True, window=True))
+    return model, prob
+
+
+def test_a_rewound_native_run_marches_the_same_bits_as_a_new_one():
+    """NativeStandIn keeps one native run for all its marches (up_sim_rewind: back at rest, the
+    stepper's systems, Newton bases and capacitance matrices kept): a march on the rewound run,
+    after another source's march or after one stopped by its deadline after a chunk, is the same
+    bits as the first march of a new run, with fewer factorisations (the bases are not built
+    again); close() frees the run, and the next march opens a new one, the same bits again."""
+    from fmus.native_stepper import library
+    from orchestrator.standin import NativeStandIn
+
+    if library() is None:
+        pytest.skip("no C compiler here")
+    model, prob = _standin_problem()
     N, nt = prob.f.shape
     W = 0.3 * np.abs(prob.f).max() * np.sin(2 * np.pi * 1.3 * 0.005 * np.arange(nt))[None, :] * np.linspace(-1, 1, N)[:, None]
     zero = np.zeros((N, nt))
@@ -438,21 +445,13 @@ def test_native_marches_in_correction_form_differ_by_single_precision_of_the_cha
     bits. With SINGLE_FIRST (the default) the first march is the change from rest, the whole history
     in single precision: within 1e-6 of the plain march, and the same source again the same bits;
     a march whose steps halve is no record either (the next is from rest again)."""
-    from helpers import oscillator_model
     import orchestrator.standin as standin
     from fmus.native_stepper import library
     from orchestrator.standin import NativeStandIn
-    from orchestrator.timefreq import prepare
-    from soil_impedance.convolution import RecursiveConvolutionSoil
 
     if library() is None:
         pytest.skip("no C compiler here")
-    w = soil()
-    K = w.static_stiffness().toarray()
-    model = oscillator_model(K, w.instantaneous(0.005)[1].toarray(), terms=[(0.3, 0.02, 0.3 / (2 * np.pi * 6.0) ** 2, K)],
-                             maxwell=[(0.2, 0.2 / (2 * np.pi * 15.0), K)])
-    prob = prepare(MODEL, RecursiveConvolutionSoil(model, 0.005), motion(0.35, duration=2.0), 0.005, contact=UPLIFT,
-                   grid=GridOptions(bilinear=True, wrap_tol=1e-10, pad_s=20.0).resolved(bilinear=True, window=True))
+    model, prob = _standin_problem()
     N, nt = prob.f.shape
     W = 0.05 * np.abs(prob.f).max() * np.sin(2 * np.pi * 1.3 * 0.005 * np.arange(nt))[None, :] * np.linspace(-1, 1, N)[:, None]
     zero = np.zeros((N, nt))
