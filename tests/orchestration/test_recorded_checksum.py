@@ -1,16 +1,22 @@
-"""The results file's checksum is computed from what is written (uplift_common.files.RecordedFile),
-not read back through h5py: the digest must be the one ``checksum`` reads back from the file (the
-verifier's), for every layout the writers make (histories, a refused route, a plate raft's
-fields, the interface mesh, the groups a design run adds), with no object read back where the
-record reproduces it, and read back (the same digest) where it does not.
+"""The two cheaper routes to a file's checksum give the digest of the reference route.
 
-The files are made from made-up results (no analysis), in milliseconds each.
+- The results file's checksum is computed from what is written (uplift_common.files.RecordedFile),
+  not read back through h5py: the digest must be the one ``checksum`` reads back from the file (the
+  verifier's), for every layout the writers make (histories, a refused route, a plate raft's
+  fields, the interface mesh, the groups a design run adds), with no object read back where the
+  record reproduces it, and read back (the same digest) where it does not.
+- The verifier's ``checksum`` lists the objects in one HDF5 walk and reads plain numeric datasets
+  with h5py's low-level calls: its digest and the arrays it keeps must be those of the reading
+  object by object (``_checksum_by_objects``), on a file of every kind of object.
+
+The files are made from made-up values (no analysis), in milliseconds each.
 """
 import h5py
 import numpy as np
 import pytest
 
 import orchestrator.results_file as results_file
+import uplift_common.files as files
 from helpers.results import route_result
 from orchestrator.motion import make_motion
 from orchestrator.results_file import add_coordinate, add_route, add_variable, read_results, write_results
@@ -152,3 +158,57 @@ def test_a_stamped_results_file_with_a_changed_attribute_is_refused(tmp_path):
         f["routes/winkler"].attrs["max_uplift_m"] = 0.5       # not the value written
     with h5py.File(path, "r") as f, pytest.raises(ChangedFileError, match="changed since it was written"):
         require_checksum(f, path)
+
+
+def _every_kind(path):
+    """An HDF5 file of every kind of object and attribute the project's files hold, and more."""
+    rng = np.random.default_rng(11)
+    with h5py.File(path, "w") as f:
+        f.attrs.update(kind="cache", version=3, scale=0.5, flags=np.array([1, 0, 2], np.int8))
+        g = f.create_group("records")
+        g.create_dataset("matrix", data=rng.standard_normal((40, 7)))
+        g.create_dataset("big_endian", data=rng.standard_normal(33).astype(">f8"))
+        g.create_dataset("float32", data=rng.standard_normal((5, 3)).astype(np.float32))
+        g.create_dataset("ints", data=rng.integers(-5, 5, (9, 2)))
+        g.create_dataset("uints", data=rng.integers(0, 9, 4).astype(np.uint16))
+        g.create_dataset("complex", data=rng.standard_normal(6) + 1j * rng.standard_normal(6))
+        g.create_dataset("scalar", data=2.5)
+        g.create_dataset("int_scalar", data=np.int64(7))
+        g.create_dataset("empty", data=np.zeros((0, 3)))
+        g.create_dataset("bools", data=np.array([True, False, True]))
+        g.create_dataset("packed", data=rng.standard_normal((300, 4)), chunks=(16, 4), compression="gzip")
+        g.create_dataset("labels", data=np.array(["a", "bé"], dtype=h5py.string_dtype()))
+        g.create_dataset("fixed", data=np.array([b"xy", b"z"]))
+        g.create_dataset("pairs", data=np.array([(1, 2.0)], dtype=[("i", "<i4"), ("x", "<f8")]))
+        g.create_dataset("null", data=h5py.Empty("f8"))
+        t = g.create_dataset("time", data=np.arange(40.0))
+        t.make_scale("time")
+        g["matrix"].dims[0].attach_scale(t)
+        g["matrix"].attrs.update(units="m", long_name="a matrix", peak=np.float64(3.0))
+        g.create_group("empty_group").attrs["note"] = "nothing"
+        f.create_group("deep/er/still").create_dataset("x", data=np.ones(3))
+
+
+def test_the_verifiers_low_level_reading_gives_the_reference_digest_and_arrays(tmp_path, monkeypatch):
+    path = tmp_path / "every.h5"
+    _every_kind(path)
+    for chunk in (files._CHUNK_BYTES, 64):       # slabs of 64 bytes: several per dataset
+        monkeypatch.setattr(files, "_CHUNK_BYTES", chunk)
+        with h5py.File(path, "r") as f:
+            fast, slow = {}, {}
+            assert checksum(f, fast) == files._checksum_by_objects(f, slow) == checksum(f)
+            assert sorted(fast) == sorted(slow) and len(fast) == 16       # all but the null dataspace
+            for name, value in slow.items():
+                assert type(fast[name]) is type(value), name          # a scalar as h5py reads it
+                if isinstance(value, np.ndarray):
+                    assert fast[name].dtype == value.dtype and np.array_equal(fast[name], value), name
+                else:
+                    assert fast[name] == value, name
+    with h5py.File(path, "r+") as f:                 # and a change is seen by both
+        f["records/packed"][3, 1] += 1e-12
+    with h5py.File(path, "r") as f:
+        assert checksum(f) == files._checksum_by_objects(f)
+        changed = checksum(f)
+    _every_kind(path)
+    with h5py.File(path, "r") as f:
+        assert checksum(f) != changed
