@@ -43,7 +43,7 @@ from uplift_common.code import code_digest
 from uplift_common.files import atomic_output, hdf5_output, stamp_checksum
 
 #: the C files of the in-process library (the numerics and simulate.c; no FMI side)
-HOST_SOURCES = ("simulate.c", "stepper.c", "soil.c", "linalg.c", "resources.c")
+HOST_SOURCES = ("simulate.c", "stepper.c", "soil.c", "linalg.c", "resources.c", "spectra.c")
 
 _lock = threading.Lock()
 _loaded: dict = {}                  # folder -> (CDLL or None, note)
@@ -148,6 +148,13 @@ def library(folder=None):
                 _loaded[folder] = (None, f"the native stepper is not available ({str(exc).splitlines()[0]}): "
                                          "the Python stepper ran")
         return _loaded[folder][0]
+
+
+def loaded_library():
+    """A host library this process has loaded already (``library``), or None: nothing is built or
+    loaded here (orchestrator.spectra's response spectra take its C loop when a run has one)."""
+    with _lock:
+        return next((lib for lib, _ in _loaded.values() if lib is not None), None)
 
 
 def library_note(folder=None) -> str:
