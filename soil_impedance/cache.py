@@ -14,6 +14,7 @@ Usage::
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import warnings
 from pathlib import Path
@@ -91,15 +92,30 @@ def write_entry(path, writer) -> None:
                       stacklevel=3)
 
 
+#: the scalar types fed by their ``repr`` (exact types: a subclass takes the general path)
+_SCALARS = {float: "float", int: "int", bool: "bool", str: "str", complex: "complex", type(None): "NoneType"}
+
+
+@functools.cache
+def _dataclass_parts(cls) -> tuple:
+    """(opening bytes, ((field name, its bytes), ...)) that ``feed`` writes for a dataclass type."""
+    return (f"<{cls.__module__}.{cls.__qualname__}".encode(),
+            tuple((f.name, f" {f.name}=".encode()) for f in dataclasses.fields(cls)))
+
+
 def feed(h, value) -> None:
     """Feed ``value`` into hash ``h`` unambiguously, for a cache key of a value's inputs (each item
     typed and delimited): dataclasses (their type and every field), tuples and lists, dicts (sorted), numpy arrays (dtype, shape,
     bytes) and scalars (exact ``repr``); any other type raises TypeError (a key must not miss an input)."""
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        h.update(f"<{type(value).__module__}.{type(value).__qualname__}".encode())
-        for f in dataclasses.fields(value):
-            h.update(f" {f.name}=".encode())
-            feed(h, getattr(value, f.name))
+    name = _SCALARS.get(type(value))
+    if name is not None:                        # the most frequent case first (a model's numbers)
+        h.update(f"({name} {value!r})".encode())
+    elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+        opening, fields = _dataclass_parts(type(value))
+        h.update(opening)
+        for field, text in fields:
+            h.update(text)
+            feed(h, getattr(value, field))
         h.update(b">")
     elif isinstance(value, (tuple, list)):
         h.update(f"[{len(value)}".encode())
