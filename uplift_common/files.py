@@ -26,6 +26,9 @@ Checksums. Every HDF5 file the project reads back (results, ensembles, cache ent
 impedance tables, fits) carries a SHA-256 of its whole content (every group, dataset and
 attribute, in name order) as its root attribute ``"sha256"``; ``require_checksum`` refuses
 one whose content no longer matches (``ChangedFileError``: it changed since it was written).
+A writer that fills its file through ``RecordedFile`` (the results file) has the digest taken
+from what it wrote, not read back (the same digest; whatever the record cannot reproduce is read
+back).
 
 Usage::
 
