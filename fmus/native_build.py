@@ -42,9 +42,6 @@ import struct
 import subprocess
 import sys
 import tempfile
-import uuid
-import xml.etree.ElementTree as ET
-import zipfile
 import zlib
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -56,6 +53,13 @@ from fmus.resources import DEFAULT_SOIL_FACTORY, soil_from_model
 from fmus.schema import ROLES, UNITS, slot_table, variables, variables3
 from uplift_common.errors import ComputationError
 from uplift_common.files import atomic_output
+from uplift_common.lazy import lazy_module
+
+# the FMU's description and archive: loaded when an FMU is built, not by a run of the in-process
+# library (fmus.native_stepper reads this module's records and compiler)
+ET = lazy_module("xml.etree.ElementTree")
+uuid = lazy_module("uuid")
+zipfile = lazy_module("zipfile")
 
 if TYPE_CHECKING:
     from fmus.build import FmuData

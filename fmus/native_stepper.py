@@ -43,7 +43,7 @@ from uplift_common.code import code_digest
 from uplift_common.files import atomic_output, hdf5_output, stamp_checksum
 
 #: the C files of the in-process library (the numerics and simulate.c; no FMI side)
-HOST_SOURCES = ("simulate.c", "stepper.c", "soil.c", "linalg.c", "resources.c")
+HOST_SOURCES = ("simulate.c", "stepper.c", "soil.c", "linalg.c", "resources.c", "spectra.c")
 
 _lock = threading.Lock()
 _loaded: dict = {}                  # folder -> (CDLL or None, note)
@@ -150,6 +150,13 @@ def library(folder=None):
         return _loaded[folder][0]
 
 
+def loaded_library():
+    """A host library this process has loaded already (``library``), or None: nothing is built or
+    loaded here (orchestrator.spectra's response spectra take its C loop when a run has one)."""
+    with _lock:
+        return next((lib for lib, _ in _loaded.values() if lib is not None), None)
+
+
 def library_note(folder=None) -> str:
     """Why ``library(folder)`` is None ("" when it is loaded)."""
     library(folder)
@@ -221,7 +228,8 @@ def rigid_stepper(model, soil, dt: float, contact=None, damping=None, alpha: flo
     key = None if cache_dir is None else stepper_key(model, soil, dt, contact, damping, alpha)
     path = None if key is None else Path(cache_dir) / f"stepper-{key[:24]}.h5"
     if path is not None:
-        hit = read_entry(path, lambda f: CachedStepper(model, soil, dt, contact or _contact(), *_read_records(f)))
+        hit = read_entry(path, lambda f, data: CachedStepper(model, soil, dt, contact or _contact(),
+                                                             *_read_records(f, data)), keep=True, pairs=False)
         if hit is not None:
             return hit
     st = NewmarkStepper(model, soil, dt, contact=contact, damping=damping, alpha=alpha, external_soil=True, ag0=ag0)
@@ -244,13 +252,14 @@ def _contact():
     return ContactSettings()
 
 
-def _read_records(f) -> tuple:
-    """(records in their order, settlement) of a ``rigid_stepper`` entry."""
+def _read_records(f, data: dict) -> tuple:
+    """(records in their order, settlement) of a ``rigid_stepper`` entry; ``data``: its datasets
+    as the checksum's verification read them (``read_entry(keep=True)``)."""
     order = json.loads(f.attrs["order"])
-    group = f["records"]
-    if sorted(order) != sorted(group):
-        raise ValueError(f"records {sorted(group)} do not match their order {order}")
-    return {name: group[name][()] for name in order}, float(f.attrs["settlement"])
+    stored = sorted(name[len("/records/"):] for name in data if name.startswith("/records/"))
+    if sorted(order) != stored or len(stored) != len(data):
+        raise ValueError(f"records {stored} do not match their order {order}")
+    return {name: data[f"/records/{name}"] for name in order}, float(f.attrs["settlement"])
 
 
 def stepper_key(model, soil, dt: float, contact, damping, alpha: float) -> str | None:

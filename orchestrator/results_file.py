@@ -67,7 +67,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from uplift_common.files import ChangedFileError, OutputPathError, hdf5_output, output_target, require_checksum, stamp_checksum
+from uplift_common.files import (ChangedFileError, OutputPathError, RecordedFile, hdf5_output, output_target,
+                                 require_checksum, stamp_checksum)
 from structure.results import RouteResult, RunNotes, Status
 
 from orchestrator.motion import G, Motion
@@ -150,9 +151,11 @@ def write_results(path, results: dict, motion=None, scene_name: str = "", scene_
     this module (format_version 2: netCDF4 dimension scales, CF units, the per-route summary),
     atomically, with the checksum of its whole content. ``extra(f)``, when given, writes more
     groups into the open file before the checksum (the soil cases and design spectra of
-    ``orchestrator.design``)."""
+    ``orchestrator.design``), through the same recording file (``RecordedFile``: the checksum
+    is computed from what is written, the same digest as read back)."""
     path = check_output_path(path)
-    with hdf5_output(path) as f:
+    with hdf5_output(path) as h5:
+        f = RecordedFile(h5)                    # the checksum from what is written, not read back
         f.attrs.update(uplift_file=KIND, format_version=FORMAT_VERSION, Conventions="CF-1.8", scene=scene_name,
                        scene_toml=scene_toml, overrides=json.dumps(list(overrides)),
                        created=time.strftime("%Y-%m-%dT%H:%M:%S"))

@@ -355,7 +355,8 @@ def _chosen_routes(scene, routes):
     return scene, chosen
 
 
-def prepare_run(scene, routes=None, cache_dir=None, sweep_progress=None, fit_progress=None) -> SharedRun:
+def prepare_run(scene, routes=None, cache_dir=None, sweep_progress=None, fit_progress=None,
+                memory_checked: bool = False) -> SharedRun:
     """What the runs of ``scene`` with ``routes`` (default: the scene's) share whatever their
     motion: the only place that chooses the routes (a scene without [structure] for routes that
     need one raises), refuses a run whose estimated peak memory exceeds the machine's
@@ -363,10 +364,13 @@ def prepare_run(scene, routes=None, cache_dir=None, sweep_progress=None, fit_pro
     and checks the time step (raises), finds the cached fit and sweeps: once for all routes, and not at all when the routes need only the
     fit and it was found in the cache by the table's inputs (the sweep's errors raise here).
     The fit itself is made on first need (``SharedRun.soil_fit``; ``settle`` makes it now).
-    ``sweep_progress`` follows the sweep, ``fit_progress`` the fit (progress protocol)."""
+    ``sweep_progress`` follows the sweep, ``fit_progress`` the fit (progress protocol);
+    ``memory_checked``: the caller has just made that memory check of this scene and these
+    routes (``run_scene``, before the motion), not made again."""
     scene, chosen = _chosen_routes(scene, routes)
     outputs = tuple(dict.fromkeys(t for r in chosen for t in r.tables(scene)))    # their union, in route order
-    check_run_memory(scene, cached=cache_dir is not None)   # every stage's peak, before anything large
+    if not memory_checked:
+        check_run_memory(scene, cached=cache_dir is not None)   # every stage's peak, before anything large
     with compute_threads():
         springs = proxy_springs(scene, bool(outputs), cache_dir)
         model = scene.model()
@@ -405,10 +409,10 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
                          f"not {scene.analysis.dt:g} s (its time-step check): call prepare_run on this scene")
     dt = scene.analysis.dt
     if shared is None:
-        check_run_memory(scene, cached=cache_dir is not None)   # before the motion (prepare_run checks again)
+        check_run_memory(scene, cached=cache_dir is not None)   # before the motion (prepare_run need not again)
     motion = scene_motion(scene.motion, dt, cache_dir) if motion is None else motion.resampled(dt)   # before any computation
     run = shared if shared is not None else prepare_run(scene, cache_dir=cache_dir, sweep_progress=sweep_progress,
-                                                        fit_progress=fit_progress)
+                                                        fit_progress=fit_progress, memory_checked=True)
     with compute_threads():
         dt_notes = {}
         if scene.contact.enabled and any(r.time_stepped for r in chosen):

@@ -6,6 +6,8 @@ from the state at t_n and the two input samples exactly when a_g is linear over 
 """
 from __future__ import annotations
 
+import ctypes
+import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -84,10 +86,17 @@ def response_spectra(acc, dt: float, periods, damping: float = 0.05) -> list:
     omega = 2 * np.pi / periods
     a11, a12, a21, a22, b0u, b1u, b0v, b1v = _coefficients(omega, damping, dt)
     shape = (acc.shape[1], omega.size)
+    cv, cu = 2 * damping * omega, omega ** 2
+    native = _native()
+    if native is not None:                                 # the same loop in C: the same bits
+        coef = np.ascontiguousarray(np.broadcast_arrays(a11, a12, a21, a22, b0u, b1u, b0v, b1v, cv, cu), float)
+        umax, amax = np.empty(shape), np.empty(shape)
+        a = np.ascontiguousarray(acc)
+        native(a.shape[0], shape[0], shape[1], a.ctypes.data, coef.ctypes.data, umax.ctypes.data, amax.ctypes.data)
+        return _spectra(periods, damping, omega, umax, amax)
     p = -acc[:, None, :, None]                             # (nt, 1, m, 1)
     diag, off = np.stack([a11, a22])[:, None], np.stack([a12, a21])[:, None]     # (2, 1, P)
     b0, b1 = np.stack([b0u, b0v])[:, None], np.stack([b1u, b1v])[:, None]
-    cv, cu = 2 * damping * omega, omega ** 2
     x = np.zeros((2, *shape))                              # (u, v) of every oscillator
     umax, amax = np.zeros(shape), np.zeros(shape)
     for k0 in range(0, acc.shape[0] - 1, _CHUNK):          # memory: _CHUNK steps of (2, m, P) at a time
@@ -99,8 +108,26 @@ def response_spectra(acc, dt: float, periods, damping: float = 0.05) -> list:
             xs[n] = x
         np.maximum(umax, np.abs(xs[:, 0]).max(axis=0), out=umax)
         np.maximum(amax, np.abs(cv * xs[:, 1] + cu * xs[:, 0]).max(axis=0), out=amax)
+    return _spectra(periods, damping, omega, umax, amax)
+
+
+def _spectra(periods, damping, omega, umax, amax) -> list:
     return [Spectrum(periods, damping, umax[j], omega * umax[j], omega ** 2 * umax[j], amax[j])
-            for j in range(shape[0])]
+            for j in range(umax.shape[0])]
+
+
+def _native():
+    """The native runtime's ``up_response_spectra`` (fmus/native/spectra.c, the loop of
+    ``response_spectra`` in C: the same bits, about twenty times faster) when this process has
+    loaded the in-process library already (a run of a native route: ``fmus.native_stepper
+    .loaded_library``), else None: the numpy loop, nothing compiled or imported for it."""
+    stepper = sys.modules.get("fmus.native_stepper")
+    lib = None if stepper is None else stepper.loaded_library()
+    fn = getattr(lib, "up_response_spectra", None) if lib is not None else None
+    if fn is not None and fn.argtypes is None:
+        i64, p = ctypes.c_int64, ctypes.c_void_p
+        fn.restype, fn.argtypes = None, [i64, i64, i64, p, p, p, p]
+    return fn
 
 
 #: floor response spectra of a run (results file, report figures, ensemble cells): frequencies

@@ -14,6 +14,7 @@ Usage::
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import warnings
 from pathlib import Path
@@ -35,12 +36,14 @@ class CacheWarning(UserWarning):
     """A damaged cache entry was discarded; the result is recomputed."""
 
 
-def read_entry(path, reader, keep: bool = False):
+def read_entry(path, reader, keep: bool = False, pairs: bool = True):
     """Read the cache entry at ``path`` with ``reader(f: h5py.File)``; None means recompute.
     keep: call ``reader(f, data)`` instead, ``data`` the entry's datasets as the checksum
-    verification read them (``{"/name": ndarray}``): a large entry is read and hashed once,
-    a complex array stored as ``<name>_real`` and ``<name>_imag`` straight into one complex
-    array, kept as its two parts (``uplift_common.files.ComplexPairs``).
+    verification read them (``{"/name": ndarray}``, a scalar as a numpy scalar): a large entry
+    is read and hashed once, a complex array stored as ``<name>_real`` and ``<name>_imag``
+    straight into one complex array, kept as its two parts (``uplift_common.files.ComplexPairs``;
+    pairs False: an entry without such pairs, its plain datasets read by the checksum's
+    low-level reading).
 
     None if the file is absent (or its folder is not one). If it cannot be opened, fails checksum verification, or
     ``reader`` raises (any Exception, including the user-input error types: ``reader`` may
@@ -56,7 +59,7 @@ def read_entry(path, reader, keep: bool = False):
     try:
         with h5py.File(path, "r") as f:
             data = {} if keep else None
-            if not verify_checksum(f, data, ComplexPairs() if keep else None):
+            if not verify_checksum(f, data, ComplexPairs() if keep and pairs else None):
                 raise ValueError("checksum attribute 'sha256' missing or not matching the content")
             return reader(f) if data is None else reader(f, data)
     except Exception as exc:
@@ -91,15 +94,30 @@ def write_entry(path, writer) -> None:
                       stacklevel=3)
 
 
+#: the scalar types fed by their ``repr`` (exact types: a subclass takes the general path)
+_SCALARS = {float: "float", int: "int", bool: "bool", str: "str", complex: "complex", type(None): "NoneType"}
+
+
+@functools.cache
+def _dataclass_parts(cls) -> tuple:
+    """(opening bytes, ((field name, its bytes), ...)) that ``feed`` writes for a dataclass type."""
+    return (f"<{cls.__module__}.{cls.__qualname__}".encode(),
+            tuple((f.name, f" {f.name}=".encode()) for f in dataclasses.fields(cls)))
+
+
 def feed(h, value) -> None:
     """Feed ``value`` into hash ``h`` unambiguously, for a cache key of a value's inputs (each item
     typed and delimited): dataclasses (their type and every field), tuples and lists, dicts (sorted), numpy arrays (dtype, shape,
     bytes) and scalars (exact ``repr``); any other type raises TypeError (a key must not miss an input)."""
-    if dataclasses.is_dataclass(value) and not isinstance(value, type):
-        h.update(f"<{type(value).__module__}.{type(value).__qualname__}".encode())
-        for f in dataclasses.fields(value):
-            h.update(f" {f.name}=".encode())
-            feed(h, getattr(value, f.name))
+    name = _SCALARS.get(type(value))
+    if name is not None:                        # the most frequent case first (a model's numbers)
+        h.update(f"({name} {value!r})".encode())
+    elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+        opening, fields = _dataclass_parts(type(value))
+        h.update(opening)
+        for field, text in fields:
+            h.update(text)
+            feed(h, getattr(value, field))
         h.update(b">")
     elif isinstance(value, (tuple, list)):
         h.update(f"[{len(value)}".encode())

@@ -26,6 +26,9 @@ Checksums. Every HDF5 file the project reads back (results, ensembles, cache ent
 impedance tables, fits) carries a SHA-256 of its whole content (every group, dataset and
 attribute, in name order) as its root attribute ``"sha256"``; ``require_checksum`` refuses
 one whose content no longer matches (``ChangedFileError``: it changed since it was written).
+A writer that fills its file through ``RecordedFile`` (the results file) has the digest taken
+from what it wrote, not read back (the same digest; whatever the record cannot reproduce is read
+back).
 
 Usage::
 
@@ -476,10 +479,23 @@ def _update_dataset(h, ds, f, keep=None, into=None) -> None:
     if ds.ndim == 0 or ds.size == 0:
         _update_value(h, ds[()] if whole is None else whole, f)
         return
+    if whole is not None:
+        _update_slabs(h, whole, ds.dtype.itemsize, f)
+        return
     row = max(1, ds.dtype.itemsize * ds.size // ds.shape[0])
     step = max(1, _CHUNK_BYTES // row)
     for i in range(0, ds.shape[0], step):
-        _update_value(h, ds[i:i + step] if whole is None else whole[i:i + step], f)
+        _update_value(h, ds[i:i + step], f)
+
+
+def _update_slabs(h, a, itemsize: int, f=None) -> None:
+    """The slabs of ``_update_dataset`` (along axis 0, about _CHUNK_BYTES each) of the array
+    ``a`` in memory, a dataset's value of item size ``itemsize`` (its stored type's, e.g. 8
+    for a variable-length string) and of at least one dimension and one element."""
+    row = max(1, itemsize * a.size // a.shape[0])
+    step = max(1, _CHUNK_BYTES // row)
+    for i in range(0, a.shape[0], step):
+        _update_value(h, a[i:i + step], f)
 
 
 def _read_into(h, ds, dest) -> None:
@@ -531,7 +547,39 @@ def checksum(f: h5py.File, keep: dict | None = None, into=None) -> str:
     root checksum attribute. keep: a dict filled with every dataset's value as it was read and
     hashed (``{"/name": ndarray}``), for a caller that would otherwise read it again; into
     (with keep): ``into(ds)`` -> an array to read the numeric dataset ``ds`` into (a view of
-    the caller's own, of ds's shape), or None (read it as usual); the digest is the same."""
+    the caller's own, of ds's shape), or None (read it as usual); the digest is the same.
+
+    The objects are listed by one walk of HDF5 (``h5o.visit``, with each object's kind and
+    attribute count), plain numeric datasets read with h5py's low-level calls
+    (``_update_plain``), an object without attributes not opened for them: the digest of
+    ``_checksum_by_objects`` (every object opened and read through h5py's objects, the
+    reference the tests compare with), several times cheaper on a file of many small datasets."""
+    found = {}
+    try:
+        h5py.h5o.visit(f.id, lambda n, info: found.__setitem__(n.decode(), (info.type, info.num_attrs)), info=True)
+    except UnicodeDecodeError:                  # a name h5py would not decode either: its own walk
+        return _checksum_by_objects(f, keep, into)
+    found.pop(".", None)
+    h = hashlib.sha256()
+    _update_attrs(h, f, f, skip=(CHECKSUM_ATTR,))
+    for name in sorted(found):
+        kind, n_attrs = found[name]
+        h.update(b"\0object " + name.encode() + b"\0")
+        if kind == h5py.h5o.TYPE_GROUP:
+            h.update(b"group")
+        elif not (kind == h5py.h5o.TYPE_DATASET and into is None and _update_plain(h, f, name, keep)):
+            obj = f[name]
+            if isinstance(obj, h5py.Dataset):
+                _update_dataset(h, obj, f, keep, into)
+            else:
+                h.update(b"group")
+        if n_attrs:
+            _update_attrs(h, f[name], f)
+    return h.hexdigest()
+
+
+def _checksum_by_objects(f: h5py.File, keep: dict | None = None, into=None) -> str:
+    """``checksum`` read object by object through h5py's high-level objects."""
     h = hashlib.sha256()
     _update_attrs(h, f, f, skip=(CHECKSUM_ATTR,))
     names = []
@@ -547,10 +595,37 @@ def checksum(f: h5py.File, keep: dict | None = None, into=None) -> str:
     return h.hexdigest()
 
 
+def _update_plain(h, f, name: str, keep=None) -> bool:
+    """``_update_dataset`` of a plain numeric dataset (integers, floats, complex numbers; a
+    scalar, or an array of at least one element and at most _CHUNK_BYTES) through h5py's
+    low-level calls, read whole (kept in ``keep`` as h5py reads it: a scalar as a numpy scalar):
+    the same digest without h5py's per-object machinery, several times cheaper on a small
+    dataset. False, nothing hashed, for any other dataset."""
+    dsid = h5py.h5d.open(f.id, name.encode())
+    dtype, shape = dsid.dtype, dsid.shape
+    size = 0 if shape is None else 1            # None: a null dataspace
+    for n in shape or ():
+        size *= n
+    if dtype.kind not in "iufc" or dtype.names or dtype.metadata or size == 0 or dtype.itemsize * size > _CHUNK_BYTES:
+        return False
+    a = np.empty(shape, dtype)
+    dsid.read(h5py.h5s.ALL, h5py.h5s.ALL, a)
+    h.update(f"dataset {dtype.str} {shape}".encode())
+    if shape:
+        _update_slabs(h, a, dtype.itemsize)
+    else:
+        _update_value(h, a)
+    if keep is not None:
+        keep["/" + name] = a if shape else a[()]
+    return True
+
+
 def stamp_checksum(f: h5py.File) -> str:
     """Compute the SHA-256 of the whole content of the open, writable file ``f`` (every dataset:
     name, dtype, shape, bytes; every attribute: name, value; in a deterministic order), store it
     as root attribute ``"sha256"`` and return it. Call it last, after every write."""
+    if isinstance(f, RecordedFile):
+        return f.stamp()
     f.flush()
     digest = checksum(f)
     f.attrs[CHECKSUM_ATTR] = digest
@@ -589,3 +664,396 @@ def require_checksum(f: h5py.File, path, remedy: str = "write it again", keep: d
     if not verify_checksum(f, keep, into):
         raise ChangedFileError(f"{path} changed since it was written (its data no longer match its "
                                f"checksum): nothing is read from it; {remedy}")
+
+
+# ---- the checksum of the content as it is written -----------------------------------------------
+
+#: an attribute whose value is read back from the file when the checksum is computed (a type
+#: whose stored form the record does not reproduce: bytes, bools, lists, NUL characters, ...)
+_READ_BACK = object()
+#: the methods of an h5py group or dataset that change a file in ways the record does not follow:
+#: a RecordedFile that sees one called hashes the file as read back (``checksum``)
+_UNRECORDED = frozenset({"create_dataset_like", "create_virtual_dataset", "require_group", "require_dataset",
+                         "copy", "move", "build_virtual_dataset", "resize", "write_direct"})
+#: the attributes HDF5's dimension scales write (recorded from make_scale and attach_scale)
+_SCALE_ATTRS = frozenset({"CLASS", "NAME", "REFERENCE_LIST", "DIMENSION_LIST"})
+
+
+class _Record:
+    """What ``checksum`` reads of one object: its kind, its stored value (a dataset), its
+    attributes, and the dimension-scale attributes HDF5 makes (CLASS, NAME, REFERENCE_LIST,
+    DIMENSION_LIST); ``exact`` False: the object is read back from the file instead."""
+
+    __slots__ = ("attrs", "data", "dims", "exact", "kind", "name", "refs", "scale")
+
+    def __init__(self, name: str, kind: str):
+        self.name, self.kind = name, kind
+        self.data = None
+        self.attrs = {}
+        self.scale = None           # the NAME of a dimension scale (make_scale)
+        self.refs = []              # a scale's REFERENCE_LIST: (dataset name, axis), in attachment order
+        self.dims = None            # a dataset's DIMENSION_LIST: [scale names] per axis
+        self.exact = True
+
+    def attr_count(self) -> int:
+        extra = (2 if self.scale is not None else 0) + (1 if self.refs else 0) + (1 if self.dims else 0)
+        return len(self.attrs) + extra
+
+
+def _attr_form(value):
+    """The value ``checksum`` reads back of an attribute written as ``value`` (h5py's own
+    conversion, for the types whose stored form is known), or _READ_BACK."""
+    if isinstance(value, str):
+        return value if "\0" not in value else _READ_BACK       # a vlen string ends at a NUL
+    if isinstance(value, (bool, np.bool_)):
+        return _READ_BACK
+    if isinstance(value, (int, float, np.integer, np.floating, np.ndarray)):
+        a = np.array(value)                                       # a copy: the value as it was
+        if a.dtype.kind in "iuf" and not a.dtype.names and (a.ndim == 0 or a.size):
+            return a
+    return _READ_BACK
+
+
+class RecordedFile:
+    """An h5py file open for writing (``hdf5_output``'s) whose content is recorded as it is
+    written, for ``stamp_checksum`` to hash without reading the file back.
+
+    ``checksum`` reads every object and attribute back through h5py: on a results file (about 35
+    objects and 140 attributes) that costs about ten times its SHA-256. A writer that makes its
+    groups, datasets, attributes and dimension scales through this object (and the groups and
+    datasets it returns: ``create_group``, ``create_dataset(name, data=...)``, ``attrs[key] =``,
+    ``attrs.update``, ``make_scale``, ``dims[axis].attach_scale``) has each recorded in the form
+    ``checksum`` reads it back: a numeric or string dataset as its array (a copy: the caller may
+    change its own afterwards), a string or number attribute as its value, the attributes HDF5's
+    dimension scales add (CLASS, NAME, REFERENCE_LIST, DIMENSION_LIST) from the calls made.
+    ``stamp()`` hashes the record in ``checksum``'s order and gives the same digest. Whatever the
+    record does not reproduce is read back from the file: an attribute of another type (bytes,
+    bool, a list), a dataset made with ``shape``, ``dtype`` or options, an object changed in
+    place; the whole file when the record and the file differ in their objects or attribute
+    counts (one listing by HDF5, ``h5o.visit``) or when a call the record does not follow was
+    made (``_UNRECORDED``). ``read_back`` counts the objects so read (0: none), for the tests.
+
+    Reading goes to the h5py objects: ``g[name]``, ``name in g``, ``g.attrs[key]``."""
+
+    def __init__(self, f: h5py.File):
+        self.file = f
+        self.root = _Record("", "group")
+        self.objects: dict = {}     # name relative to the root -> _Record
+        self.exact = True
+        self.read_back = 0
+        self._group = _RecordedGroup(f, self.root, self)
+
+    def __getattr__(self, name):
+        return getattr(self._group, name)
+
+    def __getitem__(self, name):
+        return self._group[name]
+
+    def __contains__(self, name):
+        return name in self.file
+
+    def __iter__(self):
+        return iter(self.file)
+
+    def __len__(self):
+        return len(self.file)
+
+    @property
+    def attrs(self):
+        return self._group.attrs
+
+    def _child(self, parent: _Record, name: str, kind: str) -> _Record:
+        if "/" in name or name in ("", ".", ".."):
+            self.exact = False      # intermediate groups, absolute paths: not followed
+        rec = _Record(f"{parent.name}/{name}" if parent.name else name, kind)
+        if rec.name in self.objects:
+            self.exact = False
+        self.objects[rec.name] = rec
+        return rec
+
+    def _matches_file(self) -> bool:
+        """Whether the file holds exactly the recorded objects, each with its recorded number of
+        attributes (the root's without the checksum attribute)."""
+        if not self.exact:
+            return False
+        found = {}
+        h5py.h5o.visit(self.file.id, lambda n, info: found.__setitem__(n.decode("utf-8", "replace"),
+                                                                       (info.type, info.num_attrs)), info=True)
+        kinds = {"group": h5py.h5o.TYPE_GROUP, "dataset": h5py.h5o.TYPE_DATASET}
+        if len(found) != len(self.objects):
+            return False
+        for name, rec in self.objects.items():
+            if found.get(name) != (kinds[rec.kind], rec.attr_count()):
+                return False
+        root = h5py.h5o.get_info(self.file.id).num_attrs
+        return root - (CHECKSUM_ATTR in self.file.attrs) == len(self.root.attrs) - (CHECKSUM_ATTR in self.root.attrs)
+
+    def digest(self) -> str:
+        """``checksum(self.file)``, from the record (read back where it falls short)."""
+        self.file.flush()
+        if not self._matches_file():
+            self.read_back = len(self.objects) + 1
+            return checksum(self.file)
+        f = self.file
+        h = hashlib.sha256()
+        self._update_attrs(h, self.root, f, skip=(CHECKSUM_ATTR,))
+        for name in sorted(self.objects):
+            rec = self.objects[name]
+            h.update(b"\0object " + name.encode() + b"\0")
+            if not rec.exact:
+                self.read_back += 1
+                obj = f[name]
+                if isinstance(obj, h5py.Dataset):
+                    _update_dataset(h, obj, f)
+                else:
+                    h.update(b"group")
+                _update_attrs(h, obj, f)
+                continue
+            if rec.kind == "dataset":
+                a, itemsize = rec.data
+                h.update(f"dataset {a.dtype.str} {a.shape}".encode())
+                if a.ndim == 0 or a.size == 0:
+                    _update_value(h, a, f)
+                else:
+                    _update_slabs(h, a, itemsize, f)
+            else:
+                h.update(b"group")
+            self._update_attrs(h, rec, f)
+        return h.hexdigest()
+
+    def _update_attrs(self, h, rec: _Record, f, skip=()) -> None:
+        """``_update_attrs`` of the recorded object ``rec``: its attributes and its dimension
+        scales', in name order, as h5py reads them back."""
+        forms = dict(rec.attrs)
+        if rec.scale is not None:
+            forms["CLASS"] = np.bytes_(b"DIMENSION_SCALE")
+            forms["NAME"] = np.bytes_(rec.scale.encode())
+        if rec.refs:
+            forms["REFERENCE_LIST"] = rec.refs
+        if rec.dims:
+            forms["DIMENSION_LIST"] = rec.dims
+        for key in sorted(forms):
+            if key in skip:
+                continue
+            h.update(b"attr " + key.encode() + b"\0")
+            value = forms[key]
+            if key == "REFERENCE_LIST" and value is rec.refs:
+                h.update(f"{(len(value),)}".encode() + b"field dataset")     # compound (dataset, dimension)
+                _update_names(h, [name for name, _ in value])
+                h.update(b"field dimension")
+                _update_value(h, np.array([axis for _, axis in value], "<u4"))
+            elif key == "DIMENSION_LIST" and value is rec.dims:
+                h.update(f"{(len(value),)}".encode() + b"str")               # a vlen of references per axis
+                for names in value:
+                    _update_names(h, names)
+            elif value is _READ_BACK:
+                self.read_back += 1
+                obj = f[rec.name] if rec.name else f
+                _update_value(h, obj.attrs[key], f)
+            else:
+                _update_value(h, value, f)
+
+    def stamp(self) -> str:
+        """Store the digest as the root attribute ``"sha256"`` and return it (``stamp_checksum``)."""
+        digest = self.digest()
+        self.file.attrs[CHECKSUM_ATTR] = digest
+        return digest
+
+
+def _update_names(h, names) -> None:
+    """``_update_value`` of an array of object references to the objects ``names`` (relative to
+    the root): as ``checksum`` hashes references, by the absolute names they point at."""
+    h.update(f"{(len(names),)}".encode() + b"str")
+    for name in names:
+        h.update(b"ref /" + name.encode())
+
+
+class _Recorded:
+    """An h5py group or dataset of a RecordedFile: writes recorded, reads passed through."""
+
+    def __init__(self, obj, rec: _Record, owner: RecordedFile):
+        object.__setattr__(self, "_obj", obj)
+        object.__setattr__(self, "_rec", rec)
+        object.__setattr__(self, "_owner", owner)
+
+    def __getattr__(self, name):
+        if name in _UNRECORDED:
+            self._owner.exact = False
+        return getattr(self._obj, name)
+
+    def __setattr__(self, name, value):
+        self._owner.exact = False
+        setattr(self._obj, name, value)
+
+    @property
+    def name(self) -> str:
+        return "/" + self._rec.name
+
+    @property
+    def attrs(self):
+        return _RecordedAttrs(self._obj.attrs, self._rec)
+
+    def __contains__(self, name):
+        return name in self._obj
+
+    def __iter__(self):
+        return iter(self._obj)
+
+    def __len__(self):
+        return len(self._obj)
+
+    def __setitem__(self, key, value):
+        if isinstance(self, _RecordedDataset):
+            self._rec.exact = False     # the data changed in place: read back
+        else:
+            self._owner.exact = False   # a new link or dataset: not followed
+        self._obj[key] = value
+
+    def __delitem__(self, key):
+        self._owner.exact = False
+        del self._obj[key]
+
+
+class _RecordedGroup(_Recorded):
+
+    def create_group(self, name, track_order=None):
+        rec = self._owner._child(self._rec, name, "group")
+        return _RecordedGroup(self._obj.create_group(name, track_order=track_order), rec, self._owner)
+
+    def create_dataset(self, name, shape=None, dtype=None, data=None, **kwds):
+        ds = self._obj.create_dataset(name, shape, dtype, data, **kwds)
+        rec = self._owner._child(self._rec, name, "dataset")
+        rec.exact = False
+        if shape is None and dtype is None and data is not None and not kwds:
+            a = np.array(data)                  # a copy: the caller may change its array afterwards
+            stored = ds.dtype
+            numbers = a.dtype.kind in "iufc" and not a.dtype.names and a.dtype == stored
+            strings = (a.dtype.kind == "O" and a.ndim > 0          # vlen UTF-8, read back as their bytes
+                       and getattr(h5py.check_string_dtype(stored), "encoding", None) == "utf-8"
+                       and all(isinstance(x, str) and "\0" not in x for x in a.reshape(-1)))
+            if (numbers or strings) and a.shape == ds.shape:
+                rec.data, rec.exact = (a, stored.itemsize), True
+        return _RecordedDataset(ds, rec, self._owner)
+
+    def __getitem__(self, name):
+        key = name.strip("/") if name.startswith("/") or not self._rec.name else f"{self._rec.name}/{name}"
+        rec = self._owner.objects.get(key)
+        if rec is None:
+            obj = self._obj[name]
+            self._owner.exact = False   # an object the record does not know: its writes are not followed
+            return obj
+        cls = _RecordedGroup if rec.kind == "group" else _RecordedDataset
+        return cls(self._obj[name], rec, self._owner)
+
+
+class _RecordedDataset(_Recorded):
+
+    def __getitem__(self, key):
+        return self._obj[key]
+
+    def make_scale(self, name: str = ""):
+        self._obj.make_scale(name)
+        if self._rec.scale is not None or not name or not name.isascii() or "\0" in name:
+            self._rec.exact = False
+        self._rec.scale = name
+
+    @property
+    def dims(self):
+        return _RecordedDims(self._obj.dims, self._rec, self._owner, len(self._obj.shape or ()))
+
+
+class _RecordedDims:
+    """``ds.dims`` of a recorded dataset: ``dims[axis].attach_scale(scale)`` recorded."""
+
+    def __init__(self, dims, rec: _Record, owner: RecordedFile, ndim: int):
+        self._dims, self._rec, self._owner, self._ndim = dims, rec, owner, ndim
+
+    def __getitem__(self, axis):
+        return _RecordedDim(self._dims[axis], axis, self._rec, self._owner, self._ndim)
+
+    def __getattr__(self, name):
+        self._rec.exact = False
+        return getattr(self._dims, name)
+
+    def __len__(self):
+        return len(self._dims)
+
+
+class _RecordedDim:
+
+    def __init__(self, dim, axis, rec: _Record, owner: RecordedFile, ndim: int):
+        object.__setattr__(self, "_dim", dim)
+        object.__setattr__(self, "_at", (axis, rec, owner, ndim))
+
+    def attach_scale(self, scale):
+        axis, rec, owner, ndim = self._at
+        if isinstance(scale, _RecordedDataset):
+            self._dim.attach_scale(scale._obj)
+            target = scale._rec
+            if rec.dims is None:
+                rec.dims = [[] for _ in range(ndim)]
+            if (not isinstance(axis, int) or not 0 <= axis < len(rec.dims) or target.scale is None
+                    or target.name in rec.dims[axis]):
+                rec.exact = target.exact = False
+                return
+            rec.dims[axis].append(target.name)
+            target.refs.append((rec.name, axis))
+        else:
+            self._dim.attach_scale(scale)
+            rec.exact = False
+            owner.exact = False     # the scale's own attributes change too
+
+    def __getattr__(self, name):
+        self._at[1].exact = False
+        self._at[2].exact = False
+        return getattr(self._dim, name)
+
+    def __setattr__(self, name, value):
+        self._at[1].exact = False
+        setattr(self._dim, name, value)
+
+
+class _RecordedAttrs:
+    """``obj.attrs`` of a recorded object: every write recorded, reads passed through."""
+
+    def __init__(self, attrs, rec: _Record):
+        self._attrs, self._rec = attrs, rec
+
+    def __setitem__(self, key, value):
+        self._attrs[key] = value
+        if key in _SCALE_ATTRS:         # one HDF5's dimension scales keep: read the object back
+            self._rec.attrs[key] = _READ_BACK
+            self._rec.exact = False
+        else:
+            self._rec.attrs[key] = _attr_form(value)
+
+    def update(self, other=(), **kw):
+        for key, value in dict(other, **kw).items():
+            self[key] = value
+
+    def create(self, name, data, shape=None, dtype=None):
+        self._attrs.create(name, data, shape, dtype)
+        self._rec.attrs[name] = _READ_BACK
+
+    def modify(self, name, value):
+        self._attrs.modify(name, value)
+        self._rec.attrs[name] = _READ_BACK
+
+    def __delitem__(self, key):
+        del self._attrs[key]
+        self._rec.attrs.pop(key, None)
+
+    def __getitem__(self, key):
+        return self._attrs[key]
+
+    def __contains__(self, key):
+        return key in self._attrs
+
+    def __iter__(self):
+        return iter(self._attrs)
+
+    def __len__(self):
+        return len(self._attrs)
+
+    def __getattr__(self, name):
+        return getattr(self._attrs, name)
