@@ -108,7 +108,7 @@ class ContactProblem:
 
 
 def prepare(model, soil, ag, dt, *, grid, contact=None, damping=None, static=None,
-            aux_factor=1.0, pool: WorkerPool | None = None) -> ContactProblem:
+            aux_factor=1.0, pool: WorkerPool | None = None, cache_dir=None) -> ContactProblem:
     """ContactProblem for ground acceleration ag (nt, 3) m/s^2 at step dt (s).
 
     soil : ImpedanceTable | WinklerSoil | RationalModel | RecursiveConvolutionSoil
@@ -116,6 +116,8 @@ def prepare(model, soil, ag, dt, *, grid, contact=None, damping=None, static=Non
     static : StaticState (default: solve_static with the soil's K(0) and the penalty rule)
     aux_factor : the auxiliary stiffness k = aux_factor x the soil's local K(0)[w_i, w_i]
     pool : WorkerPool of the operator (default: none)
+    cache_dir : folder where a table's set-up is kept (setup_cache: the band's rows, the far
+        field's split), None: made every time
     """
     t0 = time.perf_counter()
     if grid.bilinear is None or grid.window is None:
@@ -133,7 +135,7 @@ def prepare(model, soil, ag, dt, *, grid, contact=None, damping=None, static=Non
     g = Grid.build(ag.shape[0], dt, pad_s=pad, wrap_tol=wrap_tol if window else 1.0,
                    bilinear=grid.bilinear, nfft=grid.nfft, eta_pad_s=min(pad, rule))
     bands = soil_bands(soil, g)
-    op = InterfaceOperator(model, bands, g, structure=st, pool=pool)
+    op = InterfaceOperator(model, bands, g, structure=st, pool=pool, cache_dir=cache_dir)
     N = model.n_interface
     kp = penalty_stiffness(contact, bands.K0, N)
     if static is None:
