@@ -29,6 +29,9 @@ import numpy as np
 
 from soil_impedance.cache import feed, read_entry, write_entry
 from uplift_common.code import code_digest
+from uplift_common.files import hdf5_output, stamp_checksum
+
+from orchestrator.timefreq.soil import SplineBand, _written
 
 #: the code the entries' values depend on (the bands, the operator's rows, the split; the table's
 #: spline and causal fade)
@@ -92,8 +95,6 @@ def write_arrays(path, arrays: dict, attrs=None) -> None:
     checksummed; a failure only warns)."""
     if path is None:
         return
-    from uplift_common.files import hdf5_output, stamp_checksum
-
     def writer(p):
         with hdf5_output(p) as f:
             for name, a in arrays.items():
@@ -109,7 +110,6 @@ def band_rows(band, s, Bq, out, *, table, cache_dir):
     """``band.rows_P(s, Bq, out)``, a table's spline band's from the cache (``tf-rows``) when its
     entry is there, else computed and stored; any other band, or without a cache folder or a
     table, computed."""
-    from orchestrator.timefreq.soil import SplineBand, _written
     if not isinstance(band, SplineBand) or cache_dir is None or table is None:
         return band.rows_P(s, Bq, out)
     path = entry_path(cache_dir, "rows", setup_key("rows", table, band.idx, band.W, band.c, np.asarray(Bq, float)))
