@@ -8,11 +8,12 @@ Two entries, each an HDF5 file written atomically with its checksum and verified
 * ``tf-rows-<key>.h5``: a table's spline band's rows (K[w, :] P, P^T K[:, w] (Fb, N, 6), P^T K P
   (Fb, 6, 6); ``soil.SplineBand.rows_P``: products over the table's matrices combined with the
   spline's weights), read by the operator (``InterfaceOperator``). Key: the table's data, the
-  spline's weights (the grid's frequencies) and the raft's trace Bq.
+  spline's weights (the grid's frequencies) and the raft's trace Bq (12.5 MB on the reactor:
+  the operator's set-up 0.16 -> 0.11 s CPU).
 * ``tf-split-<key>.h5``: the far field's split's dense part (``farfield.AffineSplit``: D = S -
   (A + s B) on the table's frequencies, packed upper triangles when S is symmetric; on the
   reactor 125 MB, made from the spline band's packed matrices and the structure's rank-6 term:
-  ~0.5 s CPU against ~0.1 s to read and verify). Key: the table's data, every band's
+  0.45-0.6 s CPU against 0.17-0.19 s to read and verify, most of it the SHA-256). Key: the table's data, every band's
   frequencies and the spline's weights, the grid's s, Bq and Zqq^-1 on every frequency (the
   structure's condensed impedance: the modes, the damping and the raft).
 
