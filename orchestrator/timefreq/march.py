@@ -417,8 +417,9 @@ def march(prob, lam: float = 1.0, block: int = BLOCK, progress=None, deadline: f
 def y_from_d(prob, d):
     """The renormalised unknown y = z - z0 (problem) of a contact history d (N, nt)."""
     e = prob.static.delta0[:, None] - d
-    z = np.where(e > 0, e / prob.eps[:, None], e)
-    return z - prob.z0[:, None]
+    np.divide(e, prob.eps[:, None], out=e, where=e > 0)        # z: e / eps where in contact (in place)
+    e -= prob.z0[:, None]
+    return e
 
 
 @dataclass

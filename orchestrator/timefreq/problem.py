@@ -28,6 +28,7 @@ import enum
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -181,10 +182,26 @@ class ContactEquation:
         return self.g.to_time(self.apply(self.g.to_freq(x)))
 
     def residual(self, y):
+        """g(y) (N, nt), N: S * [phi(z0 + y) - phi(z0)] + k (z0 + y)^+ - P0 + lam f, its
+        elementwise parts in place on two work arrays (the same operations in the same order as
+        the expression, so the same bits)."""
         self.n_res += 1
         z = self.z0[:, None] + y
-        return self.S(self.p.phi(z) - self.phi0) + self.k * np.maximum(z, 0.0) \
-            - self.p.P0[:, None] + self.lam * self.p.f
+        zp = np.maximum(z, 0.0)
+        x = np.minimum(z, 0.0, out=z)                    # phi(z) = z^- + eps z^+
+        x += self.eps * zp
+        x -= self.phi0
+        g = self.S(x)
+        zp *= self.k
+        g += zp
+        g -= self.p.P0[:, None]
+        g += self.lam_f
+        return g
+
+    @cached_property
+    def lam_f(self):
+        """lam f (N, nt), N: the residual's load, formed once."""
+        return self.lam * self.p.f
 
     def jvp(self, y, v):
         self.n_jv += 1
