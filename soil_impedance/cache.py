@@ -36,14 +36,15 @@ class CacheWarning(UserWarning):
     """A damaged cache entry was discarded; the result is recomputed."""
 
 
-def read_entry(path, reader, keep: bool = False, pairs: bool = True):
+def read_entry(path, reader, keep: bool = False, pairs: bool = True, into=None):
     """Read the cache entry at ``path`` with ``reader(f: h5py.File)``; None means recompute.
     keep: call ``reader(f, data)`` instead, ``data`` the entry's datasets as the checksum
     verification read them (``{"/name": ndarray}``, a scalar as a numpy scalar): a large entry
     is read and hashed once, a complex array stored as ``<name>_real`` and ``<name>_imag``
     straight into one complex array, kept as its two parts (``uplift_common.files.ComplexPairs``;
     pairs False: an entry without such pairs, its plain datasets read by the checksum's
-    low-level reading).
+    low-level reading); ``into``: another such rule in its place (``uplift_common.files.checksum``'s:
+    ds -> an array to read ds into, or None).
 
     None if the file is absent (or its folder is not one). If it cannot be opened, fails checksum verification, or
     ``reader`` raises (any Exception, including the user-input error types: ``reader`` may
@@ -59,7 +60,8 @@ def read_entry(path, reader, keep: bool = False, pairs: bool = True):
     try:
         with h5py.File(path, "r") as f:
             data = {} if keep else None
-            if not verify_checksum(f, data, ComplexPairs() if keep and pairs else None):
+            rule = (into or (ComplexPairs() if pairs else None)) if keep else None
+            if not verify_checksum(f, data, rule):
                 raise ValueError("checksum attribute 'sha256' missing or not matching the content")
             return reader(f) if data is None else reader(f, data)
     except Exception as exc:

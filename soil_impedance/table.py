@@ -20,6 +20,7 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -106,6 +107,14 @@ class ImpedanceTable:
         """Content hash of the inputs (provenance and frequencies): the cache key."""
         return content_hash(self.provenance, self.frequencies_hz)
 
+    @cached_property
+    def data_digest(self) -> str:
+        """SHA-256 (hex) of the data (the matrices' bytes and the DOF labels: the ``data_sha256``
+        a saved table carries), computed once per table (its arrays are read-only): a table read
+        from a file has it from its own verification, for free; the key of values made from the
+        data themselves (the time-frequency route's set-up: orchestrator/timefreq/setup_cache.py)."""
+        return _data_digest(self)
+
     @property
     def n_dof(self) -> int:
         return len(self.dofs)
@@ -165,7 +174,7 @@ class ImpedanceTable:
             h.attrs["format"] = FORMAT
             h.attrs["format_version"] = FORMAT_VERSION
             h.attrs["hash"] = self.hash
-            h.attrs["data_sha256"] = _data_digest(self)
+            h.attrs["data_sha256"] = self.data_digest
             h.attrs["provenance"] = json.dumps(self.provenance, sort_keys=True, default=str)
             h.create_dataset("frequencies_hz", data=self.frequencies_hz).attrs["units"] = "Hz"
             for part in ("real", "imag"):
@@ -232,7 +241,7 @@ class ImpedanceTable:
             table = cls(f, K, dofs, prov)
         except TableError as exc:
             raise TableError(f"{path}: {exc}") from None
-        if table.hash != stored or _data_digest(table) != digest:
+        if table.hash != stored or table.data_digest != digest:
             raise TableError(f"{path}: stored hash or data_sha256 does not match the content "
                              "(file altered or truncated?): delete it and recompute")
         return table

@@ -43,6 +43,8 @@ def run_timefreq(motion, model, table_gap, *, contact, output_nodes, max_seconds
     passive, else the table's own kernel (and notes.warnings says why); info["march"] says which.
     The answer is the table's either way (the residual is the table's). constrained : that
     constrained fit when made already (``constrained_fit``, once for an ensemble: ``settle``), or None.
+    cache_dir : the cache folder of the constrained fit and of the solve's set-up (the table's band
+    rows and the far field's split: orchestrator/timefreq/setup_cache.py), or None: none kept.
     """
     # the solver's imports (pyfftw, scipy.interpolate: ~0.7 s) when the route runs, not with the registry
     from orchestrator.timefreq import GridOptions, SolveOptions, solve, with_overrides
@@ -60,7 +62,7 @@ def run_timefreq(motion, model, table_gap, *, contact, output_nodes, max_seconds
                                     damping=rest.get("damping"), constrained=constrained)
     return solve(model, table_gap, motion.acc, motion.dt, contact=contact, output_nodes=output_nodes,
                  grid=grid, options=options, monitor=decades_bar(progress, options.tol or TOL), stand_in=stand_in,
-                 **rest)
+                 cache_dir=cache_dir, **rest)
 
 
 def decades_bar(bar, tol):

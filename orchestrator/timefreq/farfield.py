@@ -27,6 +27,7 @@ import numpy as np
 from scipy.linalg.blas import cspmv, zspmv
 
 from orchestrator.timefreq.operator import _span
+from orchestrator.timefreq.setup_cache import entry_path, read_arrays, setup_key, write_arrays
 from orchestrator.timefreq.soil import AffineBand, MatrixBand, dense, upper_pairs
 
 #: |h_k - c (-1)^k| <= ALTERNATING_RTOL |c| over the lags 1 .. nt-1 for the closed form to be used
@@ -48,7 +49,12 @@ def generic_far_field(op, grid):
 class AffineSplit:
     """The far field with the affine band taken on all frequencies (module notes). ``usable``
     tells whether the soil and grid allow it: one AffineBand, the other bands dense, the
-    bilinear grid (checked on s's kernel itself)."""
+    bilinear grid (checked on s's kernel itself).
+
+    The dense bands' D and whether S is symmetric (its packing) are kept in the operator's cache
+    folder (``op.cache_dir``; setup_cache, ``tf-split``), keyed on the table's data, the bands,
+    the grid's s, the raft's trace and Zqq^-1: a second split of the same inputs reads them
+    (the same bits) instead of making them again."""
 
     def __init__(self, op, grid):
         self.op, self.grid = op, grid
@@ -75,13 +81,26 @@ class AffineSplit:
         (VrA, VlA, _), (VrB, VlB, _) = band.rows_P_parts(op.Bq)
         self.VrAB, self.VlAB = np.hstack([VrA, VrB]), np.vstack([VlA, VlB])  # (N, 12), (12, N)
         self.Zinv_hi = op.Zinv[self.hi]
-        Ad, Bd = dense(Aw), dense(Bw)
         N = op.N
+        matrix = [b for b in bands if isinstance(b, MatrixBand)]
+        path = entry_path(getattr(op, "cache_dir", None), "split", setup_key(
+            "split", getattr(op.soil, "table", None), [(type(b).__name__, b.idx, getattr(b, "W", None)) for b in bands],
+            op.s, np.asarray(op.Bq, float), op.Zinv))
+        kept = read_arrays(path, [f"D{k}" for k in range(len(matrix))], attrs=("packed",))
+        if kept is not None:
+            self.packed = bool(kept[1]["packed"])
+            self.upper = upper_pairs(N) if self.packed else None
+            shapes = [(b.idx.size, N * (N + 1) // 2) if self.packed else (b.idx.size, N, N) for b in matrix]
+            if [D.shape for D in kept[0]] == shapes:
+                self.dense = list(zip((b.idx for b in matrix), kept[0]))
+                return
+        Ad, Bd = dense(Aw), dense(Bw)
         # a symmetric S: D's upper triangles packed column by column (BLAS 'U' packed storage:
         # half the bytes per application, read by zspmv; the head's DFT on half the entries)
         self.packed = op.symmetric()
         self.upper = upper_pairs(N) if self.packed else None
-        self.dense = [(b.idx, self._dense_part(op, b, Ad, Bd, self.upper)) for b in bands if isinstance(b, MatrixBand)]
+        self.dense = [(b.idx, self._dense_part(op, b, Ad, Bd, self.upper)) for b in matrix]
+        write_arrays(path, {f"D{k}": D for k, (_, D) in enumerate(self.dense)}, {"packed": self.packed})
 
     @staticmethod
     def _dense_part(op, band, A, B, upper=None, chunk=16):

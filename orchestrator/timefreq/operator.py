@@ -34,6 +34,7 @@ from scipy.linalg import LinAlgError, eigh
 
 from structure import damping_matrix, fixed_base_modes
 
+from orchestrator.timefreq.setup_cache import band_rows
 from orchestrator.timefreq.soil import AffineBand, MatrixBand, Scratch, dense
 
 #: frequencies per chunk below which a band is not split between threads
@@ -155,13 +156,16 @@ class InterfaceOperator:
     structure : ModalStructure       the model's modal data if already built (a plate: its
                                      PlateStructure, required: flexible.structure_of)
     pool : WorkerPool                threads for the per-frequency work (default: none)
+    cache_dir : folder or None       where the set-up is kept (setup_cache: a table's band rows
+                                     here, the far field's split, farfield.AffineSplit); None: not kept
     """
 
     def __init__(self, model, soil, grid, damping=None, structure: ModalStructure | None = None,
-                 pool: WorkerPool | None = None):
+                 pool: WorkerPool | None = None, cache_dir=None):
         if soil.n != 6 + model.n_interface:
             raise ValueError(f"the soil has {soil.n} DOFs, the raft needs 6 + N = {6 + model.n_interface}")
         self.model, self.soil, self.grid = model, soil, grid
+        self.cache_dir = cache_dir
         self.pool = pool or WorkerPool(1)
         if structure is None and hasattr(model, "plate"):
             raise ValueError("a plate raft's operator needs its PlateStructure: pass structure="
@@ -183,7 +187,7 @@ class InterfaceOperator:
         for band in soil.bands:
             i = _span(band.idx)
             out = (self.Vr[i], self.Vl[i]) if isinstance(i, slice) else None   # views: written in place
-            Vr, Vl, KPP = band.rows_P(s[i], Bq, out)
+            Vr, Vl, KPP = band_rows(band, s[i], Bq, out, table=getattr(soil, "table", None), cache_dir=cache_dir)
             if out is None:
                 self.Vr[i], self.Vl[i] = Vr, Vl
             Zqq[i] += KPP

@@ -28,6 +28,7 @@ import enum
 import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -108,7 +109,7 @@ class ContactProblem:
 
 
 def prepare(model, soil, ag, dt, *, grid, contact=None, damping=None, static=None,
-            aux_factor=1.0, pool: WorkerPool | None = None) -> ContactProblem:
+            aux_factor=1.0, pool: WorkerPool | None = None, cache_dir=None) -> ContactProblem:
     """ContactProblem for ground acceleration ag (nt, 3) m/s^2 at step dt (s).
 
     soil : ImpedanceTable | WinklerSoil | RationalModel | RecursiveConvolutionSoil
@@ -116,6 +117,8 @@ def prepare(model, soil, ag, dt, *, grid, contact=None, damping=None, static=Non
     static : StaticState (default: solve_static with the soil's K(0) and the penalty rule)
     aux_factor : the auxiliary stiffness k = aux_factor x the soil's local K(0)[w_i, w_i]
     pool : WorkerPool of the operator (default: none)
+    cache_dir : folder where a table's set-up is kept (setup_cache: the band's rows, the far
+        field's split), None: made every time
     """
     t0 = time.perf_counter()
     if grid.bilinear is None or grid.window is None:
@@ -133,7 +136,7 @@ def prepare(model, soil, ag, dt, *, grid, contact=None, damping=None, static=Non
     g = Grid.build(ag.shape[0], dt, pad_s=pad, wrap_tol=wrap_tol if window else 1.0,
                    bilinear=grid.bilinear, nfft=grid.nfft, eta_pad_s=min(pad, rule))
     bands = soil_bands(soil, g)
-    op = InterfaceOperator(model, bands, g, structure=st, pool=pool)
+    op = InterfaceOperator(model, bands, g, structure=st, pool=pool, cache_dir=cache_dir)
     N = model.n_interface
     kp = penalty_stiffness(contact, bands.K0, N)
     if static is None:
@@ -179,10 +182,26 @@ class ContactEquation:
         return self.g.to_time(self.apply(self.g.to_freq(x)))
 
     def residual(self, y):
+        """g(y) (N, nt), N: S * [phi(z0 + y) - phi(z0)] + k (z0 + y)^+ - P0 + lam f, its
+        elementwise parts in place on two work arrays (the same operations in the same order as
+        the expression, so the same bits)."""
         self.n_res += 1
         z = self.z0[:, None] + y
-        return self.S(self.p.phi(z) - self.phi0) + self.k * np.maximum(z, 0.0) \
-            - self.p.P0[:, None] + self.lam * self.p.f
+        zp = np.maximum(z, 0.0)
+        x = np.minimum(z, 0.0, out=z)                    # phi(z) = z^- + eps z^+
+        x += self.eps * zp
+        x -= self.phi0
+        g = self.S(x)
+        zp *= self.k
+        g += zp
+        g -= self.p.P0[:, None]
+        g += self.lam_f
+        return g
+
+    @cached_property
+    def lam_f(self):
+        """lam f (N, nt), N: the residual's load, formed once."""
+        return self.lam * self.p.f
 
     def jvp(self, y, v):
         self.n_jv += 1

@@ -339,11 +339,14 @@ def _real_apply(M, X):
 @dataclass(frozen=True, eq=False)
 class SoilBands:
     """The soil on the whole grid: bands partition the F frequencies; K0 (n, n) real, the
-    static stiffness (for the preload and the penalty rule); label says where it came from."""
+    static stiffness (for the preload and the penalty rule); label says where it came from;
+    table the ImpedanceTable the bands were made from (None: another soil), whose data digest
+    keys the set-up's cache entries (setup_cache)."""
     bands: tuple
     K0: np.ndarray
     n: int
     label: str
+    table: object = None
 
     def static_stiffness(self):
         return self.K0
@@ -428,7 +431,7 @@ def _table_bands(table, grid) -> SoilBands:
     K0 = K[0].real
     causal = f", hysteretic offset faded below {f_causal:g} Hz" if f_causal > 0 else ""
     return SoilBands(tuple(bands), 0.5 * (K0 + K0.T), n,
-                     f"BEM table to {fmax:g} Hz (spline at f - i eta/2pi{causal}), spring-dashpot above")
+                     f"BEM table to {fmax:g} Hz (spline at f - i eta/2pi{causal}), spring-dashpot above", table)
 
 
 def _causal_fade(f, f_causal):

@@ -55,7 +55,7 @@ from orchestrator.timefreq.problem import ContactEquation, SolverStatus, prepare
 
 def solve(model, soil, ag, dt, *, contact=None, damping=None, output_nodes=None, static=None,
           grid: GridOptions | None = None, options: SolveOptions | None = None, monitor=None,
-          route: str = "timefreq", stand_in=None) -> RouteResult:
+          route: str = "timefreq", stand_in=None, cache_dir=None) -> RouteResult:
     """Uplift response to ground acceleration ag (nt, 3) m/s^2 at step dt (s).
 
     soil : ImpedanceTable ("gap", 6+N) | WinklerSoil | RationalModel | RecursiveConvolutionSoil
@@ -71,6 +71,8 @@ def solve(model, soil, ag, dt, *, contact=None, damping=None, output_nodes=None,
         the residual and so the answer the soil's. When it gives none (reason: e.g. the
         constrained fit is not passive) or its sweeps do not converge, the march on the soil's
         own kernel runs, and the result's notes.warnings say why; info["march"] says which ran.
+    cache_dir : folder where a table's set-up (the band's rows, the far field's split:
+        setup_cache) is kept for the next solve of the same table, grid and structure; None: none.
 
     Returns a RouteResult: status CONVERGED, or STOPPED with the reason in message and the
     best iterate's histories (not converged, diverged, time budget). info["status"] the
@@ -95,7 +97,7 @@ def solve(model, soil, ag, dt, *, contact=None, damping=None, output_nodes=None,
     deadline = None if options.max_seconds is None else t0 + float(options.max_seconds)
     with WorkerPool(options.threads) as pool:
         prob = prepare(model, soil, ag, dt, grid=grid, contact=contact, damping=damping, static=static,
-                       aux_factor=method.aux_factor(options), pool=pool)
+                       aux_factor=method.aux_factor(options), pool=pool, cache_dir=cache_dir)
         t_setup = time.perf_counter() - t0
         out, extra, said = None, {}, []
         if stand_in is not None and method.name == DEFAULT:

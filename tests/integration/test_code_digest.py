@@ -16,7 +16,8 @@ from helpers.native import seed_native
 
 #: every list of sources a cache is keyed on: (module, attribute)
 CACHE_SOURCES = [("soil_impedance.sweep", "CODE"), ("soil_impedance.sweep", "FAST_CODE"), ("soil_impedance.fit.options", "CODE"),
-                 ("orchestrator.run", "DT_CHECK_CODE"), ("orchestrator.run", "MOTION_CODE"), ("uplift_common.code", "PACKAGES")]
+                 ("orchestrator.run", "DT_CHECK_CODE"), ("orchestrator.run", "MOTION_CODE"), ("uplift_common.code", "PACKAGES"),
+                 ("orchestrator.timefreq.setup_cache", "SETUP_CODE")]
 
 
 @pytest.mark.parametrize("module, attribute", CACHE_SOURCES)

@@ -208,3 +208,58 @@ def test_table_band_is_the_faded_tables_spline_formed_on_demand(window):
     assert np.abs(band.K - ref).max() <= tol
     for part, direct in zip(parts, rows_P(band.K, prob.op.Bq)):
         assert np.abs(part - direct).max() <= 1e-13 * np.abs(direct).max()
+
+
+def test_the_solves_set_up_is_cached_and_gives_the_same_bits(tmp_path, monkeypatch):
+    """orchestrator/timefreq/setup_cache.py: the first solve of a table with a cache folder writes
+    its band's rows (tf-rows) and the far field's split (tf-split) and gives the uncached solve's
+    bits; a second solve of the same table, grid and structure (the same motion, or another
+    record of the same length) makes neither again (both refused here) and gives the uncached
+    solve's bits; a damaged split entry is moved aside with a CacheWarning and made again, the
+    same bits; a table with one entry changed (the same inputs, other data) keys new entries."""
+    import warnings
+
+    from orchestrator.timefreq.farfield import AffineSplit
+    from orchestrator.timefreq.soil import SplineBand
+    from soil_impedance.cache import CacheWarning
+    from soil_impedance.table import ImpedanceTable
+
+    tab = hysteretic_table()
+    records = (motion(0.3, duration=2.0), motion(0.25, duration=2.0, seed=5))
+    cache = tmp_path / "setup"
+
+    def run(ag, table=tab, cache_dir=cache):
+        return solve(MODEL, table, ag, 0.005, contact=ContactSettings(enabled=True), cache_dir=cache_dir)
+
+    def same(a, b):
+        return all(np.array_equal(getattr(a, k), getattr(b, k)) for k in ("gap", "contact_force", "raft", "soil_w"))
+
+    plain = [run(ag, cache_dir=None) for ag in records]
+    assert not cache.exists() and plain[0].converged and plain[0].max_uplift() > 1e-4
+    assert same(run(records[0]), plain[0])
+    split, = cache.glob("tf-split-*.h5")
+    assert len(list(cache.glob("tf-rows-*.h5"))) == 1
+
+    def refused(*args, **kwargs):
+        raise AssertionError("the set-up was made again")
+    with monkeypatch.context() as m:
+        m.setattr(AffineSplit, "_dense_part", staticmethod(refused))
+        m.setattr(SplineBand, "rows_P", refused)
+        warm = [run(ag) for ag in records]
+    assert same(warm[0], plain[0]) and same(warm[1], plain[1]) and not same(plain[0], plain[1])
+
+    data = bytearray(split.read_bytes())
+    data[len(data) // 2] ^= 0x10
+    split.write_bytes(bytes(data))
+    with pytest.warns(CacheWarning, match="damaged cache entry .*tf-split"):
+        again = run(records[0])
+    assert same(again, plain[0]) and split.exists() and split.with_name(split.name + ".damaged").exists()
+
+    K = np.array(tab.matrices)
+    K[K.shape[0] // 2, 7, 7] *= 1.0 + 1e-9
+    changed = ImpedanceTable(tab.frequencies_hz, K, tab.dofs, tab.provenance)
+    assert changed.hash == tab.hash                        # the same inputs: the data key the entries
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", CacheWarning)
+        run(records[0], changed)
+    assert len(list(cache.glob("tf-split-*.h5"))) == 2 and len(list(cache.glob("tf-rows-*.h5"))) == 2
