@@ -293,17 +293,23 @@ def history_blocks(model: RationalModel) -> np.ndarray:
     return np.concatenate([Rr, pairs]).reshape(-1, model.n, model.n)
 
 
-def compressed_model(model: RationalModel, xy, tol: float = DEFAULT_TOL, leaf: int = DEFAULT_LEAF):
+def compressed_model(model: RationalModel, xy, tol: float = DEFAULT_TOL, leaf: int = DEFAULT_LEAF,
+                     instant: bool = True):
     """(CompressedHistory, M̃): the history blocks of ``model`` compressed over the nodes xy
     (hhistory.compress_history) and the rational model whose residues are the compressed
-    blocks assembled (real poles first, then each pair's pole and its conjugate: vectfit's canonical order), D and E as the
-    model's. ``M̃.provenance["history"]`` records the tolerance, the partition's settings, the
+    blocks assembled (real poles first, then each pair's pole and its conjugate: vectfit's canonical order), D and E
+    compressed over the same partition (at hhistory.INSTANT_TOL_FACTOR x tol) and assembled when both are
+    symmetric (as a fit makes them) and ``instant``, else the model's. ``M̃.provenance["history"]`` records the tolerance, the partition's settings, the
     storage ratio and the largest discarded singular value, and the source model's digest."""
     xy = np.asarray(xy, float)
     if xy.ndim != 2 or xy.shape != (model.n - 6, 2):
         raise FitError(f"soil option xy has shape {xy.shape}: give the (N, 2) coordinates of the N = "
                        f"{model.n - 6} interface nodes, m")
-    hist = compress_history(history_blocks(model), xy, tol, int(leaf))
+    D, E = np.asarray(model.D, float), np.asarray(model.E, float)
+    symmetric = np.array_equal(D, D.T) and np.array_equal(E, E.T)
+    hist = compress_history(history_blocks(model), xy, tol, int(leaf), instant=(D, E) if instant and symmetric else None)
+    if hist.instant is not None:
+        D, E = hist.instant.dense(0), hist.instant.dense(1)
     pr, _, pc, _ = model.pole_split
     mr, mc = pr.size, pc.size
     Ht = np.array([hist.dense(b) for b in range(hist.nh)])
@@ -311,8 +317,10 @@ def compressed_model(model: RationalModel, xy, tol: float = DEFAULT_TOL, leaf: i
     Rc = 0.5 * Ht[mr::2] - 0.5j * Ht[mr + 1::2]
     prov = {k: v for k, v in model.provenance.items() if k != VERIFIED}
     prov["history"] = {"kind": "hmatrix", **hist.settings, "source_digest": model.digest}
+    if hist.instant is not None:
+        prov["history"]["instant"] = {k: hist.instant.settings[k] for k in ("storage_ratio", "max_rank",
+                                                                             "max_block_error")}
     poles = np.concatenate([pr.astype(complex), np.stack([pc, pc.conj()], 1).reshape(-1)])
     residues = np.concatenate([Rr, np.stack([Rc, Rc.conj()], 1).reshape(2 * mc, model.n, model.n)])
-    new = RationalModel(poles, residues.reshape(mr + 2 * mc, model.n, model.n), model.D, model.E,
-                        list(model.dofs), prov)
+    new = RationalModel(poles, residues.reshape(mr + 2 * mc, model.n, model.n), D, E, list(model.dofs), prov)
     return hist, new

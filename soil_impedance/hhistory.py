@@ -16,6 +16,8 @@ and one block partition shared by every H_b:
   distance between their bounding boxes exceeds ``eta`` times the larger diagonal (and both
   have more than 4 nodes); admissible blocks are held as U Vᵀ, the others (leaves) dense.
 
+A block that is exactly zero (a residue or a matrix held node by node: springs, dashpots) is
+held as rank 0 whether admissible or not: no values, no work, the product unchanged.
 Per H_b an admissible block keeps the singular values above ``tol`` ||H_b,ww||₂, the 2-norm of
 H_b's node block (not of the whole H_b, whose rigid rows can be orders of magnitude larger:
 the node block's own accuracy is what the gaps need; U carries the singular values,
@@ -30,6 +32,13 @@ history gains and its history all from R̃_k), and M̃'s passivity is tested lik
 compression is a perturbation of the fitted residues, ||R̃_k − R_k||₂ ≲ tol ||R_k||₂ summed over
 the admissible blocks (``stats``: the measured relative error of each block), against a fit
 tolerance of 1e-2; the re-test, not a bound, is what keeps passivity.
+
+The model's D and E (symmetric, as a fit makes them) are compressed over the same partition by
+the same rule at INSTANT_TOL_FACTOR x tol (``compress_history(instant=(D, E))``, held in
+``CompressedHistory.instant``); M̃ then carries D̃ and Ẽ assembled from them, re-tested with the
+residues. The native stepper's other per-step products, K0C x = (D0 + c1 E) x and E v with
+D0 = D + Σ_k b_k R_k, then run over the blocks too: a far block of K0C is the terms' factors
+stacked with the step size's coefficients, exactly (fmus/native/stepper.c, ``k0c_blocks``).
 
 The product holds in ``CompressedHistory``: ``matvec`` (numpy/scipy: three sparse products
 over the stacked input, the reference) and ``records`` (the arrays the native runtime reads,
@@ -49,6 +58,11 @@ import numpy as np
 HMATRIX_MIN_NODES = 600
 #: truncation of the admissible blocks, relative to the 2-norm of their history block
 DEFAULT_TOL = 1e-4
+#: truncation of D's and E's admissible blocks (``compress_history(instant=...)``), relative to the
+#: history's: the instantaneous stiffness moves the gaps more than a residue does. On the mat at
+#: 625 nodes under a lifting pulse (tests/fmu/test_native_k0c.py's run, 0.2 mm of uplift), D and E
+#: at 1e-4 moved max uplift by 6.7e-3 relative, at 1e-5 by 1.5e-4 (the storage 0.282 -> 0.287 of n^2)
+INSTANT_TOL_FACTOR = 0.1
 #: the largest cluster held as a leaf, nodes
 DEFAULT_LEAF = 32
 #: admissibility: distance > ETA x the larger cluster diagonal
@@ -146,6 +160,9 @@ class CompressedHistory:
                              then V (r, columns), the block = Uᵀ V, both row-major
     data : (total,) float    the blocks' values, history block by history block, block by block
     settings : dict          tol, leaf, eta and the measured storage and errors
+    instant : CompressedHistory or None
+                             the model's D and E (nh = 2) over the same partition and tolerance,
+                             when they were compressed too (``compress_history(instant=...)``)
     """
     n: int
     perm: np.ndarray
@@ -153,6 +170,7 @@ class CompressedHistory:
     ranks: np.ndarray
     data: np.ndarray
     settings: dict = field(default_factory=dict)
+    instant: CompressedHistory | None = None
 
     @property
     def nh(self) -> int:
@@ -236,30 +254,18 @@ class CompressedHistory:
 
     def records(self) -> dict:
         """The resource records of the native runtime (fmus/native/soil.c, README.md there)."""
-        return {"hm_perm": self.perm.astype(np.int64), "hm_blocks": self.blocks.astype(np.int64).reshape(-1, 4),
-                "hm_ranks": self.ranks.astype(np.int64).reshape(self.nh, -1), "hm_data": self.data,
-                "hm_tol": float(self.settings.get("tol", DEFAULT_TOL))}
+        out = {"hm_perm": self.perm.astype(np.int64), "hm_blocks": self.blocks.astype(np.int64).reshape(-1, 4),
+               "hm_ranks": self.ranks.astype(np.int64).reshape(self.nh, -1), "hm_data": self.data,
+               "hm_tol": float(self.settings.get("tol", DEFAULT_TOL))}
+        if self.instant is not None:
+            out.update(hm_de_ranks=self.instant.ranks.astype(np.int64).reshape(2, -1), hm_de_data=self.instant.data)
+        return out
 
 
-def compress_history(H, xy, tol: float = DEFAULT_TOL, leaf: int = DEFAULT_LEAF,
-                     eta: float = DEFAULT_ETA) -> CompressedHistory:
-    """The hierarchical form of the symmetric history blocks H (nh, n, n), n = 6 + N, over the
-    interface nodes xy (N, 2), m (module docstring). The upper blocks are compressed and the
-    lower ones taken as their transposes: H_b is symmetrised first ((H + Hᵀ) / 2, a no-op on a
-    fitted model's residues)."""
-    H = np.asarray(H, float)
-    xy = np.asarray(xy, float)
-    nh, n = H.shape[0], H.shape[1]
-    N = n - BORDER
-    if xy.shape != (N, 2):
-        raise ValueError(f"xy has shape {xy.shape}: the history blocks have {n} DOFs, (6 + N) for N = {N} nodes "
-                         "of (x, y)")
-    if not (0 < tol < 1):
-        raise ValueError(f"history tolerance {tol!r} must lie in (0, 1)")
-    node_perm, node_blocks = partition(xy, leaf, eta)
-    perm = np.concatenate([np.arange(BORDER), BORDER + node_perm]).astype(np.int64)
-    blocks = [(0, BORDER, 0, BORDER, False), (0, BORDER, BORDER, N, False)] + \
-        [(BORDER + r0, nr, BORDER + c0, nc, adm) for r0, nr, c0, nc, adm in node_blocks]
+def _compress_blocks(H, perm, blocks, tol):
+    """(ranks (nh, nblk), data, errors) of the symmetric blocks H (nh, n, n) over the partition
+    (perm, blocks) of ``compress_history`` at the relative tolerance tol."""
+    nh = H.shape[0]
     ranks = np.full((nh, len(blocks)), -1, np.int64)
     data, errors = [], []
     for b in range(nh):
@@ -268,6 +274,9 @@ def compress_history(H, xy, tol: float = DEFAULT_TOL, leaf: int = DEFAULT_LEAF,
         scale = _norm2(Hb[BORDER:, BORDER:])
         for j, (r0, nr, c0, nc, adm) in enumerate(blocks):
             A = Hb[r0:r0 + nr, c0:c0 + nc]
+            if not np.any(A):                            # exactly zero (springs, dashpots: node by node)
+                ranks[b, j] = 0
+                continue
             if adm:
                 W, s, Vt = np.linalg.svd(A, full_matrices=False)
                 r = int(np.sum(s > tol * scale))
@@ -278,12 +287,54 @@ def compress_history(H, xy, tol: float = DEFAULT_TOL, leaf: int = DEFAULT_LEAF,
                     errors.append(float(s[r] / scale) if r < s.size and scale > 0 else 0.0)
                     continue
             data.append(np.ascontiguousarray(A).reshape(-1))
-    blk = np.array([b[:4] for b in blocks], np.int64)
-    hist = CompressedHistory(n, perm, blk, ranks, np.concatenate(data) if data else np.zeros(0),
-                             {"tol": float(tol), "leaf": int(leaf), "eta": float(eta)})
+    return ranks, (np.concatenate(data) if data else np.zeros(0)), errors
+
+
+def _measured(hist: CompressedHistory, blocks, errors) -> CompressedHistory:
+    """``hist`` with its storage, its partition's counts and its largest discarded value in settings."""
+    nh, n, ranks = hist.nh, hist.n, hist.ranks
     far = ranks >= 0
     hist.settings.update(storage_ratio=hist.stored / max(nh * n * n, 1),
                          packed_ratio=hist.stored / max(nh * n * (n + 1) / 2, 1),
                          blocks=len(blocks), far_blocks=int(sum(b[4] for b in blocks)),
                          max_rank=int(ranks[far].max(initial=0)), max_block_error=max(errors, default=0.0))
     return hist
+
+
+def compress_history(H, xy, tol: float = DEFAULT_TOL, leaf: int = DEFAULT_LEAF,
+                     eta: float = DEFAULT_ETA, instant=None) -> CompressedHistory:
+    """The hierarchical form of the symmetric history blocks H (nh, n, n), n = 6 + N, over the
+    interface nodes xy (N, 2), m (module docstring). The upper blocks are compressed and the
+    lower ones taken as their transposes: H_b is symmetrised first ((H + Hᵀ) / 2, a no-op on a
+    fitted model's residues).
+
+    instant : (D, E), each (n, n) symmetric, or None
+        the model's instantaneous matrices, compressed by the same rule over the same partition
+        at INSTANT_TOL_FACTOR x tol (``CompressedHistory.instant``): the stepper's per-step
+        products with D0 = D + Σ b_k R_k and E then run over the blocks (fmus/native/stepper.c),
+        as the history's."""
+    H = np.asarray(H, float)
+    xy = np.asarray(xy, float)
+    n = H.shape[1]
+    N = n - BORDER
+    if xy.shape != (N, 2):
+        raise ValueError(f"xy has shape {xy.shape}: the history blocks have {n} DOFs, (6 + N) for N = {N} nodes "
+                         "of (x, y)")
+    if not (0 < tol < 1):
+        raise ValueError(f"history tolerance {tol!r} must lie in (0, 1)")
+    node_perm, node_blocks = partition(xy, leaf, eta)
+    perm = np.concatenate([np.arange(BORDER), BORDER + node_perm]).astype(np.int64)
+    blocks = [(0, BORDER, 0, BORDER, False), (0, BORDER, BORDER, N, False)] + \
+        [(BORDER + r0, nr, BORDER + c0, nc, adm) for r0, nr, c0, nc, adm in node_blocks]
+    blk = np.array([b[:4] for b in blocks], np.int64)
+    settings = {"tol": float(tol), "leaf": int(leaf), "eta": float(eta)}
+    de = None
+    if instant is not None:
+        DE = np.asarray(instant, float)
+        if DE.shape != (2, n, n):
+            raise ValueError(f"instant has shape {DE.shape}: give (D, E), each ({n}, {n})")
+        tol_de = INSTANT_TOL_FACTOR * tol
+        ranks, data, errors = _compress_blocks(DE, perm, blocks, tol_de)
+        de = _measured(CompressedHistory(n, perm, blk, ranks, data, dict(settings, tol=tol_de)), blocks, errors)
+    ranks, data, errors = _compress_blocks(H, perm, blocks, tol)
+    return _measured(CompressedHistory(n, perm, blk, ranks, data, settings, de), blocks, errors)

@@ -58,6 +58,37 @@ static double block_entry(const UpSoil *s, int b, int i, int j)
     return im ? -2.0 * v : 2.0 * v;
 }
 
+/* the model's D and E compressed over the history's partition (records hm_de_ranks (2, nblk), hm_de_data:
+   hhistory.py's CompressedHistory.instant), when the resource file has them: read and checked as the
+   history's blocks; 0 when absent or read, -1 with a message when malformed */
+static int compressed_instant(UpSoil *s, const UpRes *r, char *err)
+{
+    if (!up_res_find(r, "hm_de_ranks"))
+        return 0;
+    int64_t dr[2] = {2, s->hm_nblk}, dd[1] = {-1};
+    if (!(s->hm_de_ranks = up_res_i64(r, "hm_de_ranks", 2, dr, err))
+        || !(s->hm_de_data = up_res_f64(r, "hm_de_data", 1, dd, err)))
+        return -1;
+    uint64_t total = 0;
+    int ok = 1;
+    for (int k = 0; ok && k < 2; k++) {
+        if (k == 1)
+            s->hm_de_off = (size_t)total;
+        for (int j = 0; ok && j < s->hm_nblk; j++) {
+            const int64_t *b = s->hm_blocks + 4 * (size_t)j;
+            int64_t rk = s->hm_de_ranks[(size_t)k * s->hm_nblk + j];
+            ok = rk >= -1 && rk <= s->n;
+            total += rk < 0 ? (uint64_t)(b[1] * b[3]) : (uint64_t)(rk * (b[1] + b[3]));
+        }
+    }
+    if (!ok || total != (uint64_t)dd[0]) {
+        snprintf(err, UP_MSG, "resource file %s: the compressed D and E of the soil (records hm_de_*) are "
+                 "inconsistent: export the FMU again with this version of uplift", r->path);
+        return -1;
+    }
+    return 0;
+}
+
 /* the compressed history of the resource file (records hm_*), when it has one: read and checked
    (a permutation, blocks inside the matrix and upper, ranks and values of the blocks' sizes); 0 when
    absent or read, -1 with a message when malformed or out of memory */
@@ -105,7 +136,7 @@ static int compressed_history(UpSoil *s, const UpRes *r, char *err)
                  "export the FMU again with this version of uplift", r->path);
         return -1;
     }
-    return 0;
+    return compressed_instant(s, r, err);
 }
 
 /* the history matrix: none when compressed (compressed_history); packed symmetric blocks when every
@@ -289,6 +320,35 @@ HM_BODY void hm_pair(const double *restrict A, int rows, int cols, const double 
    each block of the partition (in order): a dense block A adds A x to its rows and, off the
    diagonal, A^T x to its columns (one pass); a low-rank one U^T V adds U^T (V x) and, always off
    the diagonal, V^T (U x). The permuted product scattered back at the end */
+/* y += A x over the permuted order for one matrix of the partition (its ranks, its values d): each
+   block in order, a dense one A (and its mirror off the diagonal, one pass), a low-rank one U^T V (and
+   V^T U); t (n) work. The values past A's */
+HM_BODY const double *hm_blocks_add(const UpSoil *s, const int64_t *rank, const double *d, const double *x,
+                                    double *y, double *t)
+{
+    for (int j = 0; j < s->hm_nblk; j++) {
+        const int64_t *bl = s->hm_blocks + 4 * (size_t)j;
+        int r0 = (int)bl[0], nr = (int)bl[1], c0 = (int)bl[2], nc = (int)bl[3], r = (int)rank[j];
+        if (r < 0) {
+            if (r0 == c0)
+                hm_rows_dot(d, nr, nc, x + c0, y + r0);
+            else
+                hm_pair(d, nr, nc, x + c0, x + r0, y + r0, y + c0);
+            d += (size_t)nr * nc;
+        } else {
+            const double *U = d, *V = d + (size_t)r * nr;
+            memset(t, 0, (size_t)r * sizeof(double));
+            hm_rows_dot(V, r, nc, x + c0, t);
+            hm_rows_axpy(U, r, nr, t, y + r0);
+            memset(t, 0, (size_t)r * sizeof(double));
+            hm_rows_dot(U, r, nr, x + r0, t);
+            hm_rows_axpy(V, r, nc, t, y + c0);
+            d += (size_t)r * (nr + nc);
+        }
+    }
+    return d;
+}
+
 HM_BODY void compressed_product_k(UpSoil *s, const double *g, double *h)
 {
     int n = s->n, nb = s->mr + 2 * s->mc, nblk = s->hm_nblk;
@@ -300,30 +360,54 @@ HM_BODY void compressed_product_k(UpSoil *s, const double *g, double *h)
         const double *gb = block_input(s, g, b, v);
         for (int p = 0; p < n; p++)
             x[p] = gb[perm[p]];
-        const int64_t *rank = s->hm_ranks + (size_t)b * nblk;
-        for (int j = 0; j < nblk; j++) {
-            const int64_t *bl = s->hm_blocks + 4 * (size_t)j;
-            int r0 = (int)bl[0], nr = (int)bl[1], c0 = (int)bl[2], nc = (int)bl[3], r = (int)rank[j];
-            if (r < 0) {
-                if (r0 == c0)
-                    hm_rows_dot(d, nr, nc, x + c0, y + r0);
-                else
-                    hm_pair(d, nr, nc, x + c0, x + r0, y + r0, y + c0);
-                d += (size_t)nr * nc;
-            } else {
-                const double *U = d, *V = d + (size_t)r * nr;
-                memset(t, 0, (size_t)r * sizeof(double));
-                hm_rows_dot(V, r, nc, x + c0, t);
-                hm_rows_axpy(U, r, nr, t, y + r0);
-                memset(t, 0, (size_t)r * sizeof(double));
-                hm_rows_dot(U, r, nr, x + r0, t);
-                hm_rows_axpy(V, r, nc, t, y + c0);
-                d += (size_t)r * (nr + nc);
-            }
-        }
+        d = hm_blocks_add(s, s->hm_ranks + (size_t)b * nblk, d, x, y, t);
     }
     for (int p = 0; p < n; p++)
         h[perm[p]] = y[p];
+}
+
+/* y = A x for one symmetric matrix over the partition (up_hm_matvec): x permuted, the blocks, y
+   scattered back */
+HM_BODY void hm_matvec_k(UpSoil *s, const int64_t *rank, const double *d, const double *xin, double *out)
+{
+    int n = s->n;
+    double *x = s->hm_x, *y = s->hm_y, *t = s->hm_t;
+    const int64_t *perm = s->hm_perm;
+    for (int p = 0; p < n; p++)
+        x[p] = xin[perm[p]];
+    memset(y, 0, (size_t)n * sizeof(double));
+    hm_blocks_add(s, rank, d, x, y, t);
+    for (int p = 0; p < n; p++)
+        out[perm[p]] = y[p];
+}
+
+#ifdef HM_DISPATCH
+__attribute__((target("avx512f"))) static void hm_matvec_avx512(UpSoil *s, const int64_t *rank, const double *d,
+                                                                 const double *x, double *y)
+{
+    hm_matvec_k(s, rank, d, x, y);
+}
+__attribute__((target("avx2"))) static void hm_matvec_avx2(UpSoil *s, const int64_t *rank, const double *d,
+                                                            const double *x, double *y)
+{
+    hm_matvec_k(s, rank, d, x, y);
+}
+#endif
+
+void up_hm_matvec(UpSoil *s, const int64_t *rank, const double *d, const double *x, double *y)
+{
+#ifdef HM_DISPATCH
+    int level = up_vector_level();
+    if (level == 2) {
+        hm_matvec_avx512(s, rank, d, x, y);
+        return;
+    }
+    if (level == 1) {
+        hm_matvec_avx2(s, rank, d, x, y);
+        return;
+    }
+#endif
+    hm_matvec_k(s, rank, d, x, y);
 }
 
 #ifdef HM_DISPATCH

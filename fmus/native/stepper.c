@@ -319,6 +319,8 @@ static void band_solve(const UpStepper *s, const UpSystem *y, double *x)
     }
 }
 
+static size_t k0c_blocks(UpStepper *s, UpSystem *y, const UpSoilLevel *sl);
+
 int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, char *err)
 {
     memset(s, 0, sizeof *s);
@@ -377,6 +379,13 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
     s->diag = !s->nf && diagonal_soil(soil);     /* a plate's contact couples w to t: the dense path */
     int ok = up_sparse_init(&s->Ks_sp, s->Ks, ns_, ns_) == 0 && up_sparse_init(&s->Cs_sp, s->Cs, ns_, ns_) == 0
              && plate_band_init(s) == 0;
+    s->hk = !s->diag && !external && soil->hm_de_ranks && soil->Ep;
+    if (s->hk) {
+        size_t nt = (size_t)soil->mr + 2 * (size_t)soil->mc + 2;
+        s->hk_off = (size_t *)malloc((nt * soil->hm_nblk + 1) * sizeof(size_t));
+        ok = ok && s->hk_off;
+        s->hk_len = ok ? k0c_blocks(s, NULL, NULL) : 0;
+    }
     for (int l = 0; ok && l < s->nlev; l++) {
         UpSystem *y = &s->sys[l];
         y->AII = (double *)malloc(((size_t)ni * ni + 1) * sizeof(double));
@@ -395,6 +404,11 @@ int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, ch
             y->Sqt = (double *)malloc(nq * nq * sizeof(double));
             y->Sqtp = (double *)malloc(nq * (nq + 1) / 2 * sizeof(double));
             ok = y->Sqt && y->Sqtp;
+        }
+        if (ok && s->hk) {
+            y->hk_rank = (int64_t *)malloc(((size_t)soil->hm_nblk + 1) * sizeof(int64_t));
+            y->hk_data = (double *)malloc((s->hk_len + 1) * sizeof(double));
+            ok = y->hk_rank && y->hk_data;
         }
         if (ok && s->band) {
             y->Lb = (double *)malloc(((size_t)ni * (s->band + 1) + 1) * sizeof(double));
@@ -471,6 +485,8 @@ void up_stepper_free(UpStepper *s)
         free(y->Sqt);
         free(y->Sqtp);
         free(y->Lb);
+        free(y->hk_rank);
+        free(y->hk_data);
         free(y->bi_val);
         free(y->ib_val);
         for (int c = 0; c < 2; c++) {
@@ -485,6 +501,7 @@ void up_stepper_free(UpStepper *s)
     }
     up_sparse_free(&s->Ks_sp);
     up_sparse_free(&s->Cs_sp);
+    free(s->hk_off);
     up_sparse_free(&s->bi_pat);
     up_sparse_free(&s->ib_pat);
     free(s->cache_lu);
@@ -584,6 +601,79 @@ void up_stepper_rest(UpStepper *s, const double *ag0)
     memcpy(s->P, s->P0, (size_t)s->N * sizeof(double));
     if (!s->external)
         up_soil_rest(s->soil);
+}
+
+/* ---- K0C over the compressed history's partition -------------------------------------------
+   When the soil's D and E are compressed with its history (hhistory.py: the same partition, the
+   same tolerance), K0C = D0 + c1 E = D + c1 E + sum_b c_b H_b (c_b the level's b_k; a pair's
+   b_k re for 2 Re R_k, im for -2 Im R_k) is held block by block over that partition: a block where
+   every term is low-rank is the terms' factors stacked, U = [c_t U_t], V = [V_t] (exact: no
+   truncation beyond the terms' own), when that is smaller than the block; any other block is K0C's
+   own values (dense, from y->K0C). So the held K0C is the dense K0C the bases and S0 are built from,
+   to round-off, and a product with it (up_hm_matvec) reads about the history block's share of n^2.
+   The layout (which blocks are stacked, their ranks) is the same at every level: the size is
+   counted once (y NULL) and each level's values are written into it. Returns the values' count. */
+static size_t k0c_blocks(UpStepper *s, UpSystem *y, const UpSoilLevel *sl)
+{
+    const UpSoil *so = s->soil;
+    int n = so->n, nblk = so->hm_nblk, nh = so->mr + 2 * so->mc, nt = nh + 2;
+    const int64_t *perm = so->hm_perm;
+    size_t len = 0, *off = s->hk_off;                    /* (nt, nblk): term t's values of block j */
+    if (!y) {                                             /* the offsets, once */
+        size_t o = 0;                                     /* history block by history block, then D, E */
+        for (int t = 0; t < nt; t++) {
+            if (t == nh)
+                o = 0;
+            const int64_t *rank = t < nh ? so->hm_ranks + (size_t)t * nblk : so->hm_de_ranks + (size_t)(t - nh) * nblk;
+            for (int j = 0; j < nblk; j++) {
+                const int64_t *bl = so->hm_blocks + 4 * (size_t)j;
+                off[(size_t)t * nblk + j] = o;
+                o += rank[j] < 0 ? (size_t)(bl[1] * bl[3]) : (size_t)(rank[j] * (bl[1] + bl[3]));
+            }
+        }
+    }
+    for (int j = 0; j < nblk; j++) {
+        const int64_t *bl = so->hm_blocks + 4 * (size_t)j;
+        int r0 = (int)bl[0], nr = (int)bl[1], c0 = (int)bl[2], nc = (int)bl[3];
+        size_t dense = (size_t)nr * nc;
+        int64_t rs = 0;
+        int low = 1;
+        for (int t = 0; low && t < nt; t++) {
+            int64_t r = t < nh ? so->hm_ranks[(size_t)t * nblk + j] : so->hm_de_ranks[(size_t)(t - nh) * nblk + j];
+            low = r >= 0;
+            rs += r;
+        }
+        low = low && (size_t)rs * (nr + nc) < dense;
+        if (y) {
+            double *o = y->hk_data + len;
+            y->hk_rank[j] = low ? rs : -1;
+            if (!low) {
+                for (int i = 0; i < nr; i++)
+                    for (int l = 0; l < nc; l++)
+                        o[(size_t)i * nc + l] = y->K0C[(size_t)perm[r0 + i] * n + perm[c0 + l]];
+            } else {
+                double *U = o, *V = o + (size_t)rs * nr;
+                for (int t = 0; t < nt; t++) {             /* the history blocks, then D, then E */
+                    const double *src = (t < nh ? so->hm_data : so->hm_de_data) + off[(size_t)t * nblk + j];
+                    int64_t r = t < nh ? so->hm_ranks[(size_t)t * nblk + j] : so->hm_de_ranks[(size_t)(t - nh) * nblk + j];
+                    double c;
+                    if (t < so->mr)
+                        c = sl->br[t];
+                    else if (t < nh)
+                        c = sl->bc[2 * ((t - so->mr) / 2) + (t - so->mr) % 2];
+                    else
+                        c = t == nh ? 1.0 : y->c1;
+                    for (size_t q = 0; q < (size_t)r * nr; q++)
+                        U[q] = c * src[q];
+                    memcpy(V, src + (size_t)r * nr, (size_t)r * nc * sizeof(double));
+                    U += (size_t)r * nr;
+                    V += (size_t)r * nc;
+                }
+            }
+        }
+        len += low ? (size_t)rs * (nr + nc) : dense;
+    }
+    return len;
 }
 
 /* ---- the per-level system ------------------------------------------------------------------ */
@@ -712,6 +802,8 @@ static const UpSystem *system_build(UpStepper *s, int lev)
     for (size_t i = 0; i < (size_t)nso * nso; i++)
         y->K0C[i] = sl->D0[i] + y->c1 * s->soil->E[i];
     up_pack_sym(y->K0C, nso, y->K0Cp);                    /* symmetric when E is (D0 is) */
+    if (s->hk)
+        k0c_blocks(s, y, sl);                             /* the same K0C over the history's partition */
     compact(y->K0C, nso, y->K0Cd);
     if (nf) {                                             /* a plate: S0's structural part on [q, t] */
         int nq = 6 + nf;
@@ -735,11 +827,16 @@ static const UpSystem *system_build(UpStepper *s, int lev)
 }
 
 /* y = A x for a soil matrix A (nsoil, nsoil) of the level (K0C, E) at x = [q, w] (nsoil: a plate's
-   x gathered first, soil_gather): dense (packed when P is not
-   NULL), or from c, A compact (compact), for a diagonal soil */
-static void soil_product(const UpStepper *s, const double *A, const double *P, const double *c, const double *x,
-                         double *y)
+   x gathered first, soil_gather): over the compressed history's partition when held so (hr, hd: its
+   ranks and values, UpStepper.hk), dense (packed when P is not NULL), or from c, A compact (compact),
+   for a diagonal soil */
+static void soil_product(const UpStepper *s, const double *A, const double *P, const double *c, const int64_t *hr,
+                         const double *hd, const double *x, double *y)
 {
+    if (s->hk && hr) {
+        up_hm_matvec(s->soil, hr, hd, x, y);
+        return;
+    }
     if (!s->diag) {
         up_symv(A, P, s->nsoil, x, y);
         return;
@@ -848,6 +945,204 @@ static double along(const UpStepper *s, int i, const double *x)
     return ((b[0] * x[2] + b[1] * x[3]) + b[2] * x[4]) - x[6 + i];
 }
 
+/* ---- a large base's inverse ----------------------------------------------------------------
+   From UP_INV4_MIN DOFs on, a base's inverse is formed from its LU by substitutions that update
+   a block of INV4_ROWS rows of the result at once (block_update): each row of the substitutions'
+   right-hand side is then read once per block instead of once per row (up_inverse reads the rows
+   of its n^2 right-hand side, which do not fit in cache, once per row: the memory traffic, not
+   the arithmetic, bounds it at these sizes). The forward substitution
+   runs over the increasing rows of L (up_inverse's order), the backward one over the decreasing
+   columns of U (the reverse of up_inverse's: a row's updates then all come from rows already
+   final), so an entry's result differs from up_inverse's by round-off. Below UP_INV4_MIN (the
+   reactor's bases among them) up_inverse, the same bits as before. */
+#define UP_INV4_MIN 512
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(UP_BASELINE_ONLY)
+#define INV4_DISPATCH 1
+#define INV4_BODY static inline __attribute__((always_inline))
+#else
+#define INV4_BODY static inline
+#endif
+
+/* o_r[j] = (o_r[j] - a_r x[j]) - b_r y[j] for the four rows (j < k) */
+INV4_BODY void upd4x2(double *restrict o0, double *restrict o1, double *restrict o2, double *restrict o3,
+                      const double *restrict x, const double *restrict y, const double *a, const double *b, int k)
+{
+    double a0 = a[0], a1 = a[1], a2 = a[2], a3 = a[3], b0 = b[0], b1 = b[1], b2 = b[2], b3 = b[3];
+    for (int j = 0; j < k; j++) {
+        double xj = x[j], yj = y[j];
+        o0[j] = (o0[j] - a0 * xj) - b0 * yj;
+        o1[j] = (o1[j] - a1 * xj) - b1 * yj;
+        o2[j] = (o2[j] - a2 * xj) - b2 * yj;
+        o3[j] = (o3[j] - a3 * xj) - b3 * yj;
+    }
+}
+
+INV4_BODY void upd4x1(double *restrict o0, double *restrict o1, double *restrict o2, double *restrict o3,
+                      const double *restrict x, const double *a, int k)
+{
+    double a0 = a[0], a1 = a[1], a2 = a[2], a3 = a[3];
+    for (int j = 0; j < k; j++) {
+        double xj = x[j];
+        o0[j] -= a0 * xj;
+        o1[j] -= a1 * xj;
+        o2[j] -= a2 * xj;
+        o3[j] -= a3 * xj;
+    }
+}
+
+INV4_BODY void upd1x2(double *restrict o, const double *restrict x, const double *restrict y, double a, double b,
+                      int k)
+{
+    for (int j = 0; j < k; j++)
+        o[j] = (o[j] - a * x[j]) - b * y[j];
+}
+
+/* o_r[j] -= c_r[p] B_p[j] (j < k) for the rows o_0 .. o_{nrow-1} of the result (nrow <= INV4_ROWS),
+   over p in [p0, p1), increasing (up) or decreasing, each row's updates in that order: the columns
+   in chunks of INV4_CHUNK and, per chunk, two rows of B at a time applied to every row of the
+   block (four at a time), so that a chunk of B is read once for the block's rows and the block's
+   chunk stays in cache through the pass over p */
+#ifndef INV4_ROWS
+#define INV4_ROWS 32
+#endif
+#ifndef INV4_CHUNK
+#define INV4_CHUNK 1024
+#endif
+INV4_BODY void block_update(double *const *o, int nrow, const double *B, size_t ld, const double *const *c, int p0,
+                            int p1, int k, int up)
+{
+    int m = p1 - p0;
+    for (int j0 = 0; j0 < k; j0 += INV4_CHUNK) {
+        int kk = k - j0 < INV4_CHUNK ? k - j0 : INV4_CHUNK, q = 0;
+        for (; q + 2 <= m; q += 2) {
+            int pa = up ? p0 + q : p1 - 1 - q, pb = up ? pa + 1 : pa - 1;
+            const double *x = B + (size_t)pa * ld + j0, *y = B + (size_t)pb * ld + j0;
+            int g = 0;
+            for (; g + 4 <= nrow; g += 4) {
+                double a[4] = {c[g][pa], c[g + 1][pa], c[g + 2][pa], c[g + 3][pa]};
+                double b[4] = {c[g][pb], c[g + 1][pb], c[g + 2][pb], c[g + 3][pb]};
+                upd4x2(o[g] + j0, o[g + 1] + j0, o[g + 2] + j0, o[g + 3] + j0, x, y, a, b, kk);
+            }
+            for (; g < nrow; g++)
+                upd1x2(o[g] + j0, x, y, c[g][pa], c[g][pb], kk);
+        }
+        if (q < m) {
+            int pa = up ? p0 + q : p1 - 1 - q;
+            const double *x = B + (size_t)pa * ld + j0;
+            int g = 0;
+            for (; g + 4 <= nrow; g += 4) {
+                double a[4] = {c[g][pa], c[g + 1][pa], c[g + 2][pa], c[g + 3][pa]};
+                upd4x1(o[g] + j0, o[g + 1] + j0, o[g + 2] + j0, o[g + 3] + j0, x, a, kk);
+            }
+            for (; g < nrow; g++) {
+                double a = c[g][pa], *og = o[g] + j0;
+                for (int jj = 0; jj < kk; jj++)
+                    og[jj] -= a * x[jj];
+            }
+        }
+    }
+}
+
+/* o[j] -= c[p] B_p[j] (j < k) over p in [p0, p1), increasing (up) or decreasing */
+INV4_BODY void row1_update(double *restrict o, const double *B, size_t ld, const double *c, int p0, int p1, int k,
+                           int up)
+{
+    for (int q = 0; q < p1 - p0; q++) {
+        int p = up ? p0 + q : p1 - 1 - q;
+        const double *restrict b = B + (size_t)p * ld;
+        double l = c[p];
+        for (int j = 0; j < k; j++)
+            o[j] -= l * b[j];
+    }
+}
+
+/* inv (n, n) <- U^-1 L^-1 of the identity from the LU (unit L), then its columns swapped as the LU
+   swapped the rows (inverse_k's result, to round-off) */
+INV4_BODY void inverse4_k(const double *LU, const int *piv, int n, double *inv)
+{
+    size_t ld = (size_t)n;
+    for (int i = 0; i < n; i++)
+        for (int j = 0; j < n; j++)
+            inv[(size_t)i * n + j] = i == j ? 1.0 : 0.0;
+    /* forward: row i -= L_ip row p (p < i), on columns < i (L^-1 is lower triangular, unit), by
+       blocks of rows: the rows above the block, then among its rows */
+    double *o[INV4_ROWS];
+    const double *c[INV4_ROWS];
+    for (int i = 0; i < n; i += INV4_ROWS) {
+        int nrow = n - i < INV4_ROWS ? n - i : INV4_ROWS;
+        for (int r = 0; r < nrow; r++) {
+            o[r] = inv + (size_t)(i + r) * ld;
+            c[r] = LU + (size_t)(i + r) * ld;
+        }
+        block_update(o, nrow, inv, ld, c, 0, i, i, 1);
+        for (int r = 1; r < nrow; r++)
+            row1_update(o[r], inv, ld, c[r], i, i + r, i + r, 1);
+    }
+    /* backward: row i -= U_ip row p (p > i, decreasing), then / U_ii, by blocks of rows from the
+       last: the rows below the block, then among its rows */
+    for (int i = n - 1; i >= 0; i -= INV4_ROWS) {
+        int nrow = i + 1 < INV4_ROWS ? i + 1 : INV4_ROWS;
+        for (int r = 0; r < nrow; r++) {
+            o[r] = inv + (size_t)(i - r) * ld;
+            c[r] = LU + (size_t)(i - r) * ld;
+        }
+        block_update(o, nrow, inv, ld, c, i + 1, n, n, 0);
+        for (int r = 0; r < nrow; r++) {
+            row1_update(o[r], inv, ld, c[r], i - r + 1, i + 1, n, 0);
+            double d = c[r][i - r];
+            for (int j = 0; j < n; j++)
+                o[r][j] /= d;
+        }
+    }
+    for (int q = n - 1; q >= 0; q--)                      /* A^-1 = U^-1 L^-1 P: the swaps on the columns */
+        if (piv[q] != q)
+            for (int r = 0; r < n; r++) {
+                double *row = inv + (size_t)r * n, t = row[q];
+                row[q] = row[piv[q]];
+                row[piv[q]] = t;
+            }
+}
+
+#ifdef INV4_DISPATCH
+__attribute__((target("avx512f"))) static void inverse4_avx512(const double *LU, const int *piv, int n, double *inv)
+{
+    inverse4_k(LU, piv, n, inv);
+}
+__attribute__((target("avx2"))) static void inverse4_avx2(const double *LU, const int *piv, int n, double *inv)
+{
+    inverse4_k(LU, piv, n, inv);
+}
+#endif
+
+/* a base's inverse from its LU: up_inverse below UP_INV4_MIN, else inverse4 (then symmetrised and
+   packed into P when P is not NULL, as up_inverse does) */
+static void base_inverse(const double *LU, const int *piv, int n, double *inv, double *P)
+{
+    if (n < UP_INV4_MIN) {
+        up_inverse(LU, piv, n, inv, P);
+        return;
+    }
+#ifdef INV4_DISPATCH
+    int level = up_vector_level();
+    if (level == 2)
+        inverse4_avx512(LU, piv, n, inv);
+    else if (level == 1)
+        inverse4_avx2(LU, piv, n, inv);
+    else
+        inverse4_k(LU, piv, n, inv);
+#else
+    inverse4_k(LU, piv, n, inv);
+#endif
+    if (!P)
+        return;
+    for (int i = 0; i < n; i++)
+        for (int j = i + 1; j < n; j++) {
+            double m = 0.5 * (inv[(size_t)i * n + j] + inv[(size_t)j * n + i]);
+            inv[(size_t)i * n + j] = inv[(size_t)j * n + i] = m;
+        }
+    up_pack_sym(inv, n, P);
+}
+
 /* base c of level lev: its LU and inverse (the directions Z when first needed: directions);
    0, or -1 when singular */
 static int base_at(UpStepper *s, UpSystem *y, int c)
@@ -896,7 +1191,7 @@ static int base_at(UpStepper *s, UpSystem *y, int c)
     s->n_factorisations++;
     if (up_lu(J, y->Jpiv[c], nb))
         return -1;
-    up_inverse(J, y->Jpiv[c], nb, Ji, s->sym ? y->Jp[c] : NULL);
+    base_inverse(J, y->Jpiv[c], nb, Ji, s->sym ? y->Jp[c] : NULL);
     memset(y->zdone[c], 0, (size_t)N);                    /* no direction solved yet */
     return 0;
 }
@@ -1146,7 +1441,9 @@ static void damp(const UpStepper *s, const double *v, double *out, double *Ev)
         soil_gather(s, vx, s->vs);
         vx = s->vs;
     }
-    soil_product(s, s->soil->E, s->soil->Ep, s->Ed, vx, Ev);      /* E v on x, kept for the soil force */
+    const UpSoil *so = s->soil;
+    soil_product(s, so->E, so->Ep, s->Ed, so->hm_de_ranks ? so->hm_de_ranks + so->hm_nblk : NULL,
+                 so->hm_de_data ? so->hm_de_data + so->hm_de_off : NULL, vx, Ev);    /* E v on x, kept for the soil force */
     for (int i = 0; i < s->nsoil; i++)
         out[s->ni + soil_dof(s, i)] += Ev[i];
 }
@@ -1222,7 +1519,7 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
             const double *Kx = s->Kx, *cM = y->Sq + 36;
             if (*s->kx_lev != (double)lev) {
                 soil_gather(s, uB, s->xs);
-                soil_product(s, y->K0C, s->soil->Ep ? y->K0Cp : NULL, y->K0Cd, s->xs, s->w_nb[6]);
+                soil_product(s, y->K0C, s->soil->Ep ? y->K0Cp : NULL, y->K0Cd, y->hk_rank, y->hk_data, s->xs, s->w_nb[6]);
                 Kx = s->w_nb[6];
             }
             int nq = 6 + s->nf;
@@ -1236,7 +1533,7 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
             const double *Kx = s->Kx;
             if (*s->kx_lev != (double)lev) {
                 PROF_BEGIN(P_S0);
-                soil_product(s, y->K0C, s->soil->Ep ? y->K0Cp : NULL, y->K0Cd, uB, s->w_nb[6]);
+                soil_product(s, y->K0C, s->soil->Ep ? y->K0Cp : NULL, y->K0Cd, y->hk_rank, y->hk_data, uB, s->w_nb[6]);
                 PROF_END(P_S0);
                 Kx = s->w_nb[6];
             }
@@ -1355,7 +1652,7 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
         xds_new = s->vs;
     }
     PROF_BEGIN(P_S0);
-    soil_product(s, y->K0C, s->soil->Ep ? y->K0Cp : NULL, y->K0Cd, xs_new, Kx_new);
+    soil_product(s, y->K0C, s->soil->Ep ? y->K0Cp : NULL, y->K0Cd, y->hk_rank, y->hk_data, xs_new, Kx_new);
     PROF_END(P_S0);
     for (int i = 0; i < s->nsoil; i++)
         fs_new[i] = (Kx_new[i] + Ev[i]) + h[i];

@@ -233,6 +233,12 @@ typedef struct {
     const double *hm_data;
     int hm_nblk;
     double *hm_x, *hm_y, *hm_t; /* (n) work: the permuted input, the permuted product, U x or V x */
+    /* the model's D and E over the same partition (records hm_de_*), when compressed with the history:
+       hm_de_ranks (2, hm_nblk) as hm_ranks, hm_de_data D's values then E's (from hm_de_data + hm_de_off);
+       the stepper's products with E and D0 + c1 E then run over the blocks (up_hm_matvec). NULL: dense */
+    const int64_t *hm_de_ranks;
+    const double *hm_de_data;
+    size_t hm_de_off;
     UpSoilLevel lev[UP_MAXLEV];
     /* state, inside the instance's state block. f: the force committed last, work: the work done on
        the soil (a soil stepped alone: f unused, work that of the force's part E u' + h; gq, gp the
@@ -256,6 +262,9 @@ void up_soil_force(UpSoil *s, int lev, const double *x, const double *xd, const 
 void up_soil_commit(UpSoil *s, int lev, const double *x, const double *xd, const double *f);
 void up_soil_ahead(UpSoil *s, int lev, double *g);       /* history of the step after next, zero state next */
 void up_soil_step(UpSoil *s, int lev, const double *x, const double *xd, double *g);  /* commit x, then g */
+/* y = A x (n) for a symmetric A held over the compressed history's partition: ranks (hm_nblk) and data laid
+   out as one history block of hm_data (a dense block row-major, a low-rank one U then V) */
+void up_hm_matvec(UpSoil *s, const int64_t *ranks, const double *data, const double *x, double *y);
 /* a soil stepped alone: its force f (n) and the work done on it, of the state committed last */
 void up_soil_outputs(UpSoil *s, int lev, double *f, double *work);
 /* the correction form of repeated runs from rest (the time-frequency route's marches): mode 0 off,
@@ -301,6 +310,10 @@ typedef struct {
        step's interior solves are two banded substitutions (banded = 1), else the dense path */
     double *Lb, *bi_val, *ib_val;
     int banded;
+    /* K0C over the compressed history's partition (UpStepper.hk): per block (hk_rank) dense, or the
+       factors of D, E and the history blocks stacked with the level's coefficients (stepper.c: k0c_blocks) */
+    int64_t *hk_rank;
+    double *hk_data;
 } UpSystem;
 
 typedef struct {
@@ -356,6 +369,11 @@ typedef struct {
                                  rotations' blocks: sparse and banded) when two banded solves cost less
                                  than one dense product with A_II^-1, else 0 (the dense path) */
     UpSparse bi_pat, ib_pat;  /* the patterns of A_BI (nb, ni) and A_IB (ni, nb): Ks's or Cs's non-zeros */
+    int hk;                   /* 1: the soil's D and E are compressed with its history (UpSoil.hm_de_ranks)
+                                 and E is symmetric: the products with E and K0C run over the blocks */
+    size_t hk_len;            /* the values of a level's K0C blocks (UpSystem.hk_data) */
+    size_t *hk_off;           /* (m_r + 2 m_c + 2, hm_nblk): where each term's values of a block start (the
+                                 history blocks' in hm_data, D's and E's in hm_de_data) */
 } UpStepper;
 
 int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, char *err);
