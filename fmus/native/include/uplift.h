@@ -50,6 +50,7 @@
 #define up_free_instance UP_SYM(up_free_instance)
 #define up_get_reals UP_SYM(up_get_reals)
 #define up_guard UP_SYM(up_guard)
+#define up_hm_matvec UP_SYM(up_hm_matvec)
 #define up_initial_state UP_SYM(up_initial_state)
 #define up_instance UP_SYM(up_instance)
 #define up_instantiate UP_SYM(up_instantiate)
