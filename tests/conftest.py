@@ -9,6 +9,12 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import pytest
 
 from helpers import EXPORT_MOTION, small_scene, soil_model
+from helpers.native import seed_process_folder
+
+# The C runtime compiled once for the test session (helpers/native.py) and copied into this
+# process's folder for runs without a cache folder, before the test modules are collected: each
+# test process (each xdist worker) compiled it there itself (~20 CPU s each).
+seed_process_folder()
 
 
 @pytest.fixture(scope="session")

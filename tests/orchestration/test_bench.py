@@ -7,6 +7,7 @@ import pytest
 
 import orchestrator.bench as bench
 from orchestrator.cli import main
+from helpers.native import seed_native
 
 TINY = {"disk-halfspace": {"winkler": {"dt": [0.02, 0.01, 0.005], "penalty": [0.1, 1.0]},
                            "linear": {"pad_s": [0.25, 2.0]},
@@ -16,7 +17,7 @@ TINY = {"disk-halfspace": {"winkler": {"dt": [0.02, 0.01, 0.005], "penalty": [0.
 @pytest.fixture
 def tiny(monkeypatch, tmp_path):
     """A 4 m disk mesh (21 nodes) and a 1.5 s motion; OpenSeesPy hidden (the skip path)."""
-    monkeypatch.setenv("UPLIFT_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("UPLIFT_CACHE", str(seed_native(tmp_path / "cache")))   # the C runtime compiled once
     monkeypatch.setattr(bench, "DISK_ELEMENT", 4.0)
     monkeypatch.setitem(bench.DISK_TOWER["motion"], "duration_s", 1.5)
     monkeypatch.setitem(bench.DISK_TOWER["motion"], "pga_g", 0.4)

@@ -132,8 +132,9 @@ def strict_loads(text):
 
 def test_run_summary_on_stdout_progress_on_stderr_json_strict(tmp_path):
     from helpers import tower, write_scene
+    from helpers.native import seed_native
     scene = write_scene(tmp_path / "tower.toml", tower())
-    env = {"UPLIFT_CACHE": str(tmp_path / "cache")}
+    env = {"UPLIFT_CACHE": str(seed_native(tmp_path / "cache"))}    # the C runtime compiled once for the tests
     proc = _shell("run", scene, "-o", str(tmp_path / "r.h5"), cwd=tmp_path, env=env)
     assert proc.returncode == 0, proc.stderr
     out = proc.stdout.splitlines()          # what `uplift run SCENE > out.txt` keeps: the summary
@@ -151,7 +152,8 @@ def test_run_json_with_a_non_finite_value_says_null_and_why(tmp_path, capsys, mo
     from helpers import tower, write_scene
     import orchestrator.results_file as results_file          # the command imports it when it runs
     from orchestrator.results_file import summary
-    monkeypatch.setenv("UPLIFT_CACHE", str(tmp_path / "cache"))
+    from helpers.native import seed_native
+    monkeypatch.setenv("UPLIFT_CACHE", str(seed_native(tmp_path / "cache")))    # the C runtime compiled once
     monkeypatch.setattr(results_file, "summary", lambda res: dict(summary(res), max_uplift_m=float("nan"),
                                                          peak_acc_g={"top": float("inf")}))
     scene = write_scene(tmp_path / "tower.toml", tower())

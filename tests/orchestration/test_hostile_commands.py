@@ -19,6 +19,7 @@ import orchestrator.cli as cli
 from orchestrator.cli import main
 from orchestrator.ensemble.cluster import WORKERS_PER_CORE, default_workers, local_workers
 from helpers import changed, tower, write_scene
+from helpers.native import seed_native
 
 #: the tower on a 5 m disk, two frequencies, no damping, 2 s of synthetic motion; its soil apart
 TOWER = tower(soil=None, foundation={"shape": "circle", "radius": 5.0, "lx": None, "ly": None},
@@ -232,12 +233,15 @@ def test_worker_count_is_capped():
 def test_ensemble_asked_for_hundreds_of_workers_runs_on_few(tmp_path, capsys, monkeypatch):
     """--workers 300 for two runs: two workers, a note in the summary, the runs done, no hang."""
     monkeypatch.chdir(tmp_path)
+    # a cache folder of its own (no cell to reuse) holding the C runtime compiled once for the
+    # tests: with --no-cache each worker compiled it into a temporary folder (~20 CPU s each)
+    monkeypatch.setenv("UPLIFT_CACHE", str(seed_native(tmp_path / "cache")))
     scene = _scene(tmp_path, soil=WINKLER_SOIL, motion={"duration_s": 1.0})
     stdout = io.StringIO()
     t0 = time.perf_counter()
     with contextlib.redirect_stdout(stdout):
         code = main(["ensemble", scene, "--seeds", "1", "2", "--pga", "0.2", "--workers", "300", "-o",
-                     str(tmp_path / "e.h5"), "--json", "--no-cache"])
+                     str(tmp_path / "e.h5"), "--json"])
     assert code == 0 and time.perf_counter() - t0 < 120
     summ = json.loads(stdout.getvalue())
     assert summ["workers"] == 2 and summ["workers_note"] == "--workers 300 capped to 2 (2 runs to compute)"

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from helpers import tower, write_scene
+from helpers.native import seed_native
 from orchestrator.cli import main
 from orchestrator.oncurve import Curve, oncurve_figure, overturning_moment, route_point, scene_key
 from orchestrator.plots import pyplot
@@ -23,8 +24,9 @@ SCENE = tower(impedance={"range_hz": [0.0, 10.0, 6]}, analysis={"routes": ["wink
 
 @pytest.fixture(scope="module")
 def cache(tmp_path_factory):
-    """One cache for the module (the sweep and the rational fit made once), also the commands'."""
-    path = tmp_path_factory.mktemp("cache")
+    """One cache for the module (the sweep and the rational fit made once, the C runtime compiled
+    once for the tests copied in), also the commands'."""
+    path = seed_native(tmp_path_factory.mktemp("cache"))
     env = pytest.MonkeyPatch()
     env.setenv("UPLIFT_CACHE", str(path))
     yield path

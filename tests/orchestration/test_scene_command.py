@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from helpers import tower, write_scene
+from helpers.native import seed_native
 from orchestrator import scene_file
 from orchestrator.cli import main
 from orchestrator.motion import G
@@ -105,9 +106,9 @@ def test_written_disk_halfspace_is_the_builtin(tmp_path, capsys):
 
 @pytest.fixture(scope="module")
 def cache(tmp_path_factory):
-    """One cache folder for the module: the native stepper's library is compiled once, the
-    reactor's BEM sweep made once."""
-    return tmp_path_factory.mktemp("cache")
+    """One cache folder for the module: the native stepper's library copied in (compiled once for
+    the tests), the reactor's BEM sweep made once."""
+    return seed_native(tmp_path_factory.mktemp("cache"))
 
 
 @pytest.mark.slow

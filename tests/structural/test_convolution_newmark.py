@@ -35,7 +35,7 @@ def winkler_matrices():
 def test_spring_dashpot_model_equals_winkler_with_uplift():
     w, K, C = winkler_matrices()
     model = RationalModel(np.zeros(0, complex), np.zeros((0,) + K.shape, complex), K, C)
-    ag = accelerogram(4.0, 0.8 * 9.81)
+    ag = accelerogram(2.0, 0.8 * 9.81)      # 2 s: the raft lifts in 187 of its 400 steps (35 mm)
     r_ref = simulate(MODEL, w, ag, DT)
     r = simulate(MODEL, RecursiveConvolutionSoil(model, DT), ag, DT)
     assert r_ref.max_uplift() > 1e-3
