@@ -12,6 +12,7 @@ from orchestrator.results_file import summary, write_results
 from orchestrator.routes.cosim import run_cosim
 from orchestrator.routes.monolithic import run_monolithic
 from orchestrator.scene import scene_from_dict
+from orchestrator.settings import default_cache_dir
 
 scene = scene_from_dict({
     "soil": {"layers": [{"thickness": 8.0, "vs": 1350.0, "nu": 0.3, "rho": 2400.0, "damping": 0.03}],
@@ -25,9 +26,10 @@ scene = scene_from_dict({
     "output": {"nodes": ["top_outer", "internals_37m"]},
 }, name="coarse-reactor")
 
-soil = scene_fit(scene, tol=0.04).model       # BEM sweep of the gap impedance + rational fit (3 % rock: 4 %)
-mono = run_monolithic(scene, soil_model=soil)
-cosim = run_cosim(scene, soil_model=soil)
+cache = default_cache_dir()                   # the sweep, the fit and the compiled runtime, kept for the next run
+soil = scene_fit(scene, cache_dir=cache, tol=0.04).model   # BEM sweep of the gap impedance + rational fit (3 % rock: 4 %)
+mono = run_monolithic(scene, soil_model=soil, cache_dir=cache)
+cosim = run_cosim(scene, soil_model=soil, cache_dir=cache)
 
 for res in (mono, cosim):
     s = summary(res)

@@ -25,8 +25,9 @@ folder = Path(sys.argv[1] if len(sys.argv) > 1 else "reactor_fmus")
 scene = load_scene(sys.argv[2] if len(sys.argv) > 2 else "reactor")
 if not (folder / "structure.fmu").exists():
     from orchestrator.export import export_scene
+    from orchestrator.settings import default_cache_dir
     print(f"exporting {scene.name} to {folder} (BEM sweep and fit are cached) ...")
-    export_scene(scene, folder)
+    export_scene(scene, folder, cache_dir=default_cache_dir())
 
 motion = make_motion(scene.motion, scene.analysis.dt)
 res = cosimulate(folder / "structure.fmu", folder / "soil.fmu", motion.acc, motion.dt)
