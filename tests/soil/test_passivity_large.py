@@ -74,6 +74,25 @@ def test_rescreen_finds_the_full_screens_bands_and_factorises_only_where_the_cha
     assert rs(lowered)[0] == pv._screen(lowered, grid)[0] == [(0.0, np.inf)]
 
 
+def test_refined_rescreen_sees_a_band_between_the_grids_points():
+    """A violation 0.005 Hz wide at 13.0123 Hz (ζ = 2e-4), between the grid's points: the re-screen sees
+    nothing; refined with the exact band it factorises only the REFINE_POINTS new points and returns one
+    band around the exact one, narrower than a grid step."""
+    base = _low_rank_model(150)
+    model = with_notch(base, 13.0123, 2e-4, 3.0, np.cos(np.pi * np.linspace(-1, 1, 150)))
+    sc = model.scaled
+    exact = pv._assess(sc, method="hamiltonian")["bands"]
+    assert len(exact) == 1
+    grid = pv._default_grid()
+    rs = pv._Rescreen(grid)
+    assert rs(sc)[0] == []
+    rs.refine(exact)
+    (lo, hi), = rs(sc)[0]
+    assert rs.calls[-1] == pv.REFINE_POINTS
+    (elo, ehi), = exact
+    assert lo <= elo < ehi <= hi and hi - lo < grid[1] - grid[0]
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_planes_from_partial_eigensolutions_are_the_full_eighs(seed):
     """On 150 DOFs with two violations (exact bands), the planes from the eigenpairs below the margin only
