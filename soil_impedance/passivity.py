@@ -768,10 +768,10 @@ def _factor_lower(A, shift, dpotrf):
     return dpotrf(F, lower=1, clean=0, overwrite_a=1)[1] == 0, F
 
 
-def _smallest_estimate(L, dpotrs, iters=6) -> float:
+def _smallest_estimate(L, dpotrs, iters=3) -> float:
     """An estimate (from above) of λ_min(A) from its Cholesky factor L (F-ordered, lower): 1/‖A⁻¹x‖ after
-    ``iters`` steps of inverse iteration from a fixed start (two triangular solves each, 2n² flops: nothing
-    beside the factorisation). Only a guess of the next shift (``_Rescreen``), never a proof."""
+    ``iters`` steps of inverse iteration from a fixed start (two triangular solves each, 2n² flops, memory-bound:
+    about a factorisation's time at 1006 DOFs for six steps, hence three). Only a guess of the next shift (``_Rescreen``), never a proof."""
     n = L.shape[0]
     x = np.cos(np.arange(1, n + 1) * 0.7548776662466927) + 0.5      # fixed, deterministic start
     x /= np.linalg.norm(x)
@@ -856,16 +856,14 @@ class _Rescreen:
                 if not np.isfinite(guess) and i > 0:
                     guess = self.estimate[i - 1]
                 s = 0.5 * guess if np.isfinite(guess) and guess > 0 else np.nan
-                ok = False
                 if np.isfinite(s):
-                    keep = G.copy()
                     ok, L = _factor_lower(G, s * nu, dpotrf)
                     self.factorisations += 1
                     if ok:
                         self.slack[i] = s + ROUND_OFF
                         self.estimate[i] = s + _smallest_estimate(L, dpotrs) / nu
                         continue
-                    G = keep
+                    G = _G(st, [nu])[0]                        # the guess was too high: the plain test
                 ok, L = _factor_lower(G, -ROUND_OFF * nu, dpotrf)
                 self.factorisations += 1
                 self.slack[i] = 0.0 if ok else -1.0
