@@ -838,6 +838,7 @@ class _Rescreen:
             W += d @ d.T
         g = real_basis(1j * self.grid, st.poles).imag
         q = np.einsum("fb,bc,fc->f", g, W, g)
+        q += 1e-10 * np.einsum("fb,bc,fc->f", np.abs(g), np.abs(W), np.abs(g))    # its rounding (cancellation)
         return np.sqrt(np.maximum(q, 0.0)) * (1 + 1e-8) + 1e-300
 
     def __call__(self, st: ScaledModel):
