@@ -1048,7 +1048,8 @@ def enforce_passivity(model: RationalModel, freq_hz=None, weights=None, margin=1
     best, since, bands = np.nan, 0, []
     large = sc0.na >= CHOLESKY_SWEEP_NA
     screen = _Rescreen(grid) if large else (lambda s: _screen(s, grid))
-    from scipy.linalg.lapack import dpotrf
+    if large:
+        from scipy.linalg.lapack import dpotrf
     for it in range(max_iter + 1):
         bands, depth, at = screen(st)
         if not bands:
