@@ -67,6 +67,17 @@ passivity verdict is unchanged (congruence keeps the inertia). Without it the en
 
 Each iteration is checked first on the dense grid (``_screen``: a Cholesky factorisation per
 frequency, the sign of λ_min only); the exact test runs only when the grid sees no violation.
+From ``CHOLESKY_SWEEP_NA`` active DOFs (a (6+N)² gap-table fit: 449 factorisations of the grid and a full
+eigh per plane sample were minutes per iteration at 2506 DOFs) the cost of an iteration is bounded by
+what the violations and the change reach, not by the grid, with the same verdicts: the screen
+(``_Rescreen``) keeps per grid point a slack proved by a shifted Cholesky factorisation and lowers it by a
+bound of the coefficients' change (Weyl, Frobenius norm through one small Gram matrix), factorising again
+only where it runs out; bands that the exact test finds between the grid's points are refined into the
+grid (``_Rescreen.refine``), so the exact test runs again only when the refined grid is clean (it is the
+final certificate, not a per-iteration cost); the planes take only the eigenpairs below the margin (a
+Cholesky factorisation at the margin first, then dsyevr for those: ``_partial_eigh``); and the
+depth (the progress measure) is the planes' sampled λ_min/ν instead of 64 grid eigensolutions.
+Below ``CHOLESKY_SWEEP_NA`` all of this is as it was (the reactor's fit bit for bit).
 Repeated until the exact test passes, the worst margin seen stops improving (``stall``
 iterations: the cutting-plane iterates are not monotone, 4 gave up on fits that converged at
 iteration 11) or the work bound ``max_iter`` is spent (no wall-clock limit: the result depends on
@@ -93,6 +104,7 @@ CHOLESKY_SWEEP_NA = 400    # "sweep": by shifted Cholesky factorisations from th
 BAND_BISECTIONS = 5        # Cholesky sweep: sign bisections that narrow each edge of a violation band
 SIGN_LEVEL = 2             # Cholesky sweep: an interval failing after this many bisections has its centre's sign tested
 MARGIN_PROBES = 4          # certified sweep: nodes whose eigenvalues are solved for the reported margin
+REFINE_POINTS = 33         # enforcement from CHOLESKY_SWEEP_NA: screen points added across a band the grid missed
 
 
 @dataclass(frozen=True)
@@ -748,6 +760,123 @@ def _screen(sc: ScaledModel, grid, limit=64):
     return _runs(grid, bad), float(mu.min()), float(grid[idx[np.argmin(mu)]])
 
 
+def _factor_lower(A, shift, dpotrf):
+    """Whether A − shift·I ≻ 0 for a real symmetric A (C-ordered; factorised in place on its F-ordered
+    view, the same matrix, so nothing is copied): (success, the factor's F-ordered array)."""
+    F = A.T
+    F[np.diag_indices(F.shape[0])] -= shift
+    return dpotrf(F, lower=1, clean=0, overwrite_a=1)[1] == 0, F
+
+
+def _smallest_estimate(L, dpotrs, iters=3) -> float:
+    """An estimate (from above) of λ_min(A) from its Cholesky factor L (F-ordered, lower): 1/‖A⁻¹x‖ after
+    ``iters`` steps of inverse iteration from a fixed start (two triangular solves each, 2n² flops, memory-bound:
+    about a factorisation's time at 1006 DOFs for six steps, hence three). Only a guess of the next shift (``_Rescreen``), never a proof."""
+    n = L.shape[0]
+    x = np.cos(np.arange(1, n + 1) * 0.7548776662466927) + 0.5      # fixed, deterministic start
+    x /= np.linalg.norm(x)
+    y = x
+    for _ in range(iters):
+        y = dpotrs(L, x, lower=1)[0]
+        ny = float(np.linalg.norm(y))
+        if not np.isfinite(ny) or ny == 0.0:
+            return 0.0
+        x = y / ny
+    return 1.0 / ny
+
+
+class _Rescreen:
+    """The enforcement's grid screen from ``CHOLESKY_SWEEP_NA`` active DOFs: the same verdict per grid
+    point as ``_screen`` (λ_min(G(ν))/ν ≤ −``ROUND_OFF`` is a violation), at a cost bounded by the
+    points the enforcement's change reaches, not by the grid.
+
+    Each point carries a proved slack σ ≥ 0 with λ_min(G(ν))/ν ≥ σ − ROUND_OFF for the model last screened
+    (−1: a violation). It is proved by one Cholesky factorisation of G(ν) − s·ν·I, at
+    s = ½ × an estimate of λ_min/ν (inverse iteration on the factor of the point's last factorisation,
+    else of the grid neighbour's), σ = s + ROUND_OFF; if that factorisation fails, the plain test
+    G(ν) + ROUND_OFF·ν·I ≻ 0 decides (σ = 0 when it passes). When the coefficients change by ΔC (the
+    model's columns against those of the last screen), Weyl's inequality and ‖·‖₂ ≤ ‖·‖_F give
+    |λ_min(G + ΔG) − λ_min(G)| ≤ ‖ΔG(ν)‖_F = sqrt(g(ν)ᵀ W g(ν)), g(ν) the basis' Im at iν and
+    W_bc = ⟨ΔC_b, ΔC_c⟩ (one (m + 2)² Gram matrix for the whole grid), so σ drops by that over ν, and only
+    the points whose σ turns negative (and the violations) are factorised again; ``refine`` adds points
+    across bands found between the grid's. Returns what ``_screen``
+    returns, with the depth NaN (the enforcement then takes the planes' sampled depth: the eigenvalues at
+    64 grid points of ``_screen`` cost 3 minutes at 2506 DOFs)."""
+
+    def __init__(self, grid):
+        self.grid = np.asarray(grid, float)
+        self.slack = np.full(self.grid.size, -1.0)
+        self.estimate = np.full(self.grid.size, np.nan)      # λ_min/ν estimates (the next shift's guess)
+        self.C = None                                          # the coefficients last screened
+        self.factorisations = 0
+        self.calls = []                                        # points factorised per call
+
+    def refine(self, bands, n=REFINE_POINTS) -> None:
+        """Add ``n`` points across each finite band ± half its width (violations the exact test found
+        between the grid's points), factorised at the next call: the following iterations see such a band
+        on the grid, and the exact test runs again only when the refined grid is clean."""
+        new = [np.linspace(max(lo - 0.5 * (hi - lo), 0.0), hi + 0.5 * (hi - lo), n) for lo, hi in bands
+               if np.isfinite(hi) and hi > lo]
+        new = np.setdiff1d(np.concatenate(new), self.grid) if new else np.zeros(0)
+        new = new[new > 0]
+        if not new.size:
+            return
+        grid = np.concatenate([self.grid, new])
+        order = np.argsort(grid, kind="stable")
+        self.grid = grid[order]
+        self.slack = np.concatenate([self.slack, np.full(new.size, -1.0)])[order]
+        self.estimate = np.concatenate([self.estimate, np.full(new.size, np.nan)])[order]
+
+    def change_bound(self, st: ScaledModel) -> np.ndarray:
+        """sqrt(g(ν)ᵀ W g(ν)) ≥ ‖G_new(ν) − G_old(ν)‖_F at each grid point (see the class docstring)."""
+        nb = st.C.shape[0]
+        new, old = st.C.reshape(nb, -1), self.C.reshape(nb, -1)
+        W = np.zeros((nb, nb))
+        step = max(1, (1 << 22) // nb)
+        for j in range(0, new.shape[1], step):
+            d = new[:, j:j + step] - old[:, j:j + step]
+            W += d @ d.T
+        g = real_basis(1j * self.grid, st.poles).imag
+        q = np.einsum("fb,bc,fc->f", g, W, g)
+        q += 1e-10 * np.einsum("fb,bc,fc->f", np.abs(g), np.abs(W), np.abs(g))    # its rounding (cancellation)
+        return np.sqrt(np.maximum(q, 0.0)) * (1 + 1e-8) + 1e-300
+
+    def __call__(self, st: ScaledModel):
+        from scipy.linalg.lapack import dpotrf, dpotrs
+        grid = self.grid
+        if self.C is not None and st.C is not self.C:
+            drop = self.change_bound(st) / grid
+            self.slack = np.where(self.slack >= 0, self.slack - drop, -1.0)
+        redo = np.nonzero(self.slack < 0)[0]
+        chunk = _chunk(st, 64)
+        for i0 in range(0, redo.size, chunk):
+            pts = redo[i0:i0 + chunk]
+            for i, G in zip(pts, _G(st, grid[pts])):
+                nu = grid[i]
+                guess = self.estimate[i]
+                if not np.isfinite(guess) and i > 0:
+                    guess = self.estimate[i - 1]
+                s = 0.5 * guess if np.isfinite(guess) and guess > 0 else np.nan
+                if np.isfinite(s):
+                    ok, L = _factor_lower(G, s * nu, dpotrf)
+                    self.factorisations += 1
+                    if ok:
+                        self.slack[i] = s + ROUND_OFF
+                        self.estimate[i] = s + _smallest_estimate(L, dpotrs) / nu
+                        continue
+                    G = _G(st, [nu])[0]                        # the guess was too high: the plain test
+                ok, L = _factor_lower(G, -ROUND_OFF * nu, dpotrf)
+                self.factorisations += 1
+                self.slack[i] = 0.0 if ok else -1.0
+                self.estimate[i] = _smallest_estimate(L, dpotrs) / nu - ROUND_OFF if ok else -1.0
+        self.calls.append(int(redo.size))
+        self.C = st.C
+        bad = self.slack < 0
+        if not bad.any():
+            return [], np.nan, np.nan
+        return _runs(grid, bad), np.nan, np.nan
+
+
 @dataclass(frozen=True)
 class _Planes:
     """Cutting planes of the enforcement: rank-one ones v vᵀ (at ν1 (p,), V (p, na) unit vectors) and
@@ -776,12 +905,38 @@ class _Planes:
         return self.nu1.size + self.nud.size
 
 
-def _planes(sc: ScaledModel, bands, margin, n_samples=9, limit=MAX_PLANES, rank_one=RANK_ONE_PLANES, chunk=32):
+def _full_eigh(sc: ScaledModel, nus, margin):
+    """(ν, eigenvalues ascending, eigenvectors) of G at each ν of ``nus``: every eigenpair."""
+    lam, vec = np.linalg.eigh(_G(sc, nus))
+    return zip(nus, lam, vec)
+
+
+def _partial_eigh(sc: ScaledModel, nus, margin):
+    """(ν, eigenvalues ascending, eigenvectors) of G at each ν of ``nus``: only the eigenpairs below
+    margin·ν, the ones the planes use (``_full_eigh``'s to round-off, up to the eigenvectors' signs and
+    their basis inside a repeated eigenvalue). A Cholesky factorisation of G − margin·ν·I first (n³/3): when
+    it succeeds there is none; else LAPACK's dsyevr for the eigenvalues in (−∞, margin·ν] (a tridiagonal
+    reduction, then bisection and inverse iteration for those alone: a third of a full eigh at 1206 DOFs)."""
+    import scipy.linalg as sla
+    from scipy.linalg.lapack import dpotrf
+    for nu, G in zip(nus, _G(sc, nus)):
+        keep = G.copy()
+        ok, _ = _factor_lower(G, margin * nu, dpotrf)
+        if ok:
+            yield nu, np.zeros(0), np.zeros((sc.na, 0))
+            continue
+        lam, X = sla.eigh(keep, subset_by_value=(-np.inf, margin * nu), driver="evr", check_finite=False)
+        yield nu, lam, X
+
+
+def _planes(sc: ScaledModel, bands, margin, n_samples=9, limit=MAX_PLANES, rank_one=RANK_ONE_PLANES, chunk=32,
+            partial=None):
     """Cutting planes at samples across each band and its neighbours (module docstring): (``_Planes``,
     (worst sampled λ_min/ν, its ν)). At each sample, with (λ_i, v_i) the eigenpairs of G(ν) and
     d_i = margin·ν − λ_i > 0 their deficits: one plane v_i v_iᵀ for each of the ``rank_one`` deepest,
     and when there are more, the deficit plane Σ_i d_i v_i v_iᵀ/‖d‖ too. The ``limit`` deepest planes
-    (d_i, resp. ‖d‖) are kept."""
+    (d_i, resp. ‖d‖) are kept. ``partial`` (default: from ``CHOLESKY_SWEEP_NA`` active DOFs) solves only for
+    the eigenpairs below the margin (``_partial_eigh``); a sample without any counts margin as its depth."""
     pts = []
     for a, b in bands:
         pts += list(_band_samples((a, b), n_samples))
@@ -794,9 +949,12 @@ def _planes(sc: ScaledModel, bands, margin, n_samples=9, limit=MAX_PLANES, rank_
     na = sc.na
     nu1, V, size1, nud, N, sized, worst = [], [], [], [], [], [], (np.inf, np.nan)
     chunk = _chunk(sc, chunk)
+    eigen = _partial_eigh if partial or (partial is None and na >= CHOLESKY_SWEEP_NA) else _full_eigh
     for i in range(0, pts.size, chunk):
-        lam, vec = np.linalg.eigh(_G(sc, pts[i:i + chunk]))
-        for nu, lv, X in zip(pts[i:i + chunk], lam, vec):
+        for nu, lv, X in eigen(sc, pts[i:i + chunk], margin):
+            if not lv.size:                             # G ⪰ margin·ν: no plane here
+                worst = min(worst, (margin, nu))
+                continue
             worst = min(worst, (lv[0] / nu, nu))
             d = margin * nu - lv
             sel = np.nonzero(d > 0)[0]                 # λ ascending: the deepest first
@@ -888,8 +1046,12 @@ def enforce_passivity(model: RationalModel, freq_hz=None, weights=None, margin=1
     planes = _Planes.none(sc0.na)
     st, sc = st0, sc0          # the current model, stretched and not
     best, since, bands = np.nan, 0, []
+    large = sc0.na >= CHOLESKY_SWEEP_NA
+    screen = _Rescreen(grid) if large else (lambda s: _screen(s, grid))
+    if large:
+        from scipy.linalg.lapack import dpotrf
     for it in range(max_iter + 1):
-        bands, depth, at = _screen(st, grid)
+        bands, depth, at = screen(st)
         if not bands:
             a = _assess(sc, method, violations_only=True)
             if a["passive"]:
@@ -901,6 +1063,8 @@ def enforce_passivity(model: RationalModel, freq_hz=None, weights=None, margin=1
                 _remember(out, sc, method, a["method"], rep)
                 return out, rep, it
             bands = a["bands"]
+            if isinstance(screen, _Rescreen):
+                screen.refine(bands)
         if progress is not None:
             progress(it + 1, max_iter + 1)
         if it == max_iter:
@@ -924,19 +1088,33 @@ def enforce_passivity(model: RationalModel, freq_hz=None, weights=None, margin=1
         if T is not None:
             C = Ti @ C @ Ti
         # E ⪰ floor·max eig (PSD projection; the floor makes the high-frequency tail certifiable)
-        lam, vec = np.linalg.eigh(0.5 * (C[m + 1] + C[m + 1].T))
-        floor = e_floor * max(lam.max(), 1e-300)
-        C[m + 1] = (vec * np.maximum(lam, floor)) @ vec.T
+        if not (large and _above_floor(C[m + 1], e_floor)):
+            lam, vec = np.linalg.eigh(0.5 * (C[m + 1] + C[m + 1].T))
+            floor = e_floor * max(lam.max(), 1e-300)
+            C[m + 1] = (vec * np.maximum(lam, floor)) @ vec.T
         # K(0) ⪰ 0 through D (D does not change G)
-        K0 = np.real(np.einsum("b,bij->ij", K0_basis, C.astype(complex)))
-        lam0, vec0 = np.linalg.eigh(0.5 * (K0 + K0.T))
-        if lam0[0] < 0:
-            C[m] += (vec0 * np.maximum(-lam0, 0)) @ vec0.T
+        if large:                              # C is real: no complex copy of it (3 GB at 2506 DOFs, 30 poles)
+            K0 = np.tensordot(K0_basis.real, C, axes=1)
+        else:
+            K0 = np.real(np.einsum("b,bij->ij", K0_basis, C.astype(complex)))
+        if not (large and _factor_lower(0.5 * (K0 + K0.T), 0.0, dpotrf)[0]):
+            lam0, vec0 = np.linalg.eigh(0.5 * (K0 + K0.T))
+            if lam0[0] < 0:
+                C[m] += (vec0 * np.maximum(-lam0, 0)) @ vec0.T
         sc = sc0.with_coefficients(C)
         st = sc if T is None else sc0.with_coefficients(T @ sc.C @ T)
     raise _failure(f"passivity enforcement did not converge in {max_iter} iterations "
                    f"({_state(sc0, bands, best, np.nan)}): refit with more poles or a lower tolerance, "
                    "or raise max_iter", max_iter)
+
+
+def _above_floor(E, e_floor) -> bool:
+    """Whether λ_min(E) ≥ e_floor·λ_max(E) is proved (then the enforcement's projection of E would move it
+    by round-off only): a Cholesky factorisation of E − e_floor·t·I with t ≥ ‖E‖₂ (``_norm_bound``), a few
+    factorisations instead of a full eigh (5 s at 2506 DOFs)."""
+    from scipy.linalg.lapack import dpotrf
+    E = 0.5 * (E + E.T)
+    return _factor_lower(E, e_floor * _norm_bound(E), dpotrf)[0]
 
 
 def _state(sc, bands, depth, at) -> str:
