@@ -13,6 +13,7 @@ import dataclasses
 import hashlib
 import math
 import os
+import threading
 import warnings
 from pathlib import Path
 
@@ -81,7 +82,8 @@ def provenance(profile, mesh, contact, rule, output, solver="dense", solver_tol=
     kernel (``bem.RADIAL_TOL``; also in the code digest) and its traction scheme
     (``bem.edge_tractions``: "constant", or "sqrt-8" for the cells of a mesh file). A table of
     the fast solver (``solver`` resolved by ``fastsolve.resolve_solver`` to "fast") records
-    ``solver = {"name": "fast", "tol": solver_tol, "code": digest of FAST_CODE}``; a dense
+    ``solver = {"name": "fast", "tol": solver_tol, "code": digest of FAST_CODE, "chains": CHAINS}``
+    (the warm-start chains of ``_compute_fast``: the iterates within the tolerance depend on them); a dense
     table records nothing more (its keys are those of the dense sweep before the option)."""
     prov = {"profile": {"layers": [_material_dict(l) for l in profile.layers],
                         "halfspace": _material_dict(profile.halfspace)},
@@ -93,7 +95,8 @@ def provenance(profile, mesh, contact, rule, output, solver="dense", solver_tol=
         prov["radial_tol"] = RADIAL_TOL
         prov["tractions"] = edge_tractions(mesh)
     if _solver_for(mesh, solver, solver_tol, (output,)) == "fast":
-        prov["solver"] = {"name": "fast", "tol": float(solver_tol), "code": code_digest(*FAST_CODE)[:12]}
+        prov["solver"] = {"name": "fast", "tol": float(solver_tol), "code": code_digest(*FAST_CODE)[:12],
+                          "chains": CHAINS}
     return prov
 
 
@@ -175,15 +178,19 @@ def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = Fal
 
     The fast solver (grid meshes) holds no F: ``F`` is 0, ``assembly`` the blocks at the distinct
     offsets (at most 4 n of 3×3 complex, three copies), ``work`` ``fastsolve.fast_memory`` (the
-    FFT symbols, one batch's Krylov basis and grids, the N × N vertical block).
+    FFT symbols, one batch's Krylov basis and grids, the N × N vertical block) once per warm-start
+    chain (``CHAINS`` threads at most), ``outputs`` the matrices the chains solved ahead (``LEAD``
+    + ``CHAINS``) and the one being stored beside the tables.
     """
     m = 3 * n
     if solver == "fast":
         if box is None:
             side = int(math.ceil(2 * math.sqrt(n / math.pi))) + 1
             box = (side, side)
-        held = [16 * (1 if o in streamed else n_freq) * {"rigid": 6, "gap": 6 + n}[o] ** 2 for o in outputs]
-        items = {"F": 0, "assembly": 3 * 4 * n * 9 * 16, "work": fastsolve.fast_memory(n, *box, rhs=rhs),
+        ahead = LEAD + CHAINS
+        held = [16 * (1 + ahead if o in streamed else n_freq + ahead) * {"rigid": 6, "gap": 6 + n}[o] ** 2
+                for o in outputs]
+        items = {"F": 0, "assembly": 3 * 4 * n * 9 * 16, "work": CHAINS * fastsolve.fast_memory(n, *box, rhs=rhs),
                  "outputs": sum(held) + (max(held) // 2 if held else 0)}
         items["margin"] = int(MARGIN * sum(items.values()))
         items["base"] = BASE_BYTES
@@ -276,7 +283,7 @@ def check_sweep_memory(mesh, n_freq: int, outputs=("rigid", "gap"), solver="dens
 
 def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("rigid", "gap"),
                     cache_dir=None, progress=None, rule=None, solver="dense",
-                    solver_tol=DEFAULT_TOL) -> dict[str, ImpedanceTable]:
+                    solver_tol=DEFAULT_TOL, workers=None) -> dict[str, ImpedanceTable]:
     """Impedance of ``mesh`` on ``profile`` at each frequency, reduced as asked.
 
     Parameters
@@ -295,6 +302,8 @@ def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("r
              ``fastsolve.AUTO_NODES`` nodes, except for "nodal"; else dense)
     solver_tol : the fast solver's relative residual ||b - F x|| / ||b|| per right-hand side
              (recorded in the provenance of its tables; ignored by the dense solver)
+    workers : threads of the fast solver's warm-start chains (``sweep_workers``; None: the cores
+             this process may use, at most ``CHAINS``): the wall time only, the same bits whatever it is
 
     Raises SweepMemoryError (a UserInputError) before computing when the estimated peak memory
     (``sweep_memory``) does not fit in the machine's available memory.
@@ -358,7 +367,7 @@ def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("r
             if dense:
                 computed.update(_compute(bem, f, dense, progress, sinks))
             if fast:
-                computed.update(_compute_fast(bem, f, fast, progress, solver_tol, sinks))
+                computed.update(_compute_fast(bem, f, fast, progress, solver_tol, sinks, workers))
         for o in todo:
             if o in sinks:
                 tables[o] = BlockedTable.open(sinks[o].path, verify=False)      # just written
@@ -411,12 +420,59 @@ def _compute(bem, f, outputs, progress, sinks=None) -> dict[str, np.ndarray]:
     return out
 
 
-def _compute_fast(bem, f, outputs, progress, tol, sinks=None) -> dict[str, np.ndarray]:
-    """The rigid and gap outputs by the fast solver (``fastsolve.gap_and_rigid``), frequency by
-    frequency: the same matrices as ``_compute`` within the relative residual ``tol``. GMRES
-    starts from the solutions of the previous frequencies, extrapolated linearly in frequency
-    (fewer iterations on a fine frequency list; every solve still meets ``tol``). sinks: as
-    ``_compute``'s."""
+#: warm-start chains of the fast sweep (a constant of the code, never the machine's core count: the
+#: table is a function of the inputs only): frequency k is solved in chain k % CHAINS, GMRES starting
+#: from that chain's own previous two solutions; the chains run in up to CHAINS threads
+#: (``sweep_workers``), with the same bits whatever the number of threads. Recorded in the fast
+#: tables' provenance (the first guesses, hence the iterates within the tolerance, depend on it).
+CHAINS = 2
+#: frequencies the chains may solve ahead of the next one stored beyond one per thread (slack for
+#: unequal solves; each one is a matrix held: at most 2 + CHAINS of an output, ``sweep_memory``)
+LEAD = 1
+
+
+def sweep_workers(workers: int | None = None) -> int:
+    """Threads running the fast sweep's chains: ``workers`` (None: the cores this process may use,
+    ``os.sched_getaffinity``), between 1 and ``CHAINS``. It changes the wall time only, never the table."""
+    if workers is None:
+        workers = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    workers = max(1, min(CHAINS, int(workers)))
+    while CHAINS % workers:                         # each thread owns whole chains
+        workers -= 1
+    return workers
+
+
+class _Chains:
+    """The fast solves of some chains (``CHAINS``), each warm-started within itself: ``solve(k)`` for
+    the frequencies of those chains in increasing order gives the same matrices whatever other
+    ``_Chains`` solve the other chains, in this thread or another."""
+
+    def __init__(self, bem, f, outputs, tol, T, Th):
+        self.bem, self.f, self.outputs, self.tol, self.T, self.Th = bem, f, outputs, tol, T, Th
+        self.past = {}                              # chain -> [(f, solutions)] of its last two frequencies
+
+    def solve(self, k: int) -> dict:
+        past = self.past.get(k % CHAINS, [])
+        guess = past[-1][1] if past else None
+        if len(past) == 2:
+            (f0, s0), (f1, s1) = past
+            w = (self.f[k] - f1) / (f1 - f0)
+            guess = {key: s1[key] + w * (s1[key] - s0[key]) for key in s1}
+        mats, _, solutions = fastsolve.gap_and_rigid(self.bem, 2 * math.pi * self.f[k], self.outputs, self.tol,
+                                                     self.T, self.Th, guess)
+        self.past[k % CHAINS] = (past + [(self.f[k], solutions)])[-2:]
+        return mats
+
+
+def _compute_fast(bem, f, outputs, progress, tol, sinks=None, workers=None) -> dict[str, np.ndarray]:
+    """The rigid and gap outputs by the fast solver (``fastsolve.gap_and_rigid``): the same matrices as
+    ``_compute`` within the relative residual ``tol``. The frequencies are split into ``CHAINS``
+    interleaved chains; GMRES starts from the solutions of the chain's previous two frequencies,
+    extrapolated linearly in frequency (fewer iterations on a fine frequency list; every solve still
+    meets ``tol``). ``sweep_workers(workers)`` threads solve the chains (the FFTs, the einsum and BLAS
+    release the GIL: measured at 4 % of a frequency's samples holding it) while this thread stores
+    the matrices in frequency order and reports progress; each thread holds at most ``LEAD``
+    frequencies ahead of the last one stored. sinks: as ``_compute``'s."""
     n = bem.mesh.n
     T = rigid_transform(bem.mesh)
     Th = T.copy()
@@ -424,19 +480,62 @@ def _compute_fast(bem, f, outputs, progress, tol, sinks=None) -> dict[str, np.nd
     sizes = {"rigid": 6, "gap": 6 + n}
     sinks = sinks or {}
     out = {o: sinks[o] if o in sinks else np.empty((f.size, sizes[o], sizes[o]), dtype=complex) for o in outputs}
-    past = []                                   # (f, solutions) of the last two frequencies
-    for k, fk in enumerate(f):
-        guess = past[-1][1] if past else None
-        if len(past) == 2:
-            (f0, s0), (f1, s1) = past
-            w = (fk - f1) / (f1 - f0)
-            guess = {key: s1[key] + w * (s1[key] - s0[key]) for key in s1}
-        mats, _, solutions = fastsolve.gap_and_rigid(bem, 2 * math.pi * fk, outputs, tol, T, Th, guess)
-        past = (past + [(fk, solutions)])[-2:]
+
+    def store(k, mats):
         for o in outputs:
             out[o][k] = mats[o]
         if progress is not None:
-            progress(k + 1, f.size, f"{fk:.3g} Hz")
+            progress(k + 1, f.size, f"{f[k]:.3g} Hz")
+
+    workers = min(sweep_workers(workers), f.size)
+    if workers == 1:
+        chains = _Chains(bem, f, outputs, tol, T, Th)
+        for k in range(f.size):
+            store(k, chains.solve(k))
+        return out
+    fastsolve.scipy.fft.next_fast_len(2)             # the lazy modules loaded here, not in a race
+    ready, state = threading.Condition(), {"stored": 0, "error": None, "stop": False}
+    done = {}
+
+    def work(w):
+        chains = _Chains(bem, f, outputs, tol, T, Th)
+        try:
+            for k in range(w, f.size, workers):     # chain k % CHAINS: worker w has the chains w, w + workers, ...
+                with ready:
+                    ready.wait_for(lambda: state["stop"] or k < state["stored"] + LEAD + workers)
+                    if state["stop"]:
+                        return
+                mats = chains.solve(k)
+                with ready:
+                    done[k] = mats
+                    ready.notify_all()
+        except BaseException as exc:                # raised again in the storing thread
+            with ready:
+                state["error"] = state["error"] or exc
+                ready.notify_all()
+
+    threads = [threading.Thread(target=work, args=(w,), name=f"sweep-chain-{w}", daemon=True) for w in range(workers)]
+    for t in threads:
+        t.start()
+    try:
+        for k in range(f.size):
+            with ready:
+                ready.wait_for(lambda: k in done or state["error"] is not None)
+                if k not in done:
+                    raise state["error"]
+                mats = done.pop(k)
+            store(k, mats)
+            with ready:
+                state["stored"] = k + 1
+                ready.notify_all()
+    finally:
+        # on an error or a stop (progress may raise) the threads end after their current frequency,
+        # unwaited for: the caller's error is not held up by a solve it no longer needs
+        with ready:
+            state["stop"] = True
+            ready.notify_all()
+    for t in threads:
+        t.join()
     return out
 
 
