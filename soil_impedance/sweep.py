@@ -20,13 +20,13 @@ from pathlib import Path
 import numpy as np
 from uplift_common.lazy import lazy_module, literal_constants
 
-from .blocked import STREAM_BYTES, BlockedTable, TableWriter, table_bytes
+from .blocked import STREAM_BYTES, BlockedTable, DamagedTableError, TableWriter, table_bytes
 from .bem import CHUNK_PAIRS, CONTACTS, RADIAL_TOL, BemError, SurfaceBem, _grid, edge_tractions, nodal_dofs
 from uplift_common.code import code_digest
 from uplift_common.errors import UserInputError
 from uplift_common.files import OutputWriteError
 
-from .cache import CacheWarning, read_entry, write_entry
+from .cache import CacheWarning, discard_entry, read_entry, write_entry
 from .greens_rule import GreenRule
 from .profile import CAUSAL_CUTOFF_HZ, CAUSAL_REFERENCE_HZ
 from .reduction import RIGID_DOFS, gap_dofs, gap_transform, rigid_transform
@@ -126,14 +126,33 @@ def _cache_path(cache_dir, output, key) -> Path:
 def _read_cached(path, key, blocked=False):
     """The table cached at ``path`` for inputs hash ``key``, or None (absent, or damaged: then
     moved aside with a CacheWarning, see ``cache.read_entry``). blocked: a ``BlockedTable`` (the
-    matrices left on disk, read in blocks), else an ``ImpedanceTable`` in memory."""
+    matrices left on disk, read in blocks, each chunk checked against its digest when it is first
+    read: a damaged one raises ``DamagedTableError`` then, see ``discard_damaged``), else an
+    ``ImpedanceTable`` in memory."""
     def reader(h, data=None):
-        # read_entry verified the checksum; an ImpedanceTable is read once, as it verified it
-        table = BlockedTable.open(path, checksum=False) if blocked else ImpedanceTable.from_hdf5(h, path, data)
+        # read_entry verified the checksum (a blocked table's: without its chunks); an ImpedanceTable
+        # is read once, as it verified it
+        if blocked:
+            table = BlockedTable.open(path, checksum=False)
+            table.entry_stat = os.stat(path)
+        else:
+            table = ImpedanceTable.from_hdf5(h, path, data)
         if table.hash != key:
             raise TableError(f"holds the table of inputs {table.hash[:20]}, not {key[:20]}")
         return table
-    return read_entry(path, reader, keep=not blocked)
+    return read_entry(path, reader, keep=not blocked, chunks=not blocked)
+
+
+def discard_damaged(table, error: DamagedTableError, cache_dir) -> bool:
+    """A ``DamagedTableError`` met while reading ``table`` (a blocked table): if it is an entry of the
+    cache folder ``cache_dir``, move it aside with a ``CacheWarning`` (``cache.discard_entry``) and
+    return True (the caller sweeps again: the entry is recomputed); else False (a table file the
+    user gave: the error is theirs to see)."""
+    if cache_dir is None or not isinstance(table, BlockedTable) or not hasattr(table, "entry_stat") \
+            or Path(table.path).resolve().parent != Path(cache_dir).resolve():
+        return False
+    discard_entry(table.path, f"{type(error).__name__}: {error}", table.entry_stat, stacklevel=3)
+    return True
 
 
 class SweepMemoryError(UserInputError):
@@ -179,16 +198,15 @@ def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = Fal
     The fast solver (grid meshes) holds no F: ``F`` is 0, ``assembly`` the blocks at the distinct
     offsets (at most 4 n of 3×3 complex, three copies), ``work`` ``fastsolve.fast_memory`` (the
     FFT symbols, one batch's Krylov basis and grids, the N × N vertical block) once per warm-start
-    chain (``CHAINS`` threads at most), ``outputs`` the matrices the chains solved ahead (``LEAD``
-    + ``CHAINS``) and the one being stored beside the tables.
+    chain (``CHAINS`` threads at most; it counts the matrix each one assembles), ``outputs`` the one
+    being stored and the ``LEAD`` more the chains may have solved ahead, beside the tables.
     """
     m = 3 * n
     if solver == "fast":
         if box is None:
             side = int(math.ceil(2 * math.sqrt(n / math.pi))) + 1
             box = (side, side)
-        ahead = LEAD + CHAINS
-        held = [16 * (1 + ahead if o in streamed else n_freq + ahead) * {"rigid": 6, "gap": 6 + n}[o] ** 2
+        held = [16 * (1 + LEAD if o in streamed else n_freq + LEAD) * {"rigid": 6, "gap": 6 + n}[o] ** 2
                 for o in outputs]
         items = {"F": 0, "assembly": 3 * 4 * n * 9 * 16, "work": CHAINS * fastsolve.fast_memory(n, *box, rhs=rhs),
                  "outputs": sum(held) + (max(held) // 2 if held else 0)}
