@@ -111,14 +111,14 @@ def fast_memory(n: int, nx: int, ny: int, rhs: int | None = None) -> int:
     inverses (2 × 9 P Q complex), a batch's Krylov basis, its FFT grids (three of m × 3 P Q
     complex) and vectors, the (6 + N)² gap matrix it assembles (in place, ``gap_and_rigid``), and the
     solutions of ``rhs`` right-hand sides (6 + one load per symmetry orbit; None: n/8 + 2 √n + 6,
-    a centred square or circle grid's) at three frequencies (the two previous ones are the
-    sweep's first guesses)."""
+    a centred square or circle grid's) at four frequencies (the three previous ones of its chain
+    are the sweep's first guesses, ``sweep.first_guess``)."""
     P, Q = scipy.fft.next_fast_len(2 * nx - 1), scipy.fft.next_fast_len(2 * ny - 1)
     m = batch_size(n)
     if rhs is None:
         rhs = n // 8 + 2 * int(np.sqrt(n)) + 6
     return int(2 * 9 * 16 * P * Q + (RESTART + 1) * m * 3 * n * 16 + 3 * m * 3 * P * Q * 16
-               + 8 * m * 3 * n * 16 + 16 * (6 + n) ** 2 + 3 * 16 * 3 * n * rhs)
+               + 8 * m * 3 * n * 16 + 16 * (6 + n) ** 2 + 4 * 16 * 3 * n * rhs)
 
 
 def right_hand_sides(mesh) -> int:
@@ -333,7 +333,7 @@ def gap_and_rigid(bem, omega, outputs, tol, T, Th, guess=None):
     the T solves).
 
     guess : None or the ``solutions`` of another frequency (dict "T", "Z" -> (3N, k)): first
-    guesses of GMRES (``_compute_fast``: extrapolated from the previous frequencies).
+    guesses of GMRES (``sweep._compute_fast``: extrapolated from the chain's previous frequencies).
 
     Returns (dict output -> matrix, GridSolver (its counters), solutions {"T", "Z"}).
     """
