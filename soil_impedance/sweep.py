@@ -440,7 +440,7 @@ def _compute(bem, f, outputs, progress, sinks=None) -> dict[str, np.ndarray]:
 
 #: warm-start chains of the fast sweep (a constant of the code, never the machine's core count: the
 #: table is a function of the inputs only): frequency k is solved in chain k % CHAINS, GMRES starting
-#: from that chain's own previous two solutions; the chains run in up to CHAINS threads
+#: from that chain's own previous solutions (``first_guess``); the chains run in up to CHAINS threads
 #: (``sweep_workers``), with the same bits whatever the number of threads. Recorded in the fast
 #: tables' provenance (the first guesses, hence the iterates within the tolerance, depend on it).
 CHAINS = 2
