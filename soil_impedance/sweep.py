@@ -494,15 +494,96 @@ class _Chains:
         return mats
 
 
+#: how the chains run beside the storing thread: "processes" (forked, each chain's matrices sent back
+#: through a pipe) or "threads"; the same bits either way
+PARALLEL = "processes"
+
+
+def _can_fork() -> bool:
+    """Whether chain processes can be forked here (not from a daemonic process: a pool's worker)."""
+    import multiprocessing
+    return "fork" in multiprocessing.get_all_start_methods() and not multiprocessing.current_process().daemon
+
+
+def _chain_process(w, workers, conn, bem, f, outputs, tol, T, Th):
+    """A forked chain process: the frequencies w, w + workers, ... solved in order (``_Chains``), each
+    sent on ``conn`` as a header (k, [(output, shape)]) and each matrix's bytes; an error as
+    ("error", exception). Ctrl-C is the parent's to handle (it ends this process)."""
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)     # the parent's terminate() ends it, whatever it inherited
+    try:
+        chains = _Chains(bem, f, outputs, tol, T, Th)
+        for k in range(w, f.size, workers):
+            mats = chains.solve(k)
+            conn.send((k, [(o, mats[o].shape) for o in outputs]))
+            for o in outputs:
+                conn.send_bytes(np.ascontiguousarray(mats[o], dtype=complex).reshape(-1).view(np.uint8))
+    except BaseException as exc:                    # raised again in the parent
+        try:
+            conn.send(("error", exc))
+        except Exception:                           # an exception that does not pickle
+            conn.send(("error", fastsolve.FastSolveError(f"{type(exc).__name__}: {exc}")))
+    finally:
+        conn.close()
+
+
+def _run_processes(bem, f, outputs, tol, T, Th, workers, store):
+    """``_compute_fast``'s chains in ``workers`` forked processes; ``store(k, mats)`` here, in frequency
+    order (each process sends its next frequency once the last one is received: at most one ahead)."""
+    import multiprocessing
+    ctx = multiprocessing.get_context("fork")
+    pipes, procs = [], []
+    try:
+        for w in range(workers):
+            recv, send = ctx.Pipe(duplex=False)
+            proc = ctx.Process(target=_chain_process, args=(w, workers, send, bem, f, outputs, tol, T, Th),
+                               name=f"sweep-chain-{w}", daemon=True)
+            proc.start()
+            send.close()
+            pipes.append(recv)
+            procs.append(proc)
+        for k in range(f.size):
+            conn = pipes[k % workers]
+            try:
+                head = conn.recv()
+                if head[0] == "error":
+                    raise head[1]
+                mats = {}
+                for o, shape in head[1]:
+                    mats[o] = np.empty(shape, dtype=complex)
+                    conn.recv_bytes_into(mats[o].reshape(-1).view(np.uint8))
+            except EOFError:
+                procs[k % workers].join(timeout=5)
+                raise fastsolve.FastSolveError(f"the fast sweep's chain process {k % workers} ended before frequency {k} "
+                                     f"(exit code {procs[k % workers].exitcode}): run it again, or with "
+                                     "[impedance] solver = 'dense'") from None
+            if head[0] != k:
+                raise fastsolve.FastSolveError(f"the fast sweep's chain process sent frequency {head[0]}, expected {k}")
+            store(k, mats)
+    finally:
+        for proc in procs:
+            if proc.is_alive() and proc.exitcode is None:
+                proc.join(timeout=0.1)
+            if proc.is_alive():
+                proc.terminate()
+            proc.join()
+        for conn in pipes:
+            conn.close()
+
+
 def _compute_fast(bem, f, outputs, progress, tol, sinks=None, workers=None) -> dict[str, np.ndarray]:
     """The rigid and gap outputs by the fast solver (``fastsolve.gap_and_rigid``): the same matrices as
     ``_compute`` within the relative residual ``tol``. The frequencies are split into ``CHAINS``
     interleaved chains; GMRES starts from the solutions of the chain's previous three frequencies,
     extrapolated in frequency (``first_guess``: fewer iterations on a fine frequency list; every
-    solve still meets ``tol``). ``sweep_workers(workers)`` threads solve the chains (the FFTs, the einsum and BLAS
-    release the GIL: measured at 4 % of a frequency's samples holding it) while this thread stores
-    the matrices in frequency order and reports progress; each thread holds at most ``LEAD``
-    frequencies ahead of the last one stored. sinks: as ``_compute``'s."""
+    solve still meets ``tol``). ``sweep_workers(workers)`` workers solve the chains while this thread
+    stores the matrices in frequency order and reports progress: forked processes (``PARALLEL``,
+    ``_run_processes``: one frequency ahead each, its matrices sent through a pipe), or threads
+    (where a process cannot fork, or ``PARALLEL = "threads"``: the FFTs, the einsum and BLAS release
+    the GIL, 4 % of a frequency's samples hold it, but a thread preempted while holding it stalls
+    the other; at most ``LEAD`` frequencies beyond one per thread ahead of the last one stored).
+    sinks: as ``_compute``'s."""
     n = bem.mesh.n
     T = rigid_transform(bem.mesh)
     Th = T.copy()
@@ -524,6 +605,9 @@ def _compute_fast(bem, f, outputs, progress, tol, sinks=None, workers=None) -> d
             store(k, chains.solve(k))
         return out
     fastsolve.scipy.fft.next_fast_len(2)             # the lazy modules loaded here, not in a race
+    if PARALLEL == "processes" and _can_fork():
+        _run_processes(bem, f, outputs, tol, T, Th, workers, store)
+        return out
     ready, state = threading.Condition(), {"stored": 0, "error": None, "stop": False}
     done = {}
 

@@ -8,8 +8,11 @@ equals the direct assembly bit for bit; a damaged chunk of a cached blocked tabl
 first read and the scene's fit sweeps the table again.
 """
 import dataclasses
+import os
 import threading
 import warnings
+
+import multiprocessing
 
 import h5py
 import numpy as np
@@ -61,34 +64,44 @@ def test_chained_sweep_is_the_sequential_one_within_the_tolerance(tables):
     assert chained["gap"].hash != sequential["gap"].hash
 
 
-def test_the_same_bits_on_one_and_two_threads(tables, tmp_path, monkeypatch):
-    """The chains are a constant of the code, the threads only run them: one thread and two give the same
-    matrices bit for bit, in memory and in the streamed cache entry (same data digest and whole-file
-    checksum); two threads did run two chains."""
+@pytest.mark.parametrize("parallel", ["processes", "threads"])
+def test_the_same_bits_on_one_and_two_workers(tables, tmp_path, monkeypatch, parallel):
+    """The chains are a constant of the code, the workers (processes or threads) only run them: one and
+    two give the same matrices bit for bit, in memory and in the streamed cache entry (same data digest
+    and whole-file checksum); two workers did run the two chains (the odd frequencies in the second)."""
     mesh, chained, _, _ = tables
-    ran = []
+    log = tmp_path / "ran.txt"
     solve = sweep._Chains.solve
-    monkeypatch.setattr(sweep._Chains, "solve", lambda self, k: ran.append((k, threading.current_thread().name))
-                        or solve(self, k))
+
+    def logged(self, k):
+        with open(log, "a") as fh:
+            fh.write(f"{k} {os.getpid()} {threading.current_thread().name}\n")
+        return solve(self, k)
+
+    monkeypatch.setattr(sweep._Chains, "solve", logged)
+    monkeypatch.setattr(sweep, "PARALLEL", parallel)
     monkeypatch.setattr(sweep, "STREAM_BYTES", 0)            # the gap table streamed to its cache entry
-    files, names = {}, {}
+    files, who = {}, {}
     for w in (1, 2):
-        ran.clear()
+        log.write_text("")
         got = impedance_sweep(SOFT, mesh, F, outputs=("gap",), solver="fast", solver_tol=TOL, workers=w,
                               cache_dir=tmp_path / str(w))["gap"]
         assert isinstance(got, BlockedTable) and np.array_equal(got.matrices, chained["gap"].matrices)
         with h5py.File(got.path) as h:
             files[w] = {a: h.attrs[a] for a in ("sha256", "data_sha256", "hash")}
-        names[w] = {name for _, name in ran}
+        who[w] = {int(k): (int(pid), name) for k, pid, name in (line.split() for line in log.read_text().splitlines())}
     assert files[1] == files[2]
-    assert names == {1: {threading.current_thread().name}, 2: {"sweep-chain-0", "sweep-chain-1"}}
-    assert sorted(k for k, name in ran if name == "sweep-chain-1") == list(range(1, F.size, 2))
+    me = (os.getpid(), threading.current_thread().name)
+    assert set(who[1].values()) == {me} and sorted(who[1]) == list(range(F.size))
+    odd, even = {who[2][k] for k in range(1, F.size, 2)}, {who[2][k] for k in range(0, F.size, 2)}
+    assert len(odd) == len(even) == 1 and odd != even and me not in odd | even
     assert sweep.sweep_workers(1) == 1 and sweep.sweep_workers(8) == sweep.CHAINS and sweep.sweep_workers(0) == 1
 
 
 def test_an_error_in_a_chain_or_in_progress_reaches_the_caller(monkeypatch):
-    """A chain's FastSolveError is raised by the sweep (from the storing thread); a progress callback that
-    raises (a stop) stops the sweep; no chain thread is left running."""
+    """A chain's FastSolveError is raised by the sweep (from the storing thread, chains in processes or
+    threads); a progress callback that raises (a stop) stops the sweep; no chain process or thread is left
+    running."""
     mesh = circle_mesh(6.0, 2.0)
     solve = sweep._Chains.solve
 
@@ -111,6 +124,11 @@ def test_an_error_in_a_chain_or_in_progress_reaches_the_caller(monkeypatch):
 
     with pytest.raises(Stop):
         impedance_sweep(SOFT, mesh, F, outputs=("gap",), solver="fast", workers=2, progress=progress)
+    assert not [p for p in multiprocessing.active_children() if p.name.startswith("sweep-chain")]
+    monkeypatch.setattr(sweep, "PARALLEL", "threads")
+    monkeypatch.setattr(sweep._Chains, "solve", failing)
+    with pytest.raises(fastsolve.FastSolveError, match="test"):
+        impedance_sweep(SOFT, mesh, F, outputs=("gap",), solver="fast", workers=2)
     for t in threading.enumerate():
         if t.name.startswith("sweep-chain"):
             t.join(timeout=30)
