@@ -198,7 +198,7 @@ def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = Fal
     The fast solver (grid meshes) holds no F: ``F`` is 0, ``assembly`` the blocks at the distinct
     offsets (at most 4 n of 3×3 complex, three copies), ``work`` ``fastsolve.fast_memory`` (the
     FFT symbols, one batch's Krylov basis and grids, the N × N vertical block) once per warm-start
-    chain (``CHAINS`` threads at most; it counts the matrix each one assembles), ``outputs`` the one
+    chain (``CHAINS`` workers at most, one for a single frequency; it counts the matrix each assembles), ``outputs`` the one
     being stored and the ``LEAD`` more the chains may have solved ahead, beside the tables.
     """
     m = 3 * n
@@ -208,7 +208,7 @@ def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = Fal
             box = (side, side)
         held = [16 * (1 + LEAD if o in streamed else n_freq + LEAD) * {"rigid": 6, "gap": 6 + n}[o] ** 2
                 for o in outputs]
-        items = {"F": 0, "assembly": 3 * 4 * n * 9 * 16, "work": CHAINS * fastsolve.fast_memory(n, *box, rhs=rhs),
+        items = {"F": 0, "assembly": 3 * 4 * n * 9 * 16, "work": min(CHAINS, max(1, n_freq)) * fastsolve.fast_memory(n, *box, rhs=rhs),
                  "outputs": sum(held) + (max(held) // 2 if held else 0)}
         items["margin"] = int(MARGIN * sum(items.values()))
         items["base"] = BASE_BYTES
