@@ -30,8 +30,8 @@ A dataset too large to read back for its writer's checksum (an impedance table w
 frequency at a time, ``soil_impedance.blocked``) may carry the SHA-256 of each of its chunks
 instead (``CHUNK_DIGESTS_ATTR``, ``chunk_digest``): the whole-file checksum then covers the
 digests, not the data, and a verification checks each chunk against its digest (all of them,
-or, with ``chunks=False``, none: the reader checks each chunk when it reads it,
-``check_chunk``).
+or, with ``chunks=False``, none: the reader checks each chunk when it reads it, as an
+impedance table read in blocks does).
 
 Usage::
 
@@ -476,12 +476,6 @@ def chunk_digests(ds):
     return ds.parent[name.decode() if isinstance(name, bytes) else str(name)]
 
 
-def check_chunk(ds, digests, index, data) -> bool:
-    """True if ``data`` (the chunk of ``ds`` at chunk ``index``, a tuple of chunk coordinates)
-    matches its digest in ``digests`` (the array of ``chunk_digests(ds)``)."""
-    return chunk_digest(np.asarray(data, dtype=ds.dtype)) == bytes(digests[tuple(index)])
-
-
 def _check_chunks(ds, data=None) -> None:
     """Check every chunk of the chunk-digested dataset ``ds`` against its digest, reading it slab of
     chunks by slab along axis 0 (or from ``data``, its content already read); ValueError if one differs."""
@@ -495,7 +489,7 @@ def _check_chunks(ds, data=None) -> None:
         slab = ds[rows] if data is None else data[rows]
         for index in np.ndindex(*grid[1:]):
             sel = tuple(slice(j * c, (j + 1) * c) for j, c in zip(index, edge[1:]))
-            if not check_chunk(ds, digests, (i,) + index, slab[(slice(None),) + sel]):
+            if chunk_digest(np.asarray(slab[(slice(None),) + sel], dtype=ds.dtype)) != bytes(digests[(i,) + index]):
                 raise ValueError(f"{ds.name}: chunk {(i,) + index} does not match its digest")
 
 
@@ -596,7 +590,7 @@ def checksum(f: h5py.File, keep: dict | None = None, into=None, chunks: bool = T
     (with keep): ``into(ds)`` -> an array to read the numeric dataset ``ds`` into (a view of
     the caller's own, of ds's shape), or None (read it as usual); the digest is the same.
     chunks: check the chunks of chunk-digested datasets (ValueError if one differs; False: not
-    read, a reader checks each chunk it reads, ``check_chunk``)."""
+    read: a reader checks each chunk it reads against its digest)."""
     h = hashlib.sha256()
     _update_attrs(h, f, f, skip=(CHECKSUM_ATTR,))
     names = []
