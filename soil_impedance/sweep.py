@@ -509,9 +509,13 @@ def _chain_process(w, workers, conn, bem, f, outputs, tol, T, Th):
     """A forked chain process: the frequencies w, w + workers, ... solved in order (``_Chains``), each
     sent on ``conn`` as a header (k, [(output, shape)]) and each matrix's bytes; an error as
     ("error", exception). Ctrl-C is the parent's to handle (it ends this process)."""
+    import gc
     import signal
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)     # the parent's terminate() ends it, whatever it inherited
+    # no cyclic collection here: a garbage cycle of the parent's holding an HDF5 object (the table being
+    # written is open) must not be closed by this copy, which shares the file's descriptor
+    gc.disable()
     try:
         chains = _Chains(bem, f, outputs, tol, T, Th)
         for k in range(w, f.size, workers):
