@@ -7,7 +7,8 @@ from soil_impedance import impedance_sweep, static_impedance
 from soil_impedance.discretisation import static_error_estimate
 from soil_impedance.frequencies import thinned_sweep
 from soil_impedance.fit import FitOptions, cached_fit, fit_table
-from soil_impedance.sweep import table_key
+from soil_impedance.blocked import DamagedTableError
+from soil_impedance.sweep import discard_damaged, table_key
 
 
 def scene_impedance(scene, outputs=("rigid",), cache_dir=None, progress=None, stats=None):
@@ -57,13 +58,21 @@ def scene_fit(scene, cache_dir=None, progress=None, table=None, fit_progress=Non
     coordinates unless ``node_xy`` is). Without ``table``, a fit cached for the scene is read
     (``cached_scene_fit``: the table is neither swept nor read), else the table is swept (or
     read from the cache) and fitted. progress follows the sweep, fit_progress the fit (label:
-    its stage); both follow the progress protocol (orchestrator.progress)."""
+    its stage); both follow the progress protocol (orchestrator.progress). A cached table read in
+    blocks whose chunk is found damaged as the fit reads it (``DamagedTableError``: nothing of it
+    used) is moved aside with a CacheWarning, swept again and fitted from the start."""
     options = _fit_options(scene, fit_options)
     if table is None:
         hit = cached_scene_fit(scene, cache_dir, options)
         if hit is not None:
             return hit
         table = scene_impedance(scene, ("gap",), cache_dir=cache_dir, progress=progress)["gap"]
+    try:
+        return fit_table(table, cache_dir=cache_dir, progress=fit_progress, options=options)
+    except DamagedTableError as exc:
+        if not discard_damaged(table, exc, cache_dir):
+            raise
+    table = scene_impedance(scene, ("gap",), cache_dir=cache_dir, progress=progress)["gap"]
     return fit_table(table, cache_dir=cache_dir, progress=fit_progress, options=options)
 
 

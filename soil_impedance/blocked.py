@@ -15,9 +15,19 @@ The full matrix is stored, not its upper triangle: the fit reads the upper-trian
 
 The writer is atomic (``uplift_common.files.atomic_output``: a temporary file renamed at the end,
 removed on any error) and computes the data digest (SHA-256 of the complex matrices, frequency
-after frequency: the same bytes as ``table._data_digest`` of the whole array) as it goes; the
-whole-file checksum is stamped at the end (``stamp_checksum`` reads the datasets in slabs of
-about 64 MB). ``BlockedTable.open`` verifies both, streaming, before anything is read from it.
+after frequency: the same bytes as ``table._data_digest`` of the whole array) as it goes, and the
+SHA-256 of every chunk of ``matrices_real`` and ``matrices_imag`` as it writes it (each chunk
+written whole, ``write_direct_chunk``), into the datasets ``matrices_<part>_chunk_sha256`` (F, b,
+b, 32) that ``uplift_common.files.CHUNK_DIGESTS_ATTR`` names: the whole-file checksum stamped at
+the end covers those digests, not the matrices, and reads nothing back (10 GB at the mat's 2506
+DOFs). Any verification of the whole file (``ImpedanceTable.load``, ``cache.read_entry``) checks
+every chunk against its digest. ``BlockedTable.open`` checks the whole-file checksum without the
+matrices and then each chunk the first time it is read (``block``, ``frequency``): a table is
+read once, by its first consumer's pass (the fit's first pass reads every upper-triangle block),
+never in a pass of its own, and a damaged chunk raises ``DamagedTableError`` before any of its
+entries is used (the cache's reader then discards the entry and recomputes it,
+``soil_impedance.sweep.discard_damaged``). A file without chunk digests (older, or from
+``ImpedanceTable.save``) is verified whole at ``open``, as before.
 """
 from __future__ import annotations
 
@@ -29,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from uplift_common.files import atomic_output, stamp_checksum, verify_checksum
+from uplift_common.files import CHUNK_DIGESTS_ATTR, atomic_output, chunk_digest, stamp_checksum, verify_checksum
 
 from .table import FORMAT, FORMAT_VERSION, ImpedanceTable, TableError, content_hash
 
@@ -45,6 +55,11 @@ def chunk_edge(n: int, chunk: int = CHUNK) -> int:
     """The chunk edge for n DOFs: at most ``chunk``, tiling n with the fewest chunks as evenly as possible
     (HDF5 stores a partial edge chunk whole: 599 DOFs in chunks of 128 took 14 % more disk, of 120 0.3 %)."""
     return -(-n // -(-n // max(1, int(chunk)))) if n else 1
+
+
+class DamagedTableError(TableError):
+    """A chunk of a blocked table's matrices does not match its digest (the file changed since it was
+    written): nothing of it was used; a cache entry is discarded and recomputed."""
 
 
 def table_bytes(n_freq: int, n_dof: int) -> int:
@@ -85,8 +100,15 @@ class TableWriter:
             self._stack.close()
             raise
         shape, chunks = (self.f.size, self.n, self.n), (1, self.chunk, self.chunk)
-        self._ds = [self._h.create_dataset(f"matrices_{p}", shape=shape, dtype="<f8", chunks=chunks)
-                    for p in ("real", "imag")]
+        self._grid = -(-self.n // self.chunk)
+        self._ds, self._digests = [], []
+        for p in ("real", "imag"):
+            ds = self._h.create_dataset(f"matrices_{p}", shape=shape, dtype="<f8", chunks=chunks)
+            ds.attrs[CHUNK_DIGESTS_ATTR] = f"matrices_{p}_chunk_sha256"
+            self._ds.append(ds)
+            self._digests.append(self._h.create_dataset(f"matrices_{p}_chunk_sha256", dtype="u1",
+                                                        shape=(self.f.size, self._grid, self._grid, 32)))
+        self._buffer = np.zeros((self.chunk, self.chunk))
         self._digest = hashlib.sha256()
         return self
 
@@ -96,8 +118,18 @@ class TableWriter:
         K = np.asarray(K, dtype=complex)
         if K.shape != (self.n, self.n):
             raise ValueError(f"TableWriter: matrix of shape {K.shape}, expected {(self.n, self.n)}")
-        self._ds[0][k] = K.real
-        self._ds[1][k] = K.imag
+        c = self.chunk
+        for part, ds, store in zip((K.real, K.imag), self._ds, self._digests):
+            digests = np.empty((self._grid, self._grid, 32), np.uint8)
+            for i, j in np.ndindex(self._grid, self._grid):
+                block = np.ascontiguousarray(part[i * c:(i + 1) * c, j * c:(j + 1) * c])
+                digests[i, j] = np.frombuffer(chunk_digest(block), np.uint8)
+                if block.shape != (c, c):               # an edge chunk is stored whole, padded
+                    self._buffer[...] = 0.0
+                    self._buffer[:block.shape[0], :block.shape[1]] = block
+                    block = self._buffer
+                ds.id.write_direct_chunk((k, i * c, j * c), block)
+            store[k] = digests
         self._digest.update(memoryview(np.ascontiguousarray(K, dtype="<c16")).cast("B"))
         self._next += 1
 
@@ -143,13 +175,18 @@ class BlockedTable:
         self.dofs = list(dofs)
         self.provenance = dict(provenance)
         self.chunk = None               # the chunk edge of the file's matrices (None: not chunked by frequency)
+        self._digests = None            # {"real", "imag"}: the chunk digests (F, b, b, 32) still to check against
+        self._checked = None            # (F, b, b) bool: the chunks checked so far (both parts)
 
     @classmethod
     def open(cls, path, verify: bool = True, checksum: bool | None = None) -> BlockedTable:
-        """The table in ``path`` (an ``ImpedanceTable`` file, blocked or not), its whole-file checksum,
-        hash and data digest verified by streaming reads (slabs of about 64 MB) unless ``verify`` is
-        False (the writer that just wrote it); TableError naming the file otherwise. checksum=False:
-        the whole-file checksum is not verified again (``cache.read_entry`` just did), the rest is."""
+        """The table in ``path`` (an ``ImpedanceTable`` file, blocked or not), verified unless ``verify``
+        is False (the writer that just wrote it); TableError naming the file otherwise. A file with
+        chunk digests (``TableWriter``'s): its whole-file checksum (the digests, not the matrices) and
+        hash now, each chunk when it is first read (``DamagedTableError``); any other file: its
+        whole-file checksum, hash and data digest now, by streaming reads (slabs of about 64 MB).
+        checksum=False: the whole-file checksum is not verified again (``cache.read_entry`` just did,
+        with ``chunks=False`` for a file with chunk digests), the rest is."""
         checksum = verify if checksum is None else checksum
         import h5py
         try:
@@ -162,7 +199,9 @@ class BlockedTable:
             version = int(h.attrs.get("format_version", -1))
             if version != FORMAT_VERSION:
                 raise TableError(f"{path}: format_version {version}, this code reads {FORMAT_VERSION}")
-            if checksum and not verify_checksum(h):
+            digested = all(CHUNK_DIGESTS_ATTR in h[f"matrices_{p}"].attrs for p in ("real", "imag")
+                           if f"matrices_{p}" in h)
+            if checksum and not verify_checksum(h, chunks=not digested):
                 raise TableError(f"{path} changed since it was written (its data no longer match its checksum, "
                                  "or it carries none): delete it and recompute")
             try:
@@ -181,7 +220,15 @@ class BlockedTable:
                 table.chunk = int(chunks[1])
             if table.hash != stored:
                 raise TableError(f"{path}: stored hash does not match the content: delete it and recompute")
-            if verify:
+            if verify and digested:
+                if table.chunk is None:
+                    raise TableError(f"{path}: chunk digests on matrices not chunked by frequency: delete it and recompute")
+                table._digests = {p: h[f"matrices_{p}_chunk_sha256"][()] for p in ("real", "imag")}
+                grid = -(-len(dofs) // table.chunk)
+                if any(d.shape != (f.size, grid, grid, 32) for d in table._digests.values()):
+                    raise TableError(f"{path}: chunk digests of the wrong shape: delete it and recompute")
+                table._checked = np.zeros((f.size, grid, grid), dtype=bool)
+            elif verify:
                 d = hashlib.sha256()
                 for k in range(f.size):
                     d.update(memoryview(np.ascontiguousarray(table._read(h, k), dtype="<c16")).cast("B"))
@@ -215,22 +262,55 @@ class BlockedTable:
         K.real, K.imag = re, h["matrices_imag"][k]
         return K
 
+    def _region(self, h, freqs: slice, rows: slice, cols: slice) -> np.ndarray:
+        """K[freqs, rows, cols] (unit-step slices within the matrix), complex, its chunks not yet
+        checked checked against their digests as they are read (both parts; DamagedTableError)."""
+        ks, r, c = (range(*s.indices(n)) for s, n in zip((freqs, rows, cols), (self.frequencies_hz.size,
+                                                                                self.n_dof, self.n_dof)))
+        K = np.empty((len(ks), len(r), len(c)), complex)
+        e = self.chunk
+        todo = None
+        if self._checked is not None and len(ks) and len(r) and len(c):
+            chunks = np.s_[ks.start:ks.stop, r.start // e:-(-r.stop // e), c.start // e:-(-c.stop // e)]
+            if not self._checked[chunks].all():
+                todo = chunks
+        if todo is None:
+            sel = np.s_[ks.start:ks.stop, r.start:r.stop, c.start:c.stop]
+            K.real = h["matrices_real"][sel]
+            K.imag = h["matrices_imag"][sel]
+            return K
+        # the chunks the region touches, read whole and checked, the region cut from them
+        r0, r1 = todo[1].start * e, min(self.n_dof, todo[1].stop * e)
+        c0, c1 = todo[2].start * e, min(self.n_dof, todo[2].stop * e)
+        for part in ("real", "imag"):
+            data = h[f"matrices_{part}"][ks.start:ks.stop, r0:r1, c0:c1]
+            digests = self._digests[part]
+            for t, i, j in zip(*np.nonzero(~self._checked[todo])):
+                k, bi, bj = ks.start + t, todo[1].start + i, todo[2].start + j
+                block = data[t, bi * e - r0:(bi + 1) * e - r0, bj * e - c0:(bj + 1) * e - c0]
+                if chunk_digest(block) != bytes(digests[k, bi, bj]):
+                    raise DamagedTableError(
+                        f"{self.path}: the chunk of matrices_{part} at frequency {k}, rows {bi * e}.., columns "
+                        f"{bj * e}.. does not match its digest (the file changed since it was written): "
+                        "delete it and recompute")
+            setattr(K, part, data[:, r.start - r0:r.stop - r0, c.start - c0:c.stop - c0])
+        self._checked[todo] = True
+        return K
+
     def block(self, rows: slice, cols: slice) -> np.ndarray:
-        """K[:, rows, cols] across all frequencies, complex (F, r, c): one read per part."""
+        """K[:, rows, cols] across all frequencies, complex (F, r, c): one read per part (a chunk read
+        for the first time is checked against its digest: a block of whole chunks, as ``blocks``
+        gives them, reads nothing more)."""
         import h5py
         with h5py.File(self.path, "r") as h:
-            re = h["matrices_real"][:, rows, cols]
-            K = np.empty(re.shape, complex)
-            K.real = re
-            del re
-            K.imag = h["matrices_imag"][:, rows, cols]
-        return K
+            return self._region(h, slice(None), rows, cols)
 
     def frequency(self, k: int) -> np.ndarray:
         """K(f_k), complex (n, n)."""
         import h5py
+        k = range(self.frequencies_hz.size)[k]
         with h5py.File(self.path, "r") as h:
-            return self._read(h, k)
+            return self._region(h, slice(k, k + 1), slice(None), slice(None))[0]
 
     def blocks(self, size: int | None = None, upper: bool = True):
         """(rows, cols) slices of the blocks of edge ``size`` tiling the matrix, row block by row block

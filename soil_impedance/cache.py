@@ -36,7 +36,7 @@ class CacheWarning(UserWarning):
     """A damaged cache entry was discarded; the result is recomputed."""
 
 
-def read_entry(path, reader, keep: bool = False, pairs: bool = True, into=None):
+def read_entry(path, reader, keep: bool = False, pairs: bool = True, into=None, chunks: bool = True):
     """Read the cache entry at ``path`` with ``reader(f: h5py.File)``; None means recompute.
     keep: call ``reader(f, data)`` instead, ``data`` the entry's datasets as the checksum
     verification read them (``{"/name": ndarray}``, a scalar as a numpy scalar): a large entry
@@ -50,7 +50,9 @@ def read_entry(path, reader, keep: bool = False, pairs: bool = True, into=None):
     ``reader`` raises (any Exception, including the user-input error types: ``reader`` may
     reject a stale or nonsensical entry that way), warn ``CacheWarning`` naming the file and
     the cause, move the file aside to ``<name>.damaged`` (one kept per entry, for inspection)
-    and return None: a damaged cache entry never stops a run.
+    and return None: a damaged cache entry never stops a run. chunks=False: the chunks of a
+    chunk-digested dataset are not checked here (``verify_checksum``): the reader checks each one
+    as it reads it, and a damaged one found later is discarded by ``discard_entry``.
     """
     path = Path(path)
     try:
@@ -61,16 +63,25 @@ def read_entry(path, reader, keep: bool = False, pairs: bool = True, into=None):
         with h5py.File(path, "r") as f:
             data = {} if keep else None
             rule = (into or (ComplexPairs() if pairs else None)) if keep else None
-            if not verify_checksum(f, data, rule):
+            if not verify_checksum(f, data, rule, chunks):
                 raise ValueError("checksum attribute 'sha256' missing or not matching the content")
             return reader(f) if data is None else reader(f, data)
     except Exception as exc:
         cause = f"{type(exc).__name__}: {exc}"
+    discard_entry(path, cause, before, stacklevel=3)
+    return None
+
+
+def discard_entry(path, cause: str, before=None, stacklevel: int = 2) -> None:
+    """Move the damaged cache entry ``path`` aside (``<name>.damaged``) with a ``CacheWarning`` naming
+    it and ``cause``, unless it is no longer the file of ``os.stat`` result ``before`` (another
+    process already rewrote it; None: whatever is there now)."""
+    path = Path(path)
     aside = path.with_name(path.name + ".damaged")
     try:
         now = os.stat(path)
-        if (now.st_ino, now.st_dev, now.st_mtime_ns) == (before.st_ino, before.st_dev,
-                                                          before.st_mtime_ns):
+        if before is None or (now.st_ino, now.st_dev, now.st_mtime_ns) == (before.st_ino, before.st_dev,
+                                                                           before.st_mtime_ns):
             os.replace(path, aside)             # else another process already rewrote it
             where = f"moved to {aside.name}"
         else:
@@ -78,8 +89,7 @@ def read_entry(path, reader, keep: bool = False, pairs: bool = True, into=None):
     except OSError as exc:
         where = f"could not move it aside ({exc})"
     warnings.warn(CacheWarning(f"damaged cache entry {path} ({cause}); {where}; recomputing"),
-                  stacklevel=2)
-    return None
+                  stacklevel=stacklevel)
 
 
 def write_entry(path, writer) -> None:

@@ -109,16 +109,16 @@ def batch_size(n: int) -> int:
 def fast_memory(n: int, nx: int, ny: int, rhs: int | None = None) -> int:
     """Peak bytes of the fast solver's work per frequency (no dense F): the symbols and their
     inverses (2 × 9 P Q complex), a batch's Krylov basis, its FFT grids (three of m × 3 P Q
-    complex) and vectors, the N × N vertical block it fills (plus its transpose), and the
+    complex) and vectors, the (6 + N)² gap matrix it assembles (in place, ``gap_and_rigid``), and the
     solutions of ``rhs`` right-hand sides (6 + one load per symmetry orbit; None: n/8 + 2 √n + 6,
-    a centred square or circle grid's) at three frequencies (the two previous ones are the
-    sweep's first guesses)."""
+    a centred square or circle grid's) at four frequencies (the three previous ones of its chain
+    are the sweep's first guesses, ``sweep.first_guess``)."""
     P, Q = scipy.fft.next_fast_len(2 * nx - 1), scipy.fft.next_fast_len(2 * ny - 1)
     m = batch_size(n)
     if rhs is None:
         rhs = n // 8 + 2 * int(np.sqrt(n)) + 6
     return int(2 * 9 * 16 * P * Q + (RESTART + 1) * m * 3 * n * 16 + 3 * m * 3 * P * Q * 16
-               + 8 * m * 3 * n * 16 + 2 * 16 * n * n + 3 * 16 * 3 * n * rhs)
+               + 8 * m * 3 * n * 16 + 16 * (6 + n) ** 2 + 4 * 16 * 3 * n * rhs)
 
 
 def right_hand_sides(mesh) -> int:
@@ -333,7 +333,7 @@ def gap_and_rigid(bem, omega, outputs, tol, T, Th, guess=None):
     the T solves).
 
     guess : None or the ``solutions`` of another frequency (dict "T", "Z" -> (3N, k)): first
-    guesses of GMRES (``_compute_fast``: extrapolated from the previous frequencies).
+    guesses of GMRES (``sweep._compute_fast``: extrapolated from the chain's previous frequencies).
 
     Returns (dict output -> matrix, GridSolver (its counters), solutions {"T", "Z"}).
     """
@@ -356,16 +356,40 @@ def gap_and_rigid(bem, omega, outputs, tol, T, Th, guess=None):
         Z = np.zeros((3 * n, reps.size))
         Z[2 + 3 * reps, np.arange(reps.size)] = 1.0
         solutions["Z"] = solver.solve(Z, guess.get("Z"))
-        Xz = solutions["Z"][2::3]                         # (n, r): vertical response to each load
-        Kzz = np.empty((n, n), dtype=complex)
+        # the transpose B = Kgᵀ is assembled (its vertical block row by row, from contiguous rows of
+        # the solutions) and symmetrised in place: 0.5 (B + Bᵀ) = 0.5 (Kg + Kgᵀ), the same bits
+        XzT = np.ascontiguousarray(solutions["Z"][2::3].T)    # (r, n): vertical response to each load
+        B = np.empty((6 + n, 6 + n), dtype=complex)
+        B[:6, :6] = (Th.T @ Xh).T
+        B[6:, :6] = Xh[2::3]
+        B[:6, 6:] = Xh[2::3].T
+        Bz = B[6:, 6:]
         for p, (k, node) in zip(maps, supply):
-            # K[p[i], p[rep]] = K[i, rep]: column p[rep] is column rep permuted by p
-            Kzz[p[:, None], node[None, :]] = Xz[:, k]
-        Kg = np.empty((6 + n, 6 + n), dtype=complex)
-        Kg[:6, :6] = Th.T @ Xh
-        Kg[6:, :6] = Xh[2::3]
-        Kg[:6, 6:] = Xh[2::3].T
-        Kg[6:, 6:] = Kzz
-        out["gap"] = 0.5 * (Kg + Kg.T)
+            # K[p[i], p[rep]] = K[i, rep]: column p[rep] of K (row of B) is column rep permuted by p
+            inverse = np.empty_like(p)
+            inverse[p] = np.arange(p.size)
+            rows = XzT[k]
+            for t, j in enumerate(node):
+                np.take(rows[t], inverse, out=Bz[j])
+        out["gap"] = symmetrise(B)
     return out, solver, solutions
+
+
+#: tile edge of ``symmetrise``
+TILE = 256
+
+
+def symmetrise(A):
+    """0.5 (A + Aᵀ) in place, tile by tile (no temporary of A's size), the same bits as the
+    expression (IEEE addition commutes); returns A."""
+    m = A.shape[0]
+    for i in range(0, m, TILE):
+        a = A[i:i + TILE, i:i + TILE]
+        a[...] = 0.5 * (a + a.T)
+        for j in range(i + TILE, m, TILE):
+            upper, lower = A[i:i + TILE, j:j + TILE], A[j:j + TILE, i:i + TILE]
+            s = 0.5 * (upper + lower.T)
+            upper[...] = s
+            lower[...] = s.T
+    return A
 

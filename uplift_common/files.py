@@ -29,6 +29,12 @@ one whose content no longer matches (``ChangedFileError``: it changed since it w
 A writer that fills its file through ``RecordedFile`` (the results file) has the digest taken
 from what it wrote, not read back (the same digest; whatever the record cannot reproduce is read
 back).
+A dataset too large to read back for its writer's checksum (an impedance table written one
+frequency at a time, ``soil_impedance.blocked``) may carry the SHA-256 of each of its chunks
+instead (``CHUNK_DIGESTS_ATTR``, ``chunk_digest``): the whole-file checksum then covers the
+digests, not the data, and a verification checks each chunk against its digest (all of them,
+or, with ``chunks=False``, none: the reader checks each chunk when it reads it, as an
+impedance table read in blocks does).
 
 Usage::
 
@@ -65,6 +71,9 @@ from uplift_common.errors import OutputWriteError, UserInputError
 CHECKSUM_ATTR = "sha256"
 _CHUNK_BYTES = 1 << 26          # datasets are hashed in slabs of about 64 MiB along axis 0
 _READ_BYTES = 1 << 22           # a dataset read in place (``into``) is read about 4 MiB at a time
+#: attribute of a chunked dataset naming the uint8 dataset beside it (same group) that holds the
+#: SHA-256 of each of its chunks, shape (chunks along each axis..., 32): ``chunk_digest``
+CHUNK_DIGESTS_ATTR = "chunk_sha256"
 _UMASK = os.umask(0o022)
 os.umask(_UMASK)
 
@@ -456,14 +465,62 @@ def _update_value(h, value, f=None) -> None:
         h.update(np.ascontiguousarray(a).reshape(-1).view(np.uint8))     # the bytes, not a copy of them
 
 
-def _update_dataset(h, ds, f, keep=None, into=None) -> None:
+def chunk_digest(a) -> bytes:
+    """SHA-256 (32 bytes) of the chunk data ``a`` (the part of a chunk inside its dataset), in C
+    order, as the dataset's dtype gives it: what ``CHUNK_DIGESTS_ATTR``'s dataset holds."""
+    return hashlib.sha256(np.ascontiguousarray(a).reshape(-1).view(np.uint8)).digest()
+
+
+def chunk_digests(ds):
+    """The digests dataset of the chunk-digested dataset ``ds`` (``CHUNK_DIGESTS_ATTR``), or None."""
+    name = ds.attrs.get(CHUNK_DIGESTS_ATTR)
+    if name is None:
+        return None
+    return ds.parent[name.decode() if isinstance(name, bytes) else str(name)]
+
+
+def _check_chunks(ds, data=None) -> None:
+    """Check every chunk of the chunk-digested dataset ``ds`` against its digest, reading it slab of
+    chunks by slab along axis 0 (or from ``data``, its content already read); ValueError if one differs."""
+    digests = chunk_digests(ds)[()]
+    edge = ds.chunks
+    grid = tuple(-(-n // c) for n, c in zip(ds.shape, edge))
+    if digests.shape != grid + (32,):
+        raise ValueError(f"{ds.name}: chunk digests of shape {digests.shape}, expected {grid + (32,)}")
+    for i in range(grid[0]):
+        rows = slice(i * edge[0], min(ds.shape[0], (i + 1) * edge[0]))
+        slab = ds[rows] if data is None else data[rows]
+        for index in np.ndindex(*grid[1:]):
+            sel = tuple(slice(j * c, (j + 1) * c) for j, c in zip(index, edge[1:]))
+            if chunk_digest(np.asarray(slab[(slice(None),) + sel], dtype=ds.dtype)) != bytes(digests[(i,) + index]):
+                raise ValueError(f"{ds.name}: chunk {(i,) + index} does not match its digest")
+
+
+def _update_dataset(h, ds, f, keep=None, into=None, chunks=True) -> None:
     """Feed dataset ``ds`` into ``h`` in slabs along axis 0; with ``keep`` (a dict) it is read
     whole, once, hashed slab by slab from memory (the same digest) and kept as ``keep[ds.name]``;
     with ``into`` as well, a numeric dataset for which ``into(ds)`` gives an array (ds's shape,
     any dtype and strides: a view) is read into it a few rows at a time through a small buffer
-    (the same digest; no copy of the dataset made) and that array is kept."""
+    (the same digest; no copy of the dataset made) and that array is kept. A chunk-digested
+    dataset (``CHUNK_DIGESTS_ATTR``) feeds its dtype and shape only (its digests are another
+    dataset, fed as any); its chunks are checked against them unless ``chunks`` is False."""
     h.update(f"dataset {ds.dtype.str} {ds.shape}".encode())
     if ds.shape is None:                        # null dataspace
+        return
+    if ds.chunks is not None and CHUNK_DIGESTS_ATTR in ds.attrs:
+        h.update(b" chunk-digested")
+        data = None
+        if keep is not None:
+            data = into(ds) if into is not None else None
+            if data is not None and data.shape == ds.shape:
+                step = max(1, _READ_BYTES // max(1, ds.dtype.itemsize * ds.size // ds.shape[0]))
+                for i in range(0, ds.shape[0], step):
+                    data[i:i + step] = ds[i:i + step]
+            else:
+                data = ds[()]
+            keep[ds.name] = data
+        if chunks:
+            _check_chunks(ds, data)
         return
     numeric = ds.ndim > 0 and ds.size > 0 and ds.dtype.kind in "fiuc" and not ds.dtype.names
     dest = into(ds) if keep is not None and into is not None and numeric else None
@@ -542,7 +599,7 @@ def _update_attrs(h, obj, f, skip=()) -> None:
             _update_value(h, obj.attrs[key], f)
 
 
-def checksum(f: h5py.File, keep: dict | None = None, into=None) -> str:
+def checksum(f: h5py.File, keep: dict | None = None, into=None, chunks: bool = True) -> str:
     """SHA-256 (hex) of every group, dataset and attribute of ``f`` in name order, except the
     root checksum attribute. keep: a dict filled with every dataset's value as it was read and
     hashed (``{"/name": ndarray}``), for a caller that would otherwise read it again; into
@@ -553,12 +610,14 @@ def checksum(f: h5py.File, keep: dict | None = None, into=None) -> str:
     attribute count), plain numeric datasets read with h5py's low-level calls
     (``_update_plain``), an object without attributes not opened for them: the digest of
     ``_checksum_by_objects`` (every object opened and read through h5py's objects, the
-    reference the tests compare with), several times cheaper on a file of many small datasets."""
+    reference the tests compare with), several times cheaper on a file of many small datasets.
+    chunks: check the chunks of chunk-digested datasets (ValueError if one differs; False: not
+    read: a reader checks each chunk it reads against its digest)."""
     found = {}
     try:
         h5py.h5o.visit(f.id, lambda n, info: found.__setitem__(n.decode(), (info.type, info.num_attrs)), info=True)
     except UnicodeDecodeError:                  # a name h5py would not decode either: its own walk
-        return _checksum_by_objects(f, keep, into)
+        return _checksum_by_objects(f, keep, into, chunks)
     found.pop(".", None)
     h = hashlib.sha256()
     _update_attrs(h, f, f, skip=(CHECKSUM_ATTR,))
@@ -570,7 +629,7 @@ def checksum(f: h5py.File, keep: dict | None = None, into=None) -> str:
         elif not (kind == h5py.h5o.TYPE_DATASET and into is None and _update_plain(h, f, name, keep)):
             obj = f[name]
             if isinstance(obj, h5py.Dataset):
-                _update_dataset(h, obj, f, keep, into)
+                _update_dataset(h, obj, f, keep, into, chunks)
             else:
                 h.update(b"group")
         if n_attrs:
@@ -578,7 +637,7 @@ def checksum(f: h5py.File, keep: dict | None = None, into=None) -> str:
     return h.hexdigest()
 
 
-def _checksum_by_objects(f: h5py.File, keep: dict | None = None, into=None) -> str:
+def _checksum_by_objects(f: h5py.File, keep: dict | None = None, into=None, chunks: bool = True) -> str:
     """``checksum`` read object by object through h5py's high-level objects."""
     h = hashlib.sha256()
     _update_attrs(h, f, f, skip=(CHECKSUM_ATTR,))
@@ -588,7 +647,7 @@ def _checksum_by_objects(f: h5py.File, keep: dict | None = None, into=None) -> s
         obj = f[name]
         h.update(b"\0object " + name.encode() + b"\0")
         if isinstance(obj, h5py.Dataset):
-            _update_dataset(h, obj, f, keep, into)
+            _update_dataset(h, obj, f, keep, into, chunks)
         else:
             h.update(b"group")
         _update_attrs(h, obj, f)
@@ -600,8 +659,10 @@ def _update_plain(h, f, name: str, keep=None) -> bool:
     scalar, or an array of at least one element and at most _CHUNK_BYTES) through h5py's
     low-level calls, read whole (kept in ``keep`` as h5py reads it: a scalar as a numpy scalar):
     the same digest without h5py's per-object machinery, several times cheaper on a small
-    dataset. False, nothing hashed, for any other dataset."""
+    dataset. False, nothing hashed, for any other dataset (a chunk-digested one among them)."""
     dsid = h5py.h5d.open(f.id, name.encode())
+    if h5py.h5a.exists(dsid, CHUNK_DIGESTS_ATTR.encode()):
+        return False
     dtype, shape = dsid.dtype, dsid.shape
     size = 0 if shape is None else 1            # None: a null dataspace
     for n in shape or ():
@@ -627,7 +688,7 @@ def stamp_checksum(f: h5py.File) -> str:
     if isinstance(f, RecordedFile):
         return f.stamp()
     f.flush()
-    digest = checksum(f)
+    digest = checksum(f, chunks=False)          # a chunk-digested dataset's digests are its writer's
     f.attrs[CHECKSUM_ATTR] = digest
     return digest
 
@@ -640,16 +701,17 @@ def stamp_file(path) -> str:
         return stamp_checksum(f)
 
 
-def verify_checksum(f: h5py.File, keep: dict | None = None, into=None) -> bool:
+def verify_checksum(f: h5py.File, keep: dict | None = None, into=None, chunks: bool = True) -> bool:
     """True if the root ``"sha256"`` attribute matches the content of ``f``; False when it is
-    missing, different, or part of the file cannot be read. keep, into: as ``checksum``."""
+    missing, different, or part of the file cannot be read. keep, into, chunks: as ``checksum``
+    (chunks=False: the caller checks each chunk of a chunk-digested dataset as it reads it)."""
     stored = f.attrs.get(CHECKSUM_ATTR)
     if stored is None:
         return False
     if isinstance(stored, bytes):
         stored = stored.decode(errors="replace")
     try:
-        return str(stored) == checksum(f, keep, into)
+        return str(stored) == checksum(f, keep, into, chunks)
     except (OSError, KeyError, RuntimeError, ValueError, TypeError):
         return False
 

@@ -34,15 +34,17 @@ def _write(table, path, chunk=8):
 
 
 def test_written_file_is_the_saved_file_chunked(gap_table, tmp_path):
-    """Frequency by frequency, the writer makes the file ``save`` makes (same whole-file checksum and data
-    digest: both hash the content, not the layout), chunked one frequency × 8 × 8; ``load`` reads it
-    bit-identically and ``block`` returns exactly the slices of the matrices across all frequencies."""
+    """Frequency by frequency, the writer makes the file ``save`` makes (same data digest and hash: both
+    hash the content, not the layout), chunked one frequency × 8 × 8, with the digest of each chunk (its
+    whole-file checksum covers them instead of the matrices); ``load`` reads it bit-identically and
+    ``block`` returns exactly the slices of the matrices across all frequencies."""
     gap_table.save(tmp_path / "whole.h5")
     _write(gap_table, tmp_path / "blocked.h5")
     with h5py.File(tmp_path / "whole.h5") as a, h5py.File(tmp_path / "blocked.h5") as b:
         assert b["matrices_real"].chunks == (1, 7, 7) and a["matrices_real"].chunks is None   # 35 = 5 x 7
-        for key in ("sha256", "data_sha256", "hash"):
+        for key in ("data_sha256", "hash"):
             assert a.attrs[key] == b.attrs[key]
+        assert b["matrices_imag_chunk_sha256"].shape == (26, 5, 5, 32) and "matrices_real_chunk_sha256" not in a
     again = ImpedanceTable.load(tmp_path / "blocked.h5")
     assert np.array_equal(again.matrices, gap_table.matrices) and again.hash == gap_table.hash
     lazy = ImpedanceTable.open(tmp_path / "blocked.h5")
@@ -70,6 +72,17 @@ def test_a_writer_that_fails_leaves_nothing_and_a_changed_file_is_refused(gap_ta
     _write(gap_table, path)
     with h5py.File(path, "r+") as h:
         h["matrices_imag"][3, 2, 2] += 1.0
+    with pytest.raises(TableError, match="changed since it was written"):
+        ImpedanceTable.load(path)                   # the whole file: every chunk against its digest
+    lazy = BlockedTable.open(path)                  # the matrices are checked as they are read
+    assert np.array_equal(lazy.block(slice(7, 14), slice(0, 35)), gap_table.matrices[:, 7:14])
+    with pytest.raises(TableError, match=r"frequency 3, rows 0\.\., columns 0\.\. .*changed since it was written"):
+        lazy.block(slice(0, 7), slice(0, 7))
+    with pytest.raises(TableError, match="changed since it was written"):
+        BlockedTable.open(path).frequency(3)
+    assert np.array_equal(BlockedTable.open(path).frequency(2), gap_table.matrices[2])
+    with h5py.File(path, "r+") as h:
+        h["matrices_real_chunk_sha256"][0, 0, 0, 0] ^= 1      # a digest changed: the whole-file checksum
     with pytest.raises(TableError, match="changed since it was written"):
         BlockedTable.open(path)
 

@@ -200,7 +200,7 @@ def test_memory_estimate_of_the_fast_solver(monkeypatch):
     dense = sweep_memory(2500, 3, ("rigid", "gap"), grid=True)
     fast = sweep_memory(2500, 3, ("rigid", "gap"), grid=True, solver="fast", box=(50, 50))
     assert fast["F"] == 0 and dense["F"] == 16 * 7500 ** 2
-    assert fast["total"] < 0.6 * dense["total"]
+    assert fast["total"] < 0.8 * dense["total"]             # two warm-start chains: two solvers' work
     assert fast["work"] >= 2 * 16 * 2500 ** 2                 # the N × N vertical block at least
     mat = rectangle_mesh(100.0, 100.0, 2.0)
     monkeypatch.setattr(sweep_module, "available_memory", lambda: 2.5 * 2 ** 30)
