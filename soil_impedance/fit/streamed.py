@@ -182,7 +182,9 @@ class StreamedProblem:
 
     def coefficients(self, poles, error=False):
         """The coefficient matrices (nb, n, n) (symmetric; ``Problem.coefficients`` as matrices: its
-        columns divided by their √2 weights), E projected on the PSD cone. ``error``: also
+        columns divided by their √2 weights), E projected on the PSD cone unless a Cholesky factorisation
+        on the active DOFs proves it positive definite (an eigendecomposition of the whole E finds
+        round-off negative eigenvalues, -1e-15, on a gap table's zero rows: a second pass for nothing). ``error``: also
         ``order_error(poles, C)``, summed in the same pass as the coefficients (each block is read once
         per order, not once more for the error; the same sums in the same order: the same value)."""
         n, m = self.table.n_dof, poles.size
@@ -196,8 +198,9 @@ class StreamedProblem:
             _put(C, slice(None), r, c, i, j, cb)
             if error:                                          # cb: the values just put in C
                 num += _sq((B @ cb - X) * ew)
-        lam, vec = np.linalg.eigh(C[-1])
-        if lam[0] < 0:
+        act = np.nonzero(self.S > 0)[0]
+        lam, vec = (None, None) if _definite(C[-1][np.ix_(act, act)]) else np.linalg.eigh(C[-1])
+        if lam is not None and lam[0] < 0:
             Ep = (vec * np.maximum(lam, 0)) @ vec.T
             C[-1] = np.triu(Ep) + np.triu(Ep, 1).T          # Problem keeps the upper triangle
             solver = self._basis_solver(poles, False)
@@ -260,11 +263,8 @@ class StreamedProblem:
         neg = {}                                                    # order: (‖e₋‖², Pᵀ E₋ P); E[k] becomes E₋
         for k in range(len(orders)):
             Ea = E[k][np.ix_(act, act)]
-            try:
-                np.linalg.cholesky(Ea)
+            if _definite(Ea):
                 continue                                            # positive definite: as fitted
-            except np.linalg.LinAlgError:
-                pass
             lam, V = scipy.linalg.eigh(Ea, subset_by_value=(-np.inf, 0.0))
             keep = lam < 0
             if not keep.any():
@@ -386,6 +386,15 @@ class StreamedProblem:
         if self.f_c <= 0:
             return 0.0
         return float(1.1 * 0.5 * np.linalg.norm(self.H0) / max(np.linalg.norm(self.Ks[0].real), 1e-300))
+
+
+def _definite(A) -> bool:
+    """True when a Cholesky factorisation proves the symmetric A positive definite (its E kept as fitted)."""
+    try:
+        np.linalg.cholesky(A)
+    except np.linalg.LinAlgError:
+        return False
+    return True
 
 
 def _columns(T, r, c, i, j) -> np.ndarray:
