@@ -150,8 +150,8 @@ def run_memory(scene, routes=None, cached: bool = True) -> list[Stage]:
         if "gap" in streamed:
             fit = streamed_fit_memory(nb, F, poles)
             what = (f"streamed fit of the {nb} x {nb} gap table at {F} frequencies on disk, at most {poles} poles "
-                    f"({_gib(held)} held + {_gib(fit['total'])}: the order search's coefficients (the best order and "
-                    f"the one fitted) {_gib(fit['search'])}, "
+                    f"({_gib(held)} held + {_gib(fit['total'])}: the order search's E of every order, or one order's "
+                    f"coefficients fitted for the enforcement, {_gib(fit['search'])}, "
                     f"the models {_gib(fit['models'])}, the passivity sweep {_gib(fit['passivity'])})")
         else:
             fit = fit_memory(nb, F, poles)
