@@ -144,3 +144,16 @@ def test_the_search_takes_the_batched_orders_with_its_own_rules(bem_table, tmp_p
                                                                                weighting="entry"), P, {}, None)
     entry.run()
     assert entry.batch is None and entry.held() == 1
+
+
+def test_without_the_rigid_raft_correction(bem_table, tmp_path):
+    """rigid_correction off (P None): the batched errors alone, equal to the order-by-order search's."""
+    lazy = _write(bem_table, tmp_path / "t.h5", 12)
+    prob = StreamedProblem(lazy, "relative", "auto", None)
+    opt = FitOptions(tol=1e-6, max_order=10, patience=None, n_iter=5, rigid_correction=False)
+    a, b = OrderSearch(prob, opt, None, {}, None), OrderSearch(prob, opt, None, {}, None)
+    a.batched = False
+    assert a.run() == b.run() == "max_order" and b.batch is not None
+    assert all(rigid is None for _, _, rigid in b.batch)
+    for ha, hb in zip(a.history, b.history):
+        assert ha[0] == hb[0] and len(hb) == 2 and hb[1] == pytest.approx(ha[1], rel=ERR_RTOL)
