@@ -217,8 +217,8 @@ class StreamedProblem:
         err = np.sqrt(num) / np.maximum(self.norm_target, 1e-300)
         return C, float(err[self.band].max())
 
-    def search_orders(self, n_pairs, n_iter, provenance=None):
-        """Every order of the order search at once, 1 to ``n_pairs`` pole pairs, in one or two passes
+    def search_orders(self, n_pairs, n_iter, provenance=None, first=1):
+        """Orders of the order search at once, ``first`` to ``n_pairs`` pole pairs, in one or two passes
         over the table instead of one or two per order: per order (poles, max band error, the rigid-raft
         model Pᵀ K P (6 × 6 ``RationalModel`` of the order's model before its rigid-raft correction, or
         None without P)), the poles, errors and rigid-raft models of ``fit_order_streamed`` and
@@ -247,7 +247,7 @@ class StreamedProblem:
         st = np.concatenate([self.s.real, self.s.imag])       # s̃, the E column of the stacked basis
         RT = self.R.T
         orders = []
-        for pairs in range(1, n_pairs + 1):
+        for pairs in range(first, n_pairs + 1):
             poles = order_poles(self, pairs, n_iter)
             B = real_basis(self.s, poles)
             orders.append((poles, np.concatenate([B.real, B.imag]), self._basis_solver(poles, True) * wt))
@@ -284,7 +284,7 @@ class StreamedProblem:
                     g = X @ en
                     gneg[k] += np.concatenate([g.real, g.imag])
         del E
-        self.projected = sorted(neg)                                # the orders (0-based) whose E was projected
+        self.projected = [first - 1 + k for k in sorted(neg)]       # the orders (0-based) whose E was projected
         out = []
         for k, (poles, Bt, Z) in enumerate(orders):
             m = poles.size

@@ -14,7 +14,7 @@ from soil_impedance.fit import FitOptions
 from soil_impedance.fit.options import RIGID
 from soil_impedance.fit.pipeline import _projection
 from soil_impedance.fit.rigid import rigid_model
-from soil_impedance.fit.search import OrderSearch
+from soil_impedance.fit.search import FIRST_ORDERS, OrderSearch
 from soil_impedance.fit.streamed import StreamedProblem, fit_order_streamed
 from soil_impedance.fit.target import Problem, fit_order
 from soil_impedance.vectfit import real_basis
@@ -125,7 +125,8 @@ def test_a_definite_and_an_indefinite_E(tmp_path, sign):
 
 def test_the_search_takes_the_batched_orders_with_its_own_rules(bem_table, tmp_path):
     """OrderSearch.run on a streamed problem: the same stop reason, orders, poles and criteria as the
-    order-by-order search (``batched`` False), no coefficients held, and the enforcement's refit of an
+    order-by-order search (``batched`` False; it stops at the fifth order, in the second batch), no
+    coefficients held, and the enforcement's refit of an
     order equals that order's fit bit for bit; the "entry" weighting stays order by order."""
     lazy, P, prob = _streamed(bem_table, tmp_path, 12, "relative")
     opt = FitOptions(tol=0.05, patience=2, n_iter=5)
@@ -133,11 +134,15 @@ def test_the_search_takes_the_batched_orders_with_its_own_rules(bem_table, tmp_p
     a.batched = False
     b = OrderSearch(prob, opt, P, {}, None)
     assert a.run() == b.run()
-    assert a.batch is None and b.batch is not None and len(a.fits) == len(b.fits) < b.max_pairs
+    assert a.batch is None and FIRST_ORDERS < len(a.fits) == len(b.fits) < b.max_pairs
+    assert len(b.batch) == b.max_pairs                                  # the second batch: every order up to max_pairs
     for fa, fb in zip(a.fits, b.fits):
         assert np.array_equal(fa[0], fb[0])
         assert fb[2] == pytest.approx(fa[2], rel=ERR_RTOL) and fb[3] == pytest.approx(fa[3], rel=ERR_RTOL)
     assert b.held() == 0
+    c = OrderSearch(prob, FitOptions(tol=0.07, n_iter=5), P, {}, None)
+    assert c.run() == "tol reached" and len(c.fits) == 3 and len(c.batch) == FIRST_ORDERS      # the first batch only
+    assert [f[3] for f in c.fits] == [f[3] for f in b.fits[:3]]
     i = int(np.argmin([f[3] for f in b.fits]))
     assert np.array_equal(b.coefficients(i), a.coefficients(i)) and b.refits == 1
     entry = OrderSearch(StreamedProblem(lazy, "entry", "auto", P), FitOptions(tol=0.05, patience=1, n_iter=3,
@@ -147,13 +152,19 @@ def test_the_search_takes_the_batched_orders_with_its_own_rules(bem_table, tmp_p
 
 
 def test_without_the_rigid_raft_correction(bem_table, tmp_path):
-    """rigid_correction off (P None): the batched errors alone, equal to the order-by-order search's."""
+    """rigid_correction off (P None): the batched errors alone, equal to the order-by-order search's; the
+    search goes to max_order, so the orders come in two batches, at most four passes in all."""
     lazy = _write(bem_table, tmp_path / "t.h5", 12)
     prob = StreamedProblem(lazy, "relative", "auto", None)
     opt = FitOptions(tol=1e-6, max_order=10, patience=None, n_iter=5, rigid_correction=False)
     a, b = OrderSearch(prob, opt, None, {}, None), OrderSearch(prob, opt, None, {}, None)
     a.batched = False
-    assert a.run() == b.run() == "max_order" and b.batch is not None
+    assert a.run() == "max_order"
+    reads = []
+    block = prob.table.block
+    prob.table.block = lambda r, c: reads.append((r, c)) or block(r, c)
+    assert b.run() == "max_order" and len(b.batch) == b.max_pairs == FIRST_ORDERS + 1     # two batches
+    assert len(reads) <= 4 * len(list(prob.table.blocks(prob.block)))                   # two passes each at most
     assert all(rigid is None for _, _, rigid in b.batch)
     for ha, hb in zip(a.history, b.history):
         assert ha[0] == hb[0] and len(hb) == 2 and hb[1] == pytest.approx(ha[1], rel=ERR_RTOL)
