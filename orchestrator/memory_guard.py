@@ -13,8 +13,8 @@ Stages (each estimate is the peak while that stage runs: what the run still hold
   fit       the swept tables held + the rational fit of the gap table: in memory
             (``soil_impedance.fit.peak_memory.fit_memory``), or, for a table above
             ``blocked.STREAM_BYTES`` (on disk: the run's cache folder), the streamed fit
-            (``streamed_fit_memory``: blocks, the coefficients of two orders (the order search keeps
-            the best order's only), the models, the passivity sweep)
+            (``streamed_fit_memory``: blocks, one order's coefficients (the order search holds
+            every order's E only), the models, the passivity sweep)
   stepping  the tables held + the fitted model + the time stepper: m x (6+N)^2 doubles for m poles
             (the history's size) in about 8 copies (``HISTORY_COPIES``: the model's residues,
             coefficients and their scaled view, the split by pole kind, the native runtime's
@@ -150,8 +150,8 @@ def run_memory(scene, routes=None, cached: bool = True) -> list[Stage]:
         if "gap" in streamed:
             fit = streamed_fit_memory(nb, F, poles)
             what = (f"streamed fit of the {nb} x {nb} gap table at {F} frequencies on disk, at most {poles} poles "
-                    f"({_gib(held)} held + {_gib(fit['total'])}: the order search's coefficients (the best order and "
-                    f"the one fitted) {_gib(fit['search'])}, "
+                    f"({_gib(held)} held + {_gib(fit['total'])}: the order search's E of every order, or one order's "
+                    f"coefficients fitted for the enforcement, {_gib(fit['search'])}, "
                     f"the models {_gib(fit['models'])}, the passivity sweep {_gib(fit['passivity'])})")
         else:
             fit = fit_memory(nb, F, poles)

@@ -51,9 +51,12 @@ PROBLEM_COPIES = 4
 #: residues m n^2 complex: the order's rigid-raft corrected model and the enforcement's output (the
 #: plain model is dropped once corrected); measured, see ``streamed_fit_memory``
 MODEL_COPIES = 2
-#: orders' coefficients, (m + 2) n^2 doubles each, alive at once in the order search: the best order so far
-#: (the only one it keeps) and the order being fitted, or fitted again for the enforcement
-SEARCH_COPIES = 2
+#: orders' coefficients, (m + 2) n^2 doubles each, alive at once: the streamed order search holds none (it
+#: fits every order's E, ``StreamedProblem.search_orders``), the enforcement one order's, fitted again from its poles
+SEARCH_COPIES = 1
+#: n^2 doubles of the streamed order search beside every order's E (one per pole pair): the active block of
+#: an E, its negative eigenvectors and the eigenvalue solver's work
+SEARCH_WORK = 3
 #: (m + 2) n^2 double arrays of the enforcement beside the models: the scaled coefficients, the
 #: corrected ones and their symmetrised copy
 ENFORCE_COPIES = 3
@@ -69,9 +72,10 @@ def streamed_fit_memory(n_dof: int, n_freq: int, max_poles: int, block: int | No
 
     Items: ``blocks`` ``STREAM_BLOCKS`` x 16 n_freq edge^2 (edge: ``block`` or the file's chunk
     edge, ``blocked.chunk_edge``); ``problem`` ``PROBLEM_COPIES`` x 16 n^2; ``search``
+    the larger of the order search's E of every order (one per pole pair, n^2 doubles each, and
+    ``SEARCH_WORK`` n^2 doubles beside them: ``fit.streamed.StreamedProblem.search_orders``) and
     ``SEARCH_COPIES`` orders' coefficients of at most max_poles poles, (m + 2) n^2 doubles each (the
-    order search keeps one order's, the best so far, beside the one it fits or fits again:
-    ``fit.search.OrderSearch``); ``models`` ``MODEL_COPIES`` models of max_poles poles and
+    order the enforcement fits again from its poles: ``fit.search.OrderSearch.coefficients``); ``models`` ``MODEL_COPIES`` models of max_poles poles and
     ``ENFORCE_COPIES`` coefficient arrays of the enforcement; ``passivity`` the certified sweep's
     G(nu) block (``PASSIVITY_FREQS`` n^2 doubles, at most ``PASSIVITY_BYTES``) and the eigenvalue
     solver's two n^2.
@@ -88,7 +92,7 @@ def streamed_fit_memory(n_dof: int, n_freq: int, max_poles: int, block: int | No
     pairs = max(1, m // 2)
     items = {"blocks": STREAM_BLOCKS * 16 * n_freq * edge * edge,
              "problem": PROBLEM_COPIES * 16 * n2,
-             "search": SEARCH_COPIES * 8 * (2 * pairs + 2) * n2,
+             "search": 8 * max(SEARCH_COPIES * (2 * pairs + 2), pairs + SEARCH_WORK) * n2,
              "models": (MODEL_COPIES * (8 * (m + 2) + 16 * m) + ENFORCE_COPIES * 8 * (m + 2)) * n2,
              "passivity": min(PASSIVITY_FREQS * 8 * n2, PASSIVITY_BYTES) + 2 * 8 * n2}
     items["total"] = sum(items.values())

@@ -7,9 +7,15 @@ import numpy as np
 
 from ..passivity import enforce_passivity
 from ..rational import FitError, RationalModel
-from .options import FitOptions
+from .options import RIGID, FitOptions
 from .rigid import rigid_correct, rigid_error, rigid_errors, rigid_protection
 from .target import fit_order, rel_errors
+
+_I6 = np.eye(len(RIGID))          # the projection of a rigid-raft (6-DOF) model on itself
+#: orders of the streamed search's first batch (``OrderSearch.run``): the mat and the 600- and 1200-node fits met
+#: the default tol at 6 to 8 poles; an order's E costs an eigendecomposition when it is indefinite (half of the
+#: mat's search when all 15 orders were fitted at once), so the orders after these are fitted only when needed
+FIRST_ORDERS = 4
 
 
 def _round_up(x, digits=2) -> float:
@@ -75,6 +81,9 @@ class OrderSearch:
     same poles, hence the same arrays bit for bit). At most two orders' coefficients are alive at
     once: the kept one and the order being fitted (or refitted)."""
 
+    #: ``run`` fits a streamed problem's orders at once (``StreamedProblem.search_orders``); False: order by order
+    batched = True
+
     def __init__(self, prob, options: FitOptions, P, prov, progress):
         self.prob, self.options, self.P, self.prov = prob, options, P, prov
         self.max_pairs = max_pairs(options, prob.f.size)
@@ -83,6 +92,7 @@ class OrderSearch:
         self.history = []         # report.order_history
         self.refits = 0           # coefficients fitted again on demand (``coefficients``)
         self.progress = progress
+        self.batch = None         # the orders' (poles, error, rigid-raft model) of a streamed problem (``run``)
 
     def coefficients(self, i) -> np.ndarray:
         """The coefficients of fitted order i: the kept ones, or fitted again from its poles."""
@@ -126,7 +136,10 @@ class OrderSearch:
     def fit_next(self) -> float:
         """Fit the next order; its criterion (before enforcement). Its coefficients are kept when
         its criterion is the best so far (strictly lower: the first of equals), and those of the
-        order kept before are dropped."""
+        order kept before are dropped. With ``batch`` (``run`` on a streamed problem) the order is
+        taken from it: its criterion without its coefficients, which are fitted when asked for."""
+        if self.batch is not None:
+            return self._take_batched()
         poles, C, err = fit_order(self.prob, len(self.fits) + 1, self.options.n_iter)
         kept = [i for i, fit in enumerate(self.fits) if fit[1] is not None]
         self.fits.append((poles, C, err, err))
@@ -146,9 +159,37 @@ class OrderSearch:
             self.progress(len(self.fits), self.max_pairs, "order search")
         return self.fits[-1][3]
 
+    def _take_batched(self) -> float:
+        if len(self.fits) == len(self.batch):           # the next orders: the first few, then all the others
+            last = self.max_pairs if self.batch else min(FIRST_ORDERS, self.max_pairs)
+            self.batch += self.prob.search_orders(last, self.options.n_iter, self.prov, first=len(self.batch) + 1)
+        poles, err, rigid = self.batch[len(self.fits)]
+        crit = err
+        if self.P is None:
+            self.history.append((int(poles.size), err))
+        else:
+            corrected = rigid_correct(rigid, None, self.prob.f, _I6, f_c=self.prob.f_c, Kt=self.prob.rigid_target)
+            rig = rigid_error(rigid_errors(corrected, None, self.prob.f, _I6, self.prob.band,
+                                           Kt=self.prob.rigid_raw[self.prob.band]))
+            crit = max(err, rig)
+            self.history.append((int(poles.size), err, rig))
+        self.fits.append((poles, None, err, crit))
+        if self.progress is not None:
+            self.progress(len(self.fits), self.max_pairs, "order search")
+        return crit
+
     def run(self) -> str:
-        """Fit orders until tol is met, the criterion stalls (``patience``) or max_pairs; the reason."""
+        """Fit orders until tol is met, the criterion stalls (``patience``) or max_pairs; the reason.
+
+        A streamed problem (the table on disk) fits its orders in two batches, the first
+        ``FIRST_ORDERS`` orders and, if the search goes on, all the others up to max_pairs, each batch
+        in one or two passes over the table (``StreamedProblem.search_orders``: errors and rigid-raft
+        criteria up to round-off those of the order-by-order fit, no coefficients held); the search
+        takes them in order with the same rules, and the enforcement fits the coefficients of the
+        orders it tries (``coefficients``). The "entry" weighting fits order by order."""
         tol, patience = self.options.tol, self.options.patience
+        if self.batched and getattr(self.prob, "streamed", False) and self.prob.weighting != "entry" and not self.fits:
+            self.batch = []
         while len(self.fits) < self.max_pairs:
             if self.fit_next() <= tol:
                 return "tol reached"

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..rational import FitError
+from ..rational import FitError, RationalModel
 from ..vectfit import real_basis, vector_fit, initial_poles, canonical_poles
 from .options import POLE_CAP, RIGID, WEIGHTINGS
 from .target import causal_cutoff, entry_weighted_coefficients, hysteretic_part
@@ -122,6 +122,7 @@ class StreamedProblem:
                     out += _project(P[r], A, P[c])
                     if r != c:
                         out += _project(P[c], A.transpose(0, 2, 1), P[r])
+        self.R = R                                            # [Re X; Im X] [Re X; Im X]ᵀ = Rᵀ R (``search_orders``)
         self.norm_target, self.norm_Ks, self.norm_K = np.sqrt(t2), np.sqrt(k2), np.sqrt(u2)
         self.w_rel = 1.0 / np.maximum(self.norm_target, 1e-300)
         self.w = self.w_rel if weighting != "uniform" else np.full(F, 1.0 / xmax)
@@ -181,7 +182,9 @@ class StreamedProblem:
 
     def coefficients(self, poles, error=False):
         """The coefficient matrices (nb, n, n) (symmetric; ``Problem.coefficients`` as matrices: its
-        columns divided by their √2 weights), E projected on the PSD cone. ``error``: also
+        columns divided by their √2 weights), E projected on the PSD cone unless a Cholesky factorisation
+        on the active DOFs proves it positive definite (an eigendecomposition of the whole E finds
+        round-off negative eigenvalues, -1e-15, on a gap table's zero rows: a second pass for nothing). ``error``: also
         ``order_error(poles, C)``, summed in the same pass as the coefficients (each block is read once
         per order, not once more for the error; the same sums in the same order: the same value)."""
         n, m = self.table.n_dof, poles.size
@@ -195,8 +198,9 @@ class StreamedProblem:
             _put(C, slice(None), r, c, i, j, cb)
             if error:                                          # cb: the values just put in C
                 num += _sq((B @ cb - X) * ew)
-        lam, vec = np.linalg.eigh(C[-1])
-        if lam[0] < 0:
+        act = np.nonzero(self.S > 0)[0]
+        lam, vec = (None, None) if _definite(C[-1][np.ix_(act, act)]) else np.linalg.eigh(C[-1])
+        if lam is not None and lam[0] < 0:
             Ep = (vec * np.maximum(lam, 0)) @ vec.T
             C[-1] = np.triu(Ep) + np.triu(Ep, 1).T          # Problem keeps the upper triangle
             solver = self._basis_solver(poles, False)
@@ -213,6 +217,100 @@ class StreamedProblem:
         err = np.sqrt(num) / np.maximum(self.norm_target, 1e-300)
         return C, float(err[self.band].max())
 
+    def search_orders(self, n_pairs, n_iter, provenance=None, first=1):
+        """Orders of the order search at once, ``first`` to ``n_pairs`` pole pairs, in one or two passes
+        over the table instead of one or two per order: per order (poles, max band error, the rigid-raft
+        model Pᵀ K P (6 × 6 ``RationalModel`` of the order's model before its rigid-raft correction, or
+        None without P)), the poles, errors and rigid-raft models of ``fit_order_streamed`` and
+        ``model`` up to round-off; no coefficients are formed (``coefficients`` fits them for an order).
+
+        The residues are linear in the table: an order's coefficients are Z X̃ (Z = the basis'
+        least-squares inverse with the row weights, (nb, 2F); X̃ = [Re X; Im X], (2F, M) the target's
+        columns), so
+
+        * its error needs only X̃ X̃ᵀ = Rᵀ R (``__init__``'s tall-skinny QR): the residuals are
+          M X̃ with M = B̃ Z − I, their per-frequency sums of squares the rows of (M Rᵀ)²: no pass;
+        * its rigid-raft model needs only Pᵀ K_target P (``rigid_target``): Pᵀ C_b P = Σ Z_bf Pᵀ X̃_f P;
+        * its E (one row of Z applied to every entry) is the one thing read from the table: one pass
+          gives every order's E, (n_pairs, n, n) doubles. An E with a negative eigenvalue is projected
+          on the PSD cone (Ep = E − E₋, E₋ its negative eigenpairs; a Cholesky factorisation proves
+          the others PSD without an eigensolution) and its order re-solved without the s column on
+          X̃ − s̃ epᵀ: the residual's sums of squares are those of M' (Rᵀ R − g s̃ᵀ − s̃ gᵀ + ‖ep‖² s̃ s̃ᵀ) M'ᵀ
+          with g = X̃ ep = Rᵀ R z_E − X̃ e₋: a second pass, for every such order at once, sums X̃ e₋.
+
+        Not for the "entry" weighting (each column its own weights): ``fit_order_streamed`` per order."""
+        import scipy.linalg
+        if self.weighting == "entry":
+            raise FitError("search_orders: the entry weighting fits each column alone: use fit_order_streamed")
+        n, F = self.table.n_dof, self.f.size
+        wt = np.concatenate([self.w, self.w])
+        st = np.concatenate([self.s.real, self.s.imag])       # s̃, the E column of the stacked basis
+        RT = self.R.T
+        orders = []
+        for pairs in range(first, n_pairs + 1):
+            poles = order_poles(self, pairs, n_iter)
+            B = real_basis(self.s, poles)
+            orders.append((poles, np.concatenate([B.real, B.imag]), self._basis_solver(poles, True) * wt))
+        # pass: every order's E
+        zE = np.array([Z[-1] for _, _, Z in orders])              # (K, 2F)
+        E = np.zeros((len(orders), n, n))
+        for r, c, _, _, T, (i, j, _) in self._passes():
+            X = _columns(T, r, c, i, j)
+            _put(E, slice(None), r, c, i, j, zE @ np.concatenate([X.real, X.imag]))
+        act = np.nonzero(self.S > 0)[0]
+        Ps = np.where(self.S[:, None] > 0, self.P / self.Sd[:, None], 0.0) if self.P is not None else None
+        RTs = None if Ps is None else np.concatenate([self.rigid_target.real, self.rigid_target.imag])
+        neg = {}                                                    # order: (‖e₋‖², Pᵀ E₋ P); E[k] becomes E₋
+        for k in range(len(orders)):
+            Ea = E[k][np.ix_(act, act)]
+            if _definite(Ea):
+                continue                                            # positive definite: as fitted
+            lam, V = scipy.linalg.eigh(Ea, subset_by_value=(-np.inf, 0.0))
+            keep = lam < 0
+            if not keep.any():
+                continue
+            lam, V = lam[keep], V[:, keep]
+            PV = None if Ps is None else Ps[act].T @ V
+            neg[k] = (float(np.sum(lam ** 2)), None if Ps is None else (PV * lam) @ PV.T)   # ‖e₋‖², Pᵀ E₋ P
+            del Ea
+            E[k] = 0.0
+            E[k][np.ix_(act, act)] = (V * lam) @ V.T
+        gneg = {k: np.zeros(2 * F) for k in neg}
+        if neg:                                                     # pass: X̃ e₋ of the projected orders
+            for r, c, _, _, T, (i, j, ew) in self._passes():
+                X = _columns(T, r, c, i, j) * (ew * ew)
+                for k in neg:
+                    en = E[k][r, c].reshape(-1) if r != c else E[k][r.start + i, c.start + j]
+                    g = X @ en
+                    gneg[k] += np.concatenate([g.real, g.imag])
+        del E
+        self.projected = [first - 1 + k for k in sorted(neg)]       # the orders (0-based) whose E was projected
+        out = []
+        for k, (poles, Bt, Z) in enumerate(orders):
+            m = poles.size
+            M = Bt @ Z - np.eye(2 * F)
+            e2 = np.sum((M @ RT) ** 2, axis=1)                      # residuals M X̃ of the order as fitted
+            rigid = None if Ps is None else np.tensordot(Z, RTs, axes=1)
+            if k in neg:
+                # E projected: the residues re-solved on X̃ − s̃ epᵀ, ep = e − e₋, are Z' (X̃ − s̃ eᵀ) + Z' s̃ e₋ᵀ,
+                # and Z' (X̃ − s̃ eᵀ) are the order's own (least squares with e fixed at its optimum): the
+                # residuals are M X̃ + (M' s̃) e₋ᵀ, no difference of large terms
+                ne2, PEP = neg[k]
+                Zs = (self._basis_solver(poles, False) * wt) @ st
+                Ms = Bt[:, :-1] @ Zs - st
+                e2 = e2 + 2 * Ms * (M @ gneg[k]) + ne2 * Ms ** 2
+                if rigid is not None:
+                    rigid[:m + 1] += Zs[:, None, None] * PEP[None]
+                    rigid[m + 1] -= PEP
+            err = np.sqrt(np.maximum(e2[:F] + e2[F:], 0.0)) / np.maximum(self.norm_target, 1e-300)
+            if rigid is not None:
+                rigid[:m] *= self.w_ref
+                rigid[m + 1] /= self.w_ref
+                rigid = RationalModel.from_coefficients(poles * self.w_ref, 0.5 * (rigid + rigid.transpose(0, 2, 1)),
+                                                        RIGID, provenance)
+            out.append((poles, float(err[self.band].max()), rigid))
+        return out
+
     def order_error(self, poles, C) -> float:
         """Max over the band of the relative Frobenius error of the fit ``C`` to the target
         (``target.fit_order``'s: the upper triangle, √2 weights)."""
@@ -226,7 +324,6 @@ class StreamedProblem:
 
     def model(self, poles, C, provenance):
         """Unscaled, full-size RationalModel (``Problem.model``)."""
-        from ..rational import RationalModel
         m = poles.size
         mats = C.copy()
         mats[:m] *= self.w_ref
@@ -291,6 +388,15 @@ class StreamedProblem:
         return float(1.1 * 0.5 * np.linalg.norm(self.H0) / max(np.linalg.norm(self.Ks[0].real), 1e-300))
 
 
+def _definite(A) -> bool:
+    """True when a Cholesky factorisation proves the symmetric A positive definite (its E kept as fitted)."""
+    try:
+        np.linalg.cholesky(A)
+    except np.linalg.LinAlgError:
+        return False
+    return True
+
+
 def _columns(T, r, c, i, j) -> np.ndarray:
     """T[:, i, j] (F, entries): an off-diagonal block's entries are all of it, row-major (a view)."""
     return T.reshape(T.shape[0], -1) if r != c else T[:, i, j]
@@ -319,10 +425,16 @@ def _sq(A) -> np.ndarray:
     return (A.real ** 2 + A.imag ** 2).reshape(A.shape[0], -1).sum(axis=1)
 
 
-def fit_order_streamed(prob: StreamedProblem, n_pairs, n_iter):
-    """``target.fit_order`` on a ``StreamedProblem``."""
+def order_poles(prob: StreamedProblem, n_pairs, n_iter) -> np.ndarray:
+    """The poles of the order of ``n_pairs`` pole pairs (``target.fit_order``'s): vector fitting of the
+    compressed columns, poles above ``POLE_CAP`` dropped."""
     poles = vector_fit(prob.s, prob.Y, prob.w_rel, initial_poles(n_pairs, 1.0), n_iter=n_iter)
     keep = np.abs(poles) <= POLE_CAP
-    poles = canonical_poles(poles[keep])
+    return canonical_poles(poles[keep])
+
+
+def fit_order_streamed(prob: StreamedProblem, n_pairs, n_iter):
+    """``target.fit_order`` on a ``StreamedProblem``."""
+    poles = order_poles(prob, n_pairs, n_iter)
     C, err = prob.coefficients(poles, error=True)
     return poles, C, err
