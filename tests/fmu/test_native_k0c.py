@@ -145,23 +145,30 @@ int main(int argc, char **argv)
 """
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("dt", [MOTION.dt, MOTION.dt / 2])
-def test_the_stepper_products_over_the_blocks_equal_the_dense_ones(tmp_path, dt):
+@pytest.fixture(scope="module")
+def harness(tmp_path_factory):
+    """The C harness of the stepper's products, compiled once for the step sizes' tests."""
     cc = shutil.which("cc") or shutil.which("gcc")
     if sys.platform != "linux" or cc is None:
         pytest.skip("needs Linux and a C compiler")
+    folder = tmp_path_factory.mktemp("k0c")
+    src = folder / "harness.c"
+    src.write_text(HARNESS)
+    exe = folder / "harness"
+    subprocess.run([cc, "-std=c99", "-O3", "-ffp-contract=off", "-DUP_BASELINE_ONLY", f"-I{NATIVE / 'include'}",
+                    str(src), *[str(NATIVE / s) for s in ("stepper.c", "soil.c", "linalg.c", "resources.c")],
+                    "-o", str(exe), "-lm"], check=True, capture_output=True, text=True)
+    return exe
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("dt", [MOTION.dt, MOTION.dt / 2])
+def test_the_stepper_products_over_the_blocks_equal_the_dense_ones(tmp_path, harness, dt):
     soil = compressed_soil()
     st = NewmarkStepper(SCENE.model(), soil, dt, contact=CONTACT, external_soil=True, ag0=MOTION.acc[0])
     blob = tmp_path / "run.bin"
     blob.write_bytes(native_stepper.encode_run(st))
-    src = tmp_path / "harness.c"
-    src.write_text(HARNESS)
-    exe = tmp_path / "harness"
-    subprocess.run([cc, "-std=c99", "-O3", "-ffp-contract=off", "-DUP_BASELINE_ONLY", f"-I{NATIVE / 'include'}",
-                    str(src), *[str(NATIVE / s) for s in ("stepper.c", "soil.c", "linalg.c", "resources.c")],
-                    "-o", str(exe), "-lm"], check=True, capture_output=True, text=True)
-    out = subprocess.run([str(exe), str(blob)], check=True, capture_output=True, text=True).stdout.split()
+    out = subprocess.run([str(harness), str(blob)], check=True, capture_output=True, text=True).stdout.split()
     hk, held, err_k, err_e = int(out[0]), int(out[1]), float(out[2]), float(out[3])
     n = soil.n_dof
     assert hk == 1, "the stepper did not take the compressed products"
