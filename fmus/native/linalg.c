@@ -290,14 +290,20 @@ UP_KERNEL_STATIC(inverse, (const double *LU, const int *piv, int n, double *inv)
 void up_inverse(const double *LU, const int *piv, int n, double *inv, double *P)
 {
     inverse(LU, piv, n, inv);
-    if (!P)
-        return;
+    if (P)
+        up_symmetrise_pack(inv, n, P);
+}
+
+/* A <- (A + A^T) / 2 (n, n), then packed into P (up_pack_sym): an inverse whose only asymmetry is
+   the round-off of its solves */
+void up_symmetrise_pack(double *A, int n, double *P)
+{
     for (int i = 0; i < n; i++)
         for (int j = i + 1; j < n; j++) {
-            double m = 0.5 * (inv[(size_t)i * n + j] + inv[(size_t)j * n + i]);
-            inv[(size_t)i * n + j] = inv[(size_t)j * n + i] = m;
+            double m = 0.5 * (A[(size_t)i * n + j] + A[(size_t)j * n + i]);
+            A[(size_t)i * n + j] = A[(size_t)j * n + i] = m;
         }
-    up_pack_sym(inv, n, P);
+    up_pack_sym(A, n, P);
 }
 
 UP_BODY void up_matvec_k(const double *A, int rows, int cols, const double *x, double *y)

@@ -1133,14 +1133,8 @@ static void base_inverse(const double *LU, const int *piv, int n, double *inv, d
 #else
     inverse4_k(LU, piv, n, inv);
 #endif
-    if (!P)
-        return;
-    for (int i = 0; i < n; i++)
-        for (int j = i + 1; j < n; j++) {
-            double m = 0.5 * (inv[(size_t)i * n + j] + inv[(size_t)j * n + i]);
-            inv[(size_t)i * n + j] = inv[(size_t)j * n + i] = m;
-        }
-    up_pack_sym(inv, n, P);
+    if (P)
+        up_symmetrise_pack(inv, n, P);
 }
 
 /* base c of level lev: its LU and inverse (the directions Z when first needed: directions);

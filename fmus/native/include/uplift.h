@@ -66,6 +66,7 @@
 #define up_spmv_add UP_SYM(up_spmv_add)
 #define up_pack_sym UP_SYM(up_pack_sym)
 #define up_symv UP_SYM(up_symv)
+#define up_symmetrise_pack UP_SYM(up_symmetrise_pack)
 #define up_matvec_add UP_SYM(up_matvec_add)
 #define up_matvec_ld UP_SYM(up_matvec_ld)
 #define up_sparse_init UP_SYM(up_sparse_init)
@@ -192,6 +193,7 @@ void up_gemv_t(const double *At, int rows, int cols, const double *x, double *y)
 /* y += P x for a symmetric (n, n) P packed by rows of its upper triangle (n (n + 1) / 2 values) */
 void up_spmv_add(const double *P, int n, const double *x, double *y);
 int up_pack_sym(const double *A, int n, double *P);       /* P <- A packed; 1 when A is symmetric */
+void up_symmetrise_pack(double *A, int n, double *P);    /* A <- (A + A^T) / 2, then packed into P */
 void up_symv(const double *A, const double *P, int n, const double *x, double *y);  /* y = A x, P if not NULL */
 void up_axpy(double a, const double *x, int n, double *y);                      /* y += a x */
 void up_matvec_add(const double *A, int rows, int cols, const double *x, double s, double *y); /* y += s A x */
