@@ -11,7 +11,7 @@ iterations, the total, the report, the peak resident memory. ``--max-iter`` boun
 before this benchmark was measured with a few iterations and extrapolated).
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/enforcement_cost.py --dofs 606 --subgrid
-    nice flock /tmp/big.lock python benchmarks/enforcement_cost.py --dofs 2506 --max-iter 4
+    python benchmarks/enforcement_cost.py --dofs 2506 --max-iter 4
 """
 from __future__ import annotations
 
