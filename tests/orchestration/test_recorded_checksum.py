@@ -18,6 +18,7 @@ import pytest
 import orchestrator.results_file as results_file
 import uplift_common.files as files
 from helpers.results import route_result
+from helpers.scenes import tower
 from orchestrator.motion import make_motion
 from orchestrator.results_file import add_coordinate, add_route, add_variable, read_results, write_results
 from orchestrator.scene import scene_from_dict
@@ -25,16 +26,7 @@ from structure.results import RouteResult
 from uplift_common.files import (CHECKSUM_ATTR, ChangedFileError, RecordedFile, checksum, hdf5_output,
                                  require_checksum)
 
-SCENE = {
-    "soil": {"winkler": {"kv": 2.0e8, "kh": 1.5e8}},
-    "foundation": {"shape": "rectangle", "lx": 6.0, "ly": 3.0, "element_size": 1.5},
-    "structure": {"nodes": [{"id": 1, "xyz": [0, 0, 0]}, {"id": 2, "xyz": [0, 0, 20], "name": "top"}],
-                  "beams": [{"nodes": [1, 2], "E": 3e10, "G": 1.25e10, "A": 10.0, "Iy": 20.0, "Iz": 20.0,
-                             "J": 40.0}],
-                  "masses": [{"node": 2, "m": 2.0e6}], "raft": {"node": 1, "m": 1.0e6}},
-    "motion": {"kind": "synthetic", "pga_g": 0.3, "duration_s": 1.0, "seed": 2},
-    "analysis": {"routes": ["winkler"], "dt": 0.01},
-}
+SCENE = tower(foundation={"lx": 6.0, "ly": 3.0, "element_size": 1.5}, motion={"duration_s": 1.0})
 
 
 @pytest.fixture

@@ -9,6 +9,7 @@ import numpy as np
 
 import orchestrator.run as run_module
 from helpers.native import seed_native
+from helpers.scenes import tower
 from orchestrator.run import run_scene
 from orchestrator.scene import scene_from_dict
 from soil_impedance.cache import feed
@@ -48,16 +49,7 @@ def test_code_digests_are_those_of_the_files_on_disk():
     assert code_digest("structure") != code_digest(*names)
 
 
-SCENE = {
-    "soil": {"winkler": {"kv": 2.0e8, "kh": 1.5e8}},
-    "foundation": {"shape": "circle", "radius": 5.0, "element_size": 2.5},
-    "structure": {"nodes": [{"id": 1, "xyz": [0, 0, 0]}, {"id": 2, "xyz": [0, 0, 20], "name": "top"}],
-                  "beams": [{"nodes": [1, 2], "E": 3e10, "G": 1.25e10, "A": 10.0, "Iy": 20.0, "Iz": 20.0,
-                             "J": 40.0}],
-                  "masses": [{"node": 2, "m": 2.0e6}], "raft": {"node": 1, "m": 1.0e6}},
-    "motion": {"kind": "synthetic", "pga_g": 0.3, "duration_s": 1.0, "seed": 2},
-    "analysis": {"routes": ["winkler"], "dt": 0.01},
-}
+SCENE = tower(motion={"duration_s": 1.0})   # the small tower, a 1 s record
 
 
 def test_a_run_checks_its_memory_once_and_a_prepared_run_on_its_own(tmp_path, monkeypatch):
