@@ -22,18 +22,16 @@ as a run compresses it). Checked:
 """
 import dataclasses
 import functools
-import shutil
 import subprocess
-import sys
 
 import numpy as np
 import pytest
 
 from helpers import pulse_motion, small_scene, soil_model, with_kernel_terms
+from helpers.c_host import compile_harness
 from helpers.soil_double import winkler_rational
 from helpers.winkler import rock_winkler
 from fmus import native_stepper
-from fmus.native_build import NATIVE
 from soil_impedance.convolution import RecursiveConvolutionSoil
 from soil_impedance.hhistory import BORDER, INSTANT_TOL_FACTOR, _norm2
 from structure import NewmarkStepper
@@ -148,17 +146,8 @@ int main(int argc, char **argv)
 @pytest.fixture(scope="module")
 def harness(tmp_path_factory):
     """The C harness of the stepper's products, compiled once for the step sizes' tests."""
-    cc = shutil.which("cc") or shutil.which("gcc")
-    if sys.platform != "linux" or cc is None:
-        pytest.skip("needs Linux and a C compiler")
-    folder = tmp_path_factory.mktemp("k0c")
-    src = folder / "harness.c"
-    src.write_text(HARNESS)
-    exe = folder / "harness"
-    subprocess.run([cc, "-std=c99", "-O3", "-ffp-contract=off", "-DUP_BASELINE_ONLY", f"-I{NATIVE / 'include'}",
-                    str(src), *[str(NATIVE / s) for s in ("stepper.c", "soil.c", "linalg.c", "resources.c")],
-                    "-o", str(exe), "-lm"], check=True, capture_output=True, text=True)
-    return exe
+    return compile_harness(HARNESS, tmp_path_factory.mktemp("k0c"), "harness",
+                           ("stepper.c", "soil.c", "linalg.c", "resources.c"))
 
 
 @pytest.mark.slow
@@ -259,16 +248,7 @@ int main(void)
 
 
 def test_a_large_base_inverse_equals_up_inverse_to_roundoff(tmp_path):
-    cc = shutil.which("cc") or shutil.which("gcc")
-    if sys.platform != "linux" or cc is None:
-        pytest.skip("needs Linux and a C compiler")
-    src = tmp_path / "inverse.c"
-    src.write_text(INVERSE)
-    exe = tmp_path / "inverse"
-    subprocess.run([cc, "-std=c99", "-O3", "-ffp-contract=off", "-DUP_BASELINE_ONLY", f"-I{NATIVE / 'include'}", f"-I{NATIVE}",
-                    str(src),
-                    *[str(NATIVE / s) for s in ("soil.c", "linalg.c", "resources.c")], "-o", str(exe), "-lm"],
-                   check=True, capture_output=True, text=True)
+    exe = compile_harness(INVERSE, tmp_path, "inverse", ("soil.c", "linalg.c", "resources.c"))
     rows = [line.split() for line in subprocess.run([str(exe)], check=True, capture_output=True,
                                                      text=True).stdout.splitlines()]
     for n, same, diff, res in rows:

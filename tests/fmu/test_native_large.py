@@ -27,20 +27,18 @@ kernels' compile 2 s).
 """
 import ctypes
 import dataclasses
-import shutil
 import subprocess
-import sys
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
 from helpers import pulse_motion, with_kernel_terms
+from helpers.c_host import compile_harness
 from helpers.roundoff import assert_within_spread, roundoff_spread
 from helpers.soil_double import winkler_rational
 from helpers.winkler import rock_winkler
 from fmus import native_stepper
-from fmus.native_build import NATIVE
 from orchestrator.scene import load_scene
 from soil_impedance.convolution import RecursiveConvolutionSoil
 from soil_impedance.mesh import rectangle_mesh
@@ -119,16 +117,7 @@ int main(void)
 
 
 def test_a_direction_solved_with_any_others_and_the_inverse_are_the_bits_of_the_full_solve(tmp_path):
-    cc = shutil.which("cc") or shutil.which("gcc")
-    if sys.platform != "linux" or cc is None:
-        pytest.skip("needs Linux and a C compiler")
-    src = tmp_path / "kernels.c"
-    src.write_text(KERNELS)
-    exe = tmp_path / "kernels"
-    # the baseline kernels only (a third of the compile time): every width computes the same bits
-    # (tests/fmu/test_native_stepper.py, test_the_vector_width_does_not_change_the_answer)
-    subprocess.run([cc, "-std=c99", "-O3", "-ffp-contract=off", "-DUP_BASELINE_ONLY", f"-I{NATIVE / 'include'}", str(src),
-                    str(NATIVE / "linalg.c"), "-o", str(exe), "-lm"], check=True, capture_output=True, text=True)
+    exe = compile_harness(KERNELS, tmp_path, "kernels", ("linalg.c",))
     out = subprocess.run([str(exe)], check=True, capture_output=True, text=True).stdout.split()
     assert out == ["0"], "1: a subset's solve differs from the full solve; 2: up_inverse differs"
 

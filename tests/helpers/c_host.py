@@ -24,6 +24,23 @@ def compile_host(source: str, folder: Path) -> Path:
     return exe
 
 
+def compile_harness(code: str, folder: Path, name: str, sources) -> Path:
+    """A C test program ``code`` (written to ``folder``/``name``.c) linked with the runtime files
+    ``sources`` of fmus/native, as the runtime is compiled (-O3, no contraction), baseline kernels
+    only (a third of the compile time: every width computes the same bits,
+    test_native_stepper.py); skips the test where that cannot be done (not Linux, no compiler)."""
+    cc = shutil.which("cc") or shutil.which("gcc")
+    if sys.platform != "linux" or cc is None:
+        pytest.skip("needs Linux and a C compiler")
+    native = Path(__file__).resolve().parents[2] / "fmus" / "native"
+    src, exe = folder / f"{name}.c", folder / name
+    src.write_text(code)
+    subprocess.run([cc, "-std=c99", "-O3", "-ffp-contract=off", "-DUP_BASELINE_ONLY", f"-I{native / 'include'}",
+                    f"-I{native}", str(src), *[str(native / s) for s in sources], "-o", str(exe), "-lm"],
+                   check=True, capture_output=True, text=True)
+    return exe
+
+
 def unpack_fmu(fmu, dest: Path, platform: str):
     """Unzip an FMU; returns (folder, its ``platform`` library (binaries/<platform>/*.so), GUID or
     instantiation token, {variable name: value reference})."""
