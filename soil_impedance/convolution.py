@@ -319,7 +319,7 @@ def compressed_model(model: RationalModel, xy, tol: float = DEFAULT_TOL, leaf: i
     prov["history"] = {"kind": "hmatrix", **hist.settings, "source_digest": model.digest}
     if hist.instant is not None:
         prov["history"]["instant"] = {k: hist.instant.settings[k] for k in ("storage_ratio", "max_rank",
-                                                                             "max_block_error")}
+                                                                             "max_block_error", "e_shift")}
     poles = np.concatenate([pr.astype(complex), np.stack([pc, pc.conj()], 1).reshape(-1)])
     residues = np.concatenate([Rr, np.stack([Rc, Rc.conj()], 1).reshape(2 * mc, model.n, model.n)])
     new = RationalModel(poles, residues.reshape(mr + 2 * mc, model.n, model.n), D, E, list(model.dofs), prov)

@@ -36,7 +36,9 @@ tolerance of 1e-2; the re-test, not a bound, is what keeps passivity.
 The model's D and E (symmetric, as a fit makes them) are compressed over the same partition by
 the same rule at INSTANT_TOL_FACTOR x tol (``compress_history(instant=(D, E))``, held in
 ``CompressedHistory.instant``); M̃ then carries D̃ and Ẽ assembled from them, re-tested with the
-residues. The native stepper's other per-step products, K0C x = (D0 + c1 E) x and E v with
+residues. Ẽ's node diagonal is raised by a proved bound of its compression error (``_e_shift``,
+settings ``e_shift``), so that λ_min(Ẽ) ≥ λ_min(E): a fit's E may be singular to round-off, and
+an unraised Ẽ is then indefinite, which the passivity test refuses. The native stepper's other per-step products, K0C x = (D0 + c1 E) x and E v with
 D0 = D + Σ_k b_k R_k, then run over the blocks too: a far block of K0C is the terms' factors
 stacked with the step size's coefficients, exactly (fmus/native/stepper.c, ``k0c_blocks``).
 
@@ -262,9 +264,11 @@ class CompressedHistory:
         return out
 
 
-def _compress_blocks(H, perm, blocks, tol):
+def _compress_blocks(H, perm, blocks, tol, shift=None):
     """(ranks (nh, nblk), data, errors) of the symmetric blocks H (nh, n, n) over the partition
-    (perm, blocks) of ``compress_history`` at the relative tolerance tol."""
+    (perm, blocks) of ``compress_history`` at the relative tolerance tol; ``shift`` (nh,) or None:
+    added to each block's node diagonal after its scale is taken (the same ranks, the diagonal
+    blocks are dense)."""
     nh = H.shape[0]
     ranks = np.full((nh, len(blocks)), -1, np.int64)
     data, errors = [], []
@@ -272,6 +276,8 @@ def _compress_blocks(H, perm, blocks, tol):
         Hb = H[b][np.ix_(perm, perm)]
         Hb = 0.5 * (Hb + Hb.T)
         scale = _norm2(Hb[BORDER:, BORDER:])
+        if shift is not None and shift[b]:
+            Hb[np.arange(BORDER, Hb.shape[0]), np.arange(BORDER, Hb.shape[0])] += shift[b]
         for j, (r0, nr, c0, nc, adm) in enumerate(blocks):
             A = Hb[r0:r0 + nr, c0:c0 + nc]
             if not np.any(A):                            # exactly zero (springs, dashpots: node by node)
@@ -288,6 +294,18 @@ def _compress_blocks(H, perm, blocks, tol):
                     continue
             data.append(np.ascontiguousarray(A).reshape(-1))
     return ranks, (np.concatenate(data) if data else np.zeros(0)), errors
+
+
+def _e_shift(Et, E) -> float:
+    """A proved bound t ≥ ‖Ẽ − E‖₂ of the compressed E's error (its node block: the border is held
+    exactly), or 0 when Ẽ = E: Ẽ + t I_nodes − E ⪰ 0, so λ_min of the raised Ẽ is at least E's own. A
+    fit's E can be singular to round-off (the enforcement leaves a passing fit's E as it is), and a
+    compression error of 1e-5 then makes Ẽ indefinite (a 2506-DOF mat fit: λ_min(Ẽ) = −5.7e-9 of
+    the scaled model, refused by the passivity guard); the raise is a dashpot of the compression's
+    own size, which only adds dissipation."""
+    from .passivity import _norm_bound
+    diff = Et[BORDER:, BORDER:] - 0.5 * (E[BORDER:, BORDER:] + E[BORDER:, BORDER:].T)
+    return float(_norm_bound(diff)) if np.any(diff) else 0.0
 
 
 def _measured(hist: CompressedHistory, blocks, errors) -> CompressedHistory:
@@ -335,6 +353,12 @@ def compress_history(H, xy, tol: float = DEFAULT_TOL, leaf: int = DEFAULT_LEAF,
             raise ValueError(f"instant has shape {DE.shape}: give (D, E), each ({n}, {n})")
         tol_de = INSTANT_TOL_FACTOR * tol
         ranks, data, errors = _compress_blocks(DE, perm, blocks, tol_de)
-        de = _measured(CompressedHistory(n, perm, blk, ranks, data, dict(settings, tol=tol_de)), blocks, errors)
+        de = CompressedHistory(n, perm, blk, ranks, data, dict(settings, tol=tol_de))
+        shift = _e_shift(de.dense(1), DE[1])
+        if shift > 0:                                # the same blocks, E's node diagonal raised by the shift
+            ranks, data, errors = _compress_blocks(DE, perm, blocks, tol_de, shift=(0.0, shift))
+            de = CompressedHistory(n, perm, blk, ranks, data, dict(settings, tol=tol_de))
+        de = _measured(de, blocks, errors)
+        de.settings["e_shift"] = shift
     ranks, data, errors = _compress_blocks(H, perm, blocks, tol)
     return _measured(CompressedHistory(n, perm, blk, ranks, data, settings, de), blocks, errors)

@@ -155,3 +155,32 @@ def test_compressed_model_stays_passive():
     assert rep.static_min == pytest.approx(ref.static_min, rel=1e-2)
     soil = RecursiveConvolutionSoil(model, DT, history="hmatrix", xy=xy, history_leaf=8)   # the guard: on M~
     assert soil.model.digest == tilde.digest
+
+
+def test_a_singular_e_stays_positive_semidefinite():
+    """A fit's E may be singular to round-off (a passing fit is not moved by the enforcement); its
+    compression error must not make Ẽ indefinite (a 2506-DOF mat was refused for λ_min(Ẽ) = −5.7e-9
+    of the scaled model): Ẽ's node diagonal is raised by a proved bound of that error. E here is
+    made singular along the direction the compression lowers most (without the raise, the
+    compressed model fails the test: λ_min(Ẽ) = −2.8e-10 scaled)."""
+    xy = raft(3.5)
+    model = kernel_passive_model(xy, 1, 2, seed=5)
+    D, E = np.asarray(model.D, float), np.asarray(model.E, float)
+    raw = compress_history(np.zeros((0, *E.shape)), xy, 1e-4, leaf=8, instant=(D, E))
+    Et = raw.instant.dense(1) - raw.instant.settings["e_shift"] * np.diag(np.arange(E.shape[0]) >= BORDER)
+    u = np.linalg.eigh(Et - E)[1][:, 0]             # where the compression lowers E most
+    P = np.eye(E.shape[0]) - np.outer(u, u)
+    E0 = P @ E @ P
+    E0 = 0.5 * (E0 + E0.T)                          # PSD, singular along u
+    singular = type(model)(model.poles, model.residues, D, E0, list(model.dofs), dict(model.provenance))
+    ref = check_passive(singular)
+    assert ref.passive
+    hist, tilde = compressed_model(singular, xy, 1e-4, leaf=8)
+    shift = hist.instant.settings["e_shift"]
+    Et = hist.instant.dense(1)
+    err = np.linalg.norm(Et[BORDER:, BORDER:] - shift * np.eye(xy.shape[0]) - E0[BORDER:, BORDER:], 2)
+    assert 0 < err <= shift <= 2 * err              # a bound of the error, not a loose one
+    assert np.linalg.eigvalsh(Et).min() >= -1e-12 * np.abs(E0).max()
+    rep = check_passive(tilde)
+    assert rep.passive and rep.e_min >= ref.e_min, rep
+    assert tilde.provenance["history"]["instant"]["e_shift"] == shift
