@@ -165,10 +165,12 @@ class NativeStandIn:
 RATE_BOUND = 0.08
 WORST_BOUND = 0.3
 #: grid frequencies sampled (log-spaced, the static and Nyquist ends left out); power steps per
-#: frequency; at most this many subsets' constrained fits tested for passivity
+#: frequency; at most this many subsets' constrained fits tested for passivity, of each size at most
+#: PER_LEVEL (the best predicted)
 N_FREQ = 40
 N_POWER = 6
-MAX_TESTS = 4
+MAX_TESTS = 6
+PER_LEVEL = 2
 
 
 @dataclass(frozen=True)
@@ -206,9 +208,9 @@ class Probe:
     S_x). ``predict(basis, kept)`` -> (rate, worst): rate, the error's decay per sweep where the
     record puts it, (|T^n f| / |f|)^(1/n) over the sampled frequencies (|.|^2 summed with each
     sample's share of the grid: Parseval), f the blocked force of the record, n = N_POWER; worst,
-    the largest rate of the power steps at one frequency, from f and from a fixed
-    pseudo-random vector (a lower estimate of the spectral radius of T there: the rate of the
-    error the contact's switching puts at any frequency). Both are functions of the table,
+    the largest rate of the last power step at one frequency, from f and from a fixed
+    pseudo-random vector (an estimate of the spectral radius of T there, within a few per cent
+    on the reactor: the rate of the error the contact's switching puts at any frequency). Both are functions of the table,
     the structure, the grid and the record only."""
 
     def __init__(self, prob):
@@ -281,7 +283,7 @@ def choose_poles(prob, table, poles, *, cache_dir=None, basis=None, probe=None) 
     predicted rate among those meeting the bounds (ties: the lower units first), until no
     removal meets them; then the constrained fits (``continuation_fit``, cached in
     ``cache_dir``) are tested for passivity from the smallest subsets up, in each size the best
-    predicted first, at most MAX_TESTS of them. A function of the table, the structure, the
+    predicted first, at most PER_LEVEL of a size and MAX_TESTS in all. A function of the table, the structure, the
     grid and the record only (no timing): the same inputs give the same poles."""
     basis = basis or ContinuationBasis(table, poles)
     probe = probe or Probe(prob)
@@ -305,7 +307,7 @@ def choose_poles(prob, table, poles, *, cache_dir=None, basis=None, probe=None) 
         current = ok[0][1]
     tested = 0
     for level in reversed(levels):
-        for kept in level:
+        for kept in level[:PER_LEVEL]:
             if tested >= MAX_TESTS:
                 break
             tested += 1
@@ -322,7 +324,7 @@ def pole_choice(prob, table, poles, *, cache_dir=None) -> PoleChoice:
     op = prob.op
     key = setup_key("poles", getattr(op.soil, "table", None), np.asarray(poles, complex), op.s,
                     np.asarray(op.Bq, float), op.Zinv, np.asarray(prob.f, float),
-                    (RATE_BOUND, WORST_BOUND, N_FREQ, N_POWER, MAX_TESTS), code_digest("orchestrator.standin"))
+                    (RATE_BOUND, WORST_BOUND, N_FREQ, N_POWER, MAX_TESTS, PER_LEVEL), code_digest("orchestrator.standin"))
     path = entry_path(cache_dir, "poles", key)
     names = ("kept", "units", "rate", "worst", "fallback", "evaluated", "tested")
     hit = read_arrays(path, (), attrs=names)
