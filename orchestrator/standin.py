@@ -17,6 +17,11 @@ each takes the last march's recorded soil history plus the history of the change
 single precision, soil.c's ``up_soil_corr_mode``): 0.40 -> 0.30 s CPU a march on the reactor, the
 same sweeps and answer.
 
+The stand-in keeps the fewest of the fit's poles whose constrained fit is passive and whose
+linear rate, predicted per frequency, meets ``RATE_BOUND`` and ``WORST_BOUND`` (``choose_poles``,
+``Probe``: on the reactor 4 of 8 poles, 4 sweeps instead of 6); all of them when none does (the
+fallback, said in the route's info).
+
 ``stand_in_factory(table, fit_model, ...)`` returns what ``orchestrator.timefreq.solve(...,
 stand_in=)`` takes: a callable prob -> (NativeStandIn or None, reason).
 """
@@ -357,7 +362,11 @@ def stand_in_factory(table, fit_model, *, cache_dir=None, damping=None, constrai
         if constrained is not None:
             fit = constrained
         else:
-            choice = pole_choice(prob, table, fit_model.poles, cache_dir=cache_dir)
+            try:
+                choice = pole_choice(prob, table, fit_model.poles, cache_dir=cache_dir)
+            except np.linalg.LinAlgError:   # a singular condensation at a sampled frequency: no prediction
+                n = int(np.sum(np.asarray(fit_model.poles).imag >= 0))   # units: a real pole or a pair
+                choice = PoleChoice(tuple(range(n)), n, float("nan"), float("nan"), True)
             kept = fit_model.poles if choice.fallback else ContinuationBasis.kept_poles(fit_model.poles, choice.kept)
             fit = continuation_fit(table, kept, cache_dir=cache_dir)
         poles = "" if choice is None else f"; {choice.note()}"

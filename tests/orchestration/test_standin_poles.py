@@ -128,3 +128,18 @@ def test_without_a_subset_the_route_marches_all_the_poles_and_says_so(case, monk
     assert today.max_uplift() > 1e-3
     for res in (chosen, every):
         assert res.converged and abs(res.max_uplift() / today.max_uplift() - 1) < 1e-6
+
+
+def test_a_failed_prediction_marches_all_the_poles(case, monkeypatch):
+    """A prediction that cannot be made (a singular system at a sampled frequency: LinAlgError)
+    leaves the route on today's stand-in, all the poles, said in its info."""
+    import orchestrator.standin as standin
+    from orchestrator.routes.timefreq import run_timefreq
+
+    def singular(self, basis, kept):
+        raise np.linalg.LinAlgError("Singular matrix")
+    scene, model, motion, table, fit, _ = case
+    monkeypatch.setattr(standin.Probe, "predict", singular)
+    res = run_timefreq(motion, model, table, fit=fit, contact=scene.contact, output_nodes=scene.output.nodes)
+    assert res.converged and res.info["march"] == "stand-in"
+    assert res.info["stand_in_fallback"] and res.info["stand_in_poles"] == list(range(fit.model.order))
