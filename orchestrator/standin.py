@@ -30,7 +30,7 @@ from __future__ import annotations
 import ctypes
 import time
 import weakref
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.linalg import lu_factor, lu_solve
@@ -184,7 +184,8 @@ class PoleChoice:
     ``ContinuationBasis.units``: a real pole or a complex pair; the fit's poles from the fastest);
     units : their count in the fit; rate, worst : the kept subset's predicted rates (``Probe``);
     fallback : no subset met the bounds and was passive: all the poles (today's stand-in);
-    evaluated, tested : subsets predicted, constrained fits tested for passivity."""
+    evaluated, tested : subsets predicted, constrained fits tested for passivity; fit : the kept
+    subset's ContinuationFit when it was made here (not compared, not cached; None: make it)."""
     kept: tuple
     units: int
     rate: float
@@ -192,6 +193,7 @@ class PoleChoice:
     fallback: bool
     evaluated: int = 0
     tested: int = 0
+    fit: object = field(default=None, compare=False, repr=False)
 
     def note(self) -> str:
         head = (f"all {self.units} poles (no subset of fewer met the bounds, rate <= {RATE_BOUND:g} and worst "
@@ -316,8 +318,9 @@ def choose_poles(prob, table, poles, *, cache_dir=None, basis=None, probe=None) 
             if tested >= MAX_TESTS:
                 break
             tested += 1
-            if continuation_fit(table, basis.unit_poles(kept), cache_dir=cache_dir).passive:
-                return PoleChoice(kept, len(everything), *pred(kept), False, len(memo), tested)
+            fit = continuation_fit(table, basis.unit_poles(kept), cache_dir=cache_dir)
+            if fit.passive:
+                return PoleChoice(kept, len(everything), *pred(kept), False, len(memo), tested, fit)
     return PoleChoice(everything, len(everything), *pred(everything), True, len(memo), tested)
 
 
@@ -368,7 +371,7 @@ def stand_in_factory(table, fit_model, *, cache_dir=None, damping=None, constrai
                 n = int(np.sum(np.asarray(fit_model.poles).imag >= 0))   # units: a real pole or a pair
                 choice = PoleChoice(tuple(range(n)), n, float("nan"), float("nan"), True)
             kept = fit_model.poles if choice.fallback else ContinuationBasis.kept_poles(fit_model.poles, choice.kept)
-            fit = continuation_fit(table, kept, cache_dir=cache_dir)
+            fit = choice.fit or continuation_fit(table, kept, cache_dir=cache_dir)
         poles = "" if choice is None else f"; {choice.note()}"
         if not fit.passive:
             return None, (f"the fit constrained to the route's continuation ({fit_model.order} poles) is not "
