@@ -17,6 +17,11 @@ each takes the last march's recorded soil history plus the history of the change
 single precision, soil.c's ``up_soil_corr_mode``): 0.40 -> 0.30 s CPU a march on the reactor, the
 same sweeps and answer.
 
+The stand-in keeps the fewest of the fit's poles whose constrained fit is passive and whose
+linear rate, predicted per frequency, meets ``RATE_BOUND`` and ``WORST_BOUND`` (``choose_poles``,
+``Probe``: on the reactor 4 of 8 poles, 4 sweeps instead of 6); all of them when none does (the
+fallback, said in the route's info).
+
 ``stand_in_factory(table, fit_model, ...)`` returns what ``orchestrator.timefreq.solve(...,
 stand_in=)`` takes: a callable prob -> (NativeStandIn or None, reason).
 """
@@ -25,16 +30,21 @@ from __future__ import annotations
 import ctypes
 import time
 import weakref
+from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.linalg import lu_factor, lu_solve
 
 from fmus.native_build import NativeBuildError
 from fmus.native_stepper import CHUNK, cache_folder, encode_run, library, library_note
 from fmus.schema import row_slices, row_width
 from orchestrator.timefreq.march import DIVERGED_M, MarchDiverged
-from soil_impedance.convolution import RecursiveConvolutionSoil
-from soil_impedance.fit.continuation import continuation_fit
+from orchestrator.timefreq.setup_cache import entry_path, read_arrays, setup_key, write_arrays
+from orchestrator.timefreq.soil import AffineBand
+from soil_impedance.convolution import RecursiveConvolutionSoil, bilinear_coefficients
+from soil_impedance.fit.continuation import ContinuationBasis, continuation_fit
 from structure.newmark import NewmarkStepper
+from uplift_common.code import code_digest
 
 #: the stand-in's marches in correction form (``up_sim_correction``, soil.c): the history as the
 #: last march's plus the change's in single precision; its rounding is relative to the change, and
@@ -76,6 +86,7 @@ class NativeStandIn:
         self.n_factor = self.n_factor_total = 0
         self._handle, self._close, self._rows = None, None, None
         self.single = bool(single)
+        self.info = {}              # what the route's info records of this stand-in (its poles: stand_in_factory)
 
     def _run(self, ag0):
         """The native run at rest under ag0 (3): opened on the first call, rewound after."""
@@ -150,6 +161,192 @@ class NativeStandIn:
                        halved=int(stats[2]))
 
 
+# ---- which of the fit's poles the stand-in keeps ------------------------------------------------
+#: the bounds a subset of the fit's poles must meet to stand in (``choose_poles``): the predicted
+#: rate per sweep of the error where the record puts it (``RATE_BOUND``) and the worst predicted
+#: rate over the frequencies sampled (``WORST_BOUND``). On the reactor the subsets meeting both
+#: took 5 sweeps, those above RATE_BOUND 6-9, those above WORST_BOUND (all 8 poles among them:
+#: 0.37 above the table) 6 (docs/native.md, round five)
+RATE_BOUND = 0.08
+WORST_BOUND = 0.3
+#: grid frequencies sampled (log-spaced, the static and Nyquist ends left out); power steps per
+#: frequency; at most this many subsets' constrained fits tested for passivity, of each size at most
+#: PER_LEVEL (the best predicted)
+N_FREQ = 40
+N_POWER = 6
+MAX_TESTS = 6
+PER_LEVEL = 2
+
+
+@dataclass(frozen=True)
+class PoleChoice:
+    """``choose_poles``'s verdict. kept : the fit's pole units kept (indices of
+    ``ContinuationBasis.units``: a real pole or a complex pair; the fit's poles from the fastest);
+    units : their count in the fit; rate, worst : the kept subset's predicted rates (``Probe``);
+    fallback : no subset met the bounds and was passive: all the poles (today's stand-in);
+    evaluated, tested : subsets predicted, constrained fits tested for passivity; fit : the kept
+    subset's ContinuationFit when it was made here (not compared, not cached; None: make it)."""
+    kept: tuple
+    units: int
+    rate: float
+    worst: float
+    fallback: bool
+    evaluated: int = 0
+    tested: int = 0
+    fit: object = field(default=None, compare=False, repr=False)
+
+    def note(self) -> str:
+        head = (f"all {self.units} poles (no subset of fewer met the bounds, rate <= {RATE_BOUND:g} and worst "
+                f"<= {WORST_BOUND:g}, and was passive)" if self.fallback else
+                f"{len(self.kept)} of {self.units} poles ({', '.join(map(str, self.kept))})")
+        return f"{head}, predicted rate {self.rate:.2f} per sweep, worst {self.worst:.2f}"
+
+    def info(self) -> dict:
+        return dict(stand_in_poles=list(self.kept), stand_in_fallback=self.fallback,
+                    stand_in_rate=self.rate, stand_in_worst=self.worst)
+
+
+class Probe:
+    """The defect correction's linear rate on a stand-in, predicted on a sample of the grid's
+    frequencies (``N_FREQ``, log-spaced). With the raft open, the source W's error after one
+    sweep is T e, T = (S_x - S) S_x^-1 per frequency (S the table's interface stiffness, S_x the
+    stand-in's, both condensed on the structure: a march solves S_x d = W - f, the residual
+    adds S d - S_x d; docs/routes.md); the raft closed only shrinks it (S_x + K_c in place of
+    S_x). ``predict(basis, kept)`` -> (rate, worst): rate, the error's decay per sweep where the
+    record puts it, (|T^n f| / |f|)^(1/n) over the sampled frequencies (|.|^2 summed with each
+    sample's share of the grid: Parseval), f the blocked force of the record, n = N_POWER; worst,
+    the largest rate of the last power step at one frequency, from f and from a fixed
+    pseudo-random vector (an estimate of the spectral radius of T there, within a few per cent
+    on the reactor: the rate of the error the contact's switching puts at any frequency). Both are functions of the table,
+    the structure, the grid and the record only."""
+
+    def __init__(self, prob):
+        op, grid = prob.op, prob.grid
+        F = grid.n_freq
+        self.ks = ks = np.unique(np.geomspace(1, F - 2, N_FREQ).astype(int))
+        edges = np.concatenate([[0.5], 0.5 * (ks[1:] + ks[:-1]), [F - 1.5]])
+        self.share = np.diff(edges)                   # grid frequencies each sample stands for
+        self.op, self.grid = op, grid
+        self.S = np.array([self._table(k) for k in ks])
+        t = op.Zinv[ks] @ (op.b[ks] @ prob.ag_hat[:, ks].T[:, :, None])
+        f = (op.Vr[ks] @ t)[:, :, 0]
+        rng = np.random.default_rng(0)
+        v = rng.standard_normal(f.shape) + 1j * rng.standard_normal(f.shape)
+        self.x0 = np.stack([f, v], axis=2)            # (nf, N, 2): the record's force, the fixed vector
+
+    def _table(self, k):
+        """S (N, N) of the table at the grid frequency k: its band's K_ww minus the rank-6 term."""
+        op = self.op
+        for band in op.soil.bands:
+            pos = np.flatnonzero(band.idx == k)
+            if pos.size:
+                if isinstance(band, AffineBand):
+                    Kw = band.sub_ww(np.arange(op.N), np.arange(op.N), op.s[[k]])[0]
+                else:
+                    Kw = band.piece(slice(int(pos[0]), int(pos[0]) + 1)).K[0, 6:, 6:]
+                return Kw - op.Vr[k] @ (op.Zinv[k] @ op.Vl[k])
+        raise IndexError(k)
+
+    def stand_in(self, A, B, poles, residues):
+        """S_x (nf, N, N) of the rational model (poles, residues, D = A, E = B) as the native
+        stepper runs it (its recursion's z-transform on the grid), condensed as the table's."""
+        op, ks = self.op, self.ks
+        z, s = self.grid.z[ks], op.s[ks]
+        a, b = bilinear_coefficients(poles, self.grid.dt)
+        g = b * (z[:, None] + 1) / (z[:, None] - a)
+        K = A + s[:, None, None] * B + np.einsum("fk,kij->fij", g, residues)
+        Bq = op.Bq
+        Vr = K[:, 6:, :6] + K[:, 6:, 6:] @ Bq
+        Vl = K[:, :6, 6:] + Bq.T @ K[:, 6:, 6:]
+        Z = op.st.blocks(s)[0] + K[:, :6, :6] + K[:, :6, 6:] @ Bq + Bq.T @ Vr
+        return K[:, 6:, 6:] - Vr @ np.linalg.solve(Z, Vl)
+
+    def predict(self, basis, kept):
+        """(rate, worst) of the stand-in on the units ``kept`` of ``basis`` (class notes)."""
+        Sx = self.stand_in(basis.A, basis.B, *basis.residues(kept))
+        nf = self.ks.size
+        e = np.empty((nf, N_POWER + 1, 2))
+        for i in range(nf):
+            x = self.x0[i]
+            e[i, 0] = np.linalg.norm(x, axis=0)
+            lu = lu_factor(Sx[i], check_finite=False)
+            dS = Sx[i] - self.S[i]
+            for j in range(1, N_POWER + 1):
+                x = dS @ lu_solve(lu, x, check_finite=False)
+                e[i, j] = np.linalg.norm(x, axis=0)
+        energy = np.sqrt(self.share @ (e[:, :, 0] ** 2))
+        rate = float((energy[-1] / energy[0]) ** (1.0 / N_POWER))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            step = e[:, -1] / e[:, -2]
+        worst = float(np.nanmax(step)) if np.isfinite(step).any() else float("inf")
+        return rate, worst
+
+
+def choose_poles(prob, table, poles, *, cache_dir=None, basis=None, probe=None) -> PoleChoice:
+    """Which of ``poles`` (the scene fit's) the stand-in keeps: the fewest whose constrained fit
+    is passive and whose predicted rates (``Probe``) meet RATE_BOUND and WORST_BOUND; all of them
+    (``fallback``) when no subset does. The search removes one unit (a real pole or a complex
+    pair) at a time from all of them, each time the one whose removal leaves the lowest
+    predicted rate among those meeting the bounds (ties: the lower units first), until no
+    removal meets them; then the constrained fits (``continuation_fit``, cached in
+    ``cache_dir``) are tested for passivity from the smallest subsets up, in each size the best
+    predicted first, at most PER_LEVEL of a size and MAX_TESTS in all. A function of the table, the structure, the
+    grid and the record only (no timing): the same inputs give the same poles."""
+    basis = basis or ContinuationBasis(table, poles)
+    probe = probe or Probe(prob)
+    memo = {}
+
+    def pred(kept):
+        if kept not in memo:
+            memo[kept] = probe.predict(basis, kept)
+        return memo[kept]
+
+    def meets(kept):
+        rate, worst = pred(kept)
+        return rate <= RATE_BOUND and worst <= WORST_BOUND
+    everything = tuple(range(len(basis.units)))
+    levels, current = [], everything
+    while len(current) > 1:
+        ok = sorted((pred(c)[0], c) for c in (tuple(u for u in current if u != r) for r in current) if meets(c))
+        if not ok:
+            break
+        levels.append([c for _, c in ok])
+        current = ok[0][1]
+    tested = 0
+    for level in reversed(levels):
+        for kept in level[:PER_LEVEL]:
+            if tested >= MAX_TESTS:
+                break
+            tested += 1
+            fit = continuation_fit(table, basis.unit_poles(kept), cache_dir=cache_dir)
+            if fit.passive:
+                return PoleChoice(kept, len(everything), *pred(kept), False, len(memo), tested, fit)
+    return PoleChoice(everything, len(everything), *pred(everything), True, len(memo), tested)
+
+
+def pole_choice(prob, table, poles, *, cache_dir=None) -> PoleChoice:
+    """``choose_poles``, kept in ``cache_dir`` (``tf-poles-<key>.h5``, keyed by the table's data,
+    the poles, the grid's s, the raft's trace, the structure's condensed impedance Zqq^-1, the
+    record's blocked force, the rule's constants and code): a second solve of the same inputs
+    reads it. None cache_dir: chosen every time."""
+    op = prob.op
+    key = setup_key("poles", getattr(op.soil, "table", None), np.asarray(poles, complex), op.s,
+                    np.asarray(op.Bq, float), op.Zinv, np.asarray(prob.f, float),
+                    (RATE_BOUND, WORST_BOUND, N_FREQ, N_POWER, MAX_TESTS, PER_LEVEL), code_digest("orchestrator.standin"))
+    path = entry_path(cache_dir, "poles", key)
+    names = ("kept", "units", "rate", "worst", "fallback", "evaluated", "tested")
+    hit = read_arrays(path, (), attrs=names)
+    if hit is not None:
+        a = hit[1]
+        return PoleChoice(tuple(int(u) for u in np.atleast_1d(a["kept"])), int(a["units"]), float(a["rate"]),
+                          float(a["worst"]), bool(a["fallback"]), int(a["evaluated"]), int(a["tested"]))
+    choice = choose_poles(prob, table, poles, cache_dir=cache_dir)
+    write_arrays(path, {}, attrs=dict(kept=np.array(choice.kept, np.int64), units=choice.units, rate=choice.rate,
+                                      worst=choice.worst, fallback=choice.fallback, evaluated=choice.evaluated,
+                                      tested=choice.tested))
+    return choice
+
+
 def constrained_fit(table, fit_model, *, cache_dir=None):
     """The stand-in's fit: ``table`` constrained to the route's continuation on ``fit_model``'s
     poles (``continuation_fit``, cached in ``cache_dir``)."""
@@ -157,18 +354,33 @@ def constrained_fit(table, fit_model, *, cache_dir=None):
 
 
 def stand_in_factory(table, fit_model, *, cache_dir=None, damping=None, constrained=None):
-    """callable(prob) -> (NativeStandIn or None, reason): the constrained fit of ``table`` on
-    ``fit_model``'s poles (``constrained`` when made already, else ``constrained_fit``, cached in
-    ``cache_dir``), marched natively, or None and why not (the fit not passive, no native library
-    here)."""
+    """callable(prob) -> (NativeStandIn or None, reason): the constrained fit of ``table`` on the
+    poles of ``fit_model`` that ``pole_choice`` keeps for ``prob`` (all of them when no subset of
+    fewer meets its bounds and is passive: the reason and the marcher's ``info`` say which;
+    ``constrained``, an ensemble's constrained fit on all the poles made once, is taken as it is),
+    cached in ``cache_dir``, marched natively, or None and why not (the fit not passive, no native
+    library here)."""
     def make(prob):
-        fit = constrained if constrained is not None else constrained_fit(table, fit_model, cache_dir=cache_dir)
+        choice = None
+        if constrained is not None:
+            fit = constrained
+        else:
+            try:
+                choice = pole_choice(prob, table, fit_model.poles, cache_dir=cache_dir)
+            except np.linalg.LinAlgError:   # a singular condensation at a sampled frequency: no prediction
+                n = int(np.sum(np.asarray(fit_model.poles).imag >= 0))   # units: a real pole or a pair
+                choice = PoleChoice(tuple(range(n)), n, float("nan"), float("nan"), True)
+            kept = fit_model.poles if choice.fallback else ContinuationBasis.kept_poles(fit_model.poles, choice.kept)
+            fit = choice.fit or continuation_fit(table, kept, cache_dir=cache_dir)
+        poles = "" if choice is None else f"; {choice.note()}"
         if not fit.passive:
             return None, (f"the fit constrained to the route's continuation ({fit_model.order} poles) is not "
-                          f"passive (margin {fit.margin:.2e})")
+                          f"passive (margin {fit.margin:.2e}{poles})")
         lib = library(cache_folder(cache_dir))
         if lib is None:
             return None, library_note(cache_folder(cache_dir))
-        return NativeStandIn(prob, fit.model, lib, damping, single=SINGLE), (f"stand-in: the fit constrained to the route's continuation ({fit_model.order} poles, "
-                         f"{fit.max_rel_error:.1e} on the table), native march")
+        marcher = NativeStandIn(prob, fit.model, lib, damping, single=SINGLE)
+        marcher.info = {} if choice is None else choice.info()
+        return marcher, (f"stand-in: the fit constrained to the route's continuation ({fit.model.order} of the fit's "
+                         f"{fit_model.order} poles{poles}; {fit.max_rel_error:.1e} on the table), native march")
     return make

@@ -38,9 +38,10 @@ def run_timefreq(motion, model, table_gap, *, contact, output_nodes, max_seconds
     wrap_tol, bilinear, nfft, window) and SolveOptions (method, tol, max_iter, threads, paper,
     newton_krylov), and damping, static, route; default tol TOL.
     fit : the scene's passive fit (FitResult or RationalModel) or None: with it the march steps
-    the causal stand-in (orchestrator/standin.py: the fit's poles constrained to the route's
-    continuation above the table, cached in ``cache_dir``, on the native stepper) when that is
-    passive, else the table's own kernel (and notes.warnings says why); info["march"] says which.
+    the causal stand-in (orchestrator/standin.py: the fit's poles that ``choose_poles`` keeps,
+    constrained to the route's continuation above the table, cached in ``cache_dir``, on the
+    native stepper) when that is passive, else the table's own kernel (and notes.warnings says
+    why); info["march"] says which, info["stand_in_poles"] which poles.
     The answer is the table's either way (the residual is the table's). constrained : that
     constrained fit when made already (``constrained_fit``, once for an ensemble: ``settle``), or None.
     cache_dir : the cache folder of the constrained fit and of the solve's set-up (the table's band

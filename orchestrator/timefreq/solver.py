@@ -143,8 +143,8 @@ def _on_stand_in(prob, stand_in, options, monitor, deadline):
     finally:
         if hasattr(marcher, "close"):          # its native run, kept from one march to the next
             marcher.close()
-    if out.converged or out.status is SolverStatus.STOPPED:
-        return out, dict(march="stand-in", stand_in=why), []
+    if out.converged or out.status is SolverStatus.STOPPED:     # and the marcher's own record (its poles)
+        return out, dict(march="stand-in", stand_in=why, **getattr(marcher, "info", {})), []
     return None, {}, [f"the stand-in's sweeps ended {out.status.value} ({why}; {len(out.history)} "
                       "sweeps); the march on the table's own kernel ran (the same answer, at its cost)"]
 

@@ -77,6 +77,60 @@ def continuation_model(table, poles, dofs=None):
     return model, float(err.max())
 
 
+class ContinuationBasis:
+    """``continuation_model``'s residues on every subset of ``poles`` at once, for choosing the
+    stand-in's poles (orchestrator/standin.py, ``choose_poles``): the weighted least squares
+    ``continuation_model`` solves, projected once on the orthonormal basis Q of all the poles'
+    columns (the same rows and weights). A subset's columns are Q R[:, cols], so its least
+    squares is R[:, cols] c = Q^T Y, (m x m_sub) with n^2 right-hand sides instead of (2 F x
+    m_sub): the same coefficients to round-off (tested), without a pass over the table per
+    subset. ``units``: the subsets' elements, each a real pole or a complex pair (its two
+    columns); ``residues(kept)`` -> (poles, residues (m_sub, n, n) symmetrised) of the units
+    ``kept``; A, B the continuation's springs and dashpots (D and E)."""
+
+    def __init__(self, table, poles):
+        from ..vectfit import pole_kinds, real_basis
+
+        f = np.asarray(table.frequencies_hz, float)
+        K = causal_target(f, np.asarray(table.matrices), causal_cutoff(table, np.asarray(table.matrices)))
+        self.A, self.B = continuation(table)
+        self.poles = np.asarray(poles, complex)
+        s = 2j * np.pi * f
+        w = 1.0 / np.linalg.norm(K.reshape(f.size, -1), axis=1)
+        Phi = w[:, None] * real_basis(s, self.poles, const=False, linear=False)
+        Y = w[:, None] * (K - self.A[None] - s[:, None, None] * self.B[None]).reshape(f.size, -1)
+        Q, self.R = np.linalg.qr(np.concatenate([Phi.real, Phi.imag]))
+        self.C = Q.T @ np.concatenate([Y.real, Y.imag])              # (m, n^2)
+        self.n = K.shape[1]
+        kind = pole_kinds(self.poles)
+        self.units = tuple((k,) if kind[k] == 0 else (k, k + 1) for k in range(self.poles.size) if kind[k] != 2)
+
+    def residues(self, kept):
+        """(poles (m_sub,), residues (m_sub, n, n) complex, symmetrised) of the units ``kept``."""
+        from ..vectfit import coefficients_to_residues
+
+        cols = [c for u in sorted(kept) for c in self.units[u]]
+        coef = np.linalg.lstsq(self.R[:, cols], self.C, rcond=None)[0]
+        poles = self.poles[cols]
+        R = coefficients_to_residues(coef.reshape(-1, self.n, self.n), poles)
+        return poles, 0.5 * (R + np.swapaxes(R, 1, 2))
+
+    def unit_poles(self, kept) -> np.ndarray:
+        """The poles of the units ``kept``, in the fit's order."""
+        return self.kept_poles(self.poles, kept)
+
+    @staticmethod
+    def kept_poles(poles, kept) -> np.ndarray:
+        """The poles of ``poles`` in the units ``kept`` (a real pole or a complex pair each, as
+        ``units`` numbers them), in their order."""
+        from ..vectfit import pole_kinds
+
+        poles = np.asarray(poles, complex)
+        kind = pole_kinds(poles)
+        units = [(k,) if kind[k] == 0 else (k, k + 1) for k in range(poles.size) if kind[k] != 2]
+        return poles[[c for u in sorted(kept) for c in units[u]]]
+
+
 def continuation_fit(table, poles, *, cache_dir=None) -> ContinuationFit:
     """The passive-tested stand-in of ``table`` with ``poles`` (module notes), from the cache
     ``cache_dir`` when there (None: no cache)."""
