@@ -42,17 +42,15 @@ from structure.model import StructureModel
 from structure.plate_raft import PLATE_RANGES, PlateProperties, PlateRaftModel, plate_cells
 from structure.spec import (WINKLER_MODULI, StructureSpec, build_model, check_choice, check_keys, check_number,
                             contact_from_spec, parse_structure, show, winkler_moduli)
-from uplift_common.lazy import literal_constants
 from uplift_common.ranges import MAX_LAYERS, check_count, check_plausible
 
 # the error, the built-in names, the TOML reader and the PGA limit live in a module the command
 # line loads without this one (numpy, the mesh, the structure): re-exported here
 from orchestrator.scene_base import MAX_PGA_G, SceneError, builtin_scenes, tomllib
 
-#: the fast solver's choices, default tolerance and its range (soil_impedance.fastsolve), read from
-#: its source: importing it would import scipy.fft, which a run that does not sweep never uses
-SOLVERS, SOLVER_TOL, SOLVER_TOL_RANGE = literal_constants("soil_impedance.fastsolve",
-                                                          ("SOLVERS", "DEFAULT_TOL", "TOL_RANGE"))
+#: the sweep's solvers, the fast solver's default tolerance and its range (soil_impedance.solvers: not
+#: the fast solver's module, which imports scipy.fft, which a run that does not sweep never uses)
+from soil_impedance.solvers import DEFAULT_TOL as SOLVER_TOL, SOLVERS, TOL_RANGE as SOLVER_TOL_RANGE
 
 
 _check_keys = partial(check_keys, error=SceneError)
