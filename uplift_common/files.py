@@ -58,7 +58,6 @@ import io
 import os
 import re
 import shutil
-import socket
 import stat
 import tempfile
 from pathlib import Path
@@ -224,9 +223,18 @@ def _size(n: int) -> str:
 
 # ---- temporaries and the orphans of dead processes ----------------------------------------------
 
+def _host_name() -> str:
+    """This machine's name, as ``socket.gethostname()`` gives it (on POSIX the kernel's node name,
+    ``os.uname``: the socket module is not loaded for it)."""
+    if hasattr(os, "uname"):
+        return os.uname().nodename
+    import socket
+    return socket.gethostname()
+
+
 #: this machine, in temporary names (a folder shared by several machines: a pid means nothing on
 #: another one, and its temporaries are never swept from here)
-HOST = hashlib.sha256(socket.gethostname().encode()).hexdigest()[:8]
+HOST = hashlib.sha256(_host_name().encode()).hexdigest()[:8]
 _TEMPORARY = re.compile(r"^\.(?P<name>.+)\.(?:(?P<host>[0-9a-f]{8})-)?(?P<pid>\d+)\.[A-Za-z0-9_]+\.tmp$")
 
 
