@@ -1083,6 +1083,41 @@ class _RecordedDim:
         setattr(self._dim, name, value)
 
 
+_PLAIN_TYPES: dict = {}           # str, float, int -> (dtype, file type, memory type) as h5py makes them
+
+
+def _plain_types(kind):
+    if kind not in _PLAIN_TYPES:
+        dtype = h5py.string_dtype() if kind is str else np.asarray(kind(0)).dtype
+        _PLAIN_TYPES[kind] = (dtype, h5py.h5t.py_create(dtype, logical=True), h5py.h5t.py_create(dtype))
+    return _PLAIN_TYPES[kind]
+
+
+def _set_plain_attr(attrs, key, value) -> bool:
+    """``attrs[key] = value`` (an h5py AttributeManager) through h5py's low-level calls when the
+    value is a ``str``, ``float`` or ``int`` (exactly those types; an int within int64) and the
+    key is ASCII: the attribute h5py's ``attrs.create`` makes (the same calls: a scalar of h5py's
+    type for the value, an existing one deleted first), without its per-call conversions. False,
+    nothing written, for anything else."""
+    kind = type(value)
+    if kind not in (str, float, int) or not key.isascii() or (kind is int and not -2 ** 63 <= value < 2 ** 63):
+        return False
+    dtype, file_type, memory_type = _plain_types(kind)
+    name = key.encode("ascii")
+    oid = attrs._id
+    if h5py.h5a.exists(oid, name):
+        h5py.h5a.delete(oid, name)
+    attr = h5py.h5a.create(oid, name, file_type, h5py.h5s.create(h5py.h5s.SCALAR))
+    try:
+        attr.write(np.asarray(value, dtype=dtype), mtype=memory_type)
+    except BaseException:
+        attr.close()
+        h5py.h5a.delete(oid, name)
+        raise
+    attr.close()
+    return True
+
+
 class _RecordedAttrs:
     """``obj.attrs`` of a recorded object: every write recorded, reads passed through."""
 
@@ -1090,7 +1125,8 @@ class _RecordedAttrs:
         self._attrs, self._rec = attrs, rec
 
     def __setitem__(self, key, value):
-        self._attrs[key] = value
+        if not _set_plain_attr(self._attrs, key, value):
+            self._attrs[key] = value
         if key in _SCALE_ATTRS:         # one HDF5's dimension scales keep: read the object back
             self._rec.attrs[key] = _READ_BACK
             self._rec.exact = False
