@@ -14,7 +14,8 @@ from helpers import ROOT
 #: wrapper generator and test utilities: scipy's import lists them, the command defers them)
 NOT_NEEDED = ("orchestrator.design", "orchestrator.site_response", "scipy.spatial", "scipy.constants",
               "scipy.sparse", "scipy.linalg", "scipy.fft._basic", "numpy.f2py.f2py2e", "numpy.testing._private.utils",
-              "unittest")
+              "unittest", "scipy", "soil_impedance.fastsolve", "orchestrator.soil_cases", "orchestrator.design_spectra",
+              "soil_impedance.mesh_file", "socket")
 
 
 def test_a_plain_run_loads_neither_the_design_run_nor_scipy_spatial(tmp_path):
