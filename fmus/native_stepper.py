@@ -431,9 +431,10 @@ def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None, 
         p_acc, p_disp, info["raft_points"] = plate.pop("points")
         acc.update(p_acc)
         disp.update(p_disp)
-    res = RouteResult(route=route, time=st.dt * np.arange(nt), raft=rows[:, at["raft"]].copy(),
-                      gap=rows[:, at["gap"]].copy(), contact_force=rows[:, at["contact_force"]].copy(),
-                      soil_w=rows[:, at["soil_w"]].copy(),
+    # the histories as views of the rows: RouteResult keeps its own read-only copy of each
+    res = RouteResult(route=route, time=st.dt * np.arange(nt), raft=rows[:, at["raft"]],
+                      gap=rows[:, at["gap"]], contact_force=rows[:, at["contact_force"]],
+                      soil_w=rows[:, at["soil_w"]],
                       acc=acc, disp=disp,
                       energy={k: energy[:, j].copy() for j, k in enumerate(ENERGY_TERMS)},
                       newton_iters=iters.astype(int), wall_s=time.perf_counter() - t0, xy=np.array(model.raft.xy),

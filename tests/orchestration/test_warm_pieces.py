@@ -111,3 +111,30 @@ def test_the_fit_key_s_settings_are_the_options_with_the_node_coordinates_hashed
         expected["node_xy_sha"] = None if nodes is None else hashlib.sha256(
             np.ascontiguousarray(nodes, "<f8").tobytes()).hexdigest()[:16]
         assert json.dumps(options.settings(), sort_keys=True) == json.dumps(expected, sort_keys=True)
+
+
+def test_notes_added_to_a_result_share_its_histories_and_give_the_replaced_result():
+    """``RouteResult.with_notes`` (five per warm run) and ``with_checked`` share the result's
+    read-only histories instead of copying them all again (``replace`` runs ``__post_init__``):
+    the result equals the one ``dataclasses.replace`` makes, field by field, and its arrays are the
+    same objects, still read-only."""
+    from types import MappingProxyType
+
+    from helpers.results import route_result
+    res = route_result("monolithic")
+    noted = res.with_notes(skipped=["a"], warnings=["w"], precheck="p", timings={"x": 1}, info={"k": [1, 2]})
+    n = res.notes
+    replaced = dataclasses.replace(res, info={**res.info, "k": [1, 2]}, notes=type(n)(
+        skipped=n.skipped + ("a",), warnings=n.warnings + ("w",), precheck="p", timings={**n.timings, "x": 1}))
+    for f in dataclasses.fields(res):
+        a, b = getattr(noted, f.name), getattr(replaced, f.name)
+        if isinstance(a, np.ndarray):
+            assert a is getattr(res, f.name) and not a.flags.writeable and a.tobytes() == b.tobytes(), f.name
+        elif isinstance(a, MappingProxyType):
+            assert dict(a).keys() == dict(b).keys(), f.name
+            for k in a:
+                assert np.array_equal(a[k], b[k]), (f.name, k)
+        else:
+            assert a == b, f.name
+    timed = noted.with_checked(wall_s=2.5)
+    assert timed.wall_s == 2.5 and noted.wall_s == res.wall_s and timed.gap is res.gap
