@@ -161,7 +161,8 @@ def _split_poles(p, R, rtol: float = 1e-8):
             scale.append(max(np.abs(R).max(initial=0.0), 1e-300))
         return scale[0]
     is_real = np.abs(p.imag) <= rtol * np.abs(p)
-    imag = R[is_real].imag
+    real = R if is_real.all() else R[is_real]      # the real poles' residues (all of them: no copy)
+    imag = real.imag
     if np.any(imag) and np.any(np.abs(imag) > rtol * rscale() * 1e2):
         raise FitError("a real pole carries a complex residue: the model's impulse response "
                        "would not be real; refit with real residues for real poles")
@@ -176,7 +177,7 @@ def _split_poles(p, R, rtol: float = 1e-8):
                 not _conjugate(R[j], R[k]) and np.abs(R[j] - np.conj(R[k])).max() > 1e-6 * rscale()):
             raise FitError(f"pole {p[k]:.6g} has no conjugate partner with conjugate residue")
         down.remove(j)
-    return (_frozen(np.ascontiguousarray(p[is_real].real)), _frozen(np.ascontiguousarray(R[is_real].real)),
+    return (_frozen(np.ascontiguousarray(p[is_real].real)), _frozen(np.ascontiguousarray(real.real)),
             _frozen(p[up]), _frozen(np.ascontiguousarray(R[up])))
 
 

@@ -809,6 +809,7 @@ class RecordedFile:
         self.file = f
         self.root = _Record("", "group")
         self.objects: dict = {}     # name relative to the root -> _Record
+        self.made: dict = {}        # name relative to the root -> the h5py object made (not looked up again)
         self.exact = True
         self.read_back = 0
         self._group = _RecordedGroup(f, self.root, self)
@@ -988,11 +989,13 @@ class _RecordedGroup(_Recorded):
 
     def create_group(self, name, track_order=None):
         rec = self._owner._child(self._rec, name, "group")
-        return _RecordedGroup(self._obj.create_group(name, track_order=track_order), rec, self._owner)
+        g = self._owner.made[rec.name] = self._obj.create_group(name, track_order=track_order)
+        return _RecordedGroup(g, rec, self._owner)
 
     def create_dataset(self, name, shape=None, dtype=None, data=None, **kwds):
         ds = self._obj.create_dataset(name, shape, dtype, data, **kwds)
         rec = self._owner._child(self._rec, name, "dataset")
+        self._owner.made[rec.name] = ds
         rec.exact = False
         if shape is None and dtype is None and data is not None and not kwds:
             a = np.array(data)                  # a copy: the caller may change its array afterwards
@@ -1013,7 +1016,10 @@ class _RecordedGroup(_Recorded):
             self._owner.exact = False   # an object the record does not know: its writes are not followed
             return obj
         cls = _RecordedGroup if rec.kind == "group" else _RecordedDataset
-        return cls(self._obj[name], rec, self._owner)
+        # the object made here (a dimension scale's, looked up for each of its variables), while no
+        # change the record does not follow (a deletion, a move) was made
+        obj = self._owner.made.get(key) if self._owner.exact else None
+        return cls(self._obj[name] if obj is None else obj, rec, self._owner)
 
 
 class _RecordedDataset(_Recorded):
