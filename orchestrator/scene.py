@@ -650,7 +650,7 @@ def _scene_errors() -> tuple:
 
 def _design_spectra(table):
     """[output] design_spectra (``orchestrator.design_spectra``, loaded here: a scene without it never loads it)."""
-    from orchestrator.design_spectra import parse_design_spectra
+    from orchestrator.design_spectra import parse_design_spectra     # start-up cost: only a scene with the section
     return parse_design_spectra(table)
 
 
