@@ -200,3 +200,40 @@ def test_the_pole_split_gives_the_outcome_of_testing_against_the_residues_scale(
     got = _split_poles(poles, R)
     for a, b in zip(expected, got):
         assert np.asarray(a).tobytes() == np.asarray(b).tobytes()
+
+
+def test_a_changed_byte_of_a_fit_entry_is_never_read_as_another_model(table, tmp_path):
+    """Single-byte changes of a fit cache entry (every byte of the stored digest's value, and bytes
+    spread over the whole file): each entry is refused (None, moved aside with a CacheWarning) or,
+    a byte HDF5 does not read, gives the original model, arrays and digest, never another one."""
+    import warnings
+
+    from soil_impedance.cache import CacheWarning
+    from soil_impedance.fit.options import FitOptions
+    from soil_impedance.fit.pipeline import _cache_path, cached_fit
+    options = FitOptions(tol=0.01)
+    first = fit_table(table, cache_dir=tmp_path / "a", options=options)
+    entry = _cache_path(table.hash, options, tmp_path / "a")
+    data = entry.read_bytes()
+    digest = first.model.digest.encode()            # the attribute's value, and the passivity record's copy
+    starts = [k for k in range(len(data)) if data.startswith(digest, k)]
+    positions = sorted({k + j for k in starts for j in range(64)} | set(range(0, len(data), max(1, len(data) // 300))))
+    assert len(starts) >= 2 and len(positions) > 300
+    refused = 0
+    for k in positions:
+        folder = tmp_path / f"b{k}"
+        folder.mkdir()
+        changed = bytearray(data)
+        changed[k] ^= 0x10
+        path = _cache_path(table.hash, options, folder)
+        path.write_bytes(bytes(changed))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", CacheWarning)
+            got = cached_fit(table.hash, options, folder)
+        if got is None:
+            refused += 1
+            continue
+        m = got.model
+        assert m.digest == first.model.digest and all(getattr(m, a).tobytes() == getattr(first.model, a).tobytes()
+                                                     for a in ("poles", "residues", "D", "E")), k
+    assert refused >= 64 * len(starts)     # at least every byte of the digests' values
