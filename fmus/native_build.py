@@ -133,8 +133,9 @@ def layout3(vars_: list, vars3: list) -> dict:
 def encode_resources(records: dict) -> bytes:
     """The bytes of a resource file (fmus/native/README.md): ``records`` maps a name (<= 32
     ASCII characters) to a float (a float64 scalar), a str (UTF-8 text), or an ndarray of
-    float64 or int64 (up to 4 dimensions, C order)."""
-    body = bytearray()
+    float64 or int64 (up to 4 dimensions, C order). An array already of its record's type and C
+    order is not copied before the one copy into the result."""
+    parts, size, crc = [], 0, 0
     for name, value in records.items():
         key = name.encode("ascii")
         if len(key) > 32:
@@ -144,19 +145,21 @@ def encode_resources(records: dict) -> bytes:
         else:
             arr = np.asarray(value)
             if arr.dtype.kind in "iub":
-                arr = arr.astype("<i8")
+                arr = arr.astype("<i8", copy=False)
                 kind = KINDS["i8"]
             else:
-                arr = arr.astype("<f8")
+                arr = arr.astype("<f8", copy=False)
                 kind = KINDS["f8"]
             if arr.ndim > 4:
                 raise ValueError(f"resource record {name!r} has {arr.ndim} dimensions (at most 4)")
-            dims, data = arr.shape, np.ascontiguousarray(arr).tobytes()
-        body += key.ljust(32, b"\0") + struct.pack("<II", kind, len(dims))
-        body += struct.pack("<4Q", *(tuple(dims) + (0,) * (4 - len(dims)))) + struct.pack("<Q", len(data))
-        body += data + b"\0" * (-len(data) % 8)
-    body = bytes(body)
-    return MAGIC + struct.pack("<IIQII", VERSION, len(records), 32 + len(body), zlib.crc32(body), 0) + body
+            dims, data = arr.shape, np.ascontiguousarray(arr).reshape(-1).view(np.uint8)
+        for part in (key.ljust(32, b"\0") + struct.pack("<II", kind, len(dims))
+                     + struct.pack("<4Q", *(tuple(dims) + (0,) * (4 - len(dims)))) + struct.pack("<Q", len(data)),
+                     data, b"\0" * (-len(data) % 8)):
+            parts.append(part)
+            crc = zlib.crc32(part, crc)
+            size += len(part)
+    return b"".join([MAGIC, struct.pack("<IIQII", VERSION, len(records), 32 + size, crc, 0), *parts])
 
 
 def decode_resources(data: bytes) -> dict:
@@ -321,12 +324,22 @@ def soil_records(soil_model, dt: float, compressed=None) -> dict:
     n = soil_model.n
     pr, Rr, pc, Rc = soil_model.pole_split
     out = {"dt": float(dt), "n_dof": float(n), "poles_real": pr,
-           "poles_pair": np.stack([pc.real, pc.imag], -1).reshape(-1, 2),
-           "residues_real": Rr, "residues_pair": np.stack([Rc.real, Rc.imag], -1).reshape(-1, n, n, 2),
+           "poles_pair": _interleaved(pc).reshape(-1, 2),
+           "residues_real": Rr, "residues_pair": _interleaved(Rc).reshape(-1, n, n, 2),
            "D": soil_model.D, "E": soil_model.E}
     if compressed is not None:
         out.update(compressed.records())
     return out
+
+
+def _interleaved(z) -> np.ndarray:
+    """(..., 2) float64: the real and imaginary parts of the complex array ``z`` side by side
+    (``np.stack([z.real, z.imag], -1)``): the float view of z's own memory when it is a C-ordered
+    complex128 array (the same numbers, not copied)."""
+    z = np.asarray(z)
+    if z.dtype == np.complex128 and z.flags.c_contiguous:
+        return z.view(np.float64).reshape(z.shape + (2,))
+    return np.stack([z.real, z.imag], -1)
 
 
 def stepper_records(st, node_dofs) -> dict:

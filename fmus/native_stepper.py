@@ -289,13 +289,14 @@ def plate_dofs(st) -> list:
     return [tuple(int(k) for k in cols[j:j + 3]) for j in range(0, len(cols), 3)]
 
 
-def _stepped(lib, blob: bytes, ag, take, chunk: int = CHUNK, progress=None):
+def _stepped(lib, blob: bytes, ag, take, chunk: int = CHUNK, progress=None, into=None):
     """Run the encoded model ``blob`` (``encode_run``) over ``ag`` (nt, 3), ``chunk`` samples per
     call of the C runtime; after each call ``take(k0, rows, iters)`` with the rows and Newton
     counts of samples k0 .. k0 + len(rows) - 1 (a buffer the next call overwrites), then
-    ``progress(done, nt)``. Returns (stats (3): samples computed, factorisations, halved steps;
-    the stepper's message, "" when every sample was computed). An exception between two calls
-    propagates, the run freed."""
+    ``progress(done, nt)``. into: (rows (nt, width), iters (nt,) int64), C-ordered: each call
+    writes its samples there in place (``take`` gets views of them: nothing to copy). Returns
+    (stats (3): samples computed, factorisations, halved steps; the stepper's message, "" when
+    every sample was computed). An exception between two calls propagates, the run freed."""
     if chunk < 1:
         raise ValueError(f"chunk = {chunk}: the samples per call must be at least 1")
     nt = ag.shape[0]
@@ -305,17 +306,25 @@ def _stepped(lib, blob: bytes, ag, take, chunk: int = CHUNK, progress=None):
     if not handle:
         raise NativeBuildError(f"the native stepper refused the model: {err.value.decode(errors='replace')}")
     try:
-        rows = np.empty((min(chunk, nt), lib.up_sim_width(handle)))
-        iters = np.empty(rows.shape[0], np.int64)
+        width = lib.up_sim_width(handle)
+        if into is not None:
+            rows, iters = into
+            if rows.shape != (nt, width) or iters.shape != (nt,) or not (rows.flags.c_contiguous and rows.dtype == float
+                                                                        and iters.dtype == np.int64):
+                raise ValueError(f"into: rows ({nt}, {width}) float and iters ({nt},) int64, C-ordered, needed")
+        else:
+            rows = np.empty((min(chunk, nt), width))
+            iters = np.empty(rows.shape[0], np.int64)
         rc, k = 0, 0
         while rc == 0 and k < nt:
             k1 = min(k + chunk, nt)
-            rc = lib.up_sim_steps(handle, ag.ctypes.data, k, k1, rows.ctypes.data, iters.ctypes.data,
+            at = k if into is not None else 0           # the first row this call writes
+            rc = lib.up_sim_steps(handle, ag.ctypes.data, k, k1, rows[at:].ctypes.data, iters[at:].ctypes.data,
                                   stats.ctypes.data, err)
             if rc < 0:
                 raise NativeBuildError(f"the native stepper stopped: {err.value.decode(errors='replace')}")
             done = int(stats[0])
-            take(k, rows[:done - k], iters[:done - k])
+            take(k, rows[at:at + done - k], iters[at:at + done - k])
             k = k1
             if rc == 0 and progress is not None:
                 progress(k, nt)
@@ -409,11 +418,9 @@ def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None, 
     at = row_slices(N, m)                          # the row layout of simulate.c (uplift_schema.h)
     rows = np.empty((nt, row_width(N, m)))
     iters = np.empty(nt, np.int64)
-
-    def take(k0, chunk_rows, chunk_iters):
-        rows[k0:k0 + len(chunk_rows)] = chunk_rows
-        iters[k0:k0 + len(chunk_iters)] = chunk_iters
-    stats, message = _stepped(lib, encode_run(st, names, extra), ag, take, chunk, progress)
+    # the C runtime writes each chunk's samples into rows and iters themselves
+    stats, message = _stepped(lib, encode_run(st, names, extra), ag, lambda *a: None, chunk, progress,
+                              into=(rows, iters))
     rows, iters = rows[:int(stats[0])], iters[:int(stats[0])]
     nt = rows.shape[0]
     node = rows[:, at["nodes"]].reshape(nt, m, 6)
@@ -431,9 +438,10 @@ def simulate_native(st, ag, output_nodes=None, route: str = "native", lib=None, 
         p_acc, p_disp, info["raft_points"] = plate.pop("points")
         acc.update(p_acc)
         disp.update(p_disp)
-    res = RouteResult(route=route, time=st.dt * np.arange(nt), raft=rows[:, at["raft"]].copy(),
-                      gap=rows[:, at["gap"]].copy(), contact_force=rows[:, at["contact_force"]].copy(),
-                      soil_w=rows[:, at["soil_w"]].copy(),
+    # the histories as views of the rows: RouteResult keeps its own read-only copy of each
+    res = RouteResult(route=route, time=st.dt * np.arange(nt), raft=rows[:, at["raft"]],
+                      gap=rows[:, at["gap"]], contact_force=rows[:, at["contact_force"]],
+                      soil_w=rows[:, at["soil_w"]],
                       acc=acc, disp=disp,
                       energy={k: energy[:, j].copy() for j, k in enumerate(ENERGY_TERMS)},
                       newton_iters=iters.astype(int), wall_s=time.perf_counter() - t0, xy=np.array(model.raft.xy),

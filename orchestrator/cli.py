@@ -24,6 +24,7 @@ if interrupts.started_as("orchestrator.cli", "uplift"):
     interrupts.install(held=True)
 
 import argparse
+import gc
 import importlib.util
 import json
 import math
@@ -394,6 +395,19 @@ def main(argv=None) -> int:
     finally:
         if not program:
             interrupts.restore(previous)
+        else:
+            _freeze_for_exit()
+
+
+def _freeze_for_exit() -> None:
+    """The program's last step: move every object the command made to the collector's permanent
+    generation (``gc.freeze``), so that the interpreter's exit does not run its cyclic collections
+    over them (about 0.1 s CPU of a warm ``uplift run reactor``, most of the exit's cost). Nothing
+    else of the exit changes: the atexit handlers, the flush of stdout and stderr and the join of
+    other threads still run, and objects are still freed as their modules are cleared; only
+    garbage cycles left at the exit are not collected (the process's end frees their memory, and
+    HDF5 closes, flushed, a file such a cycle would still hold open when the library exits)."""
+    gc.freeze()
 
 
 def _interrupted_line(written, ensemble: bool = False) -> str:

@@ -20,10 +20,12 @@ from __future__ import annotations
 
 import copy
 import csv
+import sys
 from dataclasses import dataclass, field, fields, replace
 from functools import partial
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -31,28 +33,27 @@ from orchestrator.motion import (DIRECTIONS, FORMATS, SPECTRA, SYNTHETIC_DT, UNI
                                  MotionError, check_components, read_components, read_record)
 from orchestrator.routes import get_route, route_names
 from soil_impedance.mesh import InterfaceMesh, MeshError, circle_mesh, read_nodes_csv, rectangle_mesh
-from soil_impedance.mesh_file import MeshSource, read_mesh_source
 from soil_impedance.profile import DAMPING_MODELS, Layer, Material, SoilError, SoilProfile
-from orchestrator.design_spectra import DesignSpectraConfig, SpectraConfigError, parse_design_spectra
-from orchestrator.soil_cases import (SoilCaseError, SoilCases, StrainCompatibleConfig, parse_cases,
-                                     parse_strain_compatible)
 from structure.contact import ContactSettings
 from structure.errors import StructureError
 from structure.model import StructureModel
 from structure.plate_raft import PLATE_RANGES, PlateProperties, PlateRaftModel, plate_cells
 from structure.spec import (WINKLER_MODULI, StructureSpec, build_model, check_choice, check_keys, check_number,
                             contact_from_spec, parse_structure, show, winkler_moduli)
-from uplift_common.lazy import literal_constants
 from uplift_common.ranges import MAX_LAYERS, check_count, check_plausible
+
+if TYPE_CHECKING:       # the parsers of optional sections load with them (_design_spectra, _soil_design, _foundation)
+    from orchestrator.design_spectra import DesignSpectraConfig
+    from orchestrator.soil_cases import SoilCases, StrainCompatibleConfig
+    from soil_impedance.mesh_file import MeshSource
 
 # the error, the built-in names, the TOML reader and the PGA limit live in a module the command
 # line loads without this one (numpy, the mesh, the structure): re-exported here
 from orchestrator.scene_base import MAX_PGA_G, SceneError, builtin_scenes, tomllib
 
-#: the fast solver's choices, default tolerance and its range (soil_impedance.fastsolve), read from
-#: its source: importing it would import scipy.fft, which a run that does not sweep never uses
-SOLVERS, SOLVER_TOL, SOLVER_TOL_RANGE = literal_constants("soil_impedance.fastsolve",
-                                                          ("SOLVERS", "DEFAULT_TOL", "TOL_RANGE"))
+#: the sweep's solvers, the fast solver's default tolerance and its range (soil_impedance.solvers: not
+#: the fast solver's module, which imports scipy.fft, which a run that does not sweep never uses)
+from soil_impedance.solvers import DEFAULT_TOL as SOLVER_TOL, SOLVERS, TOL_RANGE as SOLVER_TOL_RANGE
 
 
 _check_keys = partial(check_keys, error=SceneError)
@@ -621,7 +622,7 @@ def _scene(data, base_dir: Path, name: str, origin: str) -> Scene:
         motion = _motion(_table(data, "motion"), base_dir)
         analysis = _config(AnalysisConfig, _table(data, "analysis"), "analysis")
         output_table = _table(data, "output")
-        design_spectra = parse_design_spectra(output_table["design_spectra"]) if "design_spectra" in output_table \
+        design_spectra = _design_spectra(output_table["design_spectra"]) if "design_spectra" in output_table \
             else None
         output = _config(OutputConfig, {k: v for k, v in output_table.items() if k != "design_spectra"}, "output")
         _check_design_spectra(design_spectra, structure, output, analysis)
@@ -631,8 +632,26 @@ def _scene(data, base_dir: Path, name: str, origin: str) -> Scene:
                      soil_cases=cases, strain_compatible=strain_compatible, design_spectra=design_spectra,
                      mesh_source=mesh_source, raft=raft, solver=solver, solver_tol=solver_tol,
                      frequency_tol=frequency_tol)
-    except (SceneError, StructureError, MotionError, SoilError, MeshError, SoilCaseError, SpectraConfigError) as exc:
+    except _scene_errors() as exc:
         raise SceneError(f"{origin}: {exc}") from None
+
+
+#: the errors of the parsers a scene loads only when it has their sections ([soil] cases and
+#: strain_compatible, [output] design_spectra): (module, class)
+_SECTION_ERRORS = (("orchestrator.soil_cases", "SoilCaseError"), ("orchestrator.design_spectra", "SpectraConfigError"))
+
+
+def _scene_errors() -> tuple:
+    """The error types a scene's parsing reports with its origin: this module's and those of the
+    section parsers loaded (one that was not loaded raised nothing)."""
+    loaded = tuple(getattr(sys.modules[m], name) for m, name in _SECTION_ERRORS if m in sys.modules)
+    return (SceneError, StructureError, MotionError, SoilError, MeshError, *loaded)
+
+
+def _design_spectra(table):
+    """[output] design_spectra (``orchestrator.design_spectra``, loaded here: a scene without it never loads it)."""
+    from orchestrator.design_spectra import parse_design_spectra     # start-up cost: only a scene with the section
+    return parse_design_spectra(table)
 
 
 def _table(data: dict, section: str) -> dict:
@@ -737,6 +756,8 @@ def _soil_design(soil: dict, model: str, profile: SoilProfile | None):
         raise SceneError("soil.cases and soil.strain_compatible need the BEM soil: give soil.halfspace "
                          "(and soil.layers)")
 
+    from orchestrator.soil_cases import parse_cases, parse_strain_compatible   # only a scene with these sections
+
     def case_profile(table, where):
         try:
             return _profile(table, model)
@@ -803,6 +824,7 @@ def _foundation(table: dict, base_dir: Path):
         if group is not None and (not isinstance(group, str) or not group):
             raise SceneError(f"foundation.mesh_group = {show(group)} must be the name of a group of the mesh file "
                              '(a string, e.g. "base"); omit it to take every 2-D cell')
+        from soil_impedance.mesh_file import read_mesh_source     # only a scene with a mesh file
         mesh, source = read_mesh_source(base_dir / file, group, table.get("centre"))
         return mesh, contact, source
     file = table["file"]

@@ -11,6 +11,7 @@ started by the orchestrator therefore runs under ``compute_threads()``: BLAS/Ope
 from __future__ import annotations
 
 import os
+import threading
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -42,21 +43,36 @@ def default_cache_dir() -> Path:
 THREAD_VARIABLES = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
 
 
+_inside = threading.local()         # .limits: the limits of the compute_threads blocks this thread is in
+
+
 @contextmanager
 def compute_threads(n: int | None = None):
     """Run the block with BLAS and OpenMP thread pools limited to ``n`` (default
     ``thread_count()``); the previous limits come back on exit. The pools loaded before the block
     are limited by threadpoolctl; one loaded inside it (scipy's BLAS, imported on first use) reads
     its size from the environment when it loads, so the block sets those variables to ``n`` too:
-    without them that pool would start at the machine's cores and the round-off would follow."""
-    from threadpoolctl import threadpool_limits     # start-up cost: only a command that computes
+    without them that pool would start at the machine's cores and the round-off would follow.
+    A block inside another of the same ``n`` in the same thread (the command line's around a
+    run's own) changes nothing: the outer one holds the limits and the variables until it ends."""
     n = n or thread_count()
+    limits = _inside.__dict__.setdefault("limits", [])
+    if limits and limits[-1] == n:
+        limits.append(n)
+        try:
+            yield
+        finally:
+            limits.pop()
+        return
+    from threadpoolctl import threadpool_limits     # start-up cost: only a command that computes
     saved = {k: os.environ.get(k) for k in THREAD_VARIABLES}
     os.environ.update({k: str(n) for k in THREAD_VARIABLES})
+    limits.append(n)
     try:
         with threadpool_limits(limits=n):
             yield
     finally:
+        limits.pop()
         for k, v in saved.items():
             if v is None:
                 os.environ.pop(k, None)

@@ -150,9 +150,20 @@ class RationalModel:
 
 
 def _split_poles(p, R, rtol: float = 1e-8):
-    rscale = max(np.abs(R).max(initial=0.0), 1e-300)
+    """``RationalModel.pole_split``. The residues' scale max |R| (a pass over all of them) is taken
+    only when a test needs it: a residue difference that is exactly zero (real poles' residues
+    with zero imaginary parts, conjugate residues stored exactly conjugate, as a fit makes them)
+    passes whatever the scale (> 0), so the outcome is that of testing every one against it."""
+    scale = []
+
+    def rscale():
+        if not scale:
+            scale.append(max(np.abs(R).max(initial=0.0), 1e-300))
+        return scale[0]
     is_real = np.abs(p.imag) <= rtol * np.abs(p)
-    if np.any(np.abs(R[is_real].imag) > rtol * rscale * 1e2):
+    real = R if is_real.all() else R[is_real]      # the real poles' residues (all of them: no copy)
+    imag = real.imag
+    if np.any(imag) and np.any(np.abs(imag) > rtol * rscale() * 1e2):
         raise FitError("a real pole carries a complex residue: the model's impulse response "
                        "would not be real; refit with real residues for real poles")
     up = np.flatnonzero(~is_real & (p.imag > 0))
@@ -162,12 +173,17 @@ def _split_poles(p, R, rtol: float = 1e-8):
                        "poles must come in conjugate pairs")
     for k in up:
         j = min(down, key=lambda j: abs(p[j] - np.conj(p[k])))
-        if abs(p[j] - np.conj(p[k])) > rtol * abs(p[k]) * 1e2 or \
-                np.abs(R[j] - np.conj(R[k])).max() > 1e-6 * rscale:
+        if abs(p[j] - np.conj(p[k])) > rtol * abs(p[k]) * 1e2 or (
+                not _conjugate(R[j], R[k]) and np.abs(R[j] - np.conj(R[k])).max() > 1e-6 * rscale()):
             raise FitError(f"pole {p[k]:.6g} has no conjugate partner with conjugate residue")
         down.remove(j)
-    return (_frozen(np.ascontiguousarray(p[is_real].real)), _frozen(np.ascontiguousarray(R[is_real].real)),
+    return (_frozen(np.ascontiguousarray(p[is_real].real)), _frozen(np.ascontiguousarray(real.real)),
             _frozen(p[up]), _frozen(np.ascontiguousarray(R[up])))
+
+
+def _conjugate(a, b) -> bool:
+    """a == conj(b) exactly, entry by entry (then |a - conj(b)| is 0 everywhere; NaN: False)."""
+    return bool(np.array_equal(a.real, b.real) and np.array_equal(a.imag, -b.imag))
 
 
 def _symmetric(C):
@@ -244,6 +260,8 @@ class ScaledModel:
 # ---------------------------------------------------------------------------------------------
 MODEL_FORMAT = "uplift.RationalModel"
 MODEL_FORMAT_VERSION = 1
+#: root attribute of a model file: the model's ``digest`` (SHA-256 of its poles, residues, D and E)
+DIGEST_ATTR = "digest"
 
 
 def save_model(model: RationalModel, path) -> None:
@@ -258,13 +276,15 @@ def write_model(h, model: RationalModel) -> None:
 
     Layout: /poles_real, /poles_imag (m,) rad/s; /residues_real, /residues_imag (m, n, n);
     /D, /E (n, n); /dofs utf-8 (n,); attrs format = "uplift.RationalModel", format_version = 1,
-    provenance (JSON).
+    provenance (JSON), digest (the model's ``digest``: what a reader of a checksummed cache entry
+    takes instead of hashing the residues again, ``read_model(trust_digest=True)``).
     """
     import json
     import h5py
     h.attrs["format"] = MODEL_FORMAT
     h.attrs["format_version"] = MODEL_FORMAT_VERSION
     h.attrs["provenance"] = json.dumps(model.provenance, sort_keys=True, default=str)
+    h.attrs[DIGEST_ATTR] = model.digest
     h.create_dataset("poles_real", data=model.poles.real).attrs["units"] = "rad/s"
     h.create_dataset("poles_imag", data=model.poles.imag).attrs["units"] = "rad/s"
     h.create_dataset("residues_real", data=model.residues.real)
@@ -292,24 +312,48 @@ def _complex(re, im) -> np.ndarray:
     return out
 
 
-def read_model(h, path="") -> RationalModel:
+def read_model(h, path="", data=None, trust_digest: bool = False) -> RationalModel:
     """The model in the open h5py File ``h`` (``write_model`` layout); FitError naming ``path``
-    when it is not one."""
+    when it is not one. data: its datasets as a checksum verification read them
+    (``{"/name": array}``, ``uplift_common.files.checksum(keep=...)``; a ``<name>_real`` and
+    ``<name>_imag`` pair read into one complex array, ``ComplexPairs``, is taken as it is), not
+    read again. trust_digest: the file is a cache entry of this code whose checksum was just
+    verified (``soil_impedance.cache.read_entry``), so its stored ``digest`` attribute is that of
+    the arrays read (it was computed from them when they were written) and is kept as the
+    model's ``digest`` instead of hashing them again; a file a user may have edited and stamped
+    again is never trusted (``load_model``, ``load_fit``: the digest is computed)."""
     import json
     if h.attrs.get("format") != MODEL_FORMAT:
         raise FitError(f"{path}: not an {MODEL_FORMAT} file (attribute 'format' missing or wrong)")
     if int(h.attrs.get("format_version", -1)) != MODEL_FORMAT_VERSION:
         raise FitError(f"{path}: format_version {h.attrs.get('format_version')}, "
                        f"this code reads {MODEL_FORMAT_VERSION}: refit the table")
+    read = (lambda name: h[name][()]) if data is None else (lambda name: data["/" + name])
     try:
-        p = _complex(h["poles_real"][()], h["poles_imag"][()])
-        R = _complex(h["residues_real"][()], h["residues_imag"][()])
-        D, E = h["D"][()], h["E"][()]
-        dofs = [d.decode() if isinstance(d, bytes) else str(d) for d in h["dofs"][()]]
+        p = _pair(read("poles_real"), read("poles_imag"))
+        R = _pair(read("residues_real"), read("residues_imag"))
+        D, E = read("D"), read("E")
+        dofs = [d.decode() if isinstance(d, bytes) else str(d) for d in read("dofs")]
         prov = json.loads(h.attrs["provenance"])
     except KeyError as exc:
         raise FitError(f"{path}: missing dataset or attribute {exc}: refit the table") from None
-    return RationalModel(p, R, D, E, dofs, prov)
+    model = RationalModel(p, R, D, E, dofs, prov)
+    stored = h.attrs.get(DIGEST_ATTR) if trust_digest else None
+    if isinstance(stored, str) and len(stored) == 64:
+        model.__dict__["digest"] = stored
+    return model
+
+
+def _pair(re, im) -> np.ndarray:
+    """``_complex(re, im)``; the complex array itself when ``re`` and ``im`` are its two parts (a
+    checksum's ``ComplexPairs`` reads a pair that way): the same bits, not copied."""
+    whole = re.base
+    if isinstance(whole, np.ndarray) and whole is im.base and whole.dtype == np.complex128 \
+            and whole.shape == re.shape == im.shape and re.strides == im.strides == whole.strides:
+        start = whole.__array_interface__["data"][0]
+        if re.__array_interface__["data"][0] == start and im.__array_interface__["data"][0] == start + 8:
+            return whole
+    return _complex(re, im)
 
 
 RationalModel.save = save_model

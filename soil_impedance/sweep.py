@@ -18,7 +18,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
-from uplift_common.lazy import lazy_module, literal_constants
+from uplift_common.lazy import lazy_module
 
 from .blocked import STREAM_BYTES, BlockedTable, DamagedTableError, TableWriter, table_bytes
 from .bem import CHUNK_PAIRS, CONTACTS, RADIAL_TOL, BemError, SurfaceBem, _grid, edge_tractions, nodal_dofs
@@ -30,14 +30,14 @@ from .cache import CacheWarning, discard_entry, read_entry, write_entry
 from .greens_rule import GreenRule
 from .profile import CAUSAL_CUTOFF_HZ, CAUSAL_REFERENCE_HZ
 from .reduction import RIGID_DOFS, gap_dofs, gap_transform, rigid_transform
+from .solvers import DEFAULT_TOL, check_solver, resolve_solver
 from .table import ImpedanceTable, TableError, content_hash
 
 # scipy loads on first use (uplift_common.lazy): a warm run reads what it would compute
 sla = lazy_module("scipy.linalg")
-# the fast solver too, its default tolerance read from its source; it imports scipy.fft at its top,
-# which the solver's checks (every run's memory guard) do not use: deferred to a fast sweep's first FFT
+# the fast solver too: it imports scipy.fft at its top, deferred to a fast sweep's first FFT; the
+# solver's choice and checks (every run's memory guard and cache keys) are in a light module
 fastsolve = lazy_module("soil_impedance.fastsolve", defer=("scipy.fft",))
-(DEFAULT_TOL,) = literal_constants("soil_impedance.fastsolve", ("DEFAULT_TOL",))
 
 OUTPUTS = ("rigid", "gap", "nodal")
 #: the code a table depends on: its digest is one of the table's inputs (a changed kernel misses the cache)
@@ -47,7 +47,7 @@ CODE = ("soil_impedance.profile", "soil_impedance.patch", "soil_impedance.bem", 
 
 #: the fast solver's code: its digest is recorded in the provenance of the tables it computes
 #: only (a change to it misses the cache of fast tables, never of dense ones)
-FAST_CODE = ("soil_impedance.fastsolve",)
+FAST_CODE = ("soil_impedance.fastsolve", "soil_impedance.solvers")
 
 
 def code_version() -> str:
@@ -81,7 +81,7 @@ def provenance(profile, mesh, contact, rule, output, solver="dense", solver_tol=
     irregular mesh records the relative tolerance of its radial interpolation of the regular
     kernel (``bem.RADIAL_TOL``; also in the code digest) and its traction scheme
     (``bem.edge_tractions``: "constant", or "sqrt-8" for the cells of a mesh file). A table of
-    the fast solver (``solver`` resolved by ``fastsolve.resolve_solver`` to "fast") records
+    the fast solver (``solver`` resolved by ``solvers.resolve_solver`` to "fast") records
     ``solver = {"name": "fast", "tol": solver_tol, "code": digest of FAST_CODE, "chains": CHAINS}``
     (the warm-start chains of ``_compute_fast``: the iterates within the tolerance depend on them); a dense
     table records nothing more (its keys are those of the dense sweep before the option)."""
@@ -101,9 +101,9 @@ def provenance(profile, mesh, contact, rule, output, solver="dense", solver_tol=
 
 
 def _solver_for(mesh, solver, solver_tol, outputs) -> str:
-    """The solver ("dense" or "fast") a sweep of ``outputs`` uses (``fastsolve.resolve_solver``)."""
-    fastsolve.check_solver(solver, solver_tol)
-    return fastsolve.resolve_solver(solver, mesh, _grid(mesh) is not None, outputs)
+    """The solver ("dense" or "fast") a sweep of ``outputs`` uses (``solvers.resolve_solver``)."""
+    check_solver(solver, solver_tol)
+    return resolve_solver(solver, mesh, _grid(mesh) is not None, outputs)
 
 
 def table_key(profile, mesh, frequencies_hz, contact="welded", output="gap", rule=None,
@@ -178,7 +178,7 @@ def sweep_memory(n: int, n_freq: int, outputs=("rigid", "gap"), grid: bool = Fal
     n_freq : int         frequencies swept (the outputs hold one matrix per frequency)
     outputs : iterable   among "rigid", "gap", "nodal"
     grid : bool          circle/rectangle grid meshes (assembly by distinct offsets), else irregular
-    solver : "dense" or "fast" (resolved, ``fastsolve.resolve_solver``)
+    solver : "dense" or "fast" (resolved, ``solvers.resolve_solver``)
     box : (nx, ny)       the fast solver's grid box in nodes (None: a square of 2 sqrt(n / π)
                          nodes a side, a circle grid's, larger than a square grid's sqrt(n))
     rhs : int            the fast solver's right-hand sides per frequency (None: a symmetric
@@ -317,7 +317,7 @@ def impedance_sweep(profile, mesh, frequencies_hz, contact="welded", outputs=("r
     rule : passed to ``greens.regular_green``
     solver : "dense" (one LU of F per frequency), "fast" (grid meshes: FFT products and GMRES,
              ``fastsolve``; rigid and gap outputs) or "auto" (fast on a grid of at least
-             ``fastsolve.AUTO_NODES`` nodes, except for "nodal"; else dense)
+             ``solvers.AUTO_NODES`` nodes, except for "nodal"; else dense)
     solver_tol : the fast solver's relative residual ||b - F x|| / ||b|| per right-hand side
              (recorded in the provenance of its tables; ignored by the dense solver)
     workers : threads of the fast solver's warm-start chains (``sweep_workers``; None: the cores

@@ -163,7 +163,16 @@ class RouteResult:
         notes = RunNotes(skipped=n.skipped + tuple(skipped), warnings=n.warnings + tuple(warnings),
                          precheck=n.precheck if precheck is None else precheck,
                          timings={**n.timings, **(timings or {})})
-        return dataclasses.replace(self, notes=notes, info={**self.info, **(info or {})})
+        return self.with_checked(notes=notes, info=MappingProxyType({**self.info, **(info or {})}))
+
+    def with_checked(self, **changes) -> RouteResult:
+        """A copy with ``changes``, each already in the form ``__post_init__`` gives its field (a
+        RunNotes, a read-only mapping, a float ``wall_s``...): the histories, private read-only
+        arrays, are shared with this result, not copied again (``replace`` copies them all)."""
+        new = object.__new__(type(self))
+        new.__dict__.update(self.__dict__)
+        new.__dict__.update(changes)
+        return new
 
     def truncated(self, nt: int, status: Status = Status.STOPPED, message: str = "", wall_s=None,
                   info=None) -> RouteResult:

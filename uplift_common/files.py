@@ -58,7 +58,6 @@ import io
 import os
 import re
 import shutil
-import socket
 import stat
 import tempfile
 from pathlib import Path
@@ -224,9 +223,18 @@ def _size(n: int) -> str:
 
 # ---- temporaries and the orphans of dead processes ----------------------------------------------
 
+def _host_name() -> str:
+    """This machine's name, as ``socket.gethostname()`` gives it (on POSIX the kernel's node name,
+    ``os.uname``: the socket module is not loaded for it)."""
+    if hasattr(os, "uname"):
+        return os.uname().nodename
+    import socket
+    return socket.gethostname()
+
+
 #: this machine, in temporary names (a folder shared by several machines: a pid means nothing on
 #: another one, and its temporaries are never swept from here)
-HOST = hashlib.sha256(socket.gethostname().encode()).hexdigest()[:8]
+HOST = hashlib.sha256(_host_name().encode()).hexdigest()[:8]
 _TEMPORARY = re.compile(r"^\.(?P<name>.+)\.(?:(?P<host>[0-9a-f]{8})-)?(?P<pid>\d+)\.[A-Za-z0-9_]+\.tmp$")
 
 
@@ -801,6 +809,7 @@ class RecordedFile:
         self.file = f
         self.root = _Record("", "group")
         self.objects: dict = {}     # name relative to the root -> _Record
+        self.made: dict = {}        # name relative to the root -> the h5py object made (not looked up again)
         self.exact = True
         self.read_back = 0
         self._group = _RecordedGroup(f, self.root, self)
@@ -980,11 +989,13 @@ class _RecordedGroup(_Recorded):
 
     def create_group(self, name, track_order=None):
         rec = self._owner._child(self._rec, name, "group")
-        return _RecordedGroup(self._obj.create_group(name, track_order=track_order), rec, self._owner)
+        g = self._owner.made[rec.name] = self._obj.create_group(name, track_order=track_order)
+        return _RecordedGroup(g, rec, self._owner)
 
     def create_dataset(self, name, shape=None, dtype=None, data=None, **kwds):
         ds = self._obj.create_dataset(name, shape, dtype, data, **kwds)
         rec = self._owner._child(self._rec, name, "dataset")
+        self._owner.made[rec.name] = ds
         rec.exact = False
         if shape is None and dtype is None and data is not None and not kwds:
             a = np.array(data)                  # a copy: the caller may change its array afterwards
@@ -1005,7 +1016,10 @@ class _RecordedGroup(_Recorded):
             self._owner.exact = False   # an object the record does not know: its writes are not followed
             return obj
         cls = _RecordedGroup if rec.kind == "group" else _RecordedDataset
-        return cls(self._obj[name], rec, self._owner)
+        # the object made here (a dimension scale's, looked up for each of its variables), while no
+        # change the record does not follow (a deletion, a move) was made
+        obj = self._owner.made.get(key) if self._owner.exact else None
+        return cls(self._obj[name] if obj is None else obj, rec, self._owner)
 
 
 class _RecordedDataset(_Recorded):
@@ -1075,6 +1089,41 @@ class _RecordedDim:
         setattr(self._dim, name, value)
 
 
+_PLAIN_TYPES: dict = {}           # str, float, int -> (dtype, file type, memory type) as h5py makes them
+
+
+def _plain_types(kind):
+    if kind not in _PLAIN_TYPES:
+        dtype = h5py.string_dtype() if kind is str else np.asarray(kind(0)).dtype
+        _PLAIN_TYPES[kind] = (dtype, h5py.h5t.py_create(dtype, logical=True), h5py.h5t.py_create(dtype))
+    return _PLAIN_TYPES[kind]
+
+
+def _set_plain_attr(attrs, key, value) -> bool:
+    """``attrs[key] = value`` (an h5py AttributeManager) through h5py's low-level calls when the
+    value is a ``str``, ``float`` or ``int`` (exactly those types; an int within int64) and the
+    key is ASCII: the attribute h5py's ``attrs.create`` makes (the same calls: a scalar of h5py's
+    type for the value, an existing one deleted first), without its per-call conversions. False,
+    nothing written, for anything else."""
+    kind = type(value)
+    if kind not in (str, float, int) or not key.isascii() or (kind is int and not -2 ** 63 <= value < 2 ** 63):
+        return False
+    dtype, file_type, memory_type = _plain_types(kind)
+    name = key.encode("ascii")
+    oid = attrs._id
+    if h5py.h5a.exists(oid, name):
+        h5py.h5a.delete(oid, name)
+    attr = h5py.h5a.create(oid, name, file_type, h5py.h5s.create(h5py.h5s.SCALAR))
+    try:
+        attr.write(np.asarray(value, dtype=dtype), mtype=memory_type)
+    except BaseException:
+        attr.close()
+        h5py.h5a.delete(oid, name)
+        raise
+    attr.close()
+    return True
+
+
 class _RecordedAttrs:
     """``obj.attrs`` of a recorded object: every write recorded, reads passed through."""
 
@@ -1082,7 +1131,8 @@ class _RecordedAttrs:
         self._attrs, self._rec = attrs, rec
 
     def __setitem__(self, key, value):
-        self._attrs[key] = value
+        if not _set_plain_attr(self._attrs, key, value):
+            self._attrs[key] = value
         if key in _SCALE_ATTRS:         # one HDF5's dimension scales keep: read the object back
             self._rec.attrs[key] = _READ_BACK
             self._rec.exact = False

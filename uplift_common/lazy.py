@@ -25,13 +25,11 @@ The command line defers them (``orchestrator.cli``): they load on first use, as 
 ``lazy_module`` stands for a module of another package that a module uses in some functions only
 (``sla = lazy_module("scipy.linalg")`` instead of ``import scipy.linalg as sla``): the module is
 imported when one of its names is first read, so that a run whose path does not call it (a warm
-run, its structure read from the cache) never imports it. ``literal_constants`` reads constants
-of a module from its source, without importing it (and its imports).
+run, its structure read from the cache) never imports it.
 """
 from __future__ import annotations
 
 import ast
-import contextlib
 import importlib
 import importlib.util
 import sys
@@ -90,27 +88,6 @@ class lazy_module:                      # lower case: it stands for a module
 
     def __repr__(self) -> str:
         return f"<lazy module {self._lazy_name!r}{' (imported)' if self._lazy_name in sys.modules else ''}>"
-
-
-def literal_constants(module: str, names: tuple[str, ...]) -> tuple:
-    """The values of ``names``, each assigned a literal at the top level of ``module`` (a dotted
-    name), read from its source without running it (``ast.literal_eval``); from the module itself
-    when it is imported already. A name not assigned a literal there raises LookupError."""
-    if module in sys.modules:
-        return tuple(getattr(sys.modules[module], n) for n in names)
-    spec = importlib.util.find_spec(module)
-    tree = ast.parse(Path(spec.origin).read_text(encoding="utf-8"))
-    found = {}
-    for node in tree.body:
-        targets = node.targets if isinstance(node, ast.Assign) else [node.target] if isinstance(node, ast.AnnAssign) else []
-        for t in targets:
-            if isinstance(t, ast.Name) and t.id in names and node.value is not None:
-                with contextlib.suppress(ValueError):     # not a literal: reported missing below
-                    found[t.id] = ast.literal_eval(node.value)
-    missing = [n for n in names if n not in found]
-    if missing:
-        raise LookupError(f"{module}: {', '.join(missing)} not assigned a literal at its top level")
-    return tuple(found[n] for n in names)
 
 
 #: numpy's submodules that the project's computations never use, but which importing scipy loads

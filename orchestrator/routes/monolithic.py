@@ -203,7 +203,7 @@ def _native(model, soil, motion, scene, route, progress, folder, damping, alpha=
     except ConvergenceError as exc:
         exc.result = dataclasses.replace(exc.result, wall_s=time.perf_counter() - t0)
         raise
-    return dataclasses.replace(res, wall_s=time.perf_counter() - t0)
+    return res.with_checked(wall_s=float(time.perf_counter() - t0))       # the histories not copied again
 
 
 def run(ctx, progress=None):

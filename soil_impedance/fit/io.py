@@ -40,9 +40,12 @@ def load_fit(path) -> FitResult:
         return read_fit(h, path)
 
 
-def read_fit(h, path) -> FitResult:
+def read_fit(h, path, data=None, trust_digest: bool = False) -> FitResult:
+    """The FitResult in the open h5py File ``h`` (``save_fit``); data, trust_digest: as
+    ``rational.read_model`` (a verified cache entry's datasets as its checksum read them, and its
+    stored model digest)."""
     t0 = time.perf_counter()
-    model = read_model(h, path)
+    model = read_model(h, path, data, trust_digest)
     if "fit_report" not in h.attrs:
         raise FitError(f"{path}: a rational model without a fit report: refit the table")
     d = json.loads(h.attrs["fit_report"])

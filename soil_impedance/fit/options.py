@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass, fields
 import numpy as np
 from uplift_common.code import code_digest
 
@@ -96,8 +96,10 @@ class FitOptions:
         return cls(node_xy=xy, **options)
 
     def settings(self) -> dict:
-        """The options as a JSON-able dict (node_xy as a digest): the report's ``settings``."""
-        d = asdict(self)
+        """The options as a JSON-able dict (node_xy as a digest): the report's ``settings``. The
+        fields are scalars, taken as they are (``dataclasses.asdict``'s deep copy of the node
+        coordinates, thousands of tuples, is not made)."""
+        d = {f.name: getattr(self, f.name) for f in fields(self)}
         xy = d.pop("node_xy")
         d["node_xy_sha"] = None if xy is None else hashlib.sha256(
             np.ascontiguousarray(xy, "<f8").tobytes()).hexdigest()[:16]

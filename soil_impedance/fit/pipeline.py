@@ -73,10 +73,11 @@ def cached_fit(table_hash: str, options: FitOptions, cache_dir) -> FitResult | N
     """The fit ``fit_table`` cached in ``cache_dir`` for the table of hash ``table_hash`` (its
     inputs, ``ImpedanceTable.hash``; ``sweep.table_key`` gives it without the table) and
     ``options``, verified on read; None when there is none (a damaged entry is moved aside
-    with a CacheWarning, ``cache.read_entry``)."""
+    with a CacheWarning, ``cache.read_entry``). The entry is read once, as its checksum reads
+    it, and the model's digest is the one stored with it (``rational.read_model``)."""
     from ..cache import read_entry
     path = _cache_path(table_hash, options, cache_dir)
-    return read_entry(path, lambda h: read_fit(h, path))
+    return read_entry(path, lambda h, data: read_fit(h, path, data, trust_digest=True), keep=True)
 
 
 def _cache_path(table_hash: str, options: FitOptions, cache_dir) -> Path:

@@ -191,6 +191,53 @@ def test_resource_format_round_trip():
         encode_resources({"x" * 33: 1.0})
 
 
+def _encode_reference(records: dict) -> bytes:
+    """The resource file written field by field (fmus/native/README.md's layout: a 32-byte header
+    of magic, version, count, size, CRC-32 of the body; per record its padded name, kind, rank,
+    four dimensions, byte count, data padded to 8 bytes), each array copied to its record type
+    first: what ``encode_resources`` must give byte for byte."""
+    import struct
+    import zlib
+
+    from fmus.native_build import KINDS, MAGIC, VERSION
+    body = b""
+    for name, value in records.items():
+        if isinstance(value, str):
+            kind, dims, data = KINDS["text"], (len(value.encode()),), value.encode()
+        else:
+            a = np.asarray(value)
+            a = np.array(a, "<i8" if a.dtype.kind in "iub" else "<f8", order="C")
+            kind, dims, data = KINDS["i8" if a.dtype.kind == "i" else "f8"], a.shape, a.tobytes()
+        body += (name.encode().ljust(32, b"\0") + struct.pack("<II", kind, len(dims))
+                 + struct.pack("<4Q", *(tuple(dims) + (0,) * (4 - len(dims)))) + struct.pack("<Q", len(data))
+                 + data + b"\0" * (-len(data) % 8))
+    return MAGIC + struct.pack("<IIQII", VERSION, len(records), 32 + len(body), zlib.crc32(body), 0) + body
+
+
+def test_resource_records_are_encoded_byte_for_byte_without_copies_changing_them():
+    """``encode_resources`` (one copy of each array, the CRC taken part by part) gives the bytes of
+    the field-by-field layout for every kind of value: scalars, 0-d, empty, strided, big-endian,
+    float32, int32 and bool arrays, text; a soil's pair records (the float view of its complex
+    residues) are ``np.stack([re, im], -1)`` of them."""
+    from fmus.native_build import _interleaved, soil_records
+    rng = np.random.default_rng(3)
+    records = {"dt": 0.005, "n": 3.0, "text": "h\u00e9llo", "empty_text": "", "a": rng.standard_normal((3, 4)),
+               "i": np.arange(5), "b": np.array([True, False]), "big": rng.standard_normal((2, 3, 4, 2)).astype(">f8"),
+               "f32": np.arange(3, dtype=np.float32), "strided": rng.standard_normal((6, 6))[::2, 1::2],
+               "empty": np.zeros((0, 3)), "i32": np.arange(4, dtype=np.int32).reshape(2, 2), "scalar": np.float64(2.5),
+               "zero_d": np.array(3)}
+    assert encode_resources(records) == _encode_reference(records)
+    z = rng.standard_normal((3, 5, 5)) + 1j * rng.standard_normal((3, 5, 5))
+    for w in (z, z[:, ::2], z.astype(np.complex64)):
+        assert np.array_equal(_interleaved(w), np.stack([w.real, w.imag], -1))
+    from helpers.passive_models import random_passive_model
+    soil = random_passive_model(5, 3, 2)
+    rec = soil_records(soil, DT)
+    assert encode_resources(rec) == _encode_reference(rec)
+    pr, Rr, pc, Rc = soil.pole_split
+    assert np.array_equal(rec["residues_pair"], np.stack([Rc.real, Rc.imag], -1).reshape(-1, soil.n, soil.n, 2))
+
+
 def test_other_soil_factories_are_refused():
     data = dataclasses.replace(fmu_data(SCENE, MODEL, DT), soil_factory="helpers.soil_double:TrapezoidRationalSoil")
     with pytest.raises(ValueError, match="kind = 'python'"):

@@ -204,3 +204,36 @@ def test_the_verifiers_low_level_reading_gives_the_reference_digest_and_arrays(t
     _every_kind(path)
     with h5py.File(path, "r") as f:
         assert checksum(f) != changed
+
+
+def test_attributes_written_through_the_record_are_h5py_s_own(tmp_path):
+    """A str, float or int attribute set through a RecordedFile (h5py's low-level calls) is the
+    attribute h5py's ``attrs[key] = value`` makes: the same HDF5 type, shape and value, replacing
+    one of the same name; the other values (bools, numpy scalars, ints beyond int64, a non-ASCII
+    key) go through h5py itself; a NUL in a string is refused as h5py refuses it (nothing left);
+    the record's digest is the verifier's."""
+    values = {"text": "h\u00e9llo \u2013 ok", "empty": "", "x": 1.5, "nan": float("nan"), "neg": -3,
+              "big": 2 ** 62, "huge": 2 ** 63, "flag": True, "np": np.float64(2.0), "caf\u00e9": "key", "twice": 1}
+    plain_path, recorded_path = tmp_path / "plain.h5", tmp_path / "recorded.h5"
+    with h5py.File(plain_path, "w") as f:
+        for key, value in values.items():
+            f.attrs[key] = value
+        f.attrs["twice"] = "again"
+    with hdf5_output(recorded_path) as h:
+        f = RecordedFile(h)
+        for key, value in values.items():
+            f.attrs[key] = value
+        f.attrs["twice"] = "again"
+        with pytest.raises(ValueError, match="NULL"):
+            f.attrs["nul"] = "a\0b"
+        assert "nul" not in h.attrs
+        stamped = files.stamp_checksum(f)
+    with h5py.File(plain_path, "r") as a, h5py.File(recorded_path, "r") as b:
+        assert set(b.attrs) - {CHECKSUM_ATTR} == set(a.attrs) == set(values)
+        for key in values:
+            ia, ib = h5py.h5a.open(a.id, key.encode()), h5py.h5a.open(b.id, key.encode())
+            assert ia.get_type() == ib.get_type() and ia.get_space().shape == ib.get_space().shape, key
+            va, vb = a.attrs[key], b.attrs[key]
+            assert type(va) is type(vb) and (np.asarray(va).tobytes() == np.asarray(vb).tobytes() if
+                                              not isinstance(va, str) else va == vb), key
+        assert stamped == b.attrs[CHECKSUM_ATTR] == checksum(b)
