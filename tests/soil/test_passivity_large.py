@@ -208,3 +208,19 @@ def test_overshoot_planes_ask_for_more_than_the_margin_and_the_dual_meets_them()
         assert (got >= want - 1e-8).all()
         active = mu[:k] > 0
         assert active.any() and np.allclose(got[active], want[active], rtol=0, atol=1e-8)
+
+
+def test_dense_samples_keep_nine_deficit_planes_per_band_and_no_overshoot_where_many_directions_fail():
+    """150 DOFs with 73 directions below the margin at every frequency (test_passivity's null-noise model):
+    sampled at PLANE_SAMPLES points a band makes deficit planes (na² doubles each) at nine of them and its two
+    neighbours only, as nine samples did, and no rank-one plane there is lifted (the overshoot is for a few
+    directions turning, the deficit plane covers many); the rank-one planes are those of all the samples."""
+    from test_passivity import _null_noise_model
+    sc = _null_noise_model(150).scaled
+    band = [(0.05, 0.2)]
+    nine, _ = pv._planes(sc, band, 1e-3, partial=True)
+    dense, _ = pv._planes(sc, band, 1e-3, n_samples=pv.PLANE_SAMPLES, partial=True, overshoot=(0.5, 0.1))
+    every_fourth = pv._band_samples(band[0], pv.PLANE_SAMPLES)[::4]
+    assert np.allclose(np.sort(dense.nud), np.sort(np.concatenate([every_fourth, [0.0125, 0.2375]])), rtol=1e-12, atol=0)
+    assert nine.nud.size == 11 and np.array_equal(np.sort(nine.nud), np.sort(pv._planes(sc, band, 1e-3)[0].nud))
+    assert dense.nu1.size == 35 * pv.RANK_ONE_PLANES and not dense.lift.any()
