@@ -84,13 +84,16 @@ change was one the fit's frequencies do not see (two peaks 0.09 Hz apart on diff
 deepened one and opened a band above the fitted range); and the eigenvector below the margin turned at each
 step, so a sample whose plane was met failed again by a little (synthetic 1006- and 1206-DOF models not
 passive after 20 iterations). From ``CHOLESKY_SWEEP_NA``, therefore: the planes sample each band at
-``PLANE_SAMPLES`` points; the change is also measured over every violation band seen so far, as the fit's
-measure would be if it had frequencies there (``_band_gram``: the quadrature of the same weighted integral
-of ‖ΔK‖², overlapping bands counted once); and each rank-one plane asks for its deficit d times
-``OVERSHOOT`` above the margin, at most ``OVERSHOOT_CAP``·ν (``_Planes.lift``: what the eigenvector's turn
-takes back is then taken from the overshoot, not from the next iteration). Those models became passive in 2
-iterations; the price is a change up to about half as large again on the fit's frequencies, and a final
-margin above the target (docs/formulation.md, "Passivity").
+``PLANE_SAMPLES`` points (deficit planes, na² doubles each, at nine of them only); the change is also
+measured over every violation band seen so far that is narrower than two steps of the fit's frequencies, as
+the fit's measure would be if it had frequencies there (``_between``, ``_band_gram``: the quadrature of the
+same weighted integral of ‖ΔK‖², overlapping bands counted once); and each rank-one plane at a sample where
+at most ``RANK_ONE_PLANES`` directions fail asks for its deficit d times ``OVERSHOOT`` above the margin, at
+most ``OVERSHOOT_CAP``·ν (``_Planes.lift``: what the eigenvector's turn takes back is then paid from the
+overshoot, not by another iteration; where more directions fail the deficit plane covers them, and an
+overshoot there stalled the null-noise model of the tests). Those models became passive in 2 iterations;
+the price is a change up to about half as large again on the fit's frequencies, and a final margin above
+the target (docs/formulation.md, "Passivity").
 Repeated until the exact test passes, the worst margin seen stops improving (``stall``
 iterations: the cutting-plane iterates are not monotone, 4 gave up on fits that converged at
 iteration 11) or the work bound ``max_iter`` is spent (no wall-clock limit: the result depends on
