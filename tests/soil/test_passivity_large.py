@@ -1,11 +1,12 @@
 """Passivity enforcement from ``CHOLESKY_SWEEP_NA`` active DOFs: the grid re-screen bounded by the change
 (``passivity._Rescreen``) against the full screen, the planes from partial eigensolutions against the full
-eigh's, and an enforced model of 400 DOFs against the exact (Hamiltonian) test."""
+eigh's, an enforced model of 400 DOFs against the exact (Hamiltonian) test, and what makes narrow, deep
+violations converge there (dense plane samples, the band measure ``_band_gram``, the planes' overshoot)."""
 import numpy as np
 import pytest
 
 import soil_impedance.passivity as pv
-from helpers.passive_models import with_notch
+from helpers.passive_models import null_noise_model, with_notch
 from soil_impedance.rational import RationalModel
 
 F_MAX = 25.0
@@ -211,12 +212,11 @@ def test_overshoot_planes_ask_for_more_than_the_margin_and_the_dual_meets_them()
 
 
 def test_dense_samples_keep_nine_deficit_planes_per_band_and_no_overshoot_where_many_directions_fail():
-    """150 DOFs with 73 directions below the margin at every frequency (test_passivity's null-noise model):
+    """150 DOFs with 73 directions below the margin at every frequency (``null_noise_model``):
     sampled at PLANE_SAMPLES points a band makes deficit planes (na² doubles each) at nine of them and its two
     neighbours only, as nine samples did, and no rank-one plane there is lifted (the overshoot is for a few
     directions turning, the deficit plane covers many); the rank-one planes are those of all the samples."""
-    from test_passivity import _null_noise_model
-    sc = _null_noise_model(150).scaled
+    sc = null_noise_model(150).scaled
     band = [(0.05, 0.2)]
     nine, _ = pv._planes(sc, band, 1e-3, partial=True)
     dense, _ = pv._planes(sc, band, 1e-3, n_samples=pv.PLANE_SAMPLES, partial=True, overshoot=(0.5, 0.1))
