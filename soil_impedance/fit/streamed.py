@@ -9,7 +9,8 @@ columns Y (F × ≤ 24), and reads the table block by block (``BLOCK`` × ``BLOC
 frequencies, upper triangle) for each pass:
 
 * construction: two passes (the row maxima and diagonals that give S; then the target's norms, the
-  rigid-raft projections and the R factor of the columns, by a tall-skinny QR of the stacked blocks);
+  rigid-raft projections and the R factor of the columns, by a tall-skinny QR of the stacked blocks, on
+  one BLAS thread: ``one_blas_thread``);
 * the compressed columns from that R: [Re X; Im X] = Rᵀ Qᵀ, so the SVD of Rᵀ gives the singular values
   and the combinations Y = X V of ``vectfit.compress`` without forming V (same singular values, the
   combinations up to their signs, which vector fitting does not see);
@@ -108,20 +109,21 @@ class StreamedProblem:
         if P is not None:
             self.rigid_raw = np.zeros((F, 6, 6), complex)       # Pᵀ K P
             self.rigid_target = np.zeros((F, 6, 6), complex)    # Pᵀ (causal target, SI) P
-        for r, c, K, Ks, T, sel in self._passes(raw=True):
-            wgt = 1.0 if r == c else 2.0
-            t2 += wgt * _sq(T)
-            k2 += wgt * _sq(Ks)
-            u2 += wgt * _sq(K)
-            X = T[:, sel[0], sel[1]] * sel[2]
-            xmax = max(xmax, float(np.abs(X).max()))
-            R = np.linalg.qr(np.vstack([R, np.concatenate([X.real, X.imag]).T]), mode="r")
-            if P is not None:
-                Tu = T / self.Sd[r, None] / self.Sd[None, c]
-                for out, A in ((self.rigid_raw, K), (self.rigid_target, Tu)):
-                    out += _project(P[r], A, P[c])
-                    if r != c:
-                        out += _project(P[c], A.transpose(0, 2, 1), P[r])
+        with one_blas_thread():                                 # the tall-skinny QRs: one thread (``one_blas_thread``)
+            for r, c, K, Ks, T, sel in self._passes(raw=True):
+                wgt = 1.0 if r == c else 2.0
+                t2 += wgt * _sq(T)
+                k2 += wgt * _sq(Ks)
+                u2 += wgt * _sq(K)
+                X = T[:, sel[0], sel[1]] * sel[2]
+                xmax = max(xmax, float(np.abs(X).max()))
+                R = np.linalg.qr(np.vstack([R, np.concatenate([X.real, X.imag]).T]), mode="r")
+                if P is not None:
+                    Tu = T / self.Sd[r, None] / self.Sd[None, c]
+                    for out, A in ((self.rigid_raw, K), (self.rigid_target, Tu)):
+                        out += _project(P[r], A, P[c])
+                        if r != c:
+                            out += _project(P[c], A.transpose(0, 2, 1), P[r])
         self.R = R                                            # [Re X; Im X] [Re X; Im X]ᵀ = Rᵀ R (``search_orders``)
         self.norm_target, self.norm_Ks, self.norm_K = np.sqrt(t2), np.sqrt(k2), np.sqrt(u2)
         self.w_rel = 1.0 / np.maximum(self.norm_target, 1e-300)
@@ -386,6 +388,18 @@ class StreamedProblem:
         if self.f_c <= 0:
             return 0.0
         return float(1.1 * 0.5 * np.linalg.norm(self.H0) / max(np.linalg.norm(self.Ks[0].real), 1e-300))
+
+
+def one_blas_thread():
+    """Context manager: the BLAS pools at one thread inside, their sizes restored on exit. For the set-up's
+    tall-skinny QRs (per block, (BLOCK² + 2F) × 2F: thin panels, where a second thread buys little and, on
+    a loaded 2-core machine, spins waiting for a busy core): the set-up of the 2506-DOF mat's table took
+    4.5-8 CPU min on two OpenBLAS threads, 70 % of it these QRs, which took 34 s on one idle thread; at
+    1207 DOFs and 21 frequencies the QRs took 7.4 CPU s (15.5 s wall) on two threads and 0.7 CPU s (3.1 s
+    wall) on one. The R factor differs from a two-thread run's by round-off (2.8e-14 of its largest entry
+    there; the norms and rigid-raft projections, no QR, are the same bits)."""
+    from threadpoolctl import threadpool_limits     # a dependency (pyproject); loaded by a streamed fit only
+    return threadpool_limits(limits=1, user_api="blas")
 
 
 def _definite(A) -> bool:

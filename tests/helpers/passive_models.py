@@ -1,5 +1,6 @@
 """Passive RationalModels from mechanical building blocks: test and benchmark factories
-(``oscillator_model``, ``random_passive_model``) and ``with_notch`` (a narrow violation added). Import as ``from helpers import ...``
+(``oscillator_model``, ``random_passive_model``, ``null_noise_model``) and ``with_notch`` (a narrow violation
+added). Import as ``from helpers import ...``
 (tests/ is on the path under pytest; benchmarks add it)."""
 import numpy as np
 
@@ -142,3 +143,16 @@ def with_notch(model: RationalModel, f0: float, zeta: float, depth: float, v) ->
     r = alpha * w0 ** 2 / (p - np.conj(p)) * np.outer(v, v)
     return RationalModel(np.concatenate([model.poles, [p, np.conj(p)]]), np.concatenate([model.residues, [r, np.conj(r)]]),
                          model.D, model.E, model.dofs, model.provenance)
+
+
+def null_noise_model(n, seed=0, noise=2e-3, f_max=25.0):
+    """n DOFs, D = I, E a rank-3 dashpot (the radiating patterns) and three real poles with small random
+    symmetric residues: on the n − 3 other directions Im K is ±noise·ν, half of them negative at every
+    frequency (an undamped soil's evanescent patterns as a fit leaves them)."""
+    rng = np.random.default_rng(seed)
+    w = 2 * np.pi * f_max
+    W = rng.standard_normal((n, 3)) / np.sqrt(n)
+    poles = -w * np.array([0.5, 1.0, 2.0])
+    R = [noise * p * p / w * (lambda X: (X + X.T) / np.sqrt(2 * n))(rng.standard_normal((n, n))) for p in poles]
+    return RationalModel(poles + 0j, np.array(R, complex), np.eye(n), W @ W.T / w, [f"d{i}" for i in range(n)],
+                         {"f_max_hz": f_max})

@@ -150,6 +150,42 @@ def test_the_streamed_fit_equals_the_fit_in_memory(gap_table, tmp_path):
     _compare(fit(gap_table, opt), fit(lazy, opt), 1e-9)
 
 
+def test_the_streamed_set_up_runs_its_qrs_on_one_blas_thread(gap_table, tmp_path, monkeypatch):
+    """The set-up's tall-skinny QRs run with every BLAS pool at one thread (``streamed.one_blas_thread``),
+    from pools of two, which are two again afterwards; its R factor is the QR's of the whole stacked
+    columns (Rᵀ R = X̃ X̃ᵀ, to round-off: 1e-12 of the largest entry), and equal to the R of a set-up run
+    with the pools left at two threads to round-off."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    def blas_threads():
+        return {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
+    seen = []
+    qr = np.linalg.qr
+
+    def recording_qr(*args, **kw):
+        seen.append(blas_threads())
+        return qr(*args, **kw)
+    lazy = BlockedTable.open(_write(gap_table, tmp_path / "t.h5", chunk=12))
+    with threadpool_limits(limits=2, user_api="blas"):
+        assert blas_threads() == {2}
+        monkeypatch.setattr(np.linalg, "qr", recording_qr)
+        prob = streamed.StreamedProblem(lazy, "relative", "auto")
+        assert len(seen) == 6 and all(s == {1} for s in seen), seen
+        assert blas_threads() == {2}
+        monkeypatch.setattr(streamed, "one_blas_thread", lambda: threadpool_limits(limits=2, user_api="blas"))
+        seen.clear()
+        two = streamed.StreamedProblem(lazy, "relative", "auto")
+        assert len(seen) == 6 and all(s == {2} for s in seen), seen
+    X = []
+    for r, c, _, _, T, (i, j, ew) in prob._passes():
+        Xb = streamed._columns(T, r, c, i, j) * ew
+        X.append(np.concatenate([Xb.real, Xb.imag]))
+    X = np.hstack(X)
+    gram = X @ X.T
+    assert np.abs(prob.R.T @ prob.R - gram).max() <= 1e-12 * np.abs(gram).max()
+    assert np.abs(np.abs(prob.R) - np.abs(two.R)).max() <= 1e-12 * np.abs(prob.R).max()
+
+
 def test_the_streamed_fit_of_a_hysteretic_table_equals_the_fit_in_memory(tmp_path, monkeypatch):
     """A hysteretic table (the causal target fades Im K(0⁺) out below f_causal, the error floor), in blocks of
     16 of a contiguous file (no chunks to follow: streamed.BLOCK): the same."""

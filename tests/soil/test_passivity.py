@@ -9,6 +9,7 @@ from soil_impedance.fit import fit_table
 from soil_impedance.passivity import (_G, _assess, _default_grid, _lmin, _screen, check_passive,
                                       enforce_passivity, require_passive)
 from soil_impedance.rational import FitError, RationalModel
+from helpers.passive_models import null_noise_model
 
 
 @pytest.fixture(scope="module")
@@ -234,25 +235,12 @@ def test_screen_and_early_exact_verdict_agree_with_the_full_test(good_fit):
         assert any(a <= lo and hi <= b for lo, hi in full["bands"])
 
 
-def _null_noise_model(n, seed=0, noise=2e-3, f_max=25.0):
-    """n DOFs, D = I, E a rank-3 dashpot (the radiating patterns) and three real poles with small random
-    symmetric residues: on the n − 3 other directions Im K is ±noise·ν, half of them negative at every
-    frequency (an undamped soil's evanescent patterns as a fit leaves them)."""
-    rng = np.random.default_rng(seed)
-    w = 2 * np.pi * f_max
-    W = rng.standard_normal((n, 3)) / np.sqrt(n)
-    poles = -w * np.array([0.5, 1.0, 2.0])
-    R = [noise * p * p / w * (lambda X: (X + X.T) / np.sqrt(2 * n))(rng.standard_normal((n, n))) for p in poles]
-    return RationalModel(poles + 0j, np.array(R, complex), np.eye(n), W @ W.T / w, [f"d{i}" for i in range(n)],
-                         {"f_max_hz": f_max})
-
-
 @pytest.mark.slow
 def test_enforcement_with_hundreds_of_directions_below_the_margin():
     """73 of 150 eigenvalues of G negative at every frequency: the enforcement converges in a few
     iterations (measured 7) with a small change (0.24 % of |K|; the noise is 0.2 %), poles unchanged,
     and both exact tests pass it."""
-    model = _null_noise_model(150)
+    model = null_noise_model(150)
     f = np.linspace(0, 25, 51)
     sc = model.scaled
     assert np.sum(np.linalg.eigvalsh(_G(sc, [0.5])[0]) < 0) > 60
@@ -266,7 +254,7 @@ def test_enforcement_with_hundreds_of_directions_below_the_margin():
 def test_protected_pattern_changes_least():
     """``protect`` = the pattern r = 1/√n (a rigid vertical translation): the enforcement changes
     rᵀ K r about ten times less (measured 3.5e-3 → 3.9e-4 of min |rᵀ K r|) and stays passive."""
-    model = _null_noise_model(60)
+    model = null_noise_model(60)
     f = np.linspace(0, 25, 51)
     r = np.full((60, 1), 1 / np.sqrt(60))
     K = model.frequency_response(f)
