@@ -70,9 +70,9 @@ HISTORY_COPIES = 8.0
 #: and their split by pole kind (1), beside the fitted model, and the history blocks taken from the fit and
 #: assembled from their compression while it runs (transient). Measured (the peak's VmHWM over the process
 #: before the fitted model, 200 steps of the mat under a lifting pulse, 6 poles, kernel-structured soil):
-#: the compressed stepping's peak over the dense one's 4.7 m n^2 doubles at 625 nodes and 4.3 at 1156; with
-#: 3.5 the estimate is 4.6 % and 6.5 % above the measured peaks (242 and 799 MiB) at those sizes, the dense
-#: estimate's own excess (20 % and 18 % above its measured 157 and 534 MiB at 6 poles) taking the rest
+#: the compressed stepping's peak over the dense one's 4.7 / 4.3 / 3.7 m n^2 doubles at 625 / 1156 / 2500 nodes;
+#: with 3.5 the estimate is 4.6 / 6.5 / 10.3 % above the measured peaks (242 / 799 / 3562 MiB), the dense
+#: estimate's own excess (20 / 18 / 16 % above its measured 157 / 534 / 2496 MiB at 6 poles) taking the rest
 COMPRESSED_COPIES = 3.5
 #: doubles per n^2 of the native stepper's K0C over the history's blocks, at a step size (stepper.c,
 #: ``k0c_blocks``: each upper block a dense block or the terms' stacked factors, whichever is smaller):

@@ -27,7 +27,7 @@ import pytest
 from helpers import kernel_passive_model
 from soil_impedance.convolution import (RecursiveConvolutionSoil, compressed_model, history_blocks,
                                         history_kind, stacked_columns)
-from soil_impedance.hhistory import BORDER, HMATRIX_MIN_NODES, _scale, compress_history, partition
+from soil_impedance.hhistory import BORDER, DEFAULT_TOL, HMATRIX_MIN_NODES, _scale, compress_history, partition
 from soil_impedance.mesh import circle_mesh
 from soil_impedance.passivity import check_passive
 from soil_impedance.rational import FitError
@@ -148,7 +148,7 @@ def test_bad_options_are_refused(kwargs, words):
 def test_compressed_model_stays_passive():
     xy = raft(3.5)                                  # 101 nodes, leaves of 8: far blocks at this size
     model = kernel_passive_model(xy, 1, 2, seed=5)
-    hist, tilde = compressed_model(model, xy, 1e-4, leaf=8)
+    hist, tilde = compressed_model(model, xy, DEFAULT_TOL, leaf=8)
     assert int((hist.ranks >= 0).sum()) > 20
     ref, rep = check_passive(model), check_passive(tilde)
     assert ref.passive and rep.passive and rep.certified
