@@ -75,7 +75,7 @@ HMATRIX_MIN_NODES = 600
 #:   2e-4  5.3e-4 / 1.5e-4 / 8.1e-4    0.112 / 0.070 / 0.0426   (the gaps 9.8e-4 / 2.5e-3 / 4.4e-3)
 #: max uplift's error on one case is not monotone in tol (2e-4 passes where 1e-4 does not), the gap histories'
 #: nearly is; 5e-5 is the largest tolerance from which every one measured keeps max uplift within 1e-3 at the
-#: three sizes (with 3.8x to spare), for 4-5 % more storage than 1e-4. The rule before, 1e-4 relative to
+#: three sizes (with 3.8x to spare), for 2-5 % more storage than 1e-4. The rule before, 1e-4 relative to
 #: the node block's 2-norm: 8.2e-3 / 4.2e-3 / 7.9e-2 (the gaps 1.8e-2 / 6.3e-2 / 2.1e-1 of the largest), storage
 #: 0.107 / 0.062 / 0.036; at 1e-5 still 5.4e-4 / 2.9e-4 / 2.4e-3 (docs/native.md)
 DEFAULT_TOL = 5e-5
