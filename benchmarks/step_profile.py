@@ -20,8 +20,9 @@ numbers stay meaningful on a shared machine; the production build has none) and 
   system      the per-step-size system (condensation), once per step size
   rest        the step less the above (set-up of the right-hand side, contact, line search, outputs)
 
-with the counts of bases, capacitance factorisations (new active sets), Newton solves and the
-growth exponents of each column over the sizes. Above 1200 nodes: under the big-run lock.
+with the counts of bases, capacitance factorisations (new active sets), Newton solves, the
+compressed history's storage and D and E's (of n^2 per block; --history-tol sets the tolerance)
+and the growth exponents of each column over the sizes. Above 1200 nodes: under the big-run lock.
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/step_profile.py --sizes 16 25
     nice flock /tmp/big.lock python benchmarks/step_profile.py --sizes 34 50
@@ -73,10 +74,10 @@ def profile(lib, reset=True):
     return t, n
 
 
-def case(cells: int, pga: float, T: float, dt: float = 0.005, soil_kind: str = "kernel"):
-    """(stepper at rest, motion (nt, 3), the history's kind) of the mat at cells x cells nodes;
-    soil_kind "synthetic": growth.py's step stage instead (its 8-pole synthetic soil, dense
-    history, under 0.5 sin(2 pi 3 t) m/s^2 along x)."""
+def case(cells: int, pga: float, T: float, dt: float = 0.005, soil_kind: str = "kernel", history_tol=None):
+    """(stepper at rest, motion (nt, 3), the soil) of the mat at cells x cells nodes, its history
+    compressed at ``history_tol`` (None: the soil's default); soil_kind "synthetic": growth.py's step
+    stage instead (its 8-pole synthetic soil, dense history, under 0.5 sin(2 pi 3 t) m/s^2 along x)."""
     from growth import scene_at, synthetic_model
     from helpers import pulse_motion, with_kernel_terms
     from helpers.soil_double import winkler_rational
@@ -91,20 +92,21 @@ def case(cells: int, pga: float, T: float, dt: float = 0.005, soil_kind: str = "
         ag[:, 0] = 0.5 * np.sin(2 * np.pi * 3.0 * t)
         soil = RecursiveConvolutionSoil(synthetic_model(6 + scene.mesh.n, 8), dt, checked=True)
         st = NewmarkStepper(scene.model(), soil, dt, contact=scene.contact, external_soil=True, ag0=ag[0])
-        return st, ag, soil.history_kind
+        return st, ag, soil
     base = winkler_rational(rock_winkler(xy, scene.mesh.area, damped=True, match="rocking", ky=True))
     model = with_kernel_terms(base, xy)
-    soil = RecursiveConvolutionSoil(model, dt, checked=True, history="auto", xy=xy)
+    tol = {} if history_tol is None else {"history_tol": history_tol}
+    soil = RecursiveConvolutionSoil(model, dt, checked=True, history="auto", xy=xy, **tol)
     motion = pulse_motion(dt=dt, T=T, pga=pga)
     contact = dataclasses.replace(scene.contact, precheck=False)
     st = NewmarkStepper(scene.model(), soil, dt, contact=contact, external_soil=True, ag0=motion.acc[0])
-    return st, motion.acc, soil.history_kind
+    return st, motion.acc, soil
 
 
 def measure(cells, args, lib):
     from fmus.native_stepper import simulate_native
     t0 = time.process_time()
-    st, ag, kind = case(cells, args.pga, args.T, soil_kind=args.soil)
+    st, ag, soil = case(cells, args.pga, args.T, soil_kind=args.soil, history_tol=args.history_tol)
     setup = time.process_time() - t0
     profile(lib)
     t1 = time.process_time()
@@ -113,7 +115,11 @@ def measure(cells, args, lib):
     t, n = profile(lib)
     steps = ag.shape[0] - 1
     ms = dict(zip(PARTS, 1e3 * t / steps))
-    row = {"n_nodes": st.N, "history_kind": kind, "setup_s": setup, "run_s": run, "steps": steps,
+    hist = soil.compressed
+    row = {"n_nodes": st.N, "history_kind": soil.history_kind, "setup_s": setup, "run_s": run, "steps": steps,
+           "history_tol": None if hist is None else hist.settings["tol"],
+           "storage": 1.0 if hist is None else hist.settings["storage_ratio"],
+           "de_storage": 1.0 if hist is None or hist.instant is None else hist.instant.settings["storage_ratio"],
            "history": ms["history"], "s0": ms["s0"], "solves": ms["solve"] - ms["capacitance"],
            "capacitance": ms["capacitance"] - ms["base"] - ms["update"], "update": ms["update"],
            "bases": ms["base"], "system": ms["system"], "step": ms["step"],
@@ -137,6 +143,8 @@ def main(argv=None) -> int:
     p.add_argument("--T", type=float, default=1.0, help="the record's length, s (dt = 5 ms)")
     p.add_argument("--soil", default="kernel", choices=("kernel", "synthetic"),
                    help="the kernel-structured soil and the pulse, or growth.py's synthetic soil and sine")
+    p.add_argument("--history-tol", type=float, default=None,
+                   help="the compressed history's tolerance (default: soil_impedance.hhistory.DEFAULT_TOL)")
     p.add_argument("--define", nargs="*", default=[], help="more -D of the profiling build")
     p.add_argument("--json", type=Path, default=None)
     args = p.parse_args(argv)
@@ -148,11 +156,11 @@ def main(argv=None) -> int:
         rows.append(row)
     print(f"ms per step by part (process CPU; soil {args.soil}, pulse {args.pga} m/s^2 over {args.T} s at 5 ms)")
     print(f"{'N':>5s} " + " ".join(f"{c[1]:>9s}" for c in COLS)
-          + f" {'bases':>5s} {'C facts':>7s} {'solves':>6s} {'lifted':>6s} {'gap mm':>7s}")
+          + f" {'bases':>5s} {'C facts':>7s} {'solves':>6s} {'lifted':>6s} {'gap mm':>7s} {'storage':>7s} {'D,E st.':>7s}")
     for r in rows:
         print(f"{r['n_nodes']:5d} " + " ".join(f"{r[c[0]]:9.3g}" for c in COLS)
               + f" {r['n_bases']:5d} {r['n_capacitance']:7d} {r['n_solves']:6d} {r['lifted_share']:6.2f}"
-              f" {r['max_gap_mm']:7.3g}")
+              f" {r['max_gap_mm']:7.3g} {r['storage']:7.4f} {r['de_storage']:7.4f}")
     if len(rows) > 1:
         ns = [r["n_nodes"] for r in rows]
         print(f"{'exp.':>5s} " + " ".join(

@@ -19,16 +19,20 @@ Stages (each estimate is the peak while that stage runs: what the run still hold
             (the history's size) in about 8 copies (``HISTORY_COPIES``: the model's residues,
             coefficients and their scaled view, the split by pole kind, the native runtime's
             records encoded), the base system (a few dense (6+N)^2 matrices) and the histories
-            kept (``stepping_memory``)
+            kept (``stepping_memory``); from HMATRIX_MIN_NODES nodes on, where the monolithic route
+            compresses the history (soil_impedance/hhistory.py), the compressed model's copies
+            (``COMPRESSED_COPIES``) and the native stepper's K0C over the blocks
   timefreq  the tables held + the table on the FFT grid's frequencies up to its last one, one
             (6+N)^2 complex matrix per grid frequency (the timefreq and linear routes)
 
 The number of poles is not known before the fit: the estimate takes the most the fit may use
 (``max_poles``: [analysis]'s fit options, at most F - 2 for F frequencies). Whether a table or
 fit is in the cache is not asked: the estimate is that of a cold run (a warm one needs less). A run
-with a cache folder writes each table above ``blocked.STREAM_BYTES`` to disk as it is swept (one
-matrix held, ``mesh_sweep_memory(..., streamed=)``): the later stages do not hold it (the timefreq
-and linear routes read it whole).
+with a cache folder writes each table above ``blocked.STREAM_BYTES`` to disk as it is swept
+(``mesh_sweep_memory(..., streamed=)``: the dense solver holds the one matrix being stored; the fast
+one up to 1 + LEAD + CHAINS of them, the one being stored, LEAD solved ahead and one being solved in
+each of its CHAINS warm-start chains, run in as many processes): the later stages do not hold it (the
+timefreq and linear routes read it whole).
 ``uplift run SCENE --dry-run`` prints the stages and exits (``run_memory``, ``memory_lines``).
 """
 from __future__ import annotations
@@ -37,6 +41,7 @@ from dataclasses import dataclass
 
 import soil_impedance.sweep as sweep_module
 from soil_impedance.blocked import STREAM_BYTES, table_bytes
+from soil_impedance.hhistory import HMATRIX_MIN_NODES
 from soil_impedance.fit.peak_memory import fit_memory, streamed_fit_memory
 from soil_impedance.fit.options import FitOptions
 from soil_impedance.fit.search import max_pairs
@@ -60,6 +65,20 @@ BASE_BYTES = sweep_module.BASE_BYTES
 #: fit's cached forms) at 1156 nodes and 16 poles: 1.40 GiB over the interpreter, the estimate 1.41
 #: (1.55 GiB before the history matrix was made lazy)
 HISTORY_COPIES = 8.0
+#: more copies of the history matrix when the history is compressed (N >= HMATRIX_MIN_NODES: the monolithic
+#: route passes the nodes, ``history="auto"``): the compressed model M̃ the soil runs, its complex residues (2)
+#: and their split by pole kind (1), beside the fitted model, and the history blocks taken from the fit and
+#: assembled from their compression while it runs (transient). Measured (the peak's VmHWM over the process
+#: before the fitted model, 200 steps of the mat under a lifting pulse, 6 poles, kernel-structured soil):
+#: the compressed stepping's peak over the dense one's 4.7 / 4.3 / 3.7 m n^2 doubles at 625 / 1156 / 2500 nodes;
+#: with 3.5 the estimate is 4.6 / 6.5 / 10.3 % above the measured peaks (242 / 799 / 3562 MiB), the dense
+#: estimate's own excess (20 / 18 / 16 % above its measured 157 / 534 / 2496 MiB at 6 poles) taking the rest
+COMPRESSED_COPIES = 3.5
+#: doubles per n^2 of the native stepper's K0C over the history's blocks, at a step size (stepper.c,
+#: ``k0c_blocks``: each upper block a dense block or the terms' stacked factors, whichever is smaller):
+#: at most the upper blocks' dense size, half of n^2 and the diagonal leaves' halves; one level (each
+#: halving level the stepper builds holds its own, as it does its dense base system)
+K0C_BLOCKS = 0.5
 #: dense (6+N)^2 doubles of the stepper's base system: D0, E, K(0), the Schur complement S0, its
 #: factorisations cached by active set, the sparse embeddings of D0 and E (12 bytes a value)
 BASE_SYSTEM_COPIES = 12.0
@@ -92,16 +111,22 @@ def max_poles(scene, n_freq: int) -> int:
     return 2 * max_pairs(FitOptions.make(tol=scene.analysis.fit_tol), n_freq)
 
 
-def stepping_memory(n_dof: int, poles: int, n_steps: int) -> dict[str, int]:
+def stepping_memory(n_dof: int, poles: int, n_steps: int, compressed: bool | None = None) -> dict[str, int]:
     """Estimated peak bytes of stepping a rigid raft of n_dof = 6 + N interface DOFs on a
     rational soil of ``poles`` poles over ``n_steps`` steps (the tables not counted), by item:
     ``history`` HISTORY_COPIES x 8 poles n_dof^2, ``system`` BASE_SYSTEM_COPIES x 8 n_dof^2,
     ``histories`` the gaps, contact forces and soil displacements kept, twice (the runtime's rows
-    and the result's arrays), ``base`` BASE_BYTES; and ``total``."""
+    and the result's arrays), ``compressed`` (the history compressed: ``compressed``, None: from
+    HMATRIX_MIN_NODES nodes on, as the monolithic route does) COMPRESSED_COPIES x 8 poles n_dof^2
+    and K0C_BLOCKS x 8 n_dof^2, ``base`` BASE_BYTES; and ``total``."""
     n2 = n_dof * n_dof
     N = n_dof - 6
+    if compressed is None:
+        compressed = N >= HMATRIX_MIN_NODES
     items = {"history": int(HISTORY_COPIES * 8 * poles * n2), "system": int(BASE_SYSTEM_COPIES * 8 * n2),
-             "histories": 2 * 8 * n_steps * (3 * N + 64), "base": BASE_BYTES}
+             "histories": 2 * 8 * n_steps * (3 * N + 64),
+             "compressed": int((COMPRESSED_COPIES * poles + K0C_BLOCKS) * 8 * n2) if compressed else 0,
+             "base": BASE_BYTES}
     items["total"] = sum(items.values())
     return items
 
@@ -139,7 +164,12 @@ def run_memory(scene, routes=None, cached: bool = True) -> list[Stage]:
     sweep = sweep_module.mesh_sweep_memory(mesh, F, outputs, scene.solver, scene.solver_tol, streamed)
     dims = {"rigid": 6, "gap": nb, "nodal": 3 * n}
     held = sum(table_bytes(F, dims[o]) for o in outputs if o not in streamed)
-    on_disk = f"; {', '.join(streamed)} on disk, one matrix held" if streamed else ""
+    on_disk = ""
+    if streamed:                                    # sweep_memory's outputs: what a streamed table holds
+        on_disk = (f"; {', '.join(streamed)} on disk, one matrix held (the one being stored)" if sweep["F"] else
+                   f"; {', '.join(streamed)} on disk, up to {1 + sweep_module.LEAD + sweep_module.CHAINS} matrices "
+                   f"held (the one being stored, {sweep_module.LEAD} solved ahead, one being solved in each of "
+                   f"{sweep_module.CHAINS} warm-start chains, as many processes)")
     stages.append(Stage("sweep", sweep["total"], f"BEM sweep of {n} nodes at {F} frequencies, tables "
                         f"{', '.join(outputs)} ({_gib(held)} held{on_disk}; flexibility {_gib(sweep['F'])})",
                         f"{size}, [impedance] frequencies"))
@@ -161,10 +191,12 @@ def run_memory(scene, routes=None, cached: bool = True) -> list[Stage]:
     steps = int(round(scene.motion.length_s / scene.analysis.dt)) + 1
     if any(r.needs_fit and r.time_stepped for r in chosen):
         step = stepping_memory(nb, poles, steps)
+        squeezed = (f", the compressed history's model and K0C blocks {_gib(step['compressed'])}"
+                    if step["compressed"] else "")
         stages.append(Stage("stepping", held + step["total"],
                             f"time stepper on the fitted soil, at most {poles} poles: history matrix "
                             f"{poles} x {nb}^2 doubles ({_gib(8 * poles * nb * nb)}) and its copies "
-                            f"{_gib(step['history'])}, {steps} steps", f"{size}, analysis.routes"))
+                            f"{_gib(step['history'])}{squeezed}, {steps} steps", f"{size}, analysis.routes"))
     frequency_domain = [r.name for r in chosen if "gap" in r.tables(scene) and not r.needs_fit]
     if frequency_domain:
         band = int(scene.frequencies_hz[-1] * (scene.motion.length_s + PAD_S)) + 1

@@ -94,7 +94,8 @@ class RecursiveConvolutionSoil:
                                    "hmatrix" when xy is given and N >= HMATRIX_MIN_NODES, else
                                    "dense" (the reactor's 241 nodes: dense)
     xy : (N, 2) array, m, or None  the interface nodes (the cluster tree of "hmatrix")
-    history_tol : float            relative truncation of the compressed blocks (default 1e-4);
+    history_tol : float            relative truncation of the compressed blocks, to each block's largest
+                                   node diagonal entry (default hhistory.DEFAULT_TOL, 5e-5);
                                    recorded in ``model.provenance["history"]``
     history_leaf : int             the largest cluster held as a leaf, nodes (default 32)
 
