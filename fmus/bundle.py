@@ -25,7 +25,7 @@ NEVER_RUN = ("soil_impedance.fit_plot",)
 REQUIREMENTS = {"numpy": "numpy>=1.24", "scipy": "scipy>=1.10", "h5py": "h5py>=3.8",
                 "threadpoolctl": "threadpoolctl>=3.1", "tomli": 'tomli>=2.0; python_version < "3.11"'}
 #: imported inside functions an FMU runs (structure.spec reads the reactor's TOML with tomli on 3.10;
-#: structure._blas limits the BLAS threads with threadpoolctl when the first stepper is built)
+#: uplift_common.blas limits the BLAS threads with threadpoolctl when the first stepper is built)
 LAZY_REQUIREMENTS = ("threadpoolctl", "tomli")
 #: provided by the FMU's own wrapper (pythonfmu bundles its package in the FMU)
 PROVIDED = ("pythonfmu",)

@@ -13,7 +13,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ._blas import single_threaded_blas
+from uplift_common.blas import single_threaded_blas
 from .contact import ContactSettings
 from .errors import ConvergenceError, StructureError
 from .model import StructureModel

@@ -42,7 +42,7 @@ from collections import OrderedDict
 import numpy as np
 from uplift_common.lazy import lazy_module
 
-from ._blas import single_threaded_blas
+from uplift_common.blas import single_threaded_blas
 from .closed_contact import ClosedSolver, MatVec, quad, work
 from .contact import ContactSettings, contact_force, gap, penalty_stiffness
 from .damping import damping_matrix

@@ -10,7 +10,7 @@ frequencies, upper triangle) for each pass:
 
 * construction: two passes (the row maxima and diagonals that give S; then the target's norms, the
   rigid-raft projections and the R factor of the columns, by a tall-skinny QR of the stacked blocks, on
-  one BLAS thread: ``one_blas_thread``);
+  one BLAS thread: ``uplift_common.blas.single_threaded_blas``, see below);
 * the compressed columns from that R: [Re X; Im X] = Rᵀ Qᵀ, so the SVD of Rᵀ gives the singular values
   and the combinations Y = X V of ``vectfit.compress`` without forming V (same singular values, the
   combinations up to their signs, which vector fitting does not see);
@@ -28,6 +28,8 @@ from a QR instead of an SVD.
 from __future__ import annotations
 
 import numpy as np
+
+from uplift_common.blas import single_threaded_blas
 
 from ..rational import FitError, RationalModel
 from ..vectfit import real_basis, vector_fit, initial_poles, canonical_poles
@@ -109,7 +111,13 @@ class StreamedProblem:
         if P is not None:
             self.rigid_raw = np.zeros((F, 6, 6), complex)       # Pᵀ K P
             self.rigid_target = np.zeros((F, 6, 6), complex)    # Pᵀ (causal target, SI) P
-        with one_blas_thread():                                 # the tall-skinny QRs: one thread (``one_blas_thread``)
+        # the tall-skinny QRs, per block (BLOCK² + 2F) × 2F, on one BLAS thread: thin panels, where a second
+        # thread buys little and, on a loaded 2-core machine, spins waiting for a busy core. The set-up of the
+        # 2506-DOF mat's table took 4.5-8 CPU min on two OpenBLAS threads, 70 % of it these QRs (34 s on one
+        # idle thread); at 1207 DOFs and 21 frequencies the QRs took 7.4 CPU s (15.5 s wall) on two threads and
+        # 0.7 CPU s (3.1 s wall) on one. R then differs from a two-thread run's by round-off (2.8e-14 of its
+        # largest entry there; the norms and rigid-raft projections, no QR, are the same bits)
+        with single_threaded_blas():
             for r, c, K, Ks, T, sel in self._passes(raw=True):
                 wgt = 1.0 if r == c else 2.0
                 t2 += wgt * _sq(T)
@@ -388,18 +396,6 @@ class StreamedProblem:
         if self.f_c <= 0:
             return 0.0
         return float(1.1 * 0.5 * np.linalg.norm(self.H0) / max(np.linalg.norm(self.Ks[0].real), 1e-300))
-
-
-def one_blas_thread():
-    """Context manager: the BLAS pools at one thread inside, their sizes restored on exit. For the set-up's
-    tall-skinny QRs (per block, (BLOCK² + 2F) × 2F: thin panels, where a second thread buys little and, on
-    a loaded 2-core machine, spins waiting for a busy core): the set-up of the 2506-DOF mat's table took
-    4.5-8 CPU min on two OpenBLAS threads, 70 % of it these QRs, which took 34 s on one idle thread; at
-    1207 DOFs and 21 frequencies the QRs took 7.4 CPU s (15.5 s wall) on two threads and 0.7 CPU s (3.1 s
-    wall) on one. The R factor differs from a two-thread run's by round-off (2.8e-14 of its largest entry
-    there; the norms and rigid-raft projections, no QR, are the same bits)."""
-    from threadpoolctl import threadpool_limits     # a dependency (pyproject); loaded by a streamed fit only
-    return threadpool_limits(limits=1, user_api="blas")
 
 
 def _definite(A) -> bool:

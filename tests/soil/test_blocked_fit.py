@@ -151,7 +151,7 @@ def test_the_streamed_fit_equals_the_fit_in_memory(gap_table, tmp_path):
 
 
 def test_the_streamed_set_up_runs_its_qrs_on_one_blas_thread(gap_table, tmp_path, monkeypatch):
-    """The set-up's tall-skinny QRs run with every BLAS pool at one thread (``streamed.one_blas_thread``),
+    """The set-up's tall-skinny QRs run with every BLAS pool at one thread (``uplift_common.blas.single_threaded_blas``),
     from pools of two, which are two again afterwards; its R factor is the QR's of the whole stacked
     columns (Rᵀ R = X̃ X̃ᵀ, to round-off: 1e-12 of the largest entry), and equal to the R of a set-up run
     with the pools left at two threads to round-off."""
@@ -172,7 +172,7 @@ def test_the_streamed_set_up_runs_its_qrs_on_one_blas_thread(gap_table, tmp_path
         prob = streamed.StreamedProblem(lazy, "relative", "auto")
         assert len(seen) == 6 and all(s == {1} for s in seen), seen
         assert blas_threads() == {2}
-        monkeypatch.setattr(streamed, "one_blas_thread", lambda: threadpool_limits(limits=2, user_api="blas"))
+        monkeypatch.setattr(streamed, "single_threaded_blas", lambda: threadpool_limits(limits=2, user_api="blas"))
         seen.clear()
         two = streamed.StreamedProblem(lazy, "relative", "auto")
         assert len(seen) == 6 and all(s == {2} for s in seen), seen

@@ -1,9 +1,10 @@
-"""Run small dense LAPACK calls single-threaded.
+"""Run dense LAPACK calls on one BLAS thread.
 
-The Newton matrices are a few hundred wide: multithreaded BLAS is no faster there and, on a
-loaded machine, is 10-100x slower (threads spin-wait for busy cores). The orchestrator runs
-every computation with one BLAS thread already (orchestrator.settings.compute_threads); this
-guard gives callers of ``structure.simulate`` and of the stepper (the FMUs) the same behaviour.
+Where the matrices are small or thin, multithreaded BLAS is no faster and, on a loaded machine,
+10-100x slower (threads spin-wait for busy cores): the structure's Newton matrices, a few hundred
+wide (``structure.simulate`` and the stepper of the FMUs), and the streamed fit's tall-skinny QRs
+(soil_impedance/fit/streamed.py). The orchestrator runs every computation with one BLAS thread
+already (orchestrator.settings.compute_threads); this guard gives other callers the same behaviour.
 """
 from __future__ import annotations
 
