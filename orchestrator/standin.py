@@ -368,7 +368,7 @@ def stand_in_factory(table, fit_model, *, cache_dir=None, damping=None, constrai
             try:
                 choice = pole_choice(prob, table, fit_model.poles, cache_dir=cache_dir)
             except np.linalg.LinAlgError:   # a singular condensation at a sampled frequency: no prediction
-                n = int(np.sum(np.asarray(fit_model.poles).imag >= 0))   # units: a real pole or a pair
+                n = len(ContinuationBasis.units_of(np.asarray(fit_model.poles, complex)))
                 choice = PoleChoice(tuple(range(n)), n, float("nan"), float("nan"), True)
             kept = fit_model.poles if choice.fallback else ContinuationBasis.kept_poles(fit_model.poles, choice.kept)
             fit = choice.fit or continuation_fit(table, kept, cache_dir=cache_dir)

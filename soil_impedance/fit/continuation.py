@@ -56,17 +56,11 @@ def continuation_model(table, poles, dofs=None):
     """(RationalModel with the given ``poles``, D = A, E = B of ``continuation``, the residues
     refit; max relative error on the table's causal target)."""
     from ..rational import RationalModel
-    from ..vectfit import coefficients_to_residues, real_basis
+    from ..vectfit import coefficients_to_residues
 
-    f = np.asarray(table.frequencies_hz, float)
-    K = causal_target(f, np.asarray(table.matrices), causal_cutoff(table, np.asarray(table.matrices)))
-    A, B = continuation(table)
     poles = np.asarray(poles, complex)
-    s = 2j * np.pi * f
-    w = 1.0 / np.linalg.norm(K.reshape(f.size, -1), axis=1)
-    Phi = w[:, None] * real_basis(s, poles, const=False, linear=False)
-    Y = w[:, None] * (K - A[None] - s[:, None, None] * B[None]).reshape(f.size, -1)
-    coef = np.linalg.lstsq(np.concatenate([Phi.real, Phi.imag]), np.concatenate([Y.real, Y.imag]), rcond=None)[0]
+    f, s, K, A, B, w, Phi, Y = _least_squares(table, poles)
+    coef = np.linalg.lstsq(Phi, Y, rcond=None)[0]
     n = K.shape[1]
     R = coefficients_to_residues(coef.reshape(-1, n, n), poles)
     model = RationalModel(poles, 0.5 * (R + np.swapaxes(R, 1, 2)), A, B,
@@ -75,6 +69,22 @@ def continuation_model(table, poles, dofs=None):
                                       f"{f[-1]:g} Hz: D = Re K(f_max), E = Im K(f_max) / (2 pi f_max)"})
     err = np.linalg.norm((model(s) - K).reshape(f.size, -1), axis=1) * w
     return model, float(err.max())
+
+
+def _least_squares(table, poles):
+    """The weighted real least squares of ``continuation_model`` (module notes): (f, s, the causal
+    target K (F, n, n), A, B, the row weights w (F,), the stacked real columns Phi (2F, m) and
+    right-hand sides Y (2F, n^2))."""
+    from ..vectfit import real_basis
+
+    f = np.asarray(table.frequencies_hz, float)
+    K = causal_target(f, np.asarray(table.matrices), causal_cutoff(table, np.asarray(table.matrices)))
+    A, B = continuation(table)
+    s = 2j * np.pi * f
+    w = 1.0 / np.linalg.norm(K.reshape(f.size, -1), axis=1)
+    Phi = w[:, None] * real_basis(s, poles, const=False, linear=False)
+    Y = w[:, None] * (K - A[None] - s[:, None, None] * B[None]).reshape(f.size, -1)
+    return f, s, K, A, B, w, np.concatenate([Phi.real, Phi.imag]), np.concatenate([Y.real, Y.imag])
 
 
 class ContinuationBasis:
@@ -89,21 +99,12 @@ class ContinuationBasis:
     ``kept``; A, B the continuation's springs and dashpots (D and E)."""
 
     def __init__(self, table, poles):
-        from ..vectfit import pole_kinds, real_basis
-
-        f = np.asarray(table.frequencies_hz, float)
-        K = causal_target(f, np.asarray(table.matrices), causal_cutoff(table, np.asarray(table.matrices)))
-        self.A, self.B = continuation(table)
         self.poles = np.asarray(poles, complex)
-        s = 2j * np.pi * f
-        w = 1.0 / np.linalg.norm(K.reshape(f.size, -1), axis=1)
-        Phi = w[:, None] * real_basis(s, self.poles, const=False, linear=False)
-        Y = w[:, None] * (K - self.A[None] - s[:, None, None] * self.B[None]).reshape(f.size, -1)
-        Q, self.R = np.linalg.qr(np.concatenate([Phi.real, Phi.imag]))
-        self.C = Q.T @ np.concatenate([Y.real, Y.imag])              # (m, n^2)
+        _, _, K, self.A, self.B, _, Phi, Y = _least_squares(table, self.poles)
+        Q, self.R = np.linalg.qr(Phi)
+        self.C = Q.T @ Y                                              # (m, n^2)
         self.n = K.shape[1]
-        kind = pole_kinds(self.poles)
-        self.units = tuple((k,) if kind[k] == 0 else (k, k + 1) for k in range(self.poles.size) if kind[k] != 2)
+        self.units = self.units_of(self.poles)
 
     def residues(self, kept):
         """(poles (m_sub,), residues (m_sub, n, n) complex, symmetrised) of the units ``kept``."""
@@ -120,14 +121,19 @@ class ContinuationBasis:
         return self.kept_poles(self.poles, kept)
 
     @staticmethod
+    def units_of(poles) -> tuple:
+        """The units of ``poles``: the index of each real pole, the two of each complex pair, in order."""
+        from ..vectfit import pole_kinds
+
+        kind = pole_kinds(poles)
+        return tuple((k,) if kind[k] == 0 else (k, k + 1) for k in range(poles.size) if kind[k] != 2)
+
+    @staticmethod
     def kept_poles(poles, kept) -> np.ndarray:
         """The poles of ``poles`` in the units ``kept`` (a real pole or a complex pair each, as
         ``units`` numbers them), in their order."""
-        from ..vectfit import pole_kinds
-
         poles = np.asarray(poles, complex)
-        kind = pole_kinds(poles)
-        units = [(k,) if kind[k] == 0 else (k, k + 1) for k in range(poles.size) if kind[k] != 2]
+        units = ContinuationBasis.units_of(poles)
         return poles[[c for u in sorted(kept) for c in units[u]]]
 
 
