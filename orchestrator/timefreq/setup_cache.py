@@ -2,14 +2,15 @@
 table on the same grid and structure (another record, another seed, another motion scale)
 would make again, bit for bit.
 
-Two entries, each an HDF5 file written atomically with its checksum and verified on read
-(``soil_impedance.cache``: a damaged one is moved aside with a CacheWarning and recomputed):
+Two entries, each an HDF5 file written atomically with its checksum, each array checked on read
+by its CRC-32 (``read_mapped``: a damaged entry is moved aside with a CacheWarning and recomputed,
+as ``soil_impedance.cache``'s):
 
 * ``tf-rows-<key>.h5``: a table's spline band's rows (K[w, :] P, P^T K[:, w] (Fb, N, 6), P^T K P
   (Fb, 6, 6); ``soil.SplineBand.rows_P``: products over the table's matrices combined with the
   spline's weights), read by the operator (``InterfaceOperator``). Key: the table's data, the
   spline's weights (the grid's frequencies) and the raft's trace Bq (12.5 MB on the reactor:
-  the operator's set-up 0.16 -> 0.11 s CPU).
+  the operator's set-up 0.16 -> 0.11 s CPU). Read memory-mapped as the split (below).
 * ``tf-split-<key>.h5``: the far field's split's dense part (``farfield.AffineSplit``: D = S -
   (A + s B) on the table's frequencies, packed upper triangles when S is symmetric; on the
   reactor 125 MB, made from the spline band's packed matrices and the structure's rank-6 term:
@@ -115,8 +116,10 @@ def write_arrays(path, arrays: dict, attrs=None) -> None:
 
 #: the dataset attribute holding the CRC-32 of a mapped entry's array (``write_mapped``)
 CRC_ATTR = "crc32"
-#: the entry last read by ``read_mapped`` in this process: {path: (its stat signature, what was read)}
+#: the entries last read by ``read_mapped`` in this process (at most ``KEEP_MAPPED``, the oldest
+#: dropped first): {path: (its stat signature, what was read)}
 _MAPPED: dict = {}
+KEEP_MAPPED = 4
 
 
 def write_mapped(path, arrays: dict, attrs=None) -> None:
@@ -151,7 +154,7 @@ def read_mapped(path, names, shapes=None, attrs=()) -> tuple | None:
     its shape (``shapes``, None: any) checked too: a change of any byte read, the checksums'
     included, is found (a CRC-32 finds every change of up to 32 consecutive bits), and bytes that
     are not read (HDF5's own bookkeeping) cannot change what is read without failing a check.
-    The last entry read stays mapped for the process (``_MAPPED``): read again while the file's
+    The last entries read stay mapped for the process (``_MAPPED``): read again while the file's
     inode, size and times are the same, it is not checked again (an entry is replaced by a rename,
     never rewritten in place; a rewrite in place changes its times)."""
     if path is None:
@@ -188,7 +191,9 @@ def read_mapped(path, names, shapes=None, attrs=()) -> tuple | None:
     except Exception as exc:
         discard_entry(path, f"{type(exc).__name__}: {exc}", before, stacklevel=3)
         return None
-    _MAPPED.clear()
+    _MAPPED.pop(key, None)
+    while len(_MAPPED) >= KEEP_MAPPED:
+        _MAPPED.pop(next(iter(_MAPPED)))
     _MAPPED[key] = (_signature(before), (out, extra))
     return out, extra
 
@@ -201,9 +206,9 @@ def band_rows(band, s, Bq, out, *, table, cache_dir):
         return band.rows_P(s, Bq, out)
     path = entry_path(cache_dir, "rows", setup_key("rows", table, band.idx, band.W, band.c, np.asarray(Bq, float)))
     Fb, N, r = band.idx.size, Bq.shape[0], Bq.shape[1]
-    hit = read_arrays(path, ("Vr", "Vl", "KPP"), ((Fb, N, r), (Fb, r, N), (Fb, r, r)))
+    hit = read_mapped(path, ("Vr", "Vl", "KPP"), ((Fb, N, r), (Fb, r, N), (Fb, r, r)))
     if hit is not None:
         return _written(tuple(hit[0]), out)
     Vr, Vl, KPP = band.rows_P(s, Bq, out)
-    write_arrays(path, {"Vr": Vr, "Vl": Vl, "KPP": KPP})
+    write_mapped(path, {"Vr": Vr, "Vl": Vl, "KPP": KPP})
     return Vr, Vl, KPP
