@@ -68,6 +68,12 @@ BASE_BYTES = sweep_module.BASE_BYTES
 #: fit's cached forms) at 1156 nodes and 16 poles: 1.40 GiB over the interpreter, the estimate 1.41
 #: (1.55 GiB before the history matrix was made lazy)
 HISTORY_COPIES = 8.0
+#: more copies of the history matrix a fit made by the pipeline holds beside those (the fit's result and what
+#: its streamed problem and enforcement leave alive), which a synthetic model (HISTORY_COPIES' measurement)
+#: does not have. Measured on the mat's own run (2506 DOFs, its fit's 8 poles, 2001 steps, peak resident
+#: memory of the whole process): 6.72 GiB cold (the fit made in the process), 5.82 GiB warm (read back),
+#: against 5.31 GiB estimated without them; with 4 the estimate is 6.81 GiB. One scene: a bound, not a law
+FIT_COPIES = 4.0
 #: more copies of the history matrix when the history is compressed (N >= HMATRIX_MIN_NODES: the monolithic
 #: route passes the nodes, ``history="auto"``): the compressed model M̃ the soil runs, its complex residues (2)
 #: and their split by pole kind (1), beside the fitted model, and the history blocks taken from the fit and
@@ -123,10 +129,12 @@ def max_poles(scene, n_freq: int) -> int:
     return 2 * max_pairs(FitOptions.make(tol=scene.analysis.fit_tol), n_freq)
 
 
-def stepping_memory(n_dof: int, poles: int, n_steps: int, compressed: bool | None = None) -> dict[str, int]:
+def stepping_memory(n_dof: int, poles: int, n_steps: int, compressed: bool | None = None,
+                    fitted: bool = True) -> dict[str, int]:
     """Estimated peak bytes of stepping a rigid raft of n_dof = 6 + N interface DOFs on a
     rational soil of ``poles`` poles over ``n_steps`` steps (the tables not counted), by item:
-    ``history`` HISTORY_COPIES x 8 poles n_dof^2, ``system`` BASE_SYSTEM_COPIES x 8 n_dof^2,
+    ``history`` HISTORY_COPIES (+ FIT_COPIES for a model the fit pipeline made: ``fitted``)
+    x 8 poles n_dof^2, ``system`` BASE_SYSTEM_COPIES x 8 n_dof^2,
     ``histories`` the gaps, contact forces and soil displacements kept, twice (the runtime's rows
     and the result's arrays), ``compressed`` (the history compressed: ``compressed``, None: from
     HMATRIX_MIN_NODES nodes on, as the monolithic route does) COMPRESSED_COPIES x 8 poles n_dof^2
@@ -135,7 +143,7 @@ def stepping_memory(n_dof: int, poles: int, n_steps: int, compressed: bool | Non
     N = n_dof - 6
     if compressed is None:
         compressed = N >= HMATRIX_MIN_NODES
-    items = {"history": int(HISTORY_COPIES * 8 * poles * n2), "system": int(BASE_SYSTEM_COPIES * 8 * n2),
+    items = {"history": int((HISTORY_COPIES + FIT_COPIES * fitted) * 8 * poles * n2), "system": int(BASE_SYSTEM_COPIES * 8 * n2),
              "histories": 2 * 8 * n_steps * (3 * N + 64),
              "compressed": int((COMPRESSED_COPIES * poles + K0C_BLOCKS) * 8 * n2) if compressed else 0,
              "base": BASE_BYTES}
