@@ -85,7 +85,8 @@ def test_the_probe_condenses_the_stand_in_as_the_route_does(case):
     frequencies) equals the route's own operator on the RecursiveConvolutionSoil of the same model
     (InterfaceOperator.S_sub on the probe's grid; the model need not be passive here: force); and
     Probe.subset_stand_in (a subset's stand-in from the parts of every column, made once) equals
-    Probe.stand_in of the subset's residues (ContinuationBasis.residues)."""
+    Probe.stand_in of the subset's residues (ContinuationBasis.residues), on the fit's real poles
+    and on poles with complex pairs."""
     from orchestrator.standin import Probe
     from orchestrator.timefreq import InterfaceOperator, soil_bands
     from soil_impedance.convolution import RecursiveConvolutionSoil
@@ -103,6 +104,11 @@ def test_the_probe_condenses_the_stand_in_as_the_route_does(case):
     for kept in [(0, 2, 3), tuple(range(len(basis.units))), (1, 4)]:
         direct = probe.stand_in(basis.A, basis.B, *basis.residues(kept))
         assert np.abs(probe.subset_stand_in(basis, kept) - direct).max() < 1e-10 * np.abs(direct).max(), kept
+    paired = ContinuationBasis(table, [-800.0, -150 + 300j, -150 - 300j, -40.0, -10 + 20j, -10 - 20j, -1.5])
+    assert len(paired.units) == 5                           # complex pairs: two columns a unit
+    for kept in [(1, 3), (0, 1, 2, 3, 4), (2, 4)]:
+        direct = probe.stand_in(paired.A, paired.B, *paired.residues(kept))
+        assert np.abs(probe.subset_stand_in(paired, kept) - direct).max() < 1e-10 * np.abs(direct).max(), kept
 
 
 def test_the_predicted_worst_rate_estimates_the_spectral_radius(case):
