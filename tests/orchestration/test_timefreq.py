@@ -389,8 +389,11 @@ def test_an_ensembles_set_up_chooses_the_poles_once_and_each_cell_equals_a_singl
     constrained fit, without a cache folder too; cells run on that shared run under two motions (the
     scene's and another record: other seed, level and length) march those poles without choosing
     or fitting again (continuation_fit and the probe refused there) and give each motion's single
-    run to the bit (max uplift and gap histories). The bounds are widened so that a subset of this
+    run to the bit (max uplift and gap histories), the shared run pickled as an ensemble sends it
+    to its workers. The bounds are widened so that a subset of this
     scene's poles is kept (tests/orchestration/test_standin_poles.py: WIDE)."""
+    import pickle
+
     import orchestrator.standin as standin
     from helpers import small_reactor
     from orchestrator.motion import make_motion
@@ -420,6 +423,7 @@ def test_an_ensembles_set_up_chooses_the_poles_once_and_each_cell_equals_a_singl
         raise AssertionError("a cell chose the poles or fitted the constrained fit again")
     monkeypatch.setattr(standin, "continuation_fit", refused)
     monkeypatch.setattr(standin.Probe, "__init__", refused)
+    shared = pickle.loads(pickle.dumps(shared))                 # as sent to the workers
     for single, record in zip(singles, (None, other)):
         res = run_scene(scene, cache_dir=None, shared=shared, motion=record)[0]["timefreq"]
         assert res.converged and res.info["march"] == "stand-in", res.notes.warnings
