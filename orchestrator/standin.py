@@ -179,7 +179,7 @@ WORST_BOUND = 0.3
 #: Nyquist frequency, at the window's rate ETA (1/s: z = e^((i w + ETA) dt)). A grid's own rate
 #: falls as its record lengthens (ln(1 / wrap_tol) over the record and its padding: the reactor's
 #: 10 s, 0.82 1/s; 30 s, 0.3); the probe takes one rate for every record, so that the choice is the
-#: scene's (on the reactor and the small reactor the same poles from 0.3 to 0.82)
+#: scene's (the reactor's poles the same at 0.3 and 0.82; at 0, the unit circle, others: docs/native.md)
 N_FREQ = 24
 F_LOW_HZ = 0.1
 TOP = 0.98
