@@ -272,7 +272,7 @@ def stage_step(cells, args):
     t2 = time.process_time()
     res = simulate_native(st, ag, scene.output.nodes, lib=lib)
     run = time.process_time() - t2
-    est = stepping_memory(n, args.poles, t.size)
+    est = stepping_memory(n, args.poles, t.size, fitted=False)            # a synthetic model: no fit's forms
     return {"n_nodes": scene.mesh.n, "setup_s": setup + first, "first_s": first,
             "step_ms": 1e3 * (run - first) / args.steps,
             "step_peak": _maxrss() - base, "step_est": est["total"] - est["base"],

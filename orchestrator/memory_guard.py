@@ -25,9 +25,12 @@ Stages (each estimate is the peak while that stage runs: what the run still hold
   timefreq  the tables held + the table on the FFT grid's frequencies up to its last one, one
             (6+N)^2 complex matrix per grid frequency (the timefreq and linear routes)
 
-The number of poles is not known before the fit: the estimate takes the most the fit may use
-(``max_poles``: [analysis]'s fit options, at most F - 2 for F frequencies). Whether a table or
-fit is in the cache is not asked: the estimate is that of a cold run (a warm one needs less). A run
+The number of poles is not known before the fit: the stepping stage's estimate takes the most the
+fit may use (``max_poles``: [analysis]'s fit options, at most F - 2 for F frequencies), and its
+floor the fewest (``MIN_POLES``). Before the fit the guard refuses on the floor (a run that cannot
+step whatever the fit makes); a time-stepped route checks the stage again with the fit's own poles
+before it steps (``check_stepping_memory``), and is refused then with that estimate. Whether a
+table or fit is in the cache is not asked: the estimate is that of a cold run (a warm one needs less). A run
 with a cache folder writes each table above ``blocked.STREAM_BYTES`` to disk as it is swept
 (``mesh_sweep_memory(..., streamed=)``: the dense solver holds the one matrix being stored; the fast
 one up to 1 + LEAD + CHAINS of them, the one being stored, LEAD solved ahead and one being solved in
@@ -65,6 +68,12 @@ BASE_BYTES = sweep_module.BASE_BYTES
 #: fit's cached forms) at 1156 nodes and 16 poles: 1.40 GiB over the interpreter, the estimate 1.41
 #: (1.55 GiB before the history matrix was made lazy)
 HISTORY_COPIES = 8.0
+#: more copies of the history matrix a fit made by the pipeline holds beside those (the fit's result and what
+#: its streamed problem and enforcement leave alive), which a synthetic model (HISTORY_COPIES' measurement)
+#: does not have. Measured on the mat's own run (2506 DOFs, its fit's 8 poles, 2001 steps, peak resident
+#: memory of the whole process): 6.72 GiB cold (the fit made in the process), 5.82 GiB warm (read back),
+#: against 5.31 GiB estimated without them; with 4 the estimate is 6.81 GiB. One scene: a bound, not a law
+FIT_COPIES = 4.0
 #: more copies of the history matrix when the history is compressed (N >= HMATRIX_MIN_NODES: the monolithic
 #: route passes the nodes, ``history="auto"``): the compressed model M̃ the soil runs, its complex residues (2)
 #: and their split by pole kind (1), beside the fitted model, and the history blocks taken from the fit and
@@ -82,6 +91,8 @@ K0C_BLOCKS = 0.5
 #: dense (6+N)^2 doubles of the stepper's base system: D0, E, K(0), the Schur complement S0, its
 #: factorisations cached by active set, the sparse embeddings of D0 and E (12 bytes a value)
 BASE_SYSTEM_COPIES = 12.0
+#: the fewest poles a fit has (the order search starts at one pair): the stepping stage's floor before the fit
+MIN_POLES = 2
 #: frequencies of the FFT grid of the frequency-domain routes: padding added to the motion, s
 #: (their default, ``GridOptions.pad_s`` None: at least 1 s, 3 s for the reactor's decay)
 PAD_S = 3.0
@@ -94,12 +105,19 @@ class RunMemoryError(UserInputError):
 
 @dataclass(frozen=True)
 class Stage:
-    """One stage of a run: name, estimated peak bytes, what the estimate is made of (text), and
-    the scene keys that change it (text)."""
+    """One stage of a run: name, estimated peak bytes, what the estimate is made of (text), the
+    scene keys that change it (text), and ``floor``: the least it may need when ``bytes`` bounds
+    what a later stage decides (the stepping before the fit: its poles), else None."""
     name: str
     bytes: int
     detail: str
     fix: str
+    floor: int | None = None
+
+    @property
+    def needed(self) -> int:
+        """The bytes the guard compares with the available memory: the floor when there is one."""
+        return self.bytes if self.floor is None else self.floor
 
 
 def _gib(b: float) -> str:
@@ -111,10 +129,12 @@ def max_poles(scene, n_freq: int) -> int:
     return 2 * max_pairs(FitOptions.make(tol=scene.analysis.fit_tol), n_freq)
 
 
-def stepping_memory(n_dof: int, poles: int, n_steps: int, compressed: bool | None = None) -> dict[str, int]:
+def stepping_memory(n_dof: int, poles: int, n_steps: int, compressed: bool | None = None,
+                    fitted: bool = True) -> dict[str, int]:
     """Estimated peak bytes of stepping a rigid raft of n_dof = 6 + N interface DOFs on a
     rational soil of ``poles`` poles over ``n_steps`` steps (the tables not counted), by item:
-    ``history`` HISTORY_COPIES x 8 poles n_dof^2, ``system`` BASE_SYSTEM_COPIES x 8 n_dof^2,
+    ``history`` HISTORY_COPIES (+ FIT_COPIES for a model the fit pipeline made: ``fitted``)
+    x 8 poles n_dof^2, ``system`` BASE_SYSTEM_COPIES x 8 n_dof^2,
     ``histories`` the gaps, contact forces and soil displacements kept, twice (the runtime's rows
     and the result's arrays), ``compressed`` (the history compressed: ``compressed``, None: from
     HMATRIX_MIN_NODES nodes on, as the monolithic route does) COMPRESSED_COPIES x 8 poles n_dof^2
@@ -123,7 +143,7 @@ def stepping_memory(n_dof: int, poles: int, n_steps: int, compressed: bool | Non
     N = n_dof - 6
     if compressed is None:
         compressed = N >= HMATRIX_MIN_NODES
-    items = {"history": int(HISTORY_COPIES * 8 * poles * n2), "system": int(BASE_SYSTEM_COPIES * 8 * n2),
+    items = {"history": int((HISTORY_COPIES + FIT_COPIES * fitted) * 8 * poles * n2), "system": int(BASE_SYSTEM_COPIES * 8 * n2),
              "histories": 2 * 8 * n_steps * (3 * N + 64),
              "compressed": int((COMPRESSED_COPIES * poles + K0C_BLOCKS) * 8 * n2) if compressed else 0,
              "base": BASE_BYTES}
@@ -142,10 +162,11 @@ def streamed_outputs(scene, outputs, cached: bool = True) -> tuple[str, ...]:
     return tuple(o for o in outputs if cached and table_bytes(F, size[o]) > STREAM_BYTES)
 
 
-def run_memory(scene, routes=None, cached: bool = True) -> list[Stage]:
+def run_memory(scene, routes=None, cached: bool = True, poles: int | None = None) -> list[Stage]:
     """The stages a run of ``scene`` with ``routes`` (default: the scene's) will run, each with its
     estimated peak bytes (module docstring), in the order they run. ``cached``: the run has a cache
-    folder (large tables are then streamed to disk)."""
+    folder (large tables are then streamed to disk); ``poles``: the fit's poles when known (None:
+    the stepping stage from MIN_POLES to ``max_poles``)."""
     names = tuple(routes or scene.analysis.routes)
     chosen = [get_route(r) for r in names]
     outputs = tuple(dict.fromkeys(t for r in chosen for t in r.tables(scene)))
@@ -175,7 +196,8 @@ def run_memory(scene, routes=None, cached: bool = True) -> list[Stage]:
                         f"{size}, [impedance] frequencies"))
     if "gap" not in outputs:
         return stages
-    poles = max_poles(scene, F)
+    known = poles is not None
+    poles = poles if known else max_poles(scene, F)
     if any(r.needs_fit for r in chosen):
         if "gap" in streamed:
             fit = streamed_fit_memory(nb, F, poles)
@@ -193,10 +215,13 @@ def run_memory(scene, routes=None, cached: bool = True) -> list[Stage]:
         step = stepping_memory(nb, poles, steps)
         squeezed = (f", the compressed history's model and K0C blocks {_gib(step['compressed'])}"
                     if step["compressed"] else "")
+        floor = None if known else held + stepping_memory(nb, MIN_POLES, steps)["total"]
+        bound = (f"the fit's {poles} poles" if known else
+                 f"at most {poles} poles (at least {_gib(floor)} with {MIN_POLES}; checked again with the fit's)")
         stages.append(Stage("stepping", held + step["total"],
-                            f"time stepper on the fitted soil, at most {poles} poles: history matrix "
+                            f"time stepper on the fitted soil, {bound}: history matrix "
                             f"{poles} x {nb}^2 doubles ({_gib(8 * poles * nb * nb)}) and its copies "
-                            f"{_gib(step['history'])}{squeezed}, {steps} steps", f"{size}, analysis.routes"))
+                            f"{_gib(step['history'])}{squeezed}, {steps} steps", f"{size}, analysis.routes", floor))
     frequency_domain = [r.name for r in chosen if "gap" in r.tables(scene) and not r.needs_fit]
     if frequency_domain:
         band = int(scene.frequencies_hz[-1] * (scene.motion.length_s + PAD_S)) + 1
@@ -208,20 +233,36 @@ def run_memory(scene, routes=None, cached: bool = True) -> list[Stage]:
 
 
 def check_run_memory(scene, routes=None, cached: bool = True) -> list[Stage]:
-    """``run_memory``'s stages, or RunMemoryError when the largest exceeds ``MEMORY_SHARE`` of
-    the machine's available memory (``soil_impedance.sweep.available_memory``; unknown: no check)."""
+    """``run_memory``'s stages, or RunMemoryError when the largest need (``Stage.needed``: the
+    stepping's floor before the fit) exceeds ``MEMORY_SHARE`` of the machine's available memory
+    (``soil_impedance.sweep.available_memory``; unknown: no check)."""
     stages = run_memory(scene, routes, cached)
+    _refuse_above(scene, stages)
+    return stages
+
+
+def check_stepping_memory(scene, poles: int, routes=None, cached: bool = True) -> Stage | None:
+    """The stepping stage of ``run_memory`` with the fit's ``poles``, or RunMemoryError when it
+    exceeds ``MEMORY_SHARE`` of the available memory: what a time-stepped route checks once the
+    fit is known, before it steps. None when the run has no stepping stage."""
+    stage = next((s for s in run_memory(scene, routes, cached, poles) if s.name == "stepping"), None)
+    if stage is not None:
+        _refuse_above(scene, [stage])
+    return stage
+
+
+def _refuse_above(scene, stages) -> None:
     avail = sweep_module.available_memory()
     if not stages or avail is None:
-        return stages
-    worst = max(stages, key=lambda s: s.bytes)
-    if worst.bytes > MEMORY_SHARE * avail:
+        return
+    worst = max(stages, key=lambda s: s.needed)
+    if worst.needed > MEMORY_SHARE * avail:
         raise RunMemoryError(
-            f"scene {scene.name!r}: the {worst.name} stage needs about {_gib(worst.bytes)} ({worst.detail}) but "
+            f"scene {scene.name!r}: the {worst.name} stage needs {'at least' if worst.floor is not None else 'about'} "
+            f"{_gib(worst.needed)} ({worst.detail}) but "
             f"the machine has {_gib(avail)} available (MemAvailable; a run plans on {100 * MEMORY_SHARE:.0f} % of "
             f"it): change {worst.fix} (memory grows like N^2 in the interface nodes and like the frequency "
             f"count); `uplift run {scene.name} --dry-run` lists every stage")
-    return stages
 
 
 def memory_lines(stages, available: int | None = None) -> list[str]:

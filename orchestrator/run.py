@@ -37,7 +37,7 @@ from structure.winkler import modes_on_soil, springs_from_rigid_impedance
 
 from orchestrator.exit_codes import STOPPED, USER_INPUT
 from orchestrator.impedance import cached_scene_fit, scene_fit, scene_impedance, scene_static
-from orchestrator.memory_guard import check_run_memory
+from orchestrator.memory_guard import check_run_memory, check_stepping_memory
 from orchestrator.motion import Motion, make_motion
 from orchestrator.oncurve import scene_key
 from orchestrator.routes import RouteInputError, RunContext, get_route
@@ -290,7 +290,8 @@ class SharedRun:
     standing for every run, or None: each run checks its own motion (as a single run does);
     scene_key : ``oncurve.scene_key`` of the scene (what a pushover of it depends on; each
     route's ``info`` carries it: ``uplift report`` draws the run on that pushover); made :
-    {route: what its ``Route.settle`` made in advance} (``settle``; empty for a single run).
+    {route: what its ``Route.settle`` made in advance} (``settle``; empty for a single run);
+    stepping_checked : the fit whose poles the stepping's memory was checked with (``stepping_fit``).
     """
     scene: object
     routes: tuple
@@ -305,6 +306,7 @@ class SharedRun:
     fit_progress: Callable | None = None
     scene_key: str = ""
     made: dict = dataclasses.field(default_factory=dict)
+    stepping_checked: object = None
 
     def soil_fit(self):
         """The rational fit of the gap table (``fit``): made here on first need (``scene_fit`` on
@@ -322,6 +324,16 @@ class SharedRun:
         if self.fit_error is not None:
             raise self.fit_error.with_traceback(None)
         return self.fit
+
+    def stepping_fit(self):
+        """``soil_fit`` for a route that steps it: the memory guard's stepping stage checked again
+        with the fit's poles first (before the fit only their bound was known: RunMemoryError,
+        exit 2, the route refused with the estimate), once per fit."""
+        fit = self.soil_fit()
+        if self.stepping_checked is not fit:
+            check_stepping_memory(self.scene, fit.model.poles.size, self.routes, self.cache_dir is not None)
+            self.stepping_checked = fit
+        return fit
 
     def settle(self) -> SharedRun:
         """Make now what a route would make on first need (the fit, when a route needs it; its

@@ -18,9 +18,11 @@ single precision, soil.c's ``up_soil_corr_mode``): 0.40 -> 0.30 s CPU a march on
 same sweeps and answer.
 
 The stand-in keeps the fewest of the fit's poles whose constrained fit is passive and whose
-linear rate, predicted per frequency, meets ``RATE_BOUND`` and ``WORST_BOUND`` (``choose_poles``,
-``Probe``: on the reactor 4 of 8 poles, 4 sweeps instead of 6); all of them when none does (the
-fallback, said in the route's info).
+linear rate, predicted per frequency for a design motion, meets ``RATE_BOUND`` and
+``WORST_BOUND`` (``choose_poles``, ``Probe``: on the reactor 4 of 8 poles, 4 sweeps instead of 6);
+all of them when none does (the fallback, said in the route's info). The choice is the scene's
+(the table, the fit's poles, the structure and the step: no record), made once and cached
+(``pole_choice``), and an ensemble's set-up makes it for every cell (``scene_stand_in``).
 
 ``stand_in_factory(table, fit_model, ...)`` returns what ``orchestrator.timefreq.solve(...,
 stand_in=)`` takes: a callable prob -> (NativeStandIn or None, reason).
@@ -28,6 +30,7 @@ stand_in=)`` takes: a callable prob -> (NativeStandIn or None, reason).
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import time
 import weakref
 from dataclasses import dataclass, field
@@ -38,11 +41,14 @@ from scipy.linalg import lu_factor, lu_solve
 from fmus.native_build import NativeBuildError
 from fmus.native_stepper import CHUNK, cache_folder, encode_run, library, library_note
 from fmus.schema import row_slices, row_width
+from orchestrator.timefreq.flexible import structure_of
 from orchestrator.timefreq.march import DIVERGED_M, MarchDiverged
+from orchestrator.timefreq.operator import InterfaceOperator
 from orchestrator.timefreq.setup_cache import entry_path, read_arrays, setup_key, write_arrays
-from orchestrator.timefreq.soil import AffineBand
+from orchestrator.timefreq.soil import soil_bands
 from soil_impedance.convolution import RecursiveConvolutionSoil, bilinear_coefficients
 from soil_impedance.fit.continuation import ContinuationBasis, continuation_fit
+from soil_impedance.vectfit import real_basis
 from structure.newmark import NewmarkStepper
 from uplift_common.code import code_digest
 
@@ -171,19 +177,43 @@ class NativeStandIn:
 
 # ---- which of the fit's poles the stand-in keeps ------------------------------------------------
 #: the bounds a subset of the fit's poles must meet to stand in (``choose_poles``): the predicted
-#: rate per sweep of the error where the record puts it (``RATE_BOUND``) and the worst predicted
-#: rate over the frequencies sampled (``WORST_BOUND``). On the reactor the subsets meeting both
-#: took 5 sweeps, those above RATE_BOUND 6-9, those above WORST_BOUND (all 8 poles among them:
-#: 0.37 above the table) 6 (docs/native.md, round five)
+#: rate per sweep of the error where a design motion puts it (``RATE_BOUND``) and the worst
+#: predicted rate over the frequencies sampled (``WORST_BOUND``). On the reactor the subsets meeting
+#: both took 4-5 sweeps, those above RATE_BOUND 6-9, those above WORST_BOUND (all 8 poles among
+#: them: 0.37 above the table) 6 (docs/native.md, round five)
 RATE_BOUND = 0.08
 WORST_BOUND = 0.3
-#: grid frequencies sampled (log-spaced, the static and Nyquist ends left out); power steps per
-#: frequency; at most this many subsets' constrained fits tested for passivity, of each size at most
-#: PER_LEVEL (the best predicted)
-N_FREQ = 40
+#: the probe's frequencies: N_FREQ discrete-time frequencies log-spaced from F_LOW_HZ to TOP x the
+#: Nyquist frequency, at the window's rate ETA (1/s: z = e^((i w + ETA) dt)). A grid's own rate
+#: falls as its record lengthens (ln(1 / wrap_tol) over the record and its padding: the reactor's
+#: 10 s, 0.82 1/s; 30 s, 0.3); the probe takes one rate for every record, so that the choice is the
+#: scene's (the reactor's poles the same at 0.3 and 0.82; at 0, the unit circle, others: docs/native.md)
+N_FREQ = 24
+F_LOW_HZ = 0.1
+TOP = 0.98
+ETA = 0.8
+#: power steps per frequency; at most this many subsets' constrained fits tested for passivity, of
+#: each size at most PER_LEVEL (the best predicted)
 N_POWER = 6
 MAX_TESTS = 6
 PER_LEVEL = 2
+#: the design motion's weight on each direction of ground acceleration (x, y, z): the horizontals
+#: and the vertical at the synthetic motions' default ratio (orchestrator.motion.VERTICAL_RATIO),
+#: every direction whatever the record shakes, so that one choice serves every motion of a scene
+DIRECTION_WEIGHTS = (1.0, 1.0, 2.0 / 3.0)
+
+
+def design_psd(freq_hz):
+    """The design motion's power spectral density (per Hz, relative: the rates are scale-free) at
+    ``freq_hz``: a smooth spectrum of a motion compatible with the RG 1.60 design spectrum of the
+    synthetic motions (orchestrator.motion), f^0.2 below its 2.5 Hz peak, then f^-1.8 to 9 Hz,
+    f^-3 to 16 Hz and f^-8 above: the fall above the spectrum's corner is what matters here (a flat
+    spectrum weighs the fit's error above the table 10^3-10^4 times more than the synthetic records
+    put there, and picked other poles: docs/native.md, round five)."""
+    f = np.asarray(freq_hz, float)
+    return np.select([f < 2.5, f < 9.0, f < 16.0],
+                     [(f / 2.5) ** 0.2, (2.5 / f) ** 1.8, (2.5 / 9.0) ** 1.8 * (9.0 / f) ** 3],
+                     (2.5 / 9.0) ** 1.8 * (9.0 / 16.0) ** 3 * (16.0 / f) ** 8)
 
 
 @dataclass(frozen=True)
@@ -192,8 +222,9 @@ class PoleChoice:
     ``ContinuationBasis.units``: a real pole or a complex pair; the fit's poles from the fastest);
     units : their count in the fit; rate, worst : the kept subset's predicted rates (``Probe``);
     fallback : no subset met the bounds and was passive: all the poles (today's stand-in);
-    evaluated, tested : subsets predicted, constrained fits tested for passivity; fit : the kept
-    subset's ContinuationFit when it was made here (not compared, not cached; None: make it)."""
+    evaluated, tested : subsets predicted, constrained fits tested for passivity; key : what it was
+    chosen for (``choice_key``; "" when not keyed); fit : the kept subset's ContinuationFit when it
+    is at hand (not compared, not cached; None: make or read it)."""
     kept: tuple
     units: int
     rate: float
@@ -201,6 +232,7 @@ class PoleChoice:
     fallback: bool
     evaluated: int = 0
     tested: int = 0
+    key: str = ""
     fit: object = field(default=None, compare=False, repr=False)
 
     def note(self) -> str:
@@ -214,66 +246,123 @@ class PoleChoice:
                     stand_in_rate=self.rate, stand_in_worst=self.worst)
 
 
+class ProbeGrid:
+    """The probe's frequencies as the route's bands and operator read a grid (``soil_bands``,
+    ``InterfaceOperator``): freq_hz (nf,) Hz, z = e^((i 2 pi f + eta) dt), s the trapezoidal s_d
+    at z (1/s), warped_hz the real frequency each stands for (Grid.warped_hz)."""
+    bilinear = True
+
+    def __init__(self, dt: float, freq_hz, eta: float):
+        self.dt = float(dt)
+        self.freq_hz = np.asarray(freq_hz, float)
+        self.z = np.exp((2j * np.pi * self.freq_hz + eta) * self.dt)
+        self.s = 2.0 / self.dt * (self.z - 1.0) / (self.z + 1.0)
+        self.warped_hz = np.tan(np.pi * self.freq_hz * self.dt) / (np.pi * self.dt)
+        self.n_freq = self.freq_hz.size
+
+
+def probe_grid(dt: float) -> ProbeGrid:
+    """The probe's ``N_FREQ`` frequencies at the step ``dt`` (s) (module constants)."""
+    return ProbeGrid(dt, np.geomspace(F_LOW_HZ, TOP * 0.5 / dt, N_FREQ), ETA)
+
+
+def raft_trace(model, structure):
+    """The raft coordinates' trace the route's operator uses: a rigid raft's Bq (N, 6), a plate's B."""
+    return np.asarray(structure.trace if hasattr(structure, "trace") else model.raft.vertical_trace(), float)
+
+
 class Probe:
-    """The defect correction's linear rate on a stand-in, predicted on a sample of the grid's
-    frequencies (``N_FREQ``, log-spaced). With the raft open, the source W's error after one
-    sweep is T e, T = (S_x - S) S_x^-1 per frequency (S the table's interface stiffness, S_x the
-    stand-in's, both condensed on the structure: a march solves S_x d = W - f, the residual
-    adds S d - S_x d; docs/routes.md); the raft closed only shrinks it (S_x + K_c in place of
-    S_x). ``predict(basis, kept)`` -> (rate, worst): rate, the error's decay per sweep where the
-    record puts it, (|T^n f| / |f|)^(1/n) over the sampled frequencies (|.|^2 summed with each
-    sample's share of the grid: Parseval), f the blocked force of the record, n = N_POWER; worst,
-    the largest rate of the last power step at one frequency, from f and from a fixed
-    pseudo-random vector (an estimate of the spectral radius of T there, within a few per cent
-    on the reactor: the rate of the error the contact's switching puts at any frequency). Both are functions of the table,
-    the structure, the grid and the record only."""
+    """The defect correction's linear rate on a stand-in, predicted on ``N_FREQ`` frequencies of the
+    step ``dt`` (``probe_grid``): a function of the table, the structure and the step only (no
+    record, no grid of one: the choice is the scene's). With the raft open, the source W's error
+    after one sweep is T e, T = (S_x - S) S_x^-1 per frequency (S the table's interface stiffness,
+    S_x the stand-in's, both condensed on the structure: a march solves S_x d = W - f, the residual
+    adds S d - S_x d; docs/routes.md); the raft closed only shrinks it (S_x + K_c in place of S_x).
+    ``predict(basis, kept)`` -> (rate, worst): rate, the error's decay per sweep where a design
+    motion puts it, (|T^n f| / |f|)^(1/n) with |.|^2 summed over the frequencies (each sample's
+    share of the band, ``design_psd``) and the three directions (``DIRECTION_WEIGHTS``), f the
+    blocked force of a unit ground acceleration in each, n = N_POWER; worst, the largest rate of
+    the last power step at one frequency, from those forces and from a fixed pseudo-random vector
+    (an estimate of the spectral radius of T there: the rate of the error the contact's switching
+    puts at any frequency).
 
-    def __init__(self, prob):
-        op, grid = prob.op, prob.grid
-        F = grid.n_freq
-        self.ks = ks = np.unique(np.geomspace(1, F - 2, N_FREQ).astype(int))
-        edges = np.concatenate([[0.5], 0.5 * (ks[1:] + ks[:-1]), [F - 1.5]])
-        self.share = np.diff(edges)                   # grid frequencies each sample stands for
-        self.op, self.grid = op, grid
-        self.S = np.array([self._table(k) for k in ks])
-        t = op.Zinv[ks] @ (op.b[ks] @ prob.ag_hat[:, ks].T[:, :, None])
-        f = (op.Vr[ks] @ t)[:, :, 0]
+    model : the structure model (rigid raft); table : the gap ImpedanceTable; structure : its
+    condensation (``flexible.structure_of(model, damping)``: the route's; default the model's own
+    damping, as a scene's run); grid : the frequencies (default ``probe_grid(dt)``; a ProbeGrid)."""
+
+    def __init__(self, model, table, dt, structure=None, grid=None):
+        self.grid = grid = grid if grid is not None else probe_grid(dt)
+        f = grid.freq_hz
+        mid = np.sqrt(f[1:] * f[:-1])
+        edges = np.concatenate([[f[0] * f[0] / mid[0]], mid, [0.5 / grid.dt]])
+        self.share = np.diff(edges)                   # Hz each sample stands for (log-spaced)
+        st = structure if structure is not None else structure_of(model)
+        self.op = op = InterfaceOperator(model, soil_bands(table, grid), grid, structure=st)
+        allN = np.arange(op.N)
+        self.S = op.S_sub(allN, allN)
+        forces = op.Vr @ (op.Zinv @ op.b)             # (nf, N, 3): a unit ground acceleration's blocked force
         rng = np.random.default_rng(0)
-        v = rng.standard_normal(f.shape) + 1j * rng.standard_normal(f.shape)
-        self.x0 = np.stack([f, v], axis=2)            # (nf, N, 2): the record's force, the fixed vector
-
-    def _table(self, k):
-        """S (N, N) of the table at the grid frequency k: its band's K_ww minus the rank-6 term."""
-        op = self.op
-        for band in op.soil.bands:
-            pos = np.flatnonzero(band.idx == k)
-            if pos.size:
-                if isinstance(band, AffineBand):
-                    Kw = band.sub_ww(np.arange(op.N), np.arange(op.N), op.s[[k]])[0]
-                else:
-                    Kw = band.piece(slice(int(pos[0]), int(pos[0]) + 1)).K[0, 6:, 6:]
-                return Kw - op.Vr[k] @ (op.Zinv[k] @ op.Vl[k])
-        raise IndexError(k)
+        v = rng.standard_normal(forces.shape[:2]) + 1j * rng.standard_normal(forces.shape[:2])
+        self.x0 = np.concatenate([forces, v[:, :, None]], axis=2)     # (nf, N, 4)
+        self.weight = self.share[:, None] * design_psd(f)[:, None] * np.square(DIRECTION_WEIGHTS)[None, :]
+        self.Aq = st.blocks(grid.s)[0]
+        self._parts = None
 
     def stand_in(self, A, B, poles, residues):
         """S_x (nf, N, N) of the rational model (poles, residues, D = A, E = B) as the native
-        stepper runs it (its recursion's z-transform on the grid), condensed as the table's."""
-        op, ks = self.op, self.ks
-        z, s = self.grid.z[ks], op.s[ks]
-        a, b = bilinear_coefficients(poles, self.grid.dt)
-        g = b * (z[:, None] + 1) / (z[:, None] - a)
-        K = A + s[:, None, None] * B + np.einsum("fk,kij->fij", g, residues)
+        stepper runs it (its recursion's z-transform at the probe's z), condensed as the table's."""
+        op, grid = self.op, self.grid
+        a, b = bilinear_coefficients(poles, grid.dt)
+        g = b * (grid.z[:, None] + 1) / (grid.z[:, None] - a)
+        K = A + grid.s[:, None, None] * B + np.einsum("fk,kij->fij", g, residues)
         Bq = op.Bq
         Vr = K[:, 6:, :6] + K[:, 6:, 6:] @ Bq
         Vl = K[:, :6, 6:] + Bq.T @ K[:, 6:, 6:]
-        Z = op.st.blocks(s)[0] + K[:, :6, :6] + K[:, :6, 6:] @ Bq + Bq.T @ Vr
+        Z = self.Aq + K[:, :6, :6] + K[:, :6, 6:] @ Bq + Bq.T @ Vr
         return K[:, 6:, 6:] - Vr @ np.linalg.solve(Z, Vl)
+
+    def _basis_parts(self, basis):
+        """The condensation's parts of A, B and each column's coefficients of ``basis`` (all linear
+        in them): the stand-in of a subset is a combination of these (``subset_stand_in``)."""
+        if self._parts is not None and self._parts[0] is basis:
+            return self._parts[1]
+        n, Bq = basis.n, self.op.Bq
+        C = basis.C.reshape(-1, n, n)
+        M = np.concatenate([basis.A[None], basis.B[None], 0.5 * (C + np.swapaxes(C, 1, 2))])   # (m + 2, n, n)
+        ww = np.ascontiguousarray(M[:, 6:, 6:]).reshape(M.shape[0], -1)
+        wP = (M[:, 6:, :6] + M[:, 6:, 6:] @ Bq).reshape(M.shape[0], -1)
+        Pw = (M[:, :6, 6:] + Bq.T @ M[:, 6:, 6:]).reshape(M.shape[0], -1)
+        PP = (M[:, :6, :6] + M[:, :6, 6:] @ Bq + Bq.T @ M[:, 6:, :6] + Bq.T @ M[:, 6:, 6:] @ Bq).reshape(M.shape[0], -1)
+        Phi = real_basis(self.grid.s, basis.poles, const=False, linear=False)
+        parts = (ww, wP, Pw, PP, Phi)
+        self._parts = (basis, parts)
+        return parts
+
+    def subset_stand_in(self, basis, kept):
+        """``stand_in`` of the units ``kept`` of ``basis`` (``basis.residues(kept)``), from the
+        parts of every column made once (``_basis_parts``: the residues are the projection's
+        coefficients times a small matrix, and K is linear in them): per subset one product of
+        (nf, m + 2) weights and no pass over the residues' n^2 entries per pole."""
+        ww, wP, Pw, PP, Phi = self._basis_parts(basis)
+        cols = basis.columns(kept)
+        X = np.linalg.lstsq(basis.R[:, cols], np.eye(basis.R.shape[0]), rcond=None)[0]    # coefficients = X C
+        s = self.grid.s
+        w = np.concatenate([np.ones((s.size, 1)), s[:, None], Phi[:, cols] @ X], axis=1)   # (nf, m + 2)
+
+        def combine(parts):
+            return w.real @ parts + 1j * (w.imag @ parts)
+        N = self.op.N
+        Kww = combine(ww).reshape(-1, N, N)
+        Vr = combine(wP).reshape(-1, N, 6)
+        Vl = combine(Pw).reshape(-1, 6, N)
+        Z = self.Aq + combine(PP).reshape(-1, 6, 6)
+        return Kww - Vr @ np.linalg.solve(Z, Vl)
 
     def predict(self, basis, kept):
         """(rate, worst) of the stand-in on the units ``kept`` of ``basis`` (class notes)."""
-        Sx = self.stand_in(basis.A, basis.B, *basis.residues(kept))
-        nf = self.ks.size
-        e = np.empty((nf, N_POWER + 1, 2))
+        Sx = self.subset_stand_in(basis, kept)
+        nf, ncol = self.x0.shape[0], self.x0.shape[2]
+        e = np.empty((nf, N_POWER + 1, ncol))
         for i in range(nf):
             x = self.x0[i]
             e[i, 0] = np.linalg.norm(x, axis=0)
@@ -282,7 +371,7 @@ class Probe:
             for j in range(1, N_POWER + 1):
                 x = dS @ lu_solve(lu, x, check_finite=False)
                 e[i, j] = np.linalg.norm(x, axis=0)
-        energy = np.sqrt(self.share @ (e[:, :, 0] ** 2))
+        energy = np.sqrt(np.einsum("fd,fjd->j", self.weight, e[:, :, :3] ** 2))
         rate = float((energy[-1] / energy[0]) ** (1.0 / N_POWER))
         with np.errstate(invalid="ignore", divide="ignore"):
             step = e[:, -1] / e[:, -2]
@@ -290,18 +379,18 @@ class Probe:
         return rate, worst
 
 
-def choose_poles(prob, table, poles, *, cache_dir=None, basis=None, probe=None) -> PoleChoice:
-    """Which of ``poles`` (the scene fit's) the stand-in keeps: the fewest whose constrained fit
-    is passive and whose predicted rates (``Probe``) meet RATE_BOUND and WORST_BOUND; all of them
-    (``fallback``) when no subset does. The search removes one unit (a real pole or a complex
-    pair) at a time from all of them, each time the one whose removal leaves the lowest
-    predicted rate among those meeting the bounds (ties: the lower units first), until no
-    removal meets them; then the constrained fits (``continuation_fit``, cached in
-    ``cache_dir``) are tested for passivity from the smallest subsets up, in each size the best
-    predicted first, at most PER_LEVEL of a size and MAX_TESTS in all. A function of the table, the structure, the
-    grid and the record only (no timing): the same inputs give the same poles."""
-    basis = basis or ContinuationBasis(table, poles)
-    probe = probe or Probe(prob)
+def choose_poles(probe, basis, table, *, cache_dir=None, key="") -> PoleChoice:
+    """Which units of ``basis`` (the scene fit's poles) the stand-in keeps: the fewest whose
+    constrained fit is passive and whose predicted rates (``probe``: a Probe) meet RATE_BOUND and
+    WORST_BOUND; all of them (``fallback``) when no subset does. The search removes one unit (a
+    real pole or a complex pair) at a time from all of them, each time the one whose removal leaves
+    the lowest predicted rate among those meeting the bounds (ties: the lower units first), until
+    no removal meets them; then the constrained fits (``continuation_fit``) are tested for
+    passivity from the smallest subsets up, in each size the best predicted first, at most
+    PER_LEVEL of a size and MAX_TESTS in all. Only the kept subset's fit is written to
+    ``cache_dir`` (the one a later run reads; the rejected ones are not kept). A function of the
+    table, the structure and the step only (no record, no timing): the same inputs give the same
+    poles."""
     memo = {}
 
     def pred(kept):
@@ -326,61 +415,80 @@ def choose_poles(prob, table, poles, *, cache_dir=None, basis=None, probe=None) 
             if tested >= MAX_TESTS:
                 break
             tested += 1
-            fit = continuation_fit(table, basis.unit_poles(kept), cache_dir=cache_dir)
+            fit = continuation_fit(table, basis.unit_poles(kept), cache_dir=cache_dir, keep="passive")
             if fit.passive:
-                return PoleChoice(kept, len(everything), *pred(kept), False, len(memo), tested, fit)
-    return PoleChoice(everything, len(everything), *pred(everything), True, len(memo), tested)
+                return PoleChoice(kept, len(everything), *pred(kept), False, len(memo), tested, key, fit)
+    return PoleChoice(everything, len(everything), *pred(everything), True, len(memo), tested, key)
 
 
-def pole_choice(prob, table, poles, *, cache_dir=None) -> PoleChoice:
-    """``choose_poles``, kept in ``cache_dir`` (``tf-poles-<key>.h5``, keyed by the table's data,
-    the poles, the grid's s, the raft's trace, the structure's condensed impedance Zqq^-1, the
-    record's blocked force, the rule's constants and code): a second solve of the same inputs
-    reads it. None cache_dir: chosen every time."""
-    op = prob.op
-    key = setup_key("poles", getattr(op.soil, "table", None), np.asarray(poles, complex), op.s,
-                    np.asarray(op.Bq, float), op.Zinv, np.asarray(prob.f, float),
-                    (RATE_BOUND, WORST_BOUND, N_FREQ, N_POWER, MAX_TESTS, PER_LEVEL), code_digest("orchestrator.standin"))
+def choice_key(model, table, poles, dt, structure) -> str | None:
+    """The key of ``pole_choice``'s entry: the table's data (setup_key), the poles, the probe's s
+    (the step and the probe's constants), the structure's condensation there (its A_q and b
+    blocks: the modes, the damping, the masses), the raft's trace, the rule's constants and code.
+    No record and no grid: every motion of a scene at one step shares it."""
+    grid = probe_grid(dt)
+    Aq, b = structure.blocks(grid.s)
+    return setup_key("poles", table, np.asarray(poles, complex), grid.s, Aq, b, raft_trace(model, structure),
+                     (RATE_BOUND, WORST_BOUND, N_FREQ, F_LOW_HZ, TOP, ETA, N_POWER, MAX_TESTS, PER_LEVEL,
+                      DIRECTION_WEIGHTS), code_digest("orchestrator.standin"))
+
+
+def pole_choice(model, table, poles, dt, *, structure=None, cache_dir=None) -> PoleChoice:
+    """``choose_poles`` for the structure ``model`` (its condensation ``structure``, default
+    ``structure_of(model)``) on the gap table ``table`` with the scene fit's ``poles`` at the step
+    ``dt`` (s), kept in ``cache_dir`` (``tf-poles-<key>.h5``, ``choice_key``: once per scene, for
+    every record): a second call with the same inputs reads it (its ``fit`` None then: the kept
+    subset's constrained fit is in the cache too). None cache_dir: chosen every time. A
+    prediction that cannot be made (a singular system at a probe frequency) gives the fallback,
+    not kept."""
+    structure = structure if structure is not None else structure_of(model)
+    key = choice_key(model, table, poles, dt, structure)
     path = entry_path(cache_dir, "poles", key)
     names = ("kept", "units", "rate", "worst", "fallback", "evaluated", "tested")
     hit = read_arrays(path, (), attrs=names)
     if hit is not None:
         a = hit[1]
         return PoleChoice(tuple(int(u) for u in np.atleast_1d(a["kept"])), int(a["units"]), float(a["rate"]),
-                          float(a["worst"]), bool(a["fallback"]), int(a["evaluated"]), int(a["tested"]))
-    choice = choose_poles(prob, table, poles, cache_dir=cache_dir)
+                          float(a["worst"]), bool(a["fallback"]), int(a["evaluated"]), int(a["tested"]), key or "")
+    basis = ContinuationBasis(table, poles)
+    try:
+        choice = choose_poles(Probe(model, table, dt, structure), basis, table, cache_dir=cache_dir, key=key or "")
+    except np.linalg.LinAlgError:        # a singular condensation at a probe frequency: no prediction
+        n = len(basis.units)
+        return PoleChoice(tuple(range(n)), n, float("nan"), float("nan"), True, key=key or "")
     write_arrays(path, {}, attrs=dict(kept=np.array(choice.kept, np.int64), units=choice.units, rate=choice.rate,
                                       worst=choice.worst, fallback=choice.fallback, evaluated=choice.evaluated,
                                       tested=choice.tested))
     return choice
 
 
-def constrained_fit(table, fit_model, *, cache_dir=None):
-    """The stand-in's fit: ``table`` constrained to the route's continuation on ``fit_model``'s
-    poles (``continuation_fit``, cached in ``cache_dir``)."""
-    return continuation_fit(table, fit_model.poles, cache_dir=cache_dir)
+def scene_stand_in(model, table, fit_model, dt, *, structure=None, cache_dir=None) -> PoleChoice:
+    """``pole_choice`` with the kept subset's constrained fit at hand (``fit``: made, or read from
+    ``cache_dir``): what a run of the scene marches, whatever its record. An ensemble's set-up
+    makes it once (``settle``); each cell takes it when its key is the cell's own."""
+    choice = pole_choice(model, table, fit_model.poles, dt, structure=structure, cache_dir=cache_dir)
+    if choice.fit is None:
+        kept = fit_model.poles if choice.fallback else ContinuationBasis.kept_poles(fit_model.poles, choice.kept)
+        choice = dataclasses.replace(choice, fit=continuation_fit(table, kept, cache_dir=cache_dir))
+    return choice
 
 
-def stand_in_factory(table, fit_model, *, cache_dir=None, damping=None, constrained=None):
+def stand_in_factory(table, fit_model, *, cache_dir=None, damping=None, chosen=None):
     """callable(prob) -> (NativeStandIn or None, reason): the constrained fit of ``table`` on the
-    poles of ``fit_model`` that ``pole_choice`` keeps for ``prob`` (all of them when no subset of
-    fewer meets its bounds and is passive: the reason and the marcher's ``info`` say which;
-    ``constrained``, an ensemble's constrained fit on all the poles made once, is taken as it is),
-    cached in ``cache_dir``, marched natively, or None and why not (the fit not passive, no native
-    library here)."""
+    poles of ``fit_model`` that ``pole_choice`` keeps for the structure and step of ``prob`` (all of
+    them when no subset of fewer meets its bounds and is passive: the reason and the marcher's
+    ``info`` say which), cached in ``cache_dir``, marched natively, or None and why not (the fit not
+    passive, no native library here). ``chosen``: a ``scene_stand_in`` made already (an ensemble's,
+    once: ``settle``), taken when its key is this problem's (else chosen here, as a single run)."""
     def make(prob):
-        choice = None
-        if constrained is not None:
-            fit = constrained
+        structure = prob.op.st
+        if chosen is not None and chosen.fit is not None and chosen.key and \
+                chosen.key == choice_key(prob.model, table, fit_model.poles, prob.grid.dt, structure):
+            choice = chosen
         else:
-            try:
-                choice = pole_choice(prob, table, fit_model.poles, cache_dir=cache_dir)
-            except np.linalg.LinAlgError:   # a singular condensation at a sampled frequency: no prediction
-                n = len(ContinuationBasis.units_of(np.asarray(fit_model.poles, complex)))
-                choice = PoleChoice(tuple(range(n)), n, float("nan"), float("nan"), True)
-            kept = fit_model.poles if choice.fallback else ContinuationBasis.kept_poles(fit_model.poles, choice.kept)
-            fit = choice.fit or continuation_fit(table, kept, cache_dir=cache_dir)
-        poles = "" if choice is None else f"; {choice.note()}"
+            choice = scene_stand_in(prob.model, table, fit_model, prob.grid.dt, structure=structure,
+                                    cache_dir=cache_dir)
+        fit, poles = choice.fit, f"; {choice.note()}"
         if not fit.passive:
             return None, (f"the fit constrained to the route's continuation ({fit_model.order} poles) is not "
                           f"passive (margin {fit.margin:.2e}{poles})")
@@ -388,7 +496,7 @@ def stand_in_factory(table, fit_model, *, cache_dir=None, damping=None, constrai
         if lib is None:
             return None, library_note(cache_folder(cache_dir))
         marcher = NativeStandIn(prob, fit.model, lib, damping, single=SINGLE, lean=LEAN)
-        marcher.info = {} if choice is None else choice.info()
+        marcher.info = choice.info()
         return marcher, (f"stand-in: the fit constrained to the route's continuation ({fit.model.order} of the fit's "
                          f"{fit_model.order} poles{poles}; {fit.max_rel_error:.1e} on the table), native march")
     return make

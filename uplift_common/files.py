@@ -203,7 +203,7 @@ def _reason(folder: Path, code: int) -> str:
     free = ""
     with contextlib.suppress(OSError):
         st = os.statvfs(folder)
-        free = f"; {_size(st.f_bavail * st.f_frsize)} free on its file system"
+        free = f"; {size_text(st.f_bavail * st.f_frsize)} free on its file system"
     return f"{REFUSED_ERRNOS[code]} (errno {errno.errorcode.get(code, code)}){free}"
 
 
@@ -213,7 +213,8 @@ def _refusal_message(path, folder: Path, code: int, exc, left: str = "") -> str:
             f"run the command again: nothing was written, {left}")
 
 
-def _size(n: int) -> str:
+def size_text(n: int) -> str:
+    """``n`` bytes as text: bytes, KiB, MiB or GiB, one decimal."""
     for unit in ("bytes", "KiB", "MiB", "GiB"):
         if n < 1024 or unit == "GiB":
             return f"{n:.0f} {unit}" if unit == "bytes" else f"{n:.1f} {unit}"
@@ -392,7 +393,7 @@ def write_image(path, data) -> Path:
         with atomic_output(path) as tmp, open(tmp, "wb") as out:
             out.write(data)
     except OutputWriteError as exc:
-        need = f"{_size(len(data))} needed"
+        need = f"{size_text(len(data))} needed"
         text, reason = str(exc), exc.reason
         if "free on its file system" in text:
             text = text.replace("free on its file system", f"free on its file system, {need}", 1)

@@ -185,12 +185,14 @@ class RunContext:
         and ``soil_fit()``
     cache_dir : impedance/fit cache folder or None
     options : {option: value} for this route (bench knobs such as pad_s)
+    stepped : the route steps the fit in time (its memory checked with the fit's poles: ``fit``)
     """
     scene: object
     motion: object
     prepared: object
     cache_dir: object = None
     options: Mapping = field(default_factory=dict)
+    stepped: bool = False
 
     @property
     def tables(self) -> Mapping:
@@ -205,8 +207,9 @@ class RunContext:
 
     def fit(self):
         """The FitResult of the scene's gap table (read from the cache or fitted once per run; a
-        fit that failed raises its error again)."""
-        return self.prepared.soil_fit()
+        fit that failed raises its error again; for a time-stepped route, the stepping's memory
+        checked with the fit's poles: ``SharedRun.stepping_fit``)."""
+        return self.prepared.stepping_fit() if self.stepped else self.prepared.soil_fit()
 
     def for_route(self, route: Route, options: Mapping | None = None) -> RunContext:
         """The context a route's ``run`` receives: this run's prepared parts and the route's options."""
@@ -214,4 +217,4 @@ class RunContext:
         if unknown:
             raise RouteInputError(f"route {route.name!r} has no option {sorted(unknown)[0]!r}; "
                                   f"options: {', '.join(route.options) or 'none'}")
-        return dataclasses.replace(self, options=dict(options or {}))
+        return dataclasses.replace(self, options=dict(options or {}), stepped=route.time_stepped)

@@ -27,7 +27,7 @@ SOLVE_KEYWORDS = ("damping", "static", "route")
 
 
 def run_timefreq(motion, model, table_gap, *, contact, output_nodes, max_seconds=None, progress=None,
-                 fit=None, cache_dir=None, constrained=None, **overrides):
+                 fit=None, cache_dir=None, chosen=None, **overrides):
     """RouteResult of ``solve`` on the BEM gap table ``table_gap`` (ImpedanceTable, 6+N) for
     ``motion`` (orchestrator.motion.Motion: acc (nt, 3) m/s^2, dt s), the structure ``model``,
     the ContactSettings ``contact`` and the output node names.
@@ -39,11 +39,13 @@ def run_timefreq(motion, model, table_gap, *, contact, output_nodes, max_seconds
     newton_krylov), and damping, static, route; default tol TOL.
     fit : the scene's passive fit (FitResult or RationalModel) or None: with it the march steps
     the causal stand-in (orchestrator/standin.py: the fit's poles that ``choose_poles`` keeps,
-    constrained to the route's continuation above the table, cached in ``cache_dir``, on the
-    native stepper) when that is passive, else the table's own kernel (and notes.warnings says
-    why); info["march"] says which, info["stand_in_poles"] which poles.
-    The answer is the table's either way (the residual is the table's). constrained : that
-    constrained fit when made already (``constrained_fit``, once for an ensemble: ``settle``), or None.
+    chosen once per table, structure and step whatever the record, constrained to the route's
+    continuation above the table, both cached in ``cache_dir``, on the native stepper) when that
+    is passive, else the table's own kernel (and notes.warnings says why); info["march"] says
+    which, info["stand_in_poles"] which poles. The answer is the table's either way (the residual
+    is the table's). chosen : that choice with its constrained fit when made already
+    (``standin.scene_stand_in``, once for an ensemble: ``settle``; taken when made for this
+    structure and step), or None.
     cache_dir : the cache folder of the constrained fit and of the solve's set-up (the table's band
     rows and the far field's split: orchestrator/timefreq/setup_cache.py), or None: none kept.
     """
@@ -60,7 +62,7 @@ def run_timefreq(motion, model, table_gap, *, contact, output_nodes, max_seconds
         # the native host and the constrained fit only when a fit is given
         from orchestrator.standin import stand_in_factory
         stand_in = stand_in_factory(table_gap, getattr(fit, "model", fit), cache_dir=cache_dir,
-                                    damping=rest.get("damping"), constrained=constrained)
+                                    damping=rest.get("damping"), chosen=chosen)
     return solve(model, table_gap, motion.acc, motion.dt, contact=contact, output_nodes=output_nodes,
                  grid=grid, options=options, monitor=decades_bar(progress, options.tol or TOL), stand_in=stand_in,
                  cache_dir=cache_dir, **rest)
@@ -87,10 +89,10 @@ def run(ctx, progress=None):
             fit = ctx.fit()             # the scene's fit: the stand-in's poles (cached, shared with the TD routes)
         except (UserInputError, ComputationError) as exc:   # none: the march on the table's own kernel (said in the notes)
             why = str(exc).splitlines()[0]
-    constrained = getattr(ctx.prepared, "made", {}).get("timefreq") if fit is not None else None
+    chosen = getattr(ctx.prepared, "made", {}).get("timefreq") if fit is not None else None
     res = run_timefreq(ctx.motion, route_model(ctx), in_memory(ctx.tables["gap"]), contact=ctx.scene.contact,
                        output_nodes=ctx.scene.output.nodes, max_seconds=ctx.scene.analysis.timefreq_max_s,
-                       progress=progress, fit=fit, cache_dir=ctx.cache_dir, constrained=constrained, **ctx.options)
+                       progress=progress, fit=fit, cache_dir=ctx.cache_dir, chosen=chosen, **ctx.options)
     if why:
         said = f"no causal stand-in (the scene's fit failed: {why}); the march on the table's own kernel ran"
         res = res.with_notes(warnings=[said])
@@ -98,15 +100,17 @@ def run(ctx, progress=None):
 
 
 def settle(shared):
-    """An ensemble's set-up (``SharedRun.settle``): the scene's fit and the stand-in's constrained
-    fit of its gap table, made once here instead of in every worker (``shared.made["timefreq"]``).
-    Nothing for a plate raft (no stand-in), nor when a fit fails (each run tries and says why)."""
+    """An ensemble's set-up (``SharedRun.settle``): the scene's fit, the stand-in's poles (chosen
+    for the scene's structure and step, whatever the record: ``standin.scene_stand_in``) and their
+    constrained fit of its gap table, made once here instead of in every worker
+    (``shared.made["timefreq"]``): each cell marches what a single run of its motion would. Nothing
+    for a plate raft (no stand-in), nor when a fit fails (each run tries and says why)."""
     if getattr(shared.scene, "raft", None) is not None or "gap" not in shared.tables:
         return
-    from orchestrator.standin import constrained_fit      # the native host and the fit stack: only when settled
+    from orchestrator.standin import scene_stand_in      # the native host and the fit stack: only when settled
     with contextlib.suppress(UserInputError, ComputationError):
-        shared.made["timefreq"] = constrained_fit(shared.tables["gap"], shared.soil_fit().model,
-                                                  cache_dir=shared.cache_dir)
+        shared.made["timefreq"] = scene_stand_in(shared.model, in_memory(shared.tables["gap"]), shared.soil_fit().model,
+                                                 shared.scene.analysis.dt, cache_dir=shared.cache_dir)
 
 
 ROUTE = register(Route(

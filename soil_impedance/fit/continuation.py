@@ -13,8 +13,8 @@ a right-hand side, rows weighted by 1 / |K(f)|_F), symmetrised; then tests its p
 the fit (3.1e-2 against 9e-4 relative at worst on the reactor, at 25 Hz), which costs sweeps,
 not accuracy: the route's residual stays the table's.
 
-Cached like the fits (``cache_dir``): keyed by the table's hash, the poles, the fit code's
-digest; checksummed and written atomically (``soil_impedance.cache``).
+Cached like the fits (``cache_dir``): keyed by the table's data (``data_digest``) and frequencies,
+the poles, the fit code's digest; checksummed and written atomically (``soil_impedance.cache``).
 """
 from __future__ import annotations
 
@@ -65,7 +65,7 @@ def continuation_model(table, poles, dofs=None):
     R = coefficients_to_residues(coef.reshape(-1, n, n), poles)
     model = RationalModel(poles, 0.5 * (R + np.swapaxes(R, 1, 2)), A, B,
                           dofs=list(table.dofs) if dofs is None else dofs,
-                          provenance={"source_table_hash": table.hash, "constrained": "route continuation above "
+                          provenance={"source_table_data_sha256": table.data_digest, "constrained": "route continuation above "
                                       f"{f[-1]:g} Hz: D = Re K(f_max), E = Im K(f_max) / (2 pi f_max)"})
     err = np.linalg.norm((model(s) - K).reshape(f.size, -1), axis=1) * w
     return model, float(err.max())
@@ -110,11 +110,15 @@ class ContinuationBasis:
         """(poles (m_sub,), residues (m_sub, n, n) complex, symmetrised) of the units ``kept``."""
         from ..vectfit import coefficients_to_residues
 
-        cols = [c for u in sorted(kept) for c in self.units[u]]
+        cols = self.columns(kept)
         coef = np.linalg.lstsq(self.R[:, cols], self.C, rcond=None)[0]
         poles = self.poles[cols]
         R = coefficients_to_residues(coef.reshape(-1, self.n, self.n), poles)
         return poles, 0.5 * (R + np.swapaxes(R, 1, 2))
+
+    def columns(self, kept) -> list:
+        """The columns of the units ``kept`` (a real pole's one, a pair's two), in the fit's order."""
+        return [c for u in sorted(kept) for c in self.units[u]]
 
     def unit_poles(self, kept) -> np.ndarray:
         """The poles of the units ``kept``, in the fit's order."""
@@ -137,16 +141,20 @@ class ContinuationBasis:
         return poles[[c for u in sorted(kept) for c in units[u]]]
 
 
-def continuation_fit(table, poles, *, cache_dir=None) -> ContinuationFit:
+def continuation_fit(table, poles, *, cache_dir=None, keep: str = "always") -> ContinuationFit:
     """The passive-tested stand-in of ``table`` with ``poles`` (module notes), from the cache
-    ``cache_dir`` when there (None: no cache)."""
+    ``cache_dir`` when there (None: no cache). keep : "always" (a new fit is written to the
+    cache), or "passive" (only when it passed: a subset tried and rejected, which no later run
+    reads, is not kept: orchestrator/standin.py, ``choose_poles``)."""
     from ..passivity import check_passive, with_verified_passivity
 
+    if keep not in ("always", "passive"):
+        raise ValueError(f"continuation_fit: keep = {keep!r}, not \"always\" or \"passive\"")
     t0 = time.perf_counter()
     poles = np.asarray(poles, complex)
     path = None
     if cache_dir is not None:
-        path = _cache_path(table.hash, poles, cache_dir)
+        path = _cache_path(table, poles, cache_dir)
         hit = _read(path)
         if hit is not None:
             return hit
@@ -154,14 +162,18 @@ def continuation_fit(table, poles, *, cache_dir=None) -> ContinuationFit:
     rep = check_passive(model)                      # kept by the model's digest: not run again below
     model = with_verified_passivity(model)
     out = ContinuationFit(model, bool(rep.passive), float(rep.margin), err, False, time.perf_counter() - t0)
-    if path is not None:
+    if path is not None and (keep == "always" or out.passive):
         from ..cache import write_entry
         write_entry(path, lambda p: _save(out, p))
     return out
 
 
-def _cache_path(table_hash: str, poles, cache_dir) -> Path:
-    h = hashlib.sha256(table_hash.encode())
+def _cache_path(table, poles, cache_dir) -> Path:
+    """The entry of ``table``'s fit on ``poles``: keyed by what it is made of, the table's data (its
+    ``data_digest``: the matrices and DOF labels) and frequencies, the poles and the fit's code
+    (not the table's input hash: a table of the same data made otherwise shares it)."""
+    h = hashlib.sha256(table.data_digest.encode())
+    h.update(np.ascontiguousarray(table.frequencies_hz, float).tobytes())
     h.update(np.ascontiguousarray(poles, complex).tobytes())
     h.update(code_version().encode())
     return Path(cache_dir) / f"standin-{h.hexdigest()[:24]}.h5"

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from orchestrator.cli import main
-from orchestrator.memory_guard import RunMemoryError, check_run_memory, run_memory, stepping_memory
+from orchestrator.memory_guard import (RunMemoryError, check_run_memory, check_stepping_memory, run_memory,
+                                       stepping_memory)
 from orchestrator.scene import load_scene
 from orchestrator.scene_base import builtin_scenes
 from structure.damping import fixed_base_modes
@@ -99,7 +100,7 @@ def _refusal(capsys):
 
 
 def _gib(text: str) -> float:
-    return float(re.search(r"needs about ([0-9.]+) GiB", text).group(1))
+    return float(re.search(r"needs (?:about|at least) ([0-9.]+) GiB", text).group(1))
 
 
 def test_memory_guard_refuses_the_sweep_stage(tmp_path, capsys, monkeypatch):
@@ -120,8 +121,9 @@ def test_memory_guard_refuses_the_sweep_stage(tmp_path, capsys, monkeypatch):
 
 def test_memory_guard_refuses_the_stepping_stage(tmp_path, capsys, monkeypatch):
     # a 1000 s motion at 5 ms: the histories the stepper keeps (200 001 steps of 100 gaps,
-    # contact forces and soil displacements) make stepping the largest stage; refused before
-    # the motion is made or the BEM built
+    # contact forces and soil displacements) make stepping the largest stage even at the fewest
+    # poles a fit has (its floor, what the guard compares before the fit); refused before the
+    # motion is made or the BEM built
     path = _coarse(tmp_path, freqs=26)
     monkeypatch.setattr("soil_impedance.sweep.available_memory", lambda: 64 * 2 ** 20)
     monkeypatch.setattr("soil_impedance.sweep.SurfaceBem", lambda *a, **k: pytest.fail("allocated before refusing"))
@@ -131,30 +133,68 @@ def test_memory_guard_refuses_the_stepping_stage(tmp_path, capsys, monkeypatch):
     scene = load_scene(path, duration_s=1000.0).with_routes(["monolithic"])
     stages = {s.name: s for s in run_memory(scene)}
     assert max(stages.values(), key=lambda s: s.bytes).name == "stepping"
-    assert "the stepping stage needs about" in line and "0.06 GiB available" in line
-    assert _gib(line) == pytest.approx(stages["stepping"].bytes / 2 ** 30, abs=0.006)
+    assert "the stepping stage needs at least" in line and "0.06 GiB available" in line
+    assert _gib(line) == pytest.approx(stages["stepping"].floor / 2 ** 30, abs=0.006)
+    assert stages["stepping"].floor == stages["stepping"].needed < stages["stepping"].bytes
     # its histories: 2 copies x 8 bytes x 200 001 steps x (3 x 100 + 64) values
     assert stepping_memory(106, 24, 200_001)["histories"] == 2 * 8 * 200_001 * 364
 
 
 def test_full_mat_refused_with_its_largest_stage_and_dry_run(capsys, monkeypatch):
-    # the full mat: its stepping (at most 30 poles, 17.1 GiB: the history's copies and, the history being
-    # compressed at 2500 nodes, the compressed model's) is its largest stage, above the streamed fit (15.6
-    # GiB); on a 16 GiB machine it is refused (exit 2) by that stage, `--dry-run` listing every stage first
-    # and computing nothing; on a 24 GiB machine (faked) the dry run passes, and without a cache folder (the
-    # fit in memory, ~7 copies of the 9.5 GiB table) it is refused by the fit
+    # the full mat: its largest need before the fit is the streamed fit (at most 30 poles, 15.6 GiB); on a
+    # 16 GiB machine it is refused (exit 2) by that stage, `--dry-run` listing every stage first and computing
+    # nothing; on an 18 GiB machine (faked) the dry run passes: the stepping's bound at 30 poles (22.8 GiB:
+    # the history's copies, the fit's and, the history being compressed at 2500 nodes, the compressed model's)
+    # is above what the run may use, but its floor (2 poles) is not, and it is checked again with the fit's
+    # poles, which refuses 30 and passes the 8 the mat's fit makes (6.81 GiB; its run peaked at 6.72); without a cache folder (the fit in memory, ~7 copies of
+    # the 9.5 GiB table) it is refused by the fit
     monkeypatch.setattr("soil_impedance.sweep.available_memory", lambda: 16 * 2 ** 30)
     monkeypatch.setattr("soil_impedance.sweep.SurfaceBem", lambda *a, **k: pytest.fail("allocated before refusing"))
     assert main(["run", "mat", "--dry-run"]) == 2
     captured = capsys.readouterr()
-    assert "the stepping stage needs about" in captured.err and "compressed history" in captured.err
+    assert "the fit stage needs about" in captured.err and "streamed fit" in captured.err
     for stage in ("static", "sweep", "fit", "stepping"):
         assert re.search(rf"(?m)^  {stage} +[0-9.]+ GiB", captured.out), captured.out
-    monkeypatch.setattr("soil_impedance.sweep.available_memory", lambda: 24 * 2 ** 30)
+    monkeypatch.setattr("soil_impedance.sweep.available_memory", lambda: 18 * 2 ** 30)
     assert main(["run", "mat", "--dry-run"]) == 0
-    assert "the run fits in the available memory (nothing was computed)" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "the run fits in the available memory (nothing was computed)" in out
+    assert "at most 30 poles (at least" in out and "checked again with the fit's" in out
+    scene = load_scene("mat")
+    stepping = {s.name: s for s in run_memory(scene)}["stepping"]
+    assert stepping.floor < 0.9 * 18 * 2 ** 30 < stepping.bytes
+    with pytest.raises(RunMemoryError, match="the stepping stage needs about 22.76 GiB .*the fit's 30 poles"):
+        check_stepping_memory(scene, 30)
+    assert 6.72 * 2 ** 30 < check_stepping_memory(scene, 8).bytes < 0.9 * 18 * 2 ** 30     # above its measured peak
+    monkeypatch.setattr("soil_impedance.sweep.available_memory", lambda: 24 * 2 ** 30)
     assert main(["run", "mat", "--no-cache"]) == 2
     assert "the fit stage needs about" in _refusal(capsys)
+
+
+def test_a_stepped_route_is_refused_after_the_fit_by_its_poles(tmp_path, capsys, monkeypatch):
+    # the coarse mat (40 s: the stepping's histories make it the largest stage) with just enough memory for
+    # the stepping at the fewest poles a fit has: the run starts (the floor passes), fits, and the monolithic
+    # route is refused (exit 2) before it steps, with the stepping estimated at the fit's own poles; the dry
+    # run, before the fit, passes
+    path = _coarse(tmp_path, freqs=11)
+    scene = load_scene(path, duration_s=40.0).with_routes(["monolithic"])
+    stages = {s.name: s for s in run_memory(scene, cached=False)}
+    stepping = stages.pop("stepping")
+    assert max(s.needed for s in stages.values()) < stepping.floor
+    avail = (stepping.floor + 1) / 0.9
+    monkeypatch.setattr("soil_impedance.sweep.available_memory", lambda: avail)
+    monkeypatch.setattr("orchestrator.routes.monolithic.run_monolithic", lambda *a, **k: pytest.fail("stepped"))
+    run = ["run", str(path), "--route", "monolithic", "--duration", "40", "--no-cache"]
+    assert main([*run, "--dry-run"]) == 0
+    capsys.readouterr()
+    assert main([*run, "-o", str(tmp_path / "r.h5")]) == 2
+    out = capsys.readouterr().out
+    assert "monolithic: REFUSED: scene 'mat_coarse': the stepping stage needs about" in out
+    poles = int(re.search(r"the fit's ([0-9]+) poles", out).group(1))
+    assert 2 < poles <= 8                                  # at most F - 2 for 11 frequencies
+    known = {s.name: s for s in run_memory(scene, cached=False, poles=poles)}["stepping"]
+    assert known.floor is None and stepping.floor < known.bytes <= stepping.bytes
+    assert _gib(out) == pytest.approx(known.bytes / 2 ** 30, abs=0.006)
 
 
 def test_memory_estimates_grow_as_stated(tmp_path):
@@ -313,7 +353,8 @@ st = NewmarkStepper(structure, soil, motion.dt, contact=dataclasses.replace(scen
                     external_soil=True, ag0=motion.acc[0])
 res = native_stepper.simulate_native(st, motion.acc, [])
 peak = status("VmHWM:") - before
-est = {c: stepping_memory(model.n, model.poles.size, motion.acc.shape[0], compressed=c)["total"] - BASE_BYTES
+est = {c: stepping_memory(model.n, model.poles.size, motion.acc.shape[0], compressed=c, fitted=False)["total"]
+          - BASE_BYTES
        for c in (True, False)}
 print(json.dumps({"kind": soil.history_kind, "n": model.n, "poles": int(model.poles.size), "peak": peak,
                   "compressed": est[True], "dense": est[False], "gap": float(res.gap.max())}))

@@ -383,25 +383,36 @@ def test_a_run_of_the_route_marches_the_stand_in(tmp_path):
     assert not res.notes.warnings
 
 
-def test_an_ensembles_set_up_makes_the_constrained_fit_once_for_its_workers(monkeypatch):
+def test_an_ensembles_set_up_chooses_the_poles_once_and_each_cell_equals_a_single_run(monkeypatch):
     """``prepare_run(...).settle()`` (an ensemble's set-up, before the run is sent to its workers)
-    makes the scene's fit and the stand-in's constrained fit, without a cache folder too; a cell
-    run on that shared run marches the stand-in without fitting again (continuation_fit refused
-    there) and gives a single run's answer to the bit."""
+    makes the scene's fit, the stand-in's poles (chosen for the scene, no record) and their
+    constrained fit, without a cache folder too; cells run on that shared run under two motions (the
+    scene's and another record: other seed, level and length) march those poles without choosing
+    or fitting again (continuation_fit and the probe refused there) and give each motion's single
+    run to the bit (max uplift and gap histories), the shared run pickled as an ensemble sends it
+    to its workers. The bounds are widened so that a subset of this
+    scene's poles is kept (tests/orchestration/test_standin_poles.py: WIDE)."""
+    import pickle
+
     import orchestrator.standin as standin
     from helpers import small_reactor
+    from orchestrator.motion import make_motion
     from orchestrator.run import prepare_run, run_scene
     from uplift_common.errors import ComputationError
     from orchestrator.scene import scene_from_dict
 
+    monkeypatch.setattr(standin, "RATE_BOUND", 0.15)
+    monkeypatch.setattr(standin, "WORST_BOUND", 0.35)
     scene = scene_from_dict(small_reactor(soil=LAYERED, motion={"duration_s": 1.0},
                                           analysis={"routes": ["timefreq"]}), name="ens")
-    single, _ = run_scene(scene, cache_dir=None)
+    other = make_motion(dataclasses.replace(scene.motion, seed=9, pga_g=0.45, duration_s=1.4), scene.analysis.dt)
+    singles = [run_scene(scene, cache_dir=None, motion=m)[0]["timefreq"] for m in (None, other)]
     shared = prepare_run(scene, cache_dir=None)
     assert shared.fit is None and shared.made == {}          # nothing made before settle (timefreq needs no fit)
     shared.settle()
     made = shared.made["timefreq"]
-    assert shared.fit is not None and made.passive and not made.cached
+    assert shared.fit is not None and made.fit.passive and not made.fit.cached
+    assert not made.fallback and len(made.kept) < made.units
 
     def failing(*args, **kwargs):
         raise ComputationError("no constrained fit here")
@@ -409,17 +420,24 @@ def test_an_ensembles_set_up_makes_the_constrained_fit_once_for_its_workers(monk
     assert dataclasses.replace(shared, made={}).settle().made == {}
 
     def refused(*args, **kwargs):
-        raise AssertionError("a cell fitted the constrained fit again")
+        raise AssertionError("a cell chose the poles or fitted the constrained fit again")
     monkeypatch.setattr(standin, "continuation_fit", refused)
-    cell, _ = run_scene(scene, cache_dir=None, shared=shared)
-    res = cell["timefreq"]
-    assert res.converged and res.info["march"] == "stand-in", res.notes.warnings
-    assert np.array_equal(res.gap, single["timefreq"].gap)
+    monkeypatch.setattr(standin.Probe, "__init__", refused)
+    shared = pickle.loads(pickle.dumps(shared))                 # as sent to the workers
+    for single, record in zip(singles, (None, other)):
+        res = run_scene(scene, cache_dir=None, shared=shared, motion=record)[0]["timefreq"]
+        assert res.converged and res.info["march"] == "stand-in", res.notes.warnings
+        assert res.info["stand_in_poles"] == single.info["stand_in_poles"] == list(made.kept)
+        assert res.max_uplift() == single.max_uplift() and np.array_equal(res.gap, single.gap)
+    assert singles[0].max_uplift() != singles[1].max_uplift()
 
 
 def test_the_constrained_fit_is_cached_by_its_inputs(tmp_path):
     """continuation_fit's cache: the second call reads the same model (its digest), passivity and
-    error; other poles are another entry; the model's D and E are the route's continuation."""
+    error; other poles are another entry; a table of the same data made otherwise (another
+    provenance, so another input hash) reads the same entry (the key is the table's data); a fit
+    that is not passive is not written with keep="passive"; the model's D and E are the route's
+    continuation."""
     from helpers import small_reactor
     from soil_impedance.fit.continuation import continuation, continuation_fit
 
@@ -431,6 +449,11 @@ def test_the_constrained_fit_is_cached_by_its_inputs(tmp_path):
     assert again.max_rel_error == first.max_rel_error
     other = continuation_fit(table, fit.model.poles[:-2], cache_dir=tmp_path)
     assert not other.cached and len(list(tmp_path.glob("standin-*.h5"))) == 2
+    relabelled = dataclasses.replace(table, provenance={**table.provenance, "note": "made otherwise"})
+    assert relabelled.hash != table.hash
+    assert continuation_fit(relabelled, fit.model.poles, cache_dir=tmp_path).cached
+    rejected = continuation_fit(table, fit.model.poles[[0, 1, 2, 4]], cache_dir=tmp_path, keep="passive")
+    assert not rejected.passive and len(list(tmp_path.glob("standin-*.h5"))) == 2
     A, B = continuation(table)
     assert np.array_equal(first.model.D, A) and np.array_equal(first.model.E, B)
 
