@@ -93,6 +93,7 @@ def declare(lib: ctypes.CDLL) -> ctypes.CDLL:
             ("up_sim_steps_src", ctypes.c_int, [p, p, p, i64, i64, p, p, p, ctypes.c_char_p]),
             ("up_sim_rewind", None, [p, p]),
             ("up_sim_correction", ctypes.c_int, [p, i64, ctypes.c_int]),
+            ("up_sim_lean", None, [p, ctypes.c_int]),
             ("up_sim_close", None, [p]),
             ("up_simulate", ctypes.c_int, [ctypes.c_char_p, ctypes.c_uint64, p, i64, p, p, p, ctypes.c_char_p])):
         f = getattr(lib, name)

@@ -62,6 +62,11 @@ SINGLE = True
 #: absorbs, so the sweeps and the fixed point are unchanged: reactor residuals the same to 4
 #: digits, max uplift 1.7e-13 relative apart); False: the first march in float64
 SINGLE_FIRST = True
+#: the marches lean (simulate.c's ``up_sim_lean``): the native run fills only the rows' raft and soil
+#: parts a march reads, sums no works nor energies, and takes the soil force's K0C x of each committed
+#: state from the Newton iteration's S0 x (one packed product less a step; the iterations' round-off
+#: carried from step to step, not a change of the fixed point, which is the residual's)
+LEAN = True
 
 
 class NativeStandIn:
@@ -77,9 +82,11 @@ class NativeStandIn:
 
     single : the marches in correction form (``SINGLE``, ``SINGLE_FIRST``; simulate.c's
     ``up_sim_correction``): each march's soil history is the last whole march's (recorded) plus the
-    history of the change from it in single precision; info["correction"] says when it was."""
+    history of the change from it in single precision; info["correction"] says when it was.
+    lean : the run lean (``LEAN``, simulate.c's ``up_sim_lean``): the rows' raft and soil parts
+    only, no works, K0C x from the Newton iteration."""
 
-    def __init__(self, prob, model, lib, damping=None, single: bool = False):
+    def __init__(self, prob, model, lib, damping=None, single: bool = False, lean: bool = False):
         dt = prob.grid.dt
         st = NewmarkStepper(prob.model, RecursiveConvolutionSoil(model, dt, checked=True), dt,
                             contact=prob.contact, damping=damping, static=prob.static)
@@ -91,7 +98,7 @@ class NativeStandIn:
         self.width = row_width(st.N, 0)
         self.n_factor = self.n_factor_total = 0
         self._handle, self._close, self._rows = None, None, None
-        self.single = bool(single)
+        self.single, self.lean = bool(single), bool(lean)
         self.info = {}              # what the route's info records of this stand-in (its poles: stand_in_factory)
 
     def _run(self, ag0):
@@ -104,6 +111,7 @@ class NativeStandIn:
         if not h:
             raise NativeBuildError(f"the native stepper refused the stand-in: {err.value.decode(errors='replace')}")
         self._handle, self._close = h, weakref.finalize(self, self.lib.up_sim_close, h)
+        self.lib.up_sim_lean(h, int(self.lean))
         return h
 
     def close(self):
@@ -487,7 +495,7 @@ def stand_in_factory(table, fit_model, *, cache_dir=None, damping=None, chosen=N
         lib = library(cache_folder(cache_dir))
         if lib is None:
             return None, library_note(cache_folder(cache_dir))
-        marcher = NativeStandIn(prob, fit.model, lib, damping, single=SINGLE)
+        marcher = NativeStandIn(prob, fit.model, lib, damping, single=SINGLE, lean=LEAN)
         marcher.info = choice.info()
         return marcher, (f"stand-in: the fit constrained to the route's continuation ({fit.model.order} of the fit's "
                          f"{fit_model.order} poles{poles}; {fit.max_rel_error:.1e} on the table), native march")

@@ -43,6 +43,13 @@
      precision; returns 2), 0 neither. -1: not available (a soil history that is not packed
      symmetric, out of memory) or, for 2, no whole run of nt samples recorded without a halved
      step: the host asks for 3 or 1 then. The defect correction's marches (orchestrator/standin.py).
+   up_sim_lean(handle, on)
+     on 1: the run's next samples are a march of the defect correction, which reads the raft's q and
+     the soil's w of each row only: the rows get those two parts (the others are left as they are),
+     the works and energies are not summed, and the soil force's K0C x of each committed state is
+     taken from the Newton iteration's S0 x instead of a product (UpStepper.lean: the samples then
+     differ from a plain run's by the iterations' round-off carried from step to step); 0 (as
+     up_sim_open leaves it): every part and the plain steps. Kept over up_sim_rewind.
    up_sim_close(handle)  frees the handle (NULL: nothing)
    up_simulate(res, size, ag, nt, rows, iters, stats, err)
      the whole motion in one call (open, the nt samples, close); returns 0, 1 or -1 as above. */
@@ -61,13 +68,18 @@ struct UpSim {
     int64_t next;               /* the first sample not computed yet */
     int64_t halved;             /* steps halved so far */
     int failed;
+    int lean;                   /* up_sim_lean: the rows' raft and soil parts only */
     char err[UP_MSG];           /* the stepper's message */
 };
 
-static void record(const UpStepper *st, const int64_t *node_dofs, int nnodes, double *row)
+static void record(const UpStepper *st, const int64_t *node_dofs, int nnodes, int lean, double *row)
 {
     size_t N = (size_t)st->N, m = (size_t)nnodes;
     memcpy(row + UP_ROW_RAFT(N, m), st->u + st->ni, 6 * sizeof(double));
+    if (lean) {
+        memcpy(row + UP_ROW_SOIL_W(N, m), st->u + st->ns, N * sizeof(double));
+        return;
+    }
     up_stepper_gap(st, row + UP_ROW_GAP(N, m));
     memcpy(row + UP_ROW_CONTACT_FORCE(N, m), st->P, N * sizeof(double));
     memcpy(row + UP_ROW_SOIL_W(N, m), st->u + st->ns, N * sizeof(double));
@@ -176,7 +188,7 @@ static int steps(UpSim *h, const double *ag, const double *src, int64_t k0, int6
             h->halved += st->last_halved;
         }
         iters[k - k0] = k > 0 ? st->last_iters : 0;
-        record(st, h->node_dofs, h->nnodes, rows + (size_t)(k - k0) * width);
+        record(st, h->node_dofs, h->nnodes, h->lean, rows + (size_t)(k - k0) * width);
     }
     h->next = k;
     stats[0] = k;
@@ -204,6 +216,11 @@ UP_API void up_sim_rewind(UpSim *h, const double *ag0)
     h->halved = 0;
     h->failed = 0;
     h->err[0] = '\0';
+}
+
+UP_API void up_sim_lean(UpSim *h, int on)
+{
+    h->lean = h->st.lean = on != 0;
 }
 
 UP_API int up_sim_correction(UpSim *h, int64_t nt, int mode)

@@ -599,6 +599,7 @@ void up_stepper_rest(UpStepper *s, const double *ag0)
     for (int i = 0; i < s->n; i++)
         s->a[i] = s->M[i] > 0 ? s->F[i] / s->M[i] : 0.0;
     memcpy(s->P, s->P0, (size_t)s->N * sizeof(double));
+    s->lean_steps = 0;
     if (!s->external)
         up_soil_rest(s->soil);
 }
@@ -1646,7 +1647,21 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
         xds_new = s->vs;
     }
     PROF_BEGIN(P_S0);
-    soil_product(s, y->K0C, s->soil->Ep ? y->K0Cp : NULL, y->K0Cd, y->hk_rank, y->hk_data, xs_new, Kx_new);
+    if (s->lean && s->enabled && !s->nf && ++s->lean_steps % UP_LEAN_ANCHOR != 0) {
+        /* a march (UpStepper.lean): K0C x from the Newton iteration's S0 x at x (Sx = (1 + al) K0C x +
+           c0 M_B x + Sq x[0:6], kept up to date by its steps), no product; the next step's S0 x starts
+           from it, so the iterations' round-off is carried from step to step, up to the next product
+           (every UP_LEAN_ANCHOR-th step) */
+        const double *Sq = y->Sq, *cM = y->Sq + 36;
+        for (int i = 0; i < nb; i++) {
+            double t = Sx[i];
+            if (i < 6)
+                t -= up_dot(Sq + 6 * i, x_new, 6);
+            Kx_new[i] = (t - cM[i] * x_new[i]) / (1 + al);
+        }
+    } else {
+        soil_product(s, y->K0C, s->soil->Ep ? y->K0Cp : NULL, y->K0Cd, y->hk_rank, y->hk_data, xs_new, Kx_new);
+    }
     PROF_END(P_S0);
     for (int i = 0; i < s->nsoil; i++)
         fs_new[i] = (Kx_new[i] + Ev[i]) + h[i];
@@ -1671,35 +1686,37 @@ static int advance(UpStepper *s, int lev, const double *ag_new, const double *h,
     } else {
         memset(R_new, 0, (size_t)n * sizeof(double));           /* not used by the average acceleration rule */
     }
-    /* works: sums of du . (f_n + f_{n+1}) / 2 */
-    double w_in = 0.0, w_damp = 0.0, w_soil = 0.0, w_contact = 0.0;
-    double *vm = s->w_n[0];
-    for (int i = 0; i < ns; i++)
-        vm[i] = 0.5 * (v[i] + v_new[i]);
-    for (int i = 0; i < n; i++)
-        w_in += (u_new[i] - u[i]) * (0.5 * (s->F[i] + F_new[i]));
-    double *Cvm = s->w_n[8];
-    up_sparse_matvec(&s->Cs_sp, vm, Cvm);
-    for (int i = 0; i < ns; i++)
-        w_damp += (u_new[i] - u[i]) * Cvm[i];
-    if (s->nf) {
-        for (int i = 0; i < s->nsoil; i++) {
-            int k = ni + soil_dof(s, i);
-            w_soil += (u_new[k] - u[k]) * (0.5 * (s->fs[i] + fs_new[i]));
+    /* works: sums of du . (f_n + f_{n+1}) / 2 (not in a march: UpStepper.lean) */
+    if (!s->lean) {
+        double w_in = 0.0, w_damp = 0.0, w_soil = 0.0, w_contact = 0.0;
+        double *vm = s->w_n[0];
+        for (int i = 0; i < ns; i++)
+            vm[i] = 0.5 * (v[i] + v_new[i]);
+        for (int i = 0; i < n; i++)
+            w_in += (u_new[i] - u[i]) * (0.5 * (s->F[i] + F_new[i]));
+        double *Cvm = s->w_n[8];
+        up_sparse_matvec(&s->Cs_sp, vm, Cvm);
+        for (int i = 0; i < ns; i++)
+            w_damp += (u_new[i] - u[i]) * Cvm[i];
+        if (s->nf) {
+            for (int i = 0; i < s->nsoil; i++) {
+                int k = ni + soil_dof(s, i);
+                w_soil += (u_new[k] - u[k]) * (0.5 * (s->fs[i] + fs_new[i]));
+            }
+            for (int i = 0; i < nb; i++)
+                w_contact += (u_new[ni + i] - u[ni + i]) * (0.5 * (s->fc[i] + fc_new[i]));
+        } else {
+            for (int i = 0; i < nb; i++) {
+                double du = u_new[ni + i] - u[ni + i];
+                w_soil += du * (0.5 * (s->fs[i] + fs_new[i]));
+                w_contact += du * (0.5 * (s->fc[i] + fc_new[i]));
+            }
         }
-        for (int i = 0; i < nb; i++)
-            w_contact += (u_new[ni + i] - u[ni + i]) * (0.5 * (s->fc[i] + fc_new[i]));
-    } else {
-        for (int i = 0; i < nb; i++) {
-            double du = u_new[ni + i] - u[ni + i];
-            w_soil += du * (0.5 * (s->fs[i] + fs_new[i]));
-            w_contact += du * (0.5 * (s->fc[i] + fc_new[i]));
-        }
+        s->work[W_INPUT] += w_in;
+        s->work[W_DAMPING] += w_damp;
+        s->work[W_SOIL] += w_soil;
+        s->work[W_CONTACT] += w_contact;
     }
-    s->work[W_INPUT] += w_in;
-    s->work[W_DAMPING] += w_damp;
-    s->work[W_SOIL] += w_soil;
-    s->work[W_CONTACT] += w_contact;
     memcpy(s->u, u_new, (size_t)n * sizeof(double));
     memcpy(s->v, v_new, (size_t)n * sizeof(double));
     memcpy(s->a, a_new, (size_t)n * sizeof(double));

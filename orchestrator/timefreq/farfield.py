@@ -27,7 +27,7 @@ import numpy as np
 from scipy.linalg.blas import cspmv, zspmv
 
 from orchestrator.timefreq.operator import _span
-from orchestrator.timefreq.setup_cache import entry_path, read_arrays, setup_key, write_arrays
+from orchestrator.timefreq.setup_cache import entry_path, read_mapped, setup_key, write_mapped
 from orchestrator.timefreq.soil import AffineBand, MatrixBand, dense, upper_pairs
 
 #: |h_k - c (-1)^k| <= ALTERNATING_RTOL |c| over the lags 1 .. nt-1 for the closed form to be used
@@ -53,8 +53,8 @@ class AffineSplit:
 
     The dense bands' D and whether S is symmetric (its packing) are kept in the operator's cache
     folder (``op.cache_dir``; setup_cache, ``tf-split``), keyed on the table's data, the bands,
-    the grid's s, the raft's trace and Zqq^-1: a second split of the same inputs reads them
-    (the same bits) instead of making them again."""
+    the grid's s, the raft's trace and Zqq^-1: a second split of the same inputs maps them
+    (``read_mapped``: the same bits, read-only) instead of making them again."""
 
     def __init__(self, op, grid):
         self.op, self.grid = op, grid
@@ -86,7 +86,7 @@ class AffineSplit:
         path = entry_path(getattr(op, "cache_dir", None), "split", setup_key(
             "split", getattr(op.soil, "table", None), [(type(b).__name__, b.idx, getattr(b, "W", None)) for b in bands],
             op.s, np.asarray(op.Bq, float), op.Zinv))
-        kept = read_arrays(path, [f"D{k}" for k in range(len(matrix))], attrs=("packed",))
+        kept = read_mapped(path, [f"D{k}" for k in range(len(matrix))], attrs=("packed",))
         if kept is not None:
             self.packed = bool(kept[1]["packed"])
             self.upper = upper_pairs(N) if self.packed else None
@@ -100,7 +100,7 @@ class AffineSplit:
         self.packed = op.symmetric()
         self.upper = upper_pairs(N) if self.packed else None
         self.dense = [(b.idx, self._dense_part(op, b, Ad, Bd, self.upper)) for b in matrix]
-        write_arrays(path, {f"D{k}": D for k, (_, D) in enumerate(self.dense)}, {"packed": self.packed})
+        write_mapped(path, {f"D{k}": D for k, (_, D) in enumerate(self.dense)}, {"packed": self.packed})
 
     @staticmethod
     def _dense_part(op, band, A, B, upper=None, chunk=16):

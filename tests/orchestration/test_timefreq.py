@@ -515,3 +515,48 @@ def test_native_marches_in_correction_form_differ_by_single_precision_of_the_cha
     assert once["halved"] > 0 and once["single"] and twice["single"] and not twice["correction"]   # no record
     assert 0 < rel(h32, h64) < 1e-6 and np.array_equal(h32_again, h32)
     halves.close()
+
+
+def test_lean_native_marches_leave_out_only_what_a_march_does_not_read():
+    """NativeStandIn(lean=True) (simulate.c's up_sim_lean; the route's stand-in: standin.LEAN): the
+    rows get the raft's q and the soil's w only (the other parts are not written), no works nor
+    energies are summed, and the soil force's K0C x of a committed state is the Newton iteration's
+    S0 x less its structural part, a product at every UP_LEAN_ANCHOR-th step only. Against the
+    plain march of the same source: the same contact history to 1e-9 of its largest value (the
+    iterations' round-off carried over at most 8 steps; measured 1.4e-11), another sum, so not the
+    same bits; a rewound lean run marches the same bits as a new one. A defect correction on the
+    lean stand-in (the problem's own rational soil: the residual is the grid's) reaches the plain
+    stand-in's fixed point to 1e-9 (measured 3e-12) in as many sweeps."""
+    from fmus.native_stepper import library
+    from fmus.schema import row_slices
+    from orchestrator.standin import NativeStandIn
+    from orchestrator.timefreq.march import defect_correction
+
+    if library() is None:
+        pytest.skip("no C compiler here")
+    model, prob = _standin_problem()
+    N, nt = prob.f.shape
+    W = 0.3 * np.abs(prob.f).max() * np.sin(2 * np.pi * 1.3 * 0.005 * np.arange(nt))[None, :] * np.linspace(-1, 1, N)[:, None]
+    plain, lean = NativeStandIn(prob, model, library()), NativeStandIn(prob, model, library(), lean=True)
+    p_w, l_w = plain.march(1.0, W)[0], lean.march(1.0, W)[0]
+    assert (p_w > prob.static.delta0[:, None]).any()                                   # lifted
+    assert not np.array_equal(l_w, p_w) and rel(l_w, p_w) < 1e-9
+    at = row_slices(N, 0)
+    lean._rows[:] = np.nan                                   # what the lean run leaves unwritten stays NaN
+    again, info = lean.march(1.0, W)
+    assert np.array_equal(again, l_w) and info["steps"] == nt
+    rows = lean._rows[1:]
+    assert np.isfinite(rows[:, at["raft"]]).all() and np.isfinite(rows[:, at["soil_w"]]).all()
+    written = np.zeros(rows.shape[1], bool)
+    written[at["raft"]] = written[at["soil_w"]] = True
+    assert np.isnan(rows[:, ~written]).all()
+    assert np.array_equal(NativeStandIn(prob, model, library(), lean=True).march(1.0, W)[0], l_w)     # a new run's
+    lean.close()
+    plain.close()
+
+    out = {k: defect_correction(prob, tol=1e-9, stand_in=NativeStandIn(prob, model, library(), lean=k, single=True))
+           for k in (False, True)}
+    assert out[False].converged and out[True].converged
+    assert len(out[True].history) == len(out[False].history)
+    d = {k: o.y for k, o in out.items()}
+    assert rel(d[True], d[False]) < 1e-9

@@ -263,3 +263,71 @@ def test_the_solves_set_up_is_cached_and_gives_the_same_bits(tmp_path, monkeypat
         warnings.simplefilter("error", CacheWarning)
         run(records[0], changed)
     assert len(list(cache.glob("tf-split-*.h5"))) == 2 and len(list(cache.glob("tf-rows-*.h5"))) == 2
+
+
+def test_the_split_entry_is_read_mapped_and_a_changed_byte_is_never_read(tmp_path, monkeypatch):
+    """setup_cache.read_mapped (the tf-split entry, written by write_mapped): the arrays come back
+    the same bits, memory-mapped read-only, and a second read in the same process returns the kept
+    arrays without mapping the file again. One byte of the file changed (every byte of the arrays
+    and of their CRC-32 attributes, and every 19th byte of the rest, HDF5's own): either the entry
+    is refused (None, a CacheWarning, the file moved aside) or what is read is the same bits and
+    attributes (a byte HDF5 keeps for itself, not read); every change in the arrays' bytes or
+    their CRCs is refused. The kept file rewritten in place (its times change) is checked again."""
+    import warnings
+
+    import h5py
+
+    import orchestrator.timefreq.setup_cache as sc
+    from soil_impedance.cache import CacheWarning
+
+    rng = np.random.default_rng(3)
+    arrays = {"D0": rng.standard_normal((2, 6)) + 1j * rng.standard_normal((2, 6)),
+              "D1": rng.standard_normal((1, 3, 3)) + 1j * rng.standard_normal((1, 3, 3))}
+    names, shapes = list(arrays), [a.shape for a in arrays.values()]
+    path = tmp_path / "tf-split-x.h5"
+    sc.write_mapped(path, arrays, {"packed": True})
+    out, attrs = sc.read_mapped(path, names, shapes, attrs=("packed",))
+    assert all(np.array_equal(a, arrays[k]) and not a.flags.writeable for a, k in zip(out, names))
+    assert bool(attrs["packed"])
+
+    def unmapped(*args, **kwargs):
+        raise AssertionError("mapped again")
+    with monkeypatch.context() as m:                       # kept: the same file is not mapped again
+        m.setattr(np, "memmap", unmapped)
+        assert sc.read_mapped(path, names, shapes, attrs=("packed",))[0][1] is out[1]
+
+    checked = set()                                          # the bytes read_mapped reads: data and CRCs
+    data = path.read_bytes()
+    with h5py.File(path, "r") as f:
+        for k in names:
+            start = f[k].id.get_offset()
+            checked.update(range(start, start + f[k].id.get_storage_size()))
+            crc = data.find(int(f[k].attrs[sc.CRC_ATTR]).to_bytes(4, "little"))
+            assert crc >= 0
+            checked.update(range(crc, crc + 4))
+    refused = 0
+    for pos in sorted(checked | set(range(0, len(data), 19))):
+        copy = tmp_path / "flip.h5"
+        changed = bytearray(data)
+        changed[pos] ^= 0x5A
+        copy.write_bytes(bytes(changed))
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            got = sc.read_mapped(copy, names, shapes, attrs=("packed",))
+        if got is None:
+            refused += 1
+            assert any(issubclass(w.category, CacheWarning) for w in said) and not copy.exists()
+        else:
+            assert pos not in checked, f"byte {pos} changed and read"
+            assert all(np.array_equal(a, arrays[k]) for a, k in zip(got[0], names)) and bool(got[1]["packed"])
+        for p in tmp_path.glob("flip*"):
+            p.unlink()
+    assert refused >= len(checked)
+
+    sc._MAPPED.clear()
+    assert sc.read_mapped(path, names, shapes, attrs=("packed",))[0][0] is not out[0]      # kept again
+    changed = bytearray(data)
+    changed[min(checked)] ^= 0x01
+    path.write_bytes(bytes(changed))                        # rewritten in place: checked again, refused
+    with pytest.warns(CacheWarning, match="damaged cache entry"):
+        assert sc.read_mapped(path, names, shapes, attrs=("packed",)) is None

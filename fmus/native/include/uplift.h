@@ -140,6 +140,8 @@
 #define UP_MSG 1024           /* length of an error message buffer */
 #define UP_MAXLEV 31          /* step-halving levels: dt / 2**k, k = 0 .. max_subdiv <= 30 */
 #define UP_NCACHE 16          /* Newton matrices kept (per level and active set) */
+#define UP_LEAN_ANCHOR 8      /* a lean run's K0C x by its product at every 8th step: the Newton iterations'
+                                 round-off carried between them (stepper.c, advance) */
 
 /* ---- resources.c: the binary resource file ------------------------------------------------ */
 enum { UP_F64 = 1, UP_I64 = 2, UP_TEXT = 3 };
@@ -377,6 +379,12 @@ typedef struct {
     size_t hk_len;            /* the values of a level's K0C blocks (UpSystem.hk_data) */
     size_t *hk_off;           /* (m_r + 2 m_c + 2, hm_nblk): where each term's values of a block start (the
                                  history blocks' in hm_data, D's and E's in hm_de_data) */
+    int lean;                 /* 1: a march of the time-frequency route's defect correction (simulate.c,
+                                 up_sim_lean): the works not summed, and K0C x of the committed state taken
+                                 from the Newton iteration's S0 x (a rigid raft in contact) instead of a
+                                 product but at every UP_LEAN_ANCHOR-th step; 0 (the default): every
+                                 route's steps */
+    long lean_steps;          /* steps since rest (up_stepper_rest) of a lean run */
 } UpStepper;
 
 int up_stepper_init(UpStepper *s, const UpRes *r, UpSoil *soil, int external, char *err);
