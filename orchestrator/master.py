@@ -84,12 +84,12 @@ class FmuSlave:
                        modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=self.name)
         dll = self.fmu.dll                 # the functions fmpy typed (argtypes, restype) at load
         if self.version == 3:
-            self.fmu.instantiate(loggingOn=True, logMessage=self._logger3())
+            self._instantiate(loggingOn=True, logMessage=self._logger3())
             self._get_real, self._set_real, self._do_step = dll.fmi3GetFloat64, dll.fmi3SetFloat64, dll.fmi3DoStep
             self._flags = (fmi3Boolean(), fmi3Boolean(), fmi3Boolean(), ctypes.c_double())
             self._flag_refs = [ctypes.byref(f) for f in self._flags]
         else:
-            self.fmu.instantiate(callbacks=self._callbacks(), loggingOn=True)
+            self._instantiate(callbacks=self._callbacks(), loggingOn=True)
             self._get_real, self._set_real, self._do_step = dll.fmi2GetReal, dll.fmi2SetReal, dll.fmi2DoStep
             self._flag_refs = ()
         self._component = self.fmu.component
@@ -106,6 +106,15 @@ class FmuSlave:
         self.t = 0.0
         if parameters:
             self.set_parameters(parameters)
+
+    def _instantiate(self, **kw) -> None:
+        """fmpy's instantiate, whose failure (a bare Exception) becomes a CosimError with the FMU's
+        own message (a native FMU's damaged resource file: its checksum, which extract_fmu leaves
+        to it)."""
+        try:
+            self.fmu.instantiate(**kw)
+        except Exception as exc:
+            raise CosimError(f"FMU {self.name!r}: instantiation failed ({exc}): {self._reason()}") from None
 
     def _length(self, v) -> int:
         """Number of values of a variable (FMI 3.0: the product of its dimensions)."""

@@ -316,9 +316,8 @@ int up_do_step(UpInstance *I, double t, double h)
        model changes only the held input and the stepper's inputs (ag_next, h_ext) before its
        stepper step, which leaves the state as it found it when it fails: those are kept; the
        soil's step (always a single one) fails only when take() refuses its stamp, before it
-       changes anything: its held input is kept all the same (copying its whole state block,
-       ~40 kB on the reactor, was a tenth of the cost of its step's own work outside the products);
-       several steps of the coupled model: the whole state block */
+       changes anything: its held input is kept all the same (its whole state block, 41 kB on the
+       reactor, was copied before every step); several steps of the coupled model: the whole block */
     int whole = steps > 1;
     double *in = I->st.ag_next, *keep = I->backup + 1 + I->held_len;
     size_t in_len = whole || !I->has_stepper ? 0 : 3 + (size_t)I->st.nb;     /* ag_next and h_ext, consecutive */
