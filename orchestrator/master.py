@@ -24,14 +24,17 @@ that row (``FmuSlave.mover``: raw fmi2GetReal / fmi2SetReal on addresses).
 from __future__ import annotations
 
 import ctypes
+import functools
+import os
 import tempfile
 import time as _time
+import zipfile
 from pathlib import Path
 from types import SimpleNamespace
 from xml.parsers import expat
 
 import numpy as np
-from fmpy import extract, read_model_description
+from fmpy import read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave, defaultCallbacks, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
 from fmpy.fmi3 import FMU3Slave, fmi3Boolean
@@ -46,6 +49,8 @@ FMI2_TYPES = ("Real", "Integer", "Boolean", "String", "Enumeration")
 #: the debug logging and an event per step only with it on
 NATIVE_TOOL = "uplift native"
 FMI2_WARNING = 1                    # fmi2Status (fmi3Status) above which a call failed (discard, error, fatal)
+#: the master reports progress about this many times a run (and after the last step), not every step
+PROGRESS_CALLS = 100
 
 
 class CosimError(ComputationError):
@@ -69,7 +74,7 @@ class FmuSlave:
     def __init__(self, path, name: str | None = None, parameters: dict | None = None):
         self.path = Path(path)
         self._tmp = tempfile.TemporaryDirectory(prefix=f"uplift_{name or self.path.stem}_")
-        self.dir = extract(str(self.path), self._tmp.name, include=needed_member)
+        self.dir = extract_fmu(self.path, self._tmp.name)
         self.md = model_description(Path(self.dir) / "modelDescription.xml")
         self.version = 3 if self.md.fmiVersion.startswith("3") else 2
         self.name = name or self.md.modelName
@@ -79,13 +84,15 @@ class FmuSlave:
                        modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=self.name)
         dll = self.fmu.dll                 # the functions fmpy typed (argtypes, restype) at load
         if self.version == 3:
-            self.fmu.instantiate(loggingOn=True, logMessage=self._logger3())
+            self._instantiate(loggingOn=True, logMessage=self._logger3())
             self._get_real, self._set_real, self._do_step = dll.fmi3GetFloat64, dll.fmi3SetFloat64, dll.fmi3DoStep
             self._flags = (fmi3Boolean(), fmi3Boolean(), fmi3Boolean(), ctypes.c_double())
             self._flag_refs = [ctypes.byref(f) for f in self._flags]
         else:
-            self.fmu.instantiate(callbacks=self._callbacks(), loggingOn=True)
+            self._instantiate(callbacks=self._callbacks(), loggingOn=True)
             self._get_real, self._set_real, self._do_step = dll.fmi2GetReal, dll.fmi2SetReal, dll.fmi2DoStep
+            self._flag_refs = ()
+        self._component = self.fmu.component
         if (self.md.generationTool or "").startswith(NATIVE_TOOL):
             self.fmu.setDebugLogging(False, [])     # no event (a callback into Python) per step
         self.vars = {v.name: v for v in self.md.modelVariables}
@@ -99,6 +106,15 @@ class FmuSlave:
         self.t = 0.0
         if parameters:
             self.set_parameters(parameters)
+
+    def _instantiate(self, **kw) -> None:
+        """fmpy's instantiate, whose failure (a bare Exception) becomes a CosimError with the FMU's
+        own message (a native FMU's damaged resource file: its checksum, which extract_fmu leaves
+        to it)."""
+        try:
+            self.fmu.instantiate(**kw)
+        except Exception as exc:
+            raise CosimError(f"FMU {self.name!r}: instantiation failed ({exc}): {self._reason()}") from None
 
     def _length(self, v) -> int:
         """Number of values of a variable (FMI 3.0: the product of its dimensions)."""
@@ -163,8 +179,8 @@ class FmuSlave:
             def move(address, _vr=vr):               # _vr: the references live as long as the mover
                 return raw(comp, ptr, nvr, address, nval)
         else:
-            def move(address, _vr=vr):
-                return raw(comp, ptr, nvr, address)
+            move = functools.partial(raw, comp, ptr, nvr)   # no Python frame per call
+            move.vr = vr                                    # the references live as long as the mover
         move.size = nval
         move.what = f"{'setting' if setting else 'getting'} {', '.join(names)}"
         move.function = fn.__name__
@@ -216,8 +232,7 @@ class FmuSlave:
         self.t = start_time
 
     def do_step(self, t: float, dt: float) -> None:
-        flags = self._flag_refs if self.version == 3 else ()
-        if self._do_step(self.fmu.component, t, dt, 1, *flags) > FMI2_WARNING:
+        if self._do_step(self._component, t, dt, 1, *self._flag_refs) > FMI2_WARNING:
             self._failed(f"step at t = {t:.6g} s", self._do_step.__name__)
         self.t = t + dt
 
@@ -278,6 +293,69 @@ def needed_member(name: str) -> bool:
     return not name.startswith(("sources/", "documentation/"))
 
 
+#: the native runtime's resource file (fmus/native_build.py: stored, not deflated) and the magic it
+#: starts with: the runtime checks the file's own CRC-32, size and extents when it loads it
+#: (fmus/native/resources.c), so extract_fmu copies it out of the archive without zipfile's CRC pass
+NATIVE_RESOURCE, NATIVE_MAGIC = "resources/uplift.bin", b"UPLIFTNB"
+
+
+def extract_fmu(path, folder) -> str:
+    """Extract the members of the FMU ``path`` an importer needs (``needed_member``) into
+    ``folder``, with fmpy.extract's checks of the member names; returns ``folder`` as a str.
+
+    The native runtime's stored resource file (NATIVE_RESOURCE, starting with NATIVE_MAGIC: a few
+    MB, read and checked by the runtime at every instantiation) is copied by the kernel
+    (os.copy_file_range where there is one) without zipfile's CRC-32, which the runtime's own check
+    repeats: 7-10 ms -> 3-5 ms CPU an FMU of the reactor. Every other member, or a resource file of
+    another kind, goes through zipfile (its CRC checked)."""
+    folder = Path(folder)
+    with zipfile.ZipFile(path) as zf:
+        infos = zf.infolist()
+        for info in infos:
+            name = info.filename
+            if "\\" in name or ":" in name or name.startswith("/"):
+                raise CosimError(f"{path}: illegal member name {name!r} (forward slashes, no drive letter, no "
+                                 "leading slash): export the FMU again")
+        for info in infos:
+            if needed_member(info.filename) and not (info.filename == NATIVE_RESOURCE and _copy_stored(path, info, folder)):
+                zf.extract(info, folder)
+    return str(folder)
+
+
+def _copy_stored(path, info, folder: Path) -> bool:
+    """Copy the stored, unencrypted member ``info`` of the archive ``path`` to its place in
+    ``folder`` when its data start with NATIVE_MAGIC; False (nothing written) otherwise."""
+    if info.compress_type != zipfile.ZIP_STORED or info.flag_bits & 1:
+        return False
+    with open(path, "rb") as src:
+        src.seek(info.header_offset)
+        head = src.read(30)                               # the local file header
+        if head[:4] != b"PK\x03\x04":
+            return False
+        start = info.header_offset + 30 + int.from_bytes(head[26:28], "little") + int.from_bytes(head[28:30], "little")
+        src.seek(start)
+        if src.read(len(NATIVE_MAGIC)) != NATIVE_MAGIC:
+            return False
+        dest = folder / info.filename
+        dest.parent.mkdir(parents=True, exist_ok=True)
+        with open(dest, "wb") as dst:
+            left, pos = info.file_size, start
+            copy = getattr(os, "copy_file_range", None)
+            while left > 0 and copy is not None:
+                done = copy(src.fileno(), dst.fileno(), left, pos)
+                if done <= 0:
+                    break
+                left, pos = left - done, pos + done
+            if left > 0:                                  # no copy_file_range here (or it stopped)
+                src.seek(pos)
+                dst.seek(info.file_size - left)
+                dst.write(src.read(left))
+        if dest.stat().st_size != info.file_size:
+            raise CosimError(f"{path}: {info.filename} could not be extracted ({dest.stat().st_size} of "
+                             f"{info.file_size} bytes written)")
+    return True
+
+
 class _Done(Exception):
     """The model variables are read: the rest of the model description is not parsed."""
 
@@ -336,7 +414,8 @@ def output_nodes(structure: FmuSlave) -> list:
 class Timer:
     """Wall and CPU (process) time per part of a co-simulation step, s: ``add(part)`` books
     the time since the previous ``add`` or ``mark`` to ``part``; ``rest(part, since)`` books to
-    ``part`` what the other parts do not hold of the time since ``since`` (a ``now()``)."""
+    ``part`` what the other parts do not hold of the time since ``since`` (a ``now()``);
+    ``Timer.share`` (the master's loop) builds one from parts timed by the wall clock alone."""
 
     def __init__(self):
         self.parts = {"structure step": 0.0, "soil step": 0.0, "transfers": 0.0}
@@ -361,6 +440,22 @@ class Timer:
         others = [p for p in self.parts if p != part and p != "initialisation"]
         self.parts[part] = max(0.0, wall - since[0] - sum(self.parts[p] for p in others))
         self.cpu[part] = max(0.0, cpu - since[1] - sum(self.cpu[p] for p in others))
+
+    @classmethod
+    def share(cls, since, walls: dict, rest: str) -> Timer:
+        """A Timer of the loop begun at ``since`` (a ``now()``) whose parts ``walls`` ({part: wall
+        s}) were timed with the wall clock alone: ``rest`` gets the loop's wall time the others do
+        not hold, and the loop's CPU time (read here and at ``since`` only) is shared out over the
+        parts in proportion to their wall times. The process CPU clock is a system call (~2 us):
+        read around every FMU step it cost 4 % of a co-simulation of the reactor."""
+        wall, cpu = cls.now()
+        total, cpu_total = wall - since[0], max(0.0, cpu - since[1])
+        timer = cls()
+        timer.parts.update(walls)
+        timer.parts[rest] = max(0.0, total - sum(walls.values()))
+        scale = cpu_total / total if total > 0 else 0.0
+        timer.cpu = {part: scale * w for part, w in timer.parts.items()}
+        return timer
 
 
 def cosimulate(structure_fmu, soil_fmu, ag, dt: float, schedule: str = "gauss-seidel",
@@ -421,58 +516,59 @@ def _run(S, G, ag, dt, schedule, route, progress, start):
     y0, ys, u0, us = Y.ctypes.data, Y.strides[0], U.ctypes.data, U.strides[0]
     if get_y(y0) > FMI2_WARNING:
         S.failed(get_y)
-    timer = Timer()
-    timer.parts["initialisation"] = _time.perf_counter() - start[0]
-    timer.cpu["initialisation"] = _time.process_time() - start[1]
-    # the clocks are read around the doSteps only (two reads of each a step and FMU: the CPU clock is a
-    # system call); the transfers are the rest of the loop: FMI get/set, the master's own work
-    loop = timer.now()
-
-    def soil_step(t, row):                       # G takes the structure's outputs of row `row`
-        if set_x(y0 + row * ys) > FMI2_WARNING:
-            G.failed(set_x)
-        timer.mark()
-        G.do_step(t, dt)
-        timer.add("soil step")
-
-    def take_g(k):                               # the soil's g, g_time into row k of U
-        if get_g(u0 + k * us) > FMI2_WARNING:
-            G.failed(get_g)
-
-    def structure_inputs(k):                     # S takes row k of U
-        if set_s(u0 + k * us) > FMI2_WARNING:
-            S.failed(set_s)
-
-    def structure_step(t, k):
-        structure_inputs(k)
-        timer.mark()
-        S.do_step(t, dt)
-        timer.add("structure step")
-        if get_y(y0 + k * ys) > FMI2_WARNING:
-            S.failed(get_y)
-
-    done, message = 1, ""                       # rows of Y filled
+    init_wall, init_cpu = _time.perf_counter() - start[0], _time.process_time() - start[1]
+    pc, W = _time.perf_counter, FMI2_WARNING
+    s_step, g_step = S.do_step, G.do_step      # looked up once (a caller may have replaced one)
+    soil_row = 1 if schedule == "jacobi" else 0  # the soil takes row k - soil_row (jacobi: the outputs at t)
+    every = max(1, nt // PROGRESS_CALLS)
+    # only the wall clock is read in the loop, around the two doSteps (perf_counter: no system call);
+    # the process CPU clock (a system call, ~2 us) at its two ends: see Timer.share
+    ws = wg = 0.0                                # wall s in the structure's and the soil's doStep
+    loop = _time.perf_counter(), _time.process_time()
+    done, message = 1, ""                        # rows of Y filled
     try:
         for k in range(1, nt):
             t = (k - 1) * dt
-            if schedule == "jacobi":              # each from the other's outputs at t
-                take_g(k)
-                structure_step(t, k)
-                soil_step(t, k - 1)
-            elif schedule == "soil-first":
-                soil_step(t, k - 1)
-                take_g(k)
-                structure_step(t, k)
-            else:
-                take_g(k)
-                structure_step(t, k)
-                soil_step(t, k)
+            yk, uk = y0 + k * ys, u0 + k * us
+            if schedule == "soil-first":         # G <- x at t; G.doStep; S <- g (new); S.doStep
+                if set_x(yk - ys) > W:
+                    G.failed(set_x)
+                a = pc()
+                g_step(t, dt)
+                b = pc()
+                if get_g(uk) > W:
+                    G.failed(get_g)
+                if set_s(uk) > W:
+                    S.failed(set_s)
+                c = pc()
+                s_step(t, dt)
+                d = pc()
+                if get_y(yk) > W:
+                    S.failed(get_y)
+            else:                                # S <- g; S.doStep; G <- x (at t + dt, jacobi: at t); G.doStep
+                if get_g(uk) > W:
+                    G.failed(get_g)
+                if set_s(uk) > W:
+                    S.failed(set_s)
+                c = pc()
+                s_step(t, dt)
+                d = pc()
+                if get_y(yk) > W:
+                    S.failed(get_y)
+                if set_x(yk - soil_row * ys) > W:
+                    G.failed(set_x)
+                a = pc()
+                g_step(t, dt)
+                b = pc()
+            ws += d - c
+            wg += b - a
             done = k + 1
-            if progress is not None:
+            if progress is not None and (done % every == 0 or done == nt):
                 progress(done, nt)
     except CosimError as exc:
         message = str(exc)
-    timer.rest("transfers", loop)
+    timer = Timer.share(loop, {"structure step": ws, "soil step": wg}, "transfers")
+    timer.parts["initialisation"], timer.cpu["initialisation"] = init_wall, init_cpu
     cols = _columns(Y[:done], names, [S.size(nm) for nm in names])
     x = cols["x"]
     headline = S.get("max_uplift", "max_raft_rotation")

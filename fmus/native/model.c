@@ -314,17 +314,20 @@ int up_do_step(UpInstance *I, double t, double h)
     }
     /* the instance as it was if a step fails: a single step of the structure or the coupled
        model changes only the held input and the stepper's inputs (ag_next, h_ext) before its
-       stepper step, which leaves the state as it found it when it fails: those are kept; else the
-       whole state block */
-    int whole = steps > 1 || !I->has_stepper;
+       stepper step, which leaves the state as it found it when it fails: those are kept; the
+       soil's step (always a single one) fails only when take() refuses its stamp, before it
+       changes anything: its held input is kept all the same (its whole state block, 41 kB on the
+       reactor, was copied before every step); several steps of the coupled model: the whole block */
+    int whole = steps > 1;
     double *in = I->st.ag_next, *keep = I->backup + 1 + I->held_len;
-    size_t in_len = whole ? 0 : 3 + (size_t)I->st.nb;     /* ag_next and h_ext, consecutive */
+    size_t in_len = whole || !I->has_stepper ? 0 : 3 + (size_t)I->st.nb;     /* ag_next and h_ext, consecutive */
     if (whole) {
         memcpy(I->backup, I->block, I->block_len * sizeof(double));
     } else {
         I->backup[0] = *I->held_t;
         memcpy(I->backup + 1, I->held, (size_t)I->held_len * sizeof(double));
-        memcpy(keep, in, in_len * sizeof(double));
+        if (in_len)
+            memcpy(keep, in, in_len * sizeof(double));
     }
     int rc = 0;
     for (long i = 0; i < (long)steps && rc == 0; i++)
@@ -335,7 +338,8 @@ int up_do_step(UpInstance *I, double t, double h)
         } else {
             *I->held_t = I->backup[0];
             memcpy(I->held, I->backup + 1, (size_t)I->held_len * sizeof(double));
-            memcpy(in, keep, in_len * sizeof(double));
+            if (in_len)
+                memcpy(in, keep, in_len * sizeof(double));
         }
         if (rc == UP_REFUSED)
             return refuse(I, t, I->err);

@@ -18,6 +18,9 @@
    next without the part driven by the state committed next (fmus/coupling.py). Its own history for
    the commit of u_n is then what it published two steps before plus that part, h_n = g_n + Gx u_{n-1}
    with the constant gain Gx = sum_k R_k b_k (a_k + 1): one product over H per step, as the stepper.
+   With real poles only (packed blocks), h_{n+1} and g_{n+2} come from the same block products
+   P_k = R_k (a_k y_k + b_k u_n) after the commit of u_n: h_{n+1} = sum P_k, g_{n+2} = sum a_k P_k, and
+   Gx u is not needed (real_packed, next_histories).
    Its outputs, the force f_n = (D0 u_n + E u'_n) + h_n and the work done on it, are not needed by
    the step itself: the step keeps E u'_n and h_n, and accumulates the work of the force's part
    E u' + h, sum du . ((E u' + h)_n + (E u' + h)_{n-1}) / 2. The part D0 u telescopes (D0 is
@@ -768,16 +771,53 @@ void up_soil_ahead(UpSoil *s, int lev, double *g)
     history_product(s, s->g, g);
 }
 
+/* A soil stepped alone whose poles are all real and whose history is held as packed blocks (a fit's
+   reciprocal residues, not compressed): see up_soil_step */
+static int real_packed(const UpSoil *s)
+{
+    return s->Hs && !s->hm_perm && s->mc == 0;
+}
+
+/* real_packed: from the pole states and input of the commit just made, the history of the next commit
+   h = sum_k P_k and the history published for the step after next g = sum_k a_k P_k, with P_k = R_k
+   (a_k y_k + b_k u) the block products (each into its part, the parts summed in the blocks' order) */
+static void next_histories(UpSoil *s, int lev, double *h, double *g)
+{
+    const UpSoilLevel *lv = &s->lev[lev];
+    int n = s->n, nb = s->mr;
+    size_t packed = (size_t)n * (n + 1) / 2;
+    stack(s, lv, s->yr, s->yc, s->u, s->g);
+    s->flip = !s->flip;
+    memset(s->part, 0, s->L * sizeof(double));
+    for (int q = 0; q < nb; q++) {
+        int b = s->flip ? nb - 1 - q : q;
+        up_spmv_add(s->Hs + (size_t)b * packed, n, s->g + (size_t)b * n, s->part + (size_t)b * n);
+    }
+    memset(h, 0, (size_t)n * sizeof(double));
+    memset(g, 0, (size_t)n * sizeof(double));
+    for (int b = 0; b < nb; b++) {
+        up_axpy(1.0, s->part + (size_t)b * n, n, h);
+        up_axpy(lv->ar[b], s->part + (size_t)b * n, n, g);
+    }
+}
+
 void up_soil_step(UpSoil *s, int lev, const double *x, const double *xd, double *g)
 {
-    /* h_n = g_n + Gx u_{n-1} for the commit of x = u_n (gq: g_n, published two steps before), E x'_n,
+    /* h_n for the commit of x = u_n: g_n + Gx u_{n-1} (gq: g_n, published two steps before); then E x'_n,
        the work of E x' + h over the step; then g_{n+2} (gp, published). D0 x, the force and the total
-       work wait until they are read (up_soil_outputs) */
-    int n = s->n;
+       work wait until they are read (up_soil_outputs). With real poles only and packed blocks
+       (real_packed), the commit before left h_n itself in gq, from the block products that gave the
+       g it published (next_histories): no product with Gx, one packed n x n product a step less; the
+       history published differs from the other way's by round-off (a_k R_k v against R_k (a_k v)) */
+    int n = s->n, real = real_packed(s);
     double *h = s->fbuf + n, *ev = s->fbuf + 2 * (size_t)n;
-    up_symv(s->Gx, s->Gxp, n, s->u, h);
-    for (int i = 0; i < n; i++)
-        h[i] = s->gq[i] + h[i];
+    if (real) {
+        memcpy(h, s->gq, (size_t)n * sizeof(double));
+    } else {
+        up_symv(s->Gx, s->Gxp, n, s->u, h);
+        for (int i = 0; i < n; i++)
+            h[i] = s->gq[i] + h[i];
+    }
     up_symv(s->E, s->Ep, n, xd, ev);
     double w = 0.0;
     for (int i = 0; i < n; i++)
@@ -789,8 +829,12 @@ void up_soil_step(UpSoil *s, int lev, const double *x, const double *xd, double 
     memcpy(s->ev, ev, (size_t)n * sizeof(double));
     memcpy(s->hn, h, (size_t)n * sizeof(double));
     *s->stale = 1.0;
-    memcpy(s->gq, s->gp, (size_t)n * sizeof(double));
-    up_soil_ahead(s, lev, s->gp);
+    if (real) {
+        next_histories(s, lev, s->gq, s->gp);
+    } else {
+        memcpy(s->gq, s->gp, (size_t)n * sizeof(double));
+        up_soil_ahead(s, lev, s->gp);
+    }
     memcpy(g, s->gp, (size_t)n * sizeof(double));
 }
 

@@ -70,3 +70,28 @@ def test_model_description_reads_as_fmpy_reads_it(request, pair):
         fields = ("name", "valueReference", "type", "causality")
         got = [tuple(getattr(v, f) for f in fields) for v in md.modelVariables]
         assert got == [tuple(getattr(v, f) for f in fields) for v in ref.modelVariables] and len(got) > 100
+
+
+def test_native_resource_copied_exactly_and_a_damaged_one_refused(exported_native, tmp_path):
+    """extract_fmu copies the native resource file out of the archive without zipfile's CRC pass:
+    the copy is the archive's bytes, and a file with one bit flipped is refused by the runtime's own
+    checksum when the FMU is instantiated (a CosimError naming the file and the fix)."""
+    import zipfile
+    from pathlib import Path
+
+    from orchestrator.master import NATIVE_RESOURCE
+    path = Path(exported_native.soil)
+    with zipfile.ZipFile(path) as z:
+        info, stored = z.getinfo(NATIVE_RESOURCE), z.read(NATIVE_RESOURCE)
+    assert info.compress_type == zipfile.ZIP_STORED and len(stored) > 1000
+    with FmuSlave(path, "soil") as fmu:
+        assert (Path(fmu.dir) / NATIVE_RESOURCE).read_bytes() == stored
+    data = bytearray(path.read_bytes())
+    head = info.header_offset
+    start = head + 30 + int.from_bytes(data[head + 26:head + 28], "little") + int.from_bytes(data[head + 28:head + 30], "little")
+    assert bytes(data[start:start + len(stored)]) == stored
+    data[start + len(stored) // 2] ^= 1
+    bad = tmp_path / "soil.fmu"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(CosimError, match=r"uplift.bin is damaged \(checksum\): export the FMU again"):
+        FmuSlave(bad, "soil")

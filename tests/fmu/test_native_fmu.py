@@ -336,6 +336,40 @@ def test_native_soil_outputs_computed_when_read(case):
         assert abs(every[k][-1] - ref[k][-1]) <= 1e-10 * abs(ref[-1][-1])
 
 
+@pytest.mark.parametrize("n_pairs, n_real", [(0, 3), (2, 1)])
+def test_native_soil_history_with_and_without_pole_pairs(tmp_path, n_pairs, n_real):
+    """The native soil FMU's two ways to its histories (soil.c, up_soil_step): with real poles only
+    (packed blocks) the history of its next commit and the g it publishes come from the same block
+    products (no product with Gx); with pole pairs, g_{k+2} + Gx x_{k+1}. Both against the soil
+    object stepped in process (commit, then fmus.coupling.history_ahead; its force and work), on
+    random inputs, to 1e-10: g, f and dissipated_energy at every step."""
+    from fmus.coupling import history_ahead
+    from fmus.native_stepper import cache_folder, fmu_binaries
+    from helpers import random_passive_model
+    from soil_impedance.cache import default_cache_dir
+    from soil_impedance.convolution import RecursiveConvolutionSoil
+    model = random_passive_model(6 + N, n_pairs=n_pairs, n_real=n_real, seed=3)
+    assert model.pole_split[2].size == n_pairs and model.pole_split[0].size == n_real
+    bins = fmu_binaries(cache_folder(default_cache_dir()))
+    path = build_native_fmus(fmu_data(SCENE, model, DT), tmp_path, platforms=tuple(bins), binaries=bins)["soil"]
+    drive = soil_drive(model.n, steps=30)
+    soil = RecursiveConvolutionSoil(model, DT)
+    soil.instantaneous(DT)
+    with FmuSlave(path, "soil") as fmu:
+        fmu.initialize()
+        for k, u in enumerate(drive):
+            fmu.set("x", "xdot", "x_time", u)
+            fmu.do_step(k * DT, DT)
+            if k:                                    # at t = 0 the soil is at rest: nothing committed
+                soil.commit(u[:model.n], u[model.n:2 * model.n])
+            got = fmu.get("g", "f", "dissipated_energy")
+            g = history_ahead(soil)
+            assert rel(got[:model.n], g) <= 1e-10
+            assert rel(got[model.n:2 * model.n], soil.total_force()) <= 1e-10
+            assert abs(got[-1] - soil.dissipated_energy()) <= 1e-10 * max(abs(soil.dissipated_energy()), 1e-30)
+        assert np.abs(g).max() > 0 and abs(soil.dissipated_energy()) > 0
+
+
 #: the histories whose spread holds each output of COUPLED_OUT (x = [raft q, soil w])
 SPREAD_OF = {"x": ("raft", "soil_w"), "gap": ("gap",), "P": ("contact_force",), "energy.soil": ("energy.soil",),
              "energy.kinetic": ("energy.kinetic",)}

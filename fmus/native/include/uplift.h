@@ -247,8 +247,9 @@ typedef struct {
     UpSoilLevel lev[UP_MAXLEV];
     /* state, inside the instance's state block. f: the force committed last, work: the work done on
        the soil (a soil stepped alone: f unused, work that of the force's part E u' + h; gq, gp the
-       histories published, ev = E u', hn = h of the commit, stale = 1 when its outputs are not
-       computed yet: up_soil_outputs) */
+       histories published (real poles with packed blocks: gq the history of the next commit, soil.c
+       real_packed), ev = E u', hn = h of the commit, stale = 1 when its outputs are not computed yet:
+       up_soil_outputs) */
     double *yr, *yc, *u, *ud, *f, *work, *gq, *gp, *ev, *hn, *stale;
     /* the correction form of a sequence of marches (up_soil_corr_mode; NULL until asked for) */
     struct UpSoilCorr *corr;
