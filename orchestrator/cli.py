@@ -139,14 +139,42 @@ EXIT_CODES_HELP = (f"exit codes: {EXIT_OK} done, {EXIT_FAILED} a computation sto
                    f"written, the old file kept), {EXIT_INTERRUPTED} interrupted (Ctrl-C)")
 
 
-def _parser() -> argparse.ArgumentParser:
+class _OneCommand:
+    """argparse's subcommands ``sub`` with every command registered (its name and help line: the
+    commands' list, ``uplift --help``, a mistyped command's message) but, when ``only`` is given,
+    the arguments of that command only: ``add_parser`` of another returns a ``_Skipped`` parser,
+    whose arguments are never made (a command line is parsed by its own command's parser; the
+    others' options cost 5-10 ms of every command's start)."""
+
+    def __init__(self, sub, only: str | None):
+        self._sub, self._only = sub, only
+
+    def add_parser(self, name, **kwargs):
+        parser = self._sub.add_parser(name, **kwargs)
+        return parser if self._only is None or name == self._only else _Skipped()
+
+    def __getattr__(self, name):              # choices, ...: argparse's own
+        return getattr(self._sub, name)
+
+
+class _Skipped:
+    """A command's parser that is not used by this command line: every call (add_argument,
+    set_defaults, groups) does nothing and returns the parser itself."""
+
+    def __getattr__(self, name):
+        return lambda *args, **kwargs: self
+
+
+def _parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The command line's parser; ``only``: a command name, whose arguments alone are made
+    (``_OneCommand``: for parsing a command line that starts with it)."""
     p = argparse.ArgumentParser(
         prog="uplift",
         description="Foundation uplift under earthquake: soil-structure interaction with BEM impedances.",
         epilog=f"built-in scenes: {', '.join(builtin_scenes())}; routes: {', '.join(route_names())}; "
                f"`uplift COMMAND --help` for a command's options; {EXIT_CODES_HELP}")
     p.add_argument("--version", action=_Version, help="print the version of the installed uplift-ssi and exit")
-    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = _OneCommand(p.add_subparsers(dest="command", required=True, metavar="COMMAND"), only)
 
     def scene_arg(cmd):
         cmd.add_argument("scene", help="scene TOML file or built-in scene name")
@@ -451,7 +479,7 @@ def _interrupted_line(written, ensemble: bool = False) -> str:
 def _run(argv) -> tuple:
     """(exit code, the error line or None) of the command of ``argv``; a KeyboardInterrupt
     goes through."""
-    parser = _parser()
+    parser = _parser(argv[0] if argv and not argv[0].startswith("-") else None)
     if not argv:        # no command: the commands, one line each (a missing command is bad input: exit 2)
         print(f"{parser.format_usage()}\ncommands:\n{command_list(parser)}\n\n"
               "`uplift COMMAND --help` for a command's options, `uplift --help` for more\n"
