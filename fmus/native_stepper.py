@@ -41,6 +41,7 @@ from fmus.schema import ENERGY_TERMS, row_slices, row_width
 from soil_impedance.cache import feed, read_entry, write_entry
 from uplift_common.code import code_digest
 from uplift_common.files import atomic_output, hdf5_output, stamp_checksum
+from uplift_common.errors import UserInputError
 
 #: the C files of the in-process library (the numerics and simulate.c; no FMI side)
 HOST_SOURCES = ("simulate.c", "stepper.c", "soil.c", "linalg.c", "resources.c", "spectra.c")
@@ -49,17 +50,48 @@ _lock = threading.Lock()
 _loaded: dict = {}                  # folder -> (CDLL or None, note)
 
 
-def _compiler() -> tuple[str, str]:
+def _compiler(folder=None) -> tuple[str, str]:
     """(compiler for compile_runtime, its identity for the hash): the system compiler ($CC, else
-    cc) when there is one, else ziglang's."""
+    cc) when there is one (its identity kept in ``folder``: ``_system_identity``), else ziglang's."""
     cc = os.environ.get("CC", "cc")
-    if shutil.which(cc):
-        out = subprocess.run([cc, "--version"], capture_output=True, text=True, timeout=60)
-        return "cc", f"{cc}: {out.stdout.strip()}"
+    found = shutil.which(cc)
+    if found:
+        return "cc", _system_identity(cc, found, folder)
     out = subprocess.run([sys.executable, "-m", "ziglang", "version"], capture_output=True, text=True, timeout=60)
     if out.returncode != 0:
         raise NativeBuildError("no C compiler: neither $CC / cc nor the ziglang package (pip install ziglang)")
     return "zig", f"zig {out.stdout.strip()}"
+
+
+def _system_identity(cc: str, found: str, folder=None) -> str:
+    """The identity of the system compiler ``cc`` (found at ``found``) in a library's hash:
+    ``"{cc}: {its --version}"``. With a ``folder`` it is kept there (``compiler-<key>.txt``,
+    with the SHA-256 of its text, written atomically) under the key of the compiler's file (its
+    path, resolved path, device, inode, size, modification and change times): a warm run reads
+    it back instead of starting the compiler (5-15 ms of a process's wall time); a compiler
+    changed in place or replaced is a new key, a damaged entry is asked again."""
+    real = os.path.realpath(found)
+    st = os.stat(real)
+    key = hashlib.sha256(repr((cc, found, real, st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns,
+                               st.st_ctime_ns)).encode()).hexdigest()[:24]
+    kept = None if folder is None else Path(folder) / f"compiler-{key}.txt"
+    if kept is not None:
+        try:
+            digest, _, ident = kept.read_text(encoding="utf-8").partition("\n")
+            if digest == hashlib.sha256(ident.encode()).hexdigest():
+                return ident
+        except (OSError, UnicodeDecodeError):
+            pass
+    out = subprocess.run([cc, "--version"], capture_output=True, text=True, timeout=60)
+    ident = f"{cc}: {out.stdout.strip()}"
+    if kept is not None and out.returncode == 0:
+        try:
+            kept.parent.mkdir(parents=True, exist_ok=True)
+            with atomic_output(kept) as tmp:
+                tmp.write_text(f"{hashlib.sha256(ident.encode()).hexdigest()}\n{ident}", encoding="utf-8")
+        except (OSError, UserInputError):       # a refused write (OutputWriteError, OutputPathError):
+            pass                                # not kept, asked again next time
+    return ident
 
 
 def _digest(compiler_id: str) -> str:
@@ -73,7 +105,7 @@ def _digest(compiler_id: str) -> str:
 def _compiled(folder: Path, stem: str, sources) -> Path:
     """The shared library of ``sources`` for this machine in ``folder``, compiled when its
     content hash (``_digest``) is not there yet."""
-    compiler, ident = _compiler()
+    compiler, ident = _compiler(folder)
     path = folder / f"{stem}-{_digest(ident)}.{'dll' if sys.platform == 'win32' else 'so'}"
     if not path.is_file():
         blob = compile_runtime((host_platform(),), compiler, sources=sources)[host_platform()]

@@ -4,8 +4,6 @@ from __future__ import annotations
 import numpy as np
 
 from soil_impedance import impedance_sweep, static_impedance
-from soil_impedance.discretisation import static_error_estimate
-from soil_impedance.frequencies import thinned_sweep
 from soil_impedance.fit import FitOptions, cached_fit, fit_table
 from soil_impedance.blocked import DamagedTableError
 from soil_impedance.sweep import discard_damaged, table_key
@@ -29,6 +27,7 @@ def scene_impedance(scene, outputs=("rigid",), cache_dir=None, progress=None, st
     sweep = dict(contact=scene.contact_kind, outputs=outputs, cache_dir=cache_dir, progress=counting,
                  solver=scene.solver, solver_tol=scene.solver_tol)
     if tol is not None:
+        from soil_impedance.frequencies import thinned_sweep     # start-up cost: only a thinned sweep
         tables, report = thinned_sweep(lambda f: impedance_sweep(scene.profile, scene.mesh, f, **sweep),
                                        scene.frequencies_hz, tol)
         if stats is not None:
@@ -102,6 +101,7 @@ def scene_discretisation_error(scene, cache_dir=None) -> dict:
     """Estimated relative discretisation error of the scene's static rigid impedances (its mesh
     against the same raft refined, Richardson: ``soil_impedance.discretisation``), or
     ``{"skipped": reason}``. Both static solves are cached like any table."""
+    from soil_impedance.discretisation import static_error_estimate    # start-up cost: not on a run's path
     return static_error_estimate(scene.profile, scene.mesh, scene.contact_kind, cache_dir=cache_dir)
 
 

@@ -426,25 +426,78 @@ def run_scene(scene, routes=None, cache_dir=None, progress=None, sweep_progress=
     run = shared if shared is not None else prepare_run(scene, cache_dir=cache_dir, sweep_progress=sweep_progress,
                                                         fit_progress=fit_progress, memory_checked=True)
     with compute_threads():
-        dt_notes = {}
+        check = _Beside(dict, threaded=False)      # the notes of the step-doubling check, if any
         if scene.contact.enabled and any(r.time_stepped for r in chosen):
-            dt_check = run.dt_check if run.dt_check is not None else \
-                step_doubling(scene, run.model, run.springs, motion, cache_dir, keep=shared is None)
-            warning = step_doubling_warning(dt_check)
-            dt_notes = {"warnings": [warning] if warning else [], "info": {"dt_check": dt_check}}
+            check = _Beside(lambda: _dt_notes(run.dt_check), threaded=False) if run.dt_check is not None else \
+                _Beside(lambda: _dt_notes(step_doubling(scene, run.model, run.springs, motion, cache_dir,
+                                                        keep=shared is None)))
         ctx = RunContext(scene=scene, motion=motion, prepared=run, cache_dir=cache_dir)
         results = {}
         for route in chosen:
+            bar = _labelled(progress, route.name)
             res = _run_route(route, ctx.for_route(route, (options or {}).get(route.name)),
-                             _labelled(progress, route.name))
+                             check.starting(bar) if route.time_stepped else bar)
             if route.time_stepped:
-                res = res.with_notes(**dt_notes)
+                res = res.with_notes(**check.value())
             if route.needs_fit and run.fit is not None and not run.fit.report.tol_reached:
                 res = res.with_notes(warnings=[f"rational soil fit: {run.fit.report.message}"])
             ran = {} if res.status is Status.REFUSED else {"components": list(motion.components),
                                                            "scene_key": run.scene_key}
             results[route.name] = res.with_notes(skipped=_shared_skips(scene, route, run), info=ran)
     return results, motion
+
+
+def _dt_notes(dt_check: dict) -> dict:
+    """The notes of a step-doubling check (``step_doubling``): its warning and its dict
+    (``info["dt_check"]``)."""
+    warning = step_doubling_warning(dt_check)
+    return {"warnings": [warning] if warning else [], "info": {"dt_check": dt_check}}
+
+
+class _Beside:
+    """``call()`` computed once, beside a time-stepped route (``threaded``): started in a thread
+    at the route's first progress report (``starting``), when its stepping runs in the C runtime
+    without the interpreter's lock, so that a warm run's step-doubling check (its cache reads and
+    keys) costs no wall time; computed in the caller's thread when the route reports no progress
+    (or not ``threaded``). The value is the same either way (a function of what ``call`` reads,
+    which nothing changes meanwhile); ``value()`` waits for it and returns it, or raises its
+    exception."""
+
+    def __init__(self, call: Callable[[], object], threaded: bool = True):
+        self._call, self._threaded = call, threaded
+        self._thread = None
+        self._out = None                          # (value, None) or (None, exception)
+
+    def _run(self):
+        try:
+            self._out = (self._call(), None)
+        except BaseException as exc:              # raised again in the caller's thread, by value()
+            self._out = (None, exc)
+
+    def starting(self, bar):
+        """``bar`` (a progress callback or None) that also starts the computation, at its first
+        call, in a thread."""
+        if not self._threaded:
+            return bar
+
+        def tick(*args):
+            if self._thread is None and self._out is None:
+                import threading
+                self._thread = threading.Thread(target=self._run, name="uplift-beside")
+                self._thread.start()
+            if bar is not None:
+                bar(*args)
+        return tick
+
+    def value(self):
+        if self._thread is not None:
+            self._thread.join()
+        elif self._out is None:
+            self._run()
+        value, exc = self._out
+        if exc is not None:
+            raise exc
+        return value
 
 
 def _run_route(route, ctx, bar) -> RouteResult:
