@@ -88,6 +88,17 @@ def _positive(text: str) -> float:
     return v
 
 
+def _non_negative(text: str) -> float:
+    """argparse type: a finite number >= 0."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"{text!r} must be a finite number >= 0")
+    return v
+
+
 #: the distribution whose version ``uplift --version`` prints (``uplift`` on the package index is another project)
 DISTRIBUTION = "uplift-ssi"
 
@@ -226,6 +237,18 @@ def _parser(only: str | None = None) -> argparse.ArgumentParser:
     scn.add_argument("-o", "--output", type=Path, default=None, metavar="FILE",
                      help="write the scene to FILE (default: print it on stdout)")
     scn.set_defaults(func=cmd_scene, computes=False)        # no thread pools to limit (threadpoolctl not loaded)
+
+    cch = sub.add_parser("cache", help="what the cache folder holds; remove the entries not used lately",
+                         description="List the cache folder's entries by kind (impedance tables, fits, the "
+                                     "time-frequency set-up, compiled runtimes, ...): count, size and the oldest "
+                                     "use. Entries are keyed on their inputs and on the code that makes them, so "
+                                     "old ones are never read again after an upgrade: --prune removes those not "
+                                     "used for DAYS days (a later run recomputes what it needs). Only the "
+                                     "project's entries are touched, never other files in the folder.")
+    cch.add_argument("--prune", type=_non_negative, default=None, metavar="DAYS",
+                     help="remove the entries not read or written for DAYS days (0: every entry)")
+    json_flag(cch)
+    cch.set_defaults(func=cmd_cache, computes=False)
 
     imp = sub.add_parser("impedance", help="soil impedance of the scene's foundation (BEM sweep)",
                          description="Compute the rigid-raft (6x6) and rigid+gap (6+N) impedance tables of "
@@ -430,10 +453,8 @@ def main(argv=None) -> int:
 
 def _cache_path(args) -> Path | None:
     """The cache folder of ``args``'s command (None with --no-cache, or for a command that
-    uses no cache), as ``soil_impedance.cache.default_cache_dir`` names it, without loading h5py."""
-    if getattr(args, "no_cache", True):
-        return None
-    return Path(os.environ.get("UPLIFT_CACHE") or Path.home() / ".cache" / "uplift")
+    uses no cache)."""
+    return None if getattr(args, "no_cache", True) else default_cache_dir()
 
 
 @contextlib.contextmanager
@@ -767,6 +788,27 @@ def cmd_scene(args) -> int:
     with atomic_output(args.output) as tmp:
         tmp.write_text(text, encoding="utf-8")
     _say(f"wrote {args.output}")
+    return EXIT_OK
+
+
+def cmd_cache(args) -> int:
+    from uplift_common.cache_folder import cache_entries, default_cache_dir, prune_cache, size_text, usage_lines
+    folder = default_cache_dir()
+    removed = [] if args.prune is None else prune_cache(folder, args.prune)
+    entries = cache_entries(folder)
+    if args.json:
+        kinds = {}
+        for e in entries:
+            k = kinds.setdefault(e.kind, {"entries": 0, "bytes": 0})
+            k["entries"] += 1
+            k["bytes"] += e.bytes
+        _out(json.dumps({"folder": str(folder), "kinds": kinds, "removed": len(removed),
+                         "removed_bytes": sum(e.bytes for e in removed)}))
+        return EXIT_OK
+    if args.prune is not None:
+        _say(f"removed {len(removed)} entries ({size_text(sum(e.bytes for e in removed))}) not used for "
+             f"{args.prune:g} days")
+    _out(f"cache folder {folder} ($UPLIFT_CACHE)", *usage_lines(entries))
     return EXIT_OK
 
 

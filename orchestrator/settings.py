@@ -13,7 +13,8 @@ from __future__ import annotations
 import os
 import threading
 from contextlib import contextmanager
-from pathlib import Path
+
+from uplift_common.cache_folder import default_cache_dir  # noqa: F401  (the command line's: no h5py loaded)
 
 #: the kinds of FMU ``uplift export`` writes (orchestrator.export; named here so the command line
 #: lists them without loading the FMU stack)
@@ -30,13 +31,6 @@ def thread_count() -> int:
     if n < 1:
         raise ValueError(f"UPLIFT_THREADS = {raw!r} must be a positive integer (BLAS threads; default 1)")
     return n
-
-
-def default_cache_dir() -> Path:
-    """The project's cache folder: ``soil_impedance.cache.default_cache_dir`` ($UPLIFT_CACHE, else
-    ~/.cache/uplift), named here so that the command line finds it without loading h5py."""
-    from soil_impedance.cache import default_cache_dir as folder   # start-up cost: h5py, when a command caches
-    return folder()
 
 
 #: the variables a BLAS or OpenMP pool reads its size from when its library loads

@@ -22,14 +22,8 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from uplift_common.cache_folder import default_cache_dir  # noqa: F401  (named here for its users)
 from uplift_common.files import ComplexPairs, OutputWriteError, verify_checksum
-
-
-def default_cache_dir() -> Path:
-    """The project's cache folder (impedance tables, fits, the host's compiled runtime):
-    $UPLIFT_CACHE, else ~/.cache/uplift."""
-    env = os.environ.get("UPLIFT_CACHE")
-    return Path(env) if env else Path.home() / ".cache" / "uplift"
 
 
 class CacheWarning(UserWarning):

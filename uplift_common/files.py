@@ -65,6 +65,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 from uplift_common import interrupts
+from uplift_common.cache_folder import size_text
 from uplift_common.errors import OutputWriteError, UserInputError
 
 CHECKSUM_ATTR = "sha256"
@@ -211,15 +212,6 @@ def _refusal_message(path, folder: Path, code: int, exc, left: str = "") -> str:
     left = left or f"a previous {Path(path).name} is left as it was"
     return (f"cannot write {str(path)!r}: {_reason(folder, code)}; free some space (or choose another path) and "
             f"run the command again: nothing was written, {left}")
-
-
-def size_text(n: int) -> str:
-    """``n`` bytes as text: bytes, KiB, MiB or GiB, one decimal."""
-    for unit in ("bytes", "KiB", "MiB", "GiB"):
-        if n < 1024 or unit == "GiB":
-            return f"{n:.0f} {unit}" if unit == "bytes" else f"{n:.1f} {unit}"
-        n /= 1024
-    return f"{n:.1f} TiB"
 
 
 # ---- temporaries and the orphans of dead processes ----------------------------------------------

@@ -1,11 +1,13 @@
-"""The cache folder's listing and clean-up (orchestrator/cache_folder.py, ``uplift cache``): the
+"""The cache folder's listing and clean-up (uplift_common/cache_folder.py, ``uplift cache``): the
 entries by kind, those not used for a number of days removed, and nothing else ever touched."""
+import json
 import os
 import time
 
 import pytest
 
-from orchestrator.cache_folder import cache_entries, prune_cache, usage_lines
+from orchestrator.cli import main
+from uplift_common.cache_folder import cache_entries, prune_cache, usage_lines
 
 NOW = time.time()
 DAY = 86400.0
@@ -84,7 +86,6 @@ def test_every_entry_a_run_writes_is_listed(tmp_path, monkeypatch):
     # a small scene's fit with a cache folder: every file it leaves (the sweep's tables, the fit) is
     # an entry of a known kind, nothing hidden left
     from helpers.scenes import small_reactor, write_scene
-    from orchestrator.cli import main
     cache = tmp_path / "cache"
     monkeypatch.setenv("UPLIFT_CACHE", str(cache))
     scene = write_scene(tmp_path / "small.toml", small_reactor(motion={"duration_s": 0.5}))
@@ -92,3 +93,24 @@ def test_every_entry_a_run_writes_is_listed(tmp_path, monkeypatch):
     entries = cache_entries(cache)
     assert {p for p in cache.rglob("*") if p.is_file()} == {e.path for e in entries}
     assert {"fit", "impedance_gap"} <= {e.kind for e in entries}
+
+
+def test_the_cache_command_lists_and_prunes(folder, capsys, monkeypatch):
+    # `uplift cache` lists the folder's entries by kind; --prune DAYS removes those unused for DAYS days
+    # (said on stderr) and lists what is left; --json gives the same as one object; a negative DAYS is
+    # bad input (exit 2) and removes nothing
+    monkeypatch.setenv("UPLIFT_CACHE", str(folder))
+    assert main(["cache"]) == 0
+    out = capsys.readouterr().out
+    assert f"cache folder {folder}" in out and out.splitlines()[-1].split()[:2] == ["total", "6"]
+    assert main(["cache", "--prune", "-1"]) == 2 and len(cache_entries(folder)) == 6
+    capsys.readouterr()
+    assert main(["cache", "--prune", "35"]) == 0
+    captured = capsys.readouterr()
+    assert "removed 3 entries (707 bytes) not used for 35 days" in captured.err
+    assert captured.out.splitlines()[-1].split()[:2] == ["total", "3"]
+    assert main(["cache", "--json"]) == 0
+    got = json.loads(capsys.readouterr().out)
+    assert got["folder"] == str(folder) and got["removed"] == 0
+    assert got["kinds"] == {"fit": {"entries": 1, "bytes": 200}, "impedance_gap": {"entries": 1, "bytes": 1000},
+                            "tf-split": {"entries": 1, "bytes": 5000}}

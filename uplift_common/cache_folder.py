@@ -1,4 +1,5 @@
-"""What the cache folder holds, and its clean-up (``uplift cache``).
+"""The cache folder: where it is, what it holds, and its clean-up (``uplift cache``). Standard
+library only: the command line finds the folder without loading numpy or h5py.
 
 Every cache entry is keyed on what it is made of and on the digest of the code that makes it, so a
 new version of the code, a changed scene or another record makes new entries and leaves the old
@@ -27,14 +28,28 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from uplift_common.files import size_text
-
 #: a cache entry's file name: kind, key (hexadecimal), extension, and ``.damaged`` for a discarded one
 ENTRY_NAME = re.compile(r"^(?P<kind>[a-z][a-z0-9_-]*?)[-_](?P<key>[0-9a-f]{8,})\.(?P<ext>[a-z0-9]+)"
                         r"(?P<damaged>\.damaged)?$")
 #: the sub-folders that hold entries besides the folder itself (the compiled native runtimes)
 SUBFOLDERS = ("native",)
 DAY_S = 86400.0
+
+
+def default_cache_dir() -> Path:
+    """The project's cache folder (impedance tables, fits, the host's compiled runtime):
+    $UPLIFT_CACHE, else ~/.cache/uplift."""
+    env = os.environ.get("UPLIFT_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "uplift"
+
+
+def size_text(n: int) -> str:
+    """``n`` bytes as text: bytes, KiB, MiB or GiB, one decimal."""
+    for unit in ("bytes", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n:.0f} {unit}" if unit == "bytes" else f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} TiB"
 
 
 @dataclass(frozen=True)
