@@ -466,7 +466,7 @@ def _compiled_once(fresh: bool, folder=None):
     if not fresh:
         yield
         return
-    from uplift_common.generated_code import GeneratedCode, code_file, installed
+    from uplift_common.generated_code import GeneratedCode, code_file, installed   # only in a fresh process
     codes = GeneratedCode(None if folder is None else code_file(folder))
     try:
         with installed(codes):
@@ -792,7 +792,8 @@ def cmd_scene(args) -> int:
 
 
 def cmd_cache(args) -> int:
-    from uplift_common.cache_folder import cache_entries, default_cache_dir, prune_cache, size_text, usage_lines
+    from uplift_common.cache_folder import (cache_entries, default_cache_dir, prune_cache,  # only here
+                                            size_text, usage_lines)
     folder = default_cache_dir()
     removed = [] if args.prune is None else prune_cache(folder, args.prune)
     entries = cache_entries(folder)

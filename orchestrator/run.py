@@ -20,6 +20,7 @@ import dataclasses
 import hashlib
 import json
 import platform
+import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -482,7 +483,6 @@ class _Beside:
 
         def tick(*args):
             if self._thread is None and self._out is None:
-                import threading
                 self._thread = threading.Thread(target=self._run, name="uplift-beside")
                 self._thread.start()
             if bar is not None:

@@ -104,7 +104,7 @@ def test_no_command_lists_the_commands_and_version_prints_the_distributions():
     proc = _shell()
     assert proc.returncode == 2 and proc.stdout == ""          # a missing command is bad input, as before
     listed = [line.split()[0] for line in proc.stderr.split("commands:\n")[1].split("\n\n")[0].splitlines()]
-    assert listed == ["run", "scene", "impedance", "fit", "export", "compare", "report", "ensemble", "envelope", "fragility", "pushover", "bench"]
+    assert listed == ["run", "scene", "cache", "impedance", "fit", "export", "compare", "report", "ensemble", "envelope", "fragility", "pushover", "bench"]
     assert all(len(line.split(maxsplit=1)) == 2 for line in command_list(_parser()).splitlines())  # one line each
     assert "give a COMMAND" in proc.stderr.splitlines()[-1]
     proc = _shell("--version")
