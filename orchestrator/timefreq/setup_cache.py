@@ -97,17 +97,20 @@ def read_arrays(path, names, shapes=None, attrs=()) -> tuple | None:
     return read_entry(path, reader, keep=True, into=into)
 
 
-def write_arrays(path, arrays: dict, attrs=None) -> None:
+def write_arrays(path, arrays: dict, attrs=None, crc: bool = False) -> None:
     """Store the complex ``arrays`` ({name: array}: each as one float dataset (..., 2), its real and
     imaginary parts side by side, as in memory) and ``attrs`` as the entry ``path`` (atomic,
-    checksummed; a failure only warns)."""
+    checksummed; a failure only warns); ``crc``: each dataset with the CRC-32 of its bytes as its
+    attribute ``CRC_ATTR`` (``write_mapped``)."""
     if path is None:
         return
     def writer(p):
         with hdf5_output(p) as f:
             for name, a in arrays.items():
                 a = np.ascontiguousarray(a, complex)
-                f.create_dataset(name, data=a.view(float).reshape(a.shape + (2,)))
+                ds = f.create_dataset(name, data=a.view(float).reshape(a.shape + (2,)))
+                if crc:
+                    ds.attrs[CRC_ATTR] = np.uint32(zlib.crc32(a))
             for k, v in (attrs or {}).items():
                 f.attrs[k] = v
             stamp_checksum(f)
@@ -126,18 +129,7 @@ def write_mapped(path, arrays: dict, attrs=None) -> None:
     """Store the complex ``arrays`` as the entry ``path`` for ``read_mapped``: as ``write_arrays``
     (each array one float dataset (..., 2), atomic, the file's SHA-256 stamped as every entry's),
     each dataset contiguous with the CRC-32 of its bytes as its attribute ``CRC_ATTR``."""
-    if path is None:
-        return
-    def writer(p):
-        with hdf5_output(p) as f:
-            for name, a in arrays.items():
-                a = np.ascontiguousarray(a, complex)
-                ds = f.create_dataset(name, data=a.view(float).reshape(a.shape + (2,)))
-                ds.attrs[CRC_ATTR] = np.uint32(zlib.crc32(a))
-            for k, v in (attrs or {}).items():
-                f.attrs[k] = v
-            stamp_checksum(f)
-    write_entry(path, writer)
+    write_arrays(path, arrays, attrs, crc=True)
 
 
 def _signature(st) -> tuple:
