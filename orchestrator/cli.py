@@ -793,16 +793,12 @@ def cmd_scene(args) -> int:
 
 def cmd_cache(args) -> int:
     from uplift_common.cache_folder import (cache_entries, default_cache_dir, prune_cache,  # only here
-                                            size_text, usage_lines)
+                                            size_text, usage, usage_lines)
     folder = default_cache_dir()
     removed = [] if args.prune is None else prune_cache(folder, args.prune)
     entries = cache_entries(folder)
     if args.json:
-        kinds = {}
-        for e in entries:
-            k = kinds.setdefault(e.kind, {"entries": 0, "bytes": 0})
-            k["entries"] += 1
-            k["bytes"] += e.bytes
+        kinds = {kind: {"entries": k["entries"], "bytes": k["bytes"]} for kind, k in usage(entries).items()}
         _out(json.dumps({"folder": str(folder), "kinds": kinds, "removed": len(removed),
                          "removed_bytes": sum(e.bytes for e in removed)}))
         return EXIT_OK

@@ -107,17 +107,25 @@ def prune_cache(folder, older_than_days: float, now: float | None = None) -> lis
     return removed
 
 
-def usage_lines(entries, now: float | None = None) -> list[str]:
-    """One line per kind (entries, size, the least recently used entry's age in days) and a
-    total: what ``uplift cache`` prints."""
-    now = time.time() if now is None else now
-    kinds: dict[str, list[CacheEntry]] = {}
+def usage(entries) -> dict[str, dict]:
+    """{kind: {"entries": count, "bytes": their size, "last_used": the least recently used one's}},
+    the largest kind first: what ``uplift cache`` reports."""
+    kinds: dict[str, dict] = {}
     for e in entries:
-        kinds.setdefault(e.kind, []).append(e)
+        k = kinds.setdefault(e.kind, {"entries": 0, "bytes": 0, "last_used": e.last_used})
+        k["entries"] += 1
+        k["bytes"] += e.bytes
+        k["last_used"] = min(k["last_used"], e.last_used)
+    return dict(sorted(kinds.items(), key=lambda kv: -kv[1]["bytes"]))
+
+
+def usage_lines(entries, now: float | None = None) -> list[str]:
+    """One line per kind of ``usage`` (entries, size, the least recently used entry's age in days)
+    and a total: what ``uplift cache`` prints."""
+    now = time.time() if now is None else now
     lines = [f"{'kind':24s} {'entries':>7s} {'size':>10s}  {'oldest use':>10s}"]
-    for kind, es in sorted(kinds.items(), key=lambda kv: -sum(e.bytes for e in kv[1])):
-        age = (now - min(e.last_used for e in es)) / DAY_S
-        lines.append(f"{kind:24s} {len(es):7d} {size_text(sum(e.bytes for e in es)):>10s}  {age:7.1f} d")
+    for kind, k in usage(entries).items():
+        age = (now - k["last_used"]) / DAY_S
+        lines.append(f"{kind:24s} {k['entries']:7d} {size_text(k['bytes']):>10s}  {age:7.1f} d")
     lines.append(f"{'total':24s} {len(entries):7d} {size_text(sum(e.bytes for e in entries)):>10s}")
     return lines
-
