@@ -524,44 +524,38 @@ def _run(S, G, ag, dt, schedule, route, progress, start):
     # only the wall clock is read in the loop, around the two doSteps (perf_counter: no system call);
     # the process CPU clock (a system call, ~2 us) at its two ends: see Timer.share
     ws = wg = 0.0                                # wall s in the structure's and the soil's doStep
+
+    def structure_half(t, k):                   # S <- g, row k of U; S.doStep; its outputs into row k of Y
+        uk = u0 + k * us
+        if get_g(uk) > W:
+            G.failed(get_g)
+        if set_s(uk) > W:
+            S.failed(set_s)
+        a = pc()
+        s_step(t, dt)
+        wall = pc() - a
+        if get_y(y0 + k * ys) > W:
+            S.failed(get_y)
+        return wall
+
+    def soil_half(t, row):                      # G <- x, row `row` of Y; G.doStep
+        if set_x(y0 + row * ys) > W:
+            G.failed(set_x)
+        a = pc()
+        g_step(t, dt)
+        return pc() - a
+
     loop = _time.perf_counter(), _time.process_time()
     done, message = 1, ""                        # rows of Y filled
     try:
         for k in range(1, nt):
             t = (k - 1) * dt
-            yk, uk = y0 + k * ys, u0 + k * us
             if schedule == "soil-first":         # G <- x at t; G.doStep; S <- g (new); S.doStep
-                if set_x(yk - ys) > W:
-                    G.failed(set_x)
-                a = pc()
-                g_step(t, dt)
-                b = pc()
-                if get_g(uk) > W:
-                    G.failed(get_g)
-                if set_s(uk) > W:
-                    S.failed(set_s)
-                c = pc()
-                s_step(t, dt)
-                d = pc()
-                if get_y(yk) > W:
-                    S.failed(get_y)
+                wg += soil_half(t, k - 1)
+                ws += structure_half(t, k)
             else:                                # S <- g; S.doStep; G <- x (at t + dt, jacobi: at t); G.doStep
-                if get_g(uk) > W:
-                    G.failed(get_g)
-                if set_s(uk) > W:
-                    S.failed(set_s)
-                c = pc()
-                s_step(t, dt)
-                d = pc()
-                if get_y(yk) > W:
-                    S.failed(get_y)
-                if set_x(yk - soil_row * ys) > W:
-                    G.failed(set_x)
-                a = pc()
-                g_step(t, dt)
-                b = pc()
-            ws += d - c
-            wg += b - a
+                ws += structure_half(t, k)
+                wg += soil_half(t, k - soil_row)
             done = k + 1
             if progress is not None and (done % every == 0 or done == nt):
                 progress(done, nt)
