@@ -20,7 +20,6 @@ import contextlib
 import hashlib
 import importlib.util
 import marshal
-import os
 import sys
 from pathlib import Path
 
@@ -63,18 +62,17 @@ class GeneratedCode:
         folder that cannot take it is left as it is (they are compiled again next time)."""
         if self.path is None or not self.new:
             return
+        from uplift_common.errors import UserInputError     # at the end of a command: numpy and h5py are loaded
+        from uplift_common.files import atomic_output       # (same)
         codes = self.codes if len(self.codes) <= MAX_ENTRIES else {}
         body = marshal.dumps(codes)
-        tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.{os.urandom(4).hex()}")
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
-            with open(tmp, "wb") as out:
-                out.write(hashlib.sha256(body).digest() + body)
-            os.replace(tmp, self.path)
+            with atomic_output(self.path) as tmp:
+                tmp.write_bytes(hashlib.sha256(body).digest() + body)
             self.new = 0
-        except OSError:
-            with contextlib.suppress(OSError):
-                tmp.unlink()
+        except (OSError, UserInputError):   # a refused write (OutputWriteError, OutputPathError): not kept
+            pass
 
 
 def _read(path: Path) -> dict:
